@@ -1,0 +1,3 @@
+//! Lacuna: an embeddable, physically based renderer.
+pub mod geometry;
+pub mod math;
