@@ -1,3 +1,12 @@
-//! Lacuna: an embeddable, physically based renderer.
+//! Lacuna: an embeddable, physically based renderer that analyses the empty space of a scene.
+//!
+//! Data flows from a [`scene::SceneBuilder`] (validated input) to an immutable
+//! [`scene::Scene`], through an integrator, into a [`film::Film`]. See `DESIGN.md`.
+
+pub mod error;
 pub mod geometry;
+pub mod light;
 pub mod math;
+pub mod scene;
+
+pub use error::{Error, Result};

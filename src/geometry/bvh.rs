@@ -56,11 +56,19 @@ impl Bvh {
     /// Builds the BVH over triangles given as vertex triples (global triangle order).
     pub fn build(triangles: &[[Vec3; 3]], quality: BvhQuality) -> Bvh {
         if triangles.is_empty() {
-            return Bvh { cwbvh: CwBvh::default(), leaf_tris: Vec::new(), leaf_ids: Vec::new() };
+            return Bvh {
+                cwbvh: CwBvh::default(),
+                leaf_tris: Vec::new(),
+                leaf_ids: Vec::new(),
+            };
         }
         let tris: Vec<Triangle> = triangles
             .par_iter()
-            .map(|t| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() })
+            .map(|t| Triangle {
+                v0: t[0].into(),
+                v1: t[1].into(),
+                v2: t[2].into(),
+            })
             .collect();
         let mut build_time = std::time::Duration::ZERO;
         let cwbvh = build_cwbvh_from_tris(&tris, quality.params(), &mut build_time);
@@ -69,10 +77,18 @@ impl Bvh {
             .par_iter()
             .map(|&i| {
                 let t = &tris[i as usize];
-                LeafTriangle { p0: t.v0, p1: t.v1, p2: t.v2 }
+                LeafTriangle {
+                    p0: t.v0,
+                    p1: t.v1,
+                    p2: t.v2,
+                }
             })
             .collect();
-        Bvh { cwbvh, leaf_tris, leaf_ids }
+        Bvh {
+            cwbvh,
+            leaf_tris,
+            leaf_ids,
+        }
     }
 
     pub fn is_empty(&self) -> bool {
@@ -109,13 +125,24 @@ impl Bvh {
             {
                 let slot = state.primitive_id as usize;
                 let t = &self.leaf_tris[slot];
-                if let Some(h) = intersect_triangle(&pre, t.p0.into(), t.p1.into(), t.p2.into(), traverse_ray.tmax) {
+                if let Some(h) = intersect_triangle(
+                    &pre,
+                    t.p0.into(),
+                    t.p1.into(),
+                    t.p2.into(),
+                    traverse_ray.tmax,
+                ) {
                     traverse_ray.tmax = h.t;
                     best = Some((state.primitive_id, h));
                 }
             }
         );
-        best.map(|(slot, h)| Hit { t: h.t, triangle: self.leaf_ids[slot as usize], b1: h.b1, b2: h.b2 })
+        best.map(|(slot, h)| Hit {
+            t: h.t,
+            triangle: self.leaf_ids[slot as usize],
+            b1: h.b1,
+            b2: h.b2,
+        })
     }
 
     /// True when anything lies on the ray in (0, ray.t_max): stops at the first hit found.
@@ -136,7 +163,15 @@ impl Bvh {
                 node.intersect_ray(&traverse_ray, state.oct_inv4),
                 {
                     let t = &self.leaf_tris[state.primitive_id as usize];
-                    if intersect_triangle(&pre, t.p0.into(), t.p1.into(), t.p2.into(), traverse_ray.tmax).is_some() {
+                    if intersect_triangle(
+                        &pre,
+                        t.p0.into(),
+                        t.p1.into(),
+                        t.p2.into(),
+                        traverse_ray.tmax,
+                    )
+                    .is_some()
+                    {
                         hit = true;
                         break 'outer;
                     }
@@ -149,21 +184,25 @@ impl Bvh {
     /// Closest hits of many rays, in parallel; `out[i]` answers `rays[i]`.
     pub fn intersect_batch(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len());
-        rays.par_chunks(256).zip(out.par_chunks_mut(256)).for_each(|(r, o)| {
-            for (ray, slot) in r.iter().zip(o) {
-                *slot = self.intersect(ray);
-            }
-        });
+        rays.par_chunks(256)
+            .zip(out.par_chunks_mut(256))
+            .for_each(|(r, o)| {
+                for (ray, slot) in r.iter().zip(o) {
+                    *slot = self.intersect(ray);
+                }
+            });
     }
 
     /// Occlusion of many rays, in parallel.
     pub fn occluded_batch(&self, rays: &[Ray], out: &mut [bool]) {
         assert_eq!(rays.len(), out.len());
-        rays.par_chunks(256).zip(out.par_chunks_mut(256)).for_each(|(r, o)| {
-            for (ray, slot) in r.iter().zip(o) {
-                *slot = self.occluded(ray);
-            }
-        });
+        rays.par_chunks(256)
+            .zip(out.par_chunks_mut(256))
+            .for_each(|(r, o)| {
+                for (ray, slot) in r.iter().zip(o) {
+                    *slot = self.occluded(ray);
+                }
+            });
     }
 }
 
@@ -181,7 +220,11 @@ mod tests {
             .map(|_| {
                 let c = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 10.0;
                 let s = 0.3 + rng.uniform();
-                [c, c + warp::uniform_sphere(rng.uniform2()) * s, c + warp::uniform_sphere(rng.uniform2()) * s]
+                [
+                    c,
+                    c + warp::uniform_sphere(rng.uniform2()) * s,
+                    c + warp::uniform_sphere(rng.uniform2()) * s,
+                ]
             })
             .collect()
     }
@@ -196,13 +239,19 @@ mod tests {
             for _ in 0..3000 {
                 let o = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 12.0 - Vec3::ONE;
                 let d = warp::uniform_sphere(rng.uniform2());
-                let t_max = if rng.uniform() < 0.5 { f32::INFINITY } else { rng.uniform() * 10.0 };
+                let t_max = if rng.uniform() < 0.5 {
+                    f32::INFINITY
+                } else {
+                    rng.uniform() * 10.0
+                };
                 let ray = Ray::new(o, d, t_max);
                 let pre = RayPrecomp::new(o, d);
                 let brute = tris
                     .iter()
                     .enumerate()
-                    .filter_map(|(i, t)| intersect_triangle(&pre, t[0], t[1], t[2], t_max).map(|h| (i, h)))
+                    .filter_map(|(i, t)| {
+                        intersect_triangle(&pre, t[0], t[1], t[2], t_max).map(|h| (i, h))
+                    })
                     .min_by(|a, b| a.1.t.total_cmp(&b.1.t));
                 let got = bvh.intersect(&ray);
                 assert_eq!(got.map(|h| h.t), brute.map(|b| b.1.t));

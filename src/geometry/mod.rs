@@ -83,14 +83,23 @@ pub struct Bounds3 {
 }
 
 impl Bounds3 {
-    pub const EMPTY: Bounds3 = Bounds3 { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
+    pub const EMPTY: Bounds3 = Bounds3 {
+        min: Vec3::splat(f32::INFINITY),
+        max: Vec3::splat(f32::NEG_INFINITY),
+    };
 
     pub fn union_point(self, p: Vec3) -> Self {
-        Bounds3 { min: self.min.min(p), max: self.max.max(p) }
+        Bounds3 {
+            min: self.min.min(p),
+            max: self.max.max(p),
+        }
     }
 
     pub fn union(self, b: Bounds3) -> Self {
-        Bounds3 { min: self.min.min(b.min), max: self.max.max(b.max) }
+        Bounds3 {
+            min: self.min.min(b.min),
+            max: self.max.max(b.max),
+        }
     }
 
     pub fn is_empty(&self) -> bool {

@@ -21,14 +21,32 @@ impl RayPrecomp {
     #[inline]
     pub fn new(origin: Vec3, dir: Vec3) -> Self {
         let a = dir.abs();
-        let kz = if a.x > a.y { if a.x > a.z { 0 } else { 2 } } else if a.y > a.z { 1 } else { 2 };
+        let kz = if a.x > a.y {
+            if a.x > a.z {
+                0
+            } else {
+                2
+            }
+        } else if a.y > a.z {
+            1
+        } else {
+            2
+        };
         let mut kx = (kz + 1) % 3;
         let mut ky = (kx + 1) % 3;
         if dir[kz] < 0.0 {
             std::mem::swap(&mut kx, &mut ky);
         }
         let sz = 1.0 / dir[kz];
-        RayPrecomp { origin, kx, ky, kz, sx: dir[kx] * sz, sy: dir[ky] * sz, sz }
+        RayPrecomp {
+            origin,
+            kx,
+            ky,
+            kz,
+            sx: dir[kx] * sz,
+            sy: dir[ky] * sz,
+            sz,
+        }
     }
 }
 
@@ -43,7 +61,13 @@ pub struct TriangleHit {
 /// Intersects a ray with triangle (p0, p1, p2) in (0, t_max). Edges and vertices shared by two
 /// triangles are hit by at least one of them (watertightness); degenerate triangles never hit.
 #[inline(always)]
-pub fn intersect_triangle(r: &RayPrecomp, p0: Vec3, p1: Vec3, p2: Vec3, t_max: f32) -> Option<TriangleHit> {
+pub fn intersect_triangle(
+    r: &RayPrecomp,
+    p0: Vec3,
+    p1: Vec3,
+    p2: Vec3,
+    t_max: f32,
+) -> Option<TriangleHit> {
     let (kx, ky, kz) = (r.kx, r.ky, r.kz);
     let a = p0 - r.origin;
     let b = p1 - r.origin;
@@ -98,11 +122,16 @@ pub fn intersect_triangle(r: &RayPrecomp, p0: Vec3, p1: Vec3, p2: Vec3, t_max: f
     let delta_y = gamma(5) * (max_yt + max_zt);
     let delta_e = 2.0 * (gamma(2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
     let max_e = e0.abs().max(e1.abs()).max(e2.abs());
-    let delta_t = 3.0 * (gamma(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv_det.abs();
+    let delta_t =
+        3.0 * (gamma(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv_det.abs();
     if t <= delta_t {
         return None;
     }
-    Some(TriangleHit { t, b1: e1 * inv_det, b2: e2 * inv_det })
+    Some(TriangleHit {
+        t,
+        b1: e1 * inv_det,
+        b2: e2 * inv_det,
+    })
 }
 
 #[cfg(test)]
@@ -112,7 +141,11 @@ mod tests {
 
     #[test]
     fn hits_centre_and_reports_barycentrics() {
-        let (p0, p1, p2) = (Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0));
+        let (p0, p1, p2) = (
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        );
         let o = Vec3::new(0.25, 0.5, 1.0);
         let r = RayPrecomp::new(o, -Vec3::Z);
         let h = intersect_triangle(&r, p0, p1, p2, f32::INFINITY).unwrap();
@@ -129,7 +162,9 @@ mod tests {
         let r = RayPrecomp::new(Vec3::new(0.5, 0.0, 1.0), -Vec3::Z);
         let p = Vec3::new(0.5, 0.0, 0.0);
         assert!(intersect_triangle(&r, p, p, p, f32::INFINITY).is_none());
-        assert!(intersect_triangle(&r, Vec3::ZERO, Vec3::X, Vec3::X * 2.0, f32::INFINITY).is_none());
+        assert!(
+            intersect_triangle(&r, Vec3::ZERO, Vec3::X, Vec3::X * 2.0, f32::INFINITY).is_none()
+        );
     }
 
     /// Rays aimed exactly at the shared edge or shared vertex of a fan of triangles must hit
@@ -150,7 +185,11 @@ mod tests {
             for _ in 0..20_000 {
                 // Target: the centre vertex, or a point on a random shared edge.
                 let k = rng.below(7) as usize;
-                let target = if k == 6 { c } else { c + (ring[k] - c) * rng.uniform() };
+                let target = if k == 6 {
+                    c
+                } else {
+                    c + (ring[k] - c) * rng.uniform()
+                };
                 let dir = crate::math::warp::uniform_sphere(rng.uniform2());
                 // Steeper than the fan's slope, starting above the fan inside its footprint,
                 // so the ray must cross the surface exactly once.
@@ -160,7 +199,9 @@ mod tests {
                 }
                 let origin = target - dir * scale * 0.5;
                 let r = RayPrecomp::new(origin, dir);
-                let hit = tris.iter().any(|t| intersect_triangle(&r, t[0], t[1], t[2], f32::INFINITY).is_some());
+                let hit = tris
+                    .iter()
+                    .any(|t| intersect_triangle(&r, t[0], t[1], t[2], f32::INFINITY).is_some());
                 assert!(hit, "ray through a shared edge/vertex missed at scale {scale}: target {target:?}, dir {dir:?}");
             }
         }

@@ -25,9 +25,13 @@ impl AliasTable {
         }
         let n = weights.len();
         let pmf: Vec<f32> = weights.iter().map(|&w| (w as f64 / total) as f32).collect();
-        let mut scaled: Vec<f64> = weights.iter().map(|&w| w as f64 / total * n as f64).collect();
+        let mut scaled: Vec<f64> = weights
+            .iter()
+            .map(|&w| w as f64 / total * n as f64)
+            .collect();
         let mut bins = vec![(1.0f32, 0u32); n];
-        let (mut small, mut large): (Vec<usize>, Vec<usize>) = (0..n).partition(|&i| scaled[i] < 1.0);
+        let (mut small, mut large): (Vec<usize>, Vec<usize>) =
+            (0..n).partition(|&i| scaled[i] < 1.0);
         while let (Some(s), Some(&l)) = (small.pop(), large.last()) {
             bins[s] = (scaled[s] as f32, l as u32);
             scaled[l] -= 1.0 - scaled[s];
@@ -89,7 +93,10 @@ impl Distribution1D {
     pub fn new(values: &[f32]) -> Self {
         assert!(!values.is_empty());
         let n = values.len();
-        let func: Vec<f32> = values.iter().map(|&v| if v.is_finite() && v > 0.0 { v } else { 0.0 }).collect();
+        let func: Vec<f32> = values
+            .iter()
+            .map(|&v| if v.is_finite() && v > 0.0 { v } else { 0.0 })
+            .collect();
         let mut cdf = vec![0.0f32; n + 1];
         let mut acc = 0.0f64;
         for i in 0..n {
@@ -107,7 +114,11 @@ impl Distribution1D {
             }
         }
         cdf[n] = 1.0;
-        Distribution1D { func, cdf, integral }
+        Distribution1D {
+            func,
+            cdf,
+            integral,
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -126,9 +137,17 @@ impl Distribution1D {
     pub fn sample_continuous(&self, u: f32) -> (f32, f32, usize) {
         let n = self.func.len();
         // Largest i with cdf[i] <= u.
-        let i = self.cdf.partition_point(|&c| c <= u).saturating_sub(1).min(n - 1);
+        let i = self
+            .cdf
+            .partition_point(|&c| c <= u)
+            .saturating_sub(1)
+            .min(n - 1);
         let width = self.cdf[i + 1] - self.cdf[i];
-        let du = if width > 0.0 { ((u - self.cdf[i]) / width).clamp(0.0, 1.0) } else { 0.5 };
+        let du = if width > 0.0 {
+            ((u - self.cdf[i]) / width).clamp(0.0, 1.0)
+        } else {
+            0.5
+        };
         let x = ((i as f32 + du) / n as f32).min(1.0 - f32::EPSILON);
         (x, self.pdf_cell(i), i)
     }
@@ -168,7 +187,10 @@ impl Distribution2D {
         let conditional: Vec<Distribution1D> =
             values.chunks(width).map(Distribution1D::new).collect();
         let marginal_values: Vec<f32> = conditional.iter().map(|d| d.integral()).collect();
-        Distribution2D { marginal: Distribution1D::new(&marginal_values), conditional }
+        Distribution2D {
+            marginal: Distribution1D::new(&marginal_values),
+            conditional,
+        }
     }
 
     pub fn integral(&self) -> f32 {
@@ -255,7 +277,10 @@ mod tests {
         let mut integral = 0.0;
         for j in 0..h {
             for i in 0..w {
-                integral += d.pdf(Vec2::new((i as f32 + 0.5) / w as f32, (j as f32 + 0.5) / h as f32)) / (w * h) as f32;
+                integral += d.pdf(Vec2::new(
+                    (i as f32 + 0.5) / w as f32,
+                    (j as f32 + 0.5) / h as f32,
+                )) / (w * h) as f32;
             }
         }
         assert!((integral - 1.0).abs() < 1e-5);

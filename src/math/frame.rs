@@ -42,7 +42,13 @@ mod tests {
     #[test]
     fn frames_are_orthonormal_for_any_axis() {
         let mut rng = Rng::new(3, 0);
-        let mut axes = vec![Vec3::Z, -Vec3::Z, Vec3::X, -Vec3::Y, Vec3::new(0.0, 0.0, -1.0 + 1e-7).normalize()];
+        let mut axes = vec![
+            Vec3::Z,
+            -Vec3::Z,
+            Vec3::X,
+            -Vec3::Y,
+            Vec3::new(0.0, 0.0, -1.0 + 1e-7).normalize(),
+        ];
         for _ in 0..1000 {
             axes.push(crate::math::warp::uniform_sphere(rng.uniform2()));
         }
@@ -50,7 +56,9 @@ mod tests {
             let f = Frame::from_z(n);
             assert!((f.s.length() - 1.0).abs() < 1e-4);
             assert!((f.t.length() - 1.0).abs() < 1e-4);
-            assert!(f.s.dot(f.t).abs() < 1e-4 && f.s.dot(f.n).abs() < 1e-4 && f.t.dot(f.n).abs() < 1e-4);
+            assert!(
+                f.s.dot(f.t).abs() < 1e-4 && f.s.dot(f.n).abs() < 1e-4 && f.t.dot(f.n).abs() < 1e-4
+            );
             let v = Vec3::new(0.3, -0.5, 0.8);
             assert!((f.to_local(f.to_world(v)) - v).length() < 1e-5);
         }

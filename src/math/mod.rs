@@ -114,7 +114,10 @@ mod tests {
         for v in [0.0f32, -0.0, 1.0, -1.0, 1e-30, -1e30, 123.456] {
             assert!(next_float_up(v) > v);
             assert!(next_float_down(v) < v);
-            assert_eq!(next_float_down(next_float_up(v)), if v == -0.0 { 0.0 } else { v });
+            assert_eq!(
+                next_float_down(next_float_up(v)),
+                if v == -0.0 { 0.0 } else { v }
+            );
         }
     }
 

@@ -14,7 +14,10 @@ impl Rng {
     /// A generator on stream `stream` started from `seed`. Different streams are independent
     /// sequences, which is how each pixel sample gets its own.
     pub fn new(seed: u64, stream: u64) -> Self {
-        let mut rng = Rng { state: 0, inc: (stream << 1) | 1 };
+        let mut rng = Rng {
+            state: 0,
+            inc: (stream << 1) | 1,
+        };
         rng.next_u32();
         rng.state = rng.state.wrapping_add(seed);
         rng.next_u32();
@@ -24,7 +27,8 @@ impl Rng {
     /// The generator for one pixel sample: a hash of (seed, pixel, sample index) picks the
     /// stream, so the same sample always sees the same numbers whichever thread runs it.
     pub fn for_sample(seed: u64, pixel_index: u64, sample_index: u64) -> Self {
-        let key = mix64(seed ^ mix64(pixel_index.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ sample_index));
+        let key =
+            mix64(seed ^ mix64(pixel_index.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ sample_index));
         Rng::new(mix64(key ^ 0xD1B5_4A32_D192_ED03), key)
     }
 
@@ -88,9 +92,24 @@ mod tests {
 
     #[test]
     fn streams_differ_and_are_reproducible() {
-        let a: Vec<u32> = (0..4).map({ let mut r = Rng::for_sample(1, 2, 3); move |_| r.next_u32() }).collect();
-        let b: Vec<u32> = (0..4).map({ let mut r = Rng::for_sample(1, 2, 3); move |_| r.next_u32() }).collect();
-        let c: Vec<u32> = (0..4).map({ let mut r = Rng::for_sample(1, 2, 4); move |_| r.next_u32() }).collect();
+        let a: Vec<u32> = (0..4)
+            .map({
+                let mut r = Rng::for_sample(1, 2, 3);
+                move |_| r.next_u32()
+            })
+            .collect();
+        let b: Vec<u32> = (0..4)
+            .map({
+                let mut r = Rng::for_sample(1, 2, 3);
+                move |_| r.next_u32()
+            })
+            .collect();
+        let c: Vec<u32> = (0..4)
+            .map({
+                let mut r = Rng::for_sample(1, 2, 4);
+                move |_| r.next_u32()
+            })
+            .collect();
         assert_eq!(a, b);
         assert_ne!(a, c);
     }

@@ -143,7 +143,13 @@ mod tests {
         let mut rng = Rng::new(11, 0);
         for _ in 0..10_000 {
             let u = rng.uniform2();
-            for w in [uniform_sphere(u), uniform_hemisphere(u), cosine_hemisphere(u), power_cosine(u, 50.0), uniform_cone(u, 0.9)] {
+            for w in [
+                uniform_sphere(u),
+                uniform_hemisphere(u),
+                cosine_hemisphere(u),
+                power_cosine(u, 50.0),
+                uniform_cone(u, 0.9),
+            ] {
                 assert!((w.length() - 1.0).abs() < 1e-4);
             }
             assert!(cosine_hemisphere(u).z >= 0.0);

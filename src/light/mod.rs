@@ -1,0 +1,337 @@
+//! Light sources and their sampling. Every `sample` returns the solid-angle pdf at the
+//! receiving point, and `pdf` returns the same value for a direction found by other means
+//! (BSDF sampling hitting an emitter), so the two strategies can be combined by MIS.
+
+mod sampler;
+
+pub use sampler::LightSampler;
+
+use crate::error::{Error, Result};
+use crate::geometry::{barycentric_point_error, Bounds3};
+use crate::math::{is_finite3, luminance, warp, Rgb, Vec2, Vec3, PI};
+
+/// A light as a host describes it. Area lights are not described here: they come from
+/// triangles whose material emits.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LightDesc {
+    /// Isotropic point light with radiant intensity `intensity` (W/sr).
+    Point { position: Vec3, intensity: Rgb },
+    /// Spot light: intensity `intensity` inside `inner_degrees` of `direction`, smoothly
+    /// falling to zero at `outer_degrees` (half-angles).
+    Spot {
+        position: Vec3,
+        direction: Vec3,
+        intensity: Rgb,
+        inner_degrees: f32,
+        outer_degrees: f32,
+    },
+    /// Distant light travelling along `direction`, giving irradiance `irradiance` (W/m^2) on a
+    /// surface facing it.
+    Directional { direction: Vec3, irradiance: Rgb },
+}
+
+impl LightDesc {
+    pub fn validate(&self) -> Result<()> {
+        let colour = |name: &str, c: Rgb| {
+            if !is_finite3(c) || c.min_element() < 0.0 {
+                Err(Error::invalid(format!(
+                    "light {name} {c} must be finite and >= 0"
+                )))
+            } else {
+                Ok(())
+            }
+        };
+        let point = |p: Vec3| {
+            if is_finite3(p) {
+                Ok(())
+            } else {
+                Err(Error::invalid(format!("light position {p} must be finite")))
+            }
+        };
+        let dir = |d: Vec3| {
+            if is_finite3(d) && d.length_squared() > 0.0 {
+                Ok(())
+            } else {
+                Err(Error::invalid(format!(
+                    "light direction {d} must be finite and non-zero"
+                )))
+            }
+        };
+        match *self {
+            LightDesc::Point {
+                position,
+                intensity,
+            } => {
+                point(position)?;
+                colour("intensity", intensity)
+            }
+            LightDesc::Spot {
+                position,
+                direction,
+                intensity,
+                inner_degrees,
+                outer_degrees,
+            } => {
+                point(position)?;
+                dir(direction)?;
+                colour("intensity", intensity)?;
+                if !(0.0..=180.0).contains(&outer_degrees)
+                    || !(0.0..=outer_degrees).contains(&inner_degrees)
+                {
+                    return Err(Error::invalid(format!(
+                        "spot angles inner {inner_degrees} and outer {outer_degrees} must satisfy 0 <= inner <= outer <= 180"
+                    )));
+                }
+                Ok(())
+            }
+            LightDesc::Directional {
+                direction,
+                irradiance,
+            } => {
+                dir(direction)?;
+                colour("irradiance", irradiance)
+            }
+        }
+    }
+}
+
+/// A light ready for sampling.
+#[derive(Clone, Copy, Debug)]
+pub enum Light {
+    /// One emissive triangle, emitting `radiance` on the side of `normal`.
+    Area {
+        triangle: u32,
+        p: [Vec3; 3],
+        normal: Vec3,
+        area: f32,
+        radiance: Rgb,
+    },
+    Point {
+        position: Vec3,
+        intensity: Rgb,
+    },
+    Spot {
+        position: Vec3,
+        direction: Vec3,
+        intensity: Rgb,
+        cos_inner: f32,
+        cos_outer: f32,
+    },
+    /// `direction` is where the light travels; `scene_radius` bounds the scene for power.
+    Directional {
+        direction: Vec3,
+        irradiance: Rgb,
+        scene_radius: f32,
+    },
+}
+
+/// Radiance arriving at a point from a sampled point of a light.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSample {
+    /// Unit direction from the receiver towards the light.
+    pub wi: Vec3,
+    /// Incident radiance (or, for delta lights, the value whose ratio to `pdf` is the
+    /// contribution).
+    pub radiance: Rgb,
+    /// Solid-angle density (not including the light selection probability); 1 for delta lights.
+    pub pdf: f32,
+    /// The point on the light (for the shadow ray) with its error bound and normal.
+    /// `distance` is infinite for directional lights.
+    pub point: Vec3,
+    pub point_error: Vec3,
+    pub normal: Vec3,
+    pub distance: f32,
+    pub delta: bool,
+}
+
+impl Light {
+    pub fn from_desc(desc: &LightDesc, bounds: &Bounds3) -> Light {
+        match *desc {
+            LightDesc::Point {
+                position,
+                intensity,
+            } => Light::Point {
+                position,
+                intensity,
+            },
+            LightDesc::Spot {
+                position,
+                direction,
+                intensity,
+                inner_degrees,
+                outer_degrees,
+            } => Light::Spot {
+                position,
+                direction: direction.normalize(),
+                intensity,
+                cos_inner: inner_degrees.to_radians().cos(),
+                cos_outer: outer_degrees.to_radians().cos(),
+            },
+            LightDesc::Directional {
+                direction,
+                irradiance,
+            } => Light::Directional {
+                direction: direction.normalize(),
+                irradiance,
+                scene_radius: bounds.bounding_sphere().1.max(1e-6),
+            },
+        }
+    }
+
+    /// Total emitted power (luminance-weighted), for power-proportional selection.
+    pub fn power(&self) -> f32 {
+        match *self {
+            Light::Area { area, radiance, .. } => PI * area * luminance(radiance),
+            Light::Point { intensity, .. } => 4.0 * PI * luminance(intensity),
+            Light::Spot {
+                intensity,
+                cos_inner,
+                cos_outer,
+                ..
+            } => 2.0 * PI * luminance(intensity) * (1.0 - 0.5 * (cos_inner + cos_outer)),
+            Light::Directional {
+                irradiance,
+                scene_radius,
+                ..
+            } => PI * scene_radius * scene_radius * luminance(irradiance),
+        }
+    }
+
+    pub fn is_delta(&self) -> bool {
+        !matches!(self, Light::Area { .. })
+    }
+
+    /// Samples a point of the light as seen from `receiver`.
+    pub fn sample(&self, receiver: Vec3, u: Vec2) -> Option<LightSample> {
+        match *self {
+            Light::Area {
+                p,
+                normal,
+                area,
+                radiance,
+                ..
+            } => {
+                let (b0, b1) = warp::uniform_triangle(u);
+                let b = [b0, b1, 1.0 - b0 - b1];
+                let point = p[0] * b[0] + p[1] * b[1] + p[2] * b[2];
+                let to_light = point - receiver;
+                let dist2 = to_light.length_squared();
+                if dist2 == 0.0 {
+                    return None;
+                }
+                let distance = dist2.sqrt();
+                let wi = to_light / distance;
+                let cos_light = -wi.dot(normal);
+                if cos_light <= 0.0 {
+                    return None;
+                }
+                let pdf = dist2 / (cos_light * area);
+                if !pdf.is_finite() {
+                    return None;
+                }
+                Some(LightSample {
+                    wi,
+                    radiance,
+                    pdf,
+                    point,
+                    point_error: barycentric_point_error(p, b),
+                    normal,
+                    distance,
+                    delta: false,
+                })
+            }
+            Light::Point {
+                position,
+                intensity,
+            } => delta_point_sample(receiver, position, intensity),
+            Light::Spot {
+                position,
+                direction,
+                intensity,
+                cos_inner,
+                cos_outer,
+            } => {
+                let s = delta_point_sample(receiver, position, intensity)?;
+                let falloff = smoothstep(cos_outer, cos_inner, (-s.wi).dot(direction));
+                if falloff <= 0.0 {
+                    return None;
+                }
+                Some(LightSample {
+                    radiance: s.radiance * falloff,
+                    ..s
+                })
+            }
+            Light::Directional {
+                direction,
+                irradiance,
+                ..
+            } => Some(LightSample {
+                wi: -direction,
+                radiance: irradiance,
+                pdf: 1.0,
+                point: receiver,
+                point_error: Vec3::ZERO,
+                normal: direction,
+                distance: f32::INFINITY,
+                delta: true,
+            }),
+        }
+    }
+
+    /// Solid-angle pdf of `sample` choosing the light point `point` (normal `normal`) seen
+    /// from `receiver`; zero for delta lights.
+    pub fn pdf(&self, receiver: Vec3, point: Vec3) -> f32 {
+        match *self {
+            Light::Area { normal, area, .. } => {
+                let to_light = point - receiver;
+                let dist2 = to_light.length_squared();
+                let cos_light = -to_light.dot(normal) / dist2.sqrt();
+                if cos_light <= 0.0 || dist2 == 0.0 {
+                    0.0
+                } else {
+                    dist2 / (cos_light * area)
+                }
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// Radiance leaving an area light towards direction `w` (pointing away from it).
+    #[inline]
+    pub fn emitted(&self, w: Vec3) -> Rgb {
+        match *self {
+            Light::Area {
+                normal, radiance, ..
+            } if w.dot(normal) > 0.0 => radiance,
+            _ => Rgb::ZERO,
+        }
+    }
+}
+
+fn delta_point_sample(receiver: Vec3, position: Vec3, intensity: Rgb) -> Option<LightSample> {
+    let to_light = position - receiver;
+    let dist2 = to_light.length_squared();
+    if dist2 == 0.0 {
+        return None;
+    }
+    let distance = dist2.sqrt();
+    let wi = to_light / distance;
+    Some(LightSample {
+        wi,
+        radiance: intensity / dist2,
+        pdf: 1.0,
+        point: position,
+        point_error: Vec3::ZERO,
+        normal: -wi,
+        distance,
+        delta: true,
+    })
+}
+
+fn smoothstep(a: f32, b: f32, x: f32) -> f32 {
+    if a == b {
+        return if x >= a { 1.0 } else { 0.0 };
+    }
+    let t = ((x - a) / (b - a)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}

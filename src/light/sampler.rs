@@ -1,0 +1,41 @@
+//! Chooses one light per shading point with probability proportional to its power (alias
+//! table, O(1)); lights with zero power are never chosen.
+
+use super::Light;
+use crate::math::AliasTable;
+
+#[derive(Clone, Debug)]
+pub struct LightSampler {
+    table: AliasTable,
+}
+
+impl LightSampler {
+    /// `None` when no light has positive power.
+    pub fn new(lights: &[Light]) -> Option<Self> {
+        let powers: Vec<f32> = lights.iter().map(|l| l.power().max(0.0)).collect();
+        // Non-finite powers (a light of huge radiance on a huge triangle) fall back to
+        // uniform selection rather than failing.
+        if powers.iter().any(|p| !p.is_finite()) {
+            return Some(LightSampler {
+                table: AliasTable::new(&vec![1.0; lights.len()])?,
+            });
+        }
+        AliasTable::new(&powers).map(|table| LightSampler { table })
+    }
+
+    /// Index of the chosen light and its probability.
+    #[inline]
+    pub fn sample(&self, u: f32) -> (usize, f32) {
+        let i = self.table.sample(u);
+        (i, self.table.pmf(i))
+    }
+
+    #[inline]
+    pub fn pmf(&self, light: usize) -> f32 {
+        self.table.pmf(light)
+    }
+
+    pub fn memory_bytes(&self) -> usize {
+        self.table.memory_bytes()
+    }
+}

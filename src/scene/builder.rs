@@ -1,0 +1,306 @@
+//! `SceneBuilder`: collects and validates everything a scene is made of, then builds the
+//! immutable `Scene` (BVH, lights, light sampler). Every input is checked; a bad one gives an
+//! error naming it, never a panic.
+
+use std::time::Instant;
+
+use super::{BuildStats, Camera, Material, Mesh, Scene, Texture, TriangleRef};
+use crate::error::{Error, Result};
+use crate::geometry::{Bounds3, Bvh, BvhQuality};
+use crate::light::{Light, LightDesc, LightSampler};
+use crate::math::{is_finite3, Vec2, Vec3};
+
+/// What to do with zero-area triangles.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DegeneratePolicy {
+    /// Refuse the mesh (the default for data handed over by a program).
+    #[default]
+    Error,
+    /// Drop them and count them in `BuildStats` (real assets contain a few).
+    Skip,
+}
+
+/// A mesh as handed to the builder.
+#[derive(Clone, Debug, Default)]
+pub struct MeshDesc {
+    pub name: String,
+    pub positions: Vec<Vec3>,
+    /// One per position, or empty.
+    pub normals: Vec<Vec3>,
+    /// One per position, or empty.
+    pub uvs: Vec<Vec2>,
+    pub indices: Vec<[u32; 3]>,
+    /// One material index per triangle, or a single one for the whole mesh.
+    pub materials: Vec<u32>,
+}
+
+#[derive(Default)]
+pub struct SceneBuilder {
+    meshes: Vec<Mesh>,
+    materials: Vec<Material>,
+    textures: Vec<Texture>,
+    lights: Vec<LightDesc>,
+    camera: Option<Camera>,
+    degenerate_policy: DegeneratePolicy,
+    bvh_quality: BvhQuality,
+    degenerate_skipped: usize,
+}
+
+impl SceneBuilder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn set_degenerate_policy(&mut self, policy: DegeneratePolicy) {
+        self.degenerate_policy = policy;
+    }
+
+    pub fn set_bvh_quality(&mut self, quality: BvhQuality) {
+        self.bvh_quality = quality;
+    }
+
+    pub fn material_count(&self) -> usize {
+        self.materials.len()
+    }
+
+    pub fn materials_mut(&mut self) -> &mut [Material] {
+        &mut self.materials
+    }
+
+    pub fn has_camera(&self) -> bool {
+        self.camera.is_some()
+    }
+
+    pub fn texture_count(&self) -> usize {
+        self.textures.len()
+    }
+
+    /// Adds a texture and returns its index.
+    pub fn add_texture(&mut self, texture: Texture) -> u32 {
+        self.textures.push(texture);
+        (self.textures.len() - 1) as u32
+    }
+
+    /// Adds a material (validated) and returns its index.
+    pub fn add_material(&mut self, material: Material) -> Result<u32> {
+        material.validate(self.textures.len())?;
+        self.materials.push(material);
+        Ok((self.materials.len() - 1) as u32)
+    }
+
+    /// Replaces material `index` (validated): scene files override loaded materials this way.
+    pub fn set_material(&mut self, index: u32, material: Material) -> Result<()> {
+        material.validate(self.textures.len())?;
+        let n = self.materials.len();
+        let slot = self.materials.get_mut(index as usize).ok_or_else(|| {
+            Error::invalid(format!(
+                "material index {index} out of range ({n} materials)"
+            ))
+        })?;
+        *slot = material;
+        Ok(())
+    }
+
+    pub fn add_light(&mut self, light: LightDesc) -> Result<()> {
+        light.validate()?;
+        self.lights.push(light);
+        Ok(())
+    }
+
+    pub fn set_camera(&mut self, camera: Camera) -> Result<()> {
+        camera.validate()?;
+        self.camera = Some(camera);
+        Ok(())
+    }
+
+    /// Adds a mesh after checking every value; returns its index.
+    pub fn add_mesh(&mut self, desc: MeshDesc) -> Result<u32> {
+        let name = if desc.name.is_empty() {
+            format!("mesh {}", self.meshes.len())
+        } else {
+            desc.name.clone()
+        };
+        let nv = desc.positions.len();
+        if let Some(i) = desc.positions.iter().position(|p| !is_finite3(*p)) {
+            return Err(Error::invalid(format!(
+                "{name}: position {i} is {} (must be finite)",
+                desc.positions[i]
+            )));
+        }
+        if !desc.normals.is_empty() && desc.normals.len() != nv {
+            return Err(Error::invalid(format!(
+                "{name}: {} normals for {nv} positions",
+                desc.normals.len()
+            )));
+        }
+        if let Some(i) = desc.normals.iter().position(|n| !is_finite3(*n)) {
+            return Err(Error::invalid(format!(
+                "{name}: normal {i} is {} (must be finite)",
+                desc.normals[i]
+            )));
+        }
+        if !desc.uvs.is_empty() && desc.uvs.len() != nv {
+            return Err(Error::invalid(format!(
+                "{name}: {} uvs for {nv} positions",
+                desc.uvs.len()
+            )));
+        }
+        if let Some(i) = desc
+            .uvs
+            .iter()
+            .position(|t| !(t.x.is_finite() && t.y.is_finite()))
+        {
+            return Err(Error::invalid(format!(
+                "{name}: uv {i} is {} (must be finite)",
+                desc.uvs[i]
+            )));
+        }
+        let nt = desc.indices.len();
+        if desc.materials.len() != nt && desc.materials.len() != 1 {
+            return Err(Error::invalid(format!(
+                "{name}: {} material indices for {nt} triangles (give one per triangle or one for all)",
+                desc.materials.len()
+            )));
+        }
+        if let Some(&m) = desc
+            .materials
+            .iter()
+            .find(|&&m| m as usize >= self.materials.len())
+        {
+            return Err(Error::invalid(format!(
+                "{name}: material index {m} out of range ({} materials)",
+                self.materials.len()
+            )));
+        }
+        let mut indices = Vec::with_capacity(nt);
+        let mut materials = Vec::with_capacity(nt);
+        for (t, tri) in desc.indices.iter().enumerate() {
+            if let Some(&i) = tri.iter().find(|&&i| i as usize >= nv) {
+                return Err(Error::invalid(format!(
+                    "{name}: triangle {t} has vertex index {i} out of range ({nv} positions)"
+                )));
+            }
+            let p = tri.map(|i| desc.positions[i as usize]);
+            if (p[1] - p[0]).cross(p[2] - p[0]).length_squared() == 0.0 {
+                match self.degenerate_policy {
+                    DegeneratePolicy::Error => {
+                        return Err(Error::invalid(format!(
+                            "{name}: triangle {t} {tri:?} is degenerate (zero area)"
+                        )));
+                    }
+                    DegeneratePolicy::Skip => {
+                        self.degenerate_skipped += 1;
+                        continue;
+                    }
+                }
+            }
+            indices.push(*tri);
+            materials.push(if desc.materials.len() == 1 {
+                desc.materials[0]
+            } else {
+                desc.materials[t]
+            });
+        }
+        let normals = if desc.normals.is_empty() {
+            None
+        } else {
+            Some(desc.normals.iter().map(|n| n.normalize_or_zero()).collect())
+        };
+        self.meshes.push(Mesh {
+            name,
+            positions: desc.positions,
+            normals,
+            uvs: if desc.uvs.is_empty() {
+                None
+            } else {
+                Some(desc.uvs)
+            },
+            indices,
+            materials,
+        });
+        Ok((self.meshes.len() - 1) as u32)
+    }
+
+    /// Builds the scene: orients normals, builds the BVH, makes emissive triangles area lights
+    /// and the power-proportional light sampler. Only what the content needs is built.
+    pub fn build(self) -> Result<Scene> {
+        let mut triangles = Vec::new();
+        let mut vertices = Vec::new();
+        let mut geometric_normals = Vec::new();
+        let mut bounds = Bounds3::EMPTY;
+        for (mi, m) in self.meshes.iter().enumerate() {
+            for (ti, idx) in m.indices.iter().enumerate() {
+                let p = idx.map(|i| m.positions[i as usize]);
+                let mut ng = (p[1] - p[0]).cross(p[2] - p[0]).normalize();
+                if let Some(n) = &m.normals {
+                    let avg = n[idx[0] as usize] + n[idx[1] as usize] + n[idx[2] as usize];
+                    if avg.dot(ng) < 0.0 {
+                        ng = -ng;
+                    }
+                }
+                bounds = p.iter().fold(bounds, |b, &q| b.union_point(q));
+                triangles.push(TriangleRef {
+                    mesh: mi as u32,
+                    local: ti as u32,
+                });
+                vertices.push(p);
+                geometric_normals.push(ng);
+            }
+        }
+        if triangles.len() > u32::MAX as usize - 1 {
+            return Err(Error::invalid(format!(
+                "{} triangles exceed the limit of 2^32 - 2",
+                triangles.len()
+            )));
+        }
+        let start = Instant::now();
+        let bvh = Bvh::build(&vertices, self.bvh_quality);
+        let bvh_seconds = start.elapsed().as_secs_f64();
+
+        let mut lights = Vec::new();
+        let mut triangle_light = Vec::new();
+        for (g, tref) in triangles.iter().enumerate() {
+            let m = &self.meshes[tref.mesh as usize];
+            let mat = &self.materials[m.materials[tref.local as usize] as usize];
+            if mat.is_emissive() {
+                if triangle_light.is_empty() {
+                    triangle_light = vec![u32::MAX; triangles.len()];
+                }
+                let p = vertices[g];
+                let area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
+                triangle_light[g] = lights.len() as u32;
+                lights.push(Light::Area {
+                    triangle: g as u32,
+                    p,
+                    normal: geometric_normals[g],
+                    area,
+                    radiance: mat.emission,
+                });
+            }
+        }
+        for desc in &self.lights {
+            lights.push(Light::from_desc(desc, &bounds));
+        }
+        let light_sampler = LightSampler::new(&lights);
+        let stats = BuildStats {
+            triangles: triangles.len(),
+            degenerate_triangles_skipped: self.degenerate_skipped,
+            bvh_seconds,
+            bvh_nodes: bvh.node_count(),
+        };
+        Ok(Scene {
+            meshes: self.meshes,
+            triangles,
+            geometric_normals,
+            materials: self.materials,
+            textures: self.textures,
+            bvh,
+            lights,
+            light_sampler,
+            triangle_light,
+            camera: self.camera,
+            bounds,
+            stats,
+        })
+    }
+}

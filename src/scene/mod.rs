@@ -1,0 +1,267 @@
+//! The scene: meshes, materials, textures, lights, camera and the BVH over them.
+//!
+//! Conventions, written once: right-handed world; radiance in W sr^-1 m^-2 as linear sRGB;
+//! triangles are counter-clockwise seen from their front; when a mesh has vertex normals, a
+//! triangle's front is the side its vertex normals point to (its geometric normal is flipped to
+//! agree), otherwise the winding decides. Emissive triangles emit from their front only.
+//! Camera space looks down -Z.
+
+mod builder;
+mod camera;
+mod interaction;
+mod material;
+mod texture;
+
+pub use builder::{DegeneratePolicy, MeshDesc, SceneBuilder};
+pub use camera::{Camera, CameraFrame};
+pub use interaction::SurfaceInteraction;
+pub use material::{
+    fresnel_dielectric, Bsdf, BsdfSample, Material, MaterialKind, TextureId, Transport,
+};
+pub use texture::{srgb_to_linear, Texture};
+
+use crate::geometry::{barycentric_point_error, Bounds3, Bvh, Hit, Ray};
+use crate::light::{Light, LightSample, LightSampler};
+use crate::math::{Rgb, Vec2, Vec3};
+
+/// A triangle mesh as stored in the scene.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    pub name: String,
+    pub positions: Vec<Vec3>,
+    pub normals: Option<Vec<Vec3>>,
+    pub uvs: Option<Vec<Vec2>>,
+    pub indices: Vec<[u32; 3]>,
+    /// Material index of each triangle.
+    pub materials: Vec<u32>,
+}
+
+/// Where a global triangle index points.
+#[derive(Clone, Copy, Debug)]
+struct TriangleRef {
+    mesh: u32,
+    local: u32,
+}
+
+/// Memory held by each structure of a scene, in bytes.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct MemoryReport {
+    pub meshes: usize,
+    pub bvh: usize,
+    pub textures: usize,
+    pub lights: usize,
+}
+
+impl MemoryReport {
+    pub fn total(&self) -> usize {
+        self.meshes + self.bvh + self.textures + self.lights
+    }
+}
+
+/// Figures from building the scene.
+#[derive(Clone, Debug, Default)]
+pub struct BuildStats {
+    pub triangles: usize,
+    pub degenerate_triangles_skipped: usize,
+    pub bvh_seconds: f64,
+    pub bvh_nodes: usize,
+}
+
+/// An immutable, committed scene. `Send + Sync`: any number of threads may query it.
+pub struct Scene {
+    meshes: Vec<Mesh>,
+    triangles: Vec<TriangleRef>,
+    /// Unit geometric normal of each global triangle, oriented as the conventions above say.
+    geometric_normals: Vec<Vec3>,
+    materials: Vec<Material>,
+    textures: Vec<Texture>,
+    bvh: Bvh,
+    lights: Vec<Light>,
+    light_sampler: Option<LightSampler>,
+    /// Light index of each global triangle (`u32::MAX` when it does not emit); empty when the
+    /// scene has no area lights.
+    triangle_light: Vec<u32>,
+    camera: Option<Camera>,
+    bounds: Bounds3,
+    stats: BuildStats,
+}
+
+impl Scene {
+    pub fn meshes(&self) -> &[Mesh] {
+        &self.meshes
+    }
+
+    pub fn materials(&self) -> &[Material] {
+        &self.materials
+    }
+
+    pub fn textures(&self) -> &[Texture] {
+        &self.textures
+    }
+
+    pub fn lights(&self) -> &[Light] {
+        &self.lights
+    }
+
+    pub fn light_sampler(&self) -> Option<&LightSampler> {
+        self.light_sampler.as_ref()
+    }
+
+    pub fn camera(&self) -> Option<&Camera> {
+        self.camera.as_ref()
+    }
+
+    pub fn bounds(&self) -> Bounds3 {
+        self.bounds
+    }
+
+    pub fn stats(&self) -> &BuildStats {
+        &self.stats
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    pub fn bvh(&self) -> &Bvh {
+        &self.bvh
+    }
+
+    /// The three vertices of global triangle `tri`.
+    pub fn triangle_vertices(&self, tri: u32) -> [Vec3; 3] {
+        let r = self.triangles[tri as usize];
+        let m = &self.meshes[r.mesh as usize];
+        let idx = m.indices[r.local as usize];
+        [
+            m.positions[idx[0] as usize],
+            m.positions[idx[1] as usize],
+            m.positions[idx[2] as usize],
+        ]
+    }
+
+    pub fn geometric_normal(&self, tri: u32) -> Vec3 {
+        self.geometric_normals[tri as usize]
+    }
+
+    /// The light a triangle belongs to, if it emits.
+    #[inline]
+    pub fn triangle_light(&self, tri: u32) -> Option<usize> {
+        match self.triangle_light.get(tri as usize) {
+            Some(&l) if l != u32::MAX => Some(l as usize),
+            _ => None,
+        }
+    }
+
+    pub fn memory(&self) -> MemoryReport {
+        let meshes = self
+            .meshes
+            .iter()
+            .map(|m| {
+                m.positions.len() * 12
+                    + m.normals.as_ref().map_or(0, |n| n.len() * 12)
+                    + m.uvs.as_ref().map_or(0, |u| u.len() * 8)
+                    + m.indices.len() * 12
+                    + m.materials.len() * 4
+            })
+            .sum::<usize>()
+            + self.triangles.len() * std::mem::size_of::<TriangleRef>()
+            + self.geometric_normals.len() * 12;
+        MemoryReport {
+            meshes,
+            bvh: self.bvh.memory_bytes(),
+            textures: self.textures.iter().map(Texture::memory_bytes).sum(),
+            lights: self.lights.len() * std::mem::size_of::<Light>()
+                + self.triangle_light.len() * 4
+                + self
+                    .light_sampler
+                    .as_ref()
+                    .map_or(0, LightSampler::memory_bytes),
+        }
+    }
+
+    /// Closest hit of a ray.
+    #[inline]
+    pub fn intersect_hit(&self, ray: &Ray) -> Option<Hit> {
+        self.bvh.intersect(ray)
+    }
+
+    /// True when anything blocks the ray in (0, t_max).
+    #[inline]
+    pub fn occluded(&self, ray: &Ray) -> bool {
+        self.bvh.occluded(ray)
+    }
+
+    /// Closest hit of a ray with everything a shader needs.
+    pub fn intersect(&self, ray: &Ray) -> Option<SurfaceInteraction> {
+        let hit = self.bvh.intersect(ray)?;
+        Some(self.interaction(ray, &hit))
+    }
+
+    /// Builds the surface interaction of a hit.
+    pub fn interaction(&self, ray: &Ray, hit: &Hit) -> SurfaceInteraction {
+        let r = self.triangles[hit.triangle as usize];
+        let m = &self.meshes[r.mesh as usize];
+        let idx = m.indices[r.local as usize];
+        let (i0, i1, i2) = (idx[0] as usize, idx[1] as usize, idx[2] as usize);
+        let p = [m.positions[i0], m.positions[i1], m.positions[i2]];
+        let b = [1.0 - hit.b1 - hit.b2, hit.b1, hit.b2];
+        let point = p[0] * b[0] + p[1] * b[1] + p[2] * b[2];
+        let ng = self.geometric_normals[hit.triangle as usize];
+        let ns = match &m.normals {
+            Some(n) => {
+                let s = n[i0] * b[0] + n[i1] * b[1] + n[i2] * b[2];
+                let s = s.normalize_or_zero();
+                if s == Vec3::ZERO {
+                    ng
+                } else {
+                    s
+                }
+            }
+            None => ng,
+        };
+        let uv = match &m.uvs {
+            Some(t) => t[i0] * b[0] + t[i1] * b[1] + t[i2] * b[2],
+            None => Vec2::new(hit.b1, hit.b2),
+        };
+        SurfaceInteraction {
+            p: point,
+            p_error: barycentric_point_error(p, b),
+            ng,
+            ns,
+            uv,
+            wo: -ray.dir,
+            t: hit.t,
+            triangle: hit.triangle,
+            material: m.materials[r.local as usize],
+        }
+    }
+
+    /// The BSDF at an interaction (texture lookups resolved).
+    pub fn bsdf(&self, si: &SurfaceInteraction) -> Bsdf {
+        let mat = &self.materials[si.material as usize];
+        let diffuse = match mat.diffuse_texture {
+            Some(t) => self.textures[t as usize].lookup(si.uv) * mat.diffuse,
+            None => mat.diffuse,
+        };
+        mat.bsdf(diffuse)
+    }
+
+    /// Radiance emitted by the surface of `si` towards `si.wo`.
+    #[inline]
+    pub fn emitted(&self, si: &SurfaceInteraction) -> Rgb {
+        match self.triangle_light(si.triangle) {
+            Some(l) => self.lights[l].emitted(si.wo),
+            None => Rgb::ZERO,
+        }
+    }
+
+    /// Whether nothing blocks the segment from a surface point to a sampled light point.
+    pub fn unoccluded(&self, si: &SurfaceInteraction, sample: &LightSample) -> bool {
+        let ray = if sample.distance.is_infinite() {
+            si.spawn_ray(sample.wi)
+        } else {
+            si.spawn_ray_to(sample.point, sample.point_error, sample.normal)
+        };
+        !self.occluded(&ray)
+    }
+}
