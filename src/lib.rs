@@ -4,9 +4,12 @@
 //! [`scene::Scene`], through an integrator, into a [`film::Film`]. See `DESIGN.md`.
 
 pub mod error;
+pub mod film;
 pub mod geometry;
+pub mod integrator;
 pub mod light;
 pub mod math;
+pub mod render;
 pub mod scene;
 
 pub use error::{Error, Result};

@@ -7,12 +7,14 @@
 //! Camera space looks down -Z.
 
 mod builder;
+mod builtin;
 mod camera;
 mod interaction;
 mod material;
 mod texture;
 
 pub use builder::{DegeneratePolicy, MeshDesc, SceneBuilder};
+pub use builtin::two_rooms_builder;
 pub use camera::{Camera, CameraFrame};
 pub use interaction::SurfaceInteraction;
 pub use material::{

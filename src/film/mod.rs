@@ -1,0 +1,229 @@
+//! The film: per-pixel sums of radiance samples with their counts, plus the auxiliary
+//! outputs (AOVs) a denoiser or a host wants: first-hit albedo, shading normal and depth.
+//! Sums are kept in f64 so that long progressive renders do not lose precision.
+
+mod output;
+
+pub use output::{read_exr_rgb, ExrImage, ExrMetadata};
+
+use crate::math::Rgb;
+
+/// What one camera sample contributes to its pixel.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PixelSample {
+    pub radiance: Rgb,
+    /// First-hit albedo, shading normal and distance; `hit` is false when the camera ray
+    /// escaped.
+    pub albedo: Rgb,
+    pub normal: Rgb,
+    pub depth: f32,
+    pub hit: bool,
+}
+
+/// Per-pixel accumulation of one pass or of a whole render.
+#[derive(Clone, Debug)]
+pub struct Film {
+    width: u32,
+    height: u32,
+    radiance: Vec<[f64; 3]>,
+    albedo: Vec<[f32; 3]>,
+    normal: Vec<[f32; 3]>,
+    depth: Vec<f32>,
+    /// Camera samples taken per pixel.
+    samples: Vec<u32>,
+    /// Camera samples that hit a surface (AOVs are averaged over these).
+    hits: Vec<u32>,
+}
+
+impl Film {
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = width as usize * height as usize;
+        Film {
+            width,
+            height,
+            radiance: vec![[0.0; 3]; n],
+            albedo: vec![[0.0; 3]; n],
+            normal: vec![[0.0; 3]; n],
+            depth: vec![0.0; n],
+            samples: vec![0; n],
+            hits: vec![0; n],
+        }
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    #[inline]
+    fn index(&self, x: u32, y: u32) -> usize {
+        y as usize * self.width as usize + x as usize
+    }
+
+    /// Adds one camera sample. Non-finite radiance is dropped (counted as a black sample) so
+    /// that no NaN or infinity ever reaches a pixel.
+    pub fn add_sample(&mut self, x: u32, y: u32, s: &PixelSample) {
+        let i = self.index(x, y);
+        self.samples[i] += 1;
+        if crate::math::is_finite3(s.radiance) {
+            for c in 0..3 {
+                self.radiance[i][c] += s.radiance[c] as f64;
+            }
+        }
+        if s.hit {
+            self.hits[i] += 1;
+            for c in 0..3 {
+                self.albedo[i][c] += s.albedo[c];
+                self.normal[i][c] += s.normal[c];
+            }
+            self.depth[i] += s.depth;
+        }
+    }
+
+    /// Adds the pixels of `tile` (a film of the tile's size) at offset (x0, y0).
+    pub fn merge_tile(&mut self, x0: u32, y0: u32, tile: &Film) {
+        for ty in 0..tile.height {
+            for tx in 0..tile.width {
+                let (x, y) = (x0 + tx, y0 + ty);
+                if x >= self.width || y >= self.height {
+                    continue;
+                }
+                let (i, j) = (self.index(x, y), tile.index(tx, ty));
+                for c in 0..3 {
+                    self.radiance[i][c] += tile.radiance[j][c];
+                    self.albedo[i][c] += tile.albedo[j][c];
+                    self.normal[i][c] += tile.normal[j][c];
+                }
+                self.depth[i] += tile.depth[j];
+                self.samples[i] += tile.samples[j];
+                self.hits[i] += tile.hits[j];
+            }
+        }
+    }
+
+    /// Adds every pixel of another film of the same size.
+    pub fn merge(&mut self, other: &Film) {
+        assert_eq!((self.width, self.height), (other.width, other.height));
+        self.merge_tile(0, 0, other);
+    }
+
+    /// Mean radiance of a pixel (zero before any sample).
+    pub fn pixel(&self, x: u32, y: u32) -> Rgb {
+        let i = self.index(x, y);
+        let n = self.samples[i].max(1) as f64;
+        let r = self.radiance[i];
+        Rgb::new((r[0] / n) as f32, (r[1] / n) as f32, (r[2] / n) as f32)
+    }
+
+    pub fn samples(&self, x: u32, y: u32) -> u32 {
+        self.samples[self.index(x, y)]
+    }
+
+    /// Smallest per-pixel sample count.
+    pub fn min_samples(&self) -> u32 {
+        self.samples.iter().copied().min().unwrap_or(0)
+    }
+
+    pub fn total_samples(&self) -> u64 {
+        self.samples.iter().map(|&s| s as u64).sum()
+    }
+
+    /// Mean radiance of every pixel, row-major.
+    pub fn radiance(&self) -> Vec<Rgb> {
+        (0..self.height)
+            .flat_map(|y| (0..self.width).map(move |x| (x, y)))
+            .map(|(x, y)| self.pixel(x, y))
+            .collect()
+    }
+
+    fn aov_mean(&self, buf: &[[f32; 3]]) -> Vec<Rgb> {
+        buf.iter()
+            .zip(&self.hits)
+            .map(|(v, &h)| {
+                if h > 0 {
+                    Rgb::from(*v) / h as f32
+                } else {
+                    Rgb::ZERO
+                }
+            })
+            .collect()
+    }
+
+    /// Mean first-hit albedo per pixel.
+    pub fn albedo(&self) -> Vec<Rgb> {
+        self.aov_mean(&self.albedo)
+    }
+
+    /// Mean first-hit shading normal per pixel (not renormalised; zero where nothing was hit).
+    pub fn normal(&self) -> Vec<Rgb> {
+        self.aov_mean(&self.normal)
+    }
+
+    /// Mean first-hit distance per pixel; zero where nothing was hit.
+    pub fn depth(&self) -> Vec<f32> {
+        self.depth
+            .iter()
+            .zip(&self.hits)
+            .map(|(&d, &h)| if h > 0 { d / h as f32 } else { 0.0 })
+            .collect()
+    }
+
+    pub fn memory_bytes(&self) -> usize {
+        self.radiance.len() * (24 + 12 + 12 + 4 + 4 + 4)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn accumulates_means_and_drops_non_finite_samples() {
+        let mut f = Film::new(2, 1);
+        f.add_sample(
+            0,
+            0,
+            &PixelSample {
+                radiance: Rgb::ONE,
+                ..Default::default()
+            },
+        );
+        f.add_sample(
+            0,
+            0,
+            &PixelSample {
+                radiance: Rgb::splat(3.0),
+                ..Default::default()
+            },
+        );
+        f.add_sample(
+            1,
+            0,
+            &PixelSample {
+                radiance: Rgb::splat(f32::NAN),
+                ..Default::default()
+            },
+        );
+        assert_eq!(f.pixel(0, 0), Rgb::splat(2.0));
+        assert_eq!(f.pixel(1, 0), Rgb::ZERO);
+        assert_eq!(f.samples(1, 0), 1);
+        let mut tile = Film::new(1, 1);
+        tile.add_sample(
+            0,
+            0,
+            &PixelSample {
+                radiance: Rgb::splat(4.0),
+                hit: true,
+                depth: 2.0,
+                ..Default::default()
+            },
+        );
+        f.merge_tile(1, 0, &tile);
+        assert_eq!(f.pixel(1, 0), Rgb::splat(2.0));
+        assert_eq!(f.depth()[1], 2.0);
+        assert_eq!(f.total_samples(), 4);
+    }
+}

@@ -1,0 +1,245 @@
+//! Writing films: EXR (float32, with the render's metadata in the header) and PNG (tone-mapped
+//! preview in sRGB).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use exr::prelude::{self as x, AttributeValue, ReadChannels, ReadLayers, Text, WritableImage};
+
+use super::Film;
+use crate::error::{Error, Result};
+use crate::math::Rgb;
+
+/// Facts about a render stored in an EXR header (as `lacuna:*` string attributes).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExrMetadata {
+    pub entries: Vec<(String, String)>,
+}
+
+impl ExrMetadata {
+    pub fn with(mut self, key: &str, value: impl ToString) -> Self {
+        self.entries.push((key.to_string(), value.to_string()));
+        self
+    }
+
+    pub fn get(&self, key: &str) -> Option<&str> {
+        self.entries
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
+    }
+}
+
+/// An RGB float image read from an EXR file.
+#[derive(Clone, Debug)]
+pub struct ExrImage {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<Rgb>,
+    pub metadata: ExrMetadata,
+}
+
+const PREFIX: &str = "lacuna:";
+
+impl Film {
+    /// Writes mean radiance as R, G, B (float32), and the AOVs as `albedo.*`, `normal.*` and
+    /// `depth.Z` channels, with `metadata` in the header.
+    pub fn write_exr(&self, path: &Path, metadata: &ExrMetadata) -> Result<()> {
+        let (w, h) = (self.width() as usize, self.height() as usize);
+        let radiance = self.radiance();
+        let albedo = self.albedo();
+        let normal = self.normal();
+        let depth = self.depth();
+        let channel = |name: &str, data: &[Rgb], c: usize| {
+            x::AnyChannel::new(
+                name,
+                x::FlatSamples::F32(data.iter().map(|p| p[c]).collect()),
+            )
+        };
+        let channels: Vec<x::AnyChannel<x::FlatSamples>> = vec![
+            channel("R", &radiance, 0),
+            channel("G", &radiance, 1),
+            channel("B", &radiance, 2),
+            channel("albedo.R", &albedo, 0),
+            channel("albedo.G", &albedo, 1),
+            channel("albedo.B", &albedo, 2),
+            channel("normal.X", &normal, 0),
+            channel("normal.Y", &normal, 1),
+            channel("normal.Z", &normal, 2),
+            x::AnyChannel::new("depth.Z", x::FlatSamples::F32(depth)),
+        ];
+        let mut attributes = x::LayerAttributes::default();
+        attributes.software_name = Some(Text::from(concat!("Lacuna ", env!("CARGO_PKG_VERSION"))));
+        let mut other = HashMap::new();
+        for (k, v) in &metadata.entries {
+            let key = format!("{PREFIX}{k}");
+            other.insert(
+                Text::new_or_none(&key)
+                    .ok_or_else(|| Error::invalid(format!("EXR attribute name {key}")))?,
+                text(v)?,
+            );
+        }
+        attributes.other = other;
+        let layer = x::Layer::new(
+            (w, h),
+            attributes,
+            x::Encoding::FAST_LOSSLESS,
+            x::AnyChannels::sort(x::SmallVec::from_vec(channels)),
+        );
+        x::Image::from_layer(layer)
+            .write()
+            .to_file(path)
+            .map_err(|e| exr_error(path, e))
+    }
+
+    /// Writes an 8-bit sRGB PNG of the radiance scaled by 2^exposure (clamped, no tone curve
+    /// beyond the sRGB transfer function).
+    pub fn write_png(&self, path: &Path, exposure: f32) -> Result<()> {
+        write_png_rgb(
+            path,
+            self.width(),
+            self.height(),
+            &self.radiance(),
+            exposure,
+        )
+    }
+}
+
+/// Writes linear RGB pixels as an 8-bit sRGB PNG.
+pub fn write_png_rgb(
+    path: &Path,
+    width: u32,
+    height: u32,
+    pixels: &[Rgb],
+    exposure: f32,
+) -> Result<()> {
+    let scale = 2f32.powf(exposure);
+    let bytes: Vec<u8> = pixels
+        .iter()
+        .flat_map(|p| {
+            let v = *p * scale;
+            [encode_srgb(v.x), encode_srgb(v.y), encode_srgb(v.z)]
+        })
+        .collect();
+    image::save_buffer(path, &bytes, width, height, image::ColorType::Rgb8).map_err(|e| match e {
+        image::ImageError::IoError(io) => Error::io(path, io),
+        other => Error::invalid(format!("{}: {other}", path.display())),
+    })
+}
+
+/// Linear value to an 8-bit sRGB code (NaN maps to 0).
+pub fn encode_srgb(v: f32) -> u8 {
+    let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+    let s = if v <= 0.003_130_8 {
+        v * 12.92
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0 + 0.5) as u8
+}
+
+fn text(v: &str) -> Result<AttributeValue> {
+    Text::new_or_none(v)
+        .map(AttributeValue::Text)
+        .ok_or_else(|| {
+            Error::invalid(format!(
+                "EXR attribute value '{v}' is not storable as EXR text"
+            ))
+        })
+}
+
+fn exr_error(path: &Path, e: exr::error::Error) -> Error {
+    match e {
+        exr::error::Error::Io(io) => Error::io(path, io),
+        other => Error::parse(path, "", other.to_string()),
+    }
+}
+
+/// Reads the R, G, B channels (any sample type) of the first layer of an EXR file, with the
+/// `lacuna:*` attributes Lacuna wrote.
+pub fn read_exr_rgb(path: &Path) -> Result<ExrImage> {
+    let image = x::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| exr_error(path, e))?;
+    let layer = &image.layer_data;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    let find = |name: &str| {
+        layer
+            .channel_data
+            .list
+            .iter()
+            .find(|c| c.name.to_string() == name)
+            .map(|c| c.sample_data.values_as_f32().collect::<Vec<f32>>())
+            .ok_or_else(|| Error::parse(path, "", format!("no channel {name}")))
+    };
+    let (r, g, b) = (find("R")?, find("G")?, find("B")?);
+    let pixels = (0..w * h).map(|i| Rgb::new(r[i], g[i], b[i])).collect();
+    let mut metadata = ExrMetadata::default();
+    let mut entries: Vec<(String, String)> = layer
+        .attributes
+        .other
+        .iter()
+        .filter_map(|(k, v)| {
+            let k = k.to_string();
+            match (k.strip_prefix(PREFIX), v) {
+                (Some(key), AttributeValue::Text(t)) => Some((key.to_string(), t.to_string())),
+                _ => None,
+            }
+        })
+        .collect();
+    entries.sort();
+    metadata.entries = entries;
+    Ok(ExrImage {
+        width: w as u32,
+        height: h as u32,
+        pixels,
+        metadata,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::film::PixelSample;
+
+    #[test]
+    fn exr_round_trip_keeps_pixels_and_metadata() {
+        let mut f = Film::new(3, 2);
+        f.add_sample(
+            2,
+            1,
+            &PixelSample {
+                radiance: Rgb::new(1.5, 2.5, 1e4),
+                ..Default::default()
+            },
+        );
+        let dir = std::env::temp_dir().join(format!("lacuna-exr-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("t.exr");
+        let meta = ExrMetadata::default().with("spp", 16).with("seed", 7);
+        f.write_exr(&path, &meta).unwrap();
+        let img = read_exr_rgb(&path).unwrap();
+        assert_eq!((img.width, img.height), (3, 2));
+        assert_eq!(img.pixels[5], Rgb::new(1.5, 2.5, 1e4));
+        assert_eq!(img.metadata.get("spp"), Some("16"));
+        assert_eq!(img.metadata.get("seed"), Some("7"));
+        f.write_png(&dir.join("t.png"), 0.0).unwrap();
+        assert!(read_exr_rgb(&dir.join("missing.exr")).is_err());
+        std::fs::write(dir.join("bad.exr"), b"not an exr").unwrap();
+        assert!(read_exr_rgb(&dir.join("bad.exr")).is_err());
+    }
+
+    #[test]
+    fn srgb_encoding_is_clamped_and_monotone() {
+        assert_eq!(encode_srgb(0.0), 0);
+        assert_eq!(encode_srgb(1.0), 255);
+        assert_eq!(encode_srgb(7.0), 255);
+        assert_eq!(encode_srgb(f32::NAN), 0);
+        assert_eq!(encode_srgb(0.5), 188);
+    }
+}

@@ -1,0 +1,242 @@
+//! The progressive render loop: passes of N samples per pixel over 16x16 tiles in parallel,
+//! a sample or time budget, progress reporting and cancellation.
+//!
+//! Determinism: every pixel sample draws its random numbers from a generator seeded by
+//! (seed, pixel, sample index), and each pixel's samples are summed in sample order within a
+//! pass, so for a given seed and sample budget the image does not depend on the thread count.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::film::Film;
+use crate::integrator::{Integrator, TraceCounters};
+use crate::math::{Rng, Vec2};
+use crate::scene::{Camera, Scene};
+
+const TILE: u32 = 16;
+
+/// What to render and for how long.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderSettings {
+    pub width: u32,
+    pub height: u32,
+    /// Samples per pixel to reach (the render stops there, or earlier if `time_limit` ends).
+    pub spp: u32,
+    /// Wall-clock budget; with it, passes continue until the budget (or `spp`) is reached.
+    pub time_limit: Option<Duration>,
+    pub seed: u64,
+    /// Worker threads; `None` uses all cores.
+    pub threads: Option<usize>,
+    /// Samples per pixel per pass in sample-budget renders (fixed, so results are reproducible).
+    pub pass_spp: u32,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        RenderSettings {
+            width: 512,
+            height: 512,
+            spp: 16,
+            time_limit: None,
+            seed: 0,
+            threads: None,
+            pass_spp: 4,
+        }
+    }
+}
+
+impl RenderSettings {
+    pub fn validate(&self) -> Result<()> {
+        if self.width == 0 || self.height == 0 || self.width > 65536 || self.height > 65536 {
+            return Err(Error::invalid(format!(
+                "image size {}x{} must be within 1..=65536",
+                self.width, self.height
+            )));
+        }
+        if self.spp == 0 {
+            return Err(Error::invalid("samples per pixel must be at least 1"));
+        }
+        if self.pass_spp == 0 {
+            return Err(Error::invalid("samples per pass must be at least 1"));
+        }
+        if let Some(t) = self.time_limit {
+            if t.is_zero() {
+                return Err(Error::invalid("time limit must be positive"));
+            }
+        }
+        if self.threads == Some(0) {
+            return Err(Error::invalid("thread count must be at least 1"));
+        }
+        Ok(())
+    }
+}
+
+/// Progress seen by a callback: fraction done in [0, 1], passes and samples so far.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    pub fraction: f64,
+    pub spp_done: u32,
+    pub elapsed: Duration,
+}
+
+/// Summary figures of a render.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RenderStats {
+    pub seconds: f64,
+    pub spp: u32,
+    pub samples: u64,
+    pub rays: u64,
+    pub passes: u32,
+    pub cancelled: bool,
+}
+
+impl RenderStats {
+    pub fn samples_per_second(&self) -> f64 {
+        self.samples as f64 / self.seconds.max(1e-9)
+    }
+
+    pub fn rays_per_second(&self) -> f64 {
+        self.rays as f64 / self.seconds.max(1e-9)
+    }
+}
+
+/// Renders `scene` through `camera` with `integrator`. `progress` is called from worker
+/// threads after every tile; returning false cancels, as does setting `cancel`. A cancelled
+/// render returns what its completed passes accumulated (`stats.cancelled` is set).
+pub fn render(
+    scene: &Scene,
+    camera: &Camera,
+    integrator: &dyn Integrator,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(Progress) -> bool + Sync),
+    cancel: &AtomicBool,
+) -> Result<(Film, RenderStats)> {
+    settings.validate()?;
+    camera.validate()?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(settings.threads.unwrap_or(0))
+        .build()
+        .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
+    pool.install(|| render_in_pool(scene, camera, integrator, settings, progress, cancel))
+}
+
+fn render_in_pool(
+    scene: &Scene,
+    camera: &Camera,
+    integrator: &dyn Integrator,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(Progress) -> bool + Sync),
+    cancel: &AtomicBool,
+) -> Result<(Film, RenderStats)> {
+    let (w, h) = (settings.width, settings.height);
+    let frame = camera.frame(w as f32 / h as f32);
+    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
+        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
+        .collect();
+    let mut film = Film::new(w, h);
+    let mut stats = RenderStats::default();
+    let start = Instant::now();
+    let rays = AtomicU64::new(0);
+    let tiles_done = AtomicU64::new(0);
+    let mut spp_done = 0u32;
+    let mut seconds_per_spp: Option<f64> = None;
+
+    while spp_done < settings.spp {
+        let elapsed = start.elapsed();
+        // Size of this pass: fixed for sample budgets; for time budgets, what fits in the
+        // remaining time (at least one sample, at most a quarter of the remaining time per
+        // pass so progress stays smooth).
+        let pass = match (settings.time_limit, seconds_per_spp) {
+            (Some(limit), _) if elapsed >= limit => break,
+            (Some(limit), Some(sps)) => {
+                let remaining = (limit - elapsed).as_secs_f64();
+                let fit = (remaining / sps).floor() as u32;
+                if fit == 0 {
+                    break;
+                }
+                fit.min(((remaining * 0.25 / sps).ceil() as u32).max(1))
+                    .min(64)
+            }
+            (Some(_), None) => 1,
+            (None, _) => settings.pass_spp,
+        }
+        .min(settings.spp - spp_done);
+
+        let pass_start = Instant::now();
+        let total_tiles = tiles.len() as u64;
+        let results: Vec<Option<Film>> = tiles
+            .par_iter()
+            .map(|&(x0, y0)| {
+                if cancel.load(Ordering::Relaxed) {
+                    return None;
+                }
+                let tw = TILE.min(w - x0);
+                let th = TILE.min(h - y0);
+                let mut tile = Film::new(tw, th);
+                let mut counters = TraceCounters::default();
+                for ty in 0..th {
+                    for tx in 0..tw {
+                        let (x, y) = (x0 + tx, y0 + ty);
+                        let pixel_index = y as u64 * w as u64 + x as u64;
+                        for s in spp_done..spp_done + pass {
+                            let mut rng = Rng::for_sample(settings.seed, pixel_index, s as u64);
+                            let film_pos = Vec2::new(
+                                (x as f32 + rng.uniform()) / w as f32,
+                                (y as f32 + rng.uniform()) / h as f32,
+                            );
+                            let ray = frame.generate_ray(film_pos, rng.uniform2());
+                            let sample = integrator.sample(scene, ray, &mut rng, &mut counters);
+                            tile.add_sample(tx, ty, &sample);
+                        }
+                    }
+                }
+                rays.fetch_add(counters.rays, Ordering::Relaxed);
+                let done = tiles_done.fetch_add(1, Ordering::Relaxed) + 1;
+                let fraction = match settings.time_limit {
+                    Some(limit) => (start.elapsed().as_secs_f64() / limit.as_secs_f64()).min(1.0),
+                    None => {
+                        (spp_done as f64
+                            + pass as f64 * (done % total_tiles.max(1)) as f64 / total_tiles as f64)
+                            / settings.spp as f64
+                    }
+                };
+                let p = Progress {
+                    fraction,
+                    spp_done,
+                    elapsed: start.elapsed(),
+                };
+                if !progress(p) {
+                    cancel.store(true, Ordering::Relaxed);
+                }
+                Some(tile)
+            })
+            .collect();
+        tiles_done.store(0, Ordering::Relaxed);
+
+        if cancel.load(Ordering::Relaxed) || results.iter().any(Option::is_none) {
+            // A cancelled pass is dropped whole so that every pixel keeps the same count.
+            stats.cancelled = true;
+            break;
+        }
+        for (&(x0, y0), tile) in tiles.iter().zip(results) {
+            film.merge_tile(x0, y0, tile.as_ref().expect("checked above"));
+        }
+        let pass_seconds = pass_start.elapsed().as_secs_f64();
+        seconds_per_spp = Some(pass_seconds / pass as f64);
+        spp_done += pass;
+        stats.passes += 1;
+    }
+    stats.seconds = start.elapsed().as_secs_f64();
+    stats.spp = spp_done;
+    stats.samples = film.total_samples();
+    stats.rays = rays.load(Ordering::Relaxed);
+    progress(Progress {
+        fraction: 1.0,
+        spp_done,
+        elapsed: start.elapsed(),
+    });
+    Ok((film, stats))
+}
