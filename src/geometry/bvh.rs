@@ -3,6 +3,7 @@
 //! triangle test inside the traversal loop.
 
 use glam::{UVec2, Vec3A};
+use obvhs::cwbvh::node::{extract_byte64, CwBvhNode};
 use obvhs::cwbvh::{builder::build_cwbvh_from_tris, CwBvh};
 use obvhs::ray::Ray as BvhRay;
 use obvhs::triangle::Triangle;
@@ -121,7 +122,7 @@ impl Bvh {
             self.cwbvh,
             node,
             state,
-            node.intersect_ray(&traverse_ray, state.oct_inv4),
+            intersect_node(node, &traverse_ray, state.oct_inv4),
             {
                 let slot = state.primitive_id as usize;
                 let t = &self.leaf_tris[slot];
@@ -160,7 +161,7 @@ impl Bvh {
                 self.cwbvh,
                 node,
                 state,
-                node.intersect_ray(&traverse_ray, state.oct_inv4),
+                intersect_node(node, &traverse_ray, state.oct_inv4),
                 {
                     let t = &self.leaf_tris[state.primitive_id as usize];
                     if intersect_triangle(
@@ -206,6 +207,51 @@ impl Bvh {
     }
 }
 
+/// Ray against the eight quantized child boxes of a node; returns the traversal hit mask in
+/// obvhs's layout. We use our own instead of `CwBvhNode::intersect_ray` because that one clamps
+/// the entry distance to an absolute 1e-4, which culls every box closer than 1e-4 to the ray
+/// origin: geometry at small scales, and walls meeting at a corner, would be missed. Here the
+/// interval is (0, t_max], widened by the rounding error of the slab computation
+/// (pbrt-v4 §6.8.2), so the box test is conservative at every scale.
+#[inline(always)]
+fn intersect_node(node: &CwBvhNode, ray: &BvhRay, oct_inv4: u32) -> u32 {
+    let extent = node.compute_extent();
+    let dir_inv = extent * ray.inv_direction;
+    let origin = (Vec3A::from(node.p) - ray.origin) * ray.inv_direction;
+    let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
+    fn pick<'a>(lo: &'a [u8; 8], hi: &'a [u8; 8], negative: bool) -> (&'a [u8; 8], &'a [u8; 8]) {
+        if negative {
+            (hi, lo)
+        } else {
+            (lo, hi)
+        }
+    }
+    let (x_near, x_far) = pick(&node.child_min_x, &node.child_max_x, ray.direction.x < 0.0);
+    let (y_near, y_far) = pick(&node.child_min_y, &node.child_max_y, ray.direction.y < 0.0);
+    let (z_near, z_far) = pick(&node.child_min_z, &node.child_max_z, ray.direction.z < 0.0);
+    let t_max_ray = ray.tmax;
+    let widen = 1.0 + 2.0 * crate::math::gamma(3);
+    let mut hit = [false; 8];
+    for c in 0..8 {
+        let t0x = x_near[c] as f32 * dir_inv.x + origin.x;
+        let t1x = x_far[c] as f32 * dir_inv.x + origin.x;
+        let t0y = y_near[c] as f32 * dir_inv.y + origin.y;
+        let t1y = y_far[c] as f32 * dir_inv.y + origin.y;
+        let t0z = z_near[c] as f32 * dir_inv.z + origin.z;
+        let t1z = z_far[c] as f32 * dir_inv.z + origin.z;
+        let t_enter = t0x.max(t0y).max(t0z).max(0.0);
+        let t_exit = (t1x.min(t1y).min(t1z) * widen).min(t_max_ray);
+        hit[c] = t_enter <= t_exit;
+    }
+    let mut mask = 0u32;
+    for (c, &h) in hit.iter().enumerate() {
+        if h {
+            mask |= extract_byte64(child_bits8, c) << extract_byte64(bit_index8, c);
+        }
+    }
+    mask
+}
+
 // The traversal macro names `UVec2` unqualified.
 #[allow(unused_imports)]
 use UVec2 as _;
@@ -229,34 +275,53 @@ mod tests {
             .collect()
     }
 
-    /// The BVH answers exactly what testing every triangle answers.
+    /// The BVH answers exactly what testing every triangle answers, at every scene scale and
+    /// for rays starting right next to geometry.
     #[test]
     fn bvh_matches_brute_force() {
         let mut rng = Rng::new(17, 1);
-        let tris = random_triangles(2000, &mut rng);
-        for quality in [BvhQuality::Fast, BvhQuality::Medium, BvhQuality::High] {
-            let bvh = Bvh::build(&tris, quality);
-            for _ in 0..3000 {
-                let o = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 12.0 - Vec3::ONE;
-                let d = warp::uniform_sphere(rng.uniform2());
-                let t_max = if rng.uniform() < 0.5 {
-                    f32::INFINITY
-                } else {
-                    rng.uniform() * 10.0
-                };
-                let ray = Ray::new(o, d, t_max);
-                let pre = RayPrecomp::new(o, d);
-                let brute = tris
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, t)| {
-                        intersect_triangle(&pre, t[0], t[1], t[2], t_max).map(|h| (i, h))
-                    })
-                    .min_by(|a, b| a.1.t.total_cmp(&b.1.t));
-                let got = bvh.intersect(&ray);
-                assert_eq!(got.map(|h| h.t), brute.map(|b| b.1.t));
-                assert_eq!(got.map(|h| h.triangle as usize), brute.map(|b| b.0));
-                assert_eq!(bvh.occluded(&ray), brute.is_some());
+        let unit_tris = random_triangles(2000, &mut rng);
+        for scale in [1e-4f32, 1.0, 1e4] {
+            let tris: Vec<[Vec3; 3]> = unit_tris.iter().map(|t| t.map(|p| p * scale)).collect();
+            for quality in [BvhQuality::Fast, BvhQuality::Medium, BvhQuality::High] {
+                let bvh = Bvh::build(&tris, quality);
+                for i in 0..3000 {
+                    let o = if i % 2 == 0 {
+                        (Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 12.0 - Vec3::ONE)
+                            * scale
+                    } else {
+                        // Just off a random triangle: the nearest geometry is far below 1e-4.
+                        let t = tris[rng.below(tris.len() as u32) as usize];
+                        let (b0, b1) = warp::uniform_triangle(rng.uniform2());
+                        t[0] * b0
+                            + t[1] * b1
+                            + t[2] * (1.0 - b0 - b1)
+                            + warp::uniform_sphere(rng.uniform2()) * (1e-3 * scale)
+                    };
+                    let d = warp::uniform_sphere(rng.uniform2());
+                    let t_max = if rng.uniform() < 0.5 {
+                        f32::INFINITY
+                    } else {
+                        rng.uniform() * 10.0 * scale
+                    };
+                    let ray = Ray::new(o, d, t_max);
+                    let pre = RayPrecomp::new(o, d);
+                    let brute = tris
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(i, t)| {
+                            intersect_triangle(&pre, t[0], t[1], t[2], t_max).map(|h| (i, h))
+                        })
+                        .min_by(|a, b| a.1.t.total_cmp(&b.1.t));
+                    let got = bvh.intersect(&ray);
+                    assert_eq!(
+                        got.map(|h| h.t),
+                        brute.map(|b| b.1.t),
+                        "scale {scale}, {quality:?}"
+                    );
+                    assert_eq!(got.map(|h| h.triangle as usize), brute.map(|b| b.0));
+                    assert_eq!(bvh.occluded(&ray), brute.is_some());
+                }
             }
         }
     }
