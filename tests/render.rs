@@ -405,3 +405,80 @@ fn hard_lighting_cases_stay_finite() {
     );
     assert_film_finite(&film);
 }
+
+/// A progress callback that returns false stops the render; what completed passes gathered is
+/// kept and every pixel has the same count. A time budget stops on time.
+#[test]
+fn cancellation_and_time_budget() {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    use std::time::Duration;
+    let scene = two_rooms_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    let integrator = integrator::create("path", IntegratorSettings::default()).unwrap();
+    let calls = AtomicU32::new(0);
+    let rs = RenderSettings {
+        width: 64,
+        height: 64,
+        spp: 1000,
+        pass_spp: 1,
+        ..Default::default()
+    };
+    // 16 tiles a pass: cancel during the third pass.
+    let (film, stats) = render(
+        &scene,
+        &camera,
+        integrator.as_ref(),
+        &rs,
+        &|_| calls.fetch_add(1, Ordering::Relaxed) < 40,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
+    assert!(stats.cancelled);
+    assert_eq!(stats.spp, 2);
+    assert_eq!(film.min_samples(), 2);
+    assert_eq!(film.total_samples(), 2 * 64 * 64);
+
+    let cancel = AtomicBool::new(true);
+    let (film, stats) = render(
+        &scene,
+        &camera,
+        integrator.as_ref(),
+        &rs,
+        &|_| true,
+        &cancel,
+    )
+    .unwrap();
+    assert!(stats.cancelled && film.total_samples() == 0);
+
+    let rs = RenderSettings {
+        spp: u32::MAX,
+        time_limit: Some(Duration::from_millis(300)),
+        ..rs
+    };
+    let (film, stats) = render(
+        &scene,
+        &camera,
+        integrator.as_ref(),
+        &rs,
+        &|_| true,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
+    // With an unbounded sample budget, only the clock can have stopped it.
+    assert!(!stats.cancelled && stats.spp >= 1 && stats.spp < u32::MAX);
+    assert_eq!(film.min_samples(), stats.spp);
+
+    let bad = RenderSettings {
+        width: 0,
+        ..Default::default()
+    };
+    assert!(render(
+        &scene,
+        &camera,
+        integrator.as_ref(),
+        &bad,
+        &|_| true,
+        &AtomicBool::new(false)
+    )
+    .is_err());
+}

@@ -2,6 +2,7 @@
 //! outputs (AOVs) a denoiser or a host wants: first-hit albedo, shading normal and depth.
 //! Sums are kept in f64 so that long progressive renders do not lose precision.
 
+pub mod metrics;
 mod output;
 
 pub use output::{read_exr_rgb, ExrImage, ExrMetadata};

@@ -82,6 +82,12 @@ pub struct Bounds3 {
     pub max: Vec3,
 }
 
+impl Default for Bounds3 {
+    fn default() -> Self {
+        Bounds3::EMPTY
+    }
+}
+
 impl Bounds3 {
     pub const EMPTY: Bounds3 = Bounds3 {
         min: Vec3::splat(f32::INFINITY),
