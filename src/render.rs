@@ -120,7 +120,51 @@ pub fn render(
         .num_threads(settings.threads.unwrap_or(0))
         .build()
         .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
-    pool.install(|| render_in_pool(scene, camera, integrator, settings, progress, cancel))
+    pool.install(|| {
+        render_in_pool(
+            scene,
+            camera,
+            integrator,
+            settings,
+            progress,
+            cancel,
+            &mut |_, _| {},
+        )
+    })
+}
+
+/// What an observer learns after each completed pass.
+#[derive(Clone, Copy, Debug)]
+pub struct PassReport {
+    /// Samples per pixel accumulated so far.
+    pub spp: u32,
+    /// Rendering time so far, excluding the time spent in observers.
+    pub seconds: f64,
+}
+
+/// [`render`], calling `on_pass` with the accumulated film after every completed pass (for
+/// convergence logs). Time spent in `on_pass` counts neither in the budget nor in the stats, so
+/// measuring does not handicap the integrator measured.
+pub fn render_observed(
+    scene: &Scene,
+    camera: &Camera,
+    integrator: &dyn Integrator,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(Progress) -> bool + Sync),
+    cancel: &AtomicBool,
+    on_pass: &mut (dyn FnMut(&Film, PassReport) + Send),
+) -> Result<(Film, RenderStats)> {
+    settings.validate()?;
+    camera.validate()?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(settings.threads.unwrap_or(0))
+        .build()
+        .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
+    pool.install(|| {
+        render_in_pool(
+            scene, camera, integrator, settings, progress, cancel, on_pass,
+        )
+    })
 }
 
 fn render_in_pool(
@@ -130,6 +174,7 @@ fn render_in_pool(
     settings: &RenderSettings,
     progress: &(dyn Fn(Progress) -> bool + Sync),
     cancel: &AtomicBool,
+    on_pass: &mut (dyn FnMut(&Film, PassReport) + Send),
 ) -> Result<(Film, RenderStats)> {
     let (w, h) = (settings.width, settings.height);
     let frame = camera.frame(w as f32 / h as f32);
@@ -139,13 +184,15 @@ fn render_in_pool(
     let mut film = Film::new(w, h);
     let mut stats = RenderStats::default();
     let start = Instant::now();
+    // Time spent in `on_pass`, subtracted from the clock.
+    let mut observer_time = Duration::ZERO;
     let rays = AtomicU64::new(0);
     let tiles_done = AtomicU64::new(0);
     let mut spp_done = 0u32;
     let mut seconds_per_spp: Option<f64> = None;
 
     while spp_done < settings.spp {
-        let elapsed = start.elapsed();
+        let elapsed = start.elapsed().saturating_sub(observer_time);
         // Size of this pass: fixed for sample budgets; for time budgets, what fits in the
         // remaining time (at least one sample, at most a quarter of the remaining time per
         // pass so progress stays smooth).
@@ -196,7 +243,9 @@ fn render_in_pool(
                 rays.fetch_add(counters.rays, Ordering::Relaxed);
                 let done = tiles_done.fetch_add(1, Ordering::Relaxed) + 1;
                 let fraction = match settings.time_limit {
-                    Some(limit) => (start.elapsed().as_secs_f64() / limit.as_secs_f64()).min(1.0),
+                    Some(limit) => (start.elapsed().saturating_sub(observer_time).as_secs_f64()
+                        / limit.as_secs_f64())
+                    .min(1.0),
                     None => {
                         (spp_done as f64
                             + pass as f64 * (done % total_tiles.max(1)) as f64 / total_tiles as f64)
@@ -228,8 +277,17 @@ fn render_in_pool(
         seconds_per_spp = Some(pass_seconds / pass as f64);
         spp_done += pass;
         stats.passes += 1;
+        let observer_start = Instant::now();
+        on_pass(
+            &film,
+            PassReport {
+                spp: spp_done,
+                seconds: start.elapsed().saturating_sub(observer_time).as_secs_f64(),
+            },
+        );
+        observer_time += observer_start.elapsed();
     }
-    stats.seconds = start.elapsed().as_secs_f64();
+    stats.seconds = start.elapsed().saturating_sub(observer_time).as_secs_f64();
     stats.spp = spp_done;
     stats.samples = film.total_samples();
     stats.rays = rays.load(Ordering::Relaxed);

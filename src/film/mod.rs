@@ -5,7 +5,8 @@
 pub mod metrics;
 mod output;
 
-pub use output::{read_exr_rgb, ExrImage, ExrMetadata};
+pub use metrics::{image_errors, ImageErrors};
+pub use output::{encode_srgb, read_exr_rgb, write_png_rgb, ExrImage, ExrMetadata};
 
 use crate::math::Rgb;
 

@@ -1,0 +1,495 @@
+//! Speed against error: reference renders with an estimate of their own remaining error, and
+//! equal-time comparisons of integrators with convergence logs (TESTING.md, "Measuring speed
+//! against error"). The command line (`lacuna reference`, `lacuna compare`) and the C API are
+//! thin layers over this module.
+
+mod report;
+
+pub use report::{error_image, write_report};
+
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use crate::error::{Error, Result};
+use crate::film::{image_errors, Film, ImageErrors};
+use crate::integrator::Integrator;
+use crate::math::Rgb;
+use crate::render::{render, render_observed, Progress, RenderSettings, RenderStats};
+use crate::scene::{Camera, Scene};
+
+/// A high-sample render and the estimate of its own error.
+pub struct Reference {
+    pub film: Film,
+    pub stats: RenderStats,
+    /// Estimated errors of `film` against the converged image: half the distance between two
+    /// independent half-sample renders (for independent noise, the difference of two halves
+    /// has twice the standard deviation of their average).
+    pub noise: ImageErrors,
+}
+
+/// Renders a reference as two independent halves (seeds `seed` and `seed + 1`) and averages them.
+pub fn render_reference(
+    scene: &Scene,
+    camera: &Camera,
+    integrator: &dyn Integrator,
+    settings: &RenderSettings,
+    progress: &(dyn Fn(Progress) -> bool + Sync),
+) -> Result<Reference> {
+    if settings.spp < 2 {
+        return Err(Error::invalid(
+            "a reference needs at least 2 samples per pixel (two halves)",
+        ));
+    }
+    let cancel = AtomicBool::new(false);
+    let half = RenderSettings {
+        spp: settings.spp / 2,
+        time_limit: None,
+        ..settings.clone()
+    };
+    let half_progress = |offset: f64| {
+        move |p: Progress| {
+            progress(Progress {
+                fraction: offset + 0.5 * p.fraction,
+                ..p
+            })
+        }
+    };
+    let (a, stats_a) = render(
+        scene,
+        camera,
+        integrator,
+        &half,
+        &half_progress(0.0),
+        &cancel,
+    )?;
+    let second = RenderSettings {
+        seed: settings.seed.wrapping_add(1),
+        ..half.clone()
+    };
+    let (b, stats_b) = render(
+        scene,
+        camera,
+        integrator,
+        &second,
+        &half_progress(0.5),
+        &cancel,
+    )?;
+    if stats_a.cancelled || stats_b.cancelled {
+        return Err(Error::Cancelled);
+    }
+    let diff = image_errors(&a.radiance(), &b.radiance())?;
+    let noise = ImageErrors {
+        mae: diff.mae / 2.0,
+        rmse: diff.rmse / 2.0,
+        rel_mse: diff.rel_mse / 4.0,
+    };
+    let mut film = a;
+    film.merge(&b);
+    let stats = RenderStats {
+        seconds: stats_a.seconds + stats_b.seconds,
+        spp: stats_a.spp + stats_b.spp,
+        samples: stats_a.samples + stats_b.samples,
+        rays: stats_a.rays + stats_b.rays,
+        passes: stats_a.passes + stats_b.passes,
+        cancelled: false,
+    };
+    Ok(Reference { film, stats, noise })
+}
+
+/// One integrator taking part in a comparison, under the label shown in reports.
+pub struct Contender {
+    pub label: String,
+    pub integrator: Box<dyn Integrator>,
+}
+
+/// Errors of one run at one moment.
+#[derive(Clone, Copy, Debug)]
+pub struct CurvePoint {
+    pub contender: usize,
+    pub run: u32,
+    pub seconds: f64,
+    pub spp: u32,
+    pub errors: ImageErrors,
+}
+
+/// The end of one run.
+#[derive(Clone, Copy, Debug)]
+pub struct RunResult {
+    pub contender: usize,
+    pub run: u32,
+    pub stats: RenderStats,
+    pub errors: ImageErrors,
+}
+
+/// Median and range of a figure over runs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Spread {
+    pub median: f64,
+    pub min: f64,
+    pub max: f64,
+}
+
+impl Spread {
+    pub fn of(values: &[f64]) -> Option<Spread> {
+        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        let median = if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            0.5 * (v[n / 2 - 1] + v[n / 2])
+        };
+        Some(Spread {
+            median,
+            min: v[0],
+            max: v[n - 1],
+        })
+    }
+
+    /// True when the two ranges do not overlap.
+    pub fn separated_from(&self, other: &Spread) -> bool {
+        self.max < other.min || other.max < self.min
+    }
+}
+
+/// What the comparison concludes about one contender.
+#[derive(Clone, Debug)]
+pub struct Summary {
+    pub label: String,
+    pub mae: Spread,
+    pub rmse: Spread,
+    pub rel_mse: Spread,
+    pub spp: Spread,
+    /// Time at which this contender reached the baseline's final MAE (median over runs);
+    /// `None` when no run reached it.
+    pub time_to_baseline_error: Option<Spread>,
+    /// Speedup over the baseline (baseline time / time to reach its error), reported only when
+    /// this contender's final MAE range over runs does not overlap the baseline's.
+    pub speedup: Option<Spread>,
+    /// True when the final errors are within the run-to-run spread of the baseline's.
+    pub indistinguishable: bool,
+    /// Slope of log MAE against log time over the second half of the median run: about -0.5
+    /// for an unbiased Monte Carlo estimator, near 0 when the error has hit a plateau (bias,
+    /// or the reference's own noise).
+    pub slope: Option<f64>,
+}
+
+/// A slope above this (log MAE per log time) counts as a plateau.
+pub const PLATEAU_SLOPE: f64 = -0.15;
+
+impl Summary {
+    pub fn plateaued(&self) -> bool {
+        self.slope.is_some_and(|s| s > PLATEAU_SLOPE)
+    }
+}
+
+/// Least-squares slope of log(MAE) against log(time) over the second half (in time) of a curve.
+pub fn convergence_slope(curve: &[CurvePoint]) -> Option<f64> {
+    let last = curve.last()?.seconds;
+    let pts: Vec<(f64, f64)> = curve
+        .iter()
+        .filter(|p| p.seconds >= 0.5 * last && p.seconds > 0.0 && p.errors.mae > 0.0)
+        .map(|p| (p.seconds.ln(), p.errors.mae.ln()))
+        .collect();
+    if pts.len() < 3 {
+        return None;
+    }
+    let n = pts.len() as f64;
+    let (mx, my) = (
+        pts.iter().map(|p| p.0).sum::<f64>() / n,
+        pts.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    (sxx > 0.0).then(|| sxy / sxx)
+}
+
+/// Mean and standard error of the mean.
+fn mean_and_standard_error(values: &[f64]) -> (f64, f64) {
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    if values.len() < 2 {
+        return (mean, f64::INFINITY);
+    }
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+/// Everything a comparison measured.
+pub struct Comparison {
+    pub labels: Vec<String>,
+    pub seconds_per_run: f64,
+    pub runs: u32,
+    pub points: Vec<CurvePoint>,
+    pub results: Vec<RunResult>,
+    pub summaries: Vec<Summary>,
+    /// The last run's film of each contender.
+    pub films: Vec<Film>,
+    pub reference_noise: Option<ImageErrors>,
+}
+
+/// Runs every contender for the same wall-clock time, `runs` times, in one process, rotating
+/// the order each run so that no contender always goes first; logs errors against `reference`
+/// after every pass. The first contender is the baseline.
+#[allow(clippy::too_many_arguments)]
+pub fn compare(
+    scene: &Scene,
+    camera: &Camera,
+    contenders: &[Contender],
+    reference: &[Rgb],
+    reference_noise: Option<ImageErrors>,
+    settings: &RenderSettings,
+    seconds_per_run: f64,
+    runs: u32,
+    progress: &(dyn Fn(Progress) -> bool + Sync),
+) -> Result<Comparison> {
+    if contenders.is_empty() {
+        return Err(Error::invalid("compare needs at least one integrator"));
+    }
+    if !(seconds_per_run > 0.0 && seconds_per_run.is_finite()) || runs == 0 {
+        return Err(Error::invalid(format!(
+            "time per run {seconds_per_run} s and runs {runs} must be positive"
+        )));
+    }
+    let pixels = settings.width as usize * settings.height as usize;
+    if reference.len() != pixels {
+        return Err(Error::invalid(format!(
+            "reference has {} pixels but the render has {}x{} = {pixels}",
+            reference.len(),
+            settings.width,
+            settings.height
+        )));
+    }
+    let n = contenders.len();
+    let total = (n as u32 * runs) as f64;
+    let mut points = Vec::new();
+    let mut results = Vec::new();
+    let mut films: Vec<Option<Film>> = (0..n).map(|_| None).collect();
+    let cancel = AtomicBool::new(false);
+    let mut done = 0.0f64;
+    for run in 0..runs {
+        for k in 0..n {
+            let c = (k + run as usize) % n;
+            let rs = RenderSettings {
+                spp: u32::MAX,
+                time_limit: Some(Duration::from_secs_f64(seconds_per_run)),
+                seed: settings.seed.wrapping_add(1000 * run as u64 + c as u64),
+                ..settings.clone()
+            };
+            let mut run_points = Vec::new();
+            let mut on_pass = |film: &Film, pass: crate::render::PassReport| {
+                if let Ok(errors) = image_errors(&film.radiance(), reference) {
+                    run_points.push(CurvePoint {
+                        contender: c,
+                        run,
+                        seconds: pass.seconds,
+                        spp: pass.spp,
+                        errors,
+                    });
+                }
+            };
+            let offset = done;
+            let step = |p: Progress| {
+                progress(Progress {
+                    fraction: (offset + p.fraction) / total,
+                    ..p
+                })
+            };
+            let (film, stats) = render_observed(
+                scene,
+                camera,
+                contenders[c].integrator.as_ref(),
+                &rs,
+                &step,
+                &cancel,
+                &mut on_pass,
+            )?;
+            if stats.cancelled {
+                return Err(Error::Cancelled);
+            }
+            let errors = image_errors(&film.radiance(), reference)?;
+            points.extend(run_points);
+            results.push(RunResult {
+                contender: c,
+                run,
+                stats,
+                errors,
+            });
+            films[c] = Some(film);
+            done += 1.0;
+        }
+    }
+    let labels: Vec<String> = contenders.iter().map(|c| c.label.clone()).collect();
+    let summaries = summarize(&labels, &points, &results, seconds_per_run);
+    Ok(Comparison {
+        labels,
+        seconds_per_run,
+        runs,
+        points,
+        results,
+        summaries,
+        films: films
+            .into_iter()
+            .map(|f| f.expect("every contender ran"))
+            .collect(),
+        reference_noise,
+    })
+}
+
+/// Time at which a run's MAE curve first reaches `target`, interpolated in log-log space
+/// between the two passes that bracket it.
+pub fn time_to_reach(curve: &[CurvePoint], target: f64) -> Option<f64> {
+    let mut prev: Option<&CurvePoint> = None;
+    for p in curve {
+        if p.errors.mae <= target {
+            return Some(match prev {
+                Some(q)
+                    if q.errors.mae > target
+                        && q.seconds > 0.0
+                        && p.seconds > q.seconds
+                        && p.errors.mae > 0.0 =>
+                {
+                    let (t0, t1) = (q.seconds.ln(), p.seconds.ln());
+                    let (e0, e1) = (q.errors.mae.ln(), p.errors.mae.ln());
+                    let a = (target.ln() - e0) / (e1 - e0);
+                    (t0 + a * (t1 - t0)).exp()
+                }
+                _ => p.seconds,
+            });
+        }
+        prev = Some(p);
+    }
+    None
+}
+
+fn summarize(
+    labels: &[String],
+    points: &[CurvePoint],
+    results: &[RunResult],
+    seconds: f64,
+) -> Vec<Summary> {
+    let of = |c: usize, f: &dyn Fn(&RunResult) -> f64| {
+        let v: Vec<f64> = results.iter().filter(|r| r.contender == c).map(f).collect();
+        Spread::of(&v).unwrap_or(Spread {
+            median: f64::NAN,
+            min: f64::NAN,
+            max: f64::NAN,
+        })
+    };
+    let baseline_mae = of(0, &|r| r.errors.mae);
+    let maes = |c: usize| -> Vec<f64> {
+        results
+            .iter()
+            .filter(|r| r.contender == c)
+            .map(|r| r.errors.mae)
+            .collect()
+    };
+    let (base_mean, base_se) = mean_and_standard_error(&maes(0));
+    (0..labels.len())
+        .map(|c| {
+            let mae = of(c, &|r| r.errors.mae);
+            let runs: Vec<u32> = results
+                .iter()
+                .filter(|r| r.contender == c)
+                .map(|r| r.run)
+                .collect();
+            let times: Vec<f64> = runs
+                .iter()
+                .filter_map(|&run| {
+                    let curve: Vec<CurvePoint> = points
+                        .iter()
+                        .filter(|p| p.contender == c && p.run == run)
+                        .copied()
+                        .collect();
+                    time_to_reach(&curve, baseline_mae.median)
+                })
+                .collect();
+            let time_to_baseline_error = Spread::of(&times);
+            // Distinguishable only when the ranges over runs do not overlap and the means
+            // differ by more than three combined standard errors.
+            let (mean, se) = mean_and_standard_error(&maes(c));
+            let indistinguishable = !mae.separated_from(&baseline_mae)
+                || (mean - base_mean).abs() <= 3.0 * (se * se + base_se * base_se).sqrt();
+            let median_run = {
+                let mut rs: Vec<&RunResult> = results.iter().filter(|r| r.contender == c).collect();
+                rs.sort_by(|a, b| a.errors.mae.total_cmp(&b.errors.mae));
+                rs.get(rs.len() / 2).map_or(0, |r| r.run)
+            };
+            let curve: Vec<CurvePoint> = points
+                .iter()
+                .filter(|p| p.contender == c && p.run == median_run)
+                .copied()
+                .collect();
+            let slope = convergence_slope(&curve);
+            let speedup = if c == 0 || indistinguishable {
+                None
+            } else {
+                let ratios: Vec<f64> = times.iter().map(|t| seconds / t.max(1e-9)).collect();
+                Spread::of(&ratios)
+            };
+            Summary {
+                label: labels[c].clone(),
+                mae,
+                rmse: of(c, &|r| r.errors.rmse),
+                rel_mse: of(c, &|r| r.errors.rel_mse),
+                spp: of(c, &|r| r.stats.spp as f64),
+                time_to_baseline_error,
+                speedup,
+                indistinguishable,
+                slope,
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(seconds: f64, mae: f64) -> CurvePoint {
+        CurvePoint {
+            contender: 0,
+            run: 0,
+            seconds,
+            spp: 1,
+            errors: ImageErrors {
+                mae,
+                rmse: mae,
+                rel_mse: mae,
+            },
+        }
+    }
+
+    #[test]
+    fn time_to_reach_interpolates_in_log_space() {
+        let curve = [point(1.0, 1.0), point(4.0, 0.25), point(16.0, 0.0625)];
+        assert_eq!(time_to_reach(&curve, 2.0), Some(1.0));
+        let t = time_to_reach(&curve, 0.5).unwrap();
+        assert!((t - 2.0).abs() < 1e-9, "{t}");
+        assert_eq!(time_to_reach(&curve, 0.01), None);
+    }
+
+    #[test]
+    fn spread_median_and_separation() {
+        let s = Spread::of(&[3.0, 1.0, 2.0, f64::NAN]).unwrap();
+        assert_eq!((s.median, s.min, s.max), (2.0, 1.0, 3.0));
+        assert_eq!(Spread::of(&[1.0, 2.0]).unwrap().median, 1.5);
+        assert!(Spread::of(&[]).is_none());
+        let t = Spread {
+            median: 5.0,
+            min: 4.0,
+            max: 6.0,
+        };
+        assert!(
+            s.separated_from(&t)
+                && !s.separated_from(&Spread {
+                    median: 3.0,
+                    min: 2.5,
+                    max: 4.0
+                })
+        );
+    }
+}
