@@ -1,4 +1,5 @@
-//! The `lacuna` command: render scenes (and, as the project grows, analyse and compare).
+//! The `lacuna` command: render scenes, make reference images and compare integrators at equal
+//! time.
 
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -8,17 +9,25 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use clap::{Args, Parser, Subcommand};
-use lacuna::film::ExrMetadata;
+use lacuna::compare::{compare, render_reference, write_report, Contender};
+use lacuna::film::{read_exr_rgb, ExrMetadata, Film, ImageErrors};
 use lacuna::integrator::{self, IntegratorSettings, MisHeuristic};
 use lacuna::math::Vec3;
 use lacuna::render::{render, Progress, RenderSettings};
-use lacuna::scene::{two_rooms_builder, Camera, Scene, SceneBuilder};
+use lacuna::scene::{
+    auto_camera, corridor_builder, corridor_render_settings, load_obj, load_scene_file,
+    two_rooms_builder, Camera, RenderSettingsFile, Scene, SceneBuilder,
+};
+use lacuna::{Error, Result};
 
 #[derive(Parser)]
 #[command(
     name = "lacuna",
     version,
-    about = "Lacuna: a physically based renderer that reads the empty space of a scene"
+    about = "Lacuna: a physically based renderer that reads the empty space of a scene",
+    after_help = "SCENE is an .obj file (framed automatically when no camera is given), a .json scene \
+                  file (docs/scene-format.md), or a built-in scene: two-rooms (the default: two rooms \
+                  joined by an ajar door, lit from the far room) or corridor."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -28,40 +37,34 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Render a scene to an EXR or PNG file.
-    ///
-    /// Without SCENE, renders the built-in scene: two rooms joined by an ajar door, lit from
-    /// the far room.
     Render(RenderArgs),
+    /// Render a high-sample reference image (EXR) with an estimate of its own error.
+    Reference(ReferenceArgs),
+    /// Run integrators for the same wall-clock time and report their error against a reference.
+    Compare(CompareArgs),
 }
 
-/// Options shared by every command that renders.
+/// Scene, camera, image and path options shared by every command.
 #[derive(Args, Clone, Debug)]
-struct RenderArgs {
-    /// An .obj file (framed automatically when no camera is given) or a .json scene file.
+struct SceneArgs {
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor). Default: two-rooms.
     scene: Option<PathBuf>,
-    /// Integrator name (available: path).
-    #[arg(long, default_value = "path")]
-    integrator: String,
-    /// Samples per pixel (default 16, or the scene file's).
-    #[arg(long, conflicts_with = "time")]
-    spp: Option<u32>,
-    /// Render for this many seconds instead of a fixed sample count.
-    #[arg(long)]
-    time: Option<f64>,
-    /// Maximum number of bounces (1 = direct lighting only).
+    /// Maximum number of bounces (1 = direct lighting only) [default: 8, or the scene file's].
     #[arg(long)]
     max_depth: Option<u32>,
     /// MIS heuristic between light and BSDF sampling: power or balance.
     #[arg(long, default_value = "power")]
     mis: String,
+    /// Image width in pixels [default: 512, or the scene file's].
     #[arg(long)]
     width: Option<u32>,
+    /// Image height in pixels [default: 512, or the scene file's].
     #[arg(long)]
     height: Option<u32>,
     /// Seed of the random sequences; the same seed and sample count give the same image.
     #[arg(long)]
     seed: Option<u64>,
-    /// Worker threads (default: all cores).
+    /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
     /// Camera position, as X,Y,Z.
@@ -76,18 +79,72 @@ struct RenderArgs {
     /// Vertical field of view in degrees.
     #[arg(long)]
     fov: Option<f32>,
-    /// Output file: .exr (float32 with AOVs and metadata) or .png (sRGB preview).
-    #[arg(long, short, default_value = "lacuna.png")]
-    out: PathBuf,
-    /// Exposure of PNG output in stops.
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
-    exposure: f32,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Print build statistics and memory per structure.
+    #[arg(long, short)]
+    verbose: bool,
 }
 
-fn parse_vec3(s: &str) -> Result<Vec3, String> {
+#[derive(Args, Clone, Debug)]
+struct RenderArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Integrator name (available: path) [default: path, or the scene file's].
+    #[arg(long)]
+    integrator: Option<String>,
+    /// Samples per pixel [default: 16, or the scene file's].
+    #[arg(long, conflicts_with = "time")]
+    spp: Option<u32>,
+    /// Render progressively for this many seconds instead of a fixed sample count.
+    #[arg(long)]
+    time: Option<f64>,
+    /// Output file: .exr (float32 RGB with AOVs and metadata) or .png (sRGB preview).
+    #[arg(long, short, default_value = "lacuna.png")]
+    out: PathBuf,
+    /// Exposure of PNG output, in stops.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    exposure: f32,
+}
+
+#[derive(Args, Clone, Debug)]
+struct ReferenceArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Integrator name [default: path].
+    #[arg(long)]
+    integrator: Option<String>,
+    /// Samples per pixel (rendered as two independent halves).
+    #[arg(long)]
+    spp: u32,
+    /// Output EXR file.
+    #[arg(long, short)]
+    out: PathBuf,
+}
+
+#[derive(Args, Clone, Debug)]
+struct CompareArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Comma-separated integrator names; the first is the baseline.
+    #[arg(long, default_value = "path")]
+    integrators: String,
+    /// Seconds per integrator per run.
+    #[arg(long)]
+    time: f64,
+    /// Reference EXR (from `lacuna reference`) of the same scene, camera and size.
+    #[arg(long)]
+    reference: PathBuf,
+    /// Output directory (curves.csv, convergence.svg, summary.md, images).
+    #[arg(long, short)]
+    out: PathBuf,
+    /// Runs per integrator [default: 3 when the budget allows (time x integrators x 3 <= 30 min), else 1].
+    #[arg(long)]
+    runs: Option<u32>,
+}
+
+fn parse_vec3(s: &str) -> std::result::Result<Vec3, String> {
     let parts: Vec<&str> = s.split(',').collect();
     if parts.len() != 3 {
         return Err(format!("expected X,Y,Z, got '{s}'"));
@@ -102,77 +159,90 @@ fn parse_vec3(s: &str) -> Result<Vec3, String> {
     Ok(Vec3::from(v))
 }
 
-/// A scene ready to render with the settings that came with it.
+/// A scene ready to render with its settings: the scene file's, overridden by options.
 struct Prepared {
     scene: Scene,
     camera: Camera,
     render: RenderSettings,
     integrator: IntegratorSettings,
-    integrator_name: String,
+    /// Integrator named by the scene file, if any.
+    file_integrator: Option<String>,
+    file_time: Option<f64>,
     label: String,
 }
 
-fn prepare(args: &RenderArgs) -> lacuna::Result<Prepared> {
-    let (builder, label): (SceneBuilder, String) = match &args.scene {
-        None => (two_rooms_builder()?, "built-in two rooms".into()),
-        Some(path) => (load_builder(path)?, path.display().to_string()),
+fn load_builder(path: &Path) -> Result<(SceneBuilder, RenderSettingsFile, String)> {
+    let label = path.display().to_string();
+    if !path.exists() {
+        match path.to_str() {
+            Some("two-rooms") => {
+                return Ok((
+                    two_rooms_builder()?,
+                    RenderSettingsFile::default(),
+                    "two-rooms".into(),
+                ))
+            }
+            Some("corridor") => {
+                return Ok((
+                    corridor_builder()?,
+                    corridor_render_settings(),
+                    "corridor".into(),
+                ))
+            }
+            _ => {}
+        }
+    }
+    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+        Some("obj") => {
+            let mut builder = SceneBuilder::new();
+            let report = load_obj(path, &mut builder, None)?;
+            for w in &report.warnings {
+                eprintln!("lacuna: warning: {w}");
+            }
+            Ok((builder, RenderSettingsFile::default(), label))
+        }
+        Some("json") => {
+            let loaded = load_scene_file(path)?;
+            for w in &loaded.warnings {
+                eprintln!("lacuna: warning: {w}");
+            }
+            Ok((loaded.builder, loaded.settings, label))
+        }
+        _ => Err(Error::invalid(format!(
+            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor)"
+        ))),
+    }
+}
+
+fn prepare(args: &SceneArgs) -> Result<Prepared> {
+    let (builder, file, label) = match &args.scene {
+        None => (
+            two_rooms_builder()?,
+            RenderSettingsFile::default(),
+            "two-rooms".into(),
+        ),
+        Some(path) => load_builder(path)?,
     };
     let scene = builder.build()?;
     let mut render = RenderSettings::default();
-    if let Some(w) = args.width {
-        render.width = w;
-    }
-    if let Some(h) = args.height {
-        render.height = h;
-    }
-    if let Some(s) = args.spp {
-        render.spp = s;
-    }
-    if let Some(t) = args.time {
-        if !(t > 0.0 && t.is_finite()) {
-            return Err(lacuna::Error::invalid(format!(
-                "--time {t} must be a positive number of seconds"
-            )));
-        }
-        render.time_limit = Some(Duration::from_secs_f64(t));
-        render.spp = args.spp.unwrap_or(u32::MAX);
-    }
-    if let Some(s) = args.seed {
-        render.seed = s;
-    }
+    render.width = args.width.or(file.width).unwrap_or(render.width);
+    render.height = args.height.or(file.height).unwrap_or(render.height);
+    render.spp = file.spp.unwrap_or(render.spp);
+    render.seed = args.seed.or(file.seed).unwrap_or(render.seed);
     render.threads = args.threads;
     let mut integrator = IntegratorSettings {
         mis: MisHeuristic::parse(&args.mis)?,
         ..Default::default()
     };
-    if let Some(d) = args.max_depth {
-        integrator.max_depth = d;
-    }
-    let camera = override_camera(scene.camera().copied(), args)?;
-    Ok(Prepared {
-        scene,
-        camera,
-        render,
-        integrator,
-        integrator_name: args.integrator.clone(),
-        label,
-    })
-}
-
-fn load_builder(path: &Path) -> lacuna::Result<SceneBuilder> {
-    Err(lacuna::Error::invalid(format!(
-        "cannot load {} yet",
-        path.display()
-    )))
-}
-
-fn override_camera(base: Option<Camera>, args: &RenderArgs) -> lacuna::Result<Camera> {
-    let mut camera = base.unwrap_or(Camera::look_at(
-        Vec3::new(0.0, 0.0, 5.0),
-        Vec3::ZERO,
-        Vec3::Y,
-        40.0,
-    )?);
+    integrator.max_depth = args
+        .max_depth
+        .or(file.max_depth)
+        .unwrap_or(integrator.max_depth);
+    let aspect = render.width as f32 / render.height.max(1) as f32;
+    let mut camera = scene
+        .camera()
+        .copied()
+        .unwrap_or_else(|| auto_camera(scene.bounds(), aspect));
     if let Some(e) = args.eye {
         camera.eye = e;
     }
@@ -186,7 +256,39 @@ fn override_camera(base: Option<Camera>, args: &RenderArgs) -> lacuna::Result<Ca
         camera.vfov_degrees = f;
     }
     camera.validate()?;
-    Ok(camera)
+    if args.verbose {
+        let stats = scene.stats();
+        let mem = scene.memory();
+        eprintln!(
+            "{label}: {} triangles ({} degenerate skipped), {} lights, BVH {} nodes built in {:.3} s",
+            stats.triangles,
+            stats.degenerate_triangles_skipped,
+            scene.lights().len(),
+            stats.bvh_nodes,
+            stats.bvh_seconds
+        );
+        eprintln!(
+            "memory: meshes {:.1} MiB, BVH {:.1} MiB, textures {:.1} MiB, lights {:.3} MiB, total {:.1} MiB",
+            mib(mem.meshes),
+            mib(mem.bvh),
+            mib(mem.textures),
+            mib(mem.lights),
+            mib(mem.total())
+        );
+    }
+    Ok(Prepared {
+        scene,
+        camera,
+        render,
+        integrator,
+        file_integrator: file.integrator,
+        file_time: file.time,
+        label,
+    })
+}
+
+fn mib(bytes: usize) -> f64 {
+    bytes as f64 / (1024.0 * 1024.0)
 }
 
 /// A progress bar on standard error, redrawn at most ten times a second.
@@ -213,7 +315,7 @@ impl ProgressBar {
         }
         *last = Instant::now();
         let width = 40;
-        let filled = ((p.fraction.clamp(0.0, 1.0)) * width as f64) as usize;
+        let filled = (p.fraction.clamp(0.0, 1.0) * width as f64) as usize;
         let mut err = std::io::stderr().lock();
         let _ = write!(
             err,
@@ -231,27 +333,61 @@ impl ProgressBar {
     }
 }
 
-fn run_render(args: &RenderArgs) -> lacuna::Result<()> {
-    let prep = prepare(args)?;
-    let integrator = integrator::create(&prep.integrator_name, prep.integrator)?;
-    let bar = ProgressBar::new(args.quiet);
-    let cancel = AtomicBool::new(false);
+fn ensure_parent(path: &Path) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    Ok(())
+}
+
+fn run_render(args: &RenderArgs) -> Result<()> {
+    let mut prep = prepare(&args.scene)?;
+    if let Some(s) = args.spp {
+        prep.render.spp = s;
+    }
+    if let Some(t) = args.time.or(if args.spp.is_none() {
+        prep.file_time
+    } else {
+        None
+    }) {
+        if !(t > 0.0 && t.is_finite()) {
+            return Err(Error::invalid(format!(
+                "time budget {t} must be a positive number of seconds"
+            )));
+        }
+        prep.render.time_limit = Some(Duration::from_secs_f64(t));
+        prep.render.spp = args.spp.unwrap_or(u32::MAX);
+    }
+    let name = args
+        .integrator
+        .clone()
+        .or(prep.file_integrator.clone())
+        .unwrap_or_else(|| "path".into());
+    let integrator = integrator::create(&name, prep.integrator)?;
+    let bar = ProgressBar::new(args.scene.quiet);
     let (film, stats) = render(
         &prep.scene,
         &prep.camera,
         integrator.as_ref(),
         &prep.render,
         &|p| bar.update(p),
-        &cancel,
+        &AtomicBool::new(false),
     )?;
-    write_film(&film, &args.out, args.exposure, &prep, stats.spp)?;
+    let meta = ExrMetadata::default()
+        .with("spp", stats.spp)
+        .with("seed", prep.render.seed)
+        .with("integrator", &name)
+        .with("max_depth", prep.integrator.max_depth)
+        .with("scene", &prep.label)
+        .with("seconds", format!("{:.3}", stats.seconds));
+    write_film(&film, &args.out, args.exposure, &meta)?;
     println!(
         "{}: {}x{}, {} spp of {} (max depth {}) in {:.2} s: {:.2} M samples/s, {:.2} M rays/s -> {}",
         prep.label,
         prep.render.width,
         prep.render.height,
         stats.spp,
-        prep.integrator_name,
+        name,
         prep.integrator.max_depth,
         stats.seconds,
         stats.samples_per_second() / 1e6,
@@ -261,43 +397,158 @@ fn run_render(args: &RenderArgs) -> lacuna::Result<()> {
     Ok(())
 }
 
-fn write_film(
-    film: &lacuna::film::Film,
-    out: &Path,
-    exposure: f32,
-    prep: &Prepared,
-    spp: u32,
-) -> lacuna::Result<()> {
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| lacuna::Error::io(dir, e))?;
-    }
+fn write_film(film: &Film, out: &Path, exposure: f32, meta: &ExrMetadata) -> Result<()> {
+    ensure_parent(out)?;
     match out
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .as_deref()
     {
-        Some("exr") => {
-            let meta = ExrMetadata::default()
-                .with("spp", spp)
-                .with("seed", prep.render.seed)
-                .with("integrator", &prep.integrator_name)
-                .with("max_depth", prep.integrator.max_depth)
-                .with("scene", &prep.label);
-            film.write_exr(out, &meta)
-        }
+        Some("exr") => film.write_exr(out, meta),
         Some("png") => film.write_png(out, exposure),
-        _ => Err(lacuna::Error::invalid(format!(
+        _ => Err(Error::invalid(format!(
             "output {} must end in .exr or .png",
             out.display()
         ))),
     }
 }
 
+fn run_reference(args: &ReferenceArgs) -> Result<()> {
+    let mut prep = prepare(&args.scene)?;
+    prep.render.spp = args.spp;
+    let name = args.integrator.clone().unwrap_or_else(|| "path".into());
+    let integrator = integrator::create(&name, prep.integrator)?;
+    let bar = ProgressBar::new(args.scene.quiet);
+    let reference = render_reference(
+        &prep.scene,
+        &prep.camera,
+        integrator.as_ref(),
+        &prep.render,
+        &|p| bar.update(p),
+    )?;
+    let meta = ExrMetadata::default()
+        .with("spp", reference.stats.spp)
+        .with("seed", prep.render.seed)
+        .with("integrator", &name)
+        .with("max_depth", prep.integrator.max_depth)
+        .with("scene", &prep.label)
+        .with("seconds", format!("{:.3}", reference.stats.seconds))
+        .with(
+            "reference_mae_estimate",
+            format!("{:e}", reference.noise.mae),
+        )
+        .with(
+            "reference_rmse_estimate",
+            format!("{:e}", reference.noise.rmse),
+        )
+        .with(
+            "reference_rel_mse_estimate",
+            format!("{:e}", reference.noise.rel_mse),
+        );
+    if args.out.extension().and_then(|e| e.to_str()) != Some("exr") {
+        return Err(Error::invalid(format!(
+            "reference output {} must be an .exr file",
+            args.out.display()
+        )));
+    }
+    write_film(&reference.film, &args.out, 0.0, &meta)?;
+    println!(
+        "{}: reference of {} spp ({}, max depth {}) in {:.1} s; estimated remaining error MAE {:.3e}, RMSE {:.3e}, relMSE {:.3e} -> {}",
+        prep.label,
+        reference.stats.spp,
+        name,
+        prep.integrator.max_depth,
+        reference.stats.seconds,
+        reference.noise.mae,
+        reference.noise.rmse,
+        reference.noise.rel_mse,
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn run_compare(args: &CompareArgs) -> Result<()> {
+    if !(args.time > 0.0 && args.time.is_finite()) {
+        return Err(Error::invalid(format!(
+            "--time {} must be a positive number of seconds",
+            args.time
+        )));
+    }
+    let prep = prepare(&args.scene)?;
+    let reference = read_exr_rgb(&args.reference)?;
+    if (reference.width, reference.height) != (prep.render.width, prep.render.height) {
+        return Err(Error::invalid(format!(
+            "reference {} is {}x{} but the render is {}x{}: give the same --width/--height",
+            args.reference.display(),
+            reference.width,
+            reference.height,
+            prep.render.width,
+            prep.render.height
+        )));
+    }
+    let noise = (|| {
+        let get = |k: &str| reference.metadata.get(k)?.parse::<f64>().ok();
+        Some(ImageErrors {
+            mae: get("reference_mae_estimate")?,
+            rmse: get("reference_rmse_estimate")?,
+            rel_mse: get("reference_rel_mse_estimate")?,
+        })
+    })();
+    let names: Vec<&str> = args
+        .integrators
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .collect();
+    let contenders = names
+        .iter()
+        .map(|n| {
+            Ok(Contender {
+                label: n.to_string(),
+                integrator: integrator::create(n, prep.integrator)?,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let runs = args
+        .runs
+        .unwrap_or(if args.time * names.len() as f64 * 3.0 <= 1800.0 {
+            3
+        } else {
+            1
+        });
+    let bar = ProgressBar::new(args.scene.quiet);
+    let cmp = compare(
+        &prep.scene,
+        &prep.camera,
+        &contenders,
+        &reference.pixels,
+        noise,
+        &prep.render,
+        args.time,
+        runs,
+        &|p| bar.update(p),
+    )?;
+    write_report(
+        &args.out,
+        &cmp,
+        &reference.pixels,
+        prep.render.width,
+        prep.render.height,
+        &prep.label,
+    )?;
+    let summary = std::fs::read_to_string(args.out.join("summary.md"))
+        .map_err(|e| Error::io(args.out.join("summary.md"), e))?;
+    println!("{summary}");
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Render(args) => run_render(args),
+        Command::Reference(args) => run_reference(args),
+        Command::Compare(args) => run_compare(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
