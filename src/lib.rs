@@ -3,6 +3,7 @@
 //! Data flows from a [`scene::SceneBuilder`] (validated input) to an immutable
 //! [`scene::Scene`], through an integrator, into a [`film::Film`]. See `DESIGN.md`.
 
+pub mod analysis;
 pub mod compare;
 pub mod error;
 pub mod film;

@@ -1,0 +1,254 @@
+//! The voxel grid over a scene: dimensions, the world-to-grid transform, and a dense bit set of
+//! occupied voxels.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use crate::error::{Error, Result};
+use crate::geometry::Bounds3;
+use crate::math::Vec3;
+
+/// How the resolution of a grid is chosen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Resolution {
+    /// Cubic voxels of this edge length (world units).
+    VoxelSize(f64),
+    /// This many voxels along the longest axis of the (padded) bounds.
+    LongestAxis(u32),
+    /// At most this many voxels in total.
+    VoxelBudget(u64),
+}
+
+/// A regular grid of cubic voxels. Voxel (x, y, z) spans
+/// `origin + size * [x, x+1] x [y, y+1] x [z, z+1]`; index = x + nx (y + ny z).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VoxelGrid {
+    pub dims: [usize; 3],
+    pub origin: [f64; 3],
+    pub voxel_size: f64,
+}
+
+impl VoxelGrid {
+    /// A grid covering `bounds` plus `padding` voxels on every side.
+    pub fn new(bounds: Bounds3, resolution: Resolution, padding: u32) -> Result<Self> {
+        if bounds.is_empty() || !bounds.min.is_finite() || !bounds.max.is_finite() {
+            return Err(Error::invalid(
+                "cannot build a voxel grid over empty or non-finite bounds",
+            ));
+        }
+        let ext = bounds.diagonal().as_dvec3();
+        let longest = ext.max_element().max(1e-30);
+        let pad = padding as f64;
+        let size = match resolution {
+            Resolution::VoxelSize(s) => {
+                if !(s > 0.0 && s.is_finite()) {
+                    return Err(Error::invalid(format!("voxel size {s} must be positive")));
+                }
+                s
+            }
+            Resolution::LongestAxis(n) => {
+                if n == 0 {
+                    return Err(Error::invalid(
+                        "longest-axis voxel count must be at least 1",
+                    ));
+                }
+                longest / n as f64
+            }
+            Resolution::VoxelBudget(b) => {
+                if b == 0 {
+                    return Err(Error::invalid("voxel budget must be at least 1"));
+                }
+                // Largest size whose padded grid fits: solve prod(ext/s + 2 pad) <= b by bisection.
+                let count = |s: f64| {
+                    (0..3)
+                        .map(|i| (ext[i] / s).ceil().max(1.0) + 2.0 * pad)
+                        .product::<f64>()
+                };
+                let (mut lo, mut hi) = (longest * 1e-6, longest * 2.0);
+                for _ in 0..100 {
+                    let mid = (lo * hi).sqrt();
+                    if count(mid) > b as f64 {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                hi
+            }
+        };
+        let mut dims = [0usize; 3];
+        let mut origin = [0.0f64; 3];
+        for i in 0..3 {
+            let n = (ext[i] / size).ceil().max(1.0);
+            // Centre the scene inside its voxels, then pad.
+            let slack = n * size - ext[i];
+            origin[i] = bounds.min[i] as f64 - 0.5 * slack - pad * size;
+            let total = n + 2.0 * pad;
+            if total > (1u64 << 31) as f64 {
+                return Err(Error::invalid(format!(
+                    "voxel grid axis {i} would have {total} voxels"
+                )));
+            }
+            dims[i] = total as usize;
+        }
+        Ok(VoxelGrid {
+            dims,
+            origin,
+            voxel_size: size,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    #[inline]
+    pub fn index(&self, x: usize, y: usize, z: usize) -> usize {
+        x + self.dims[0] * (y + self.dims[1] * z)
+    }
+
+    #[inline]
+    pub fn coords(&self, index: usize) -> [usize; 3] {
+        let x = index % self.dims[0];
+        let yz = index / self.dims[0];
+        [x, yz % self.dims[1], yz / self.dims[1]]
+    }
+
+    /// Continuous grid coordinates of a world point (voxel (x, y, z) spans [x, x+1) ...).
+    #[inline]
+    pub fn to_grid(&self, p: Vec3) -> [f64; 3] {
+        [0, 1, 2].map(|i| (p[i] as f64 - self.origin[i]) / self.voxel_size)
+    }
+
+    /// World position of a grid point.
+    #[inline]
+    pub fn to_world(&self, g: [f64; 3]) -> Vec3 {
+        Vec3::new(
+            (self.origin[0] + g[0] * self.voxel_size) as f32,
+            (self.origin[1] + g[1] * self.voxel_size) as f32,
+            (self.origin[2] + g[2] * self.voxel_size) as f32,
+        )
+    }
+
+    /// Centre of a voxel in world space.
+    pub fn voxel_center(&self, index: usize) -> Vec3 {
+        let c = self.coords(index);
+        self.to_world([c[0] as f64 + 0.5, c[1] as f64 + 0.5, c[2] as f64 + 0.5])
+    }
+
+    /// The voxel containing a world point, if inside the grid.
+    pub fn voxel_at(&self, p: Vec3) -> Option<usize> {
+        let g = self.to_grid(p);
+        let mut c = [0usize; 3];
+        for i in 0..3 {
+            if !(g[i] >= 0.0 && g[i] < self.dims[i] as f64) {
+                return None;
+            }
+            c[i] = g[i] as usize;
+        }
+        Some(self.index(c[0], c[1], c[2]))
+    }
+}
+
+/// A dense set of voxels, one bit each.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct VoxelSet {
+    words: Vec<u64>,
+    len: usize,
+}
+
+impl VoxelSet {
+    pub fn new(len: usize) -> Self {
+        VoxelSet {
+            words: vec![0; len.div_ceil(64)],
+            len,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    #[inline]
+    pub fn get(&self, i: usize) -> bool {
+        self.words[i >> 6] >> (i & 63) & 1 == 1
+    }
+
+    #[inline]
+    pub fn set(&mut self, i: usize) {
+        self.words[i >> 6] |= 1 << (i & 63);
+    }
+
+    pub fn count(&self) -> usize {
+        self.words.iter().map(|w| w.count_ones() as usize).sum()
+    }
+
+    pub fn memory_bytes(&self) -> usize {
+        self.words.len() * 8
+    }
+
+    pub(crate) fn from_atomic(words: Vec<AtomicU64>, len: usize) -> Self {
+        VoxelSet {
+            words: words.into_iter().map(|w| w.into_inner()).collect(),
+            len,
+        }
+    }
+}
+
+/// A bit set that many threads can add to at once.
+pub(crate) struct AtomicVoxelSet {
+    pub words: Vec<AtomicU64>,
+}
+
+impl AtomicVoxelSet {
+    pub fn new(len: usize) -> Self {
+        AtomicVoxelSet {
+            words: (0..len.div_ceil(64)).map(|_| AtomicU64::new(0)).collect(),
+        }
+    }
+
+    #[inline]
+    pub fn set(&self, i: usize) {
+        self.words[i >> 6].fetch_or(1 << (i & 63), Ordering::Relaxed);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn resolutions_cover_the_bounds() {
+        let b = Bounds3 {
+            min: Vec3::new(-1.0, 0.0, 2.0),
+            max: Vec3::new(3.0, 1.0, 2.5),
+        };
+        let g = VoxelGrid::new(b, Resolution::LongestAxis(64), 1).unwrap();
+        assert_eq!(g.dims, [66, 18, 10]);
+        assert!((g.voxel_size - 4.0 / 64.0).abs() < 1e-12);
+        // Voxels are half-open, so the max corner itself is probed just inside.
+        for p in [b.min, b.max - Vec3::splat(1e-4), b.center()] {
+            let v = g.voxel_at(p).unwrap();
+            let c = g.coords(v);
+            assert!(
+                c.iter().zip(g.dims).all(|(&c, d)| c >= 1 && c < d - 1),
+                "{p} -> {c:?}"
+            );
+        }
+        let g = VoxelGrid::new(b, Resolution::VoxelBudget(100_000), 1).unwrap();
+        assert!(g.len() <= 100_000 && g.len() > 50_000, "{:?}", g.dims);
+        let g = VoxelGrid::new(b, Resolution::VoxelSize(0.5), 0).unwrap();
+        assert_eq!(g.dims, [8, 2, 1]);
+        assert!(VoxelGrid::new(b, Resolution::VoxelSize(0.0), 0).is_err());
+        assert!(VoxelGrid::new(Bounds3::EMPTY, Resolution::LongestAxis(8), 0).is_err());
+        assert_eq!(g.index(3, 1, 0), 11);
+        assert_eq!(g.coords(11), [3, 1, 0]);
+    }
+}
