@@ -1,5 +1,13 @@
 //! Empty-space analysis (000 chapters 6 and 10): voxelize the scene, measure its empty space
 //! with distance and opening maps, and cut it into regions joined by portals.
+//!
+//! [`Analysis::build`] runs the pipeline on a committed scene: voxelize (26-separating) →
+//! optional interior fill → 26-distance → 26-opening and forest → opening-forest labels →
+//! portals. Each stage is timed; memory is estimated before anything is allocated and refused
+//! over the caller's budget.
+
+mod pipeline;
+mod report;
 
 pub mod distance;
 pub mod grid;
@@ -12,6 +20,8 @@ pub mod opening;
 pub mod regions;
 
 pub use opening::{opening_map_26, opening_map_l1, OpeningMap};
+pub use pipeline::{Analysis, AnalysisSettings, MemoryUse, StageTime};
 pub use regions::{
     find_portals, label_regions, sample_portal, Labeling, Portal, PortalFace, Region, NO_REGION,
 };
+pub use report::{summary_json, write_analysis};

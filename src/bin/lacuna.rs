@@ -42,6 +42,8 @@ enum Command {
     Reference(ReferenceArgs),
     /// Run integrators for the same wall-clock time and report their error against a reference.
     Compare(CompareArgs),
+    /// Analyse the empty space: voxelization, distance and opening maps, regions and portals.
+    Analyze(AnalyzeArgs),
 }
 
 /// Scene, camera, image and path options shared by every command.
@@ -142,6 +144,42 @@ struct CompareArgs {
     /// Runs per integrator [default: 3 when the budget allows (time x integrators x 3 <= 30 min), else 1].
     #[arg(long)]
     runs: Option<u32>,
+}
+
+#[derive(Args, Clone, Debug)]
+struct AnalyzeArgs {
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor). Default: two-rooms.
+    scene: Option<PathBuf>,
+    /// Voxels along the longest axis of the scene bounds.
+    #[arg(long, default_value_t = 128, conflicts_with_all = ["voxel_size", "voxel_budget"])]
+    resolution: u32,
+    /// Voxel edge length in world units (instead of --resolution).
+    #[arg(long)]
+    voxel_size: Option<f64>,
+    /// Largest number of voxels (instead of --resolution).
+    #[arg(long)]
+    voxel_budget: Option<u64>,
+    /// Treat the inside of closed objects as occupied.
+    #[arg(long)]
+    fill_interiors: bool,
+    /// Treat the outside of the grid as empty (default: solid).
+    #[arg(long)]
+    outside_empty: bool,
+    /// Also compute L1 and Euclidean distance maps, the L1 opening and the decenterness map.
+    #[arg(long)]
+    all_maps: bool,
+    /// Refuse grids needing more memory than this many MiB.
+    #[arg(long, default_value_t = 4096)]
+    memory_budget_mib: u64,
+    /// Worker threads [default: all cores].
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Output directory (summary.json, regions.csv, portals.obj, PNG slices).
+    #[arg(long, short)]
+    out: PathBuf,
+    /// Print the JSON summary on standard output.
+    #[arg(long)]
+    json: bool,
 }
 
 fn parse_vec3(s: &str) -> std::result::Result<Vec3, String> {
@@ -543,12 +581,72 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
     Ok(())
 }
 
+fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
+    use lacuna::analysis::{
+        summary_json, write_analysis, Analysis, AnalysisSettings, Outside, Resolution,
+    };
+    let (builder, _, label) = match &args.scene {
+        None => (
+            two_rooms_builder()?,
+            RenderSettingsFile::default(),
+            "two-rooms".to_string(),
+        ),
+        Some(path) => load_builder(path)?,
+    };
+    let scene = builder.build()?;
+    let resolution = match (args.voxel_size, args.voxel_budget) {
+        (Some(s), _) => Resolution::VoxelSize(s),
+        (None, Some(b)) => Resolution::VoxelBudget(b),
+        (None, None) => Resolution::LongestAxis(args.resolution),
+    };
+    let settings = AnalysisSettings {
+        resolution,
+        fill_interiors: args.fill_interiors,
+        outside: if args.outside_empty {
+            Outside::Empty
+        } else {
+            Outside::Solid
+        },
+        memory_budget: args.memory_budget_mib.saturating_mul(1 << 20),
+        all_maps: args.all_maps,
+        ..Default::default()
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads.unwrap_or(0))
+        .build()
+        .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
+    let analysis = pool.install(|| Analysis::build(&scene, &settings, &|_, _| true))?;
+    write_analysis(&args.out, &analysis)?;
+    if args.json {
+        println!("{}", summary_json(&analysis));
+    } else {
+        let d = analysis.grid.dims;
+        println!(
+            "{label}: grid {}x{}x{} (voxel {:.4}), {} empty voxels, {} regions, {} portals in {:.3} s -> {}",
+            d[0],
+            d[1],
+            d[2],
+            analysis.grid.voxel_size,
+            analysis.empty_voxels(),
+            analysis.regions.len(),
+            analysis.portals.len(),
+            analysis.total_seconds(),
+            args.out.display()
+        );
+        for t in &analysis.timings {
+            println!("  {:<22} {:.4} s", t.stage, t.seconds);
+        }
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Render(args) => run_render(args),
         Command::Reference(args) => run_reference(args),
         Command::Compare(args) => run_compare(args),
+        Command::Analyze(args) => run_analyze(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
