@@ -55,6 +55,15 @@ impl SceneBuilder {
         self.degenerate_policy = policy;
     }
 
+    pub fn degenerate_policy(&self) -> DegeneratePolicy {
+        self.degenerate_policy
+    }
+
+    /// Zero-area triangles dropped so far under `DegeneratePolicy::Skip`.
+    pub fn degenerate_skipped(&self) -> usize {
+        self.degenerate_skipped
+    }
+
     pub fn set_bvh_quality(&mut self, quality: BvhQuality) {
         self.bvh_quality = quality;
     }

@@ -9,17 +9,23 @@
 mod builder;
 mod builtin;
 mod camera;
+mod corridor;
+mod file;
 mod interaction;
 mod material;
+mod obj;
 mod texture;
 
 pub use builder::{DegeneratePolicy, MeshDesc, SceneBuilder};
 pub use builtin::two_rooms_builder;
 pub use camera::{Camera, CameraFrame};
+pub use corridor::{corridor_builder, corridor_render_settings};
+pub use file::{auto_camera, load_scene_file, LoadedScene, RenderSettingsFile};
 pub use interaction::SurfaceInteraction;
 pub use material::{
     fresnel_dielectric, Bsdf, BsdfSample, Material, MaterialKind, TextureId, Transport,
 };
+pub use obj::{load_obj, ObjReport, DEFAULT_MATERIAL_NAME};
 pub use texture::{srgb_to_linear, Texture};
 
 use crate::geometry::{barycentric_point_error, Bounds3, Bvh, Hit, Ray};
