@@ -5,7 +5,7 @@
 
 use rayon::prelude::*;
 
-use super::grid::VoxelSet;
+use super::grid::{for_each_line, VoxelSet};
 
 /// Distance value of voxels with no occupied voxel at all to measure from.
 pub const INFINITE: u32 = u32::MAX;
@@ -48,12 +48,69 @@ impl DistanceMap {
 /// overflows with it).
 const BIG: i64 = 1 << 40;
 
-/// One line: input values `g` (BIG = none) and features; writes output values and features.
-fn transform_line(metric: Metric, g: &[i64], gf: &[u32], h: &mut [i64], hf: &mut [u32]) {
-    let n = g.len();
+#[inline]
+fn widen(v: u32) -> i64 {
+    if v == INFINITE {
+        BIG
+    } else {
+        v as i64
+    }
+}
+
+#[inline]
+fn narrow(v: i64) -> u32 {
+    if v >= BIG {
+        INFINITE
+    } else {
+        v as u32
+    }
+}
+
+/// Scratch buffers of one worker: the line with its virtual outside sites, and the envelope.
+#[derive(Default)]
+struct LineScratch {
+    g: Vec<i64>,
+    gf: Vec<u32>,
+    sites: Vec<usize>,
+    starts: Vec<i64>,
+}
+
+/// One line of (value, feature) pairs, transformed in place. With `Outside::Solid` a virtual
+/// occupied site stands just beyond each end.
+fn transform_line(
+    metric: Metric,
+    outside: Outside,
+    scratch: &mut LineScratch,
+    line: &mut [(u32, u32)],
+) {
+    let pad = usize::from(outside == Outside::Solid);
+    let n = line.len() + 2 * pad;
+    let LineScratch {
+        g,
+        gf,
+        sites,
+        starts,
+    } = scratch;
+    g.clear();
+    gf.clear();
+    if pad == 1 {
+        g.push(0);
+        gf.push(NO_FEATURE);
+    }
+    for &(v, f) in line.iter() {
+        g.push(widen(v));
+        gf.push(f);
+    }
+    if pad == 1 {
+        g.push(0);
+        gf.push(NO_FEATURE);
+    }
+    let len = line.len();
+    let out = move |x: usize| x.checked_sub(pad).filter(|&i| i < len);
     match metric {
         Metric::L1 => {
             // min_j |i - j| + g(j): a forward and a backward sweep.
+            let mut fwd = Vec::with_capacity(n);
             let (mut best, mut feat) = (BIG, NO_FEATURE);
             for i in 0..n {
                 best += 1;
@@ -61,8 +118,7 @@ fn transform_line(metric: Metric, g: &[i64], gf: &[u32], h: &mut [i64], hf: &mut
                     best = g[i];
                     feat = gf[i];
                 }
-                h[i] = best.min(BIG);
-                hf[i] = feat;
+                fwd.push((best.min(BIG), feat));
             }
             let (mut best, mut feat) = (BIG, NO_FEATURE);
             for i in (0..n).rev() {
@@ -71,9 +127,13 @@ fn transform_line(metric: Metric, g: &[i64], gf: &[u32], h: &mut [i64], hf: &mut
                     best = g[i];
                     feat = gf[i];
                 }
-                if best < h[i] {
-                    h[i] = best;
-                    hf[i] = feat;
+                let (v, f) = if best < fwd[i].0 {
+                    (best, feat)
+                } else {
+                    fwd[i]
+                };
+                if let Some(k) = out(i) {
+                    line[k] = (narrow(v), f);
                 }
             }
         }
@@ -86,7 +146,8 @@ fn transform_line(metric: Metric, g: &[i64], gf: &[u32], h: &mut [i64], hf: &mut
                     _ => d * d + g[i],
                 }
             };
-            // Sep(i, u), i < u: the last x at which site i is still at most site u.
+            // Sep(i, u), i < u: the last x at which site i is still no worse than site u
+            // (Meijster et al. 2000, Table 1).
             let sep = |i: usize, u: usize| -> i64 {
                 let (i_, u_) = (i as i64, u as i64);
                 match metric {
@@ -100,44 +161,44 @@ fn transform_line(metric: Metric, g: &[i64], gf: &[u32], h: &mut [i64], hf: &mut
                     _ => (u_ * u_ - i_ * i_ + g[u] - g[i]).div_euclid(2 * (u_ - i_)),
                 }
             };
-            let mut s: Vec<usize> = Vec::with_capacity(n);
-            let mut t: Vec<i64> = Vec::with_capacity(n);
+            sites.clear();
+            starts.clear();
             for u in 0..n {
                 if g[u] >= BIG {
                     continue;
                 }
-                while let (Some(&sq), Some(&tq)) = (s.last(), t.last()) {
+                while let (Some(&sq), Some(&tq)) = (sites.last(), starts.last()) {
                     if f(tq, sq) > f(tq, u) {
-                        s.pop();
-                        t.pop();
+                        sites.pop();
+                        starts.pop();
                     } else {
                         break;
                     }
                 }
-                match s.last() {
+                match sites.last() {
                     None => {
-                        s.push(u);
-                        t.push(0);
+                        sites.push(u);
+                        starts.push(0);
                     }
                     Some(&sq) => {
                         let w = 1 + sep(sq, u);
                         if w < n as i64 {
-                            s.push(u);
-                            t.push(w.max(0));
+                            sites.push(u);
+                            starts.push(w.max(0));
                         }
                     }
                 }
             }
-            if s.is_empty() {
-                h.fill(BIG);
-                hf.fill(NO_FEATURE);
+            if sites.is_empty() {
+                line.fill((INFINITE, NO_FEATURE));
                 return;
             }
-            let mut q = s.len() - 1;
+            let mut q = sites.len() - 1;
             for x in (0..n).rev() {
-                h[x] = f(x as i64, s[q]).min(BIG);
-                hf[x] = gf[s[q]];
-                if q > 0 && x as i64 == t[q] {
+                if let Some(k) = out(x) {
+                    line[k] = (narrow(f(x as i64, sites[q])), gf[sites[q]]);
+                }
+                if q > 0 && x as i64 == starts[q] {
                     q -= 1;
                 }
             }
@@ -145,7 +206,8 @@ fn transform_line(metric: Metric, g: &[i64], gf: &[u32], h: &mut [i64], hf: &mut
     }
 }
 
-/// Computes a distance map of `occupied` (distance 0) over a grid of `dims`.
+/// Computes a distance map of `occupied` (distance 0) over a grid of `dims`: one parallel pass
+/// per axis, each line transformed independently.
 pub fn distance_map(
     dims: [usize; 3],
     occupied: &VoxelSet,
@@ -155,98 +217,24 @@ pub fn distance_map(
 ) -> DistanceMap {
     let n = dims[0] * dims[1] * dims[2];
     assert_eq!(occupied.len(), n);
-    let mut values: Vec<i64> = (0..n)
-        .into_par_iter()
-        .map(|i| if occupied.get(i) { 0 } else { BIG })
-        .collect();
-    let mut feats: Vec<u32> = (0..n)
+    let mut data: Vec<(u32, u32)> = (0..n)
         .into_par_iter()
         .map(|i| {
             if occupied.get(i) {
-                i as u32
+                (0, i as u32)
             } else {
-                NO_FEATURE
+                (INFINITE, NO_FEATURE)
             }
         })
         .collect();
     for axis in 0..3 {
-        (values, feats) = separable_pass(dims, axis, &values, &feats, metric, outside);
-    }
-    DistanceMap {
-        values: values
-            .into_par_iter()
-            .map(|v| if v >= BIG { INFINITE } else { v as u32 })
-            .collect(),
-        nearest: nearest.then_some(feats),
-    }
-}
-
-/// Runs the 1-D transform on every line along `axis`, in parallel.
-fn separable_pass(
-    dims: [usize; 3],
-    axis: usize,
-    values: &[i64],
-    feats: &[u32],
-    metric: Metric,
-    outside: Outside,
-) -> (Vec<i64>, Vec<u32>) {
-    let stride = [1, dims[0], dims[0] * dims[1]][axis];
-    let len = dims[axis];
-    let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
-    let line_count = dims[a] * dims[b];
-    let stride_a = [1, dims[0], dims[0] * dims[1]][a];
-    let stride_b = [1, dims[0], dims[0] * dims[1]][b];
-    let pad = usize::from(outside == Outside::Solid);
-    // Results line by line (line-major), then scattered back.
-    let lines: Vec<(Vec<i64>, Vec<u32>)> = (0..line_count)
-        .into_par_iter()
-        .map_init(
-            || {
-                (
-                    vec![0i64; len + 2],
-                    vec![0u32; len + 2],
-                    vec![0i64; len + 2],
-                    vec![0u32; len + 2],
-                )
-            },
-            |(g, gf, h, hf), line| {
-                let start = (line % dims[a]) * stride_a + (line / dims[a]) * stride_b;
-                let m = len + 2 * pad;
-                if pad == 1 {
-                    g[0] = 0;
-                    gf[0] = NO_FEATURE;
-                    g[m - 1] = 0;
-                    gf[m - 1] = NO_FEATURE;
-                }
-                for i in 0..len {
-                    g[i + pad] = values[start + i * stride];
-                    gf[i + pad] = feats[start + i * stride];
-                }
-                transform_line(metric, &g[..m], &gf[..m], &mut h[..m], &mut hf[..m]);
-                (h[pad..pad + len].to_vec(), hf[pad..pad + len].to_vec())
-            },
-        )
-        .collect();
-    let n = values.len();
-    let mut out_v = vec![0i64; n];
-    let mut out_f = vec![0u32; n];
-    // Scatter: each z-slab (contiguous) in parallel.
-    let slab = dims[0] * dims[1];
-    out_v
-        .par_chunks_mut(slab)
-        .zip(out_f.par_chunks_mut(slab))
-        .enumerate()
-        .for_each(|(z, (sv, sf))| {
-            for y in 0..dims[1] {
-                for x in 0..dims[0] {
-                    let c = [x, y, z];
-                    let line = c[a] + dims[a] * c[b];
-                    sv[x + dims[0] * y] = lines[line].0[c[axis]];
-                    sf[x + dims[0] * y] = lines[line].1[c[axis]];
-                }
-            }
+        for_each_line(dims, axis, &mut data, LineScratch::default, |s, line| {
+            transform_line(metric, outside, s, line)
         });
-    (out_v, out_f)
+    }
+    let values = data.par_iter().map(|p| p.0).collect();
+    let nearest = nearest.then(|| data.par_iter().map(|p| p.1).collect());
+    DistanceMap { values, nearest }
 }
 
 /// Distance between two voxels of a grid under a metric (squared for Euclidean).

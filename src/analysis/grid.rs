@@ -252,3 +252,72 @@ mod tests {
         assert_eq!(g.coords(11), [3, 1, 0]);
     }
 }
+
+/// A raw pointer that may be shared between threads; used only by [`for_each_line`], whose
+/// tasks write disjoint index sets.
+#[derive(Clone, Copy)]
+struct SharedPtr<T>(*mut T);
+// SAFETY: the pointer is only dereferenced by `for_each_line`, where each task reads and
+// writes a set of indices that no other task touches (see there).
+unsafe impl<T: Send> Send for SharedPtr<T> {}
+unsafe impl<T: Send> Sync for SharedPtr<T> {}
+
+/// Runs `f` on every line of `data` (a dims[0] x dims[1] x dims[2] array, x fastest) along
+/// `axis`, in parallel. `f` gets the line as a contiguous slice (gathered into a per-task
+/// buffer for strided axes and written back afterwards) and a per-task scratch state.
+pub(crate) fn for_each_line<T, S>(
+    dims: [usize; 3],
+    axis: usize,
+    data: &mut [T],
+    init: impl Fn() -> S + Sync + Send,
+    f: impl Fn(&mut S, &mut [T]) + Sync + Send,
+) where
+    T: Copy + Send + Sync + Default,
+{
+    use rayon::prelude::*;
+    let [nx, ny, nz] = dims;
+    assert_eq!(data.len(), nx * ny * nz);
+    match axis {
+        0 => data
+            .par_chunks_mut(nx.max(1))
+            .for_each_init(&init, |s, line| f(s, line)),
+        1 => data.par_chunks_mut((nx * ny).max(1)).for_each_init(
+            || (init(), vec![T::default(); ny]),
+            |(s, buf), slab| {
+                for x in 0..nx {
+                    for y in 0..ny {
+                        buf[y] = slab[x + nx * y];
+                    }
+                    f(s, buf);
+                    for y in 0..ny {
+                        slab[x + nx * y] = buf[y];
+                    }
+                }
+            },
+        ),
+        _ => {
+            let ptr = SharedPtr(data.as_mut_ptr());
+            let stride = nx * ny;
+            (0..ny).into_par_iter().for_each_init(
+                || (init(), vec![T::default(); nz]),
+                |(s, buf), y| {
+                    let ptr = ptr;
+                    for x in 0..nx {
+                        let start = x + nx * y;
+                        for (z, b) in buf.iter_mut().enumerate() {
+                            // SAFETY: index start + stride*z < nx*ny*nz = data.len(); the task for
+                            // row y touches only indices with this y, so no two tasks alias, and
+                            // `data` is exclusively borrowed for the whole call.
+                            *b = unsafe { *ptr.0.add(start + stride * z) };
+                        }
+                        f(s, buf);
+                        for (z, b) in buf.iter().enumerate() {
+                            // SAFETY: as above.
+                            unsafe { *ptr.0.add(start + stride * z) = *b };
+                        }
+                    }
+                },
+            )
+        }
+    }
+}

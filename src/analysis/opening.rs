@@ -8,6 +8,8 @@
 
 use rayon::prelude::*;
 
+use super::grid::for_each_line;
+
 /// The 26-opening map and an opening forest.
 #[derive(Clone, Debug)]
 pub struct OpeningMap {
@@ -36,16 +38,18 @@ struct Ball {
     end: usize,
 }
 
-/// Algorithm 7 (dilateLine): dilates a line of radii `r` (with their centres `c`) in the
-/// direction of increasing index, keeping a deque of candidate balls with decreasing radii and
-/// increasing ends, so every voxel is pushed and popped at most once.
-fn dilate_line(r: &mut [u32], c: &mut [u32], queue: &mut std::collections::VecDeque<Ball>) {
+/// Algorithm 7 (dilateLine): dilates a line of (radius, centre) pairs in the direction of
+/// increasing index, keeping a deque of candidate balls with decreasing radii and increasing
+/// ends, so every voxel is pushed and popped at most once. The current voxel's own ball wins
+/// ties, which makes forest roots exactly the voxels whose opening equals their distance.
+fn dilate_line(line: &mut [(u32, u32)], queue: &mut std::collections::VecDeque<Ball>) {
     queue.clear();
-    for i in 0..r.len() {
+    for i in 0..line.len() {
+        let (radius, center) = line[i];
         let cur = Ball {
-            radius: r[i],
-            center: c[i],
-            end: i + r[i] as usize,
+            radius,
+            center,
+            end: i + radius as usize,
         };
         if cur.radius == 0 {
             queue.clear();
@@ -70,55 +74,39 @@ fn dilate_line(r: &mut [u32], c: &mut [u32], queue: &mut std::collections::VecDe
         let front = queue
             .front()
             .expect("queue holds at least the current ball");
-        r[i] = front.radius;
-        c[i] = front.center;
+        line[i] = (front.radius, front.center);
     }
 }
 
-/// Algorithm 6: the 26-opening map and forest from the 26-distance map (0 = occupied).
-/// Each axis is one parallel pass over its lines (forward then backward dilation).
+/// Algorithm 6: the 26-opening map and forest from the 26-distance map (0 = occupied). Each
+/// axis is one parallel pass over its lines, dilating forward then backward. (The scan
+/// bounds of Algorithm 6's y loop read "[w...h]" in the text; it is [1...h].)
 pub fn opening_map_26(dims: [usize; 3], distance: &[u32]) -> OpeningMap {
     let n = dims[0] * dims[1] * dims[2];
     assert_eq!(distance.len(), n);
-    let mut opening = distance.to_vec();
-    let mut center: Vec<u32> = (0..n as u32).collect();
+    let mut data: Vec<(u32, u32)> = distance
+        .par_iter()
+        .enumerate()
+        .map(|(i, &d)| (d, i as u32))
+        .collect();
     for axis in 0..3 {
-        let stride = [1, dims[0], dims[0] * dims[1]][axis];
-        let len = dims[axis];
-        let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
-        let strides = [1, dims[0], dims[0] * dims[1]];
-        let lines: Vec<(Vec<u32>, Vec<u32>)> = (0..dims[a] * dims[b])
-            .into_par_iter()
-            .map_init(std::collections::VecDeque::new, |queue, line| {
-                let start = (line % dims[a]) * strides[a] + (line / dims[a]) * strides[b];
-                let mut r: Vec<u32> = (0..len).map(|i| opening[start + i * stride]).collect();
-                let mut c: Vec<u32> = (0..len).map(|i| center[start + i * stride]).collect();
-                dilate_line(&mut r, &mut c, queue);
-                r.reverse();
-                c.reverse();
-                dilate_line(&mut r, &mut c, queue);
-                r.reverse();
-                c.reverse();
-                (r, c)
-            })
-            .collect();
-        let slab = dims[0] * dims[1];
-        opening
-            .par_chunks_mut(slab)
-            .zip(center.par_chunks_mut(slab))
-            .enumerate()
-            .for_each(|(z, (so, sc))| {
-                for y in 0..dims[1] {
-                    for x in 0..dims[0] {
-                        let p = [x, y, z];
-                        let line = &lines[p[a] + dims[a] * p[b]];
-                        so[x + dims[0] * y] = line.0[p[axis]];
-                        sc[x + dims[0] * y] = line.1[p[axis]];
-                    }
-                }
-            });
+        for_each_line(
+            dims,
+            axis,
+            &mut data,
+            std::collections::VecDeque::new,
+            |queue, line| {
+                dilate_line(line, queue);
+                line.reverse();
+                dilate_line(line, queue);
+                line.reverse();
+            },
+        );
     }
-    OpeningMap { opening, center }
+    OpeningMap {
+        opening: data.par_iter().map(|p| p.0).collect(),
+        center: data.par_iter().map(|p| p.1).collect(),
+    }
 }
 
 /// The L1 opening map (granulometry with octahedral balls) from the L1 distance map:

@@ -226,9 +226,23 @@ fn intersect_node(node: &CwBvhNode, ray: &BvhRay, oct_inv4: u32) -> u32 {
             (lo, hi)
         }
     }
-    let (x_near, x_far) = pick(&node.child_min_x, &node.child_max_x, ray.direction.x < 0.0);
-    let (y_near, y_far) = pick(&node.child_min_y, &node.child_max_y, ray.direction.y < 0.0);
-    let (z_near, z_far) = pick(&node.child_min_z, &node.child_max_z, ray.direction.z < 0.0);
+    // The slab order must follow the sign of the inverse direction: a -0.0 component has a
+    // negative (infinite) inverse although `-0.0 < 0.0` is false.
+    let (x_near, x_far) = pick(
+        &node.child_min_x,
+        &node.child_max_x,
+        ray.inv_direction.x < 0.0,
+    );
+    let (y_near, y_far) = pick(
+        &node.child_min_y,
+        &node.child_max_y,
+        ray.inv_direction.y < 0.0,
+    );
+    let (z_near, z_far) = pick(
+        &node.child_min_z,
+        &node.child_max_z,
+        ray.inv_direction.z < 0.0,
+    );
     let t_max_ray = ray.tmax;
     let widen = 1.0 + 2.0 * crate::math::gamma(3);
     let mut hit = [false; 8];
@@ -322,6 +336,35 @@ mod tests {
                     assert_eq!(got.map(|h| h.triangle as usize), brute.map(|b| b.0));
                     assert_eq!(bvh.occluded(&ray), brute.is_some());
                 }
+            }
+        }
+    }
+
+    /// Directions with negative zero components (common from cross products) still hit.
+    #[test]
+    fn negative_zero_direction_components_hit() {
+        let mut rng = Rng::new(3, 3);
+        let tris = random_triangles(500, &mut rng);
+        let bvh = Bvh::build(&tris, BvhQuality::Medium);
+        for t in &tris {
+            let target = (t[0] + t[1] + t[2]) / 3.0;
+            for (dir, offset) in [
+                (Vec3::new(1.0, -0.0, -0.0), Vec3::new(-20.0, 0.0, 0.0)),
+                (Vec3::new(-0.0, -1.0, 0.0), Vec3::new(0.0, 20.0, 0.0)),
+                (Vec3::new(-0.0, -0.0, 1.0), Vec3::new(0.0, 0.0, -20.0)),
+            ] {
+                let ray = Ray::new(target + offset, dir, f32::INFINITY);
+                let pre = RayPrecomp::new(ray.origin, ray.dir);
+                let brute = tris
+                    .iter()
+                    .filter_map(|t| intersect_triangle(&pre, t[0], t[1], t[2], f32::INFINITY))
+                    .map(|h| h.t)
+                    .fold(f32::INFINITY, f32::min);
+                assert_eq!(
+                    bvh.intersect(&ray).map_or(f32::INFINITY, |h| h.t),
+                    brute,
+                    "{dir}"
+                );
             }
         }
     }
