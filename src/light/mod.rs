@@ -283,13 +283,23 @@ impl Light {
     pub fn pdf(&self, receiver: Vec3, point: Vec3) -> f32 {
         match *self {
             Light::Area { normal, area, .. } => {
+                // The same operations as `sample`, so that both agree to the bit (a receiver
+                // in the light's plane must not get a huge pdf where `sample` gives none).
                 let to_light = point - receiver;
                 let dist2 = to_light.length_squared();
-                let cos_light = -to_light.dot(normal) / dist2.sqrt();
-                if cos_light <= 0.0 || dist2 == 0.0 {
-                    0.0
+                if dist2 == 0.0 {
+                    return 0.0;
+                }
+                let wi = to_light / dist2.sqrt();
+                let cos_light = -wi.dot(normal);
+                if cos_light <= 0.0 {
+                    return 0.0;
+                }
+                let pdf = dist2 / (cos_light * area);
+                if pdf.is_finite() {
+                    pdf
                 } else {
-                    dist2 / (cos_light * area)
+                    0.0
                 }
             }
             _ => 0.0,

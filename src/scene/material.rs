@@ -285,9 +285,15 @@ impl Bsdf {
                 if wo.z <= 0.0 || wi.z <= 0.0 {
                     return Rgb::ZERO;
                 }
-                let cos_alpha = mirror_local(wo).dot(wi).max(0.0);
-                diffuse * INV_PI
-                    + specular * ((exponent + 2.0) * INV_2PI * cos_alpha.powf(exponent))
+                // Zero behind the lobe, as in `pdf` (0^0 = 1 would make exponent 0 reflect
+                // where the lobe is never sampled).
+                let cos_alpha = mirror_local(wo).dot(wi);
+                let lobe = if cos_alpha > 0.0 {
+                    cos_alpha.powf(exponent)
+                } else {
+                    0.0
+                };
+                diffuse * INV_PI + specular * ((exponent + 2.0) * INV_2PI * lobe)
             }
             Bsdf::Mirror { .. } | Bsdf::Dielectric { .. } => Rgb::ZERO,
         }
@@ -393,9 +399,14 @@ impl Bsdf {
                     return None;
                 }
                 let wi = mirror_local(wo);
+                let f = reflectance / wi.z.abs();
+                // |wo.z| below ~3e-39 overflows f to infinity.
+                if !crate::math::is_finite3(f) {
+                    return None;
+                }
                 Some(BsdfSample {
                     wi,
-                    f: reflectance / wi.z.abs(),
+                    f,
                     pdf: 1.0,
                     delta: true,
                 })
@@ -407,9 +418,14 @@ impl Bsdf {
                 let f = fresnel_dielectric(wo.z, eta);
                 if uc < f {
                     let wi = mirror_local(wo);
+                    let fr = f / wi.z.abs();
+                    // |wo.z| below ~3e-39 overflows the weight to infinity.
+                    if !fr.is_finite() {
+                        return None;
+                    }
                     return Some(BsdfSample {
                         wi,
-                        f: Rgb::splat(f / wi.z.abs()),
+                        f: Rgb::splat(fr),
                         pdf: f,
                         delta: true,
                     });
@@ -428,6 +444,9 @@ impl Bsdf {
                 if mode == Transport::Radiance {
                     // Radiance is compressed entering a denser medium (Veach 1997 §5.2).
                     ft /= eta_rel * eta_rel;
+                }
+                if !ft.is_finite() {
+                    return None;
                 }
                 Some(BsdfSample {
                     wi,
