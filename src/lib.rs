@@ -4,6 +4,7 @@
 //! [`scene::Scene`], through an integrator, into a [`film::Film`]. See `DESIGN.md`.
 
 pub mod analysis;
+pub mod capi;
 pub mod compare;
 pub mod error;
 pub mod film;

@@ -1,0 +1,580 @@
+//! `lacuna_render_job`: an integrator with typed settings, run on a scene into a film, with a
+//! progress callback and cancellation from any thread.
+
+use std::ffi::{c_char, c_void};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use super::boundary::{self, lacuna_status, CapiError, CapiResult};
+use super::buffer::{arc_clone, arc_into_handle, arg, box_free, out_ptr, str_arg, write_out};
+use super::context::LACUNA_MAX_THREADS;
+use super::film::{lacuna_film, stats_to_c};
+use super::scene::lacuna_scene;
+use super::types::*;
+use crate::error::Error;
+use crate::film::{ExrMetadata, Film};
+use crate::integrator::{self, Integrator, IntegratorSettings, MisHeuristic};
+use crate::render::{Progress, RenderSettings, RenderStats};
+use crate::scene::{auto_camera, Camera};
+
+/// Progress of a render: `user_data` as registered and the fraction done in [0, 1]. Return
+/// false to cancel (the run then fails with `LACUNA_STATUS_CANCELLED`). Called on Lacuna's
+/// worker threads, one call at a time, with non-decreasing fractions; it must be quick and must
+/// not unwind (throw) into Lacuna.
+pub type lacuna_progress_callback =
+    Option<unsafe extern "C" fn(user_data: *mut c_void, fraction: f64) -> bool>;
+
+#[derive(Clone, Copy)]
+pub(crate) struct ProgressCallback {
+    function: unsafe extern "C" fn(*mut c_void, f64) -> bool,
+    user_data: usize,
+}
+
+/// Settings of a job; copied at the start of each run.
+#[derive(Clone)]
+pub(crate) struct JobSettings {
+    pub integrator: String,
+    pub render: RenderSettings,
+    pub integrator_settings: IntegratorSettings,
+    pub camera: Option<Camera>,
+    pub spp_set: bool,
+    pub progress: Option<ProgressCallback>,
+}
+
+/// A render of a scene: integrator, settings, progress callback. Runs produce films.
+///
+/// Single owner (`lacuna_render_job_new`/`lacuna_render_job_free`); keeps its scene alive.
+/// Thread safety: `lacuna_render_job_cancel` may be called from any thread at any time, also
+/// while the job runs. The other functions must not run concurrently with each other on the
+/// same job, except that setters called during a run only affect later runs; starting a second
+/// run while one is running fails with `LACUNA_STATUS_INVALID_OPERATION`. Do not free a job
+/// while it runs.
+pub struct lacuna_render_job {
+    pub(crate) scene: Arc<lacuna_scene>,
+    settings: Mutex<JobSettings>,
+    cancel: AtomicBool,
+    running: AtomicBool,
+    last_stats: Mutex<Option<RenderStats>>,
+    partial: Mutex<Option<Film>>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Clears the running flag (and consumes a cancel request) when a run ends, however it ends.
+pub(crate) struct RunGuard<'a>(&'a lacuna_render_job);
+
+impl Drop for RunGuard<'_> {
+    fn drop(&mut self) {
+        self.0.cancel.store(false, Ordering::SeqCst);
+        self.0.running.store(false, Ordering::SeqCst);
+    }
+}
+
+/// What a run needs, resolved from the settings.
+pub(crate) struct Prepared {
+    pub settings: JobSettings,
+    pub camera: Camera,
+    pub integrator: Box<dyn Integrator>,
+}
+
+impl lacuna_render_job {
+    /// Marks the job running (failing if it already is) and resolves its settings.
+    pub(crate) fn start(&self) -> CapiResult<(RunGuard<'_>, Prepared)> {
+        if self.running.swap(true, Ordering::SeqCst) {
+            return Err(CapiError::operation("the job is already running"));
+        }
+        let guard = RunGuard(self);
+        let mut settings = lock(&self.settings).clone();
+        if settings.render.threads.is_none() {
+            settings.render.threads = self.scene.ctx.threads();
+        }
+        let (w, h) = (settings.render.width, settings.render.height);
+        let per_pixel = Film::new(1, 1).memory_bytes() as u64;
+        let bytes = w as u64 * h as u64 * per_pixel;
+        let budget = self.scene.ctx.memory_budget();
+        if bytes > budget {
+            return Err(Error::OverBudget {
+                what: format!("a {w}x{h} film"),
+                bytes,
+                budget,
+            }
+            .into());
+        }
+        let camera = settings
+            .camera
+            .or_else(|| self.scene.scene.camera().copied())
+            .unwrap_or_else(|| auto_camera(self.scene.scene.bounds(), w as f32 / h as f32));
+        let integrator = integrator::create(&settings.integrator, settings.integrator_settings)?;
+        Ok((
+            guard,
+            Prepared {
+                settings,
+                camera,
+                integrator,
+            },
+        ))
+    }
+
+    /// The progress closure of a run: honours cancel requests and calls the host's callback
+    /// one call at a time with non-decreasing fractions.
+    pub(crate) fn progress_fn<'a>(
+        &'a self,
+        cb: Option<ProgressCallback>,
+        last: &'a Mutex<f64>,
+    ) -> impl Fn(Progress) -> bool + Sync + 'a {
+        move |p: Progress| {
+            if self.cancel.load(Ordering::Relaxed) {
+                return false;
+            }
+            let Some(cb) = cb else {
+                return true;
+            };
+            let mut last = lock(last);
+            let f = if p.fraction.is_finite() {
+                p.fraction.clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            *last = last.max(f);
+            // SAFETY: the host registered this callback with this user data and promised it
+            // may run on worker threads; the lock serialises the calls.
+            let go_on = unsafe { (cb.function)(cb.user_data as *mut c_void, *last) };
+            if !go_on {
+                self.cancel.store(true, Ordering::Relaxed);
+            }
+            go_on
+        }
+    }
+
+    pub(crate) fn set_last_stats(&self, stats: RenderStats) {
+        *lock(&self.last_stats) = Some(stats);
+    }
+
+    pub(crate) fn metadata(&self, p: &Prepared, stats: &RenderStats) -> ExrMetadata {
+        ExrMetadata::default()
+            .with("spp", stats.spp)
+            .with("seed", p.settings.render.seed)
+            .with("integrator", &p.settings.integrator)
+            .with("max_depth", p.settings.integrator_settings.max_depth)
+            .with("scene", &self.scene.label)
+            .with("seconds", format!("{:.3}", stats.seconds))
+    }
+
+    pub(crate) fn make_film(
+        &self,
+        film: Film,
+        metadata: ExrMetadata,
+        stats: RenderStats,
+    ) -> *mut lacuna_film {
+        arc_into_handle(lacuna_film {
+            ctx: self.scene.ctx.clone(),
+            film,
+            metadata,
+            stats,
+        })
+    }
+}
+
+/// Creates a render job of `scene` (kept alive by the job) with the integrator named
+/// `integrator` (`"path"`; NULL for the scene file's integrator or `"path"`). Defaults: the
+/// scene file's render settings when the scene came from one, else 512x512, 16 samples per
+/// pixel, seed 0, max depth 8, power heuristic, the context's thread count; the scene's camera,
+/// or one framing the scene when it has none. Thread-safe.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_new(
+    scene: *const lacuna_scene,
+    integrator: *const c_char,
+    out_job: *mut *mut lacuna_render_job,
+) -> lacuna_status {
+    boundary::status("lacuna_render_job_new", |call| {
+        // SAFETY: NULL or a live scene.
+        let s = unsafe { arg(scene, "scene") }?;
+        call.context(&s.ctx);
+        let out = out_ptr(out_job, "out_job")?;
+        let file = &s.settings;
+        let name = if integrator.is_null() {
+            file.integrator
+                .clone()
+                .unwrap_or_else(|| "path".to_string())
+        } else {
+            // SAFETY: a NUL-terminated string per the contract.
+            unsafe { str_arg(integrator, "integrator") }?.to_string()
+        };
+        let mut integ = IntegratorSettings::default();
+        if let Some(d) = file.max_depth {
+            integ.max_depth = d;
+        }
+        integrator::create(&name, integ)?;
+        let mut render = RenderSettings::default();
+        if let Some(w) = file.width {
+            render.width = w;
+        }
+        if let Some(h) = file.height {
+            render.height = h;
+        }
+        if let Some(spp) = file.spp {
+            render.spp = spp;
+        }
+        if let Some(seed) = file.seed {
+            render.seed = seed;
+        }
+        if let Some(t) = file.time {
+            render.time_limit = Some(Duration::from_secs_f64(t));
+            if file.spp.is_none() {
+                render.spp = u32::MAX;
+            }
+        }
+        let job = Box::new(lacuna_render_job {
+            // SAFETY: `scene` is a live handle (checked above).
+            scene: unsafe { arc_clone(scene) },
+            settings: Mutex::new(JobSettings {
+                integrator: name,
+                render,
+                integrator_settings: integ,
+                camera: None,
+                spp_set: file.spp.is_some(),
+                progress: None,
+            }),
+            cancel: AtomicBool::new(false),
+            running: AtomicBool::new(false),
+            last_stats: Mutex::new(None),
+            partial: Mutex::new(None),
+        });
+        // SAFETY: checked non-NULL, writable per the contract.
+        unsafe { write_out(out, Box::into_raw(job)) };
+        Ok(())
+    })
+}
+
+/// Frees a job (not while it runs). NULL is a no-op.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_free(job: *mut lacuna_render_job) {
+    boundary::value("lacuna_render_job_free", (), |_| {
+        // SAFETY: NULL or a job from `lacuna_render_job_new`, not running, not used afterwards.
+        unsafe { box_free(job) };
+        Ok(())
+    })
+}
+
+/// Runs `f` on the settings of a job.
+///
+/// # Safety
+/// `job` must be NULL or a live job.
+unsafe fn with_settings(
+    function: &'static str,
+    job: *mut lacuna_render_job,
+    f: impl FnOnce(&mut JobSettings) -> CapiResult<()>,
+) -> lacuna_status {
+    boundary::status(function, |call| {
+        // SAFETY: NULL or a live job; only shared references to it are ever made.
+        let j = unsafe { arg(job.cast_const(), "job") }?;
+        call.context(&j.scene.ctx);
+        let mut s = lock(&j.settings).clone();
+        f(&mut s)?;
+        *lock(&j.settings) = s;
+        Ok(())
+    })
+}
+
+/// Sets the samples per pixel to reach (>= 1). With a time budget, the render stops at
+/// whichever comes first.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_samples_per_pixel(
+    job: *mut lacuna_render_job,
+    spp: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_samples_per_pixel", job, |s| {
+            if spp == 0 {
+                return Err(CapiError::invalid("spp 0: at least 1 sample per pixel"));
+            }
+            s.render.spp = spp;
+            s.spp_set = true;
+            Ok(())
+        })
+    }
+}
+
+/// Sets a wall-clock budget in seconds (> 0 and finite), or removes it with 0. Unless samples
+/// per pixel were set explicitly, a budget renders until it runs out.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_time_budget(
+    job: *mut lacuna_render_job,
+    seconds: f64,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_time_budget", job, |s| {
+            if seconds == 0.0 {
+                s.render.time_limit = None;
+                if !s.spp_set {
+                    s.render.spp = RenderSettings::default().spp;
+                }
+                return Ok(());
+            }
+            if !(seconds > 0.0 && seconds.is_finite() && seconds < 1e9) {
+                return Err(CapiError::invalid(format!(
+                    "time budget {seconds} s must be positive and finite (0 removes it)"
+                )));
+            }
+            s.render.time_limit = Some(Duration::from_secs_f64(seconds));
+            if !s.spp_set {
+                s.render.spp = u32::MAX;
+            }
+            Ok(())
+        })
+    }
+}
+
+/// Sets the random seed: the same seed, settings and sample budget give the same image
+/// whatever the thread count.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_seed(
+    job: *mut lacuna_render_job,
+    seed: u64,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_seed", job, |s| {
+            s.render.seed = seed;
+            Ok(())
+        })
+    }
+}
+
+/// Largest maximum path depth accepted.
+pub const LACUNA_MAX_DEPTH_LIMIT: u32 = 1024;
+
+/// Sets the maximum number of bounces (0 shows emitters only, 1 is direct lighting), at most
+/// `LACUNA_MAX_DEPTH_LIMIT`.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_max_depth(
+    job: *mut lacuna_render_job,
+    max_depth: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_max_depth", job, |s| {
+            if max_depth > LACUNA_MAX_DEPTH_LIMIT {
+                return Err(CapiError::range(format!(
+                    "max_depth {max_depth} exceeds {LACUNA_MAX_DEPTH_LIMIT}"
+                )));
+            }
+            s.integrator_settings.max_depth = max_depth;
+            Ok(())
+        })
+    }
+}
+
+/// Sets the image size, each within 1..=65536 (the film must also fit the context's memory
+/// budget, checked when the job runs).
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_resolution(
+    job: *mut lacuna_render_job,
+    width: u32,
+    height: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_resolution", job, |s| {
+            if !(1..=65536).contains(&width) || !(1..=65536).contains(&height) {
+                return Err(CapiError::range(format!(
+                    "resolution {width}x{height} must be within 1..=65536 each"
+                )));
+            }
+            s.render.width = width;
+            s.render.height = height;
+            Ok(())
+        })
+    }
+}
+
+/// Sets the worker threads of this job (0 = the context's setting), at most
+/// `LACUNA_MAX_THREADS`.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_thread_count(
+    job: *mut lacuna_render_job,
+    thread_count: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_thread_count", job, |s| {
+            if thread_count > LACUNA_MAX_THREADS {
+                return Err(CapiError::range(format!(
+                    "thread_count {thread_count} exceeds {LACUNA_MAX_THREADS}"
+                )));
+            }
+            s.render.threads = (thread_count > 0).then_some(thread_count as usize);
+            Ok(())
+        })
+    }
+}
+
+/// Sets the MIS heuristic: a `lacuna_mis_heuristic` value.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
+    job: *mut lacuna_render_job,
+    heuristic: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_mis_heuristic", job, |s| {
+            s.integrator_settings.mis = match lacuna_mis_heuristic::from_c(heuristic, "heuristic")?
+            {
+                lacuna_mis_heuristic::Balance => MisHeuristic::Balance,
+                lacuna_mis_heuristic::Power => MisHeuristic::Power,
+            };
+            Ok(())
+        })
+    }
+}
+
+/// Sets the job's camera (overriding the scene's): pinhole at `eye` looking at `target`, with
+/// `up` and a vertical field of view in (0, 180) degrees.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_camera(
+    job: *mut lacuna_render_job,
+    eye: lacuna_vec3,
+    target: lacuna_vec3,
+    up: lacuna_vec3,
+    vfov_degrees: f32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_camera", job, |s| {
+            s.camera = Some(Camera::look_at(
+                eye.finite("eye")?,
+                target.finite("target")?,
+                up.finite("up")?,
+                vfov_degrees,
+            )?);
+            Ok(())
+        })
+    }
+}
+
+/// Registers (or, with NULL, removes) the progress callback; see `lacuna_progress_callback`.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_progress_callback(
+    job: *mut lacuna_render_job,
+    callback: lacuna_progress_callback,
+    user_data: *mut c_void,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_progress_callback", job, |s| {
+            s.progress = callback.map(|function| ProgressCallback {
+                function,
+                user_data: user_data as usize,
+            });
+            Ok(())
+        })
+    }
+}
+
+/// Asks the job's run to stop as soon as possible; the run then fails with
+/// `LACUNA_STATUS_CANCELLED`. A request made while the job is not running cancels its next run.
+/// Callable from any thread at any time (also from the progress callback).
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_cancel(job: *const lacuna_render_job) -> lacuna_status {
+    boundary::status("lacuna_render_job_cancel", |call| {
+        // SAFETY: NULL or a live job; only shared references to it are ever made.
+        let j = unsafe { arg(job, "job") }?;
+        call.context(&j.scene.ctx);
+        j.cancel.store(true, Ordering::SeqCst);
+        Ok(())
+    })
+}
+
+/// Renders, blocking the calling thread while worker threads work, and writes the film
+/// (reference count 1) to `*out_film`. Fails with `LACUNA_STATUS_CANCELLED` when cancelled
+/// (the passes completed before then are kept: see `lacuna_render_job_take_partial_film`),
+/// `LACUNA_STATUS_OVER_BUDGET` when the film exceeds the context's memory budget, and
+/// `LACUNA_STATUS_INVALID_OPERATION` when the job is already running.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_run(
+    job: *mut lacuna_render_job,
+    out_film: *mut *mut lacuna_film,
+) -> lacuna_status {
+    boundary::status("lacuna_render_job_run", |call| {
+        // SAFETY: NULL or a live job; only shared references to it are ever made.
+        let j = unsafe { arg(job.cast_const(), "job") }?;
+        call.context(&j.scene.ctx);
+        let out = out_ptr(out_film, "out_film")?;
+        let (_guard, p) = j.start()?;
+        let last = Mutex::new(0.0);
+        let progress = j.progress_fn(p.settings.progress, &last);
+        let (film, stats) = crate::render::render(
+            &j.scene.scene,
+            &p.camera,
+            p.integrator.as_ref(),
+            &p.settings.render,
+            &progress,
+            &j.cancel,
+        )?;
+        j.set_last_stats(stats);
+        if stats.cancelled {
+            *lock(&j.partial) = Some(film);
+            return Err(CapiError::new(
+                lacuna_status::Cancelled,
+                format!("render cancelled after {} samples per pixel", stats.spp),
+            ));
+        }
+        let meta = j.metadata(&p, &stats);
+        // SAFETY: checked non-NULL, writable per the contract.
+        unsafe { write_out(out, j.make_film(film, meta, stats)) };
+        Ok(())
+    })
+}
+
+/// After a cancelled run: writes the film of the passes completed before the cancellation
+/// (possibly with 0 samples per pixel) to `*out_film` and forgets it.
+/// `LACUNA_STATUS_INVALID_OPERATION` when there is none.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_take_partial_film(
+    job: *mut lacuna_render_job,
+    out_film: *mut *mut lacuna_film,
+) -> lacuna_status {
+    boundary::status("lacuna_render_job_take_partial_film", |call| {
+        // SAFETY: NULL or a live job; only shared references to it are ever made.
+        let j = unsafe { arg(job.cast_const(), "job") }?;
+        call.context(&j.scene.ctx);
+        let out = out_ptr(out_film, "out_film")?;
+        let film = lock(&j.partial).take().ok_or_else(|| {
+            CapiError::operation("no partial film: the last run was not cancelled")
+        })?;
+        let stats = lock(&j.last_stats).unwrap_or_default();
+        let settings = lock(&j.settings).clone();
+        let meta = ExrMetadata::default()
+            .with("spp", stats.spp)
+            .with("integrator", &settings.integrator)
+            .with("cancelled", "true");
+        // SAFETY: checked non-NULL, writable per the contract.
+        unsafe { write_out(out, j.make_film(film, meta, stats)) };
+        Ok(())
+    })
+}
+
+/// Writes the figures of the job's last run (also a cancelled one).
+/// `LACUNA_STATUS_INVALID_OPERATION` before the first run.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_get_stats(
+    job: *const lacuna_render_job,
+    out_stats: *mut lacuna_render_stats,
+) -> lacuna_status {
+    boundary::status("lacuna_render_job_get_stats", |call| {
+        // SAFETY: NULL or a live job.
+        let j = unsafe { arg(job, "job") }?;
+        call.context(&j.scene.ctx);
+        let out = out_ptr(out_stats, "out_stats")?;
+        let stats =
+            lock(&j.last_stats).ok_or_else(|| CapiError::operation("the job has not run yet"))?;
+        // SAFETY: checked non-NULL, writable per the contract.
+        unsafe { write_out(out, stats_to_c(&stats)) };
+        Ok(())
+    })
+}

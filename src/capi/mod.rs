@@ -1,0 +1,40 @@
+//! Lacuna's stable C API: the only place in the crate with `extern "C"`.
+//!
+//! The conventions are those of `shared/CAPI.md`: one `lacuna_` prefix, opaque handles,
+//! refcounted shared objects (`_retain`/`_release` over `Arc`) and single-owner builders and jobs
+//! (`_new`/`_free` over `Box`), `lacuna_status` return codes with out-parameters written only on
+//! success, a thread-local last-error message, an optional error callback per context, and every
+//! body under one panic boundary ([`boundary::boundary`]). Every argument is validated.
+//!
+//! This layer converts, validates, calls the library and maps errors; it has no rendering logic.
+//! `include/lacuna.h` is generated from these files by cbindgen (see `tests/header.rs`).
+
+#![allow(non_camel_case_types)]
+// Every entry point dereferences raw pointers after checking them for NULL; the contract each
+// pointer must meet is written in the function's doc comment (it becomes the header's doc).
+#![allow(clippy::missing_safety_doc)]
+
+mod boundary;
+mod buffer;
+mod builder;
+mod compare;
+mod context;
+mod film;
+mod job;
+mod mesh;
+mod scene;
+mod types;
+mod version;
+
+pub use boundary::{
+    lacuna_debug_trigger_panic, lacuna_last_error_message, lacuna_status, lacuna_status_string,
+};
+pub use builder::*;
+pub use compare::*;
+pub use context::*;
+pub use film::*;
+pub use job::*;
+pub use mesh::*;
+pub use scene::*;
+pub use types::*;
+pub use version::*;

@@ -1,0 +1,896 @@
+/* Tests of Lacuna's C API, written in C: every function, every error path. Built and run by
+ * tests/c_api.rs (plain, under AddressSanitizer and under valgrind). argv[1] is a scratch
+ * directory. Prints "N passed, N failed" and exits non-zero on any failure. */
+#include "lacuna.h"
+
+#include <math.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+static int passed, failed;
+static char dir[1024];
+
+#define CHECK(cond)                                                                  \
+    do {                                                                             \
+        if (cond) {                                                                  \
+            passed++;                                                                \
+        } else {                                                                     \
+            failed++;                                                                \
+            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
+        }                                                                            \
+    } while (0)
+
+/* Checks a status against the expected one; a failure's message must contain `needle`
+ * (unless it is NULL). */
+static void expect_status(lacuna_status got, lacuna_status want, const char *needle, const char *call,
+                          int line) {
+    const char *message = lacuna_last_error_message();
+    if (got != want) {
+        failed++;
+        fprintf(stderr, "%s:%d: %s returned %s, expected %s (%s)\n", __FILE__, line, call,
+                lacuna_status_string(got), lacuna_status_string(want), message);
+    } else if (want != LACUNA_STATUS_OK && needle != NULL && strstr(message, needle) == NULL) {
+        failed++;
+        fprintf(stderr, "%s:%d: message \"%s\" lacks \"%s\"\n", __FILE__, line, message, needle);
+    } else {
+        passed++;
+    }
+}
+
+#define EXPECT(call, want, needle) expect_status((call), (want), (needle), #call, __LINE__)
+
+#define OK(call) EXPECT(call, LACUNA_STATUS_OK, NULL)
+
+static const char *path_in_dir(const char *name) {
+    static char buf[8][1200];
+    static int next;
+    char *p = buf[next++ % 8];
+    snprintf(p, 1200, "%s/%s", dir, name);
+    return p;
+}
+
+static void write_file(const char *name, const char *text) {
+    FILE *f = fopen(path_in_dir(name), "w");
+    if (!f) {
+        perror(name);
+        exit(2);
+    }
+    fputs(text, f);
+    fclose(f);
+}
+
+static bool file_exists(const char *path) { return access(path, F_OK) == 0; }
+
+static lacuna_vec3 v3(float x, float y, float z) {
+    lacuna_vec3 v;
+    v.x = x;
+    v.y = y;
+    v.z = z;
+    return v;
+}
+
+static lacuna_rgb rgb(float r, float g, float b) {
+    lacuna_rgb c;
+    c.r = r;
+    c.g = g;
+    c.b = b;
+    return c;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+
+static void test_version_and_status(void) {
+    CHECK(strcmp(lacuna_last_error_message(), "") == 0);
+    CHECK(lacuna_version() == LACUNA_VERSION);
+    CHECK(LACUNA_VERSION ==
+          ((LACUNA_VERSION_MAJOR << 16) | (LACUNA_VERSION_MINOR << 8) | LACUNA_VERSION_PATCH));
+    CHECK(strcmp(lacuna_version_string(), LACUNA_VERSION_STRING) == 0);
+    CHECK(strcmp(lacuna_status_string(LACUNA_STATUS_OK), "LACUNA_STATUS_OK") == 0);
+    CHECK(strcmp(lacuna_status_string(LACUNA_STATUS_NULL_POINTER), "LACUNA_STATUS_NULL_POINTER") == 0);
+    CHECK(strcmp(lacuna_status_string(LACUNA_STATUS_INVALID_OPERATION),
+                 "LACUNA_STATUS_INVALID_OPERATION") == 0);
+    CHECK(strcmp(lacuna_status_string(12345), "LACUNA_STATUS_UNKNOWN") == 0);
+    for (uint32_t s = 0; s <= LACUNA_STATUS_INVALID_OPERATION; s++)
+        CHECK(strncmp(lacuna_status_string(s), "LACUNA_STATUS_", 14) == 0 &&
+              strcmp(lacuna_status_string(s), "LACUNA_STATUS_UNKNOWN") != 0);
+    /* The panic boundary. */
+    EXPECT(lacuna_debug_trigger_panic(), LACUNA_STATUS_PANIC, "internal panic");
+    CHECK(strstr(lacuna_last_error_message(), "lacuna_debug_trigger_panic") != NULL);
+    /* Successful calls leave the message alone. */
+    CHECK(lacuna_version() == LACUNA_VERSION);
+    CHECK(strstr(lacuna_last_error_message(), "internal panic") != NULL);
+}
+
+/* Error callback: counts calls and keeps the last status. */
+static int callback_calls;
+static lacuna_status callback_status;
+static char callback_message[512];
+static void on_error(void *user, lacuna_status status, const char *message) {
+    CHECK(user == (void *)&callback_calls);
+    callback_calls++;
+    callback_status = status;
+    snprintf(callback_message, sizeof callback_message, "%s", message);
+}
+
+static void test_context(void) {
+    lacuna_context *ctx = NULL;
+    EXPECT(lacuna_context_new(NULL), LACUNA_STATUS_NULL_POINTER, "out_context");
+    OK(lacuna_context_new(&ctx));
+    CHECK(ctx != NULL);
+    uint32_t n = 99;
+    OK(lacuna_context_get_thread_count(ctx, &n));
+    CHECK(n == 0);
+    OK(lacuna_context_set_thread_count(ctx, 2));
+    OK(lacuna_context_get_thread_count(ctx, &n));
+    CHECK(n == 2);
+    EXPECT(lacuna_context_set_thread_count(ctx, LACUNA_MAX_THREADS + 1), LACUNA_STATUS_OUT_OF_RANGE,
+           "thread_count");
+    EXPECT(lacuna_context_set_thread_count(NULL, 1), LACUNA_STATUS_NULL_POINTER, "context");
+    EXPECT(lacuna_context_get_thread_count(ctx, NULL), LACUNA_STATUS_NULL_POINTER, "out_thread_count");
+    EXPECT(lacuna_context_get_thread_count(NULL, &n), LACUNA_STATUS_NULL_POINTER, "context");
+    EXPECT(lacuna_context_set_memory_budget(ctx, 0), LACUNA_STATUS_INVALID_ARGUMENT, "budget");
+    EXPECT(lacuna_context_set_memory_budget(NULL, 10), LACUNA_STATUS_NULL_POINTER, "context");
+    OK(lacuna_context_set_memory_budget(ctx, LACUNA_DEFAULT_MEMORY_BUDGET));
+    EXPECT(lacuna_context_set_error_callback(NULL, on_error, NULL), LACUNA_STATUS_NULL_POINTER, "context");
+    OK(lacuna_context_set_error_callback(ctx, on_error, &callback_calls));
+    EXPECT(lacuna_context_set_thread_count(ctx, 100000), LACUNA_STATUS_OUT_OF_RANGE, "100000");
+    CHECK(callback_calls == 1);
+    CHECK(callback_status == LACUNA_STATUS_OUT_OF_RANGE);
+    CHECK(strstr(callback_message, "lacuna_context_set_thread_count") != NULL);
+    CHECK(strcmp(callback_message, lacuna_last_error_message()) == 0);
+    OK(lacuna_context_set_error_callback(ctx, NULL, NULL));
+    EXPECT(lacuna_context_set_thread_count(ctx, 100000), LACUNA_STATUS_OUT_OF_RANGE, NULL);
+    CHECK(callback_calls == 1);
+    lacuna_context_retain(ctx);
+    lacuna_context_release(ctx);
+    lacuna_context_retain(NULL);
+    lacuna_context_release(NULL);
+    lacuna_context_release(ctx);
+}
+
+/* Interleaved vertex layout: exercises strides. */
+typedef struct vertex {
+    float p[3];
+    float n[3];
+    float uv[2];
+} vertex;
+
+static void test_mesh(void) {
+    lacuna_mesh *m = NULL;
+    EXPECT(lacuna_mesh_new(NULL), LACUNA_STATUS_NULL_POINTER, "out_mesh");
+    OK(lacuna_mesh_new(&m));
+    vertex v[4] = {{{0, 0, 0}, {0, 0, 1}, {0, 0}},
+                   {{1, 0, 0}, {0, 0, 1}, {1, 0}},
+                   {{1, 1, 0}, {0, 0, 1}, {1, 1}},
+                   {{0, 1, 0}, {0, 0, 1}, {0, 1}}};
+    OK(lacuna_mesh_set_positions(m, v[0].p, sizeof(vertex), 4));
+    OK(lacuna_mesh_set_normals(m, v[0].n, sizeof(vertex), 4));
+    OK(lacuna_mesh_set_uvs(m, v[0].uv, sizeof(vertex), 4));
+    uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+    OK(lacuna_mesh_set_indices(m, idx, 0, 2));
+    uint32_t mats[2] = {0, 0};
+    OK(lacuna_mesh_set_materials(m, mats, 0, 2));
+    OK(lacuna_mesh_set_material(m, 0));
+    OK(lacuna_mesh_set_name(m, "quad"));
+    size_t nv = 0, nt = 0;
+    OK(lacuna_mesh_get_counts(m, &nv, &nt));
+    CHECK(nv == 4 && nt == 2);
+    /* Errors. */
+    EXPECT(lacuna_mesh_set_positions(m, v[0].p, 8, 4), LACUNA_STATUS_INVALID_ARGUMENT, "stride 8");
+    EXPECT(lacuna_mesh_set_positions(m, NULL, 0, 4), LACUNA_STATUS_NULL_POINTER, "positions");
+    EXPECT(lacuna_mesh_set_positions(m, v[0].p, SIZE_MAX / 2, 4), LACUNA_STATUS_OUT_OF_RANGE,
+           "positions");
+    EXPECT(lacuna_mesh_set_positions(NULL, v[0].p, 0, 4), LACUNA_STATUS_NULL_POINTER, "mesh");
+    EXPECT(lacuna_mesh_set_uvs(m, v[0].uv, 4, 4), LACUNA_STATUS_INVALID_ARGUMENT, "uvs");
+    EXPECT(lacuna_mesh_set_indices(m, idx, 11, 2), LACUNA_STATUS_INVALID_ARGUMENT, "indices");
+    EXPECT(lacuna_mesh_set_materials(m, mats, 0, 0), LACUNA_STATUS_INVALID_ARGUMENT, "material count 0");
+    EXPECT(lacuna_mesh_set_name(m, NULL), LACUNA_STATUS_NULL_POINTER, "name");
+    EXPECT(lacuna_mesh_set_name(m, "\xff\xfe"), LACUNA_STATUS_INVALID_ARGUMENT, "UTF-8");
+    EXPECT(lacuna_mesh_set_material(NULL, 0), LACUNA_STATUS_NULL_POINTER, "mesh");
+    EXPECT(lacuna_mesh_get_counts(m, NULL, &nt), LACUNA_STATUS_NULL_POINTER, "out_vertex_count");
+    EXPECT(lacuna_mesh_get_counts(NULL, &nv, &nt), LACUNA_STATUS_NULL_POINTER, "mesh");
+    /* Failed calls kept the data; a count of 0 with NULL clears optional attributes. */
+    OK(lacuna_mesh_get_counts(m, &nv, &nt));
+    CHECK(nv == 4 && nt == 2);
+    OK(lacuna_mesh_set_normals(m, NULL, 0, 0));
+    OK(lacuna_mesh_set_uvs(m, NULL, 0, 0));
+    lacuna_mesh_free(m);
+    lacuna_mesh_free(NULL);
+}
+
+/* A closed box [-1,1]^3 seen from inside plus an emissive quad under its ceiling. */
+static const float box_p[8][3] = {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1},
+                                  {-1, -1, 1},  {1, -1, 1},  {1, 1, 1},  {-1, 1, 1}};
+static const uint32_t box_i[12][3] = {{0, 2, 1}, {0, 3, 2}, {4, 5, 6}, {4, 6, 7}, {0, 1, 5}, {0, 5, 4},
+                                      {3, 6, 2}, {3, 7, 6}, {0, 4, 7}, {0, 7, 3}, {1, 2, 6}, {1, 6, 5}};
+
+static lacuna_scene *build_box_scene(lacuna_context *ctx) {
+    lacuna_scene_builder *b = NULL;
+    OK(lacuna_scene_builder_new(ctx, &b));
+    uint32_t white = 99, light = 99;
+    OK(lacuna_scene_builder_add_material(b, LACUNA_MATERIAL_KIND_DIFFUSE, &white));
+    OK(lacuna_scene_builder_add_material(b, LACUNA_MATERIAL_KIND_DIFFUSE, &light));
+    CHECK(white == 0 && light == 1);
+    OK(lacuna_scene_builder_set_material_rgb(b, light, LACUNA_MATERIAL_RGB_DIFFUSE, rgb(0, 0, 0)));
+    OK(lacuna_scene_builder_set_material_rgb(b, light, LACUNA_MATERIAL_RGB_EMISSION, rgb(5, 5, 5)));
+    lacuna_mesh *m = NULL;
+    OK(lacuna_mesh_new(&m));
+    OK(lacuna_mesh_set_positions(m, &box_p[0][0], 0, 8));
+    OK(lacuna_mesh_set_indices(m, &box_i[0][0], 0, 12));
+    OK(lacuna_mesh_set_material(m, white));
+    uint32_t mesh_index = 99;
+    OK(lacuna_scene_builder_add_mesh(b, m, &mesh_index));
+    CHECK(mesh_index == 0);
+    const float lp[4][3] = {{-0.3f, 0.99f, -0.3f}, {0.3f, 0.99f, -0.3f}, {0.3f, 0.99f, 0.3f}, {-0.3f, 0.99f, 0.3f}};
+    const uint32_t li[2][3] = {{0, 1, 2}, {0, 2, 3}};
+    OK(lacuna_mesh_set_positions(m, &lp[0][0], 0, 4));
+    OK(lacuna_mesh_set_indices(m, &li[0][0], 0, 2));
+    OK(lacuna_mesh_set_material(m, light));
+    OK(lacuna_scene_builder_add_mesh(b, m, &mesh_index));
+    CHECK(mesh_index == 1);
+    lacuna_mesh_free(m);
+    OK(lacuna_scene_builder_set_camera(b, v3(0, 0, 0.9f), v3(0, 0, -1), v3(0, 1, 0), 70));
+    lacuna_scene *scene = NULL;
+    OK(lacuna_scene_builder_build(b, &scene));
+    CHECK(scene != NULL);
+    return scene;
+}
+
+static void test_builder(lacuna_context *ctx) {
+    lacuna_scene_builder *b = NULL;
+    EXPECT(lacuna_scene_builder_new(NULL, &b), LACUNA_STATUS_NULL_POINTER, "context");
+    EXPECT(lacuna_scene_builder_new(ctx, NULL), LACUNA_STATUS_NULL_POINTER, "out_builder");
+    OK(lacuna_scene_builder_new(ctx, &b));
+    uint32_t mat = 99, count = 99;
+    /* Materials. */
+    EXPECT(lacuna_scene_builder_add_material(b, 7, &mat), LACUNA_STATUS_INVALID_ARGUMENT, "`kind` = 7");
+    EXPECT(lacuna_scene_builder_add_material(b, LACUNA_MATERIAL_KIND_DIFFUSE, NULL),
+           LACUNA_STATUS_NULL_POINTER, "out_index");
+    EXPECT(lacuna_scene_builder_add_material(NULL, LACUNA_MATERIAL_KIND_DIFFUSE, &mat),
+           LACUNA_STATUS_NULL_POINTER, "builder");
+    CHECK(mat == 99); /* out-parameters untouched on failure */
+    OK(lacuna_scene_builder_add_material(b, LACUNA_MATERIAL_KIND_GLOSSY, &mat));
+    CHECK(mat == 0);
+    uint32_t kinds[3] = {LACUNA_MATERIAL_KIND_DIFFUSE, LACUNA_MATERIAL_KIND_MIRROR,
+                         LACUNA_MATERIAL_KIND_DIELECTRIC};
+    for (int i = 0; i < 3; i++) OK(lacuna_scene_builder_add_material(b, kinds[i], &mat));
+    OK(lacuna_scene_builder_get_material_count(b, &count));
+    CHECK(count == 4);
+    EXPECT(lacuna_scene_builder_get_material_count(b, NULL), LACUNA_STATUS_NULL_POINTER, "out_count");
+    EXPECT(lacuna_scene_builder_get_material_count(NULL, &count), LACUNA_STATUS_NULL_POINTER, "builder");
+    EXPECT(lacuna_scene_builder_set_material_rgb(b, 4, LACUNA_MATERIAL_RGB_DIFFUSE, rgb(1, 1, 1)),
+           LACUNA_STATUS_OUT_OF_RANGE, "material index 4");
+    EXPECT(lacuna_scene_builder_set_material_rgb(b, 0, 3, rgb(1, 1, 1)), LACUNA_STATUS_INVALID_ARGUMENT,
+           "`param` = 3");
+    EXPECT(lacuna_scene_builder_set_material_rgb(b, 0, LACUNA_MATERIAL_RGB_DIFFUSE, rgb(NAN, 0, 0)),
+           LACUNA_STATUS_INVALID_ARGUMENT, "finite");
+    EXPECT(lacuna_scene_builder_set_material_rgb(b, 2, LACUNA_MATERIAL_RGB_DIFFUSE, rgb(2, 0, 0)),
+           LACUNA_STATUS_INVALID_ARGUMENT, "diffuse");
+    EXPECT(lacuna_scene_builder_set_material_rgb(b, 0, LACUNA_MATERIAL_RGB_SPECULAR, rgb(0.9f, 0.9f, 0.9f)),
+           LACUNA_STATUS_INVALID_ARGUMENT, "exceeds 1");
+    EXPECT(lacuna_scene_builder_set_material_rgb(b, 0, LACUNA_MATERIAL_RGB_EMISSION, rgb(-1, 0, 0)),
+           LACUNA_STATUS_INVALID_ARGUMENT, "emission");
+    OK(lacuna_scene_builder_set_material_rgb(b, 0, LACUNA_MATERIAL_RGB_DIFFUSE, rgb(0.1f, 0.2f, 0.3f)));
+    OK(lacuna_scene_builder_set_material_rgb(b, 0, LACUNA_MATERIAL_RGB_SPECULAR, rgb(0.5f, 0.5f, 0.5f)));
+    OK(lacuna_scene_builder_set_material_float(b, 0, LACUNA_MATERIAL_FLOAT_EXPONENT, 50));
+    OK(lacuna_scene_builder_set_material_float(b, 3, LACUNA_MATERIAL_FLOAT_IOR, 1.33f));
+    EXPECT(lacuna_scene_builder_set_material_float(b, 3, LACUNA_MATERIAL_FLOAT_IOR, -1),
+           LACUNA_STATUS_INVALID_ARGUMENT, "ior");
+    EXPECT(lacuna_scene_builder_set_material_float(b, 0, LACUNA_MATERIAL_FLOAT_EXPONENT, INFINITY),
+           LACUNA_STATUS_INVALID_ARGUMENT, "value");
+    EXPECT(lacuna_scene_builder_set_material_float(b, 0, 2, 1), LACUNA_STATUS_INVALID_ARGUMENT, "param");
+    EXPECT(lacuna_scene_builder_set_material_float(b, 9, LACUNA_MATERIAL_FLOAT_IOR, 1.5f),
+           LACUNA_STATUS_OUT_OF_RANGE, "9");
+    OK(lacuna_scene_builder_set_material_name(b, 0, "varnish"));
+    EXPECT(lacuna_scene_builder_set_material_name(b, 0, NULL), LACUNA_STATUS_NULL_POINTER, "name");
+    EXPECT(lacuna_scene_builder_set_material_name(b, 5, "x"), LACUNA_STATUS_OUT_OF_RANGE, "5");
+    /* Meshes. */
+    lacuna_mesh *m = NULL;
+    OK(lacuna_mesh_new(&m));
+    float p[4][3] = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 0}};
+    uint32_t tri[3] = {0, 1, 2};
+    OK(lacuna_mesh_set_positions(m, &p[0][0], 0, 4));
+    OK(lacuna_mesh_set_indices(m, tri, 0, 1));
+    uint32_t mi = 99;
+    EXPECT(lacuna_scene_builder_add_mesh(b, NULL, &mi), LACUNA_STATUS_NULL_POINTER, "mesh");
+    EXPECT(lacuna_scene_builder_add_mesh(b, m, NULL), LACUNA_STATUS_NULL_POINTER, "out_index");
+    OK(lacuna_mesh_set_material(m, 4));
+    EXPECT(lacuna_scene_builder_add_mesh(b, m, &mi), LACUNA_STATUS_INVALID_ARGUMENT, "material index 4");
+    OK(lacuna_mesh_set_material(m, 0));
+    p[1][0] = NAN;
+    OK(lacuna_mesh_set_positions(m, &p[0][0], 0, 4));
+    EXPECT(lacuna_scene_builder_add_mesh(b, m, &mi), LACUNA_STATUS_INVALID_ARGUMENT, "position 1");
+    p[1][0] = 1;
+    OK(lacuna_mesh_set_positions(m, &p[0][0], 0, 4));
+    uint32_t bad_tri[3] = {0, 1, 7};
+    OK(lacuna_mesh_set_indices(m, bad_tri, 0, 1));
+    EXPECT(lacuna_scene_builder_add_mesh(b, m, &mi), LACUNA_STATUS_INVALID_ARGUMENT, "vertex index 7");
+    uint32_t degenerate[6] = {0, 1, 2, 0, 1, 1};
+    OK(lacuna_mesh_set_indices(m, degenerate, 0, 2));
+    EXPECT(lacuna_scene_builder_add_mesh(b, m, &mi), LACUNA_STATUS_INVALID_ARGUMENT, "degenerate");
+    float n[2][3] = {{0, 0, 1}, {0, 0, 1}};
+    OK(lacuna_mesh_set_normals(m, &n[0][0], 0, 2));
+    EXPECT(lacuna_scene_builder_add_mesh(b, m, &mi), LACUNA_STATUS_INVALID_ARGUMENT, "2 normals for 4");
+    OK(lacuna_mesh_set_normals(m, NULL, 0, 0));
+    uint32_t three[3] = {0, 0, 0};
+    OK(lacuna_mesh_set_materials(m, three, 0, 3));
+    EXPECT(lacuna_scene_builder_add_mesh(b, m, &mi), LACUNA_STATUS_INVALID_ARGUMENT, "3 material indices");
+    OK(lacuna_mesh_set_material(m, 0));
+    CHECK(mi == 99);
+    EXPECT(lacuna_scene_builder_set_degenerate_policy(b, 2), LACUNA_STATUS_INVALID_ARGUMENT, "policy");
+    OK(lacuna_scene_builder_set_degenerate_policy(b, LACUNA_DEGENERATE_POLICY_SKIP));
+    OK(lacuna_scene_builder_add_mesh(b, m, &mi));
+    CHECK(mi == 0);
+    OK(lacuna_scene_builder_set_degenerate_policy(b, LACUNA_DEGENERATE_POLICY_ERROR));
+    lacuna_mesh_free(m);
+    EXPECT(lacuna_scene_builder_set_bvh_quality(b, 3), LACUNA_STATUS_INVALID_ARGUMENT, "quality");
+    OK(lacuna_scene_builder_set_bvh_quality(b, LACUNA_BVH_QUALITY_HIGH));
+    /* Lights. */
+    OK(lacuna_scene_builder_add_point_light(b, v3(0, 2, 0), rgb(1, 1, 1)));
+    EXPECT(lacuna_scene_builder_add_point_light(b, v3(NAN, 2, 0), rgb(1, 1, 1)),
+           LACUNA_STATUS_INVALID_ARGUMENT, "position");
+    EXPECT(lacuna_scene_builder_add_point_light(b, v3(0, 2, 0), rgb(-1, 1, 1)),
+           LACUNA_STATUS_INVALID_ARGUMENT, "intensity");
+    OK(lacuna_scene_builder_add_spot_light(b, v3(0, 2, 0), v3(0, -1, 0), rgb(1, 1, 1), 20, 30));
+    EXPECT(lacuna_scene_builder_add_spot_light(b, v3(0, 2, 0), v3(0, -1, 0), rgb(1, 1, 1), 40, 30),
+           LACUNA_STATUS_INVALID_ARGUMENT, "spot angles");
+    EXPECT(lacuna_scene_builder_add_spot_light(b, v3(0, 2, 0), v3(0, 0, 0), rgb(1, 1, 1), 20, 30),
+           LACUNA_STATUS_INVALID_ARGUMENT, "direction");
+    EXPECT(lacuna_scene_builder_add_spot_light(b, v3(0, 2, 0), v3(0, -1, 0), rgb(1, 1, 1), NAN, 30),
+           LACUNA_STATUS_INVALID_ARGUMENT, "inner_degrees");
+    OK(lacuna_scene_builder_add_directional_light(b, v3(0, -1, 0), rgb(2, 2, 2)));
+    EXPECT(lacuna_scene_builder_add_directional_light(b, v3(0, -1, INFINITY), rgb(2, 2, 2)),
+           LACUNA_STATUS_INVALID_ARGUMENT, "direction");
+    EXPECT(lacuna_scene_builder_add_directional_light(NULL, v3(0, -1, 0), rgb(2, 2, 2)),
+           LACUNA_STATUS_NULL_POINTER, "builder");
+    /* Camera. */
+    EXPECT(lacuna_scene_builder_set_camera_lens(b, 0.1f, 2), LACUNA_STATUS_INVALID_OPERATION, "no camera");
+    EXPECT(lacuna_scene_builder_set_camera(b, v3(0, 0, 1), v3(0, 0, 1), v3(0, 1, 0), 40),
+           LACUNA_STATUS_INVALID_ARGUMENT, "same point");
+    EXPECT(lacuna_scene_builder_set_camera(b, v3(0, 0, 1), v3(0, 0, 0), v3(0, 0, 1), 40),
+           LACUNA_STATUS_INVALID_ARGUMENT, "parallel");
+    EXPECT(lacuna_scene_builder_set_camera(b, v3(0, 0, 1), v3(0, 0, 0), v3(0, 1, 0), 180),
+           LACUNA_STATUS_INVALID_ARGUMENT, "field of view");
+    EXPECT(lacuna_scene_builder_set_camera(b, v3(0, NAN, 1), v3(0, 0, 0), v3(0, 1, 0), 40),
+           LACUNA_STATUS_INVALID_ARGUMENT, "eye");
+    OK(lacuna_scene_builder_set_camera(b, v3(0, 0, 3), v3(0, 0, 0), v3(0, 1, 0), 40));
+    OK(lacuna_scene_builder_set_camera_lens(b, 0.05f, 3));
+    EXPECT(lacuna_scene_builder_set_camera_lens(b, -1, 3), LACUNA_STATUS_INVALID_ARGUMENT, "lens radius");
+    EXPECT(lacuna_scene_builder_set_camera_lens(b, 0.1f, 0), LACUNA_STATUS_INVALID_ARGUMENT, "focus");
+    /* OBJ files. */
+    size_t tris = 0;
+    EXPECT(lacuna_scene_builder_load_obj(b, path_in_dir("missing.obj"), NULL, &tris), LACUNA_STATUS_IO,
+           "missing.obj");
+    EXPECT(lacuna_scene_builder_load_obj(b, NULL, NULL, &tris), LACUNA_STATUS_NULL_POINTER, "path");
+    EXPECT(lacuna_scene_builder_load_obj(b, "", NULL, &tris), LACUNA_STATUS_INVALID_ARGUMENT, "empty");
+    write_file("bad.obj", "v 0 0 0\nv 1 0 zero\nf 1 2 3\n");
+    EXPECT(lacuna_scene_builder_load_obj(b, path_in_dir("bad.obj"), NULL, &tris), LACUNA_STATUS_PARSE,
+           "bad.obj:");
+    write_file("tri.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n");
+    float xf[16] = {2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0, 0, 0, -1, 1};
+    OK(lacuna_scene_builder_load_obj(b, path_in_dir("tri.obj"), xf, &tris));
+    CHECK(tris == 2);
+    OK(lacuna_scene_builder_load_obj(b, path_in_dir("tri.obj"), NULL, NULL));
+    xf[5] = NAN;
+    EXPECT(lacuna_scene_builder_load_obj(b, path_in_dir("tri.obj"), xf, &tris),
+           LACUNA_STATUS_INVALID_ARGUMENT, "transform[5]");
+    /* Build: NULL arguments, then a real build. */
+    lacuna_scene *scene = NULL;
+    EXPECT(lacuna_scene_builder_build(NULL, &scene), LACUNA_STATUS_NULL_POINTER, "builder");
+    OK(lacuna_scene_builder_build(b, &scene));
+    lacuna_scene_stats st;
+    OK(lacuna_scene_get_stats(scene, &st));
+    CHECK(st.meshes == 3 && st.triangles == 5 && st.degenerate_triangles_skipped == 1);
+    CHECK(st.lights == 3 && st.materials >= 4);
+    lacuna_scene_release(scene);
+    /* A builder given to build with a NULL out-parameter is consumed all the same. */
+    OK(lacuna_scene_builder_new(ctx, &b));
+    EXPECT(lacuna_scene_builder_build(b, NULL), LACUNA_STATUS_NULL_POINTER, "out_scene");
+    lacuna_scene_builder_free(NULL);
+    OK(lacuna_scene_builder_new(ctx, &b));
+    lacuna_scene_builder_free(b);
+    /* Scene files. */
+    EXPECT(lacuna_scene_builder_new_from_file(ctx, path_in_dir("missing.json"), &b), LACUNA_STATUS_IO,
+           "missing.json");
+    write_file("bad.json", "{\n  \"objects\": [{ \"obj\": \"tri.obj\" }],\n  \"heigth\": 3\n}\n");
+    EXPECT(lacuna_scene_builder_new_from_file(ctx, path_in_dir("bad.json"), &b), LACUNA_STATUS_PARSE,
+           "heigth");
+    write_file("scene.json",
+               "{ \"objects\": [{ \"obj\": \"tri.obj\" }],\n"
+               "  \"camera\": { \"eye\": [0.5, 0.5, 2], \"target\": [0.5, 0.5, 0], \"up\": [0, 1, 0], \"fov\": 50 },\n"
+               "  \"lights\": [{ \"type\": \"point\", \"position\": [0.5, 0.5, 1], \"intensity\": 1 }],\n"
+               "  \"render\": { \"width\": 6, \"height\": 5, \"spp\": 2 } }\n");
+    EXPECT(lacuna_scene_builder_new_from_file(NULL, path_in_dir("scene.json"), &b), LACUNA_STATUS_NULL_POINTER,
+           "context");
+    EXPECT(lacuna_scene_builder_new_from_file(ctx, path_in_dir("scene.json"), NULL), LACUNA_STATUS_NULL_POINTER,
+           "out_builder");
+    OK(lacuna_scene_builder_new_from_file(ctx, path_in_dir("scene.json"), &b));
+    OK(lacuna_scene_builder_build(b, &scene));
+    /* The file's render settings are the job's defaults. */
+    lacuna_render_job *job = NULL;
+    OK(lacuna_render_job_new(scene, NULL, &job));
+    lacuna_film *film = NULL;
+    OK(lacuna_render_job_run(job, &film));
+    uint32_t w = 0, h = 0;
+    OK(lacuna_film_get_size(film, &w, &h));
+    CHECK(w == 6 && h == 5);
+    lacuna_render_stats rs;
+    OK(lacuna_film_get_stats(film, &rs));
+    CHECK(rs.spp == 2 && !rs.cancelled);
+    lacuna_film_release(film);
+    lacuna_render_job_free(job);
+    lacuna_scene_release(scene);
+}
+
+/* ---------------------------------------------------------------------------------------- */
+
+static lacuna_ray make_ray(float ox, float oy, float oz, float dx, float dy, float dz) {
+    lacuna_ray r;
+    lacuna_ray_init(&r);
+    r.origin[0] = ox;
+    r.origin[1] = oy;
+    r.origin[2] = oz;
+    r.direction[0] = dx;
+    r.direction[1] = dy;
+    r.direction[2] = dz;
+    return r;
+}
+
+typedef struct query_args {
+    const lacuna_scene *scene;
+    int mismatches;
+} query_args;
+
+static void *query_thread(void *p) {
+    query_args *a = (query_args *)p;
+    for (int i = 0; i < 2000; i++) {
+        float x = -0.9f + 1.8f * (float)(i % 100) / 100.0f;
+        lacuna_ray r = make_ray(x, 0, 0, 0, 0, -1);
+        lacuna_hit h;
+        if (lacuna_scene_intersect(a->scene, &r, &h) != LACUNA_STATUS_OK || fabsf(h.t - 1.0f) > 1e-5f)
+            a->mismatches++;
+    }
+    return NULL;
+}
+
+/* A ray embedded in a bigger host struct: exercises strides. */
+typedef struct host_ray {
+    int id;
+    lacuna_ray ray;
+    double payload;
+} host_ray;
+
+typedef struct host_hit {
+    lacuna_hit hit;
+    char tag[12];
+} host_hit;
+
+static void test_queries(lacuna_context *ctx) {
+    lacuna_scene *scene = build_box_scene(ctx);
+    lacuna_ray r;
+    lacuna_hit h;
+    lacuna_ray_init(NULL);
+    lacuna_hit_init(NULL);
+    lacuna_hit_init(&h);
+    CHECK(h.triangle == LACUNA_INVALID_INDEX && h.mesh == LACUNA_INVALID_INDEX && isinf(h.t));
+    lacuna_ray_init(&r);
+    CHECK(r.flags == 0 && isinf(r.tmax) && r.direction[2] == 1);
+    /* Straight down the -z axis hits the back wall (triangles 0 or 1) at t = 1. */
+    r = make_ray(0.1f, 0.2f, 0, 0, 0, -1);
+    OK(lacuna_scene_intersect(scene, &r, &h));
+    CHECK(fabsf(h.t - 1) < 1e-6f);
+    CHECK(h.triangle <= 1 && h.mesh == 0 && h.mesh_triangle == h.triangle);
+    CHECK(h.u >= 0 && h.v >= 0 && h.u + h.v <= 1);
+    CHECK(fabsf(fabsf(h.geometric_normal[2]) - 1) < 1e-6f);
+    /* Direction not unit: t in units of its length. */
+    r = make_ray(0.1f, 0.2f, 0, 0, 0, -4);
+    OK(lacuna_scene_intersect(scene, &r, &h));
+    CHECK(fabsf(h.t - 0.25f) < 1e-6f);
+    /* Up hits the light quad (mesh 1) at t = 0.99. */
+    r = make_ray(0, 0, 0, 0, 1, 0);
+    OK(lacuna_scene_intersect(scene, &r, &h));
+    CHECK(h.mesh == 1 && h.triangle >= 12 && h.mesh_triangle == h.triangle - 12 && fabsf(h.t - 0.99f) < 1e-5f);
+    /* Outside looking away: a miss. */
+    r = make_ray(0, 0, 5, 0, 0, 1);
+    OK(lacuna_scene_intersect(scene, &r, &h));
+    CHECK(h.triangle == LACUNA_INVALID_INDEX && isinf(h.t));
+    bool occ = false;
+    r = make_ray(0, 0, 0, 1, 0, 0);
+    OK(lacuna_scene_occluded(scene, &r, &occ));
+    CHECK(occ);
+    r.tmax = 0.5f;
+    OK(lacuna_scene_occluded(scene, &r, &occ));
+    CHECK(!occ);
+    /* Invalid rays and arguments. */
+    lacuna_hit_init(&h);
+    r = make_ray(NAN, 0, 0, 1, 0, 0);
+    EXPECT(lacuna_scene_intersect(scene, &r, &h), LACUNA_STATUS_INVALID_ARGUMENT, "origin");
+    r = make_ray(0, 0, 0, 0, 0, 0);
+    EXPECT(lacuna_scene_intersect(scene, &r, &h), LACUNA_STATUS_INVALID_ARGUMENT, "non-zero");
+    r = make_ray(0, 0, 0, INFINITY, 0, 0);
+    EXPECT(lacuna_scene_occluded(scene, &r, &occ), LACUNA_STATUS_INVALID_ARGUMENT, "direction");
+    r = make_ray(0, 0, 0, 1, 0, 0);
+    r.tmax = -1;
+    EXPECT(lacuna_scene_intersect(scene, &r, &h), LACUNA_STATUS_INVALID_ARGUMENT, "tmax");
+    r.tmax = NAN;
+    EXPECT(lacuna_scene_occluded(scene, &r, &occ), LACUNA_STATUS_INVALID_ARGUMENT, "tmax");
+    r.tmax = INFINITY;
+    r.flags = 1;
+    EXPECT(lacuna_scene_intersect(scene, &r, &h), LACUNA_STATUS_INVALID_ARGUMENT, "flags");
+    r.flags = 0;
+    CHECK(h.triangle == LACUNA_INVALID_INDEX); /* untouched by the failures */
+    EXPECT(lacuna_scene_intersect(NULL, &r, &h), LACUNA_STATUS_NULL_POINTER, "scene");
+    EXPECT(lacuna_scene_intersect(scene, NULL, &h), LACUNA_STATUS_NULL_POINTER, "ray");
+    EXPECT(lacuna_scene_intersect(scene, &r, NULL), LACUNA_STATUS_NULL_POINTER, "out_hit");
+    EXPECT(lacuna_scene_occluded(NULL, &r, &occ), LACUNA_STATUS_NULL_POINTER, "scene");
+    EXPECT(lacuna_scene_occluded(scene, NULL, &occ), LACUNA_STATUS_NULL_POINTER, "ray");
+    EXPECT(lacuna_scene_occluded(scene, &r, NULL), LACUNA_STATUS_NULL_POINTER, "out_occluded");
+    /* Batches with strides. */
+    enum { N = 1000 };
+    host_ray *rays = (host_ray *)calloc(N, sizeof(host_ray));
+    host_hit *hits = (host_hit *)calloc(N, sizeof(host_hit));
+    bool *occluded = (bool *)calloc(N, sizeof(bool));
+    for (int i = 0; i < N; i++) {
+        float a = 6.2831853f * (float)i / N;
+        rays[i].ray = make_ray(0, 0, 0, cosf(a), sinf(a) * 0.5f, sinf(a));
+        memcpy(hits[i].tag, "untouched", 10);
+    }
+    OK(lacuna_scene_intersect_batch(scene, &rays[0].ray, sizeof(host_ray), N, &hits[0].hit, sizeof(host_hit)));
+    int agree = 0;
+    for (int i = 0; i < N; i++) {
+        lacuna_hit single;
+        OK(lacuna_scene_intersect(scene, &rays[i].ray, &single));
+        agree += single.triangle == hits[i].hit.triangle && single.t == hits[i].hit.t;
+        CHECK(strcmp(hits[i].tag, "untouched") == 0);
+    }
+    CHECK(agree == N);
+    OK(lacuna_scene_occluded_batch(scene, &rays[0].ray, sizeof(host_ray), N, occluded));
+    int all = 1;
+    for (int i = 0; i < N; i++) all &= occluded[i];
+    CHECK(all);
+    OK(lacuna_scene_intersect_batch(scene, NULL, 0, 0, NULL, 0));
+    OK(lacuna_scene_occluded_batch(scene, NULL, 0, 0, NULL));
+    rays[3].ray.direction[0] = NAN;
+    hits[0].hit.t = -7;
+    EXPECT(lacuna_scene_intersect_batch(scene, &rays[0].ray, sizeof(host_ray), N, &hits[0].hit, sizeof(host_hit)),
+           LACUNA_STATUS_INVALID_ARGUMENT, "rays[3]");
+    CHECK(hits[0].hit.t == -7); /* nothing written on failure */
+    EXPECT(lacuna_scene_occluded_batch(scene, &rays[0].ray, sizeof(host_ray), N, occluded),
+           LACUNA_STATUS_INVALID_ARGUMENT, "rays[3]");
+    rays[3].ray.direction[0] = 1;
+    EXPECT(lacuna_scene_intersect_batch(scene, &rays[0].ray, 16, N, &hits[0].hit, 0),
+           LACUNA_STATUS_INVALID_ARGUMENT, "stride 16");
+    EXPECT(lacuna_scene_intersect_batch(scene, &rays[0].ray, 0, N, &hits[0].hit, 8),
+           LACUNA_STATUS_INVALID_ARGUMENT, "hits");
+    EXPECT(lacuna_scene_intersect_batch(scene, NULL, 0, N, &hits[0].hit, 0), LACUNA_STATUS_NULL_POINTER, "rays");
+    EXPECT(lacuna_scene_intersect_batch(scene, &rays[0].ray, 0, N, NULL, 0), LACUNA_STATUS_NULL_POINTER, "hits");
+    EXPECT(lacuna_scene_intersect_batch(NULL, &rays[0].ray, 0, N, &hits[0].hit, 0), LACUNA_STATUS_NULL_POINTER,
+           "scene");
+    EXPECT(lacuna_scene_occluded_batch(scene, &rays[0].ray, 0, N, NULL), LACUNA_STATUS_NULL_POINTER,
+           "out_occluded");
+    EXPECT(lacuna_scene_occluded_batch(NULL, &rays[0].ray, 0, N, occluded), LACUNA_STATUS_NULL_POINTER, "scene");
+    EXPECT(lacuna_scene_intersect_batch(scene, &rays[0].ray, SIZE_MAX / 4, 8, &hits[0].hit, 0),
+           LACUNA_STATUS_OUT_OF_RANGE, "rays");
+    free(rays);
+    free(hits);
+    free(occluded);
+    /* Concurrent queries from host threads. */
+    pthread_t threads[4];
+    query_args args[4];
+    for (int i = 0; i < 4; i++) {
+        args[i].scene = scene;
+        args[i].mismatches = 0;
+        pthread_create(&threads[i], NULL, query_thread, &args[i]);
+    }
+    for (int i = 0; i < 4; i++) {
+        pthread_join(threads[i], NULL);
+        CHECK(args[i].mismatches == 0);
+    }
+    /* Memory and stats. */
+    lacuna_memory_report mem;
+    OK(lacuna_scene_get_memory_report(scene, &mem));
+    CHECK(mem.total == mem.meshes + mem.bvh + mem.textures + mem.lights);
+    CHECK(mem.meshes > 0 && mem.bvh > 0 && mem.lights > 0);
+    EXPECT(lacuna_scene_get_memory_report(scene, NULL), LACUNA_STATUS_NULL_POINTER, "out_report");
+    EXPECT(lacuna_scene_get_memory_report(NULL, &mem), LACUNA_STATUS_NULL_POINTER, "scene");
+    lacuna_scene_stats st;
+    OK(lacuna_scene_get_stats(scene, &st));
+    CHECK(st.triangles == 14 && st.meshes == 2 && st.lights == 2 && st.bvh_nodes > 0);
+    CHECK(st.bounds_min.x == -1 && st.bounds_max.z == 1);
+    EXPECT(lacuna_scene_get_stats(scene, NULL), LACUNA_STATUS_NULL_POINTER, "out_stats");
+    EXPECT(lacuna_scene_get_stats(NULL, &st), LACUNA_STATUS_NULL_POINTER, "scene");
+    lacuna_scene_retain(scene);
+    lacuna_scene_release(scene);
+    lacuna_scene_retain(NULL);
+    lacuna_scene_release(NULL);
+    lacuna_scene_release(scene);
+}
+
+/* ---------------------------------------------------------------------------------------- */
+
+typedef struct progress_log {
+    int calls;
+    double last;
+    int decreasing;
+    double cancel_at; /* return false once the fraction reaches this */
+} progress_log;
+
+static bool on_progress(void *user, double fraction) {
+    progress_log *log = (progress_log *)user;
+    log->calls++;
+    if (fraction < log->last) log->decreasing++;
+    log->last = fraction;
+    return fraction < log->cancel_at;
+}
+
+typedef struct cancel_args {
+    lacuna_render_job *job;
+    lacuna_status status;
+} cancel_args;
+
+static void *cancel_thread(void *p) {
+    cancel_args *a = (cancel_args *)p;
+    struct timespec ts = {0, 200 * 1000 * 1000};
+    nanosleep(&ts, NULL);
+    a->status = lacuna_render_job_cancel(a->job);
+    return NULL;
+}
+
+static double now(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void test_render(lacuna_context *ctx) {
+    lacuna_scene *scene = build_box_scene(ctx);
+    lacuna_render_job *job = NULL;
+    EXPECT(lacuna_render_job_new(NULL, "path", &job), LACUNA_STATUS_NULL_POINTER, "scene");
+    EXPECT(lacuna_render_job_new(scene, "path", NULL), LACUNA_STATUS_NULL_POINTER, "out_job");
+    EXPECT(lacuna_render_job_new(scene, "nonesuch", &job), LACUNA_STATUS_INVALID_ARGUMENT, "nonesuch");
+    CHECK(job == NULL);
+    OK(lacuna_render_job_new(scene, "path", &job));
+    /* The job keeps the scene alive. */
+    lacuna_scene_release(scene);
+    /* Setters. */
+    EXPECT(lacuna_render_job_set_samples_per_pixel(job, 0), LACUNA_STATUS_INVALID_ARGUMENT, "spp 0");
+    EXPECT(lacuna_render_job_set_samples_per_pixel(NULL, 1), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_time_budget(job, NAN), LACUNA_STATUS_INVALID_ARGUMENT, "time budget");
+    EXPECT(lacuna_render_job_set_time_budget(job, -1), LACUNA_STATUS_INVALID_ARGUMENT, "time budget");
+    EXPECT(lacuna_render_job_set_max_depth(job, LACUNA_MAX_DEPTH_LIMIT + 1), LACUNA_STATUS_OUT_OF_RANGE,
+           "max_depth");
+    EXPECT(lacuna_render_job_set_resolution(job, 0, 8), LACUNA_STATUS_OUT_OF_RANGE, "resolution 0x8");
+    EXPECT(lacuna_render_job_set_resolution(job, 8, 70000), LACUNA_STATUS_OUT_OF_RANGE, "70000");
+    EXPECT(lacuna_render_job_set_thread_count(job, LACUNA_MAX_THREADS + 1), LACUNA_STATUS_OUT_OF_RANGE,
+           "thread_count");
+    EXPECT(lacuna_render_job_set_mis_heuristic(job, 2), LACUNA_STATUS_INVALID_ARGUMENT, "heuristic");
+    EXPECT(lacuna_render_job_set_camera(job, v3(0, 0, 0), v3(0, 0, -1), v3(0, NAN, 0), 40),
+           LACUNA_STATUS_INVALID_ARGUMENT, "up");
+    EXPECT(lacuna_render_job_set_seed(NULL, 1), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_progress_callback(NULL, on_progress, NULL), LACUNA_STATUS_NULL_POINTER, "job");
+    OK(lacuna_render_job_set_samples_per_pixel(job, 2));
+    OK(lacuna_render_job_set_time_budget(job, 0));
+    OK(lacuna_render_job_set_seed(job, 7));
+    OK(lacuna_render_job_set_max_depth(job, 3));
+    OK(lacuna_render_job_set_resolution(job, 10, 7));
+    OK(lacuna_render_job_set_thread_count(job, 2));
+    OK(lacuna_render_job_set_mis_heuristic(job, LACUNA_MIS_HEURISTIC_BALANCE));
+    OK(lacuna_render_job_set_camera(job, v3(0, 0, 0.9f), v3(0, 0, -1), v3(0, 1, 0), 70));
+    progress_log log = {0, 0.0, 0, 2.0};
+    OK(lacuna_render_job_set_progress_callback(job, on_progress, &log));
+    lacuna_render_stats rs;
+    EXPECT(lacuna_render_job_get_stats(job, &rs), LACUNA_STATUS_INVALID_OPERATION, "not run");
+    /* Run. */
+    lacuna_film *film = NULL;
+    EXPECT(lacuna_render_job_run(NULL, &film), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_run(job, NULL), LACUNA_STATUS_NULL_POINTER, "out_film");
+    OK(lacuna_render_job_run(job, &film));
+    CHECK(log.calls > 0 && log.decreasing == 0 && log.last == 1.0);
+    OK(lacuna_render_job_get_stats(job, &rs));
+    CHECK(rs.spp == 2 && rs.samples == 140 && rs.rays > 0 && !rs.cancelled);
+    EXPECT(lacuna_render_job_get_stats(job, NULL), LACUNA_STATUS_NULL_POINTER, "out_stats");
+    EXPECT(lacuna_render_job_get_stats(NULL, &rs), LACUNA_STATUS_NULL_POINTER, "job");
+    /* Film readback: packed, then strided into a padded buffer. */
+    uint32_t w = 0, h = 0;
+    OK(lacuna_film_get_size(film, &w, &h));
+    CHECK(w == 10 && h == 7);
+    EXPECT(lacuna_film_get_size(film, NULL, &h), LACUNA_STATUS_NULL_POINTER, "out_width");
+    EXPECT(lacuna_film_get_size(NULL, &w, &h), LACUNA_STATUS_NULL_POINTER, "film");
+    float packed[10 * 7 * 3];
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, packed, 10, 7, 0, 0));
+    double sum = 0;
+    for (int i = 0; i < 10 * 7 * 3; i++) sum += packed[i];
+    CHECK(sum > 0 && isfinite(sum));
+    enum { PS = 20, RS = 10 * PS + 12 };
+    unsigned char padded[7 * RS];
+    memset(padded, 0xAB, sizeof padded);
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, (float *)(void *)padded, 10, 7, PS, RS));
+    int same = 1, pad_ok = 1;
+    for (int y = 0; y < 7; y++)
+        for (int x = 0; x < 10; x++) {
+            float px[3];
+            memcpy(px, padded + y * RS + x * PS, 12);
+            same &= memcmp(px, &packed[(y * 10 + x) * 3], 12) == 0;
+            for (int k = 12; k < PS; k++) pad_ok &= padded[y * RS + x * PS + k] == 0xAB;
+        }
+    CHECK(same && pad_ok);
+    float depth[70], spp_img[70], albedo[210], normal[210];
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_DEPTH, depth, 10, 7, 0, 0));
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_SAMPLE_COUNT, spp_img, 10, 7, 0, 0));
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_ALBEDO, albedo, 10, 7, 0, 0));
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_NORMAL, normal, 10, 7, 0, 0));
+    CHECK(depth[35] > 1.5f && depth[35] < 2.5f); /* centre pixel: the back wall ~1.9 away */
+    CHECK(spp_img[0] == 2 && spp_img[69] == 2);
+    CHECK(albedo[105] > 0.4f && albedo[105] < 0.6f);
+    EXPECT(lacuna_film_read(film, 5, packed, 10, 7, 0, 0), LACUNA_STATUS_INVALID_ARGUMENT, "channel");
+    EXPECT(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, packed, 9, 7, 0, 0),
+           LACUNA_STATUS_INVALID_ARGUMENT, "9x7");
+    EXPECT(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, packed, 10, 7, 8, 0),
+           LACUNA_STATUS_INVALID_ARGUMENT, "pixel_stride");
+    EXPECT(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, packed, 10, 7, 0, 100),
+           LACUNA_STATUS_INVALID_ARGUMENT, "row_stride");
+    EXPECT(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, NULL, 10, 7, 0, 0), LACUNA_STATUS_NULL_POINTER,
+           "dst");
+    EXPECT(lacuna_film_read(NULL, LACUNA_FILM_CHANNEL_RADIANCE, packed, 10, 7, 0, 0), LACUNA_STATUS_NULL_POINTER,
+           "film");
+    EXPECT(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, packed, 10, 7, SIZE_MAX / 2, 0),
+           LACUNA_STATUS_OUT_OF_RANGE, "overflows");
+    /* Film figures and files. */
+    size_t bytes = 0;
+    OK(lacuna_film_get_memory_bytes(film, &bytes));
+    CHECK(bytes >= 70 * 12);
+    EXPECT(lacuna_film_get_memory_bytes(film, NULL), LACUNA_STATUS_NULL_POINTER, "out_bytes");
+    EXPECT(lacuna_film_get_memory_bytes(NULL, &bytes), LACUNA_STATUS_NULL_POINTER, "film");
+    OK(lacuna_film_get_stats(film, &rs));
+    CHECK(rs.spp == 2);
+    EXPECT(lacuna_film_get_stats(film, NULL), LACUNA_STATUS_NULL_POINTER, "out_stats");
+    EXPECT(lacuna_film_get_stats(NULL, &rs), LACUNA_STATUS_NULL_POINTER, "film");
+    OK(lacuna_film_write_exr(film, path_in_dir("box.exr")));
+    OK(lacuna_film_write_png(film, path_in_dir("box.png"), 0.5f));
+    CHECK(file_exists(path_in_dir("box.exr")) && file_exists(path_in_dir("box.png")));
+    EXPECT(lacuna_film_write_exr(film, path_in_dir("no/such/dir/box.exr")), LACUNA_STATUS_IO, "box.exr");
+    EXPECT(lacuna_film_write_exr(film, NULL), LACUNA_STATUS_NULL_POINTER, "path");
+    EXPECT(lacuna_film_write_exr(NULL, "x.exr"), LACUNA_STATUS_NULL_POINTER, "film");
+    EXPECT(lacuna_film_write_png(film, path_in_dir("box.png"), NAN), LACUNA_STATUS_INVALID_ARGUMENT, "exposure");
+    EXPECT(lacuna_film_write_png(film, NULL, 0), LACUNA_STATUS_NULL_POINTER, "path");
+    EXPECT(lacuna_film_write_png(NULL, "x.png", 0), LACUNA_STATUS_NULL_POINTER, "film");
+    /* Reading an EXR back. */
+    lacuna_film *loaded = NULL;
+    OK(lacuna_film_load_exr(ctx, path_in_dir("box.exr"), &loaded));
+    float back[10 * 7 * 3];
+    OK(lacuna_film_read(loaded, LACUNA_FILM_CHANNEL_RADIANCE, back, 10, 7, 0, 0));
+    CHECK(memcmp(back, packed, sizeof back) == 0);
+    EXPECT(lacuna_film_load_exr(ctx, path_in_dir("missing.exr"), &loaded), LACUNA_STATUS_IO, "missing.exr");
+    EXPECT(lacuna_film_load_exr(NULL, path_in_dir("box.exr"), &loaded), LACUNA_STATUS_NULL_POINTER, "context");
+    EXPECT(lacuna_film_load_exr(ctx, path_in_dir("box.exr"), NULL), LACUNA_STATUS_NULL_POINTER, "out_film");
+    lacuna_film_release(loaded);
+    lacuna_film_retain(film);
+    lacuna_film_release(film);
+    lacuna_film_retain(NULL);
+    lacuna_film_release(NULL);
+    lacuna_film_release(film);
+
+    /* Cancelling from the progress callback: CANCELLED, and the partial film can be taken. */
+    progress_log cancel_log = {0, 0.0, 0, 0.5};
+    OK(lacuna_render_job_set_samples_per_pixel(job, 8));
+    OK(lacuna_render_job_set_progress_callback(job, on_progress, &cancel_log));
+    film = NULL;
+    EXPECT(lacuna_render_job_run(job, &film), LACUNA_STATUS_CANCELLED, "cancelled");
+    CHECK(film == NULL);
+    OK(lacuna_render_job_get_stats(job, &rs));
+    CHECK(rs.cancelled && rs.spp < 8);
+    OK(lacuna_render_job_take_partial_film(job, &film));
+    OK(lacuna_film_get_stats(film, &rs));
+    CHECK(rs.cancelled);
+    lacuna_film_release(film);
+    EXPECT(lacuna_render_job_take_partial_film(job, &film), LACUNA_STATUS_INVALID_OPERATION, "partial");
+    EXPECT(lacuna_render_job_take_partial_film(job, NULL), LACUNA_STATUS_NULL_POINTER, "out_film");
+    EXPECT(lacuna_render_job_take_partial_film(NULL, &film), LACUNA_STATUS_NULL_POINTER, "job");
+    OK(lacuna_render_job_set_progress_callback(job, NULL, NULL));
+
+    /* A cancel request before a run cancels that run, and is consumed by it. */
+    OK(lacuna_render_job_cancel(job));
+    EXPECT(lacuna_render_job_run(job, &film), LACUNA_STATUS_CANCELLED, NULL);
+    OK(lacuna_render_job_set_samples_per_pixel(job, 1));
+    OK(lacuna_render_job_run(job, &film));
+    lacuna_film_release(film);
+    EXPECT(lacuna_render_job_cancel(NULL), LACUNA_STATUS_NULL_POINTER, "job");
+
+    /* Cancelling from another thread stops a long time-budget render quickly. */
+    lacuna_render_job *slow = NULL;
+    lacuna_scene *s2 = build_box_scene(ctx);
+    OK(lacuna_render_job_new(s2, "path", &slow));
+    lacuna_scene_release(s2);
+    OK(lacuna_render_job_set_resolution(slow, 16, 16));
+    OK(lacuna_render_job_set_time_budget(slow, 60));
+    cancel_args ca = {slow, LACUNA_STATUS_PANIC};
+    pthread_t t;
+    double t0 = now();
+    pthread_create(&t, NULL, cancel_thread, &ca);
+    film = NULL;
+    EXPECT(lacuna_render_job_run(slow, &film), LACUNA_STATUS_CANCELLED, "cancelled");
+    double elapsed = now() - t0;
+    pthread_join(t, NULL);
+    CHECK(ca.status == LACUNA_STATUS_OK);
+    CHECK(film == NULL);
+    CHECK(elapsed < 30);
+    lacuna_render_job_free(slow);
+
+    /* The memory budget. */
+    lacuna_context *tight = NULL;
+    OK(lacuna_context_new(&tight));
+    OK(lacuna_context_set_memory_budget(tight, 1000));
+    lacuna_scene *s3 = build_box_scene(tight);
+    lacuna_context_release(tight); /* the scene keeps it alive */
+    lacuna_render_job *big = NULL;
+    OK(lacuna_render_job_new(s3, NULL, &big));
+    lacuna_scene_release(s3);
+    OK(lacuna_render_job_set_resolution(big, 100, 100));
+    EXPECT(lacuna_render_job_run(big, &film), LACUNA_STATUS_OVER_BUDGET, "memory budget");
+    lacuna_render_job_free(big);
+
+    /* Reference and comparison. */
+    lacuna_film *ref = NULL;
+    lacuna_image_errors noise;
+    OK(lacuna_render_job_set_samples_per_pixel(job, 1));
+    EXPECT(lacuna_render_job_run_reference(job, &ref, &noise), LACUNA_STATUS_INVALID_ARGUMENT, "2 samples");
+    OK(lacuna_render_job_set_samples_per_pixel(job, 4));
+    EXPECT(lacuna_render_job_run_reference(job, NULL, &noise), LACUNA_STATUS_NULL_POINTER, "out_film");
+    EXPECT(lacuna_render_job_run_reference(NULL, &ref, &noise), LACUNA_STATUS_NULL_POINTER, "job");
+    OK(lacuna_render_job_run_reference(job, &ref, &noise));
+    CHECK(noise.mae > 0 && noise.rmse >= noise.mae);
+    OK(lacuna_film_write_exr(ref, path_in_dir("ref.exr")));
+    lacuna_film_release(ref);
+    OK(lacuna_film_load_exr(ctx, path_in_dir("ref.exr"), &ref));
+    const char *names[2] = {"path", "path"};
+    OK(lacuna_render_job_compare(job, names, 2, ref, 0.1, 1, path_in_dir("cmp")));
+    CHECK(file_exists(path_in_dir("cmp/summary.md")) && file_exists(path_in_dir("cmp/curves.csv")) &&
+          file_exists(path_in_dir("cmp/convergence.svg")));
+    const char *bad_names[2] = {"path", "nonesuch"};
+    EXPECT(lacuna_render_job_compare(job, bad_names, 2, ref, 0.1, 1, path_in_dir("cmp2")),
+           LACUNA_STATUS_INVALID_ARGUMENT, "nonesuch");
+    const char *null_names[1] = {NULL};
+    EXPECT(lacuna_render_job_compare(job, null_names, 1, ref, 0.1, 1, path_in_dir("cmp2")),
+           LACUNA_STATUS_NULL_POINTER, "integrators[0]");
+    EXPECT(lacuna_render_job_compare(job, names, 0, ref, 0.1, 1, path_in_dir("cmp2")),
+           LACUNA_STATUS_INVALID_ARGUMENT, "integrator_count");
+    EXPECT(lacuna_render_job_compare(job, NULL, 2, ref, 0.1, 1, path_in_dir("cmp2")), LACUNA_STATUS_NULL_POINTER,
+           "integrators");
+    EXPECT(lacuna_render_job_compare(job, names, 1, ref, NAN, 1, path_in_dir("cmp2")),
+           LACUNA_STATUS_INVALID_ARGUMENT, "seconds_per_run");
+    EXPECT(lacuna_render_job_compare(job, names, 1, ref, 0.1, 0, path_in_dir("cmp2")),
+           LACUNA_STATUS_INVALID_ARGUMENT, "runs");
+    EXPECT(lacuna_render_job_compare(job, names, 1, NULL, 0.1, 1, path_in_dir("cmp2")),
+           LACUNA_STATUS_NULL_POINTER, "reference");
+    EXPECT(lacuna_render_job_compare(job, names, 1, ref, 0.1, 1, NULL), LACUNA_STATUS_NULL_POINTER, "out_dir");
+    OK(lacuna_render_job_set_resolution(job, 4, 4));
+    EXPECT(lacuna_render_job_compare(job, names, 1, ref, 0.1, 1, path_in_dir("cmp2")),
+           LACUNA_STATUS_INVALID_ARGUMENT, "reference is 10x7");
+    lacuna_film_release(ref);
+    lacuna_render_job_free(job);
+    lacuna_render_job_free(NULL);
+}
+
+int main(int argc, char **argv) {
+    if (argc < 2) {
+        fprintf(stderr, "usage: %s SCRATCH_DIR\n", argv[0]);
+        return 2;
+    }
+    snprintf(dir, sizeof dir, "%s", argv[1]);
+    test_version_and_status();
+    test_context();
+    test_mesh();
+    lacuna_context *ctx = NULL;
+    OK(lacuna_context_new(&ctx));
+    OK(lacuna_context_set_thread_count(ctx, 2));
+    test_builder(ctx);
+    test_queries(ctx);
+    test_render(ctx);
+    lacuna_context_release(ctx);
+    printf("%d passed, %d failed\n", passed, failed);
+    return failed ? 1 : 0;
+}

@@ -1,0 +1,328 @@
+//! Builds the C and C++ tests of the C API (`tests/c/`) with the system's `cc`/`c++` against
+//! the library cargo built for this test run (the cdylib and the staticlib next to this test's
+//! executable, under `target/<profile>/`), and runs them: linked shared and static, under
+//! AddressSanitizer (checked to be really linked in), and under valgrind when it is installed
+//! (`.ci/run` installs it; set `LACUNA_REQUIRE_VALGRIND=1` to make its absence a failure).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// `target/<profile>/`: this test runs from `target/<profile>/deps/`, and cargo builds the
+/// library's cdylib and staticlib there before running integration tests.
+fn lib_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
+    for lib in ["liblacuna.so", "liblacuna.a"] {
+        let p = dir.join(lib);
+        assert!(
+            p.exists(),
+            "{} is missing: build the library first (cargo builds it for `cargo test`)",
+            p.display()
+        );
+        // The library must be at least as new as this test binary's own build.
+        let lib_time = p.metadata().unwrap().modified().unwrap();
+        let exe_time = exe.metadata().unwrap().modified().unwrap();
+        assert!(
+            lib_time <= exe_time || lib_time.duration_since(exe_time).unwrap().as_secs() < 3600,
+            "{} looks stale",
+            p.display()
+        );
+    }
+    dir
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("lacuna-capi-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(cmd: &mut Command) -> Output {
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {cmd:?}: {e}"));
+    out
+}
+
+fn check(cmd: &mut Command, what: &str) -> Output {
+    let out = run(cmd);
+    assert!(
+        out.status.success(),
+        "{what} failed ({}):\n--- stdout\n{}\n--- stderr\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// Native libraries a Rust staticlib needs on Linux (`--print native-static-libs`).
+const STATIC_DEPS: &[&str] = &[
+    "-lgcc_s",
+    "-lutil",
+    "-lrt",
+    "-lpthread",
+    "-lm",
+    "-ldl",
+    "-lc",
+];
+
+#[derive(Clone, Copy, PartialEq)]
+enum Link {
+    Shared,
+    Static,
+}
+
+/// Compiles one test source into `out_dir` and returns the executable.
+fn compile(source: &str, link: Link, flags: &[&str], out_dir: &Path, name: &str) -> PathBuf {
+    let is_cpp = source.ends_with(".cpp");
+    let exe = out_dir.join(name);
+    let lib = lib_dir();
+    let mut cmd = Command::new(if is_cpp { "c++" } else { "cc" });
+    cmd.arg(if is_cpp { "-std=c++17" } else { "-std=c99" })
+        .args([
+            "-D_POSIX_C_SOURCE=200809L",
+            "-Wall",
+            "-Wextra",
+            "-pedantic",
+            "-Werror",
+            "-g",
+        ])
+        .args(flags)
+        .arg("-I")
+        .arg(root().join("include"))
+        .arg("-I")
+        .arg(root().join("bindings/cpp"))
+        .arg(root().join(source))
+        .arg("-o")
+        .arg(&exe);
+    match link {
+        Link::Shared => {
+            cmd.arg(format!("-L{}", lib.display()))
+                .arg("-llacuna")
+                .arg(format!("-Wl,-rpath,{}", lib.display()))
+                .args(["-lpthread", "-lm"]);
+        }
+        Link::Static => {
+            cmd.arg(lib.join("liblacuna.a")).args(STATIC_DEPS);
+        }
+    }
+    check(&mut cmd, &format!("compiling {source}"));
+    exe
+}
+
+/// Runs a test executable on a fresh scratch directory and checks its closing line.
+fn run_test(prefix: &[&str], exe: &Path, env: &[(&str, &str)], what: &str) -> String {
+    let dir = scratch(what);
+    let mut cmd = if prefix.is_empty() {
+        Command::new(exe)
+    } else {
+        let mut c = Command::new(prefix[0]);
+        c.args(&prefix[1..]).arg(exe);
+        c
+    };
+    cmd.arg(&dir).env("RUST_BACKTRACE", "0");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = check(&mut cmd, what);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let last = stdout.lines().last().unwrap_or_default().to_string();
+    assert!(
+        last.ends_with(" 0 failed") && !last.starts_with("0 passed"),
+        "{what}: unexpected closing line {last:?}"
+    );
+    println!("{what}: {last}");
+    let _ = std::fs::remove_dir_all(&dir);
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+#[test]
+fn c_tests_pass_linked_shared_and_static() {
+    let out = scratch("build-plain");
+    let shared = compile(
+        "tests/c/test_capi.c",
+        Link::Shared,
+        &[],
+        &out,
+        "test_capi_shared",
+    );
+    run_test(&[], &shared, &[], "C tests (shared library)");
+    let stat = compile(
+        "tests/c/test_capi.c",
+        Link::Static,
+        &[],
+        &out,
+        "test_capi_static",
+    );
+    run_test(&[], &stat, &[], "C tests (static library)");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+fn asan_flags() -> &'static [&'static str] {
+    &[
+        "-fsanitize=address,undefined",
+        "-fno-omit-frame-pointer",
+        "-fno-sanitize-recover=all",
+    ]
+}
+
+/// Proves AddressSanitizer is linked into `exe` and active: the binary references the ASan
+/// runtime's `__asan_init`, and ASan reports its own options when asked to.
+fn assert_asan_linked(exe: &Path) {
+    let nm = check(Command::new("nm").arg(exe), "nm");
+    assert!(
+        String::from_utf8_lossy(&nm.stdout).contains("__asan_init"),
+        "{} does not reference __asan_init: AddressSanitizer is not linked",
+        exe.display()
+    );
+}
+
+#[test]
+fn c_tests_pass_under_address_sanitizer() {
+    let out = scratch("build-asan");
+    // A deliberate heap overflow must be caught: the sanitizer really works here.
+    let bad = out.join("overflow.c");
+    std::fs::write(
+        &bad,
+        "#include <stdlib.h>\nint main(void) { volatile char *p = malloc(4); p[4] = 1; free((void *)p); return 0; }\n",
+    )
+    .unwrap();
+    let bad_exe = out.join("overflow");
+    check(
+        Command::new("cc")
+            .args(asan_flags())
+            .arg(&bad)
+            .arg("-o")
+            .arg(&bad_exe),
+        "compiling the ASan control",
+    );
+    assert_asan_linked(&bad_exe);
+    let r = run(&mut Command::new(&bad_exe));
+    assert!(
+        !r.status.success()
+            && String::from_utf8_lossy(&r.stderr)
+                .contains("AddressSanitizer: heap-buffer-overflow"),
+        "ASan did not catch the control overflow"
+    );
+
+    let exe = compile(
+        "tests/c/test_capi.c",
+        Link::Shared,
+        asan_flags(),
+        &out,
+        "test_capi_asan",
+    );
+    assert_asan_linked(&exe);
+    let env = [(
+        "ASAN_OPTIONS",
+        "detect_leaks=1:abort_on_error=0:verbosity=1",
+    )];
+    let stderr = run_test(&[], &exe, &env, "C tests (AddressSanitizer)");
+    // verbosity=1 makes the ASan runtime announce itself at start-up.
+    assert!(
+        stderr.contains("AddressSanitizer") || stderr.contains("==ASAN"),
+        "the ASan runtime did not announce itself:\n{stderr}"
+    );
+    if Path::new(&root().join("tests/c/test_cpp.cpp")).exists() {
+        let cpp = compile(
+            "tests/c/test_cpp.cpp",
+            Link::Shared,
+            asan_flags(),
+            &out,
+            "test_cpp_asan",
+        );
+        assert_asan_linked(&cpp);
+        run_test(&[], &cpp, &env, "C++ wrapper tests (AddressSanitizer)");
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn cpp_wrapper_tests_pass() {
+    if !root().join("tests/c/test_cpp.cpp").exists() {
+        return;
+    }
+    let out = scratch("build-cpp");
+    let exe = compile("tests/c/test_cpp.cpp", Link::Static, &[], &out, "test_cpp");
+    run_test(&[], &exe, &[], "C++ wrapper tests (static library)");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn c_tests_pass_under_valgrind() {
+    let have = Command::new("valgrind").arg("--version").output().is_ok();
+    if !have {
+        assert!(
+            std::env::var_os("LACUNA_REQUIRE_VALGRIND").is_none(),
+            "valgrind is required (LACUNA_REQUIRE_VALGRIND) but not installed"
+        );
+        eprintln!("valgrind is not installed: skipping (.ci/run installs it)");
+        return;
+    }
+    let out = scratch("build-valgrind");
+    let supp = format!(
+        "--suppressions={}",
+        root().join("tests/c/valgrind.supp").display()
+    );
+    let prefix = [
+        "valgrind",
+        "--error-exitcode=1",
+        "--leak-check=full",
+        supp.as_str(),
+        "--quiet",
+    ];
+    // Control: a host that forgets to release a context must fail under these options.
+    let leak = out.join("leak.c");
+    std::fs::write(
+        &leak,
+        "#include \"lacuna.h\"\nint main(int argc, char **argv) { lacuna_context *c = 0; (void)argc; (void)argv;\n\
+         return lacuna_context_new(&c) == LACUNA_STATUS_OK ? 0 : 2; }\n",
+    )
+    .unwrap();
+    let leak_exe = out.join("leak");
+    let lib = lib_dir();
+    check(
+        Command::new("cc")
+            .arg("-I")
+            .arg(root().join("include"))
+            .arg(&leak)
+            .arg("-o")
+            .arg(&leak_exe)
+            .arg(format!("-L{}", lib.display()))
+            .arg("-llacuna")
+            .arg(format!("-Wl,-rpath,{}", lib.display())),
+        "compiling the valgrind control",
+    );
+    let r = run(Command::new(prefix[0]).args(&prefix[1..]).arg(&leak_exe));
+    assert!(
+        r.status.code() == Some(1)
+            && String::from_utf8_lossy(&r.stderr).contains("definitely lost"),
+        "valgrind did not report the control leak:\n{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    let exe = compile(
+        "tests/c/test_capi.c",
+        Link::Shared,
+        &[],
+        &out,
+        "test_capi_vg",
+    );
+    run_test(&prefix, &exe, &[], "C tests (valgrind)");
+    if root().join("tests/c/test_cpp.cpp").exists() {
+        let cpp = compile(
+            "tests/c/test_cpp.cpp",
+            Link::Shared,
+            &[],
+            &out,
+            "test_cpp_vg",
+        );
+        run_test(&prefix, &cpp, &[], "C++ wrapper tests (valgrind)");
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
