@@ -1,0 +1,189 @@
+// Tests of the C++ wrapper bindings/cpp/lacuna.hpp: RAII and refcounting, exceptions with the
+// library's message, callback trampolines that catch exceptions, cancellation from another
+// thread. Built and run by tests/c_api.rs (plain, under AddressSanitizer and valgrind).
+#include "lacuna.hpp"
+#include "lacuna.hpp"  // twice: include guards
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <type_traits>
+
+static int passed, failed;
+
+#define CHECK(cond)                                                                      \
+    do {                                                                                 \
+        if (cond) {                                                                      \
+            passed++;                                                                    \
+        } else {                                                                         \
+            failed++;                                                                    \
+            std::fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
+        }                                                                                \
+    } while (0)
+
+// Runs `f`, expecting lacuna::Error with `status` and a message containing `needle`.
+template <class F>
+static void expect_error(F &&f, lacuna_status status, const char *needle, int line) {
+    try {
+        f();
+        failed++;
+        std::fprintf(stderr, "%s:%d: no exception\n", __FILE__, line);
+    } catch (const lacuna::Error &e) {
+        bool ok = e.status() == status && std::strstr(e.what(), needle) != nullptr;
+        if (ok) {
+            passed++;
+        } else {
+            failed++;
+            std::fprintf(stderr, "%s:%d: got %s \"%s\"\n", __FILE__, line, e.status_name(), e.what());
+        }
+    }
+}
+#define EXPECT_ERROR(expr, status, needle) expect_error([&] { expr; }, status, needle, __LINE__)
+
+static_assert(std::is_copy_constructible_v<lacuna::Context>, "refcounted handles copy");
+static_assert(std::is_copy_constructible_v<lacuna::Scene>, "refcounted handles copy");
+static_assert(std::is_copy_constructible_v<lacuna::Film>, "refcounted handles copy");
+static_assert(!std::is_copy_constructible_v<lacuna::SceneBuilder>, "owners are move-only");
+static_assert(!std::is_copy_constructible_v<lacuna::RenderJob>, "owners are move-only");
+static_assert(!std::is_copy_constructible_v<lacuna::Mesh>, "owners are move-only");
+static_assert(std::is_nothrow_move_constructible_v<lacuna::Scene>, "moves do not throw");
+
+static lacuna::Scene box(const lacuna::Context &ctx) {
+    static const float p[8][3] = {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1},
+                                  {-1, -1, 1},  {1, -1, 1},  {1, 1, 1},  {-1, 1, 1}};
+    static const uint32_t i[12][3] = {{0, 2, 1}, {0, 3, 2}, {4, 5, 6}, {4, 6, 7}, {0, 1, 5}, {0, 5, 4},
+                                      {3, 6, 2}, {3, 7, 6}, {0, 4, 7}, {0, 7, 3}, {1, 2, 6}, {1, 6, 5}};
+    lacuna::SceneBuilder b(ctx);
+    uint32_t white = b.add_material(LACUNA_MATERIAL_KIND_DIFFUSE);
+    lacuna::Mesh m;
+    m.positions(&p[0][0], 8).indices(&i[0][0], 12).material(white).name("box");
+    b.add_mesh(m);
+    b.add_point_light(lacuna::vec3(0, 0.5f, 0), lacuna::rgb(2, 2, 2));
+    b.set_camera(lacuna::vec3(0, 0, 0.9f), lacuna::vec3(0, 0, -1), lacuna::vec3(0, 1, 0), 70);
+    lacuna::Scene s = b.build();
+    CHECK(!b);  // consumed
+    return s;
+}
+
+int main(int argc, char **argv) {
+    if (argc < 2) return 2;
+    std::string dir = argv[1];
+    CHECK(lacuna::version() == LACUNA_VERSION);
+    CHECK(lacuna::version_string() == LACUNA_VERSION_STRING);
+
+    lacuna::Context ctx = lacuna::Context::create();
+    ctx.set_thread_count(2);
+    CHECK(ctx.thread_count() == 2);
+    EXPECT_ERROR(ctx.set_thread_count(1u << 20), LACUNA_STATUS_OUT_OF_RANGE, "thread_count");
+    EXPECT_ERROR(ctx.set_memory_budget(0), LACUNA_STATUS_INVALID_ARGUMENT, "budget");
+
+    // Copies retain: the scene outlives every other handle.
+    lacuna::Scene scene;
+    {
+        lacuna::Context copy = ctx;
+        lacuna::Scene first = box(copy);
+        scene = first;
+        lacuna::Scene moved = std::move(first);
+        CHECK(!first && moved && scene.get() == moved.get());
+    }
+    lacuna_hit h = scene.intersect(lacuna::make_ray(lacuna::vec3(0, 0, 0), lacuna::vec3(0, 0, -1)));
+    CHECK(std::fabs(h.t - 1) < 1e-6f && h.mesh == 0);
+    CHECK(scene.occluded(lacuna::make_ray(lacuna::vec3(0, 0, 0), lacuna::vec3(1, 0, 0))));
+    std::vector<lacuna_ray> rays;
+    for (int k = 0; k < 64; k++)
+        rays.push_back(lacuna::make_ray(lacuna::vec3(0, 0, 0), lacuna::vec3(std::cos(k * 0.1f), 0.3f, std::sin(k * 0.1f))));
+    auto hits = scene.intersect(rays);
+    auto occ = scene.occluded(rays);
+    CHECK(hits.size() == 64 && occ.size() == 64 && occ[5] && hits[5].triangle != LACUNA_INVALID_INDEX);
+    CHECK(scene.intersect(std::vector<lacuna_ray>{}).empty());
+    CHECK(scene.memory().total > 0 && scene.stats().triangles == 12);
+    lacuna_ray bad = lacuna::make_ray(lacuna::vec3(0, 0, 0), lacuna::vec3(0, 0, 0));
+    EXPECT_ERROR(scene.intersect(bad), LACUNA_STATUS_INVALID_ARGUMENT, "non-zero");
+    EXPECT_ERROR(lacuna::Scene().intersect(bad), LACUNA_STATUS_NULL_POINTER, "scene");
+
+    // Builder errors as exceptions; a failed build consumes the builder too.
+    {
+        lacuna::SceneBuilder b(ctx);
+        EXPECT_ERROR(b.add_material(42), LACUNA_STATUS_INVALID_ARGUMENT, "kind");
+        EXPECT_ERROR(b.load_obj(dir + "/missing.obj"), LACUNA_STATUS_IO, "missing.obj");
+        EXPECT_ERROR(b.set_material_rgb(3, LACUNA_MATERIAL_RGB_DIFFUSE, lacuna::rgb(1, 1, 1)),
+                     LACUNA_STATUS_OUT_OF_RANGE, "material index 3");
+        {
+            std::ofstream obj(dir + "/quad.obj");
+            obj << "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n";
+        }
+        CHECK(b.load_obj(dir + "/quad.obj") == 2);
+        lacuna::SceneBuilder moved = std::move(b);
+        CHECK(!b && moved);
+        lacuna::Scene q = moved.build();
+        CHECK(q.stats().triangles == 2);
+        EXPECT_ERROR(moved.build(), LACUNA_STATUS_NULL_POINTER, "builder");
+    }
+
+    // Render with a progress callback.
+    lacuna::RenderJob job(scene);
+    job.resolution(12, 8).samples_per_pixel(2).seed(3).max_depth(2).threads(2).mis_heuristic(LACUNA_MIS_HEURISTIC_POWER);
+    std::atomic<int> calls{0};
+    double last = 0;
+    job.on_progress([&](double f) {
+        calls++;
+        CHECK(f >= last);
+        last = f;
+        return true;
+    });
+    lacuna::Film film = job.run();
+    CHECK(calls > 0 && last == 1.0);
+    CHECK(film.width() == 12 && film.height() == 8 && film.stats().spp == 2);
+    auto radiance = film.read();
+    auto depth = film.read(LACUNA_FILM_CHANNEL_DEPTH);
+    CHECK(radiance.size() == 12 * 8 * 3 && depth.size() == 12 * 8);
+    double sum = 0;
+    for (float v : radiance) sum += v;
+    CHECK(sum > 0);
+    film.write_exr(dir + "/cpp.exr");
+    CHECK(lacuna::Film::load_exr(ctx, dir + "/cpp.exr").width() == 12);
+    EXPECT_ERROR(film.write_png(dir + "/x.png", NAN), LACUNA_STATUS_INVALID_ARGUMENT, "exposure");
+    EXPECT_ERROR(job.resolution(0, 1), LACUNA_STATUS_OUT_OF_RANGE, "resolution");
+    EXPECT_ERROR(lacuna::RenderJob(scene, "nonesuch"), LACUNA_STATUS_INVALID_ARGUMENT, "nonesuch");
+
+    // A throwing callback cancels the render; run() rethrows its exception.
+    job.on_progress([](double f) -> bool {
+        if (f >= 0.0) throw std::runtime_error("callback failed on purpose");
+        return true;
+    });
+    try {
+        job.run();
+        CHECK(false);
+    } catch (const std::runtime_error &e) {
+        CHECK(std::strcmp(e.what(), "callback failed on purpose") == 0);
+        CHECK(dynamic_cast<const lacuna::Error *>(&e) == nullptr);
+    }
+    // Returning false cancels with LACUNA_STATUS_CANCELLED; the partial film is kept.
+    job.samples_per_pixel(16).on_progress([](double f) { return f < 0.5; });
+    EXPECT_ERROR(job.run(), LACUNA_STATUS_CANCELLED, "cancelled");
+    CHECK(job.stats().cancelled && job.take_partial_film().stats().spp < 16);
+    job.on_progress(nullptr);
+
+    // Cancel from another thread.
+    lacuna::RenderJob slow(scene);
+    slow.resolution(16, 16).time_budget(60);
+    auto t0 = std::chrono::steady_clock::now();
+    std::thread canceller([&] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(200));
+        slow.cancel();
+    });
+    EXPECT_ERROR(slow.run(), LACUNA_STATUS_CANCELLED, "cancelled");
+    canceller.join();
+    CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(30));
+    lacuna::RenderJob moved_job = std::move(slow);
+    moved_job.time_budget(0).samples_per_pixel(1);
+    CHECK(moved_job.run().stats().spp == 1);
+
+    std::printf("%d passed, %d failed\n", passed, failed);
+    return failed ? 1 : 0;
+}
