@@ -12,7 +12,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::film::Film;
-use crate::integrator::{Integrator, TraceCounters};
+use crate::integrator::{Integrator, SampleContext, TraceCounters, View};
 use crate::math::{Rng, Vec2};
 use crate::scene::{Camera, Scene};
 
@@ -177,7 +177,12 @@ fn render_in_pool(
     on_pass: &mut (dyn FnMut(&Film, PassReport) + Send),
 ) -> Result<(Film, RenderStats)> {
     let (w, h) = (settings.width, settings.height);
-    let frame = camera.frame(w as f32 / h as f32);
+    let view = View {
+        frame: camera.frame(w as f32 / h as f32),
+        width: w,
+        height: h,
+    };
+    let iterative = integrator.uses_iterations();
     let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
@@ -213,66 +218,100 @@ fn render_in_pool(
         .min(settings.spp - spp_done);
 
         let pass_start = Instant::now();
-        let total_tiles = tiles.len() as u64;
-        let results: Vec<Option<Film>> = tiles
-            .par_iter()
-            .map(|&(x0, y0)| {
-                if cancel.load(Ordering::Relaxed) {
-                    return None;
-                }
-                let tw = TILE.min(w - x0);
-                let th = TILE.min(h - y0);
-                let mut tile = Film::new(tw, th);
-                let mut counters = TraceCounters::default();
-                for ty in 0..th {
-                    for tx in 0..tw {
-                        let (x, y) = (x0 + tx, y0 + ty);
-                        let pixel_index = y as u64 * w as u64 + x as u64;
-                        for s in spp_done..spp_done + pass {
-                            let mut rng = Rng::for_sample(settings.seed, pixel_index, s as u64);
-                            let film_pos = Vec2::new(
-                                (x as f32 + rng.uniform()) / w as f32,
-                                (y as f32 + rng.uniform()) / h as f32,
-                            );
-                            let ray = frame.generate_ray(film_pos, rng.uniform2());
-                            let sample = integrator.sample(scene, ray, &mut rng, &mut counters);
-                            tile.add_sample(tx, ty, &sample);
+        // Integrators with per-sample-index work (light subpaths) run the pass one sample
+        // index at a time; the others run it in one go.
+        let sub_passes: Vec<(u32, u32)> = if iterative {
+            (spp_done..spp_done + pass).map(|s| (s, 1)).collect()
+        } else {
+            vec![(spp_done, pass)]
+        };
+        let work_units = (tiles.len() * sub_passes.len()) as u64;
+        let mut pass_film = Film::new(w, h);
+        let mut completed = true;
+        for &(first, count) in &sub_passes {
+            let iteration = if iterative {
+                Some(integrator.begin_iteration(scene, &view, settings.seed, first)?)
+            } else {
+                None
+            };
+            let data = iteration.as_ref().and_then(|it| it.data.as_deref());
+            let results: Vec<Option<Film>> = tiles
+                .par_iter()
+                .map(|&(x0, y0)| {
+                    if cancel.load(Ordering::Relaxed) {
+                        return None;
+                    }
+                    let tw = TILE.min(w - x0);
+                    let th = TILE.min(h - y0);
+                    let mut tile = Film::new(tw, th);
+                    let mut counters = TraceCounters::default();
+                    for ty in 0..th {
+                        for tx in 0..tw {
+                            let (x, y) = (x0 + tx, y0 + ty);
+                            let pixel_index = y as u64 * w as u64 + x as u64;
+                            let ctx = SampleContext {
+                                pixel_index,
+                                view: &view,
+                                iteration: data,
+                            };
+                            for s in first..first + count {
+                                let mut rng = Rng::for_sample(settings.seed, pixel_index, s as u64);
+                                let film_pos = Vec2::new(
+                                    (x as f32 + rng.uniform()) / w as f32,
+                                    (y as f32 + rng.uniform()) / h as f32,
+                                );
+                                let ray = view.frame.generate_ray(film_pos, rng.uniform2());
+                                let sample =
+                                    integrator.sample(scene, ray, &mut rng, &mut counters, &ctx);
+                                tile.add_sample(tx, ty, &sample);
+                            }
                         }
                     }
-                }
-                rays.fetch_add(counters.rays, Ordering::Relaxed);
-                let done = tiles_done.fetch_add(1, Ordering::Relaxed) + 1;
-                let fraction = match settings.time_limit {
-                    Some(limit) => (start.elapsed().saturating_sub(observer_time).as_secs_f64()
-                        / limit.as_secs_f64())
-                    .min(1.0),
-                    None => {
-                        (spp_done as f64
-                            + pass as f64 * (done % total_tiles.max(1)) as f64 / total_tiles as f64)
-                            / settings.spp as f64
+                    rays.fetch_add(counters.rays, Ordering::Relaxed);
+                    let done = tiles_done.fetch_add(1, Ordering::Relaxed) + 1;
+                    let fraction = match settings.time_limit {
+                        Some(limit) => {
+                            (start.elapsed().saturating_sub(observer_time).as_secs_f64()
+                                / limit.as_secs_f64())
+                            .min(1.0)
+                        }
+                        None => {
+                            (spp_done as f64 + pass as f64 * done as f64 / work_units.max(1) as f64)
+                                / settings.spp as f64
+                        }
+                    };
+                    let p = Progress {
+                        fraction,
+                        spp_done,
+                        elapsed: start.elapsed(),
+                    };
+                    if !progress(p) {
+                        cancel.store(true, Ordering::Relaxed);
                     }
-                };
-                let p = Progress {
-                    fraction,
-                    spp_done,
-                    elapsed: start.elapsed(),
-                };
-                if !progress(p) {
-                    cancel.store(true, Ordering::Relaxed);
+                    Some(tile)
+                })
+                .collect();
+            if cancel.load(Ordering::Relaxed) || results.iter().any(Option::is_none) {
+                completed = false;
+                break;
+            }
+            for (&(x0, y0), tile) in tiles.iter().zip(results) {
+                pass_film.merge_tile(x0, y0, tile.as_ref().expect("checked above"));
+            }
+            if let Some(it) = iteration {
+                for (pixel, value) in it.splats {
+                    pass_film.add_splat(pixel as usize, value);
                 }
-                Some(tile)
-            })
-            .collect();
+                rays.fetch_add(it.rays, Ordering::Relaxed);
+            }
+        }
         tiles_done.store(0, Ordering::Relaxed);
-
-        if cancel.load(Ordering::Relaxed) || results.iter().any(Option::is_none) {
+        if !completed {
             // A cancelled pass is dropped whole so that every pixel keeps the same count.
             stats.cancelled = true;
             break;
         }
-        for (&(x0, y0), tile) in tiles.iter().zip(results) {
-            film.merge_tile(x0, y0, tile.as_ref().expect("checked above"));
-        }
+        film.merge(&pass_film);
         let pass_seconds = pass_start.elapsed().as_secs_f64();
         seconds_per_spp = Some(pass_seconds / pass as f64);
         spp_done += pass;

@@ -57,6 +57,9 @@ struct SceneArgs {
     /// MIS heuristic between light and BSDF sampling: power or balance.
     #[arg(long, default_value = "power")]
     mis: String,
+    /// Bidirectional integrators: light subpaths per iteration [default: one per pixel].
+    #[arg(long)]
+    light_paths: Option<u32>,
     /// Image width in pixels [default: 512, or the scene file's].
     #[arg(long)]
     width: Option<u32>,
@@ -93,7 +96,7 @@ struct SceneArgs {
 struct RenderArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Integrator name (available: path) [default: path, or the scene file's].
+    /// Integrator name (available: path, bdpt) [default: path, or the scene file's].
     #[arg(long)]
     integrator: Option<String>,
     /// Samples per pixel [default: 16, or the scene file's].
@@ -270,6 +273,7 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     render.threads = args.threads;
     let mut integrator = IntegratorSettings {
         mis: MisHeuristic::parse(&args.mis)?,
+        light_paths: args.light_paths,
         ..Default::default()
     };
     integrator.max_depth = args

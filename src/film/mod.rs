@@ -85,6 +85,16 @@ impl Film {
         }
     }
 
+    /// Adds radiance to a pixel without counting a sample (light-tracing splats, whose
+    /// per-iteration scaling is already applied). Non-finite values are dropped.
+    pub fn add_splat(&mut self, pixel_index: usize, value: Rgb) {
+        if crate::math::is_finite3(value) && pixel_index < self.radiance.len() {
+            for c in 0..3 {
+                self.radiance[pixel_index][c] += value[c] as f64;
+            }
+        }
+    }
+
     /// Adds the pixels of `tile` (a film of the tile's size) at offset (x0, y0).
     pub fn merge_tile(&mut self, x0: u32, y0: u32, tile: &Film) {
         for ty in 0..tile.height {

@@ -1,15 +1,20 @@
 //! Integrators: estimators of the radiance arriving along a camera ray. Each lives in its own
 //! file behind the small [`Integrator`] trait; [`create`] makes one by name.
 
+mod bdpt;
 mod path;
 
+pub use bdpt::{Bdpt, ConnectionPolicy, UniformPerPixel};
 pub use path::PathTracer;
+
+use std::any::Any;
 
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
+use crate::math::Rgb;
 use crate::math::Rng;
-use crate::scene::Scene;
+use crate::scene::{CameraFrame, Scene};
 
 /// How one-sample MIS weights two strategies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -49,6 +54,8 @@ pub struct IntegratorSettings {
     pub mis: MisHeuristic,
     /// Bounce after which Russian roulette may end paths.
     pub rr_start_depth: u32,
+    /// Bidirectional integrators: light subpaths traced per iteration (`None` = one per pixel).
+    pub light_paths: Option<u32>,
 }
 
 impl Default for IntegratorSettings {
@@ -57,6 +64,7 @@ impl Default for IntegratorSettings {
             max_depth: 8,
             mis: MisHeuristic::Power,
             rr_start_depth: 3,
+            light_paths: None,
         }
     }
 }
@@ -67,10 +75,54 @@ pub struct TraceCounters {
     pub rays: u64,
 }
 
+/// The camera and image an integrator renders for.
+#[derive(Clone, Copy, Debug)]
+pub struct View {
+    pub frame: CameraFrame,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// Work an integrator shares between all pixels of one sample index (e.g. the light subpaths
+/// of bidirectional path tracing), and what it adds to the image directly.
+#[derive(Default)]
+pub struct Iteration {
+    /// Handed to every `sample` of this sample index.
+    pub data: Option<Box<dyn Any + Send + Sync>>,
+    /// Contributions to add to pixels (row-major index), already scaled as one sample's worth
+    /// (light tracing splats).
+    pub splats: Vec<(u32, Rgb)>,
+    pub rays: u64,
+}
+
+/// What a pixel sample knows about where it is.
+#[derive(Clone, Copy)]
+pub struct SampleContext<'a> {
+    pub pixel_index: u64,
+    pub view: &'a View,
+    pub iteration: Option<&'a (dyn Any + Send + Sync)>,
+}
+
 /// An estimator of radiance along camera rays. Implementations are immutable during a render
 /// and shared by the worker threads.
 pub trait Integrator: Send + Sync {
     fn name(&self) -> &'static str;
+
+    /// True when `begin_iteration` must run before the pixels of every sample index.
+    fn uses_iterations(&self) -> bool {
+        false
+    }
+
+    /// Prepares one sample index (parallel inside; deterministic for a given seed).
+    fn begin_iteration(
+        &self,
+        _scene: &Scene,
+        _view: &View,
+        _seed: u64,
+        _sample_index: u32,
+    ) -> Result<Iteration> {
+        Ok(Iteration::default())
+    }
 
     /// One sample of the radiance arriving at the camera along `ray`, with the first-hit AOVs.
     fn sample(
@@ -79,16 +131,24 @@ pub trait Integrator: Send + Sync {
         ray: Ray,
         rng: &mut Rng,
         counters: &mut TraceCounters,
+        ctx: &SampleContext,
     ) -> PixelSample;
 }
 
 /// Names of the integrators this build offers.
-pub const NAMES: &[&str] = &["path"];
+pub const NAMES: &[&str] = &["path", "bdpt"];
 
 /// Creates an integrator by name.
 pub fn create(name: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
     match name {
         "path" => Ok(Box::new(PathTracer::new(settings))),
+        "bdpt" => {
+            let bdpt = Bdpt::new(settings);
+            Ok(Box::new(match settings.light_paths {
+                Some(n) => bdpt.with_light_paths(n as usize)?,
+                None => bdpt,
+            }))
+        }
         other => Err(Error::invalid(format!(
             "unknown integrator '{other}' (available: {})",
             NAMES.join(", ")

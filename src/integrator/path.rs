@@ -2,7 +2,7 @@
 //! estimation at every non-delta vertex, combined by MIS (Veach's one-sample-per-strategy
 //! estimator), with Russian roulette.
 
-use super::{Integrator, IntegratorSettings, TraceCounters};
+use super::{Integrator, IntegratorSettings, SampleContext, TraceCounters};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::math::{Rgb, Rng, Vec3};
@@ -74,6 +74,7 @@ impl Integrator for PathTracer {
         mut ray: Ray,
         rng: &mut Rng,
         counters: &mut TraceCounters,
+        _ctx: &SampleContext,
     ) -> PixelSample {
         let mut out = PixelSample::default();
         let mut radiance = Rgb::ZERO;

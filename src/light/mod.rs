@@ -2,8 +2,10 @@
 //! receiving point, and `pdf` returns the same value for a direction found by other means
 //! (BSDF sampling hitting an emitter), so the two strategies can be combined by MIS.
 
+mod emission;
 mod sampler;
 
+pub use emission::EmissionSample;
 pub use sampler::LightSampler;
 
 use crate::error::{Error, Result};
@@ -117,10 +119,12 @@ pub enum Light {
         cos_inner: f32,
         cos_outer: f32,
     },
-    /// `direction` is where the light travels; `scene_radius` bounds the scene for power.
+    /// `direction` is where the light travels; the scene's bounding sphere (`scene_center`,
+    /// `scene_radius`) gives its power and where emitted rays start.
     Directional {
         direction: Vec3,
         irradiance: Rgb,
+        scene_center: Vec3,
         scene_radius: f32,
     },
 }
@@ -170,11 +174,15 @@ impl Light {
             LightDesc::Directional {
                 direction,
                 irradiance,
-            } => Light::Directional {
-                direction: direction.normalize(),
-                irradiance,
-                scene_radius: bounds.bounding_sphere().1.max(1e-6),
-            },
+            } => {
+                let (scene_center, radius) = bounds.bounding_sphere();
+                Light::Directional {
+                    direction: direction.normalize(),
+                    irradiance,
+                    scene_center,
+                    scene_radius: radius.max(1e-6),
+                }
+            }
         }
     }
 
@@ -338,7 +346,7 @@ fn delta_point_sample(receiver: Vec3, position: Vec3, intensity: Rgb) -> Option<
     })
 }
 
-fn smoothstep(a: f32, b: f32, x: f32) -> f32 {
+pub(crate) fn smoothstep(a: f32, b: f32, x: f32) -> f32 {
     if a == b {
         return if x >= a { 1.0 } else { 0.0 };
     }

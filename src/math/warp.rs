@@ -61,8 +61,9 @@ pub fn cosine_hemisphere_pdf(w: Vec3) -> f32 {
 /// axis. This is the lobe of the modified Phong BRDF (001 §2, Lafortune & Willems) and of the
 /// skeleton importance lobe (000 eq. 163).
 pub fn power_cosine(u: Vec2, exponent: f32) -> Vec3 {
-    // Inverse cdf of cos(theta): F(cos) = 1 - cos^(n+1)  =>  cos = u^(1/(n+1)).
-    let cos_theta = u.x.powf(1.0 / (exponent + 1.0));
+    // Inverse cdf of cos(theta): F(cos) = 1 - cos^(n+1)  =>  cos = (1 - u)^(1/(n+1)), which
+    // is never 0 for u in [0, 1) (cos = 0 has zero density).
+    let cos_theta = (1.0 - u.x).powf(1.0 / (exponent + 1.0));
     let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
     let phi = 2.0 * PI * u.y;
     Vec3::new(sin_theta * phi.cos(), sin_theta * phi.sin(), cos_theta)

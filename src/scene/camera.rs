@@ -117,6 +117,30 @@ pub struct CameraFrame {
 }
 
 impl CameraFrame {
+    /// Film position in [0, 1)^2 of a world point seen through a pinhole camera, with the
+    /// cosine between the view direction and the direction to the point; `None` behind the
+    /// camera or outside the image.
+    pub fn project(&self, p: Vec3) -> Option<(Vec2, f32)> {
+        let v = p - self.eye;
+        let z = v.dot(self.forward);
+        if !(z > 0.0) {
+            return None;
+        }
+        let ndc_x = v.dot(self.right) / (z * self.right.length_squared());
+        let ndc_y = v.dot(self.up) / (z * self.up.length_squared());
+        let film = Vec2::new(0.5 * (ndc_x + 1.0), 0.5 * (1.0 - ndc_y));
+        if !(film.x >= 0.0 && film.x < 1.0 && film.y >= 0.0 && film.y < 1.0) {
+            return None;
+        }
+        Some((film, z / v.length()))
+    }
+
+    /// Distance from the pinhole to the image plane measured in pixels, for an image `height`
+    /// pixels high: the plane on which one pixel has unit area.
+    pub fn image_plane_distance(&self, height: u32) -> f32 {
+        0.5 * height as f32 / self.up.length()
+    }
+
     /// The ray through film position `film` in [0, 1)^2 (x to the right, y downwards), with
     /// `lens` in [0, 1)^2 choosing the point on the lens.
     pub fn generate_ray(&self, film: Vec2, lens: Vec2) -> Ray {

@@ -1,0 +1,161 @@
+//! Sampling light *leaving* a light (a point and a direction), as light subpaths of
+//! bidirectional methods start, with the densities MIS needs (SmallVCM's `Emit` and
+//! `Illuminate` quantities, Georgiev 2012 "Implementing vertex connection and merging").
+
+use super::Light;
+use crate::math::{warp, Frame, Rgb, Vec2, Vec3, INV_4PI, INV_PI, PI};
+
+/// An emitted ray.
+#[derive(Clone, Copy, Debug)]
+pub struct EmissionSample {
+    pub origin: Vec3,
+    /// Bound on the floating-point error of `origin` (zero off surfaces).
+    pub origin_error: Vec3,
+    pub dir: Vec3,
+    /// Normal at the origin (area lights; the direction for others).
+    pub normal: Vec3,
+    /// Emitted radiance times the cosine at the light (for area lights), intensity (point and
+    /// spot) or irradiance (directional): divided by `pdf_emit` it is the initial throughput.
+    pub value: Rgb,
+    /// Density of choosing this origin and direction (area x solid angle), without the light
+    /// selection probability.
+    pub pdf_emit: f32,
+    /// Area density of choosing this origin by direct light sampling (1 for delta positions).
+    pub pdf_direct_area: f32,
+    /// Cosine between the normal and the direction (1 for non-area lights).
+    pub cos_light: f32,
+}
+
+impl Light {
+    /// True when light leaves from a finite surface or point (not from infinity).
+    pub fn is_finite(&self) -> bool {
+        !matches!(self, Light::Directional { .. })
+    }
+
+    /// Samples an emitted ray with `u_pos` choosing the origin and `u_dir` the direction.
+    pub fn sample_emission(&self, u_pos: Vec2, u_dir: Vec2) -> Option<EmissionSample> {
+        match *self {
+            Light::Area {
+                p,
+                normal,
+                area,
+                radiance,
+                ..
+            } => {
+                let (b0, b1) = warp::uniform_triangle(u_pos);
+                let b = [b0, b1, 1.0 - b0 - b1];
+                let origin = p[0] * b[0] + p[1] * b[1] + p[2] * b[2];
+                let local = warp::cosine_hemisphere(u_dir);
+                if local.z <= 0.0 {
+                    return None;
+                }
+                let dir = Frame::from_z(normal).to_world(local);
+                Some(EmissionSample {
+                    origin,
+                    origin_error: crate::geometry::barycentric_point_error(p, b),
+                    dir,
+                    normal,
+                    value: radiance * local.z,
+                    pdf_emit: local.z * INV_PI / area,
+                    pdf_direct_area: 1.0 / area,
+                    cos_light: local.z,
+                })
+            }
+            Light::Point {
+                position,
+                intensity,
+            } => {
+                let dir = warp::uniform_sphere(u_dir);
+                Some(EmissionSample {
+                    origin: position,
+                    origin_error: Vec3::ZERO,
+                    dir,
+                    normal: dir,
+                    value: intensity,
+                    pdf_emit: INV_4PI,
+                    pdf_direct_area: 1.0,
+                    cos_light: 1.0,
+                })
+            }
+            Light::Spot {
+                position,
+                direction,
+                intensity,
+                cos_inner,
+                cos_outer,
+            } => {
+                let local = warp::uniform_cone(u_dir, cos_outer);
+                let dir = Frame::from_z(direction).to_world(local);
+                let falloff = super::smoothstep(cos_outer, cos_inner, local.z);
+                if falloff <= 0.0 {
+                    return None;
+                }
+                Some(EmissionSample {
+                    origin: position,
+                    origin_error: Vec3::ZERO,
+                    dir,
+                    normal: dir,
+                    value: intensity * falloff,
+                    pdf_emit: warp::uniform_cone_pdf(local, cos_outer),
+                    pdf_direct_area: 1.0,
+                    cos_light: 1.0,
+                })
+            }
+            Light::Directional {
+                direction,
+                irradiance,
+                scene_center,
+                scene_radius,
+            } => {
+                // A point on the disk of the scene's bounding sphere perpendicular to the
+                // light, moved back outside the sphere.
+                let frame = Frame::from_z(direction);
+                let d = warp::concentric_disk(u_pos) * scene_radius;
+                let origin =
+                    scene_center + frame.s * d.x + frame.t * d.y - direction * scene_radius;
+                Some(EmissionSample {
+                    origin,
+                    origin_error: Vec3::ZERO,
+                    dir: direction,
+                    normal: direction,
+                    value: irradiance,
+                    pdf_emit: 1.0 / (PI * scene_radius * scene_radius),
+                    pdf_direct_area: 1.0,
+                    cos_light: 1.0,
+                })
+            }
+        }
+    }
+
+    /// Density (area x solid angle, without selection probability) of `sample_emission`
+    /// producing a ray leaving the light in direction `dir` (for directional lights, the
+    /// density of the ray's origin on the disk).
+    pub fn emission_pdf(&self, dir: Vec3) -> f32 {
+        match *self {
+            Light::Area { area, normal, .. } => {
+                let c = normal.dot(dir);
+                if c <= 0.0 {
+                    0.0
+                } else {
+                    c * INV_PI / area
+                }
+            }
+            Light::Point { .. } => INV_4PI,
+            Light::Spot {
+                direction,
+                cos_outer,
+                ..
+            } => warp::uniform_cone_pdf(Vec3::new(0.0, 0.0, direction.dot(dir)), cos_outer),
+            Light::Directional { scene_radius, .. } => 1.0 / (PI * scene_radius * scene_radius),
+        }
+    }
+
+    /// Area density of direct light sampling choosing a point of this light (1 for delta
+    /// positions), without selection probability.
+    pub fn direct_pdf_area(&self) -> f32 {
+        match *self {
+            Light::Area { area, .. } => 1.0 / area,
+            _ => 1.0,
+        }
+    }
+}
