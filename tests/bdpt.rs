@@ -383,3 +383,84 @@ fn bdpt_refuses_thin_lens_cameras_and_renders_lightless_scenes_black() {
 fn v3(x: f32, y: f32, z: f32) -> Vec3 {
     Vec3::new(x, y, z)
 }
+
+/// Each (s, t) strategy alone, without MIS weights, is an unbiased estimate of the light
+/// carried by paths of s + t - 1 segments: all strategies of one length agree.
+#[test]
+fn each_strategy_alone_is_unbiased() {
+    use lacuna::integrator::{Bdpt, Integrator, StrategyFilter};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes/cornell-box/cornell-box.json");
+    let scene = load_scene_file(&path).unwrap().builder.build().unwrap();
+    let camera = *scene.camera().unwrap();
+    let mean_of = |integrator: &dyn Integrator| -> (f64, f64) {
+        let xs: Vec<f64> = (0..10u64)
+            .map(|seed| {
+                let rs = RenderSettings {
+                    width: 16,
+                    height: 16,
+                    spp: 32,
+                    seed: seed * 31 + 5,
+                    ..Default::default()
+                };
+                let (film, _) = render(
+                    &scene,
+                    &camera,
+                    integrator,
+                    &rs,
+                    &|_| true,
+                    &AtomicBool::new(false),
+                )
+                .unwrap();
+                let px = film.radiance();
+                px.iter().map(|p| p.element_sum() as f64 / 3.0).sum::<f64>() / px.len() as f64
+            })
+            .collect();
+        let n = xs.len() as f64;
+        let m = xs.iter().sum::<f64>() / n;
+        let var = xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
+        (m, (var / n).sqrt())
+    };
+    let settings = IntegratorSettings {
+        max_depth: 6,
+        ..Default::default()
+    };
+    for segments in [2u32, 3] {
+        let estimates: Vec<((u32, u32), (f64, f64))> = (0..=segments)
+            .map(|s| {
+                let t = segments + 1 - s;
+                let filter = StrategyFilter {
+                    s,
+                    t,
+                    unweighted: true,
+                };
+                ((s, t), mean_of(&Bdpt::new(settings).with_strategy(filter)))
+            })
+            .collect();
+        // The weighted strategies of this length sum to the same total.
+        let weighted: f64 = (0..=segments)
+            .map(|s| {
+                mean_of(&Bdpt::new(settings).with_strategy(StrategyFilter {
+                    s,
+                    t: segments + 1 - s,
+                    unweighted: false,
+                }))
+                .0
+            })
+            .sum();
+        let (reference, ref_err) = estimates[1].1; // s = 1: next-event estimation, low variance
+        assert!(reference > 0.0);
+        for ((s, t), (m, e)) in &estimates {
+            let sigma = (e * e + ref_err * ref_err).sqrt();
+            assert!(
+                (m - reference).abs() <= 4.5 * sigma,
+                "({s},{t}) {m} +- {e} vs (1,{}) {reference} +- {ref_err}",
+                segments
+            );
+        }
+        assert!(
+            (weighted - reference).abs() <= 4.5 * ref_err * 2.0,
+            "weighted sum {weighted} vs {reference}"
+        );
+    }
+}

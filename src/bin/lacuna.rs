@@ -105,6 +105,13 @@ struct RenderArgs {
     /// Render progressively for this many seconds instead of a fixed sample count.
     #[arg(long)]
     time: Option<f64>,
+    /// bdpt only: render just the strategy with S light and T camera vertices (as S,T), for
+    /// per-strategy debugging images.
+    #[arg(long, value_name = "S,T")]
+    strategy: Option<String>,
+    /// With --strategy: without MIS weights.
+    #[arg(long, requires = "strategy")]
+    unweighted: bool,
     /// Output file: .exr (float32 RGB with AOVs and metadata) or .png (sRGB preview).
     #[arg(long, short, default_value = "lacuna.png")]
     out: PathBuf,
@@ -405,7 +412,26 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         .clone()
         .or(prep.file_integrator.clone())
         .unwrap_or_else(|| "path".into());
-    let integrator = integrator::create(&name, prep.integrator)?;
+    let integrator: Box<dyn integrator::Integrator> = match &args.strategy {
+        None => integrator::create(&name, prep.integrator)?,
+        Some(st) => {
+            if name != "bdpt" {
+                return Err(Error::invalid("--strategy needs --integrator bdpt"));
+            }
+            let parts: Vec<Option<u32>> = st.split(',').map(|p| p.trim().parse().ok()).collect();
+            let [Some(s), Some(t)] = parts[..] else {
+                return Err(Error::invalid(format!(
+                    "--strategy '{st}' must be S,T (two integers)"
+                )));
+            };
+            let filter = integrator::StrategyFilter {
+                s,
+                t,
+                unweighted: args.unweighted,
+            };
+            Box::new(integrator::Bdpt::new(prep.integrator).with_strategy(filter))
+        }
+    };
     let bar = ProgressBar::new(args.scene.quiet);
     let (film, stats) = render(
         &prep.scene,

@@ -67,8 +67,20 @@ struct SubpathState {
     finite_light: bool,
 }
 
+/// Restricts a render to one (s, t) strategy, for debugging and for testing each strategy
+/// alone (000 Figure 22): s light vertices, t camera vertices (t counts the camera itself).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StrategyFilter {
+    pub s: u32,
+    pub t: u32,
+    /// Without MIS weights: the strategy's own (unbiased, often noisy) estimate of paths of
+    /// s + t - 1 segments.
+    pub unweighted: bool,
+}
+
 pub struct Bdpt {
     settings: IntegratorSettings,
+    strategy: Option<StrategyFilter>,
     /// Light subpaths per iteration; `None` = one per pixel.
     light_paths: Option<usize>,
     policy: Box<dyn ConnectionPolicy>,
@@ -81,6 +93,7 @@ impl Bdpt {
     pub fn new(settings: IntegratorSettings) -> Self {
         Bdpt {
             settings,
+            strategy: None,
             light_paths: None,
             policy: Box::new(UniformPerPixel),
         }
@@ -95,6 +108,29 @@ impl Bdpt {
         }
         self.light_paths = Some(count);
         Ok(self)
+    }
+
+    /// Keeps only the contributions of one strategy.
+    pub fn with_strategy(mut self, filter: StrategyFilter) -> Self {
+        self.strategy = Some(filter);
+        self
+    }
+
+    /// Factor applied to the unweighted contribution of strategy (s, t) with MIS weight
+    /// `weight`.
+    #[inline]
+    fn keep(&self, s: u32, t: u32, weight: f32) -> f32 {
+        match self.strategy {
+            None => weight,
+            Some(f) if f.s == s && f.t == t => {
+                if f.unweighted {
+                    1.0
+                } else {
+                    weight
+                }
+            }
+            Some(_) => 0.0,
+        }
     }
 
     pub fn with_policy(mut self, policy: Box<dyn ConnectionPolicy>) -> Self {
@@ -233,7 +269,8 @@ impl Bdpt {
         let image_dist = view.frame.image_plane_distance(view.height) / cos_at_camera;
         let image_to_surface = image_dist * image_dist / cos_at_camera * cos_to_camera / dist2;
         let w_light = self.mis(image_to_surface / n_light) * (v.d_vcm + v.d_vc * self.mis(rev_pdf));
-        let contribution = v.throughput * f * (image_to_surface / (n_light * (1.0 + w_light)));
+        let weight = self.keep(v.path_len + 1, 1, 1.0 / (1.0 + w_light));
+        let contribution = v.throughput * f * (weight * image_to_surface / n_light);
         if !crate::math::is_finite3(contribution) || contribution == Rgb::ZERO {
             return;
         }
@@ -345,7 +382,7 @@ impl Bdpt {
         };
         let w_camera = self.mis(emission_pdf_w * cos_to_light / (direct_pdf_w * cos_at_light))
             * (state.d_vcm + state.d_vc * self.mis(rev_pdf));
-        let weight = 1.0 / (w_light + 1.0 + w_camera);
+        let weight = self.keep(1, state.path_len + 1, 1.0 / (w_light + 1.0 + w_camera));
         ls.radiance * f * (weight * cos_to_light / (pick * ls.pdf))
     }
 
@@ -391,7 +428,11 @@ impl Bdpt {
         let w_light = self.mis(camera_dir_pdf_a) * (v.d_vcm + v.d_vc * self.mis(light_rev_pdf));
         let w_camera =
             self.mis(light_dir_pdf_a) * (state.d_vcm + state.d_vc * self.mis(camera_rev_pdf));
-        let weight = 1.0 / (w_light + 1.0 + w_camera);
+        let weight = self.keep(
+            v.path_len + 1,
+            state.path_len + 1,
+            1.0 / (w_light + 1.0 + w_camera),
+        );
         let contribution = v.throughput * f_c * f_l * (weight * cos_c * cos_l / dist2);
         if contribution == Rgb::ZERO {
             return Rgb::ZERO;
@@ -544,7 +585,7 @@ impl Integrator for Bdpt {
             let le = scene.emitted(&si);
             if le != Rgb::ZERO {
                 if state.path_len == 1 {
-                    radiance += state.throughput * le;
+                    radiance += state.throughput * le * self.keep(0, 2, 1.0);
                 } else if let (Some(l), Some(sampler)) =
                     (scene.triangle_light(si.triangle), scene.light_sampler())
                 {
@@ -554,7 +595,9 @@ impl Integrator for Bdpt {
                     let emission_pdf_w = pick * light.emission_pdf(si.wo);
                     let w_camera = self.mis(direct_pdf_a) * state.d_vcm
                         + self.mis(emission_pdf_w) * state.d_vc;
-                    radiance += state.throughput * le / (1.0 + w_camera);
+                    radiance += state.throughput
+                        * le
+                        * self.keep(0, state.path_len + 1, 1.0 / (1.0 + w_camera));
                 }
             }
             if state.path_len >= self.max_len() {
