@@ -35,6 +35,19 @@ fn lib_dir() -> PathBuf {
     dir
 }
 
+/// The shared library laid out as installed: `liblacuna.so.X.Y.Z` (its SONAME) and a
+/// `liblacuna.so` link to it, in `out_dir/lib`.
+fn staged_shared_lib(out_dir: &Path) -> PathBuf {
+    let dir = out_dir.join("lib");
+    std::fs::create_dir_all(&dir).unwrap();
+    let versioned = format!("liblacuna.so.{}", env!("CARGO_PKG_VERSION"));
+    std::fs::copy(lib_dir().join("liblacuna.so"), dir.join(&versioned)).unwrap();
+    let link = dir.join("liblacuna.so");
+    let _ = std::fs::remove_file(&link);
+    std::os::unix::fs::symlink(&versioned, &link).unwrap();
+    dir
+}
+
 fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("lacuna-capi-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
@@ -82,7 +95,6 @@ enum Link {
 fn compile(source: &str, link: Link, flags: &[&str], out_dir: &Path, name: &str) -> PathBuf {
     let is_cpp = source.ends_with(".cpp");
     let exe = out_dir.join(name);
-    let lib = lib_dir();
     let mut cmd = Command::new(if is_cpp { "c++" } else { "cc" });
     cmd.arg(if is_cpp { "-std=c++17" } else { "-std=c99" })
         .args([
@@ -103,13 +115,14 @@ fn compile(source: &str, link: Link, flags: &[&str], out_dir: &Path, name: &str)
         .arg(&exe);
     match link {
         Link::Shared => {
+            let lib = staged_shared_lib(out_dir);
             cmd.arg(format!("-L{}", lib.display()))
                 .arg("-llacuna")
                 .arg(format!("-Wl,-rpath,{}", lib.display()))
                 .args(["-lpthread", "-lm"]);
         }
         Link::Static => {
-            cmd.arg(lib.join("liblacuna.a")).args(STATIC_DEPS);
+            cmd.arg(lib_dir().join("liblacuna.a")).args(STATIC_DEPS);
         }
     }
     check(&mut cmd, &format!("compiling {source}"));
@@ -140,6 +153,24 @@ fn run_test(prefix: &[&str], exe: &Path, env: &[(&str, &str)], what: &str) -> St
     println!("{what}: {last}");
     let _ = std::fs::remove_dir_all(&dir);
     String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+#[test]
+fn shared_library_soname_carries_the_exact_version() {
+    let out = check(
+        Command::new("readelf")
+            .arg("-d")
+            .arg(lib_dir().join("liblacuna.so")),
+        "readelf",
+    );
+    let want = format!(
+        "Library soname: [liblacuna.so.{}]",
+        env!("CARGO_PKG_VERSION")
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains(&want),
+        "liblacuna.so lacks `{want}`"
+    );
 }
 
 #[test]
@@ -286,7 +317,7 @@ fn c_tests_pass_under_valgrind() {
     )
     .unwrap();
     let leak_exe = out.join("leak");
-    let lib = lib_dir();
+    let lib = staged_shared_lib(&out);
     check(
         Command::new("cc")
             .arg("-I")
