@@ -45,7 +45,7 @@ fn region_means(
             for p in &px {
                 assert!(p.is_finite() && p.min_element() >= 0.0, "{name}: pixel {p}");
             }
-            let mut sums = vec![0.0f64; 5];
+            let mut sums = [0.0f64; 5];
             let h = size / 2;
             for y in 0..size {
                 for x in 0..size {

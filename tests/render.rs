@@ -98,7 +98,7 @@ fn image_mean(film: &Film) -> Rgb {
 
 /// Mean and standard error of the image mean over independent seeds.
 fn mean_and_error(seeds: u64, mut f: impl FnMut(u64) -> f64) -> (f64, f64) {
-    let xs: Vec<f64> = (0..seeds).map(|s| f(s)).collect();
+    let xs: Vec<f64> = (0..seeds).map(&mut f).collect();
     let n = xs.len() as f64;
     let mean = xs.iter().sum::<f64>() / n;
     let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);

@@ -301,6 +301,9 @@ pub(crate) fn for_each_line<T, S>(
             (0..ny).into_par_iter().for_each_init(
                 || (init(), vec![T::default(); nz]),
                 |(s, buf), y| {
+                    // Rebinding moves the whole `SharedPtr` (which is `Send`) into the closure
+                    // instead of its raw-pointer field (which is not).
+                    #[allow(clippy::redundant_locals)]
                     let ptr = ptr;
                     for x in 0..nx {
                         let start = x + nx * y;

@@ -68,8 +68,10 @@ impl Film {
             channel("normal.Z", &normal, 2),
             x::AnyChannel::new("depth.Z", x::FlatSamples::F32(depth)),
         ];
-        let mut attributes = x::LayerAttributes::default();
-        attributes.software_name = Some(Text::from(concat!("Lacuna ", env!("CARGO_PKG_VERSION"))));
+        let mut attributes = x::LayerAttributes {
+            software_name: Some(Text::from(concat!("Lacuna ", env!("CARGO_PKG_VERSION")))),
+            ..Default::default()
+        };
         let mut other = HashMap::new();
         for (k, v) in &metadata.entries {
             let key = format!("{PREFIX}{k}");

@@ -57,6 +57,10 @@ struct LightPaths {
     ranges: Vec<(u32, u32)>,
 }
 
+/// What one parallel task of light tracing produced: vertices, per-path ranges (relative to
+/// the chunk), splats and rays traced.
+type LightPathChunk = (Vec<LightVertex>, Vec<(u32, u32)>, Vec<(u32, Rgb)>, u64);
+
 /// Throughput and MIS partial sums of a subpath being extended.
 #[derive(Clone, Copy, Debug)]
 struct SubpathState {
@@ -486,8 +490,7 @@ impl Integrator for Bdpt {
         let count = self.light_path_count(view);
         let n_light = count as f32;
         const CHUNK: usize = 256;
-        let chunks: Vec<(Vec<LightVertex>, Vec<(u32, u32)>, Vec<(u32, Rgb)>, u64)> = (0..count
-            .div_ceil(CHUNK))
+        let chunks: Vec<LightPathChunk> = (0..count.div_ceil(CHUNK))
             .into_par_iter()
             .map(|c| {
                 let mut vertices = Vec::new();
