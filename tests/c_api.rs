@@ -6,33 +6,49 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+use std::sync::OnceLock;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// `target/<profile>/`: this test runs from `target/<profile>/deps/`, and cargo builds the
-/// library's cdylib and staticlib there before running integration tests.
+/// `target/<profile>/` with the C libraries freshly built: this test runs from
+/// `target/<profile>/deps/`, and `cargo test` builds the library only as an rlib, so the
+/// cdylib and staticlib are built here (a no-op when they are up to date) with the same cargo,
+/// profile and target directory.
 fn lib_dir() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
-    for lib in ["liblacuna.so", "liblacuna.a"] {
-        let p = dir.join(lib);
-        assert!(
-            p.exists(),
-            "{} is missing: build the library first (cargo builds it for `cargo test`)",
-            p.display()
-        );
-        // The library must be at least as new as this test binary's own build.
-        let lib_time = p.metadata().unwrap().modified().unwrap();
-        let exe_time = exe.metadata().unwrap().modified().unwrap();
-        assert!(
-            lib_time <= exe_time || lib_time.duration_since(exe_time).unwrap().as_secs() < 3600,
-            "{} looks stale",
-            p.display()
-        );
-    }
-    dir
+    static BUILT: OnceLock<PathBuf> = OnceLock::new();
+    BUILT
+        .get_or_init(|| {
+            let exe = std::env::current_exe().unwrap();
+            let dir = exe.parent().unwrap().parent().unwrap().to_path_buf();
+            let target_dir = dir.parent().unwrap();
+            let profile = dir.file_name().unwrap().to_str().unwrap();
+            let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+            let mut cmd = Command::new(cargo);
+            cmd.current_dir(root())
+                .args(["build", "--lib", "--quiet", "--target-dir"])
+                .arg(target_dir);
+            match profile {
+                "debug" => {}
+                "release" => {
+                    cmd.arg("--release");
+                }
+                other => {
+                    cmd.args(["--profile", other]);
+                }
+            }
+            check(&mut cmd, "building the C libraries (cargo build --lib)");
+            for lib in ["liblacuna.so", "liblacuna.a"] {
+                assert!(
+                    dir.join(lib).exists(),
+                    "{} is missing",
+                    dir.join(lib).display()
+                );
+            }
+            dir
+        })
+        .clone()
 }
 
 /// The shared library laid out as installed: `liblacuna.so.X.Y.Z` (its SONAME) and a
