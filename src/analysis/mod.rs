@@ -25,3 +25,17 @@ pub use regions::{
     find_portals, label_regions, sample_portal, Labeling, Portal, PortalFace, Region, NO_REGION,
 };
 pub use report::{summary_json, write_analysis};
+
+// Curvilinear skeleton of the empty space (issue 6).
+pub mod complex;
+pub mod skeleton;
+mod skeleton_report;
+pub mod thinning;
+
+pub use complex::{diagonal_contacts, Betti, Complex};
+pub use skeleton::{
+    filter_skeleton, graph_from_complex, map_point, node_map, node_map_seeds, Filtered, Graph,
+    Node, Skeleton, SkeletonSettings, UNDEFINED_NODE,
+};
+pub use skeleton_report::{skeleton_obj, skeleton_ply, write_skeleton, write_skeleton_images};
+pub use thinning::{Constraint, SubStep, Thinning, ThinningStats};

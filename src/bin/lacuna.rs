@@ -178,6 +178,21 @@ struct AnalyzeArgs {
     /// Also compute L1 and Euclidean distance maps, the L1 opening and the decenterness map.
     #[arg(long)]
     all_maps: bool,
+    /// Also compute the curvilinear skeleton of the empty space (implies --all-maps): writes
+    /// skeleton.obj / skeleton_filtered.obj (lines), skeleton.ply / skeleton_filtered.ply (with
+    /// a radius per vertex), skeleton.png and node_map.png, and adds skeleton, empty_space and
+    /// skeleton_seconds to the JSON summary.
+    #[arg(long)]
+    skeleton: bool,
+    /// With --skeleton: gather free pairs on one thread (the result is identical).
+    #[arg(long)]
+    skeleton_sequential: bool,
+    /// With --skeleton: skip the Betti numbers of the empty space (saves two grid passes).
+    #[arg(long)]
+    no_topology: bool,
+    /// With --skeleton: skip skeleton.png and node_map.png.
+    #[arg(long)]
+    no_images: bool,
     /// Refuse grids needing more memory than this many MiB.
     #[arg(long, default_value_t = 4096)]
     memory_budget_mib: u64,
@@ -613,7 +628,8 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
 
 fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
     use lacuna::analysis::{
-        summary_json, write_analysis, Analysis, AnalysisSettings, Outside, Resolution,
+        summary_json, write_analysis, write_skeleton, Analysis, AnalysisSettings, Outside,
+        Resolution, Skeleton, SkeletonSettings,
     };
     let (builder, _, label) = match &args.scene {
         None => (
@@ -638,7 +654,7 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
             Outside::Solid
         },
         memory_budget: args.memory_budget_mib.saturating_mul(1 << 20),
-        all_maps: args.all_maps,
+        all_maps: args.all_maps || args.skeleton,
         ..Default::default()
     };
     let pool = rayon::ThreadPoolBuilder::new()
@@ -647,8 +663,37 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
         .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
     let analysis = pool.install(|| Analysis::build(&scene, &settings, &|_, _| true))?;
     write_analysis(&args.out, &analysis)?;
+    let skeleton = if args.skeleton {
+        let settings = SkeletonSettings {
+            parallel: !args.skeleton_sequential,
+            topology: !args.no_topology,
+        };
+        let skeleton = pool.install(|| Skeleton::build(&analysis, &settings, &|_, _| true))?;
+        let images = (!args.no_images).then_some(&scene);
+        pool.install(|| write_skeleton(&args.out, images, &skeleton))?;
+        Some(skeleton)
+    } else {
+        None
+    };
+    let mut summary: serde_json::Value = serde_json::from_str(&summary_json(&analysis))
+        .map_err(|e| Error::invalid(format!("summary JSON: {e}")))?;
+    if let Some(s) = &skeleton {
+        if let (Some(obj), serde_json::Value::Object(extra)) =
+            (summary.as_object_mut(), s.summary_json())
+        {
+            obj.extend(extra);
+        }
+        std::fs::write(
+            args.out.join("summary.json"),
+            serde_json::to_string_pretty(&summary).expect("JSON of plain values"),
+        )
+        .map_err(|e| Error::io(args.out.join("summary.json"), e))?;
+    }
     if args.json {
-        println!("{}", summary_json(&analysis));
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&summary).expect("JSON of plain values")
+        );
     } else {
         let d = analysis.grid.dims;
         println!(
@@ -665,6 +710,28 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
         );
         for t in &analysis.timings {
             println!("  {:<22} {:.4} s", t.stage, t.seconds);
+        }
+        if let Some(s) = &skeleton {
+            let f = &s.filtered.graph;
+            println!(
+                "skeleton: {} nodes, {} edges, {} components, cycle rank {}; filtered: {} nodes, {} edges in {:.3} s",
+                s.raw.nodes.len(),
+                s.raw.edges.len(),
+                s.raw.components(),
+                s.raw.cycle_rank(),
+                f.nodes.len(),
+                f.edges.len(),
+                s.total_seconds()
+            );
+            if let Some(b) = s.empty_space {
+                println!(
+                    "empty space: b0 {} b1 {} b2 {} euler {} ({} diagonal-only contacts)",
+                    b.b0, b.b1, b.b2, b.euler, s.diagonal_contacts
+                );
+            }
+            for t in &s.timings {
+                println!("  {:<30} {:.4} s", t.stage, t.seconds);
+            }
         }
     }
     Ok(())

@@ -1,0 +1,724 @@
+//! The curvilinear skeleton of the empty space as a graph (000 §6.2-6.4): thinning of the
+//! empty-space complex (Algorithms 2-3 with piercing, see [`super::thinning`]), graph
+//! extraction with maximal-ball radii, the filtered skeleton (Algorithm 4), the node mapping
+//! grid (Algorithm 5) and the mapping of a surface point to a node (eq. 151-155).
+//!
+//! # Nodes and radii
+//!
+//! A node is a point of the final 1-complex, i.e. a lattice vertex (a voxel corner); its world
+//! position is that corner. The thesis treats a node as a voxel (Algorithm 5 seeds the node's
+//! grid coordinates, its radius is "the value stored at each node coordinate" of the Euclidean
+//! distance map). We extend voxel maps to the vertex as the thesis extends them to faces (max
+//! over the voxels containing the face): the node's voxel is the empty voxel around the corner
+//! with the largest Euclidean distance (ties: lowest index), and its radius is
+//! `voxel_size * sqrt(SEDT(voxel))`, the radius of the largest digital ball centred on that
+//! voxel that holds no occupied voxel centre (distances between voxel centres, the outside of
+//! the grid counted as solid).
+//!
+//! # Filtering (Algorithm 4) and the cycle guard
+//!
+//! Nodes are taken by decreasing radius; a node not yet absorbed becomes a representative and
+//! absorbs, by a breadth-first walk along skeleton edges, the unabsorbed nodes within its radius
+//! (Euclidean distance between node positions). Representatives are never absorbed (the printed
+//! line 7 would also absorb earlier representatives, orphaning their members). Contracting
+//! connected clusters keeps b0, but loses cycles inside a cluster and, once parallel edges are
+//! merged, cycles through two clusters. Guard (our choice): a node joins a cluster only if it
+//! has exactly one edge to the cluster's current members (clusters stay induced trees) and does
+//! not add a second connection to a cluster already touched; connections the walk cannot see
+//! (a later singleton with two edges into one cluster) are repaired by dissolving the offending
+//! non-singleton cluster into single nodes, until no two clusters are joined by more than one
+//! edge. The filtered graph then has exactly the b0 and b1 of the raw skeleton (tested).
+
+use std::collections::{HashMap, VecDeque};
+use std::time::Instant;
+
+use super::complex::{diagonal_contacts, Betti, Complex, UnionFind, POINT, SPAN_BIT};
+use super::distance::{distance_map, Metric, Outside};
+use super::grid::{VoxelGrid, VoxelSet};
+use super::opening::opening_map_l1;
+use super::pipeline::{Analysis, StageTime};
+use super::thinning::{Constraint, Thinning, ThinningStats};
+use crate::error::{Error, Result};
+use crate::math::Vec3;
+
+/// Node index of voxels that map to no node (occupied, or unreachable from every node).
+pub const UNDEFINED_NODE: u32 = u32::MAX;
+
+/// A skeleton node.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Node {
+    /// Lattice vertex (voxel corner) coordinates.
+    pub lattice: [u32; 3],
+    /// World position of the corner.
+    pub position: Vec3,
+    /// The empty voxel the node stands for (index in the analysis grid).
+    pub voxel: u32,
+    /// Maximal-ball radius in voxels (sqrt of the squared Euclidean distance of `voxel`).
+    pub radius_voxels: f32,
+    /// Maximal-ball radius in world units.
+    pub radius: f32,
+}
+
+/// An undirected simple graph of nodes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Graph {
+    pub nodes: Vec<Node>,
+    /// Edges as (smaller, larger) node indices, sorted, without duplicates.
+    pub edges: Vec<[u32; 2]>,
+}
+
+impl Graph {
+    pub fn degrees(&self) -> Vec<u32> {
+        let mut d = vec![0u32; self.nodes.len()];
+        for &[a, b] in &self.edges {
+            d[a as usize] += 1;
+            d[b as usize] += 1;
+        }
+        d
+    }
+
+    /// Neighbour lists.
+    pub fn adjacency(&self) -> Vec<Vec<u32>> {
+        let mut adj = vec![Vec::new(); self.nodes.len()];
+        for &[a, b] in &self.edges {
+            adj[a as usize].push(b);
+            adj[b as usize].push(a);
+        }
+        adj
+    }
+
+    /// Component label of each node (labels 0.. in order of first node).
+    pub fn component_labels(&self) -> (Vec<u32>, usize) {
+        let mut uf = UnionFind::new(self.nodes.len());
+        for &[a, b] in &self.edges {
+            uf.union(a as usize, b as usize);
+        }
+        let mut label = vec![u32::MAX; self.nodes.len()];
+        let mut count = 0;
+        for i in 0..self.nodes.len() {
+            let r = uf.find(i);
+            if label[r] == u32::MAX {
+                label[r] = count;
+                count += 1;
+            }
+            label[i] = label[r];
+        }
+        (label, count as usize)
+    }
+
+    pub fn components(&self) -> usize {
+        self.component_labels().1
+    }
+
+    /// b1 of the graph: E − V + components.
+    pub fn cycle_rank(&self) -> usize {
+        self.edges.len() + self.components() - self.nodes.len()
+    }
+}
+
+/// The graph of a 1-complex: one node per point, one edge per edge cell.
+pub fn graph_from_complex(
+    complex: &Complex,
+    grid: &VoxelGrid,
+    occupied: &VoxelSet,
+    sq_distance: &[u32],
+) -> Graph {
+    let dims = grid.dims;
+    let points: Vec<usize> = (0..complex.len())
+        .filter(|&i| complex.byte(i) & POINT != 0)
+        .collect();
+    let nodes: Vec<Node> = points
+        .iter()
+        .map(|&i| {
+            let c = complex.coords(i).map(|x| x as usize);
+            let mut best: Option<(u32, usize)> = None;
+            for s in 0..8usize {
+                let mut v = [0usize; 3];
+                let mut ok = true;
+                for a in 0..3 {
+                    let d = (s >> a) & 1;
+                    ok &= c[a] >= d && c[a] - d < dims[a];
+                    v[a] = c[a].wrapping_sub(d);
+                }
+                if !ok {
+                    continue;
+                }
+                let k = grid.index(v[0], v[1], v[2]);
+                if occupied.get(k) {
+                    continue;
+                }
+                let better = match best {
+                    None => true,
+                    Some((d, b)) => sq_distance[k] > d || (sq_distance[k] == d && k < b),
+                };
+                if better {
+                    best = Some((sq_distance[k], k));
+                }
+            }
+            let (d2, voxel) = best.expect("a skeleton point is a corner of an empty voxel");
+            let r = (d2 as f32).sqrt();
+            Node {
+                lattice: c.map(|x| x as u32),
+                position: grid.to_world(c.map(|x| x as f64)),
+                voxel: voxel as u32,
+                radius_voxels: r,
+                radius: r * grid.voxel_size as f32,
+            }
+        })
+        .collect();
+    let s = complex.stride();
+    let mut edges = Vec::new();
+    for (n, &i) in points.iter().enumerate() {
+        for a in 0..3 {
+            if complex.byte(i) & SPAN_BIT[1 << a] != 0 {
+                let m = points
+                    .binary_search(&(i + s[a]))
+                    .expect("an edge's end point is present");
+                edges.push([n as u32, m as u32]);
+            }
+        }
+    }
+    edges.sort_unstable();
+    Graph { nodes, edges }
+}
+
+/// A filtered skeleton: the graph of representatives and the representative of every raw node.
+#[derive(Clone, Debug, Default)]
+pub struct Filtered {
+    pub graph: Graph,
+    /// Filtered node index of each raw node.
+    pub cluster_of: Vec<u32>,
+    /// Clusters dissolved by the cycle repair.
+    pub repaired: usize,
+}
+
+/// Algorithm 4 with the cycle guard described in the module docs.
+pub fn filter_skeleton(raw: &Graph) -> Filtered {
+    const FREE: u32 = u32::MAX;
+    let n = raw.nodes.len();
+    let adj = raw.adjacency();
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    order.sort_by(|&a, &b| {
+        raw.nodes[b as usize]
+            .radius_voxels
+            .total_cmp(&raw.nodes[a as usize].radius_voxels)
+            .then(a.cmp(&b))
+    });
+    let lattice = |i: u32| raw.nodes[i as usize].lattice.map(|x| x as f32);
+    let mut owner = vec![FREE; n];
+    // touched[c] == rep while growing rep's cluster: the cluster touches finished cluster c.
+    let mut touched = vec![FREE; n];
+    let mut queue = VecDeque::new();
+    for &rep in &order {
+        if owner[rep as usize] != FREE {
+            continue;
+        }
+        owner[rep as usize] = rep;
+        for &m in &adj[rep as usize] {
+            let c = owner[m as usize];
+            if c != FREE && c != rep {
+                touched[c as usize] = rep;
+            }
+        }
+        let (centre, radius) = (lattice(rep), raw.nodes[rep as usize].radius_voxels);
+        queue.clear();
+        queue.push_back(rep);
+        while let Some(u) = queue.pop_front() {
+            for &cand in &adj[u as usize] {
+                if owner[cand as usize] != FREE {
+                    continue;
+                }
+                let p = lattice(cand);
+                let d2 = (0..3).map(|a| (p[a] - centre[a]).powi(2)).sum::<f32>();
+                if d2 > radius * radius {
+                    continue;
+                }
+                // Exactly one edge into the cluster, no second connection to a finished one.
+                let mut inside = 0;
+                let mut ok = true;
+                let mut foreign: Vec<u32> = Vec::new();
+                for &m in &adj[cand as usize] {
+                    let c = owner[m as usize];
+                    if c == rep {
+                        inside += 1;
+                    } else if c != FREE {
+                        if touched[c as usize] == rep || foreign.contains(&c) {
+                            ok = false;
+                        }
+                        foreign.push(c);
+                    }
+                }
+                if !ok || inside != 1 {
+                    continue;
+                }
+                owner[cand as usize] = rep;
+                for c in foreign {
+                    touched[c as usize] = rep;
+                }
+                queue.push_back(cand);
+            }
+        }
+    }
+    // Repair: dissolve clusters joined to another by more than one edge.
+    let mut repaired = 0;
+    loop {
+        let mut count: HashMap<(u32, u32), u32> = HashMap::new();
+        for &[a, b] in &raw.edges {
+            let (ca, cb) = (owner[a as usize], owner[b as usize]);
+            if ca != cb {
+                *count.entry((ca.min(cb), ca.max(cb))).or_default() += 1;
+            }
+        }
+        let mut bad: Vec<(u32, u32)> = count
+            .into_iter()
+            .filter(|&(_, m)| m > 1)
+            .map(|(k, _)| k)
+            .collect();
+        if bad.is_empty() {
+            break;
+        }
+        bad.sort_unstable();
+        let size = |c: u32, owner: &[u32]| owner.iter().filter(|&&o| o == c).count();
+        let mut dissolve = Vec::new();
+        for (a, b) in bad {
+            let (sa, sb) = (size(a, &owner), size(b, &owner));
+            let pick = if sa == 1 {
+                b
+            } else if sb == 1 {
+                a
+            } else {
+                let (ra, rb) = (
+                    raw.nodes[a as usize].radius_voxels,
+                    raw.nodes[b as usize].radius_voxels,
+                );
+                if ra < rb || (ra == rb && a > b) {
+                    a
+                } else {
+                    b
+                }
+            };
+            if !dissolve.contains(&pick) {
+                dissolve.push(pick);
+            }
+        }
+        for c in dissolve {
+            repaired += 1;
+            for (i, o) in owner.iter_mut().enumerate() {
+                if *o == c {
+                    *o = i as u32;
+                }
+            }
+        }
+    }
+    // Representatives in index order.
+    let mut index = vec![FREE; n];
+    let mut nodes = Vec::new();
+    for i in 0..n {
+        if owner[i] == i as u32 {
+            index[i] = nodes.len() as u32;
+            nodes.push(raw.nodes[i]);
+        }
+    }
+    let cluster_of: Vec<u32> = owner.iter().map(|&o| index[o as usize]).collect();
+    let mut edges: Vec<[u32; 2]> = raw
+        .edges
+        .iter()
+        .filter_map(|&[a, b]| {
+            let (ca, cb) = (cluster_of[a as usize], cluster_of[b as usize]);
+            (ca != cb).then(|| [ca.min(cb), ca.max(cb)])
+        })
+        .collect();
+    edges.sort_unstable();
+    edges.dedup();
+    Filtered {
+        graph: Graph { nodes, edges },
+        cluster_of,
+        repaired,
+    }
+}
+
+/// Seed voxel of each node in the node map: its own voxel, or, when an earlier node (in index
+/// order) took it, the first other empty voxel around its corner still free; `None` if all are
+/// taken.
+pub fn node_map_seeds(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<Option<u32>> {
+    let dims = grid.dims;
+    let mut taken = std::collections::HashSet::new();
+    nodes
+        .iter()
+        .map(|node| {
+            let mut seed = Some(node.voxel as usize).filter(|v| !taken.contains(v));
+            if seed.is_none() {
+                let c = node.lattice.map(|x| x as usize);
+                for s in 0..8usize {
+                    let mut v = [0usize; 3];
+                    let mut ok = true;
+                    for a in 0..3 {
+                        let d = (s >> a) & 1;
+                        ok &= c[a] >= d && c[a] - d < dims[a];
+                        v[a] = c[a].wrapping_sub(d);
+                    }
+                    if ok {
+                        let k = grid.index(v[0], v[1], v[2]);
+                        if !occupied.get(k) && !taken.contains(&k) {
+                            seed = Some(k);
+                            break;
+                        }
+                    }
+                }
+            }
+            if let Some(k) = seed {
+                taken.insert(k);
+            }
+            seed.map(|k| k as u32)
+        })
+        .collect()
+}
+
+/// Algorithm 5: multi-source breadth-first search over 6-connected empty voxels from the
+/// nodes' seed voxels ([`node_map_seeds`]), in node index order. Occupied and unreached voxels
+/// get [`UNDEFINED_NODE`].
+pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u32> {
+    let dims = grid.dims;
+    let mut map = vec![UNDEFINED_NODE; grid.len()];
+    let mut queue = VecDeque::with_capacity(nodes.len());
+    for (l, seed) in node_map_seeds(grid, occupied, nodes)
+        .into_iter()
+        .enumerate()
+    {
+        if let Some(k) = seed {
+            map[k as usize] = l as u32;
+            queue.push_back(k);
+        }
+    }
+    let (sx, sy) = (dims[0], dims[0] * dims[1]);
+    while let Some(i) = queue.pop_front() {
+        let i = i as usize;
+        let label = map[i];
+        let (x, y, z) = (i % sx, (i / sx) % dims[1], i / sy);
+        let mut visit = |j: usize| {
+            if map[j] == UNDEFINED_NODE && !occupied.get(j) {
+                map[j] = label;
+                queue.push_back(j as u32);
+            }
+        };
+        if x > 0 {
+            visit(i - 1);
+        }
+        if x + 1 < dims[0] {
+            visit(i + 1);
+        }
+        if y > 0 {
+            visit(i - sx);
+        }
+        if y + 1 < dims[1] {
+            visit(i + sx);
+        }
+        if z > 0 {
+            visit(i - sy);
+        }
+        if z + 1 < dims[2] {
+            visit(i + sy);
+        }
+    }
+    map
+}
+
+/// Eq. 151-155: the node of a surface point `p` with normal `normal`, seen from incident
+/// direction `incident` (pointing from p towards where the path comes from).
+///
+/// v_x is the voxel containing p; n⁺ is the normal flipped into the hemisphere of the incident
+/// direction; the chosen voxel is the empty (mapped) voxel of the 26-neighbourhood of v_x that
+/// best faces n⁺. Eq. 154 prints argmax (v − v_x)·n^G; with unnormalised offsets an axis-aligned
+/// normal ties the face neighbour with its four edge and four corner neighbours, so we
+/// maximise the cosine (v − v_x)·n^G / |v − v_x| instead, the "similarity between the normal
+/// direction and the direction pointing toward the neighbor" the text asks for (v_x itself
+/// scores 0). When no mapped voxel is in that neighbourhood (thick conservative voxelization),
+/// the search moves up to three voxels along n⁺. The grid transform is a translation and a
+/// uniform scale, so n^G has the direction of n⁺ (eq. 153).
+pub fn map_point(
+    grid: &VoxelGrid,
+    map: &[u32],
+    p: Vec3,
+    normal: Vec3,
+    incident: Vec3,
+) -> Option<u32> {
+    let n = if normal.dot(incident) >= 0.0 {
+        normal
+    } else {
+        -normal
+    };
+    let n = n.normalize_or_zero();
+    let g = grid.to_grid(p);
+    let dims = grid.dims;
+    let vx = g.map(|x| x.floor() as i64);
+    for step in 0..=3i64 {
+        let centre: [i64; 3] = if step == 0 {
+            vx
+        } else {
+            [0, 1, 2].map(|a| (g[a] + step as f64 * n[a] as f64).floor() as i64)
+        };
+        let mut best: Option<(f32, u32)> = None;
+        for dz in -1..=1i64 {
+            for dy in -1..=1i64 {
+                for dx in -1..=1i64 {
+                    let v = [centre[0] + dx, centre[1] + dy, centre[2] + dz];
+                    if (0..3).any(|a| v[a] < 0 || v[a] >= dims[a] as i64) {
+                        continue;
+                    }
+                    let k = grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
+                    if map[k] == UNDEFINED_NODE {
+                        continue;
+                    }
+                    let off = Vec3::new(
+                        (v[0] - vx[0]) as f32,
+                        (v[1] - vx[1]) as f32,
+                        (v[2] - vx[2]) as f32,
+                    );
+                    let len = off.length();
+                    let score = if len > 0.0 { off.dot(n) / len } else { 0.0 };
+                    let better = match best {
+                        None => true,
+                        Some((s, _)) => score > s,
+                    };
+                    if better {
+                        best = Some((score, map[k]));
+                    }
+                }
+            }
+        }
+        if let Some((_, node)) = best {
+            return Some(node);
+        }
+    }
+    None
+}
+
+/// Options of the skeleton pipeline.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SkeletonSettings {
+    /// Gather free pairs on the rayon pool (identical results either way).
+    pub parallel: bool,
+    /// Also compute the Betti numbers of the empty space (union-find passes over the grid).
+    pub topology: bool,
+}
+
+impl Default for SkeletonSettings {
+    fn default() -> Self {
+        SkeletonSettings {
+            parallel: true,
+            topology: true,
+        }
+    }
+}
+
+/// The skeleton of the empty space of an analysed scene.
+pub struct Skeleton {
+    pub grid: VoxelGrid,
+    /// The curvilinear skeleton (one node per point of the thinned complex).
+    pub raw: Graph,
+    /// The filtered skeleton (Algorithm 4) and the cluster of each raw node.
+    pub filtered: Filtered,
+    /// Node mapping grid of the filtered skeleton (filtered node index per voxel).
+    pub node_map: Vec<u32>,
+    /// b0, b1, b2, χ of the empty-space complex, when asked for.
+    pub empty_space: Option<Betti>,
+    /// Lattice vertices where empty voxels meet only along an edge or at a corner.
+    pub diagonal_contacts: usize,
+    pub thinning: ThinningStats,
+    pub timings: Vec<StageTime>,
+}
+
+/// Whether a distance map was computed with the outside of the grid solid: then every empty
+/// voxel on the grid boundary is at distance 1 (all metrics used here).
+fn measured_with_solid_outside(dims: [usize; 3], map: &[u32]) -> bool {
+    let [w, h, d] = dims;
+    (0..map.len()).all(|i| {
+        let (x, y, z) = (i % w, (i / w) % h, i / (w * h));
+        let boundary = x == 0 || y == 0 || z == 0 || x + 1 == w || y + 1 == h || z + 1 == d;
+        !boundary || map[i] <= 1
+    })
+}
+
+impl Skeleton {
+    /// The skeleton of an analysis. Uses its L1 distance, L1 decenterness and squared
+    /// Euclidean maps when present (`all_maps`) and measured with a solid outside; computes
+    /// them otherwise.
+    pub fn build(
+        analysis: &Analysis,
+        settings: &SkeletonSettings,
+        progress: &dyn Fn(&str, f64) -> bool,
+    ) -> Result<Skeleton> {
+        let dims = analysis.grid.dims;
+        let mut timings = Vec::new();
+        let t = Instant::now();
+        let occ = &analysis.occupied;
+        let ok = |m: &Option<Vec<u32>>| {
+            m.as_ref()
+                .filter(|m| measured_with_solid_outside(dims, m))
+                .cloned()
+        };
+        let (d1, dc, sq) = match (
+            ok(&analysis.distance_l1),
+            analysis.decenterness_l1.clone(),
+            ok(&analysis.distance_sq_euclidean),
+        ) {
+            (Some(d1), Some(dc), Some(sq)) => (d1, dc, sq),
+            _ => {
+                let d1 = distance_map(dims, occ, Metric::L1, Outside::Solid, false).values;
+                let o1 = opening_map_l1(dims, &d1);
+                let dc = o1
+                    .iter()
+                    .zip(&d1)
+                    .map(|(o, d)| o.saturating_sub(*d))
+                    .collect();
+                let sq =
+                    distance_map(dims, occ, Metric::SquaredEuclidean, Outside::Solid, false).values;
+                timings.push(StageTime {
+                    stage: "skeleton maps (L1, Euclidean)",
+                    seconds: t.elapsed().as_secs_f64(),
+                });
+                (d1, dc, sq)
+            }
+        };
+        Self::from_maps(
+            analysis.grid,
+            occ,
+            &d1,
+            &dc,
+            &sq,
+            settings,
+            progress,
+            timings,
+        )
+    }
+
+    /// The skeleton from the occupied voxels and per-voxel maps measured with a solid outside:
+    /// L1 distance, L1 decenterness (Ω1 − D1) and squared Euclidean distance.
+    #[allow(clippy::too_many_arguments)]
+    pub fn from_maps(
+        grid: VoxelGrid,
+        occupied: &VoxelSet,
+        distance_l1: &[u32],
+        decenterness_l1: &[u32],
+        sq_distance: &[u32],
+        settings: &SkeletonSettings,
+        progress: &dyn Fn(&str, f64) -> bool,
+        mut timings: Vec<StageTime>,
+    ) -> Result<Skeleton> {
+        let dims = grid.dims;
+        let total = 7.0;
+        let mut done = 0.0;
+        let mut stage = |name: &'static str, timings: &mut Vec<StageTime>, t: Instant| {
+            timings.push(StageTime {
+                stage: name,
+                seconds: t.elapsed().as_secs_f64(),
+            });
+            done += 1.0;
+            if progress(name, done / total) {
+                Ok(())
+            } else {
+                Err(Error::Cancelled)
+            }
+        };
+
+        let t = Instant::now();
+        let complex = Complex::from_occupied(dims, occupied);
+        stage("complex", &mut timings, t)?;
+
+        let t = Instant::now();
+        let (empty_space, contacts) = if settings.topology {
+            (Some(complex.betti()), diagonal_contacts(dims, occupied))
+        } else {
+            (None, 0)
+        };
+        stage("empty-space topology", &mut timings, t)?;
+
+        let t = Instant::now();
+        let mut thinning = Thinning::new(
+            complex,
+            Constraint::Lifespan {
+                distance: distance_l1,
+                decenterness: decenterness_l1,
+            },
+            settings.parallel,
+            false,
+        );
+        thinning.run(&mut |_, _| {});
+        stage("thinning (Alg. 2-3)", &mut timings, t)?;
+
+        let t = Instant::now();
+        while thinning.pierce(Some(sq_distance)) > 0 {
+            thinning.run(&mut |_, _| {});
+        }
+        stage("piercing + re-thinning", &mut timings, t)?;
+
+        let t = Instant::now();
+        let stats = thinning.stats;
+        let complex = thinning.into_complex();
+        let raw = graph_from_complex(&complex, &grid, occupied, sq_distance);
+        drop(complex);
+        stage("graph", &mut timings, t)?;
+
+        let t = Instant::now();
+        let filtered = filter_skeleton(&raw);
+        stage("filter (Alg. 4)", &mut timings, t)?;
+
+        let t = Instant::now();
+        let map = node_map(&grid, occupied, &filtered.graph.nodes);
+        stage("node map (Alg. 5)", &mut timings, t)?;
+
+        Ok(Skeleton {
+            grid,
+            raw,
+            filtered,
+            node_map: map,
+            empty_space,
+            diagonal_contacts: contacts,
+            thinning: stats,
+            timings,
+        })
+    }
+
+    /// Filtered node of a surface point (eq. 151-155), see [`map_point`].
+    pub fn map_point(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<u32> {
+        map_point(&self.grid, &self.node_map, p, normal, incident)
+    }
+
+    pub fn total_seconds(&self) -> f64 {
+        self.timings.iter().map(|t| t.seconds).sum()
+    }
+
+    /// The `skeleton`, `empty_space` and `skeleton_seconds` members of the JSON summary.
+    pub fn summary_json(&self) -> serde_json::Value {
+        let stages: serde_json::Map<String, serde_json::Value> = self
+            .timings
+            .iter()
+            .map(|t| (t.stage.to_string(), serde_json::json!(t.seconds)))
+            .collect();
+        let g = &self.filtered.graph;
+        let mut v = serde_json::json!({
+            "skeleton": {
+                "nodes": self.raw.nodes.len(),
+                "edges": self.raw.edges.len(),
+                "components": self.raw.components(),
+                "cycle_rank": self.raw.cycle_rank(),
+                "max_degree": self.raw.degrees().into_iter().max().unwrap_or(0),
+                "filtered_nodes": g.nodes.len(),
+                "filtered_edges": g.edges.len(),
+                "filtered_components": g.components(),
+                "filtered_cycle_rank": g.cycle_rank(),
+                "filter_repairs": self.filtered.repaired,
+                "thinning": self.thinning,
+            },
+            "skeleton_seconds": stages,
+            "skeleton_total_seconds": self.total_seconds(),
+        });
+        if let Some(b) = self.empty_space {
+            v["empty_space"] = serde_json::json!({
+                "b0": b.b0, "b1": b.b1, "b2": b.b2, "euler": b.euler,
+                "diagonal_contacts": self.diagonal_contacts,
+            });
+        }
+        v
+    }
+}
