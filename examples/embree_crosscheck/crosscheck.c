@@ -557,6 +557,45 @@ static rays_t make_rays(const scene_t *sc, int cornell, size_t n_each, int cam_r
     return rs;
 }
 
+/* ---------------------------------------------------------------- double-precision arbiter
+ * Brute-force closest hit over all triangles in double precision (Moller-Trumbore, t > 0),
+ * used to tell which tracer is right when they disagree. */
+static result_t reference_hit(const mesh_t *m, const lacuna_ray *r) {
+    double o[3] = {r->origin[0], r->origin[1], r->origin[2]};
+    double d[3] = {r->direction[0], r->direction[1], r->direction[2]};
+    result_t best = {INFINITY, 0, 0, UINT32_MAX};
+    double best_t = r->tmax;
+    for (size_t t = 0; t < m->nt; t++) {
+        const float *p0 = &m->pos[3 * m->idx[3 * t]], *p1 = &m->pos[3 * m->idx[3 * t + 1]],
+                    *p2 = &m->pos[3 * m->idx[3 * t + 2]];
+        double e1[3], e2[3], pv[3], tv[3], qv[3];
+        for (int k = 0; k < 3; k++) {
+            e1[k] = (double)p1[k] - p0[k];
+            e2[k] = (double)p2[k] - p0[k];
+            tv[k] = o[k] - p0[k];
+        }
+        pv[0] = d[1] * e2[2] - d[2] * e2[1];
+        pv[1] = d[2] * e2[0] - d[0] * e2[2];
+        pv[2] = d[0] * e2[1] - d[1] * e2[0];
+        double det = e1[0] * pv[0] + e1[1] * pv[1] + e1[2] * pv[2];
+        if (det == 0) continue;
+        double inv = 1 / det;
+        double u = (tv[0] * pv[0] + tv[1] * pv[1] + tv[2] * pv[2]) * inv;
+        if (u < 0 || u > 1) continue;
+        qv[0] = tv[1] * e1[2] - tv[2] * e1[1];
+        qv[1] = tv[2] * e1[0] - tv[0] * e1[2];
+        qv[2] = tv[0] * e1[1] - tv[1] * e1[0];
+        double v = (d[0] * qv[0] + d[1] * qv[1] + d[2] * qv[2]) * inv;
+        if (v < 0 || u + v > 1) continue;
+        double tt = (e2[0] * qv[0] + e2[1] * qv[1] + e2[2] * qv[2]) * inv;
+        if (tt > 0 && tt < best_t) {
+            best_t = tt;
+            best.t = (float)tt; best.u = (float)u; best.v = (float)v; best.tri = (uint32_t)t;
+        }
+    }
+    return best;
+}
+
 /* ---------------------------------------------------------------- comparison */
 enum disagreement { AGREE, HIT_MISS, TIE, PRIM_DIST, DIST, OCC, NDIS };
 static const char *dis_name[NDIS] = {"agree", "hit/miss", "tie (benign)", "other prim+t",
@@ -566,6 +605,7 @@ typedef struct {
     size_t rays;
     size_t c[NDIS];
     size_t embree_only, lacuna_only; /* hit/miss mismatches: which tracer hit */
+    size_t ref_embree, ref_lacuna, ref_neither; /* serious ones: who the double reference backs */
     size_t lacuna_single_vs_batch;
 } tally_t;
 
@@ -767,6 +807,14 @@ static void check_scene(scene_t *sc, int cornell, double ray_scale, const char *
             if (er[i].tri != UINT32_MAX) t->embree_only++;
             else t->lacuna_only++;
         }
+        if (d == HIT_MISS || d == PRIM_DIST || d == DIST) {
+            result_t ref = reference_hit(&sc->mesh, &rs.r[i]);
+            int e_ok = classify(&ref, &er[i], sc->extent, cosine) <= TIE;
+            int l_ok = classify(&ref, &lr[i], sc->extent, cosine) <= TIE;
+            if (e_ok && !l_ok) t->ref_embree++;
+            else if (l_ok && !e_ok) t->ref_lacuna++;
+            else t->ref_neither++;
+        }
         rep->occ_rays[rs.kind[i]]++;
         if (eo[i] != lo[i]) rep->occ_dis[rs.kind[i]]++;
         if (d != AGREE && d != TIE && shown[rs.kind[i]][d] < 2) {
@@ -947,18 +995,21 @@ int main(int argc, char **argv) {
     /* agreement table */
     printf("\n## Closest hit (Embree rtcIntersect1 vs lacuna_scene_intersect_batch) and occlusion\n\n");
     printf("| scene | rays | kind | agree | hit/miss (Embree only/Lacuna only) | tie (benign) | other prim+t | "
-           "distance | occlusion rays | occlusion mismatch |\n");
-    printf("|---|---|---|---|---|---|---|---|---|---|\n");
+           "distance | double ref. backs Embree/Lacuna/neither | occlusion rays | occlusion mismatch |\n");
+    printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
+    size_t ref[3] = {0, 0, 0};
     size_t tot[NDIS] = {0}, tot_rays = 0, tot_occ = 0, tot_occ_dis = 0;
     for (int s = 0; s < NSCENES; s++) {
         for (int k = 0; k < KINDS; k++) {
             tally_t *t = &reps[s].k[k];
-            printf("| %s | %zu | %s | %zu | %zu (%zu/%zu) | %zu | %zu | %zu | %zu | %zu |\n",
+            printf("| %s | %zu | %s | %zu | %zu (%zu/%zu) | %zu | %zu | %zu | %zu/%zu/%zu | %zu | %zu |\n",
                    reps[s].scene, t->rays, kind_name[k], t->c[AGREE], t->c[HIT_MISS],
                    t->embree_only, t->lacuna_only,
-                   t->c[TIE], t->c[PRIM_DIST], t->c[DIST], reps[s].occ_rays[k],
+                   t->c[TIE], t->c[PRIM_DIST], t->c[DIST], t->ref_embree, t->ref_lacuna,
+                   t->ref_neither, reps[s].occ_rays[k],
                    reps[s].occ_dis[k]);
             for (int d = 0; d < OCC; d++) tot[d] += t->c[d];
+            ref[0] += t->ref_embree; ref[1] += t->ref_lacuna; ref[2] += t->ref_neither;
             tot_rays += t->rays;
             tot_occ += reps[s].occ_rays[k];
             tot_occ_dis += reps[s].occ_dis[k];
@@ -967,8 +1018,9 @@ int main(int argc, char **argv) {
     size_t eo_ = 0, lo_ = 0;
     for (int s = 0; s < NSCENES; s++)
         for (int k = 0; k < KINDS; k++) eo_ += reps[s].k[k].embree_only, lo_ += reps[s].k[k].lacuna_only;
-    printf("| **all** | %zu | | %zu | %zu (%zu/%zu) | %zu | %zu | %zu | %zu | %zu |\n", tot_rays,
-           tot[AGREE], tot[HIT_MISS], eo_, lo_, tot[TIE], tot[PRIM_DIST], tot[DIST], tot_occ,
+    printf("| **all** | %zu | | %zu | %zu (%zu/%zu) | %zu | %zu | %zu | %zu/%zu/%zu | %zu | %zu |\n",
+           tot_rays, tot[AGREE], tot[HIT_MISS], eo_, lo_, tot[TIE], tot[PRIM_DIST], tot[DIST],
+           ref[0], ref[1], ref[2], tot_occ,
            tot_occ_dis);
 
     printf("\n## Images (%dx%d, depth and AO with %d rays per pixel)\n\n", IMG, IMG, AO_RAYS);
