@@ -33,6 +33,15 @@
 #define LACUNA_VERSION_STRING "0.1.0"
 
 
+// Treat the inside of closed objects as occupied.
+#define LACUNA_ANALYSIS_FILL_INTERIORS 1
+
+// Treat the outside of the grid as empty (default: solid).
+#define LACUNA_ANALYSIS_OUTSIDE_EMPTY 2
+
+// Also compute the L1 and Euclidean distance maps, the L1 opening and the decenterness map.
+#define LACUNA_ANALYSIS_ALL_MAPS 4
+
 // The default memory budget: 8 GiB.
 #define LACUNA_DEFAULT_MEMORY_BUDGET 8589934592
 
@@ -228,6 +237,12 @@ typedef uint32_t lacuna_film_channel;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
+// The analysed empty space of a scene.
+//
+// Refcounted (`lacuna_analysis_retain`/`lacuna_analysis_release`); keeps its scene alive.
+// Immutable: every function may be called from any number of threads at once.
+typedef struct lacuna_analysis lacuna_analysis;
+
 // The root object: settings shared by the scenes and jobs made from it.
 //
 // Refcounted (`lacuna_context_retain`/`lacuna_context_release`); every object made from a
@@ -276,12 +291,11 @@ typedef struct lacuna_scene lacuna_scene;
 // It keeps its context alive.
 typedef struct lacuna_scene_builder lacuna_scene_builder;
 
-// A linear sRGB colour (radiance, albedo or intensity depending on the call).
-typedef struct lacuna_rgb {
-    float r;
-    float g;
-    float b;
-} lacuna_rgb;
+// Progress of a render: `user_data` as registered and the fraction done in [0, 1]. Return
+// false to cancel (the run then fails with `LACUNA_STATUS_CANCELLED`). Called on Lacuna's
+// worker threads, one call at a time, with non-decreasing fractions; it must be quick and must
+// not unwind (throw) into Lacuna.
+typedef bool (*lacuna_progress_callback)(void *user_data, double fraction);
 
 // A 3D point or vector.
 typedef struct lacuna_vec3 {
@@ -289,6 +303,47 @@ typedef struct lacuna_vec3 {
     float y;
     float z;
 } lacuna_vec3;
+
+// One opening-forest region.
+typedef struct lacuna_region {
+    // Opening (chessboard radius, in voxels) of the region's root voxels.
+    uint32_t opening;
+    uint32_t root_voxels;
+    uint64_t voxels;
+    // Mean position of its voxels (world).
+    struct lacuna_vec3 centroid;
+} lacuna_region;
+
+// The voxel faces separating two neighbouring regions `region_a < region_b`.
+typedef struct lacuna_portal {
+    uint32_t region_a;
+    uint32_t region_b;
+    uint32_t faces;
+    // World area.
+    float area;
+    // Area-weighted mean of the face centres (world).
+    struct lacuna_vec3 center;
+    // Mean normal from region a into region b (zero when the faces cancel out).
+    struct lacuna_vec3 normal;
+} lacuna_portal;
+
+// Bytes held by each structure of an analysis.
+typedef struct lacuna_analysis_memory {
+    size_t occupancy;
+    size_t distance;
+    size_t opening;
+    size_t labels;
+    size_t portals;
+    size_t extra_maps;
+    size_t total;
+} lacuna_analysis_memory;
+
+// A linear sRGB colour (radiance, albedo or intensity depending on the call).
+typedef struct lacuna_rgb {
+    float r;
+    float g;
+    float b;
+} lacuna_rgb;
 
 // Estimated errors of an image (mean absolute error, root mean square error, relative MSE).
 typedef struct lacuna_image_errors {
@@ -313,12 +368,6 @@ typedef struct lacuna_render_stats {
     uint64_t rays;
     bool cancelled;
 } lacuna_render_stats;
-
-// Progress of a render: `user_data` as registered and the fraction done in [0, 1]. Return
-// false to cancel (the run then fails with `LACUNA_STATUS_CANCELLED`). Called on Lacuna's
-// worker threads, one call at a time, with non-decreasing fractions; it must be quick and must
-// not unwind (throw) into Lacuna.
-typedef bool (*lacuna_progress_callback)(void *user_data, double fraction);
 
 // A ray for the scene queries. The layout (32 bytes, 4-byte aligned) never changes with build
 // options. Fill it with `lacuna_ray_init()` then set the fields.
@@ -384,6 +433,77 @@ typedef struct lacuna_scene_stats {
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
+
+// Analyses the empty space of `scene`. The grid has `longest_axis_voxels` voxels along the
+// longest side of the scene bounds, or, when that is 0, cubic voxels of edge `voxel_size`
+// (world units). `memory_budget_bytes` (0 = 4 GiB) refuses grids whose structures would need
+// more (`LACUNA_STATUS_OVER_BUDGET`, nothing allocated). `flags` combines
+// `LACUNA_ANALYSIS_*`. `progress` (may be NULL) is called between stages with the fraction
+// done, on the calling thread; returning false cancels (`LACUNA_STATUS_CANCELLED`). Runs on the
+// scene context's worker threads. On success `*out_analysis` receives a new reference.
+// Thread-safe.
+lacuna_status lacuna_analysis_build(const struct lacuna_scene *scene,
+                                    uint32_t longest_axis_voxels,
+                                    float voxel_size,
+                                    uint64_t memory_budget_bytes,
+                                    uint32_t flags,
+                                    lacuna_progress_callback progress,
+                                    void *user_data,
+                                    struct lacuna_analysis **out_analysis);
+
+// Adds a reference. NULL is a no-op. Thread-safe.
+void lacuna_analysis_retain(const struct lacuna_analysis *analysis);
+
+// Drops a reference; the last one frees the analysis. NULL is a no-op. Thread-safe.
+void lacuna_analysis_release(const struct lacuna_analysis *analysis);
+
+// Grid size in voxels (`out_dims`: 3 values x, y, z), voxel edge length and grid origin
+// (world). Any output may be NULL when not wanted. Thread-safe.
+lacuna_status lacuna_analysis_grid(const struct lacuna_analysis *analysis,
+                                   uint32_t *out_dims,
+                                   float *out_voxel_size,
+                                   struct lacuna_vec3 *out_origin);
+
+// The 26-opening (voxels) and region label at world point `point`. A point in an occupied
+// voxel gets opening 0 and label `LACUNA_INVALID_INDEX`; a point outside the grid fails with
+// `LACUNA_STATUS_OUT_OF_RANGE`. Either output may be NULL. Thread-safe.
+lacuna_status lacuna_analysis_query(const struct lacuna_analysis *analysis,
+                                    const struct lacuna_vec3 *point_world,
+                                    uint32_t *out_opening,
+                                    uint32_t *out_label);
+
+// Numbers of regions and portals. Either output may be NULL. Thread-safe.
+lacuna_status lacuna_analysis_counts(const struct lacuna_analysis *analysis,
+                                     size_t *out_regions,
+                                     size_t *out_portals);
+
+// Region `index` (0 <= index < the region count). Thread-safe.
+lacuna_status lacuna_analysis_region(const struct lacuna_analysis *analysis,
+                                     size_t index,
+                                     struct lacuna_region *out_region);
+
+// Portal `index` (0 <= index < the portal count). Thread-safe.
+lacuna_status lacuna_analysis_portal(const struct lacuna_analysis *analysis,
+                                     size_t index,
+                                     struct lacuna_portal *out_portal);
+
+// Samples a point uniformly on portal `index` with random numbers `u` (face choice) and
+// `u1`, `u2` (position on the face), all in [0, 1): writes the point, the face normal (from
+// region a into region b) and the density with respect to area (1 / portal area). Thread-safe.
+lacuna_status lacuna_analysis_sample_portal(const struct lacuna_analysis *analysis,
+                                            size_t index,
+                                            float u,
+                                            float u1,
+                                            float u2,
+                                            struct lacuna_vec3 *out_point,
+                                            struct lacuna_vec3 *out_normal,
+                                            float *out_pdf_area);
+
+// Bytes held by each structure, and the analysis's total build time in seconds (either
+// output may be NULL). Thread-safe.
+lacuna_status lacuna_analysis_stats(const struct lacuna_analysis *analysis,
+                                    struct lacuna_analysis_memory *out_memory,
+                                    double *out_seconds);
 
 // The message of the last failed Lacuna call on the calling thread, naming the function, the
 // argument and the bad value; an empty string when no call has failed on this thread yet.

@@ -15,8 +15,9 @@ use crate::scene::Scene;
 #[derive(Clone, Debug, PartialEq)]
 pub struct AnalysisSettings {
     pub resolution: Resolution,
-    /// Layers of empty voxels around the scene bounds (1 lets the outside connect around
-    /// open scenes).
+    /// Layers of voxels around the scene bounds. Two, because a surface lying exactly on the
+    /// bounds also marks the first layer (voxelization is conservative on both sides of a voxel
+    /// boundary); the second keeps the outside one connected empty shell.
     pub padding: u32,
     /// Mark the inside of closed objects as occupied.
     pub fill_interiors: bool,
@@ -33,7 +34,7 @@ impl Default for AnalysisSettings {
     fn default() -> Self {
         AnalysisSettings {
             resolution: Resolution::LongestAxis(128),
-            padding: 1,
+            padding: 2,
             fill_interiors: false,
             outside: Outside::Solid,
             memory_budget: 4 << 30,

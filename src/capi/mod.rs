@@ -14,6 +14,7 @@
 // pointer must meet is written in the function's doc comment (it becomes the header's doc).
 #![allow(clippy::missing_safety_doc)]
 
+mod analysis;
 mod boundary;
 mod buffer;
 mod builder;
@@ -26,6 +27,7 @@ mod scene;
 mod types;
 mod version;
 
+pub use analysis::*;
 pub use boundary::{
     lacuna_debug_trigger_panic, lacuna_last_error_message, lacuna_status, lacuna_status_string,
 };

@@ -875,6 +875,113 @@ static void test_render(lacuna_context *ctx) {
     lacuna_render_job_free(NULL);
 }
 
+/* ---------------------------------------------------------------------------------------- */
+/* Empty-space analysis. */
+
+static int progress_calls;
+static bool count_progress(void *user_data, double fraction) {
+    (void)user_data;
+    CHECK(fraction >= 0 && fraction <= 1);
+    progress_calls++;
+    return true;
+}
+static bool stop_at_once(void *user_data, double fraction) {
+    (void)user_data;
+    (void)fraction;
+    return false;
+}
+
+static void test_analysis(lacuna_context *ctx) {
+    lacuna_scene *scene = build_box_scene(ctx);
+    lacuna_analysis *a = NULL;
+    /* Error paths first: nothing is written on failure. */
+    EXPECT(lacuna_analysis_build(NULL, 32, 0, 0, 0, NULL, NULL, &a), LACUNA_STATUS_NULL_POINTER, "scene");
+    EXPECT(lacuna_analysis_build(scene, 32, 0, 0, 0, NULL, NULL, NULL), LACUNA_STATUS_NULL_POINTER, "out_analysis");
+    EXPECT(lacuna_analysis_build(scene, 32, 0, 0, 64, NULL, NULL, &a), LACUNA_STATUS_INVALID_ARGUMENT, "flags");
+    EXPECT(lacuna_analysis_build(scene, 0, 0, 0, 0, NULL, NULL, &a), LACUNA_STATUS_INVALID_ARGUMENT, "voxel_size");
+    EXPECT(lacuna_analysis_build(scene, 0, NAN, 0, 0, NULL, NULL, &a), LACUNA_STATUS_INVALID_ARGUMENT, "voxel_size");
+    EXPECT(lacuna_analysis_build(scene, 0, -1, 0, 0, NULL, NULL, &a), LACUNA_STATUS_INVALID_ARGUMENT, "voxel_size");
+    EXPECT(lacuna_analysis_build(scene, 512, 0, 1024, 0, NULL, NULL, &a), LACUNA_STATUS_OVER_BUDGET, "budget");
+    EXPECT(lacuna_analysis_build(scene, 32, 0, 0, 0, stop_at_once, NULL, &a), LACUNA_STATUS_CANCELLED, NULL);
+    CHECK(a == NULL);
+
+    progress_calls = 0;
+    /* Filling interiors turns the inside of the closed box into solid. */
+    OK(lacuna_analysis_build(scene, 16, 0, 0, LACUNA_ANALYSIS_FILL_INTERIORS | LACUNA_ANALYSIS_OUTSIDE_EMPTY, NULL,
+                             NULL, &a));
+    {
+        lacuna_vec3 middle = v3(0, 0, 0);
+        uint32_t o = 9, l = 9;
+        OK(lacuna_analysis_query(a, &middle, &o, &l));
+        CHECK(o == 0 && l == LACUNA_INVALID_INDEX);
+        lacuna_analysis_release(a);
+        a = NULL;
+    }
+    OK(lacuna_analysis_build(scene, 32, 0, 0, LACUNA_ANALYSIS_ALL_MAPS, count_progress, NULL, &a));
+    CHECK(a != NULL && progress_calls >= 5);
+    uint32_t dims[3] = {0, 0, 0};
+    float size = 0;
+    lacuna_vec3 origin;
+    OK(lacuna_analysis_grid(a, dims, &size, &origin));
+    OK(lacuna_analysis_grid(a, NULL, NULL, NULL));
+    CHECK(dims[0] >= 32 && dims[1] >= 32 && dims[2] >= 32 && size > 0);
+    EXPECT(lacuna_analysis_grid(NULL, dims, NULL, NULL), LACUNA_STATUS_NULL_POINTER, "analysis");
+
+    /* The middle of the box is wide open; far outside is out of range. */
+    lacuna_vec3 centre = v3(0, 0, 0), far_away = v3(100, 0, 0), bad = v3(NAN, 0, 0);
+    uint32_t opening = 0, label = 12345;
+    OK(lacuna_analysis_query(a, &centre, &opening, &label));
+    CHECK(opening >= 5 && label != LACUNA_INVALID_INDEX);
+    OK(lacuna_analysis_query(a, &centre, NULL, NULL));
+    opening = 77;
+    EXPECT(lacuna_analysis_query(a, &far_away, &opening, &label), LACUNA_STATUS_OUT_OF_RANGE, "outside");
+    CHECK(opening == 77);
+    EXPECT(lacuna_analysis_query(a, &bad, &opening, &label), LACUNA_STATUS_INVALID_ARGUMENT, "finite");
+    EXPECT(lacuna_analysis_query(a, NULL, &opening, &label), LACUNA_STATUS_NULL_POINTER, "point");
+
+    size_t regions = 0, portals = 0;
+    OK(lacuna_analysis_counts(a, &regions, &portals));
+    CHECK(regions >= 1 && label < regions);
+    lacuna_region r;
+    OK(lacuna_analysis_query(a, &centre, &opening, &label));
+    OK(lacuna_analysis_region(a, label, &r));
+    CHECK(r.opening >= opening && r.voxels >= r.root_voxels && r.root_voxels >= 1);
+    EXPECT(lacuna_analysis_region(a, regions, &r), LACUNA_STATUS_OUT_OF_RANGE, "region index");
+    EXPECT(lacuna_analysis_region(a, 0, NULL), LACUNA_STATUS_NULL_POINTER, "out_region");
+    lacuna_portal p;
+    EXPECT(lacuna_analysis_portal(a, portals, &p), LACUNA_STATUS_OUT_OF_RANGE, "portal index");
+    lacuna_vec3 point, normal;
+    float pdf = -1;
+    EXPECT(lacuna_analysis_sample_portal(a, portals, 0.5f, 0.5f, 0.5f, &point, &normal, &pdf),
+           LACUNA_STATUS_OUT_OF_RANGE, "portal index");
+    EXPECT(lacuna_analysis_sample_portal(a, 0, 1.0f, 0.5f, 0.5f, &point, &normal, &pdf), LACUNA_STATUS_INVALID_ARGUMENT,
+           "[0, 1)");
+    EXPECT(lacuna_analysis_sample_portal(a, 0, 0.5f, NAN, 0.5f, &point, &normal, &pdf), LACUNA_STATUS_INVALID_ARGUMENT,
+           "u1");
+    CHECK(pdf == -1);
+    for (size_t i = 0; i < portals; i++) {
+        OK(lacuna_analysis_portal(a, i, &p));
+        CHECK(p.region_a < p.region_b && p.region_b < regions && p.faces > 0 && p.area > 0);
+        OK(lacuna_analysis_sample_portal(a, i, 0.25f, 0.5f, 0.75f, &point, &normal, &pdf));
+        CHECK(fabsf(pdf * p.area - 1) < 1e-4f);
+        CHECK(fabsf(normal.x) + fabsf(normal.y) + fabsf(normal.z) == 1.0f);
+    }
+    lacuna_analysis_memory mem;
+    double seconds = -1;
+    OK(lacuna_analysis_stats(a, &mem, &seconds));
+    CHECK(mem.total == mem.occupancy + mem.distance + mem.opening + mem.labels + mem.portals + mem.extra_maps);
+    CHECK(mem.extra_maps > 0 && seconds >= 0);
+
+    /* The analysis keeps its scene alive. */
+    lacuna_analysis_retain(a);
+    lacuna_scene_release(scene);
+    OK(lacuna_analysis_query(a, &centre, &opening, NULL));
+    lacuna_analysis_release(a);
+    lacuna_analysis_release(a);
+    lacuna_analysis_release(NULL);
+    lacuna_analysis_retain(NULL);
+}
+
 int main(int argc, char **argv) {
     if (argc < 2) {
         fprintf(stderr, "usage: %s SCRATCH_DIR\n", argv[0]);
@@ -890,6 +997,7 @@ int main(int argc, char **argv) {
     test_builder(ctx);
     test_queries(ctx);
     test_render(ctx);
+    test_analysis(ctx);
     lacuna_context_release(ctx);
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
