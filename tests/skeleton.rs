@@ -409,3 +409,4 @@ fn corridor_gives_a_corridor_line() {
         diameter.len()
     );
 }
+

@@ -24,11 +24,14 @@
 //! death date of a cube equals its L1 distance to the complement (tested below): the clock of
 //! the collapse is the 6-distance, which is why the constraint uses the L1 maps.
 //!
-//! Candidates: freeness of the cells owned by vertex v depends only on the bytes of v, v − ex,
-//! v − ey, v − ez, so after an iteration the only vertices whose cells may have become free are
-//! u, u + ex, u + ey, u + ez for the vertices u whose byte changed; a face that was free at the
-//! start of an iteration is always removed or loses its coface during it. The candidate list is
-//! therefore O(border) per iteration after the first full scan.
+//! Candidates: a cell's freeness depends only on its cofaces, so after the first full scan the
+//! only cells that may have become free are those that lost a coface: when (f, g) is removed,
+//! the facets of f other than g and the facets of g (at most 9 cells). A face free at the start
+//! of an iteration is always removed or loses its coface during it (f ∈ L, so its sub-step
+//! takes it unless f went first), so nothing else needs re-testing: the work per iteration is
+//! O(pairs removed + |L|). Within an iteration each sub-step scans the vertices of L (sorted,
+//! and bucketed by the spans of their present cells in L, the only candidates for the free
+//! face), which is cheaper than tracking the pairs that appear between sub-steps.
 //!
 //! # Dates and the constraint (Definitions 6.1-6.3, Algorithm 3)
 //!
@@ -160,9 +163,9 @@ pub struct Thinning<'a> {
     /// L of the current iteration.
     border: Vec<u8>,
     border_vertices: Vec<u32>,
-    /// Vertices that may own a free face.
-    active: Vec<u32>,
-    mark: Vec<bool>,
+    /// Cells that may have become free since the last border computation, packed as
+    /// (vertex << 3 | span); `None` = every cell (first iteration).
+    active: Option<Vec<u32>>,
     iteration: u32,
     /// Birth date per edge (3 per vertex, by axis).
     birth: Vec<u32>,
@@ -173,6 +176,8 @@ pub struct Thinning<'a> {
     chunk: usize,
     /// Sub-step kinds, indexed by 3 * (2 * axis + orientation) + (3 - dim).
     kinds: Vec<Vec<Kind>>,
+    /// The vertices of L holding a present, unconstrained cell of each span in L.
+    by_span: [Vec<u32>; 7],
     /// Cofaces of a cell of each span, as (offset to subtract, span).
     cofaces: [Vec<(usize, u8)>; 8],
     /// Closure of a cell of each span, as (offset to add, byte of cells).
@@ -249,22 +254,20 @@ impl<'a> Thinning<'a> {
                 }
             }
         }
-        let active: Vec<u32> = (0..n as u32)
-            .filter(|&i| complex.byte(i as usize) != 0)
-            .collect();
+        assert!(n < 1 << 29, "complex too large for packed cell indices");
         let mut t = Thinning {
             constraint,
             inhibit: vec![0; n],
             border: vec![0; n],
             border_vertices: Vec::new(),
-            active,
-            mark: vec![false; n],
+            active: None,
             iteration: 0,
             birth: vec![NEVER; 3 * n],
             death: record_deaths.then(|| vec![NEVER; 8 * n]),
             living: Vec::new(),
             chunk: if parallel { 2048 } else { 0 },
             kinds,
+            by_span: Default::default(),
             cofaces,
             closure,
             stats: ThinningStats::default(),
@@ -378,6 +381,7 @@ impl<'a> Thinning<'a> {
 
     /// Start of iteration l: constrain the born edges whose lifespan would exceed their
     /// threshold if they were removed now.
+    #[inline(never)]
     fn apply_constraints(&mut self, l: u32) {
         if matches!(self.constraint, Constraint::None) {
             self.living.clear();
@@ -416,18 +420,16 @@ impl<'a> Thinning<'a> {
         found
     }
 
-    /// One iteration of Algorithm 2. Returns false (and changes nothing) if no unconstrained
-    /// free pair exists.
-    pub fn iterate(&mut self, observer: &mut dyn FnMut(&Complex, SubStep)) -> bool {
-        let l = self.iteration + 1;
-        self.apply_constraints(l);
-
-        // L = closure of the cofaces of the unconstrained free pairs.
+    /// L = closure of the cofaces of the unconstrained free pairs among the candidates (then
+    /// clears the candidates), and the vertices of L sorted and bucketed by the span of their
+    /// present, unconstrained cells in L: only those can be the free face of a pair removed in
+    /// this iteration. Returns false if there is no unconstrained free pair.
+    #[inline(never)]
+    fn collect_border(&mut self) -> bool {
         let bits = self.complex.bytes();
         let (inhibit, cofaces) = (&self.inhibit, &self.cofaces);
-        let found: Vec<(u32, u8)> = gather(self.chunk, &self.active, |v, out| {
-            let v = v as usize;
-            let cells = bits[v] & !CUBE & !inhibit[v];
+        let test = |v: usize, cells: u8, out: &mut Vec<(u32, u8)>| {
+            let cells = cells & bits[v] & !CUBE & !inhibit[v];
             if cells == 0 {
                 return;
             }
@@ -438,14 +440,25 @@ impl<'a> Thinning<'a> {
                     }
                 }
             }
+        };
+        let found: Vec<(u32, u8)> = match &self.active {
+            None => {
+                let all: Vec<u32> = (0..bits.len() as u32)
+                    .filter(|&v| bits[v as usize] != 0)
+                    .collect();
+                gather(self.chunk, &all, |v, out| test(v as usize, 0xff, out))
+            }
+            Some(cells) => gather(self.chunk, cells, |c, out| {
+                test((c >> 3) as usize, SPAN_BIT[(c & 7) as usize], out)
+            }),
+        };
+        self.active = Some(match self.active.take() {
+            Some(mut v) => {
+                v.clear();
+                v
+            }
+            None => Vec::new(),
         });
-        for &v in &self.active {
-            self.mark[v as usize] = false;
-        }
-        self.active.clear();
-        if found.is_empty() {
-            return false;
-        }
         self.border_vertices.clear();
         for &(f, fs) in &found {
             for &(off, byte) in &self.closure[fs as usize] {
@@ -456,76 +469,109 @@ impl<'a> Thinning<'a> {
                 self.border[j] |= byte;
             }
         }
-        drop(found);
+        if found.is_empty() {
+            return false;
+        }
+        self.border_vertices.sort_unstable();
+        for list in &mut self.by_span {
+            list.clear();
+        }
+        for &v in &self.border_vertices {
+            let i = v as usize;
+            let cells = self.border[i] & self.complex.byte(i) & !self.inhibit[i] & !CUBE;
+            for span in 0..7u8 {
+                if cells & SPAN_BIT[span as usize] != 0 {
+                    self.by_span[span as usize].push(v);
+                }
+            }
+        }
+        true
+    }
 
-        let mut changed: Vec<u32> = Vec::new();
-        let mut removed_squares: Vec<(u32, u8)> = Vec::new();
-        for (step, kinds) in self.kinds.iter().enumerate() {
-            let (bits, inhibit, border) = (self.complex.bytes(), &self.inhibit, &self.border);
-            let pairs: Vec<(u32, u8)> = gather(self.chunk, &self.border_vertices, |v, out| {
+    /// The free pairs of sub-step `step` with their coface in L, in vertex order (read-only).
+    #[inline(never)]
+    fn substep_pairs(&self, step: usize) -> Vec<(u32, u8)> {
+        let (bits, inhibit, border) = (self.complex.bytes(), &self.inhibit, &self.border);
+        let mut pairs = Vec::new();
+        for (k, kind) in self.kinds[step].iter().enumerate() {
+            let found = gather(self.chunk, &self.by_span[kind.g_span as usize], |v, out| {
                 let v = v as usize;
-                for (k, kind) in kinds.iter().enumerate() {
-                    if bits[v] & kind.g_bit == 0 || inhibit[v] & kind.g_bit != 0 {
-                        continue;
-                    }
-                    let f = v - kind.f_off;
-                    if bits[f] & kind.f_bit == 0 || border[f] & kind.f_bit == 0 {
-                        continue;
-                    }
-                    if kind.absent[..kind.n_absent]
-                        .iter()
-                        .all(|&(off, bit)| bits[v - off] & bit == 0)
-                    {
-                        out.push((v as u32, k as u8));
-                    }
+                if bits[v] & kind.g_bit == 0 || inhibit[v] & kind.g_bit != 0 {
+                    return;
+                }
+                let f = v - kind.f_off;
+                if bits[f] & kind.f_bit == 0 || border[f] & kind.f_bit == 0 {
+                    return;
+                }
+                if kind.absent[..kind.n_absent]
+                    .iter()
+                    .all(|&(off, bit)| bits[v - off] & bit == 0)
+                {
+                    out.push((v as u32, k as u8));
                 }
             });
-            for &(v, k) in &pairs {
-                let kind = kinds[k as usize];
-                let (g, f) = (v as usize, v as usize - kind.f_off);
-                self.complex.remove(g, kind.g_span);
-                self.complex.remove(f, kind.f_span);
-                changed.push(g as u32);
-                if f != g {
-                    changed.push(f as u32);
-                }
-                if let Some(death) = &mut self.death {
-                    death[8 * g + kind.g_span as usize] = l;
-                    death[8 * f + kind.f_span as usize] = l;
-                }
-                for (cell, span) in [(g, kind.g_span), (f, kind.f_span)] {
-                    match span.count_ones() {
-                        1 => {
-                            let b = &mut self.birth[3 * cell + span.trailing_zeros() as usize];
-                            if *b == NEVER {
-                                *b = l;
+            pairs.extend(found);
+        }
+        pairs
+    }
+
+    /// Removes the pairs of a sub-step, recording dates and the cells to re-test.
+    #[inline(never)]
+    fn remove_pairs(
+        &mut self,
+        step: usize,
+        pairs: &[(u32, u8)],
+        l: u32,
+        removed_squares: &mut Vec<(u32, u8)>,
+    ) {
+        for &(v, k) in pairs {
+            let kind = self.kinds[step][k as usize];
+            let (g, f) = (v as usize, v as usize - kind.f_off);
+            self.complex.remove(g, kind.g_span);
+            self.complex.remove(f, kind.f_span);
+            // Cells whose cofaces changed: the facets of f other than g, and the facets of g.
+            let s = self.complex.stride();
+            let active = self
+                .active
+                .as_mut()
+                .expect("candidates after the first border");
+            for (cell, span) in [(f, kind.f_span), (g, kind.g_span)] {
+                for a in 0..3 {
+                    if span & (1 << a) != 0 {
+                        let face = span & !(1 << a);
+                        for w in [cell, cell + s[a]] {
+                            if (w, face) != (g, kind.g_span) {
+                                active.push((w as u32) << 3 | face as u32);
                             }
                         }
-                        2 => removed_squares.push((cell as u32, span)),
-                        _ => {}
                     }
                 }
             }
-            self.stats.pairs_removed += pairs.len() as u64;
-            let axis = (step / 6) as u8;
-            observer(
-                &self.complex,
-                SubStep {
-                    iteration: l,
-                    axis,
-                    positive: (step / 3) % 2 == 1,
-                    dim: 3 - (step % 3) as u8,
-                    removed_pairs: pairs.len(),
-                },
-            );
+            if let Some(death) = &mut self.death {
+                death[8 * g + kind.g_span as usize] = l;
+                death[8 * f + kind.f_span as usize] = l;
+            }
+            for (cell, span) in [(g, kind.g_span), (f, kind.f_span)] {
+                match span.count_ones() {
+                    1 => {
+                        let b = &mut self.birth[3 * cell + span.trailing_zeros() as usize];
+                        if *b == NEVER {
+                            *b = l;
+                        }
+                    }
+                    2 => removed_squares.push((cell as u32, span)),
+                    _ => {}
+                }
+            }
         }
-        for &v in &self.border_vertices {
-            self.border[v as usize] = 0;
-        }
+        self.stats.pairs_removed += pairs.len() as u64;
+    }
 
-        // Births: edges of the squares removed in this iteration that are now facets.
+    /// Births: edges of the squares removed in this iteration that are now facets.
+    #[inline(never)]
+    fn record_births(&mut self, removed_squares: &[(u32, u8)], l: u32) {
         let s = self.complex.stride();
-        for &(j, span) in &removed_squares {
+        for &(j, span) in removed_squares {
             for a in 0..3 {
                 if span & (1 << a) == 0 {
                     continue;
@@ -536,22 +582,50 @@ impl<'a> Thinning<'a> {
                 self.check_birth(j as usize + s[a], axis, l);
             }
         }
-        self.touch(&changed);
+    }
+
+    /// One iteration of Algorithm 2. Returns false (and changes nothing) if no unconstrained
+    /// free pair exists.
+    pub fn iterate(&mut self, observer: &mut dyn FnMut(&Complex, SubStep)) -> bool {
+        let l = self.iteration + 1;
+        self.apply_constraints(l);
+        if !self.collect_border() {
+            return false;
+        }
+        let mut removed_squares: Vec<(u32, u8)> = Vec::new();
+        for step in 0..self.kinds.len() {
+            let pairs = self.substep_pairs(step);
+            self.remove_pairs(step, &pairs, l, &mut removed_squares);
+            observer(
+                &self.complex,
+                SubStep {
+                    iteration: l,
+                    axis: (step / 6) as u8,
+                    positive: (step / 3) % 2 == 1,
+                    dim: 3 - (step % 3) as u8,
+                    removed_pairs: pairs.len(),
+                },
+            );
+        }
+        for &v in &self.border_vertices {
+            self.border[v as usize] = 0;
+        }
+        self.record_births(&removed_squares, l);
         self.iteration = l;
         self.stats.iterations = l;
         true
     }
 
-    /// Adds u, u + ex, u + ey, u + ez of every changed vertex u to the candidates.
-    fn touch(&mut self, changed: &[u32]) {
+    /// Adds the faces of removed cells (pierced squares) to the candidates.
+    fn touch_faces(&mut self, i: usize, span: u8) {
         let s = self.complex.stride();
-        let n = self.complex.len();
-        for &u in changed {
-            for off in [0, s[0], s[1], s[2]] {
-                let j = u as usize + off;
-                if j < n && !self.mark[j] {
-                    self.mark[j] = true;
-                    self.active.push(j as u32);
+        if let Some(active) = &mut self.active {
+            for a in 0..3 {
+                if span & (1 << a) != 0 {
+                    let face = span & !(1 << a);
+                    for w in [i, i + s[a]] {
+                        active.push((w as u32) << 3 | face as u32);
+                    }
                 }
             }
         }
@@ -679,14 +753,12 @@ impl<'a> Thinning<'a> {
         }
         chosen.sort_unstable();
         let l = self.iteration;
-        let mut changed = Vec::new();
         for &k in &chosen {
             let (v, span) = squares[k];
             self.complex.remove(v as usize, span);
             if let Some(death) = &mut self.death {
                 death[8 * v as usize + span as usize] = l;
             }
-            changed.push(v);
         }
         for &k in &chosen {
             let (v, span) = squares[k];
@@ -699,7 +771,10 @@ impl<'a> Thinning<'a> {
                 }
             }
         }
-        self.touch(&changed);
+        for &k in &chosen {
+            let (v, span) = squares[k];
+            self.touch_faces(v as usize, span);
+        }
         self.stats.pierced += chosen.len() as u64;
         chosen.len()
     }
