@@ -353,6 +353,22 @@ fn two_rooms_path_goes_through_the_door() {
         .unwrap();
     let q = g.nodes[node as usize].position;
     assert!(q.z > 0.0 && q.y > 0.0, "floor point mapped to {q}");
+    // Next to the one-voxel wall at x = 0 the voxels diagonally above the floor on both sides
+    // of the wall score the same; the incident direction picks the room, not the outside.
+    for x in [0.005f32, 0.02, 0.04] {
+        let node = s
+            .map_point(
+                Vec3::new(x, 0.0, 3.0),
+                Vec3::Y,
+                Vec3::new(1.0, 1.0, 0.0).normalize(),
+            )
+            .unwrap();
+        let q = g.nodes[node as usize].position;
+        assert!(
+            inside(q) && q.z > 0.0,
+            "floor point at x = {x} mapped to {q}"
+        );
+    }
 }
 
 #[test]
@@ -409,4 +425,3 @@ fn corridor_gives_a_corridor_line() {
         diameter.len()
     );
 }
-

@@ -432,9 +432,13 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
 /// normal ties the face neighbour with its four edge and four corner neighbours, so we
 /// maximise the cosine (v − v_x)·n^G / |v − v_x| instead, the "similarity between the normal
 /// direction and the direction pointing toward the neighbor" the text asks for (v_x itself
-/// scores 0). When no mapped voxel is in that neighbourhood (thick conservative voxelization),
-/// the search moves up to three voxels along n⁺. The grid transform is a translation and a
-/// uniform scale, so n^G has the direction of n⁺ (eq. 153).
+/// scores 0), among those on the side n⁺ points to (positive cosine). When that side of the
+/// neighbourhood has no mapped voxel (a wall or corner more than one voxel thick), the search
+/// moves up to three voxels along n⁺, and only then accepts any mapped neighbour. Ties (an
+/// axis-aligned normal next to a one-voxel wall, where the voxels diagonally in front on
+/// either side of the wall score the same) go to the voxel more in the incident direction,
+/// the side the path comes from. The grid
+/// transform is a translation and a uniform scale, so n^G has the direction of n⁺ (eq. 153).
 pub fn map_point(
     grid: &VoxelGrid,
     map: &[u32],
@@ -448,16 +452,13 @@ pub fn map_point(
         -normal
     };
     let n = n.normalize_or_zero();
+    let w = incident.normalize_or_zero();
     let g = grid.to_grid(p);
     let dims = grid.dims;
     let vx = g.map(|x| x.floor() as i64);
-    for step in 0..=3i64 {
-        let centre: [i64; 3] = if step == 0 {
-            vx
-        } else {
-            [0, 1, 2].map(|a| (g[a] + step as f64 * n[a] as f64).floor() as i64)
-        };
-        let mut best: Option<(f32, u32)> = None;
+    // Best mapped voxel of the 26-neighbourhood of `centre`, scored by the cosine from v_x.
+    let search = |centre: [i64; 3], facing_only: bool| -> Option<u32> {
+        let mut best: Option<(f32, f32, u32)> = None;
         for dz in -1..=1i64 {
             for dy in -1..=1i64 {
                 for dx in -1..=1i64 {
@@ -475,22 +476,38 @@ pub fn map_point(
                         (v[2] - vx[2]) as f32,
                     );
                     let len = off.length();
-                    let score = if len > 0.0 { off.dot(n) / len } else { 0.0 };
+                    let (score, towards) = if len > 0.0 {
+                        (off.dot(n) / len, off.dot(w) / len)
+                    } else {
+                        (0.0, 0.0)
+                    };
+                    if facing_only && score <= 0.0 {
+                        continue;
+                    }
                     let better = match best {
                         None => true,
-                        Some((s, _)) => score > s,
+                        Some((s, t, _)) => {
+                            score > s + 1e-4 || (score > s - 1e-4 && towards > t + 1e-4)
+                        }
                     };
                     if better {
-                        best = Some((score, map[k]));
+                        best = Some((score, towards, map[k]));
                     }
                 }
             }
         }
-        if let Some((_, node)) = best {
+        best.map(|b| b.2)
+    };
+    // Eq. 154 restricted to the side n⁺ faces; a wall thicker than one voxel (corners, the
+    // conservative voxelization) may hide that side, so then look further along n⁺, and only
+    // as a last resort take any mapped neighbour (which may lie behind the surface).
+    for step in 0..=3i64 {
+        let centre = [0, 1, 2].map(|a| (g[a] + step as f64 * n[a] as f64).floor() as i64);
+        if let Some(node) = search(if step == 0 { vx } else { centre }, true) {
             return Some(node);
         }
     }
-    None
+    search(vx, false)
 }
 
 /// Options of the skeleton pipeline.
