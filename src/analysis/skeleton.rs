@@ -549,10 +549,15 @@ pub struct Skeleton {
 /// voxel on the grid boundary is at distance 1 (all metrics used here).
 fn measured_with_solid_outside(dims: [usize; 3], map: &[u32]) -> bool {
     let [w, h, d] = dims;
-    (0..map.len()).all(|i| {
-        let (x, y, z) = (i % w, (i / w) % h, i / (w * h));
-        let boundary = x == 0 || y == 0 || z == 0 || x + 1 == w || y + 1 == h || z + 1 == d;
-        !boundary || map[i] <= 1
+    let ok = |x: usize, y: usize, z: usize| map[x + w * (y + h * z)] <= 1;
+    (0..d).all(|z| {
+        (0..h).all(|y| {
+            if z == 0 || y == 0 || z + 1 == d || y + 1 == h {
+                (0..w).all(|x| ok(x, y, z))
+            } else {
+                ok(0, y, z) && ok(w - 1, y, z)
+            }
+        })
     })
 }
 
@@ -560,8 +565,8 @@ impl Skeleton {
     /// The skeleton of an analysis. Uses its L1 distance, L1 decenterness and squared
     /// Euclidean maps when present (`all_maps`) and measured with a solid outside; computes
     /// them otherwise.
-    pub fn build(
-        analysis: &Analysis,
+    pub fn build<'a>(
+        analysis: &'a Analysis,
         settings: &SkeletonSettings,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Skeleton> {
@@ -569,14 +574,17 @@ impl Skeleton {
         let mut timings = Vec::new();
         let t = Instant::now();
         let occ = &analysis.occupied;
-        let ok = |m: &Option<Vec<u32>>| {
-            m.as_ref()
+        let ok = |m: &'a Option<Vec<u32>>| -> Option<std::borrow::Cow<'a, [u32]>> {
+            m.as_deref()
                 .filter(|m| measured_with_solid_outside(dims, m))
-                .cloned()
+                .map(std::borrow::Cow::Borrowed)
         };
         let (d1, dc, sq) = match (
             ok(&analysis.distance_l1),
-            analysis.decenterness_l1.clone(),
+            analysis
+                .decenterness_l1
+                .as_deref()
+                .map(std::borrow::Cow::Borrowed),
             ok(&analysis.distance_sq_euclidean),
         ) {
             (Some(d1), Some(dc), Some(sq)) => (d1, dc, sq),
@@ -594,7 +602,7 @@ impl Skeleton {
                     stage: "skeleton maps (L1, Euclidean)",
                     seconds: t.elapsed().as_secs_f64(),
                 });
-                (d1, dc, sq)
+                (d1.into(), dc, sq.into())
             }
         };
         Self::from_maps(

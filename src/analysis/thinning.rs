@@ -126,17 +126,15 @@ struct Living {
     birth: u32,
 }
 
-/// Gathers `f(item, out)` over items, in item order; in parallel over chunks of `chunk` items
-/// if `chunk` > 0 (0 = sequential).
-fn gather<T: Send>(chunk: usize, items: &[u32], f: impl Fn(u32, &mut Vec<T>) + Sync) -> Vec<T> {
+/// Gathers `f(items, out)` over the items, in item order; in parallel over chunks of `chunk`
+/// items if `chunk` > 0 (0 = sequential). `f` sees a whole chunk so its loop stays tight.
+fn gather<T: Send>(chunk: usize, items: &[u32], f: impl Fn(&[u32], &mut Vec<T>) + Sync) -> Vec<T> {
     if chunk > 0 && items.len() > chunk {
         let parts: Vec<Vec<T>> = items
             .par_chunks(chunk)
             .map(|c| {
                 let mut out = Vec::new();
-                for &i in c {
-                    f(i, &mut out);
-                }
+                f(c, &mut out);
                 out
             })
             .collect();
@@ -147,9 +145,7 @@ fn gather<T: Send>(chunk: usize, items: &[u32], f: impl Fn(u32, &mut Vec<T>) + S
         all
     } else {
         let mut out = Vec::new();
-        for &i in items {
-            f(i, &mut out);
-        }
+        f(items, &mut out);
         out
     }
 }
@@ -163,12 +159,17 @@ pub struct Thinning<'a> {
     /// L of the current iteration.
     border: Vec<u8>,
     border_vertices: Vec<u32>,
-    /// Cells that may have become free since the last border computation, packed as
-    /// (vertex << 3 | span); `None` = every cell (first iteration).
-    active: Option<Vec<u32>>,
+    /// Cells that may have become free (or, for edges, born) since the last border
+    /// computation: one byte of cells per vertex, and the vertices with a nonzero byte.
+    dirty: Vec<u8>,
+    dirty_vertices: Vec<u32>,
+    /// The first border computation scans every cell.
+    full_scan: bool,
     iteration: u32,
-    /// Birth date per edge (3 per vertex, by axis).
-    birth: Vec<u32>,
+    /// Born edges: bit `axis` per vertex.
+    born: Vec<u8>,
+    /// Birth date per edge (3 per vertex, by axis), if dates are recorded.
+    birth: Option<Vec<u32>>,
     /// Death date per cell (8 per vertex, by span), if recorded.
     death: Option<Vec<u32>>,
     living: Vec<Living>,
@@ -187,12 +188,12 @@ pub struct Thinning<'a> {
 
 impl<'a> Thinning<'a> {
     /// Prepares the collapse of `complex`. `parallel` gathers the pairs of each sub-step on the
-    /// current rayon pool; `record_deaths` keeps a death date per cell.
+    /// current rayon pool; `record_dates` keeps a birth date per edge and a death date per cell.
     pub fn new(
         complex: Complex,
         constraint: Constraint<'a>,
         parallel: bool,
-        record_deaths: bool,
+        record_dates: bool,
     ) -> Thinning<'a> {
         let n = complex.len();
         let s = complex.stride();
@@ -260,10 +261,13 @@ impl<'a> Thinning<'a> {
             inhibit: vec![0; n],
             border: vec![0; n],
             border_vertices: Vec::new(),
-            active: None,
+            dirty: vec![0; n],
+            dirty_vertices: Vec::new(),
+            full_scan: true,
             iteration: 0,
-            birth: vec![NEVER; 3 * n],
-            death: record_deaths.then(|| vec![NEVER; 8 * n]),
+            born: vec![0; n],
+            birth: record_dates.then(|| vec![NEVER; 3 * n]),
+            death: record_dates.then(|| vec![NEVER; 8 * n]),
             living: Vec::new(),
             chunk: if parallel { 2048 } else { 0 },
             kinds,
@@ -318,8 +322,8 @@ impl<'a> Thinning<'a> {
     }
 
     /// Birth date of the edge along `axis` owned by internal vertex `i`.
-    pub fn birth(&self, i: usize, axis: usize) -> u32 {
-        self.birth[3 * i + axis]
+    pub fn birth(&self, i: usize, axis: usize) -> Option<u32> {
+        self.birth.as_ref().map(|b| b[3 * i + axis])
     }
 
     /// Death date of a cell, if deaths are recorded.
@@ -330,20 +334,28 @@ impl<'a> Thinning<'a> {
     /// Marks an edge born at `l` if it is present, not yet born and has no incident square.
     fn check_birth(&mut self, i: usize, axis: u8, l: u32) {
         let span = 1u8 << axis;
-        if self.birth[3 * i + axis as usize] != NEVER || !self.complex.has(i, span) {
+        if self.born[i] & span != 0 || !self.complex.has(i, span) {
             return;
         }
         let has_square = self.cofaces[span as usize]
             .iter()
             .any(|&(off, sq)| self.complex.has(i - off, sq));
         if !has_square {
-            self.birth[3 * i + axis as usize] = l;
-            self.living.push(Living {
-                vertex: i as u32,
-                axis,
-                birth: l,
-            });
+            self.mark_born(i, axis, l);
         }
+    }
+
+    /// Records the birth of a present edge (a facet now) and follows it for the constraint.
+    fn mark_born(&mut self, i: usize, axis: u8, l: u32) {
+        self.born[i] |= 1 << axis;
+        if let Some(b) = &mut self.birth {
+            b[3 * i + axis as usize] = l;
+        }
+        self.living.push(Living {
+            vertex: i as u32,
+            axis,
+            birth: l,
+        });
     }
 
     /// Threshold of Algorithm 3 for a born edge: it is constrained at iteration l when
@@ -405,62 +417,93 @@ impl<'a> Thinning<'a> {
         self.living = keep;
     }
 
-    /// The unique coface of a free, unconstrained cell, as (vertex, span).
+
+    /// Number of present cofaces of a cell (0, 1 or 2 = "two or more") and the last one seen.
     #[inline]
-    fn free_coface(bits: &[u8], cofaces: &[(usize, u8)], i: usize) -> Option<(usize, u8)> {
-        let mut found = None;
+    fn coface_state(bits: &[u8], cofaces: &[(usize, u8)], i: usize) -> (u8, usize, u8) {
+        let mut found = (0u8, 0usize, 0u8);
         for &(off, span) in cofaces {
             if bits[i - off] & SPAN_BIT[span as usize] != 0 {
-                if found.is_some() {
-                    return None;
+                if found.0 == 1 {
+                    return (2, 0, 0);
                 }
-                found = Some((i - off, span));
+                found = (1, i - off, span);
             }
         }
         found
     }
 
-    /// L = closure of the cofaces of the unconstrained free pairs among the candidates (then
-    /// clears the candidates), and the vertices of L sorted and bucketed by the span of their
-    /// present, unconstrained cells in L: only those can be the free face of a pair removed in
-    /// this iteration. Returns false if there is no unconstrained free pair.
+    /// Start of iteration l: tests the candidate cells (every cell the first time). Edges left
+    /// without a square are born at l − 1 (recorded here rather than at the end of the previous
+    /// iteration: an edge only loses its last square when that square is removed, and then it
+    /// is a candidate). Then applies the constraint (see `apply_constraints`), builds L = the
+    /// closure of the cofaces of the unconstrained free pairs, and the vertices of L sorted
+    /// and bucketed by the spans of their present, unconstrained cells in L (the only cells
+    /// that can be the free face of a pair removed in this iteration). Returns false if there
+    /// is no unconstrained free pair.
     #[inline(never)]
     fn collect_border(&mut self) -> bool {
-        let bits = self.complex.bytes();
-        let (inhibit, cofaces) = (&self.inhibit, &self.cofaces);
-        let test = |v: usize, cells: u8, out: &mut Vec<(u32, u8)>| {
-            let cells = cells & bits[v] & !CUBE & !inhibit[v];
-            if cells == 0 {
-                return;
-            }
-            for span in 0..7u8 {
-                if cells & SPAN_BIT[span as usize] != 0 {
-                    if let Some((f, fs)) = Self::free_coface(bits, &cofaces[span as usize], v) {
-                        out.push((f as u32, fs));
+        let l = self.iteration + 1;
+        // (g, g span, f, f span); f span = NO_SPAN marks the birth of edge g.
+        const NO_SPAN: u8 = 0xff;
+        let found: Vec<(u32, u8, u32, u8)> = {
+            let bits = self.complex.bytes();
+            let (inhibit, cofaces, born) = (&self.inhibit, &self.cofaces, &self.born);
+            let test = |v: usize, cells: u8, out: &mut Vec<(u32, u8, u32, u8)>| {
+                let cells = cells & bits[v] & !CUBE & !inhibit[v];
+                if cells == 0 {
+                    return;
+                }
+                for span in 0..7u8 {
+                    if cells & SPAN_BIT[span as usize] == 0 {
+                        continue;
+                    }
+                    match Self::coface_state(bits, &cofaces[span as usize], v) {
+                        (1, f, fs) => out.push((v as u32, span, f as u32, fs)),
+                        (0, _, _) if span.count_ones() == 1 && born[v] & span == 0 => {
+                            out.push((v as u32, span, 0, NO_SPAN))
+                        }
+                        _ => {}
                     }
                 }
-            }
-        };
-        let found: Vec<(u32, u8)> = match &self.active {
-            None => {
+            };
+            if self.full_scan {
                 let all: Vec<u32> = (0..bits.len() as u32)
                     .filter(|&v| bits[v as usize] != 0)
                     .collect();
-                gather(self.chunk, &all, |v, out| test(v as usize, 0xff, out))
+                gather(self.chunk, &all, |c, out| {
+                    for &v in c {
+                        test(v as usize, 0xff, out)
+                    }
+                })
+            } else {
+                let dirty = &self.dirty;
+                gather(self.chunk, &self.dirty_vertices, |c, out| {
+                    for &v in c {
+                        test(v as usize, dirty[v as usize], out)
+                    }
+                })
             }
-            Some(cells) => gather(self.chunk, cells, |c, out| {
-                test((c >> 3) as usize, SPAN_BIT[(c & 7) as usize], out)
-            }),
         };
-        self.active = Some(match self.active.take() {
-            Some(mut v) => {
-                v.clear();
-                v
+        self.full_scan = false;
+        for &v in &self.dirty_vertices {
+            self.dirty[v as usize] = 0;
+        }
+        self.dirty_vertices.clear();
+        for &(g, span, _, fs) in &found {
+            if fs == NO_SPAN {
+                self.mark_born(g as usize, span.trailing_zeros() as u8, l - 1);
             }
-            None => Vec::new(),
-        });
+        }
+        self.apply_constraints(l);
+
         self.border_vertices.clear();
-        for &(f, fs) in &found {
+        let mut any = false;
+        for &(g, g_span, f, fs) in &found {
+            if fs == NO_SPAN || self.inhibit[g as usize] & SPAN_BIT[g_span as usize] != 0 {
+                continue;
+            }
+            any = true;
             for &(off, byte) in &self.closure[fs as usize] {
                 let j = f as usize + off;
                 if self.border[j] == 0 {
@@ -469,7 +512,10 @@ impl<'a> Thinning<'a> {
                 self.border[j] |= byte;
             }
         }
-        if found.is_empty() {
+        if !any {
+            for &v in &self.border_vertices {
+                self.border[v as usize] = 0;
+            }
             return false;
         }
         self.border_vertices.sort_unstable();
@@ -494,20 +540,23 @@ impl<'a> Thinning<'a> {
         let (bits, inhibit, border) = (self.complex.bytes(), &self.inhibit, &self.border);
         let mut pairs = Vec::new();
         for (k, kind) in self.kinds[step].iter().enumerate() {
-            let found = gather(self.chunk, &self.by_span[kind.g_span as usize], |v, out| {
-                let v = v as usize;
-                if bits[v] & kind.g_bit == 0 || inhibit[v] & kind.g_bit != 0 {
-                    return;
-                }
-                let f = v - kind.f_off;
-                if bits[f] & kind.f_bit == 0 || border[f] & kind.f_bit == 0 {
-                    return;
-                }
-                if kind.absent[..kind.n_absent]
-                    .iter()
-                    .all(|&(off, bit)| bits[v - off] & bit == 0)
-                {
-                    out.push((v as u32, k as u8));
+            let kind = *kind;
+            let found = gather(self.chunk, &self.by_span[kind.g_span as usize], |c, out| {
+                for &v in c {
+                    let v = v as usize;
+                    if bits[v] & kind.g_bit == 0 || inhibit[v] & kind.g_bit != 0 {
+                        continue;
+                    }
+                    let f = v - kind.f_off;
+                    if bits[f] & kind.f_bit == 0 || border[f] & kind.f_bit == 0 {
+                        continue;
+                    }
+                    if kind.absent[..kind.n_absent]
+                        .iter()
+                        .all(|&(off, bit)| bits[v - off] & bit == 0)
+                    {
+                        out.push((v as u32, k as u8));
+                    }
                 }
             });
             pairs.extend(found);
@@ -517,13 +566,7 @@ impl<'a> Thinning<'a> {
 
     /// Removes the pairs of a sub-step, recording dates and the cells to re-test.
     #[inline(never)]
-    fn remove_pairs(
-        &mut self,
-        step: usize,
-        pairs: &[(u32, u8)],
-        l: u32,
-        removed_squares: &mut Vec<(u32, u8)>,
-    ) {
+    fn remove_pairs(&mut self, step: usize, pairs: &[(u32, u8)], l: u32) {
         for &(v, k) in pairs {
             let kind = self.kinds[step][k as usize];
             let (g, f) = (v as usize, v as usize - kind.f_off);
@@ -531,18 +574,16 @@ impl<'a> Thinning<'a> {
             self.complex.remove(f, kind.f_span);
             // Cells whose cofaces changed: the facets of f other than g, and the facets of g.
             let s = self.complex.stride();
-            let active = self
-                .active
-                .as_mut()
-                .expect("candidates after the first border");
             for (cell, span) in [(f, kind.f_span), (g, kind.g_span)] {
                 for a in 0..3 {
                     if span & (1 << a) != 0 {
                         let face = span & !(1 << a);
                         for w in [cell, cell + s[a]] {
-                            if (w, face) != (g, kind.g_span) {
-                                active.push((w as u32) << 3 | face as u32);
+                            let d = &mut self.dirty[w];
+                            if *d == 0 {
+                                self.dirty_vertices.push(w as u32);
                             }
+                            *d |= SPAN_BIT[face as usize];
                         }
                     }
                 }
@@ -554,12 +595,13 @@ impl<'a> Thinning<'a> {
             for (cell, span) in [(g, kind.g_span), (f, kind.f_span)] {
                 match span.count_ones() {
                     1 => {
-                        let b = &mut self.birth[3 * cell + span.trailing_zeros() as usize];
-                        if *b == NEVER {
-                            *b = l;
+                        if self.born[cell] & span == 0 {
+                            self.born[cell] |= span;
+                            if let Some(b) = &mut self.birth {
+                                b[3 * cell + span.trailing_zeros() as usize] = l;
+                            }
                         }
                     }
-                    2 => removed_squares.push((cell as u32, span)),
                     _ => {}
                 }
             }
@@ -567,35 +609,16 @@ impl<'a> Thinning<'a> {
         self.stats.pairs_removed += pairs.len() as u64;
     }
 
-    /// Births: edges of the squares removed in this iteration that are now facets.
-    #[inline(never)]
-    fn record_births(&mut self, removed_squares: &[(u32, u8)], l: u32) {
-        let s = self.complex.stride();
-        for &(j, span) in removed_squares {
-            for a in 0..3 {
-                if span & (1 << a) == 0 {
-                    continue;
-                }
-                let e = span & !(1 << a);
-                let axis = e.trailing_zeros() as u8;
-                self.check_birth(j as usize, axis, l);
-                self.check_birth(j as usize + s[a], axis, l);
-            }
-        }
-    }
-
     /// One iteration of Algorithm 2. Returns false (and changes nothing) if no unconstrained
     /// free pair exists.
     pub fn iterate(&mut self, observer: &mut dyn FnMut(&Complex, SubStep)) -> bool {
         let l = self.iteration + 1;
-        self.apply_constraints(l);
         if !self.collect_border() {
             return false;
         }
-        let mut removed_squares: Vec<(u32, u8)> = Vec::new();
         for step in 0..self.kinds.len() {
             let pairs = self.substep_pairs(step);
-            self.remove_pairs(step, &pairs, l, &mut removed_squares);
+            self.remove_pairs(step, &pairs, l);
             observer(
                 &self.complex,
                 SubStep {
@@ -610,22 +633,22 @@ impl<'a> Thinning<'a> {
         for &v in &self.border_vertices {
             self.border[v as usize] = 0;
         }
-        self.record_births(&removed_squares, l);
         self.iteration = l;
         self.stats.iterations = l;
         true
     }
 
-    /// Adds the faces of removed cells (pierced squares) to the candidates.
+    /// Adds the faces of a removed cell (a pierced square) to the candidates.
     fn touch_faces(&mut self, i: usize, span: u8) {
         let s = self.complex.stride();
-        if let Some(active) = &mut self.active {
-            for a in 0..3 {
-                if span & (1 << a) != 0 {
-                    let face = span & !(1 << a);
-                    for w in [i, i + s[a]] {
-                        active.push((w as u32) << 3 | face as u32);
+        for a in 0..3 {
+            if span & (1 << a) != 0 {
+                let face = span & !(1 << a);
+                for w in [i, i + s[a]] {
+                    if self.dirty[w] == 0 {
+                        self.dirty_vertices.push(w as u32);
                     }
+                    self.dirty[w] |= SPAN_BIT[face as usize];
                 }
             }
         }
@@ -649,19 +672,29 @@ impl<'a> Thinning<'a> {
 
     /// All squares, as (vertex, span), in index order.
     fn squares(&self) -> Vec<(u32, u8)> {
-        let bits = self.complex.bytes();
-        let all: Vec<u32> = (0..bits.len() as u32).collect();
-        gather(self.chunk, &all, |v, out| {
-            let b = bits[v as usize] & SQUARES;
-            if b == 0 {
-                return;
-            }
-            for span in [3u8, 5, 6] {
-                if b & SPAN_BIT[span as usize] != 0 {
-                    out.push((v, span));
+        const CHUNK: usize = 1 << 16;
+        let parts: Vec<Vec<(u32, u8)>> = self
+            .complex
+            .bytes()
+            .par_chunks(CHUNK)
+            .enumerate()
+            .map(|(c, bytes)| {
+                let mut out = Vec::new();
+                for (k, &b) in bytes.iter().enumerate() {
+                    let b = b & SQUARES;
+                    if b == 0 {
+                        continue;
+                    }
+                    for span in [3u8, 5, 6] {
+                        if b & SPAN_BIT[span as usize] != 0 {
+                            out.push(((c * CHUNK + k) as u32, span));
+                        }
+                    }
                 }
-            }
-        })
+                out
+            })
+            .collect();
+        parts.concat()
     }
 
     /// Pierces every surface part once (see the module docs). `priority` is a per-voxel map
@@ -897,7 +930,7 @@ mod tests {
             // Dates: births never exceed deaths; constrained edges stay.
             for i in 0..cx.len() {
                 for a in 0..3 {
-                    let (b, d) = (seq.birth(i, a), seq.death(i, 1 << a).unwrap());
+                    let (b, d) = (seq.birth(i, a).unwrap(), seq.death(i, 1 << a).unwrap());
                     if d != NEVER {
                         assert!(b <= d, "birth {b} death {d}");
                     }
