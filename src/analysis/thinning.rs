@@ -64,6 +64,8 @@
 //! components (a contractible 2-complex such as Bing's house) is pierced anyway; that raises b1
 //! and is counted in [`ThinningStats::forced_pierces`].
 
+use std::sync::atomic::{AtomicU8, Ordering};
+
 use rayon::prelude::*;
 
 use super::complex::{Complex, CUBE, POINT, SPAN_BIT, SQUARES};
@@ -150,6 +152,14 @@ fn gather<T: Send>(chunk: usize, items: &[u32], f: impl Fn(&[u32], &mut Vec<T>) 
     }
 }
 
+/// Views an exclusively borrowed byte slice as atomics, so that parallel tasks can set and
+/// clear bits of shared bytes.
+fn atomic_bytes(v: &mut [u8]) -> &[AtomicU8] {
+    // SAFETY: AtomicU8 has the size and alignment of u8, and the exclusive borrow guarantees
+    // that nothing accesses the bytes non-atomically while the returned slice lives.
+    unsafe { &*(v as *mut [u8] as *const [AtomicU8]) }
+}
+
 /// The state of a directional collapse: the complex, the constraint set W, dates.
 pub struct Thinning<'a> {
     complex: Complex,
@@ -188,7 +198,7 @@ pub struct Thinning<'a> {
 
 impl<'a> Thinning<'a> {
     /// Prepares the collapse of `complex`. `parallel` gathers the pairs of each sub-step on the
-    /// current rayon pool; `record_dates` keeps a birth date per edge and a death date per cell.
+    /// current rayon pool (if it has more than one thread); `record_dates` keeps a birth date per edge and a death date per cell.
     pub fn new(
         complex: Complex,
         constraint: Constraint<'a>,
@@ -269,7 +279,12 @@ impl<'a> Thinning<'a> {
             birth: record_dates.then(|| vec![NEVER; 3 * n]),
             death: record_dates.then(|| vec![NEVER; 8 * n]),
             living: Vec::new(),
-            chunk: if parallel { 2048 } else { 0 },
+            // One worker: the sequential path (no atomics, no task overhead).
+            chunk: if parallel && rayon::current_num_threads() > 1 {
+                2048
+            } else {
+                0
+            },
             kinds,
             by_span: Default::default(),
             cofaces,
@@ -289,11 +304,9 @@ impl<'a> Thinning<'a> {
     }
 
     /// Sets the number of candidates per parallel task (tests use small chunks to exercise
-    /// the parallel path on small grids); ignored when sequential.
+    /// the parallel path on small grids); 0 = sequential.
     pub fn set_chunk_size(&mut self, chunk: usize) {
-        if self.chunk > 0 {
-            self.chunk = chunk.max(1);
-        }
+        self.chunk = chunk;
     }
 
     pub fn complex(&self) -> &Complex {
@@ -417,7 +430,6 @@ impl<'a> Thinning<'a> {
         self.living = keep;
     }
 
-
     /// Number of present cofaces of a cell (0, 1 or 2 = "two or more") and the last one seen.
     #[inline]
     fn coface_state(bits: &[u8], cofaces: &[(usize, u8)], i: usize) -> (u8, usize, u8) {
@@ -497,38 +509,70 @@ impl<'a> Thinning<'a> {
         }
         self.apply_constraints(l);
 
-        self.border_vertices.clear();
-        let mut any = false;
-        for &(g, g_span, f, fs) in &found {
-            if fs == NO_SPAN || self.inhibit[g as usize] & SPAN_BIT[g_span as usize] != 0 {
-                continue;
-            }
-            any = true;
-            for &(off, byte) in &self.closure[fs as usize] {
-                let j = f as usize + off;
-                if self.border[j] == 0 {
-                    self.border_vertices.push(j as u32);
+        // L: the closures of the cofaces, marked in parallel (atomic OR); the vertices whose
+        // byte was zero are collected, then sorted.
+        let (closure, inhibit, chunk) = (&self.closure, &self.inhibit, self.chunk.max(1));
+        let border = atomic_bytes(&mut self.border);
+        let mark = |c: &[(u32, u8, u32, u8)], out: &mut Vec<u32>| {
+            for &(g, g_span, f, fs) in c {
+                if fs == NO_SPAN || inhibit[g as usize] & SPAN_BIT[g_span as usize] != 0 {
+                    continue;
                 }
-                self.border[j] |= byte;
+                for &(off, byte) in &closure[fs as usize] {
+                    let j = f as usize + off;
+                    if border[j].fetch_or(byte, Ordering::Relaxed) == 0 {
+                        out.push(j as u32);
+                    }
+                }
             }
-        }
-        if !any {
-            for &v in &self.border_vertices {
-                self.border[v as usize] = 0;
-            }
+        };
+        let mut vertices: Vec<u32> = if self.chunk > 0 && found.len() > chunk {
+            found
+                .par_chunks(chunk)
+                .map(|c| {
+                    let mut out = Vec::new();
+                    mark(c, &mut out);
+                    out
+                })
+                .collect::<Vec<_>>()
+                .concat()
+        } else {
+            let mut out = Vec::new();
+            mark(&found, &mut out);
+            out
+        };
+        if vertices.is_empty() {
             return false;
         }
-        self.border_vertices.sort_unstable();
-        for list in &mut self.by_span {
-            list.clear();
+        if self.chunk > 0 {
+            vertices.par_sort_unstable();
+        } else {
+            vertices.sort_unstable();
         }
-        for &v in &self.border_vertices {
-            let i = v as usize;
-            let cells = self.border[i] & self.complex.byte(i) & !self.inhibit[i] & !CUBE;
-            for span in 0..7u8 {
-                if cells & SPAN_BIT[span as usize] != 0 {
-                    self.by_span[span as usize].push(v);
+        self.border_vertices = vertices;
+        let (bits, border) = (self.complex.bytes(), &self.border);
+        let bucket = |c: &[u32]| {
+            let mut lists: [Vec<u32>; 7] = Default::default();
+            for &v in c {
+                let i = v as usize;
+                let cells = border[i] & bits[i] & !inhibit[i] & !CUBE;
+                for span in 0..7u8 {
+                    if cells & SPAN_BIT[span as usize] != 0 {
+                        lists[span as usize].push(v);
+                    }
                 }
+            }
+            lists
+        };
+        let parts: Vec<[Vec<u32>; 7]> = if self.chunk > 0 && self.border_vertices.len() > chunk {
+            self.border_vertices.par_chunks(chunk).map(bucket).collect()
+        } else {
+            vec![bucket(&self.border_vertices)]
+        };
+        for (span, list) in self.by_span.iter_mut().enumerate() {
+            list.clear();
+            for p in &parts {
+                list.extend_from_slice(&p[span]);
             }
         }
         true
@@ -567,6 +611,7 @@ impl<'a> Thinning<'a> {
     /// Removes the pairs of a sub-step, recording dates and the cells to re-test.
     #[inline(never)]
     fn remove_pairs(&mut self, step: usize, pairs: &[(u32, u8)], l: u32) {
+        self.stats.pairs_removed += pairs.len() as u64;
         for &(v, k) in pairs {
             let kind = self.kinds[step][k as usize];
             let (g, f) = (v as usize, v as usize - kind.f_off);
@@ -606,7 +651,6 @@ impl<'a> Thinning<'a> {
                 }
             }
         }
-        self.stats.pairs_removed += pairs.len() as u64;
     }
 
     /// One iteration of Algorithm 2. Returns false (and changes nothing) if no unconstrained
@@ -706,7 +750,20 @@ impl<'a> Thinning<'a> {
             return 0;
         }
         self.stats.pierce_rounds += 1;
-        let index = |cell: (u32, u8)| squares.binary_search(&cell).ok();
+        // Index of a present square: the first index of its vertex plus its rank there (the
+        // list is sorted by vertex, then span 3, 5, 6).
+        let mut first = vec![u32::MAX; self.complex.len()];
+        for (k, &(v, _)) in squares.iter().enumerate().rev() {
+            first[v as usize] = k as u32;
+        }
+        let bits = self.complex.bytes();
+        let index = |v: usize, span: u8| -> usize {
+            let below = [3u8, 5, 6]
+                .iter()
+                .filter(|&&t| t < span && bits[v] & SPAN_BIT[t as usize] != 0)
+                .count();
+            first[v] as usize + below
+        };
         let s = self.complex.stride();
         // Surface parts: squares joined through shared edges.
         let mut parts = super::complex::UnionFind::new(squares.len());
@@ -718,13 +775,15 @@ impl<'a> Thinning<'a> {
                 let e = span & !(1 << a);
                 for owner in [v as usize, v as usize + s[a]] {
                     for &(off, sq) in &self.cofaces[e as usize] {
-                        if let Some(m) = index(((owner - off) as u32, sq)) {
-                            parts.union(k, m);
+                        let w = owner - off;
+                        if bits[w] & SPAN_BIT[sq as usize] != 0 {
+                            parts.union(k, index(w, sq));
                         }
                     }
                 }
             }
         }
+        drop(first);
         let (labels, components) = self.complex.complement_labels();
         let mut sides = super::complex::UnionFind::new(components);
         let dims = self.complex.dims();
