@@ -637,17 +637,13 @@ impl<'a> Thinning<'a> {
                 death[8 * g + kind.g_span as usize] = l;
                 death[8 * f + kind.f_span as usize] = l;
             }
+            // An edge removed before it was seen as a facet is born at its death (Def. 6.2).
             for (cell, span) in [(g, kind.g_span), (f, kind.f_span)] {
-                match span.count_ones() {
-                    1 => {
-                        if self.born[cell] & span == 0 {
-                            self.born[cell] |= span;
-                            if let Some(b) = &mut self.birth {
-                                b[3 * cell + span.trailing_zeros() as usize] = l;
-                            }
-                        }
+                if span.count_ones() == 1 && self.born[cell] & span == 0 {
+                    self.born[cell] |= span;
+                    if let Some(b) = &mut self.birth {
+                        b[3 * cell + span.trailing_zeros() as usize] = l;
                     }
-                    _ => {}
                 }
             }
         }
