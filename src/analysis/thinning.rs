@@ -117,8 +117,15 @@ struct Kind {
     f_span: u8,
     f_bit: u8,
     f_off: usize,
+    /// Cofaces of g other than f owned by g's own vertex (must be absent), as one mask.
+    own_absent: u8,
+    /// The other cofaces of g, owned by g − offset.
     absent: [(usize, u8); 5],
     n_absent: usize,
+    /// Cells to re-test after removing the pair: bytes at g + offset (offset relative to g,
+    /// possibly negative), merged per vertex.
+    touched: [(isize, u8); 8],
+    n_touched: usize,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -243,13 +250,37 @@ impl<'a> Thinning<'a> {
                         // X−: g is the lower face of f, f owned by the same vertex.
                         let f_off = if positive { s[axis] } else { 0 };
                         let mut absent = [(0usize, 0u8); 5];
-                        let mut n_absent = 0;
+                        let (mut n_absent, mut own_absent) = (0, 0u8);
                         for &(off, span) in &cofaces[g_span as usize] {
                             if span == f_span && off == f_off {
                                 continue;
                             }
-                            absent[n_absent] = (off, SPAN_BIT[span as usize]);
-                            n_absent += 1;
+                            if off == 0 {
+                                own_absent |= SPAN_BIT[span as usize];
+                            } else {
+                                absent[n_absent] = (off, SPAN_BIT[span as usize]);
+                                n_absent += 1;
+                            }
+                        }
+                        // Facets of f (at g − f_off) and of g (at g): their cofaces change.
+                        let mut touched = [(0isize, 0u8); 8];
+                        let mut n_touched = 0;
+                        for (base, span) in [(-(f_off as isize), f_span), (0, g_span)] {
+                            for a in 0..3 {
+                                if span & (1 << a) == 0 {
+                                    continue;
+                                }
+                                let face = SPAN_BIT[(span & !(1 << a)) as usize];
+                                for off in [base, base + s[a] as isize] {
+                                    match touched[..n_touched].iter_mut().find(|t| t.0 == off) {
+                                        Some(t) => t.1 |= face,
+                                        None => {
+                                            touched[n_touched] = (off, face);
+                                            n_touched += 1;
+                                        }
+                                    }
+                                }
+                            }
                         }
                         list.push(Kind {
                             g_span,
@@ -257,8 +288,11 @@ impl<'a> Thinning<'a> {
                             f_span,
                             f_bit: SPAN_BIT[f_span as usize],
                             f_off,
+                            own_absent,
                             absent,
                             n_absent,
+                            touched,
+                            n_touched,
                         });
                     }
                     kinds.push(list);
@@ -588,7 +622,11 @@ impl<'a> Thinning<'a> {
             let found = gather(self.chunk, &self.by_span[kind.g_span as usize], |c, out| {
                 for &v in c {
                     let v = v as usize;
-                    if bits[v] & kind.g_bit == 0 || inhibit[v] & kind.g_bit != 0 {
+                    let own = bits[v];
+                    if own & kind.g_bit == 0
+                        || own & kind.own_absent != 0
+                        || inhibit[v] & kind.g_bit != 0
+                    {
                         continue;
                     }
                     let f = v - kind.f_off;
@@ -617,21 +655,14 @@ impl<'a> Thinning<'a> {
             let (g, f) = (v as usize, v as usize - kind.f_off);
             self.complex.remove(g, kind.g_span);
             self.complex.remove(f, kind.f_span);
-            // Cells whose cofaces changed: the facets of f other than g, and the facets of g.
-            let s = self.complex.stride();
-            for (cell, span) in [(f, kind.f_span), (g, kind.g_span)] {
-                for a in 0..3 {
-                    if span & (1 << a) != 0 {
-                        let face = span & !(1 << a);
-                        for w in [cell, cell + s[a]] {
-                            let d = &mut self.dirty[w];
-                            if *d == 0 {
-                                self.dirty_vertices.push(w as u32);
-                            }
-                            *d |= SPAN_BIT[face as usize];
-                        }
-                    }
+            // Cells whose cofaces changed: the facets of f and of g.
+            for &(off, faces) in &kind.touched[..kind.n_touched] {
+                let w = g.wrapping_add_signed(off);
+                let d = &mut self.dirty[w];
+                if *d == 0 {
+                    self.dirty_vertices.push(w as u32);
                 }
+                *d |= faces;
             }
             if let Some(death) = &mut self.death {
                 death[8 * g + kind.g_span as usize] = l;
