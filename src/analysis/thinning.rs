@@ -18,8 +18,10 @@
 //! sub-step's direction, orientation and dimension, g ∉ W, and f ∈ L (then g ∈ L too, L being
 //! closed), and removes them all. Two such pairs have distinct cofaces, so by Corollary 5.13 the
 //! removal is a collapse whatever the order: the pairs are gathered read-only (in parallel over
-//! chunks of the candidate list, results kept in list order) and then cleared, so the parallel
-//! and sequential runs are identical bit for bit. Without the restriction to L a single
+//! chunks of the candidate list, results kept in list order) and then cleared, so the complex
+//! after every sub-step is identical bit for bit in parallel and sequential runs (tested). L is
+//! marked with atomic ORs in parallel; only the order of internal work lists depends on the
+//! schedule, never a result. Without the restriction to L a single
 //! sub-step would peel a whole row of cubes; with it one iteration removes one layer, so the
 //! death date of a cube equals its L1 distance to the complement (tested below): the clock of
 //! the collapse is the 6-distance, which is why the constraint uses the L1 maps.
@@ -37,8 +39,10 @@
 //!
 //! Iterations are numbered from 1. Death(f) = the iteration that removes f. Birth(e) of an edge
 //! = the first l such that after l iterations e is a facet (no incident square) or has been
-//! removed; it is recorded when the last incident square goes (or at the edge's removal). The
-//! constraint is applied lazily, as in both reference implementations: at the start of
+//! removed; it is recorded at the start of iteration l + 1, when the edge is re-tested as a face
+//! of its last square (or at the edge's removal). The static W of Algorithm 3 is defined with
+//! the lifespans of the unconstrained collapse; like both reference implementations we apply
+//! the constraint lazily instead: at the start of
 //! iteration l, an edge born and still present is added to W (with its two points, so W stays
 //! a complex) when removing it now would give it a lifespan l − Birth(e) greater than
 //!
@@ -60,7 +64,10 @@
 //! the square whose two sides lie in different components of the complement (so removing it
 //! joins two of them: b2 decreases by one, b0 and b1 are unchanged, by Alexander duality),
 //! preferring the one with the largest priority (the Euclidean distance map: the hole is
-//! central), and repeat until no square remains. A part where no square separates two complement
+//! central), and repeat until no square remains. The iteration count goes on through the
+//! re-thinning, so the edges of a pierced surface are born late, get large thresholds, and the
+//! surface collapses onto the curves attached to it (Figure 36c) instead of growing branches.
+//! A part where no square separates two complement
 //! components (a contractible 2-complex such as Bing's house) is pierced anyway; that raises b1
 //! and is counted in [`ThinningStats::forced_pierces`].
 
