@@ -425,3 +425,68 @@ fn corridor_gives_a_corridor_line() {
         diameter.len()
     );
 }
+
+/// `lacuna analyze --skeleton`: the files and the JSON members people read.
+#[test]
+fn analyze_command_writes_the_skeleton() {
+    let dir = std::env::temp_dir().join(format!("lacuna-skeleton-cli-{}", std::process::id()));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lacuna"))
+        .args([
+            "analyze",
+            "two-rooms",
+            "--skeleton",
+            "--resolution",
+            "48",
+            "--json",
+            "-o",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let (k, e) = (&json["skeleton"], &json["empty_space"]);
+    for key in [
+        "nodes",
+        "edges",
+        "components",
+        "cycle_rank",
+        "filtered_nodes",
+        "filtered_edges",
+    ] {
+        assert!(k[key].is_u64(), "skeleton.{key}");
+    }
+    assert_eq!(k["components"], e["b0"]);
+    assert_eq!(k["cycle_rank"], e["b1"]);
+    let (b0, b1, b2) = (
+        e["b0"].as_i64().unwrap(),
+        e["b1"].as_i64().unwrap(),
+        e["b2"].as_i64().unwrap(),
+    );
+    assert_eq!(e["euler"].as_i64().unwrap(), b0 - b1 + b2);
+    assert!(json["skeleton_seconds"]["thinning (Alg. 2-3)"].is_f64());
+    let on_disk: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(on_disk["skeleton"], json["skeleton"]);
+    let obj = std::fs::read_to_string(dir.join("skeleton.obj")).unwrap();
+    let nodes = k["nodes"].as_u64().unwrap() as usize;
+    assert_eq!(obj.lines().filter(|l| l.starts_with("v ")).count(), nodes);
+    assert_eq!(
+        obj.lines().filter(|l| l.starts_with("l ")).count(),
+        k["edges"].as_u64().unwrap() as usize
+    );
+    let ply = std::fs::read_to_string(dir.join("skeleton_filtered.ply")).unwrap();
+    assert!(ply.contains("property float radius"));
+    assert!(ply.contains(&format!("element vertex {}", k["filtered_nodes"])));
+    for png in ["skeleton.png", "node_map.png"] {
+        assert!(
+            std::fs::metadata(dir.join(png)).unwrap().len() > 1000,
+            "{png}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
