@@ -23,11 +23,13 @@
 //! line 7 would also absorb earlier representatives, orphaning their members). Contracting
 //! connected clusters keeps b0, but loses cycles inside a cluster and, once parallel edges are
 //! merged, cycles through two clusters. Guard (our choice): a node joins a cluster only if it
-//! has exactly one edge to the cluster's current members (clusters stay induced trees) and does
-//! not add a second connection to a cluster already touched; connections the walk cannot see
-//! (a later singleton with two edges into one cluster) are repaired by dissolving the offending
-//! non-singleton cluster into single nodes, until no two clusters are joined by more than one
-//! edge. The filtered graph then has exactly the b0 and b1 of the raw skeleton (tested).
+//! has exactly one edge to the cluster's current members (clusters stay induced trees), does
+//! not add a second connection to a cluster already touched, and leaves no unabsorbed
+//! neighbour with two edges into the cluster (that neighbour would later be joined to it twice).
+//! Then no two clusters share two edges; should it happen anyway, the offending
+//! non-singleton cluster is dissolved into single nodes (counted in [`Filtered::repaired`]).
+//! The filtered graph has exactly the b0 and b1 of the raw skeleton (tested); a small cycle
+//! inside a ball is kept as a ring of a few representatives instead of one node.
 
 use std::collections::{HashMap, VecDeque};
 use std::time::Instant;
@@ -233,7 +235,8 @@ pub fn filter_skeleton(raw: &Graph) -> Filtered {
                 if d2 > radius * radius {
                     continue;
                 }
-                // Exactly one edge into the cluster, no second connection to a finished one.
+                // Exactly one edge into the cluster, no second connection to a finished one,
+                // and no free neighbour left with two edges into the cluster.
                 let mut inside = 0;
                 let mut ok = true;
                 let mut foreign: Vec<u32> = Vec::new();
@@ -246,6 +249,8 @@ pub fn filter_skeleton(raw: &Graph) -> Filtered {
                             ok = false;
                         }
                         foreign.push(c);
+                    } else if adj[m as usize].iter().any(|&x| owner[x as usize] == rep) {
+                        ok = false;
                     }
                 }
                 if !ok || inside != 1 {
@@ -745,5 +750,72 @@ impl Skeleton {
             });
         }
         v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn graph(points: &[[u32; 3]], radii: &[f32], edges: &[[u32; 2]]) -> Graph {
+        let nodes = points
+            .iter()
+            .zip(radii)
+            .map(|(&p, &r)| Node {
+                lattice: p,
+                position: Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32),
+                voxel: 0,
+                radius_voxels: r,
+                radius: r,
+            })
+            .collect();
+        let mut edges: Vec<[u32; 2]> = edges.iter().map(|&[a, b]| [a.min(b), a.max(b)]).collect();
+        edges.sort_unstable();
+        Graph { nodes, edges }
+    }
+
+    #[test]
+    fn filtering_merges_within_balls_and_keeps_cycles() {
+        // A path inside one large ball becomes one node.
+        let path = graph(
+            &[[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]],
+            &[1.0, 5.0, 1.0, 1.0],
+            &[[0, 1], [1, 2], [2, 3]],
+        );
+        let f = filter_skeleton(&path);
+        assert_eq!(f.graph.nodes.len(), 1);
+        assert_eq!(f.cluster_of, vec![0; 4]);
+        // A ring inside one ball: merging it all would lose the cycle.
+        let ring_points = [
+            [0, 0, 0],
+            [1, 0, 0],
+            [2, 0, 0],
+            [2, 1, 0],
+            [2, 2, 0],
+            [1, 2, 0],
+            [0, 2, 0],
+            [0, 1, 0],
+        ];
+        let ring_edges: Vec<[u32; 2]> = (0..8).map(|i| [i, (i + 1) % 8]).collect();
+        let mut radii = [1.0f32; 8];
+        radii[0] = 10.0;
+        let ring = graph(&ring_points, &radii, &ring_edges);
+        let f = filter_skeleton(&ring);
+        // The ball takes six nodes; the two far ones stay apart and close the cycle.
+        assert_eq!(f.graph.nodes.len(), 3);
+        assert_eq!(f.repaired, 0);
+        assert_eq!(f.graph.cycle_rank(), 1);
+        assert_eq!(f.graph.components(), 1);
+        // A triangle: absorbing either neighbour would leave the other with two edges into
+        // the cluster, so all three stay.
+        let tri = graph(
+            &[[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+            &[3.0, 1.0, 0.5],
+            &[[0, 1], [1, 2], [0, 2]],
+        );
+        let f = filter_skeleton(&tri);
+        assert_eq!(f.graph.cycle_rank(), 1);
+        assert_eq!(f.graph.nodes.len(), 3);
+        assert_eq!(f.repaired, 0);
     }
 }
