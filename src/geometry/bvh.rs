@@ -5,7 +5,6 @@
 use glam::{UVec2, Vec3A};
 use obvhs::cwbvh::node::{extract_byte64, CwBvhNode};
 use obvhs::cwbvh::{builder::build_cwbvh_from_tris, CwBvh};
-use obvhs::ray::Ray as BvhRay;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 use rayon::prelude::*;
@@ -35,13 +34,19 @@ impl BvhQuality {
     }
 }
 
-/// Triangle vertices in leaf order, padded to 16-byte vectors.
+/// Triangle vertices in leaf order, padded to 16-byte vectors, with the global triangle index
+/// in the padding after `p0`: a closest hit reads it from the cache line the test just loaded
+/// instead of from a separate array (one cache miss less per hit on large scenes).
 #[derive(Clone, Copy, Debug)]
+#[repr(C)]
 struct LeafTriangle {
-    p0: Vec3A,
+    p0: Vec3,
+    id: u32,
     p1: Vec3A,
     p2: Vec3A,
 }
+
+const _: () = assert!(std::mem::size_of::<LeafTriangle>() == 48);
 
 /// The acceleration structure of a scene. Immutable and `Sync`: queries may run from any number
 /// of threads.
@@ -49,8 +54,6 @@ pub struct Bvh {
     cwbvh: CwBvh,
     /// `leaf_tris[i]` is the triangle referenced by leaf slot `i`.
     leaf_tris: Vec<LeafTriangle>,
-    /// Global triangle index of leaf slot `i`.
-    leaf_ids: Vec<u32>,
 }
 
 impl Bvh {
@@ -60,7 +63,6 @@ impl Bvh {
             return Bvh {
                 cwbvh: CwBvh::default(),
                 leaf_tris: Vec::new(),
-                leaf_ids: Vec::new(),
             };
         }
         let tris: Vec<Triangle> = triangles
@@ -72,36 +74,33 @@ impl Bvh {
             })
             .collect();
         let mut build_time = std::time::Duration::ZERO;
-        let cwbvh = build_cwbvh_from_tris(&tris, quality.params(), &mut build_time);
-        let leaf_ids = cwbvh.primitive_indices.clone();
-        let leaf_tris = leaf_ids
+        let mut cwbvh = build_cwbvh_from_tris(&tris, quality.params(), &mut build_time);
+        let leaf_tris = cwbvh
+            .primitive_indices
             .par_iter()
             .map(|&i| {
                 let t = &tris[i as usize];
                 LeafTriangle {
-                    p0: t.v0,
+                    p0: t.v0.into(),
+                    id: i,
                     p1: t.v1,
                     p2: t.v2,
                 }
             })
             .collect();
-        Bvh {
-            cwbvh,
-            leaf_tris,
-            leaf_ids,
-        }
+        // Traversal reads `leaf_tris` only.
+        cwbvh.primitive_indices = Vec::new();
+        Bvh { cwbvh, leaf_tris }
     }
 
     pub fn is_empty(&self) -> bool {
-        self.leaf_ids.is_empty()
+        self.leaf_tris.is_empty()
     }
 
     /// Bytes held by nodes and leaf data.
     pub fn memory_bytes(&self) -> usize {
-        self.cwbvh.nodes.len() * std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>()
-            + self.cwbvh.primitive_indices.len() * 4
+        self.cwbvh.nodes.len() * std::mem::size_of::<CwBvhNode>()
             + self.leaf_tris.len() * std::mem::size_of::<LeafTriangle>()
-            + self.leaf_ids.len() * 4
     }
 
     pub fn node_count(&self) -> usize {
@@ -110,50 +109,83 @@ impl Bvh {
 
     /// Closest hit in (0, ray.t_max).
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        #[cfg(target_arch = "x86_64")]
+        if has_x86_64_v3() {
+            // SAFETY: the CPU has every feature `intersect_v3` is compiled for (checked above).
+            return unsafe { self.intersect_v3(ray) };
+        }
+        self.intersect_impl(ray)
+    }
+
+    /// True when anything lies on the ray in (0, ray.t_max): stops at the first hit found.
+    pub fn occluded(&self, ray: &Ray) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if has_x86_64_v3() {
+            // SAFETY: as in `intersect`.
+            return unsafe { self.occluded_v3(ray) };
+        }
+        self.occluded_impl(ray)
+    }
+
+    /// The same traversal compiled for x86-64-v3 (AVX2, BMI1/2, LZCNT, POPCNT, FMA; every x86
+    /// CPU since about 2015). Baseline x86-64 has no `popcnt`, and the traversal counts bits
+    /// for every node visited; this copy ran 1.1-1.35x faster than the baseline one (see
+    /// BENCHMARKS.md), the same as building everything with `-C target-cpu=native`.
+    /// Results are bit-identical: Rust never contracts a * b + c into an FMA by itself.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn intersect_v3(&self, ray: &Ray) -> Option<Hit> {
+        self.intersect_impl(ray)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn occluded_v3(&self, ray: &Ray) -> bool {
+        self.occluded_impl(ray)
+    }
+
+    #[inline(always)]
+    fn intersect_impl(&self, ray: &Ray) -> Option<Hit> {
         if self.is_empty() || !(ray.t_max > 0.0) {
             return None;
         }
         let pre = RayPrecomp::new(ray.origin, ray.dir);
-        let mut traverse_ray = BvhRay::new(ray.origin.into(), ray.dir.into(), 0.0, ray.t_max);
+        let node_ray = NodeRay::new(ray.origin, ray.dir);
+        let mut t_max = ray.t_max;
         let mut best: Option<(u32, super::TriangleHit)> = None;
-        let mut state = self.cwbvh.new_traversal(traverse_ray.direction);
+        let mut state = self.cwbvh.new_traversal(ray.dir.into());
         let mut node;
         obvhs::traverse!(
             self.cwbvh,
             node,
             state,
-            intersect_node(node, &traverse_ray, state.oct_inv4),
+            self.intersect_node(node, &node_ray, t_max, state.oct_inv4),
             {
                 let slot = state.primitive_id as usize;
                 let t = &self.leaf_tris[slot];
-                if let Some(h) = intersect_triangle(
-                    &pre,
-                    t.p0.into(),
-                    t.p1.into(),
-                    t.p2.into(),
-                    traverse_ray.tmax,
-                ) {
-                    traverse_ray.tmax = h.t;
+                if let Some(h) = intersect_triangle(&pre, t.p0, t.p1.into(), t.p2.into(), t_max) {
+                    t_max = h.t;
                     best = Some((state.primitive_id, h));
                 }
             }
         );
         best.map(|(slot, h)| Hit {
             t: h.t,
-            triangle: self.leaf_ids[slot as usize],
+            triangle: self.leaf_tris[slot as usize].id,
             b1: h.b1,
             b2: h.b2,
         })
     }
 
-    /// True when anything lies on the ray in (0, ray.t_max): stops at the first hit found.
-    pub fn occluded(&self, ray: &Ray) -> bool {
+    #[inline(always)]
+    fn occluded_impl(&self, ray: &Ray) -> bool {
         if self.is_empty() || !(ray.t_max > 0.0) {
             return false;
         }
         let pre = RayPrecomp::new(ray.origin, ray.dir);
-        let traverse_ray = BvhRay::new(ray.origin.into(), ray.dir.into(), 0.0, ray.t_max);
-        let mut state = self.cwbvh.new_traversal(traverse_ray.direction);
+        let node_ray = NodeRay::new(ray.origin, ray.dir);
+        let t_max = ray.t_max;
+        let mut state = self.cwbvh.new_traversal(ray.dir.into());
         let mut node;
         let mut hit = false;
         'outer: {
@@ -161,18 +193,10 @@ impl Bvh {
                 self.cwbvh,
                 node,
                 state,
-                intersect_node(node, &traverse_ray, state.oct_inv4),
+                self.intersect_node(node, &node_ray, t_max, state.oct_inv4),
                 {
                     let t = &self.leaf_tris[state.primitive_id as usize];
-                    if intersect_triangle(
-                        &pre,
-                        t.p0.into(),
-                        t.p1.into(),
-                        t.p2.into(),
-                        traverse_ray.tmax,
-                    )
-                    .is_some()
-                    {
+                    if intersect_triangle(&pre, t.p0, t.p1.into(), t.p2.into(), t_max).is_some() {
                         hit = true;
                         break 'outer;
                     }
@@ -180,6 +204,57 @@ impl Bvh {
             );
         }
         hit
+    }
+
+    /// Ray against the eight quantized child boxes of a node; returns the traversal hit mask
+    /// in obvhs's layout, and prefetches what was hit.
+    #[inline(always)]
+    fn intersect_node(&self, node: &CwBvhNode, r: &NodeRay, t_max: f32, oct_inv4: u32) -> u32 {
+        let mut hits = child_hits(node, r, t_max);
+        self.prefetch_children(node, hits);
+        let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
+        let mut mask = 0u32;
+        while hits != 0 {
+            let c = hits.trailing_zeros() as usize;
+            hits &= hits - 1;
+            mask |= extract_byte64(child_bits8, c) << extract_byte64(bit_index8, c);
+        }
+        mask
+    }
+
+    /// Starts loading the nodes and leaf triangles of the children a node test hit. Traversal
+    /// is bound by memory latency on large scenes (each level waits for the previous one);
+    /// with the siblings requested together their misses overlap. Measured in
+    /// `benches/bvh.rs` (`kernels`): see BENCHMARKS.md.
+    #[inline(always)]
+    fn prefetch_children(&self, node: &CwBvhNode, mut hits: u32) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+            while hits != 0 {
+                let c = hits.trailing_zeros();
+                hits &= hits - 1;
+                let meta = node.child_meta[c as usize];
+                if meta == 0 {
+                    continue; // empty slot
+                }
+                let p: *const i8 = if node.imask & (1 << c) != 0 {
+                    let rank = (node.imask as u32 & ((1u32 << c) - 1)).count_ones();
+                    self.cwbvh.nodes[(node.child_base_idx + rank) as usize..].as_ptr() as _
+                } else {
+                    let first = node.primitive_base_idx + (meta & 0x1f) as u32;
+                    self.leaf_tris[first as usize..].as_ptr() as _
+                };
+                // SAFETY: a prefetch has no architectural effect (it cannot fault) and `p`
+                // points into a live slice; SSE is part of x86-64.
+                unsafe {
+                    _mm_prefetch::<_MM_HINT_T0>(p);
+                    _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(64));
+                }
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = (node, &mut hits);
     }
 
     /// Closest hits of many rays, in parallel; `out[i]` answers `rays[i]`.
@@ -207,63 +282,171 @@ impl Bvh {
     }
 }
 
-/// Ray against the eight quantized child boxes of a node; returns the traversal hit mask in
-/// obvhs's layout. We use our own instead of `CwBvhNode::intersect_ray` because that one clamps
-/// the entry distance to an absolute 1e-4, which culls every box closer than 1e-4 to the ray
-/// origin: geometry at small scales, and walls meeting at a corner, would be missed. Here the
-/// interval is (0, t_max], widened by the rounding error of the slab computation
-/// (pbrt-v4 §6.8.2), so the box test is conservative at every scale.
+/// Whether the CPU runs x86-64-v3 code (cached after the first call).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn has_x86_64_v3() -> bool {
+    use std::sync::atomic::{AtomicU8, Ordering};
+    static STATE: AtomicU8 = AtomicU8::new(0); // 0 unknown, 1 no, 2 yes
+    match STATE.load(Ordering::Relaxed) {
+        0 => {
+            let yes = std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+                && std::arch::is_x86_feature_detected!("bmi1")
+                && std::arch::is_x86_feature_detected!("bmi2")
+                && std::arch::is_x86_feature_detected!("lzcnt")
+                && std::arch::is_x86_feature_detected!("popcnt");
+            STATE.store(if yes { 2 } else { 1 }, Ordering::Relaxed);
+            yes
+        }
+        v => v == 2,
+    }
+}
+
+/// Per-ray constants of the node test.
+///
+/// Child box planes are on a grid: plane q (0..=255) of an axis lies at `p + q * ext`, so its
+/// ray distance is `q * a + b` with `a = ext / d` and `b = (p - o) / d`. The test widens every
+/// box by a bound on the rounding error of that computation, relative to the node, so it never
+/// culls a box the ray touches, at any scene scale and for rays starting anywhere, including
+/// inside or on a box. We do not use `CwBvhNode::intersect_ray`: it clamps the entry distance to
+/// an absolute 1e-4, culling every box closer than that to the origin (small scenes, corners).
+struct NodeRay {
+    origin: Vec3A,
+    /// `1 / dir`, clamped to +-2^40 so that every product stays finite (no NaN from 0 * inf).
+    inv_dir: Vec3A,
+    /// +inf on clamped axes, -inf elsewhere: a clamped axis has an unbounded far plane, which
+    /// keeps the test conservative although its distances are then underestimated.
+    far_floor: Vec3A,
+    /// Sign of `inv_dir` (so of `dir`, also for -0.0): swaps near and far planes.
+    negative: [bool; 3],
+}
+
+const INV_DIR_LIMIT: f32 = (1u64 << 40) as f32;
+/// Slack in units of |a| (255 grid steps in a node): obvhs derives the grid step with f32
+/// `log2`/`ceil`, which can come out one power of two short when a node's extent is within
+/// about 2^-17 above 255 times a power of two; child boxes are then clamped short by up to
+/// 255 * 2^-17 steps. 2^-16 of the node extent covers that.
+const SLACK_GRID: f32 = 255.0 / 65536.0;
+/// Slack in units of |b|: 1/d, p - o, the product, q * a and the sum each round once, and
+/// the slack itself rounds (gamma(5) needed, gamma(7) taken).
+const SLACK_ROUNDING: f32 = crate::math::gamma(7);
+
+impl NodeRay {
+    #[inline(always)]
+    fn new(origin: Vec3, dir: Vec3) -> NodeRay {
+        let mut inv = [0.0f32; 3];
+        let mut floor = [f32::NEG_INFINITY; 3];
+        for i in 0..3 {
+            let r = 1.0 / dir[i];
+            if r.abs() <= INV_DIR_LIMIT {
+                inv[i] = r;
+            } else {
+                inv[i] = INV_DIR_LIMIT.copysign(r);
+                floor[i] = f32::INFINITY;
+            }
+        }
+        NodeRay {
+            origin: origin.into(),
+            inv_dir: inv.into(),
+            far_floor: floor.into(),
+            negative: [inv[0] < 0.0, inv[1] < 0.0, inv[2] < 0.0],
+        }
+    }
+
+    /// `(a, b_near, b_far)` of a node: distance of grid plane q is `q * a + b`, moved towards
+    /// the ray origin (near planes) or away from it (far planes) by the error bound.
+    #[inline(always)]
+    fn node_constants(&self, node: &CwBvhNode) -> (Vec3A, Vec3A, Vec3A) {
+        let a = node.compute_extent() * self.inv_dir;
+        let b = (Vec3A::from(node.p) - self.origin) * self.inv_dir;
+        let slack = a.abs() * SLACK_GRID + b.abs() * SLACK_ROUNDING;
+        (a, b - slack, (b + slack).max(self.far_floor))
+    }
+}
+
+/// Bit c set when the ray overlaps child box c in (0, t_max]. Explicit SSE2 (part of the
+/// x86-64 baseline), four children per instruction: faster than the scalar loop, which the
+/// compiler does not vectorize (see BENCHMARKS.md).
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn intersect_node(node: &CwBvhNode, ray: &BvhRay, oct_inv4: u32) -> u32 {
-    let extent = node.compute_extent();
-    let dir_inv = extent * ray.inv_direction;
-    let origin = (Vec3A::from(node.p) - ray.origin) * ray.inv_direction;
-    let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
-    fn pick<'a>(lo: &'a [u8; 8], hi: &'a [u8; 8], negative: bool) -> (&'a [u8; 8], &'a [u8; 8]) {
-        if negative {
-            (hi, lo)
-        } else {
-            (lo, hi)
+fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
+    use std::arch::x86_64::*;
+    use std::mem::offset_of;
+    const MIN_X: usize = offset_of!(CwBvhNode, child_min_x);
+    const _: () = assert!(
+        offset_of!(CwBvhNode, child_max_x) == MIN_X + 8
+            && offset_of!(CwBvhNode, child_min_y) == MIN_X + 16
+            && offset_of!(CwBvhNode, child_max_y) == MIN_X + 24
+            && offset_of!(CwBvhNode, child_min_z) == MIN_X + 32
+            && offset_of!(CwBvhNode, child_max_z) == MIN_X + 40
+    );
+    let (a, b_near, b_far) = r.node_constants(node);
+    // SAFETY: SSE2 is part of x86-64. The three unaligned 16-byte loads read child_min_x
+    // through child_max_z, 48 contiguous bytes of the node (layout checked above).
+    unsafe {
+        let base = node.child_min_x.as_ptr();
+        let zero = _mm_setzero_si128();
+        let mut enter_lo = _mm_setzero_ps();
+        let mut enter_hi = _mm_setzero_ps();
+        let mut exit_lo = _mm_set1_ps(t_max);
+        let mut exit_hi = exit_lo;
+        for axis in 0..3 {
+            // [8 x min | 8 x max] -> [near | far] for this ray's direction.
+            let q = _mm_loadu_si128(base.add(16 * axis) as *const __m128i);
+            let q = if r.negative[axis] {
+                _mm_shuffle_epi32::<0x4E>(q)
+            } else {
+                q
+            };
+            let near = _mm_unpacklo_epi8(q, zero);
+            let far = _mm_unpackhi_epi8(q, zero);
+            let av = _mm_set1_ps(a[axis]);
+            let bn = _mm_set1_ps(b_near[axis]);
+            let bf = _mm_set1_ps(b_far[axis]);
+            let near_lo = _mm_cvtepi32_ps(_mm_unpacklo_epi16(near, zero));
+            let near_hi = _mm_cvtepi32_ps(_mm_unpackhi_epi16(near, zero));
+            let far_lo = _mm_cvtepi32_ps(_mm_unpacklo_epi16(far, zero));
+            let far_hi = _mm_cvtepi32_ps(_mm_unpackhi_epi16(far, zero));
+            enter_lo = _mm_max_ps(enter_lo, _mm_add_ps(_mm_mul_ps(near_lo, av), bn));
+            enter_hi = _mm_max_ps(enter_hi, _mm_add_ps(_mm_mul_ps(near_hi, av), bn));
+            exit_lo = _mm_min_ps(exit_lo, _mm_add_ps(_mm_mul_ps(far_lo, av), bf));
+            exit_hi = _mm_min_ps(exit_hi, _mm_add_ps(_mm_mul_ps(far_hi, av), bf));
         }
+        let lo = _mm_movemask_ps(_mm_cmple_ps(enter_lo, exit_lo)) as u32;
+        let hi = _mm_movemask_ps(_mm_cmple_ps(enter_hi, exit_hi)) as u32;
+        lo | (hi << 4)
     }
-    // The slab order must follow the sign of the inverse direction: a -0.0 component has a
-    // negative (infinite) inverse although `-0.0 < 0.0` is false.
-    let (x_near, x_far) = pick(
-        &node.child_min_x,
-        &node.child_max_x,
-        ray.inv_direction.x < 0.0,
-    );
-    let (y_near, y_far) = pick(
-        &node.child_min_y,
-        &node.child_max_y,
-        ray.inv_direction.y < 0.0,
-    );
-    let (z_near, z_far) = pick(
-        &node.child_min_z,
-        &node.child_max_z,
-        ray.inv_direction.z < 0.0,
-    );
-    let t_max_ray = ray.tmax;
-    let widen = 1.0 + 2.0 * crate::math::gamma(3);
-    let mut hit = [false; 8];
+}
+
+/// Portable version of the above.
+#[cfg(not(target_arch = "x86_64"))]
+#[inline(always)]
+fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
+    let (a, b_near, b_far) = r.node_constants(node);
+    let planes = [
+        (&node.child_min_x, &node.child_max_x),
+        (&node.child_min_y, &node.child_max_y),
+        (&node.child_min_z, &node.child_max_z),
+    ];
+    let mut hits = 0u32;
     for c in 0..8 {
-        let t0x = x_near[c] as f32 * dir_inv.x + origin.x;
-        let t1x = x_far[c] as f32 * dir_inv.x + origin.x;
-        let t0y = y_near[c] as f32 * dir_inv.y + origin.y;
-        let t1y = y_far[c] as f32 * dir_inv.y + origin.y;
-        let t0z = z_near[c] as f32 * dir_inv.z + origin.z;
-        let t1z = z_far[c] as f32 * dir_inv.z + origin.z;
-        let t_enter = t0x.max(t0y).max(t0z).max(0.0);
-        let t_exit = (t1x.min(t1y).min(t1z) * widen).min(t_max_ray);
-        hit[c] = t_enter <= t_exit;
-    }
-    let mut mask = 0u32;
-    for (c, &h) in hit.iter().enumerate() {
-        if h {
-            mask |= extract_byte64(child_bits8, c) << extract_byte64(bit_index8, c);
+        let mut enter = 0.0f32;
+        let mut exit = t_max;
+        for (axis, (lo, hi)) in planes.iter().enumerate() {
+            let (qn, qf) = if r.negative[axis] {
+                (hi[c], lo[c])
+            } else {
+                (lo[c], hi[c])
+            };
+            let tn = qn as f32 * a[axis] + b_near[axis];
+            let tf = qf as f32 * a[axis] + b_far[axis];
+            enter = if tn > enter { tn } else { enter };
+            exit = if tf < exit { tf } else { exit };
         }
+        hits |= ((enter <= exit) as u32) << c;
     }
-    mask
+    hits
 }
 
 // The traversal macro names `UVec2` unqualified.
@@ -335,6 +518,75 @@ mod tests {
                     );
                     assert_eq!(got.map(|h| h.triangle as usize), brute.map(|b| b.0));
                     assert_eq!(bvh.occluded(&ray), brute.is_some());
+                    // The baseline code path agrees bit for bit with the dispatched one.
+                    assert_eq!(bvh.intersect_impl(&ray), got);
+                    assert_eq!(bvh.occluded_impl(&ray), brute.is_some());
+                }
+            }
+        }
+    }
+
+    fn brute_force(tris: &[[Vec3; 3]], ray: &Ray) -> Option<(usize, f32)> {
+        let pre = RayPrecomp::new(ray.origin, ray.dir);
+        tris.iter()
+            .enumerate()
+            .filter_map(|(i, t)| {
+                intersect_triangle(&pre, t[0], t[1], t[2], ray.t_max).map(|h| (i, h.t))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+
+    /// Axis-aligned directions (with +0.0 and -0.0 components) and nearly axis-aligned ones,
+    /// aimed exactly at triangle vertices and edge points, which lie on child box faces: the
+    /// node test must neither cull those boxes nor lose a hit to a zero direction component.
+    #[test]
+    fn axis_aligned_rays_at_vertices_and_edges() {
+        let mut rng = Rng::new(5, 3);
+        let unit_tris = random_triangles(1500, &mut rng);
+        for scale in [1e-4f32, 1.0, 1e4] {
+            let tris: Vec<[Vec3; 3]> = unit_tris.iter().map(|t| t.map(|p| p * scale)).collect();
+            for quality in [BvhQuality::Fast, BvhQuality::High] {
+                let bvh = Bvh::build(&tris, quality);
+                for i in 0..4000 {
+                    let axis = rng.below(3) as usize;
+                    let mut d = Vec3::ZERO;
+                    // Signed zeros on the other axes: -0.0 must behave as +0.0.
+                    for k in 0..3 {
+                        if rng.uniform() < 0.5 {
+                            d[k] = -0.0;
+                        }
+                    }
+                    d[axis] = if rng.uniform() < 0.5 { 1.0 } else { -1.0 };
+                    if i % 4 == 1 {
+                        // Nearly axis-aligned: components far below the clamp of 1/d.
+                        let k = (axis + 1 + rng.below(2) as usize) % 3;
+                        d[k] = [1e-30, -1e-20, 1e-13, -3e-9][rng.below(4) as usize];
+                    }
+                    let t = tris[rng.below(tris.len() as u32) as usize];
+                    let target = match rng.below(3) {
+                        0 => t[rng.below(3) as usize],
+                        1 => t[0] + (t[1] - t[0]) * rng.uniform(),
+                        _ => {
+                            let (b0, b1) = warp::uniform_triangle(rng.uniform2());
+                            t[0] * b0 + t[1] * b1 + t[2] * (1.0 - b0 - b1)
+                        }
+                    };
+                    let dist = (0.01 + rng.uniform() * 5.0) * scale;
+                    let origin = target - d * dist;
+                    let t_max = if i % 3 == 0 {
+                        dist * 1.5
+                    } else {
+                        f32::INFINITY
+                    };
+                    let ray = Ray::new(origin, d, t_max);
+                    let brute = brute_force(&tris, &ray);
+                    let got = bvh.intersect(&ray);
+                    assert_eq!(
+                        got.map(|h| (h.triangle as usize, h.t)),
+                        brute,
+                        "scale {scale}, {quality:?}, ray {ray:?}"
+                    );
+                    assert_eq!(bvh.occluded(&ray), brute.is_some(), "ray {ray:?}");
                 }
             }
         }
