@@ -127,10 +127,10 @@ impl Bvh {
         self.occluded_impl(ray)
     }
 
-    /// The same traversal compiled for x86-64-v3 (AVX2, BMI1/2, LZCNT, POPCNT, FMA; every x86
-    /// CPU since about 2015). Baseline x86-64 has no `popcnt`, and the traversal counts bits
-    /// for every node visited; this copy ran 1.1-1.35x faster than the baseline one (see
-    /// BENCHMARKS.md), the same as building everything with `-C target-cpu=native`.
+    /// The same traversal compiled for x86-64-v3 (AVX2, BMI1/2, LZCNT, POPCNT, FMA; most x86
+    /// CPUs since 2013-2015). Baseline x86-64 has no `popcnt`, and the traversal counts bits
+    /// for every node visited; with this copy the default build ran 1.0-1.27x faster and got
+    /// within noise of a `-C target-cpu=native` build (BENCHMARKS.md).
     /// Results are bit-identical: Rust never contracts a * b + c into an FMA by itself.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
@@ -366,8 +366,9 @@ impl NodeRay {
 }
 
 /// Bit c set when the ray overlaps child box c in (0, t_max]. Explicit SSE2 (part of the
-/// x86-64 baseline), four children per instruction: faster than the scalar loop, which the
-/// compiler does not vectorize (see BENCHMARKS.md).
+/// x86-64 baseline), four children per instruction. Measured as fast as the scalar loop below
+/// or a few percent faster, never slower (BENCHMARKS.md); kept so as not to depend on the
+/// auto-vectorizer.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
