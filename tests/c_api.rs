@@ -323,6 +323,9 @@ fn c_tests_pass_under_valgrind() {
         "--leak-check=full",
         supp.as_str(),
         "--quiet",
+        // Valgrind runs one thread at a time; without fair scheduling, spinning rayon workers
+        // can starve the test's cancelling thread for the whole 60 s budget (seen here).
+        "--fair-sched=yes",
     ];
     // Control: a host that forgets to release a context must fail under these options.
     let leak = out.join("leak.c");
