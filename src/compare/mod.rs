@@ -276,7 +276,7 @@ pub fn compare(
             let rs = RenderSettings {
                 spp: u32::MAX,
                 time_limit: Some(Duration::from_secs_f64(seconds_per_run)),
-                seed: settings.seed.wrapping_add(1000 * run as u64 + c as u64),
+                seed: run_seed(settings.seed, run, c),
                 ..settings.clone()
             };
             let mut run_points = Vec::new();
@@ -337,6 +337,16 @@ pub fn compare(
             .collect(),
         reference_noise,
     })
+}
+
+/// Seed of run `run` of contender `contender`. Derived through a hash, not as `seed + k`:
+/// a reference renders its halves with `seed` and `seed + 1`, and a comparison run that reused
+/// one of those seeds with the same integrator would replay the reference's own samples (same
+/// per-pixel, per-sample random numbers), so its error would be underestimated.
+pub fn run_seed(seed: u64, run: u32, contender: usize) -> u64 {
+    const COMPARE_DOMAIN: u64 = 0xC0DE_C0A5_E5EE_D5ED;
+    crate::math::mix64(seed ^ COMPARE_DOMAIN)
+        .wrapping_add(crate::math::mix64(((run as u64) << 32) | contender as u64))
 }
 
 /// Time at which a run's MAE curve first reaches `target`, interpolated in log-log space
@@ -460,6 +470,25 @@ mod tests {
                 rmse: mae,
                 rel_mse: mae,
             },
+        }
+    }
+
+    #[test]
+    fn run_seeds_never_replay_a_reference() {
+        // A reference made with seed s uses s and s + 1; no comparison run may use either, and
+        // runs and contenders must not share seeds among themselves.
+        for s in [0u64, 1, 2, 41, 999, 1000, u64::MAX] {
+            let mut seen = std::collections::HashSet::new();
+            for run in 0..8 {
+                for c in 0..8 {
+                    let r = run_seed(s, run, c);
+                    assert!(r != s && r != s.wrapping_add(1), "seed {s} run {run} c {c}");
+                    assert!(
+                        seen.insert(r),
+                        "seed {s}: run {run} contender {c} repeats a seed"
+                    );
+                }
+            }
         }
     }
 

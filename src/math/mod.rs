@@ -9,7 +9,7 @@ pub mod warp;
 
 pub use distribution::{AliasTable, Distribution1D, Distribution2D};
 pub use frame::Frame;
-pub use rng::Rng;
+pub use rng::{mix64, Rng};
 
 pub use glam::{Vec2, Vec3};
 
