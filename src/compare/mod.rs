@@ -169,6 +169,10 @@ pub struct Summary {
     /// Speedup over the baseline (baseline time / time to reach its error), reported only when
     /// this contender's final MAE range over runs does not overlap the baseline's.
     pub speedup: Option<Spread>,
+    /// Speedup estimated from final errors, (baseline MAE / this MAE)^2 per run: what an
+    /// unbiased estimator whose MAE falls as t^-1/2 would need in time. Defined also when the
+    /// baseline's error was never reached (a slower contender), where `speedup` is not.
+    pub efficiency: Spread,
     /// True when the final errors are within the run-to-run spread of the baseline's.
     pub indistinguishable: bool,
     /// Slope of log MAE against log time over the second half of the median run: about -0.5
@@ -440,9 +444,19 @@ fn summarize(
                 let ratios: Vec<f64> = times.iter().map(|t| seconds / t.max(1e-9)).collect();
                 Spread::of(&ratios)
             };
+            let efficiency_runs: Vec<f64> = maes(c)
+                .iter()
+                .map(|m| (baseline_mae.median / m).powi(2))
+                .collect();
+            let efficiency = Spread::of(&efficiency_runs).unwrap_or(Spread {
+                median: f64::NAN,
+                min: f64::NAN,
+                max: f64::NAN,
+            });
             Summary {
                 label: labels[c].clone(),
                 mae,
+                efficiency,
                 rmse: of(c, &|r| r.errors.rmse),
                 rel_mse: of(c, &|r| r.errors.rel_mse),
                 spp: of(c, &|r| r.stats.spp as f64),

@@ -179,7 +179,10 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
                     format!("{:.2}x [{:.2}, {:.2}]", sp.median, sp.min, sp.max)
                 }
                 Some(sp) => format!("{:.2}x (1 run: spread unknown)", sp.median),
-                None => "< baseline (never reached its error)".to_string(),
+                None => format!(
+                    "slower: ≈ {:.2}x [{:.2}, {:.2}] from (MAE ratio)², never reached the baseline's error",
+                    sm.efficiency.median, sm.efficiency.min, sm.efficiency.max
+                ),
             }
         };
         let slope = match sm.slope {
@@ -224,6 +227,37 @@ fn convergence_svg(cmp: &Comparison, scene: &str) -> String {
                 .collect()
         })
         .collect();
+    // Spread over runs: at each time of the median run's curve, the least and the greatest MAE
+    // of all runs there (each run interpolated in log-log space; pass times differ by run).
+    let bands: Vec<Vec<(f64, f64, f64)>> = (0..cmp.labels.len())
+        .map(|c| {
+            let runs: Vec<Vec<(f64, f64)>> = (0..cmp.runs)
+                .map(|run| {
+                    cmp.points
+                        .iter()
+                        .filter(|p| {
+                            p.contender == c
+                                && p.run == run
+                                && p.seconds > 0.0
+                                && p.errors.mae > 0.0
+                        })
+                        .map(|p| (p.seconds, p.errors.mae))
+                        .collect()
+                })
+                .collect();
+            curves[c]
+                .iter()
+                .filter_map(|&(t, _)| {
+                    let at: Vec<f64> = runs.iter().filter_map(|r| log_interpolate(r, t)).collect();
+                    (at.len() == runs.len()).then(|| {
+                        let lo = at.iter().copied().fold(f64::MAX, f64::min);
+                        let hi = at.iter().copied().fold(f64::MIN, f64::max);
+                        (t, lo, hi)
+                    })
+                })
+                .collect()
+        })
+        .collect();
     let all: Vec<&(f64, f64)> = curves.iter().flatten().collect();
     let (mut tx0, mut tx1, mut ey0, mut ey1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for &&(t, e) in &all {
@@ -234,6 +268,14 @@ fn convergence_svg(cmp: &Comparison, scene: &str) -> String {
     }
     if all.is_empty() {
         (tx0, tx1, ey0, ey1) = (0.0, 1.0, 0.0, 1.0);
+    }
+    // Keep the reference's own error (drawn below) inside the plot.
+    if let Some(noise) = cmp
+        .reference_noise
+        .filter(|n| n.mae > 0.0 && n.mae.is_finite())
+    {
+        ey0 = ey0.min(noise.mae.log10());
+        ey1 = ey1.max(noise.mae.log10());
     }
     let (tx0, tx1) = (tx0.floor(), tx1.ceil().max(tx0.floor() + 1.0));
     let (ey0, ey1) = (ey0.floor(), ey1.ceil().max(ey0.floor() + 1.0));
@@ -300,6 +342,50 @@ fn convergence_svg(cmp: &Comparison, scene: &str) -> String {
         top + (h - top - bottom) / 2.0,
         top + (h - top - bottom) / 2.0
     );
+    // The reference's own error: curves that reach it are limited by the reference.
+    if let Some(noise) = cmp
+        .reference_noise
+        .filter(|n| n.mae > 0.0 && n.mae.is_finite())
+    {
+        let y = py(noise.mae);
+        let _ = writeln!(
+            s,
+            r##"<line x1="{left}" y1="{y:.1}" x2="{}" y2="{y:.1}" stroke="#888" stroke-dasharray="6 4"/>"##,
+            w - right
+        );
+        let _ = writeln!(
+            s,
+            r##"<text x="{}" y="{:.1}" fill="#666" font-size="11" text-anchor="end">reference's own error</text>"##,
+            w - right - 4.0,
+            y - 4.0
+        );
+    }
+    // Spread over runs (min..max of MAE at each pass index), under the median curves.
+    for (c, band) in bands.iter().enumerate() {
+        if band.len() < 2 || cmp.runs < 2 {
+            continue;
+        }
+        let colour = PALETTE[c % PALETTE.len()];
+        let mut d = String::new();
+        for (i, &(t, lo, _)) in band.iter().enumerate() {
+            let _ = write!(
+                d,
+                "{}{:.1},{:.1} ",
+                if i == 0 { "M" } else { "L" },
+                px(t),
+                py(lo)
+            );
+        }
+        for &(t, _, hi) in band.iter().rev() {
+            let _ = write!(d, "L{:.1},{:.1} ", px(t), py(hi));
+        }
+        let _ = writeln!(
+            s,
+            r#"<polygon points="{}" fill="{colour}" fill-opacity="0.15" stroke="none"/>"#,
+            d.trim_end().replace(['M', 'L'], "")
+        );
+    }
+    let mut end_labels: Vec<(f64, f64, usize)> = Vec::new();
     for (c, curve) in curves.iter().enumerate() {
         let colour = PALETTE[c % PALETTE.len()];
         let mut d = String::new();
@@ -319,17 +405,52 @@ fn convergence_svg(cmp: &Comparison, scene: &str) -> String {
             xml_escape(&cmp.labels[c])
         );
         if let Some(&(t, e)) = curve.last() {
-            let _ = writeln!(
-                s,
-                r#"<text x="{:.1}" y="{:.1}" fill="{colour}">{}</text>"#,
-                px(t) + 6.0,
-                py(e) + 4.0,
-                xml_escape(&cmp.labels[c])
-            );
+            end_labels.push((px(t), py(e) + 4.0, c));
         }
+    }
+    // Each curve is named at its end; labels that would overlap are pushed apart vertically
+    // (and joined to their curve's end by a thin leader) so none hides another.
+    end_labels.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let mut placed: Vec<f64> = Vec::with_capacity(end_labels.len());
+    for (i, l) in end_labels.iter().enumerate() {
+        let y = if i == 0 {
+            l.1
+        } else {
+            l.1.max(placed[i - 1] + 15.0)
+        };
+        placed.push(y);
+    }
+    let x_label = end_labels.iter().map(|l| l.0).fold(f64::MIN, f64::max) + 8.0;
+    for (&(x, y_curve, c), &y) in end_labels.iter().zip(&placed) {
+        let colour = PALETTE[c % PALETTE.len()];
+        let _ = writeln!(
+            s,
+            r#"<line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="{colour}" stroke-width="0.75"/>"#,
+            x + 2.0,
+            y_curve - 4.0,
+            x_label - 2.0,
+            y - 4.0
+        );
+        let _ = writeln!(
+            s,
+            r#"<text x="{x_label:.1}" y="{y:.1}" fill="{colour}">{}</text>"#,
+            xml_escape(&cmp.labels[c])
+        );
     }
     let _ = writeln!(s, "</svg>");
     s
+}
+
+/// A curve's value at time `t`, interpolated linearly in log-log space; `None` outside it.
+fn log_interpolate(curve: &[(f64, f64)], t: f64) -> Option<f64> {
+    let i = curve.iter().position(|&(ti, _)| ti >= t)?;
+    let (t1, e1) = curve[i];
+    if t1 == t || i == 0 {
+        return (t1 == t).then_some(e1);
+    }
+    let (t0, e0) = curve[i - 1];
+    let a = (t.ln() - t0.ln()) / (t1.ln() - t0.ln());
+    Some((e0.ln() + a * (e1.ln() - e0.ln())).exp())
 }
 
 fn decade(d: i32) -> String {
