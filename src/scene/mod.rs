@@ -20,7 +20,7 @@ pub use builder::{DegeneratePolicy, MeshDesc, SceneBuilder};
 pub use builtin::two_rooms_builder;
 pub use camera::{Camera, CameraFrame};
 pub use corridor::{corridor_builder, corridor_render_settings};
-pub use file::{auto_camera, load_scene_file, LoadedScene, RenderSettingsFile};
+pub use file::{auto_camera, convert_layout, load_scene_file, LoadedScene, RenderSettingsFile};
 pub use interaction::SurfaceInteraction;
 pub use material::{
     fresnel_dielectric, Bsdf, BsdfSample, Material, MaterialKind, TextureId, Transport,
@@ -29,7 +29,7 @@ pub use obj::{load_obj, ObjReport, DEFAULT_MATERIAL_NAME};
 pub use texture::{srgb_to_linear, Texture};
 
 use crate::geometry::{barycentric_point_error, Bounds3, Bvh, Hit, Ray};
-use crate::light::{Light, LightSample, LightSampler};
+use crate::light::{EnvironmentMap, Light, LightSample, LightSampler};
 use crate::math::{Rgb, Vec2, Vec3};
 
 /// A triangle mesh as stored in the scene.
@@ -86,6 +86,8 @@ pub struct Scene {
     bvh: Bvh,
     lights: Vec<Light>,
     light_sampler: Option<LightSampler>,
+    /// Index in `lights` of the environment map, if any.
+    environment: Option<u32>,
     /// Light index of each global triangle (`u32::MAX` when it does not emit); empty when the
     /// scene has no area lights.
     triangle_light: Vec<u32>,
@@ -113,6 +115,16 @@ impl Scene {
 
     pub fn light_sampler(&self) -> Option<&LightSampler> {
         self.light_sampler.as_ref()
+    }
+
+    /// The environment map and its index among the lights.
+    #[inline]
+    pub fn environment(&self) -> Option<(usize, &EnvironmentMap)> {
+        let i = self.environment? as usize;
+        match &self.lights[i] {
+            Light::Environment { map, .. } => Some((i, map)),
+            _ => None,
+        }
     }
 
     pub fn camera(&self) -> Option<&Camera> {
@@ -183,7 +195,8 @@ impl Scene {
                 + self
                     .light_sampler
                     .as_ref()
-                    .map_or(0, LightSampler::memory_bytes),
+                    .map_or(0, LightSampler::memory_bytes)
+                + self.environment().map_or(0, |(_, e)| e.memory_bytes()),
         }
     }
 
