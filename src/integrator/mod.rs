@@ -178,9 +178,11 @@ pub fn parse_spec(
             "env" => settings.env = EnvStrategy::parse(value.trim())?,
             "samples" => settings.env_samples = count()?,
             "bsdf" => settings.env_bsdf_samples = count()?,
-            other => return Err(Error::invalid(format!(
+            other => {
+                return Err(Error::invalid(format!(
                 "unknown integrator option '{other}' in '{spec}' (expected env, samples or bsdf)"
-            ))),
+            )))
+            }
         }
     }
     Ok((name, settings))
