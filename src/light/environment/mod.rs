@@ -14,7 +14,7 @@ mod image;
 mod sampler;
 
 pub use grid::Grid;
-pub use image::{describe, EnvImage};
+pub use image::{describe, EnvImage, MAX_TEXELS};
 pub use sampler::{Balancing, CubeSampler, LatLongSampler};
 
 use std::path::Path;
