@@ -15,6 +15,8 @@
 //! point saw lit but whose region overlaps a lit image texel gets a small positive weight, so
 //! the density is never zero where the radiance is not.
 
+use rayon::prelude::*;
+
 use super::grid::{self, cube_coordinates, cube_direction, latlong_texels_near, Grid};
 use super::image::EnvImage;
 use crate::math::{luminance, Distribution2D, Vec2, Vec3, PI};
@@ -41,9 +43,11 @@ impl Weights {
         let n = grid.texel_count();
         let factor = (0..n).map(|i| grid.weight_factor(i)).collect();
         let image_grid = image.grid();
+        // Geometry only, computed once per pair of grids (in parallel: ~1M trigonometric
+        // lookups for a 512 x 256 map).
         let gather = (image_grid != grid).then(|| {
-            let mut g = Vec::with_capacity(n * GATHER2);
-            for i in 0..n {
+            let mut g = vec![0u32; n * GATHER2];
+            g.par_chunks_mut(GATHER2).enumerate().for_each(|(i, out)| {
                 for a in 0..GATHER {
                     for b in 0..GATHER {
                         let d = grid.texel_point(
@@ -51,10 +55,10 @@ impl Weights {
                             (a as f32 + 0.5) / GATHER as f32,
                             (b as f32 + 0.5) / GATHER as f32,
                         );
-                        g.push(image_grid.texel_of(d) as u32);
+                        out[a * GATHER + b] = image_grid.texel_of(d) as u32;
                     }
                 }
-            }
+            });
             g
         });
         Weights {
