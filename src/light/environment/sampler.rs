@@ -9,11 +9,12 @@
 //!   the pseudo form factor mu_f(n) (eq. 3.4).
 //!
 //! A density may be built on a grid other than the image's own (a cube density over a
-//! lat-long image): its texel weights are then gathered from the image at 3 x 3 points per
-//! texel (the point -> image-texel table depends only on the two grids, so it is computed once
-//! and a new image of the same layout re-weights with plain loads). A texel that no gather
-//! point saw lit but whose region overlaps a lit image texel gets a small positive weight, so
-//! the density is never zero where the radiance is not.
+//! lat-long image): a texel's weight is then the mean luminance at 3 x 3 points of it, but at
+//! least a quarter of the brightest image texel that may overlap it (found through bounding
+//! caps, a superset of the true overlaps). The floor keeps radiance over density bounded next
+//! to a sun a few texels wide, and the density positive wherever the radiance is. Both tables
+//! depend only on the two grids: they are computed once, and a new image of the same layout
+//! re-weights with plain loads.
 
 use rayon::prelude::*;
 
@@ -32,20 +33,30 @@ struct Weights {
     image_grid: Grid,
     /// Per grid texel, its solid-angle factor (`Grid::weight_factor`).
     factor: Vec<f32>,
-    /// When the grids differ: `GATHER2` image texel indices per grid texel.
+    /// When the grids differ: `GATHER2` image texel indices per grid texel (for the mean)...
     gather: Option<Vec<u32>>,
+    /// ... and every image texel that may overlap it, as offsets into a list of indices (a
+    /// superset from bounding caps: for the conservative bound).
+    overlap: Option<(Vec<u32>, Vec<u32>)>,
     /// Scratch: weights of the last build.
     values: Vec<f32>,
 }
+
+/// A grid texel's weight is at least this fraction of its brightest overlapping image texel:
+/// inside it, radiance over density is then at most 1 / FLOOR times what it would be for a
+/// density proportional to that texel's luminance (a mean of gather points alone may miss a
+/// sliver of a sun 1e5 over the sky and sample it 1e5 times too rarely).
+const FLOOR: f32 = 0.25;
 
 impl Weights {
     fn new(grid: Grid, image: &EnvImage) -> Self {
         let n = grid.texel_count();
         let factor = (0..n).map(|i| grid.weight_factor(i)).collect();
         let image_grid = image.grid();
+        let differ = image_grid != grid;
         // Geometry only, computed once per pair of grids (in parallel: ~1M trigonometric
         // lookups for a 512 x 256 map).
-        let gather = (image_grid != grid).then(|| {
+        let gather = differ.then(|| {
             let mut g = vec![0u32; n * GATHER2];
             g.par_chunks_mut(GATHER2).enumerate().for_each(|(i, out)| {
                 for a in 0..GATHER {
@@ -61,89 +72,106 @@ impl Weights {
             });
             g
         });
+        let overlap = differ.then(|| overlaps(grid, image_grid));
         Weights {
             grid,
             image_grid,
             factor,
             gather,
+            overlap,
             values: vec![0.0; n],
         }
     }
 
-    /// Computes the texel weights of `image` (whose grid must be the one given to `new`).
+    /// Computes the texel weights of `image` (whose grid must be the one given to `new`):
+    /// luminance x solid-angle factor on the image's own grid; on another grid, the larger of
+    /// the mean over the gather points and `FLOOR` x the brightest overlapping image texel
+    /// (so the density is positive wherever the radiance is).
     fn compute(&mut self, image: &EnvImage) {
         assert_eq!(image.grid(), self.image_grid);
         let texels = image.texels();
-        match &self.gather {
-            None => {
-                for ((v, &f), &c) in self.values.iter_mut().zip(&self.factor).zip(texels) {
-                    *v = luminance(c).max(0.0) * f;
-                }
-            }
-            Some(g) => {
+        match (&self.gather, &self.overlap) {
+            (Some(g), Some((offsets, list))) => {
                 let lum: Vec<f32> = texels.iter().map(|&c| luminance(c).max(0.0)).collect();
-                let mut missed = false;
-                for (i, v) in self.values.iter_mut().enumerate() {
+                self.values.par_iter_mut().enumerate().for_each(|(i, v)| {
                     let sum: f32 = g[i * GATHER2..(i + 1) * GATHER2]
                         .iter()
                         .map(|&k| lum[k as usize])
                         .sum();
-                    *v = sum * (self.factor[i] / GATHER2 as f32);
-                    missed |= sum == 0.0;
-                }
-                if missed {
-                    self.cover(&lum);
+                    let range = offsets[i] as usize..offsets[i + 1] as usize;
+                    let max = list[range]
+                        .iter()
+                        .map(|&k| lum[k as usize])
+                        .fold(0.0f32, f32::max);
+                    *v = (sum / GATHER2 as f32).max(FLOOR * max) * self.factor[i];
+                });
+            }
+            _ => {
+                for ((v, &f), &c) in self.values.iter_mut().zip(&self.factor).zip(texels) {
+                    *v = luminance(c).max(0.0) * f;
                 }
             }
         }
     }
+}
 
-    /// Gives every zero-weight texel that overlaps a lit image texel the weight of one
-    /// gather point of that texel's luminance: no gather point saw it, so it covers at most
-    /// about that fraction of the texel.
-    fn cover(&mut self, lum: &[f32]) {
-        let floor_of = |l: f32, f: f32| l * f / GATHER2 as f32;
-        match (self.grid, self.image_grid) {
-            // Lat-long image: look for lit image texels around each unlit grid texel.
-            (grid, Grid::LatLong { width, height }) => {
-                for i in 0..self.values.len() {
-                    if self.values[i] > 0.0 {
-                        continue;
-                    }
-                    let mut max = 0.0f32;
+/// For each texel of `grid`, the texels of `image_grid` that may overlap it (one grid is
+/// lat-long, the other a cube): every pair whose lat-long texel meets the bounding cap of the
+/// cube texel, which includes every pair that truly overlaps. As (offsets, indices).
+fn overlaps(grid: Grid, image_grid: Grid) -> (Vec<u32>, Vec<u32>) {
+    let csr = |lists: Vec<Vec<u32>>| {
+        let mut offsets = Vec::with_capacity(lists.len() + 1);
+        let mut indices = Vec::with_capacity(lists.iter().map(Vec::len).sum());
+        offsets.push(0u32);
+        for l in lists {
+            indices.extend_from_slice(&l);
+            offsets.push(indices.len() as u32);
+        }
+        (offsets, indices)
+    };
+    match (grid, image_grid) {
+        (Grid::Cube { .. }, Grid::LatLong { width, height }) => {
+            let lists: Vec<Vec<u32>> = (0..grid.texel_count())
+                .into_par_iter()
+                .map(|i| {
+                    let mut l = Vec::new();
                     latlong_texels_near(
                         width,
                         height,
                         grid.texel_point(i, 0.5, 0.5),
                         grid.texel_radius(i),
-                        |k| max = max.max(lum[k]),
+                        |k| l.push(k as u32),
                     );
-                    // Every image texel overlapping the grid texel meets the cap around
-                    // it, so none is missed.
-                    self.values[i] = floor_of(max, self.factor[i]);
-                }
-            }
-            // Cube image, lat-long grid: spread each lit image texel over the grid texels
-            // its cap meets.
-            (Grid::LatLong { width, height }, image_grid) => {
-                let unlit: Vec<bool> = self.values.iter().map(|&v| v == 0.0).collect();
-                for (k, &l) in lum.iter().enumerate() {
-                    if l == 0.0 {
-                        continue;
-                    }
-                    let c = image_grid.texel_point(k, 0.5, 0.5);
-                    let r = image_grid.texel_radius(k);
-                    latlong_texels_near(width, height, c, r, |i| {
-                        if unlit[i] {
-                            self.values[i] = self.values[i].max(floor_of(l, self.factor[i]));
-                        }
-                    });
-                }
-            }
-            (Grid::Cube { .. }, Grid::Cube { .. }) => {
-                unreachable!("cube densities over cube images use the image's own grid")
-            }
+                    l
+                })
+                .collect();
+            csr(lists)
         }
+        (Grid::LatLong { width, height }, Grid::Cube { .. }) => {
+            // Enumerate from the cube side, then invert.
+            let per_cube: Vec<Vec<u32>> = (0..image_grid.texel_count())
+                .into_par_iter()
+                .map(|k| {
+                    let mut l = Vec::new();
+                    latlong_texels_near(
+                        width,
+                        height,
+                        image_grid.texel_point(k, 0.5, 0.5),
+                        image_grid.texel_radius(k),
+                        |i| l.push(i as u32),
+                    );
+                    l
+                })
+                .collect();
+            let mut lists = vec![Vec::new(); grid.texel_count()];
+            for (k, l) in per_cube.iter().enumerate() {
+                for &i in l {
+                    lists[i as usize].push(k as u32);
+                }
+            }
+            csr(lists)
+        }
+        _ => unreachable!("densities on another grid pair a lat-long and a cube grid"),
     }
 }
 
@@ -237,7 +265,11 @@ impl LatLongSampler {
 }
 
 fn weights_bytes(w: &Weights) -> usize {
-    (w.factor.len() + w.values.len() + w.gather.as_ref().map_or(0, Vec::len)) * 4
+    (w.factor.len()
+        + w.values.len()
+        + w.gather.as_ref().map_or(0, Vec::len)
+        + w.overlap.as_ref().map_or(0, |(o, l)| o.len() + l.len()))
+        * 4
 }
 
 /// How samples are shared between the six faces.
