@@ -915,3 +915,167 @@ fn radiance_over_density_is_bounded_next_to_a_sun() {
         }
     }
 }
+
+#[test]
+fn scene_files_and_the_command_line_take_environment_maps() {
+    let dir = std::env::temp_dir().join(format!("lacuna-env-scene-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let sky = repo("scenes/envmaps/sky.exr");
+    let write = |name: &str, env: &str| {
+        let p = dir.join(name);
+        std::fs::write(
+            &p,
+            format!(
+                r#"{{ "shapes": [{{ "type": "sphere", "center": [0, 0, 0], "radius": 1 }}],
+                     "environment": {env},
+                     "camera": {{ "eye": [0, 0, 4], "target": [0, 0, 0], "fov": 40 }} }}"#
+            ),
+        )
+        .unwrap();
+        p
+    };
+    let ok = write(
+        "ok.json",
+        &format!(
+            r#"{{ "file": {:?}, "scale": 2, "rotate": 30, "up": "z", "visible": false, "layout": "cube" }}"#,
+            sky.to_str().unwrap()
+        ),
+    );
+    let loaded = lacuna::scene::load_scene_file(&ok).unwrap();
+    let env = loaded.builder.environment().expect("environment");
+    assert_eq!(env.image().grid(), Grid::Cube { face: 128 });
+    let s = env.settings();
+    assert!(s.scale == 2.0 && s.rotate_degrees == 30.0 && !s.visible);
+    assert_eq!(s.up, lacuna::light::UpAxis::Z);
+    for (name, env, needle) in [
+        (
+            "up.json",
+            format!(r#"{{ "file": {:?}, "up": "x" }}"#, sky.to_str().unwrap()),
+            "up axis",
+        ),
+        (
+            "scale.json",
+            format!(r#"{{ "file": {:?}, "scale": -1 }}"#, sky.to_str().unwrap()),
+            "scale",
+        ),
+        (
+            "layout.json",
+            format!(
+                r#"{{ "file": {:?}, "layout": "octahedral" }}"#,
+                sky.to_str().unwrap()
+            ),
+            "layout",
+        ),
+        (
+            "missing.json",
+            r#"{ "file": "nowhere.exr" }"#.to_string(),
+            "nowhere.exr",
+        ),
+        (
+            "field.json",
+            format!(
+                r#"{{ "file": {:?}, "rotation": 3 }}"#,
+                sky.to_str().unwrap()
+            ),
+            "rotation",
+        ),
+    ] {
+        let e = lacuna::scene::load_scene_file(&write(name, &env))
+            .err()
+            .expect(name)
+            .to_string();
+        assert!(e.contains(needle), "{name}: {e}");
+    }
+    // The command line: --env with its options renders; a bad map or option is a clear error.
+    let exe = env!("CARGO_BIN_EXE_lacuna");
+    let out = dir.join("out.exr");
+    let run = |args: &[&str]| {
+        std::process::Command::new(exe)
+            .args(args)
+            .output()
+            .expect("lacuna runs")
+    };
+    let r = run(&[
+        "render",
+        ok.to_str().unwrap(),
+        "--env",
+        sky.to_str().unwrap(),
+        "--env-scale",
+        "0.5",
+        "--env-rotate",
+        "-45",
+        "--env-hidden",
+        "--env-strategy",
+        "latlong",
+        "--integrator",
+        "env_direct:samples=4:bsdf=2",
+        "--spp",
+        "2",
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let film = lacuna::film::read_exr_rgb(&out).unwrap();
+    assert_eq!(
+        film.pixels[0],
+        Rgb::ZERO,
+        "--env-hidden: the corner sees the sky"
+    );
+    assert!(film.pixels[8 * 16 + 8].x > 0.0);
+    for (args, needle) in [
+        (vec!["--env-strategy", "octahedral"], "octahedral"),
+        (vec!["--env", "/nonexistent/map.exr"], "map.exr"),
+        (vec!["--integrator", "path:env=nope"], "nope"),
+        (
+            vec!["--integrator", "env_direct:samples=0:bsdf=0"],
+            "at least one",
+        ),
+        (vec!["--integrator", "path:colour=red"], "colour"),
+    ] {
+        let mut all = vec![
+            "render",
+            ok.to_str().unwrap(),
+            "--spp",
+            "1",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--quiet",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        all.extend(args.iter());
+        let r = run(&all);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(
+            !r.status.success() && err.contains(needle),
+            "{args:?}: {err}"
+        );
+    }
+    let r = run(&[
+        "render",
+        "two-rooms",
+        "--env-scale",
+        "2",
+        "--spp",
+        "1",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        !r.status.success()
+            && String::from_utf8_lossy(&r.stderr).contains("need an environment map")
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
