@@ -15,7 +15,9 @@
 //! `fig36`: `env_direct` with N light samples and no BSDF samples (the estimator of eq. 3.5,
 //! visibility included), per-normal dynamic balancing against uniform balancing (mu_f = 1/6),
 //! plus the power balancing and the lat-long density for context, on the diffuse and the
-//! glossy sphere of `scenes/envmaps/` under the sky and the studio maps; 1 sample per pixel
+//! glossy sphere of `scenes/envmaps/` under the sky and the studio maps, resampled to cube
+//! maps of 6 x 128 x 128 (the thesis's setting: per-face CDFs over the map's own texels) and
+//! as the original 512 x 256 lat-long maps (`ENV_BENCH_LAYOUTS`, default `cube,latlong`); 1 sample per pixel
 //! with N light samples each, `ENV_BENCH_SEEDS` (default 4) seeds, `ENV_BENCH_SIZE`^2 pixels
 //! (default 96). Error: RMSE and relative MSE (the thesis reports a mean Lab error) against a
 //! reference of `ENV_BENCH_REF_SPP` (default 32) samples of 128 light + 128 BSDF samples
@@ -35,7 +37,7 @@ use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::light::environment::{describe, EnvImage, Grid};
 use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap};
 use lacuna::render::{render, RenderSettings};
-use lacuna::scene::load_scene_file;
+use lacuna::scene::{convert_layout, load_scene_file};
 
 fn env_usize(name: &str, default: usize) -> usize {
     std::env::var(name)
@@ -134,135 +136,140 @@ fn fig36() {
     println!(
         "`env_direct`, N light samples per pixel (no BSDF samples), {size}x{size} pixels, 1 spp, {seeds} seeds; reference {ref_spp} spp x (128 light + 128 BSDF samples).\n"
     );
-    for object in ["diffuse", "glossy"] {
-        for map_name in ["sky", "studio"] {
-            let loaded =
-                load_scene_file(&root().join(format!("scenes/envmaps/sphere-{object}.json")))
-                    .unwrap();
-            let mut builder = loaded.builder;
-            let mut map = EnvironmentMap::load(
-                &root().join(format!("scenes/envmaps/{map_name}.exr")),
-                EnvSettings::default(),
-            )
-            .unwrap();
-            map.prepare(EnvStrategy::CubeDynamic);
-            map.prepare(EnvStrategy::LatLong);
-            builder.set_environment(Some(Arc::new(map)));
-            let scene = builder.build().unwrap();
-            let camera = *scene.camera().unwrap();
-            let base = IntegratorSettings {
-                max_depth: 1,
-                ..Default::default()
-            };
-            let rs = RenderSettings {
-                width: size,
-                height: size,
-                spp: ref_spp,
-                seed: 1_000_003,
-                ..Default::default()
-            };
-            eprintln!("{object} / {map_name}: reference");
-            let reference_integrator =
-                integrator::create("env_direct:env=cube-dynamic:samples=128:bsdf=128", base)
-                    .unwrap();
-            let reference =
-                render_reference(&scene, &camera, reference_integrator.as_ref(), &rs, &|_| {
-                    true
-                })
-                .unwrap();
-            let ref_px = reference.film.radiance();
-            let ref_mse = reference.noise.rmse * reference.noise.rmse;
-            let pixels = (size * size) as f64;
-            let mut results: Vec<Vec<Run>> = Vec::new();
-            for strategy in strategies {
-                let mut row = Vec::new();
-                for &n in &counts {
-                    let spec = format!("env_direct:env={}:samples={n}:bsdf=0", strategy.name());
-                    let integ = integrator::create(&spec, base).unwrap();
-                    let (mut mse, mut rel, mut valid) = (0.0, 0.0, 0.0);
-                    for seed in 0..seeds {
-                        let rs = RenderSettings {
-                            width: size,
-                            height: size,
-                            spp: 1,
-                            seed: seed * 7919 + 17,
-                            ..Default::default()
-                        };
-                        let (film, stats) = render(
-                            &scene,
-                            &camera,
-                            integ.as_ref(),
-                            &rs,
-                            &|_| true,
-                            &AtomicBool::new(false),
-                        )
+    let layouts = std::env::var("ENV_BENCH_LAYOUTS").unwrap_or_else(|_| "cube,latlong".into());
+    for layout in layouts.split(',') {
+        for object in ["diffuse", "glossy"] {
+            for map_name in ["sky", "studio"] {
+                let loaded =
+                    load_scene_file(&root().join(format!("scenes/envmaps/sphere-{object}.json")))
                         .unwrap();
-                        let e = image_errors(&film.radiance(), &ref_px).unwrap();
-                        mse += e.rmse * e.rmse;
-                        rel += e.rel_mse;
-                        // Every pixel traces one camera ray; the other rays are shadow rays of
-                        // light samples that carried light.
-                        valid += (stats.rays as f64 - pixels) / pixels;
+                let mut builder = loaded.builder;
+                let image =
+                    convert_layout(&load_image(&format!("{map_name}.exr")), layout).unwrap();
+                let mut map = EnvironmentMap::new(image, EnvSettings::default()).unwrap();
+                map.prepare(EnvStrategy::CubeDynamic);
+                map.prepare(EnvStrategy::LatLong);
+                let map_grid = map.image().grid();
+                builder.set_environment(Some(Arc::new(map)));
+                let scene = builder.build().unwrap();
+                let camera = *scene.camera().unwrap();
+                let base = IntegratorSettings {
+                    max_depth: 1,
+                    ..Default::default()
+                };
+                let rs = RenderSettings {
+                    width: size,
+                    height: size,
+                    spp: ref_spp,
+                    seed: 1_000_003,
+                    ..Default::default()
+                };
+                eprintln!("{object} / {map_name}: reference");
+                let reference_integrator =
+                    integrator::create("env_direct:env=cube-dynamic:samples=128:bsdf=128", base)
+                        .unwrap();
+                let reference =
+                    render_reference(&scene, &camera, reference_integrator.as_ref(), &rs, &|_| {
+                        true
+                    })
+                    .unwrap();
+                let ref_px = reference.film.radiance();
+                let ref_mse = reference.noise.rmse * reference.noise.rmse;
+                let pixels = (size * size) as f64;
+                let mut results: Vec<Vec<Run>> = Vec::new();
+                for strategy in strategies {
+                    let mut row = Vec::new();
+                    for &n in &counts {
+                        let spec = format!("env_direct:env={}:samples={n}:bsdf=0", strategy.name());
+                        let integ = integrator::create(&spec, base).unwrap();
+                        let (mut mse, mut rel, mut valid) = (0.0, 0.0, 0.0);
+                        for seed in 0..seeds {
+                            let rs = RenderSettings {
+                                width: size,
+                                height: size,
+                                spp: 1,
+                                seed: seed * 7919 + 17,
+                                ..Default::default()
+                            };
+                            let (film, stats) = render(
+                                &scene,
+                                &camera,
+                                integ.as_ref(),
+                                &rs,
+                                &|_| true,
+                                &AtomicBool::new(false),
+                            )
+                            .unwrap();
+                            let e = image_errors(&film.radiance(), &ref_px).unwrap();
+                            mse += e.rmse * e.rmse;
+                            rel += e.rel_mse;
+                            // Every pixel traces one camera ray; the other rays are shadow rays of
+                            // light samples that carried light.
+                            valid += (stats.rays as f64 - pixels) / pixels;
+                        }
+                        let k = seeds as f64;
+                        row.push(Run {
+                            mse: (mse / k - ref_mse).max(0.0),
+                            rel_mse: (rel / k - reference.noise.rel_mse).max(0.0),
+                            valid: valid / k,
+                        });
+                        eprintln!("{object} / {map_name}: {spec} done");
                     }
-                    let k = seeds as f64;
-                    row.push(Run {
-                        mse: (mse / k - ref_mse).max(0.0),
-                        rel_mse: (rel / k - reference.noise.rel_mse).max(0.0),
-                        valid: valid / k,
-                    });
-                    eprintln!("{object} / {map_name}: {spec} done");
-                }
-                results.push(row);
-            }
-            println!("### {object} sphere, {map_name} map\n");
-            println!(
-                "Reference noise: RMSE {:.3e} (subtracted as MSE).\n",
-                reference.noise.rmse
-            );
-            print!("| N |");
-            for s in strategies {
-                print!(" {} RMSE | relMSE | valid |", s.name());
-            }
-            println!(" MSE uniform / dynamic |");
-            print!("|---:|");
-            for _ in strategies {
-                print!("---:|---:|---:|");
-            }
-            println!("---:|");
-            for (j, &n) in counts.iter().enumerate() {
-                print!("| {n} |");
-                for row in &results {
-                    let r = &row[j];
-                    print!(
-                        " {:.4e} | {:.3e} | {:.1} |",
-                        r.mse.sqrt(),
-                        r.rel_mse,
-                        r.valid
-                    );
+                    results.push(row);
                 }
                 println!(
-                    " {:.2} |",
-                    results[1][j].mse / results[0][j].mse.max(1e-300)
+                    "### {object} sphere, {map_name} map as {}\n",
+                    describe(map_grid)
                 );
-            }
-            // Samples each strategy needs for the error dynamic balancing reaches with 60.
-            let target = results[0][2].mse;
-            print!(
-                "\nN for the MSE of dynamic balancing with N = 60 ({:.3e}):",
-                target.sqrt()
-            );
-            for (k, s) in strategies.iter().enumerate() {
-                match samples_for(&counts, &results[k], target) {
-                    Some(n) => print!(" {} {:.0} ({:.2}x);", s.name(), n, n / 60.0),
-                    None => print!(
-                        " {} > {} or < {};",
-                        s.name(),
-                        counts[counts.len() - 1],
-                        counts[0]
-                    ),
+                println!(
+                    "Reference noise: RMSE {:.3e} (subtracted as MSE).\n",
+                    reference.noise.rmse
+                );
+                print!("| N |");
+                for s in strategies {
+                    print!(" {} RMSE | relMSE | valid |", s.name());
                 }
+                println!(" MSE uniform / dynamic |");
+                print!("|---:|");
+                for _ in strategies {
+                    print!("---:|---:|---:|");
+                }
+                println!("---:|");
+                for (j, &n) in counts.iter().enumerate() {
+                    print!("| {n} |");
+                    for row in &results {
+                        let r = &row[j];
+                        print!(
+                            " {:.4e} | {:.3e} | {:.1} |",
+                            r.mse.sqrt(),
+                            r.rel_mse,
+                            r.valid
+                        );
+                    }
+                    println!(
+                        " {:.2} |",
+                        results[1][j].mse / results[0][j].mse.max(1e-300)
+                    );
+                }
+                // Samples each strategy needs for the error dynamic balancing reaches with 60.
+                let target = results[0][2].mse;
+                print!(
+                    "\nN for the MSE of dynamic balancing with N = 60 ({:.3e}):",
+                    target.sqrt()
+                );
+                for (k, s) in strategies.iter().enumerate() {
+                    match samples_for(&counts, &results[k], target) {
+                        Some(n) => print!(" {} {:.0} ({:.2}x);", s.name(), n, n / 60.0),
+                        None => print!(
+                            " {} > {} or < {};",
+                            s.name(),
+                            counts[counts.len() - 1],
+                            counts[0]
+                        ),
+                    }
+                }
+                println!("\n");
             }
-            println!("\n");
         }
     }
 }

@@ -16,8 +16,8 @@ use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
 use lacuna::math::Vec3;
 use lacuna::render::{render, Progress, RenderSettings};
 use lacuna::scene::{
-    auto_camera, corridor_builder, corridor_render_settings, load_obj, load_scene_file,
-    two_rooms_builder, Camera, RenderSettingsFile, Scene, SceneBuilder,
+    auto_camera, convert_layout, corridor_builder, corridor_render_settings, load_obj,
+    load_scene_file, two_rooms_builder, Camera, RenderSettingsFile, Scene, SceneBuilder,
 };
 use lacuna::{Error, Result};
 
@@ -101,6 +101,10 @@ struct SceneArgs {
     /// Hide the environment map from camera rays (it still lights the scene).
     #[arg(long)]
     env_hidden: bool,
+    /// Resample the environment map to this layout after loading: latlong or cube (faces of
+    /// width / 4, the thesis's setting for the per-face CDFs).
+    #[arg(long)]
+    env_layout: Option<String>,
     /// How light sampling picks environment directions: latlong, cube-uniform, cube-power,
     /// cube-dynamic (per-normal face balancing, the default) or bsdf (no light sampling). An
     /// integrator option such as `path:env=latlong` overrides it for that integrator.
@@ -332,15 +336,19 @@ fn apply_environment(
                     || args.env_rotate.is_some()
                     || args.env_up.is_some()
                     || args.env_hidden
+                    || args.env_layout.is_some()
                 {
                     return Err(Error::invalid(
-                        "--env-scale, --env-rotate, --env-up and --env-hidden need an environment map (--env FILE or the scene file's)",
+                        "--env-scale, --env-rotate, --env-up, --env-hidden and --env-layout need an environment map (--env FILE or the scene file's)",
                     ));
                 }
                 return Ok(());
             }
         },
     };
+    if let Some(layout) = &args.env_layout {
+        map = EnvironmentMap::new(convert_layout(map.image(), layout)?, *map.settings())?;
+    }
     let mut settings = *map.settings();
     if let Some(s) = args.env_scale {
         settings.scale = s;

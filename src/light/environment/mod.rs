@@ -158,7 +158,7 @@ impl EnvSettings {
     }
 
     /// World-to-map rotation.
-    fn to_local(&self) -> Mat3 {
+    fn world_to_map(&self) -> Mat3 {
         // Map +Y = world up; for Z-up worlds the map's -Z (its centre) looks along world +Y.
         let base = match self.up {
             UpAxis::Y => Mat3::IDENTITY,
@@ -212,7 +212,7 @@ impl Clone for EnvironmentMap {
 impl EnvironmentMap {
     pub fn new(image: EnvImage, settings: EnvSettings) -> Result<Self> {
         settings.validate()?;
-        let to_local = settings.to_local();
+        let to_local = settings.world_to_map();
         let luminance_integral = (image.luminance_integral() * settings.scale as f64) as f32;
         if !luminance_integral.is_finite() {
             return Err(Error::invalid(
@@ -250,7 +250,7 @@ impl EnvironmentMap {
         settings.validate()?;
         let old_scale = self.settings.scale;
         self.settings = settings;
-        self.to_local = settings.to_local();
+        self.to_local = settings.world_to_map();
         self.to_world = self.to_local.transpose();
         if old_scale != settings.scale {
             self.luminance_integral =
@@ -396,7 +396,7 @@ impl EnvironmentMap {
     }
 
     pub fn memory_bytes(&self) -> usize {
-        self.image.texels().len() * std::mem::size_of::<Rgb>()
+        std::mem::size_of_val(self.image.texels())
             + self.latlong.get().map_or(0, LatLongSampler::memory_bytes)
             + self.cube.get().map_or(0, CubeSampler::memory_bytes)
     }
