@@ -2,6 +2,7 @@
 //!
 //! ```text
 //! cargo bench --bench envmap -- build    # sampling-structure build / rebuild time per map size
+//! cargo bench --bench envmap -- sampling # ns per light sample and per pdf, per strategy
 //! cargo bench --bench envmap -- fig36    # 001 Figure 3.6: dynamic vs uniform face balancing
 //! cargo bench --bench envmap             # both
 //! ```
@@ -291,6 +292,65 @@ fn samples_for(counts: &[u32], runs: &[Run], target: f64) -> Option<f64> {
     None
 }
 
+/// Cost of one light sample (direction, radiance, pdf) and of one pdf evaluation per strategy,
+/// one thread, strategies interleaved in rounds so that load from other processes spreads
+/// over all of them; medians over the rounds.
+fn sampling_cost() {
+    use lacuna::math::{warp, Rng, Vec3};
+    let rounds = env_usize("ENV_BENCH_REPS", 7);
+    let n = 1 << 20;
+    println!("## Cost of environment light samples (one thread)\n");
+    println!("Medians of {rounds} rounds of {n} samples and {n} pdf evaluations each; random unit normals.\n");
+    println!("| map | strategy | sample (ns) | pdf (ns) |");
+    println!("|---|---|---:|---:|");
+    for layout in ["latlong", "cube"] {
+        let image = convert_layout(&load_image("sky.exr"), layout).unwrap();
+        let mut map = EnvironmentMap::new(image, EnvSettings::default()).unwrap();
+        map.prepare(EnvStrategy::LatLong);
+        map.prepare(EnvStrategy::CubeDynamic);
+        let strategies = [
+            EnvStrategy::LatLong,
+            EnvStrategy::CubeUniform,
+            EnvStrategy::CubePower,
+            EnvStrategy::CubeDynamic,
+        ];
+        let mut times = vec![(Vec::new(), Vec::new()); strategies.len()];
+        for round in 0..rounds {
+            for (k, &s) in strategies.iter().enumerate() {
+                let mut rng = Rng::new(round as u64, k as u64);
+                let normals: Vec<Vec3> = (0..1024)
+                    .map(|_| warp::uniform_sphere(rng.uniform2()))
+                    .collect();
+                let t = std::time::Instant::now();
+                let mut acc = 0.0f32;
+                for i in 0..n {
+                    if let Some(e) = map.sample(s, normals[i & 1023], rng.uniform2()) {
+                        acc += e.pdf + e.radiance.x;
+                    }
+                }
+                times[k].0.push(t.elapsed().as_secs_f64() / n as f64);
+                let t = std::time::Instant::now();
+                for i in 0..n {
+                    let w = normals[(i + 7) & 1023];
+                    acc += map.pdf(s, normals[i & 1023], w);
+                }
+                times[k].1.push(t.elapsed().as_secs_f64() / n as f64);
+                std::hint::black_box(acc);
+            }
+        }
+        for (k, s) in strategies.iter().enumerate() {
+            println!(
+                "| {} | {} | {:.1} | {:.1} |",
+                describe(map.image().grid()),
+                s.name(),
+                median(times[k].0.clone()) * 1e9,
+                median(times[k].1.clone()) * 1e9
+            );
+        }
+    }
+    println!();
+}
+
 fn main() {
     let args: Vec<String> = std::env::args()
         .skip(1)
@@ -299,6 +359,9 @@ fn main() {
     let all = args.is_empty();
     if all || args.iter().any(|a| a == "build") {
         build_times();
+    }
+    if all || args.iter().any(|a| a == "sampling") {
+        sampling_cost();
     }
     if all || args.iter().any(|a| a == "fig36") {
         fig36();
