@@ -274,15 +274,18 @@ impl EnvironmentMap {
         self.image.lookup(self.to_local * w) * self.settings.scale
     }
 
-    /// The lat-long density (built on first use).
+    /// The lat-long density (built on first use, on the calling thread; `prepare` builds it
+    /// in parallel beforehand).
     pub fn latlong(&self) -> &LatLongSampler {
         self.latlong
-            .get_or_init(|| LatLongSampler::new(&self.image))
+            .get_or_init(|| LatLongSampler::build(&self.image, false))
     }
 
-    /// The cube-map densities (built on first use).
+    /// The cube-map densities (built on first use, on the calling thread; `prepare` builds
+    /// them in parallel beforehand).
     pub fn cube(&self) -> &CubeSampler {
-        self.cube.get_or_init(|| CubeSampler::new(&self.image))
+        self.cube
+            .get_or_init(|| CubeSampler::build(&self.image, false))
     }
 
     /// Builds the structures `strategy` needs now rather than during the first samples,

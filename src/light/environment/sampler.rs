@@ -48,8 +48,20 @@ struct Weights {
 /// sliver of a sun 1e5 over the sky and sample it 1e5 times too rarely).
 const FLOOR: f32 = 0.25;
 
+/// Smallest number of items per rayon job: 1 to run in parallel, everything in one job to run
+/// on the calling thread. Structures built lazily inside a render run on the calling thread:
+/// a worker waiting in a parallel loop could otherwise pick up a render task that asks for
+/// the same structure, re-entering its one-time initialisation.
+fn min_len(parallel: bool) -> usize {
+    if parallel {
+        1
+    } else {
+        usize::MAX
+    }
+}
+
 impl Weights {
-    fn new(grid: Grid, image: &EnvImage) -> Self {
+    fn new(grid: Grid, image: &EnvImage, parallel: bool) -> Self {
         let n = grid.texel_count();
         let factor = (0..n).map(|i| grid.weight_factor(i)).collect();
         let image_grid = image.grid();
@@ -58,21 +70,24 @@ impl Weights {
         // lookups for a 512 x 256 map).
         let gather = differ.then(|| {
             let mut g = vec![0u32; n * GATHER2];
-            g.par_chunks_mut(GATHER2).enumerate().for_each(|(i, out)| {
-                for a in 0..GATHER {
-                    for b in 0..GATHER {
-                        let d = grid.texel_point(
-                            i,
-                            (a as f32 + 0.5) / GATHER as f32,
-                            (b as f32 + 0.5) / GATHER as f32,
-                        );
-                        out[a * GATHER + b] = image_grid.texel_of(d) as u32;
+            g.par_chunks_mut(GATHER2)
+                .with_min_len(min_len(parallel))
+                .enumerate()
+                .for_each(|(i, out)| {
+                    for a in 0..GATHER {
+                        for b in 0..GATHER {
+                            let d = grid.texel_point(
+                                i,
+                                (a as f32 + 0.5) / GATHER as f32,
+                                (b as f32 + 0.5) / GATHER as f32,
+                            );
+                            out[a * GATHER + b] = image_grid.texel_of(d) as u32;
+                        }
                     }
-                }
-            });
+                });
             g
         });
-        let overlap = differ.then(|| overlaps(grid, image_grid));
+        let overlap = differ.then(|| overlaps(grid, image_grid, parallel));
         Weights {
             grid,
             image_grid,
@@ -87,24 +102,28 @@ impl Weights {
     /// luminance x solid-angle factor on the image's own grid; on another grid, the larger of
     /// the mean over the gather points and `FLOOR` x the brightest overlapping image texel
     /// (so the density is positive wherever the radiance is).
-    fn compute(&mut self, image: &EnvImage) {
+    fn compute(&mut self, image: &EnvImage, parallel: bool) {
         assert_eq!(image.grid(), self.image_grid);
         let texels = image.texels();
         match (&self.gather, &self.overlap) {
             (Some(g), Some((offsets, list))) => {
                 let lum: Vec<f32> = texels.iter().map(|&c| luminance(c).max(0.0)).collect();
-                self.values.par_iter_mut().enumerate().for_each(|(i, v)| {
-                    let sum: f32 = g[i * GATHER2..(i + 1) * GATHER2]
-                        .iter()
-                        .map(|&k| lum[k as usize])
-                        .sum();
-                    let range = offsets[i] as usize..offsets[i + 1] as usize;
-                    let max = list[range]
-                        .iter()
-                        .map(|&k| lum[k as usize])
-                        .fold(0.0f32, f32::max);
-                    *v = (sum / GATHER2 as f32).max(FLOOR * max) * self.factor[i];
-                });
+                self.values
+                    .par_iter_mut()
+                    .with_min_len(min_len(parallel))
+                    .enumerate()
+                    .for_each(|(i, v)| {
+                        let sum: f32 = g[i * GATHER2..(i + 1) * GATHER2]
+                            .iter()
+                            .map(|&k| lum[k as usize])
+                            .sum();
+                        let range = offsets[i] as usize..offsets[i + 1] as usize;
+                        let max = list[range]
+                            .iter()
+                            .map(|&k| lum[k as usize])
+                            .fold(0.0f32, f32::max);
+                        *v = (sum / GATHER2 as f32).max(FLOOR * max) * self.factor[i];
+                    });
             }
             _ => {
                 for ((v, &f), &c) in self.values.iter_mut().zip(&self.factor).zip(texels) {
@@ -118,7 +137,7 @@ impl Weights {
 /// For each texel of `grid`, the texels of `image_grid` that may overlap it (one grid is
 /// lat-long, the other a cube): every pair whose lat-long texel meets the bounding cap of the
 /// cube texel, which includes every pair that truly overlaps. As (offsets, indices).
-fn overlaps(grid: Grid, image_grid: Grid) -> (Vec<u32>, Vec<u32>) {
+fn overlaps(grid: Grid, image_grid: Grid, parallel: bool) -> (Vec<u32>, Vec<u32>) {
     let csr = |lists: Vec<Vec<u32>>| {
         let mut offsets = Vec::with_capacity(lists.len() + 1);
         let mut indices = Vec::with_capacity(lists.iter().map(Vec::len).sum());
@@ -133,6 +152,7 @@ fn overlaps(grid: Grid, image_grid: Grid) -> (Vec<u32>, Vec<u32>) {
         (Grid::Cube { .. }, Grid::LatLong { width, height }) => {
             let lists: Vec<Vec<u32>> = (0..grid.texel_count())
                 .into_par_iter()
+                .with_min_len(min_len(parallel))
                 .map(|i| {
                     let mut l = Vec::new();
                     latlong_texels_near(
@@ -151,6 +171,7 @@ fn overlaps(grid: Grid, image_grid: Grid) -> (Vec<u32>, Vec<u32>) {
             // Enumerate from the cube side, then invert.
             let per_cube: Vec<Vec<u32>> = (0..image_grid.texel_count())
                 .into_par_iter()
+                .with_min_len(min_len(parallel))
                 .map(|k| {
                     let mut l = Vec::new();
                     latlong_texels_near(
@@ -187,6 +208,11 @@ pub struct LatLongSampler {
 impl LatLongSampler {
     /// Over the image's own grid when it is lat-long, else over a 4F x 2F grid for faces of F.
     pub fn new(image: &EnvImage) -> Self {
+        Self::build(image, true)
+    }
+
+    /// `new`, on the calling thread only unless `parallel`.
+    pub fn build(image: &EnvImage, parallel: bool) -> Self {
         let grid = match image.grid() {
             g @ Grid::LatLong { .. } => g,
             Grid::Cube { face } => Grid::LatLong {
@@ -197,8 +223,8 @@ impl LatLongSampler {
         let Grid::LatLong { width, height } = grid else {
             unreachable!()
         };
-        let mut weights = Weights::new(grid, image);
-        weights.compute(image);
+        let mut weights = Weights::new(grid, image, parallel);
+        weights.compute(image, parallel);
         let distribution = Distribution2D::new(&weights.values, width, height);
         LatLongSampler {
             width,
@@ -210,7 +236,7 @@ impl LatLongSampler {
 
     /// Re-weights from an image of the same layout, reusing every table.
     pub fn rebuild(&mut self, image: &EnvImage) {
-        self.weights.compute(image);
+        self.weights.compute(image, true);
         self.distribution.rebuild(&self.weights.values);
     }
 
@@ -319,12 +345,17 @@ const FACE_CORNERS: [[usize; 4]; 6] = [
 impl CubeSampler {
     /// Over the image's own faces when it is a cube map, else over faces of width / 4.
     pub fn new(image: &EnvImage) -> Self {
+        Self::build(image, true)
+    }
+
+    /// `new`, on the calling thread only unless `parallel`.
+    pub fn build(image: &EnvImage, parallel: bool) -> Self {
         let face = match image.grid() {
             Grid::Cube { face } => face,
             Grid::LatLong { width, .. } => (width / 4).max(1),
         };
-        let mut weights = Weights::new(Grid::Cube { face }, image);
-        weights.compute(image);
+        let mut weights = Weights::new(Grid::Cube { face }, image, parallel);
+        weights.compute(image, parallel);
         let n = face * face;
         let faces: Vec<Distribution2D> = (0..6)
             .map(|f| Distribution2D::new(&weights.values[f * n..(f + 1) * n], face, face))
@@ -342,7 +373,7 @@ impl CubeSampler {
     /// Re-weights from an image of the same layout: six prefix sums, no allocation but the
     /// marginals' few bytes.
     pub fn rebuild(&mut self, image: &EnvImage) {
-        self.weights.compute(image);
+        self.weights.compute(image, true);
         let n = self.face * self.face;
         for (f, d) in self.faces.iter_mut().enumerate() {
             d.rebuild(&self.weights.values[f * n..(f + 1) * n]);
