@@ -13,32 +13,32 @@
 //! the rebuild from a new image of the same layout (`EnvironmentMap::update`: what a host pays
 //! per frame of a dynamic map). Medians of `ENV_BENCH_REPS` (default 7) wall-clock timings.
 //!
-//! `fig36`: `env_direct` with N light samples and no BSDF samples (the estimator of eq. 3.5,
-//! visibility included), per-normal dynamic balancing against uniform balancing (mu_f = 1/6),
-//! plus the power balancing and the lat-long density for context, on the diffuse and the
-//! glossy sphere of `scenes/envmaps/` under the sky and the studio maps, resampled to cube
-//! maps of 6 x 128 x 128 (the thesis's setting: per-face CDFs over the map's own texels) and
-//! as the original 512 x 256 lat-long maps (`ENV_BENCH_LAYOUTS`, default `cube,latlong`); 1 sample per pixel
-//! with N light samples each, `ENV_BENCH_SEEDS` (default 4) seeds, `ENV_BENCH_SIZE`^2 pixels
-//! (default 96). Error: RMSE and relative MSE (the thesis reports a mean Lab error) against a
-//! reference of `ENV_BENCH_REF_SPP` (default 32) samples of 128 light + 128 BSDF samples
-//! (dynamic balancing), whose own estimated MSE (from two independent halves) is subtracted.
-//! "valid" is the mean number of light samples per pixel that carried light (not cancelled by
-//! the cosine, the BSDF or a black texel; the thesis's "valid samples"), counted from the
-//! shadow rays traced. "N for equal error" interpolates log MSE against log N between the
-//! measured N.
+//! `fig36`: the thesis's comparison on its own terms: shading points of a G-buffer (the first
+//! hit through each pixel centre, `ENV_BENCH_SIZE`^2 pixels, default 128), the `env_direct`
+//! shading estimate with N light samples and no BSDF samples (eq. 3.5, visibility included)
+//! for per-normal dynamic balancing, uniform balancing (mu_f = 1/6), power balancing and the
+//! lat-long density, `ENV_BENCH_SEEDS` (default 8) independent estimates per point, on the
+//! diffuse and the glossy sphere of `scenes/envmaps/` under the sky and the studio maps,
+//! resampled to cube maps of 6 x 128 x 128 (the thesis's setting: per-face CDFs over the map's
+//! own texels) and as the original 512 x 256 lat-long maps (`ENV_BENCH_LAYOUTS`, default
+//! `cube,latlong`). Error: MSE against a per-point reference (mean of
+//! `ENV_BENCH_REF_REPEATS` (4) estimates of `ENV_BENCH_REF_SAMPLES` (1024) light + as many
+//! BSDF samples), minus the reference's own variance; the thesis reports a mean Lab error
+//! instead. Fixed shading points keep pixel-footprint noise (edges, a sharp background) out
+//! of the comparison. "valid" is the mean number of light samples per point that carried
+//! light (not cancelled by the cosine, the BSDF or a black texel: the thesis's "valid
+//! samples"), counted from the shadow rays traced. "N for equal error" interpolates log MSE
+//! against log N between the measured N.
 
 use std::path::Path;
-use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use lacuna::compare::render_reference;
-use lacuna::film::image_errors;
-use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::integrator::{self, EnvDirect, IntegratorSettings, TraceCounters};
 use lacuna::light::environment::{describe, EnvImage, Grid};
 use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap};
-use lacuna::render::{render, RenderSettings};
-use lacuna::scene::{convert_layout, load_scene_file};
+use lacuna::math::{Rgb, Rng, Vec2};
+use lacuna::scene::{convert_layout, load_scene_file, SurfaceInteraction};
+use rayon::prelude::*;
 
 fn env_usize(name: &str, default: usize) -> usize {
     std::env::var(name)
@@ -118,15 +118,20 @@ fn build_times() {
 
 struct Run {
     mse: f64,
-    rel_mse: f64,
     valid: f64,
 }
 
+/// One shading point of the G-buffer.
+struct Hit {
+    si: SurfaceInteraction,
+}
+
 fn fig36() {
-    let size = env_usize("ENV_BENCH_SIZE", 96) as u32;
-    let seeds = env_usize("ENV_BENCH_SEEDS", 4) as u64;
-    let ref_spp = env_usize("ENV_BENCH_REF_SPP", 32) as u32;
-    let counts = [15u32, 30, 60, 120, 180, 240];
+    let size = env_usize("ENV_BENCH_SIZE", 128) as u32;
+    let seeds = env_usize("ENV_BENCH_SEEDS", 8) as u64;
+    let ref_samples = env_usize("ENV_BENCH_REF_SAMPLES", 1024) as u32;
+    let ref_repeats = env_usize("ENV_BENCH_REF_REPEATS", 4) as u64;
+    let counts = [15u32, 30, 60, 120, 180, 240, 480];
     let strategies = [
         EnvStrategy::CubeDynamic,
         EnvStrategy::CubeUniform,
@@ -135,7 +140,7 @@ fn fig36() {
     ];
     println!("## Figure 3.6 of 001: dynamic against uniform face balancing\n");
     println!(
-        "`env_direct`, N light samples per pixel (no BSDF samples), {size}x{size} pixels, 1 spp, {seeds} seeds; reference {ref_spp} spp x (128 light + 128 BSDF samples).\n"
+        "Shading points: the first hit through each pixel centre of a {size}x{size} image (a G-buffer, as in the thesis's deferred renderer). At each, the `env_direct` estimate with N light samples and no BSDF samples (eq. 3.5, visibility included), {seeds} independent estimates per point; MSE against a reference per point (mean of {ref_repeats} estimates of {ref_samples} light + {ref_samples} BSDF samples, dynamic balancing), minus the reference's own variance.\n"
     );
     let layouts = std::env::var("ENV_BENCH_LAYOUTS").unwrap_or_else(|_| "cube,latlong".into());
     for layout in layouts.split(',') {
@@ -153,119 +158,118 @@ fn fig36() {
                 let map_grid = map.image().grid();
                 builder.set_environment(Some(Arc::new(map)));
                 let scene = builder.build().unwrap();
-                let camera = *scene.camera().unwrap();
-                let base = IntegratorSettings {
-                    max_depth: 1,
-                    ..Default::default()
-                };
-                let rs = RenderSettings {
-                    width: size,
-                    height: size,
-                    spp: ref_spp,
-                    seed: 1_000_003,
-                    ..Default::default()
-                };
-                eprintln!("{object} / {map_name}: reference");
-                let reference_integrator =
-                    integrator::create("env_direct:env=cube-dynamic:samples=128:bsdf=128", base)
-                        .unwrap();
-                let reference =
-                    render_reference(&scene, &camera, reference_integrator.as_ref(), &rs, &|_| {
-                        true
+                let frame = scene.camera().unwrap().frame(1.0);
+                let hits: Vec<Hit> = (0..size * size)
+                    .filter_map(|p| {
+                        let (x, y) = (p % size, p / size);
+                        let film = Vec2::new(
+                            (x as f32 + 0.5) / size as f32,
+                            (y as f32 + 0.5) / size as f32,
+                        );
+                        let si = scene.intersect(&frame.generate_ray(film, Vec2::splat(0.5)))?;
+                        (!scene.bsdf(&si).is_delta()).then_some(Hit { si })
                     })
-                    .unwrap();
-                let ref_px = reference.film.radiance();
-                let ref_mse = reference.noise.rmse * reference.noise.rmse;
-                let pixels = (size * size) as f64;
+                    .collect();
+                let estimate = |spec: &str, seed: u64| -> (Vec<Rgb>, u64) {
+                    let (_, settings) =
+                        integrator::parse_spec(spec, IntegratorSettings::default()).unwrap();
+                    let shader = EnvDirect::new(settings).unwrap();
+                    let out: Vec<(Rgb, u64)> = hits
+                        .par_iter()
+                        .enumerate()
+                        .map(|(k, h)| {
+                            let mut rng = Rng::new(seed, k as u64);
+                            let mut counters = TraceCounters::default();
+                            let v = shader.shade(&scene, &h.si, &mut rng, &mut counters);
+                            (v, counters.rays)
+                        })
+                        .collect();
+                    let rays = out.iter().map(|o| o.1).sum();
+                    (out.into_iter().map(|o| o.0).collect(), rays)
+                };
+                eprintln!("{layout} {object} / {map_name}: reference");
+                let ref_spec =
+                    format!("env_direct:env=cube-dynamic:samples={ref_samples}:bsdf={ref_samples}");
+                let repeats: Vec<Vec<Rgb>> = (0..ref_repeats)
+                    .map(|r| estimate(&ref_spec, 1_000_000 + r).0)
+                    .collect();
+                let n_hits = hits.len();
+                let mut reference = vec![Rgb::ZERO; n_hits];
+                let mut ref_var = 0.0f64;
+                for k in 0..n_hits {
+                    let mean = repeats.iter().map(|r| r[k]).sum::<Rgb>() / ref_repeats as f32;
+                    reference[k] = mean;
+                    let var: f64 = repeats
+                        .iter()
+                        .map(|r| ((r[k] - mean).length_squared() / 3.0) as f64)
+                        .sum::<f64>()
+                        / (ref_repeats - 1) as f64;
+                    ref_var += var / ref_repeats as f64;
+                }
+                ref_var /= n_hits as f64;
                 let mut results: Vec<Vec<Run>> = Vec::new();
                 for strategy in strategies {
                     let mut row = Vec::new();
                     for &n in &counts {
                         let spec = format!("env_direct:env={}:samples={n}:bsdf=0", strategy.name());
-                        let integ = integrator::create(&spec, base).unwrap();
-                        let (mut mse, mut rel, mut valid) = (0.0, 0.0, 0.0);
+                        let (mut mse, mut rays) = (0.0f64, 0u64);
                         for seed in 0..seeds {
-                            let rs = RenderSettings {
-                                width: size,
-                                height: size,
-                                spp: 1,
-                                seed: seed * 7919 + 17,
-                                ..Default::default()
-                            };
-                            let (film, stats) = render(
-                                &scene,
-                                &camera,
-                                integ.as_ref(),
-                                &rs,
-                                &|_| true,
-                                &AtomicBool::new(false),
-                            )
-                            .unwrap();
-                            let e = image_errors(&film.radiance(), &ref_px).unwrap();
-                            mse += e.rmse * e.rmse;
-                            rel += e.rel_mse;
-                            // Every pixel traces one camera ray; the other rays are shadow rays of
-                            // light samples that carried light.
-                            valid += (stats.rays as f64 - pixels) / pixels;
+                            let (est, r) = estimate(&spec, seed * 7919 + 17);
+                            mse += est
+                                .iter()
+                                .zip(&reference)
+                                .map(|(e, r)| ((*e - *r).length_squared() / 3.0) as f64)
+                                .sum::<f64>()
+                                / n_hits as f64;
+                            rays += r;
                         }
-                        let k = seeds as f64;
                         row.push(Run {
-                            mse: (mse / k - ref_mse).max(0.0),
-                            rel_mse: (rel / k - reference.noise.rel_mse).max(0.0),
-                            valid: valid / k,
+                            mse: (mse / seeds as f64 - ref_var).max(0.0),
+                            valid: rays as f64 / (seeds as f64 * n_hits as f64),
                         });
-                        eprintln!("{object} / {map_name}: {spec} done");
                     }
+                    eprintln!("{layout} {object} / {map_name}: {} done", strategy.name());
                     results.push(row);
                 }
                 println!(
-                    "### {object} sphere, {map_name} map as {}\n",
+                    "### {object} sphere, {map_name} map as {} ({n_hits} shading points)\n",
                     describe(map_grid)
                 );
-                println!(
-                    "Reference noise: RMSE {:.3e} (subtracted as MSE).\n",
-                    reference.noise.rmse
-                );
+                println!("Reference variance per point: {ref_var:.3e} (subtracted).\n");
                 print!("| N |");
                 for s in strategies {
-                    print!(" {} RMSE | relMSE | valid |", s.name());
+                    print!(" {} RMSE | valid |", s.name());
                 }
                 println!(" MSE uniform / dynamic |");
                 print!("|---:|");
                 for _ in strategies {
-                    print!("---:|---:|---:|");
+                    print!("---:|---:|");
                 }
                 println!("---:|");
                 for (j, &n) in counts.iter().enumerate() {
                     print!("| {n} |");
                     for row in &results {
                         let r = &row[j];
-                        print!(
-                            " {:.4e} | {:.3e} | {:.1} |",
-                            r.mse.sqrt(),
-                            r.rel_mse,
-                            r.valid
-                        );
+                        print!(" {:.4e} | {:.1} |", r.mse.sqrt(), r.valid);
                     }
                     println!(
                         " {:.2} |",
                         results[1][j].mse / results[0][j].mse.max(1e-300)
                     );
                 }
-                // Samples each strategy needs for the error dynamic balancing reaches with 60.
                 let target = results[0][2].mse;
                 print!(
-                    "\nN for the MSE of dynamic balancing with N = 60 ({:.3e}):",
+                    "\nN for the error of dynamic balancing with N = 60 (RMSE {:.3e}):",
                     target.sqrt()
                 );
                 for (k, s) in strategies.iter().enumerate() {
                     match samples_for(&counts, &results[k], target) {
                         Some(n) => print!(" {} {:.0} ({:.2}x);", s.name(), n, n / 60.0),
                         None => print!(
-                            " {} > {} or < {};",
+                            " {} outside {}..{};",
                             s.name(),
-                            counts[counts.len() - 1],
-                            counts[0]
+                            counts[0],
+                            counts[counts.len() - 1]
                         ),
                     }
                 }

@@ -59,6 +59,27 @@ impl EnvDirect {
         }
     }
 
+    /// Direct lighting reflected towards `si.wo` at a non-specular surface point: the
+    /// many-sample environment estimate plus one sample of the other lights. The shading
+    /// step of the thesis's deferred renderer (Algorithm 2), usable on a G-buffer.
+    pub fn shade(
+        &self,
+        scene: &Scene,
+        si: &SurfaceInteraction,
+        rng: &mut Rng,
+        counters: &mut TraceCounters,
+    ) -> Rgb {
+        let bsdf = scene.bsdf(si);
+        if bsdf.is_delta() {
+            return Rgb::ZERO;
+        }
+        let mut radiance = self.other_lights(scene, si, &bsdf, rng, counters);
+        if let Some((_, env)) = scene.environment() {
+            radiance += self.environment(scene, env, si, &bsdf, rng, counters);
+        }
+        radiance
+    }
+
     /// One light-sampled estimate of the lights other than the environment.
     fn other_lights(
         &self,
@@ -249,10 +270,7 @@ impl Integrator for EnvDirect {
                 out.albedo = bsdf.albedo_hint();
             }
             if !bsdf.is_delta() {
-                radiance += beta * self.other_lights(scene, &si, &bsdf, rng, counters);
-                if let Some((_, env)) = scene.environment() {
-                    radiance += beta * self.environment(scene, env, &si, &bsdf, rng, counters);
-                }
+                radiance += beta * self.shade(scene, &si, rng, counters);
                 break;
             }
             let frame = si.shading_frame();
