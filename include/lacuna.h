@@ -237,6 +237,69 @@ typedef uint32_t lacuna_film_channel;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
+// Layout of an environment map handed over as floats (`lacuna_environment_new_from_buffer`).
+enum lacuna_environment_layout
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    // Latitude-longitude, width = 2 x height, row 0 at the zenith, the middle column straight
+    // ahead (-Z for a Y-up map), +X a quarter turn to the right.
+    LACUNA_ENVIRONMENT_LAYOUT_LAT_LONG = 0,
+    // Horizontal cross of cube faces, width = 4/3 x height: -X, -Z, +X, +Z in the middle
+    // row, +Y above -Z, -Y below it; black outside the faces.
+    LACUNA_ENVIRONMENT_LAYOUT_CUBE_CROSS = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum lacuna_environment_layout lacuna_environment_layout;
+#else
+typedef uint32_t lacuna_environment_layout;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+// How light sampling picks environment directions (`lacuna_render_job_set_environment_strategy`).
+enum lacuna_environment_strategy
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    // Classic 2-D piecewise-constant sampling of the lat-long map.
+    LACUNA_ENVIRONMENT_STRATEGY_LAT_LONG = 0,
+    // Per-face cube-map CDFs, samples split evenly between the faces.
+    LACUNA_ENVIRONMENT_STRATEGY_CUBE_UNIFORM = 1,
+    // Per-face cube-map CDFs, faces chosen by their power.
+    LACUNA_ENVIRONMENT_STRATEGY_CUBE_POWER = 2,
+    // Per-face cube-map CDFs with per-normal dynamic face balancing (the default).
+    LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC = 3,
+    // No light sampling of the environment: only BSDF sampling finds it.
+    LACUNA_ENVIRONMENT_STRATEGY_BSDF = 4,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum lacuna_environment_strategy lacuna_environment_strategy;
+#else
+typedef uint32_t lacuna_environment_strategy;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+// The world axis that is up for an environment map.
+enum lacuna_up_axis
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    LACUNA_UP_AXIS_Y = 0,
+    LACUNA_UP_AXIS_Z = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum lacuna_up_axis lacuna_up_axis;
+#else
+typedef uint32_t lacuna_up_axis;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
 // The analysed empty space of a scene.
 //
 // Refcounted (`lacuna_analysis_retain`/`lacuna_analysis_release`); keeps its scene alive.
@@ -249,6 +312,16 @@ typedef struct lacuna_analysis lacuna_analysis;
 // context keeps it alive. Thread-safe: every function taking a context may be called from any
 // thread at any time.
 typedef struct lacuna_context lacuna_context;
+
+// An environment map: radiance from infinitely far away, with its placement (scale,
+// rotation, up axis), camera visibility and sampling structures.
+//
+// Single owner (`lacuna_environment_new_*`/`lacuna_environment_free`). Scenes made with it
+// (`lacuna_scene_builder_set_environment`, `lacuna_scene_new_with_environment`) keep a
+// snapshot of its state at that moment: later updates change the environment object, not
+// those scenes (copy on write; when no scene shares the map, updates rebuild in place).
+// Not thread-safe: one thread at a time may use an environment object.
+typedef struct lacuna_environment lacuna_environment;
 
 // The result of a render: per-pixel mean radiance and first-hit AOVs (albedo, normal, depth),
 // with the render's figures and metadata.
@@ -357,6 +430,23 @@ typedef struct lacuna_image_errors {
 // only). It may run on any thread that uses the context's objects, so it must be thread-safe;
 // it must not unwind (throw) into Lacuna or call back into the failing object.
 typedef void (*lacuna_error_callback)(void *user_data, lacuna_status status, const char *message);
+
+// What an environment map holds (`lacuna_environment_get_info`).
+typedef struct lacuna_environment_info {
+    // Size of the image as handed over: lat-long width x height, or the cross (4F x 3F).
+    uint32_t width;
+    uint32_t height;
+    // A `lacuna_environment_layout` value.
+    uint32_t layout;
+    // Negative texel components clamped to zero in the last image.
+    uint64_t clamped_values;
+    // Memory of the texels and of the sampling structures built so far.
+    uint64_t memory_bytes;
+    // Seconds of the last build or rebuild of the lat-long and of the cube-map sampling
+    // structures (0 when not built yet).
+    double latlong_build_seconds;
+    double cube_build_seconds;
+} lacuna_environment_info;
 
 // Figures of a finished (or cancelled) render.
 typedef struct lacuna_render_stats {
@@ -698,6 +788,88 @@ lacuna_status lacuna_context_set_memory_budget(const struct lacuna_context *cont
 lacuna_status lacuna_context_set_error_callback(const struct lacuna_context *context,
                                                 lacuna_error_callback callback,
                                                 void *user_data);
+
+// Loads an environment map from an OpenEXR (`.exr`) or Radiance (`.hdr`) file: a 2:1
+// lat-long map or a 4:3 horizontal cross. NaN or infinite texels are an error
+// (`LACUNA_STATUS_PARSE`, naming the texel); negative ones are clamped to zero and counted
+// (`lacuna_environment_info.clamped_values`). Scale 1, no rotation, Y up, visible.
+// `LACUNA_STATUS_IO` when the file cannot be read. Thread-safe.
+lacuna_status lacuna_environment_new_from_file(const char *path,
+                                               struct lacuna_environment **out_env);
+
+// Makes an environment map from `width` x `height` linear RGB float pixels in `layout` (a
+// `lacuna_environment_layout` value); pixel (x, y) is read at
+// `(const char*)texels + y * row_stride + x * pixel_stride` (0 strides mean packed). The
+// pixels are copied. NaN or infinite values are an error naming the texel; negative ones
+// are clamped to zero and counted. Thread-safe.
+lacuna_status lacuna_environment_new_from_buffer(const float *texels,
+                                                 size_t width,
+                                                 size_t height,
+                                                 size_t pixel_stride,
+                                                 size_t row_stride,
+                                                 uint32_t layout,
+                                                 struct lacuna_environment **out_env);
+
+// Frees an environment object (scenes made with it keep their snapshot). NULL is a no-op.
+void lacuna_environment_free(struct lacuna_environment *env);
+
+// Replaces the texels by a new image of the same size and layout (read as in
+// `lacuna_environment_new_from_buffer`) and rebuilds the sampling structures built so far,
+// in place when no scene shares the map. Writes the seconds the rebuild took to
+// `*out_rebuild_seconds` (may be NULL). On failure the map keeps its previous image.
+lacuna_status lacuna_environment_update(struct lacuna_environment *env,
+                                        const float *texels,
+                                        size_t width,
+                                        size_t height,
+                                        size_t pixel_stride,
+                                        size_t row_stride,
+                                        uint32_t layout,
+                                        double *out_rebuild_seconds);
+
+// Sets the radiance multiplier `scale` (finite, >= 0), the rotation about the up axis in
+// degrees (finite; counter-clockwise seen from above) and the up axis (a `lacuna_up_axis`
+// value).
+lacuna_status lacuna_environment_set_placement(struct lacuna_environment *env,
+                                               float scale,
+                                               float rotate_degrees,
+                                               uint32_t up_axis);
+
+// Sets whether camera rays that leave the scene see the map (true by default); it lights
+// the scene either way.
+lacuna_status lacuna_environment_set_visible(struct lacuna_environment *env, bool visible);
+
+// Builds the sampling structures `strategy` (a `lacuna_environment_strategy` value) needs
+// now, rather than during the first render, and times the build
+// (`lacuna_environment_info`). Later updates rebuild them.
+lacuna_status lacuna_environment_prepare(struct lacuna_environment *env, uint32_t strategy);
+
+// Writes what the map holds to `*out_info`.
+lacuna_status lacuna_environment_get_info(const struct lacuna_environment *env,
+                                          struct lacuna_environment_info *out_info);
+
+// Lights the scene being built with (a snapshot of) `env`; NULL removes the environment.
+lacuna_status lacuna_scene_builder_set_environment(struct lacuna_scene_builder *builder,
+                                                   const struct lacuna_environment *env);
+
+// Makes a new committed scene (reference count 1) that shares `scene`'s geometry, materials
+// and acceleration structure but is lit by (a snapshot of) `env` instead of its environment
+// map (NULL: none): the cheap way to render a new environment frame. O(lights). Thread-safe
+// for `scene`.
+lacuna_status lacuna_scene_new_with_environment(const struct lacuna_scene *scene,
+                                                const struct lacuna_environment *env,
+                                                struct lacuna_scene **out_scene);
+
+// Sets how light sampling picks environment directions: a `lacuna_environment_strategy`
+// value (default `LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC`). An option in the integrator
+// name (`"path:env=latlong"`) takes precedence.
+lacuna_status lacuna_render_job_set_environment_strategy(struct lacuna_render_job *job,
+                                                         uint32_t strategy);
+
+// `env_direct` only: environment light samples (`light_samples`, split between the cube
+// faces) and BSDF samples per shading point; their sum must be at least 1.
+lacuna_status lacuna_render_job_set_environment_samples(struct lacuna_render_job *job,
+                                                        uint32_t light_samples,
+                                                        uint32_t bsdf_samples);
 
 // Adds a reference to `film`. NULL is a no-op. Thread-safe.
 void lacuna_film_retain(const struct lacuna_film *film);

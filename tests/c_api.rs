@@ -8,6 +8,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
+/// C test programs besides `test_capi.c`, run the same ways (one program per part of the API).
+const MORE_C_TESTS: &[&str] = &["test_environment"];
+
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
@@ -208,6 +211,13 @@ fn c_tests_pass_linked_shared_and_static() {
         "test_capi_static",
     );
     run_test(&[], &stat, &[], "C tests (static library)");
+    for name in MORE_C_TESTS {
+        let src = format!("tests/c/{name}.c");
+        let exe = compile(&src, Link::Shared, &[], &out, &format!("{name}_shared"));
+        run_test(&[], &exe, &[], &format!("{name} (shared library)"));
+        let exe = compile(&src, Link::Static, &[], &out, &format!("{name}_static"));
+        run_test(&[], &exe, &[], &format!("{name} (static library)"));
+    }
     let _ = std::fs::remove_dir_all(&out);
 }
 
@@ -276,6 +286,17 @@ fn c_tests_pass_under_address_sanitizer() {
         stderr.contains("AddressSanitizer") || stderr.contains("==ASAN"),
         "the ASan runtime did not announce itself:\n{stderr}"
     );
+    for name in MORE_C_TESTS {
+        let exe = compile(
+            &format!("tests/c/{name}.c"),
+            Link::Shared,
+            asan_flags(),
+            &out,
+            &format!("{name}_asan"),
+        );
+        assert_asan_linked(&exe);
+        run_test(&[], &exe, &env, &format!("{name} (AddressSanitizer)"));
+    }
     if Path::new(&root().join("tests/c/test_cpp.cpp")).exists() {
         let cpp = compile(
             "tests/c/test_cpp.cpp",
@@ -364,6 +385,16 @@ fn c_tests_pass_under_valgrind() {
         "test_capi_vg",
     );
     run_test(&prefix, &exe, &[], "C tests (valgrind)");
+    for name in MORE_C_TESTS {
+        let exe = compile(
+            &format!("tests/c/{name}.c"),
+            Link::Shared,
+            &[],
+            &out,
+            &format!("{name}_vg"),
+        );
+        run_test(&prefix, &exe, &[], &format!("{name} (valgrind)"));
+    }
     if root().join("tests/c/test_cpp.cpp").exists() {
         let cpp = compile(
             "tests/c/test_cpp.cpp",

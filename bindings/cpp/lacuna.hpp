@@ -1,7 +1,7 @@
 // lacuna.hpp: header-only C++17 RAII wrapper of Lacuna's C API (include/lacuna.h).
 //
 // - Refcounted C objects (Context, Scene, Film) are copyable: a copy retains, destruction
-//   releases. Single-owner objects (Mesh, SceneBuilder, RenderJob) are move-only.
+//   releases. Single-owner objects (Mesh, SceneBuilder, RenderJob, Environment) are move-only.
 // - Every failing call throws lacuna::Error, which carries the status and the message of
 //   lacuna_last_error_message().
 // - Callbacks given as std::function run behind trampolines that catch every exception: an
@@ -156,6 +156,53 @@ private:
     detail::Owned<lacuna_mesh, lacuna_mesh_free> m_;
 };
 
+/// An environment map (move-only): from a file or a float buffer (copied), updated in place.
+class Environment {
+public:
+    static Environment from_file(const std::string &path) {
+        lacuna_environment *e = nullptr;
+        detail::check(lacuna_environment_new_from_file(path.c_str(), &e));
+        return Environment(e);
+    }
+    /// `width` x `height` RGB floats in `layout` (a lacuna_environment_layout value).
+    static Environment from_buffer(const float *texels, size_t width, size_t height, uint32_t layout,
+                                   size_t pixel_stride = 0, size_t row_stride = 0) {
+        lacuna_environment *e = nullptr;
+        detail::check(lacuna_environment_new_from_buffer(texels, width, height, pixel_stride, row_stride, layout, &e));
+        return Environment(e);
+    }
+    /// Replaces the texels (same size and layout); returns the rebuild time in seconds.
+    double update(const float *texels, size_t width, size_t height, uint32_t layout, size_t pixel_stride = 0,
+                  size_t row_stride = 0) {
+        double seconds = 0;
+        detail::check(lacuna_environment_update(e_.get(), texels, width, height, pixel_stride, row_stride, layout,
+                                                &seconds));
+        return seconds;
+    }
+    Environment &placement(float scale, float rotate_degrees, uint32_t up_axis = LACUNA_UP_AXIS_Y) {
+        detail::check(lacuna_environment_set_placement(e_.get(), scale, rotate_degrees, up_axis));
+        return *this;
+    }
+    Environment &visible(bool v) {
+        detail::check(lacuna_environment_set_visible(e_.get(), v));
+        return *this;
+    }
+    Environment &prepare(uint32_t strategy) {
+        detail::check(lacuna_environment_prepare(e_.get(), strategy));
+        return *this;
+    }
+    lacuna_environment_info info() const {
+        lacuna_environment_info i;
+        detail::check(lacuna_environment_get_info(e_.get(), &i));
+        return i;
+    }
+    lacuna_environment *get() const noexcept { return e_.get(); }
+
+private:
+    explicit Environment(lacuna_environment *e) : e_(e) {}
+    detail::Owned<lacuna_environment, lacuna_environment_free> e_;
+};
+
 class Scene : public detail::Shared<lacuna_scene, lacuna_scene_retain, lacuna_scene_release> {
 public:
     using Shared::Shared;
@@ -188,6 +235,12 @@ public:
         lacuna_scene_stats s;
         detail::check(lacuna_scene_get_stats(p_, &s));
         return s;
+    }
+    /// The same scene lit by (a snapshot of) `env` instead (nullptr: no environment).
+    Scene with_environment(const Environment *env) const {
+        lacuna_scene *s = nullptr;
+        detail::check(lacuna_scene_new_with_environment(p_, env ? env->get() : nullptr, &s));
+        return Scene(s);
     }
 };
 
@@ -268,6 +321,11 @@ public:
         detail::check(lacuna_scene_builder_load_obj(b_.get(), path.c_str(), transform, &n));
         return n;
     }
+    /// Lights the scene with (a snapshot of) `env`; nullptr removes the environment.
+    SceneBuilder &set_environment(const Environment *env) {
+        detail::check(lacuna_scene_builder_set_environment(b_.get(), env ? env->get() : nullptr));
+        return *this;
+    }
     /// Builds the scene; the builder is consumed (empty afterwards) whatever the outcome.
     Scene build() {
         lacuna_scene *s = nullptr;
@@ -341,6 +399,12 @@ public:
     RenderJob &resolution(uint32_t w, uint32_t h) { return set(lacuna_render_job_set_resolution(j_.get(), w, h)); }
     RenderJob &threads(uint32_t n) { return set(lacuna_render_job_set_thread_count(j_.get(), n)); }
     RenderJob &mis_heuristic(uint32_t h) { return set(lacuna_render_job_set_mis_heuristic(j_.get(), h)); }
+    RenderJob &environment_strategy(uint32_t s) {
+        return set(lacuna_render_job_set_environment_strategy(j_.get(), s));
+    }
+    RenderJob &environment_samples(uint32_t light, uint32_t bsdf) {
+        return set(lacuna_render_job_set_environment_samples(j_.get(), light, bsdf));
+    }
     RenderJob &camera(lacuna_vec3 eye, lacuna_vec3 target, lacuna_vec3 up, float vfov_degrees) {
         return set(lacuna_render_job_set_camera(j_.get(), eye, target, up, vfov_degrees));
     }

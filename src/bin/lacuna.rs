@@ -5,18 +5,19 @@ use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use clap::{Args, Parser, Subcommand};
 use lacuna::compare::{compare, render_reference, write_report, Contender};
 use lacuna::film::{read_exr_rgb, ExrMetadata, Film, ImageErrors};
 use lacuna::integrator::{self, IntegratorSettings, MisHeuristic};
+use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
 use lacuna::math::Vec3;
 use lacuna::render::{render, Progress, RenderSettings};
 use lacuna::scene::{
-    auto_camera, corridor_builder, corridor_render_settings, load_obj, load_scene_file,
-    two_rooms_builder, Camera, RenderSettingsFile, Scene, SceneBuilder,
+    auto_camera, convert_layout, corridor_builder, corridor_render_settings, load_obj,
+    load_scene_file, two_rooms_builder, Camera, RenderSettingsFile, Scene, SceneBuilder,
 };
 use lacuna::{Error, Result};
 
@@ -84,6 +85,37 @@ struct SceneArgs {
     /// Vertical field of view in degrees.
     #[arg(long)]
     fov: Option<f32>,
+    /// Environment map lighting the scene from infinity (.exr or .hdr; 2:1 lat-long or 4:3
+    /// horizontal cross of cube faces); replaces the scene file's.
+    #[arg(long)]
+    env: Option<PathBuf>,
+    /// Radiance multiplier of the environment map.
+    #[arg(long)]
+    env_scale: Option<f32>,
+    /// Rotation of the environment map about the up axis, in degrees.
+    #[arg(long, allow_hyphen_values = true)]
+    env_rotate: Option<f32>,
+    /// World axis that is up for the environment map: y or z.
+    #[arg(long)]
+    env_up: Option<String>,
+    /// Hide the environment map from camera rays (it still lights the scene).
+    #[arg(long)]
+    env_hidden: bool,
+    /// Resample the environment map to this layout after loading: latlong or cube (faces of
+    /// width / 4, the thesis's setting for the per-face CDFs).
+    #[arg(long)]
+    env_layout: Option<String>,
+    /// How light sampling picks environment directions: latlong, cube-uniform, cube-power,
+    /// cube-dynamic (per-normal face balancing, the default) or bsdf (no light sampling). An
+    /// integrator option such as `path:env=latlong` overrides it for that integrator.
+    #[arg(long)]
+    env_strategy: Option<String>,
+    /// env_direct: environment light samples per shading point [default: 30].
+    #[arg(long)]
+    env_samples: Option<u32>,
+    /// env_direct: BSDF samples per shading point [default: 30].
+    #[arg(long)]
+    env_bsdf_samples: Option<u32>,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -96,7 +128,8 @@ struct SceneArgs {
 struct RenderArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Integrator name (available: path, bdpt) [default: path, or the scene file's].
+    /// Integrator (available: path, bdpt, env_direct), with options as NAME:KEY=VALUE...
+    /// (env=STRATEGY; env_direct also samples=N, bsdf=N) [default: path, or the scene file's].
     #[arg(long)]
     integrator: Option<String>,
     /// Samples per pixel [default: 16, or the scene file's].
@@ -277,8 +310,77 @@ fn load_builder(path: &Path) -> Result<(SceneBuilder, RenderSettingsFile, String
     }
 }
 
+/// Loads `--env` or adjusts the scene file's environment map with the `--env-*` options,
+/// and builds the sampling structures `strategy` needs.
+fn apply_environment(
+    builder: &mut SceneBuilder,
+    args: &SceneArgs,
+    strategy: EnvStrategy,
+) -> Result<()> {
+    let mut map = match &args.env {
+        Some(path) => {
+            let map = EnvironmentMap::load(path, EnvSettings::default())?;
+            if map.image().clamped() > 0 {
+                eprintln!(
+                    "lacuna: warning: environment map {}: {} negative texel values clamped to 0",
+                    path.display(),
+                    map.image().clamped()
+                );
+            }
+            map
+        }
+        None => match builder.environment() {
+            Some(m) => (**m).clone(),
+            None => {
+                if args.env_scale.is_some()
+                    || args.env_rotate.is_some()
+                    || args.env_up.is_some()
+                    || args.env_hidden
+                    || args.env_layout.is_some()
+                {
+                    return Err(Error::invalid(
+                        "--env-scale, --env-rotate, --env-up, --env-hidden and --env-layout need an environment map (--env FILE or the scene file's)",
+                    ));
+                }
+                return Ok(());
+            }
+        },
+    };
+    if let Some(layout) = &args.env_layout {
+        map = EnvironmentMap::new(convert_layout(map.image(), layout)?, *map.settings())?;
+    }
+    let mut settings = *map.settings();
+    if let Some(s) = args.env_scale {
+        settings.scale = s;
+    }
+    if let Some(r) = args.env_rotate {
+        settings.rotate_degrees = r;
+    }
+    if let Some(u) = &args.env_up {
+        settings.up = UpAxis::parse(u)?;
+    }
+    if args.env_hidden {
+        settings.visible = false;
+    }
+    map.set_settings(settings)?;
+    map.prepare(strategy);
+    if args.verbose {
+        let [ll, cube] = map.build_seconds();
+        eprintln!(
+            "environment: {}, {} clamped texel values, sampling structures built in {:.2} ms (lat-long) / {:.2} ms (cube), {:.1} MiB",
+            lacuna::light::environment::describe(map.image().grid()),
+            map.image().clamped(),
+            ll * 1e3,
+            cube * 1e3,
+            mib(map.memory_bytes())
+        );
+    }
+    builder.set_environment(Some(Arc::new(map)));
+    Ok(())
+}
+
 fn prepare(args: &SceneArgs) -> Result<Prepared> {
-    let (builder, file, label) = match &args.scene {
+    let (mut builder, file, label) = match &args.scene {
         None => (
             two_rooms_builder()?,
             RenderSettingsFile::default(),
@@ -286,6 +388,11 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
         ),
         Some(path) => load_builder(path)?,
     };
+    let env = match &args.env_strategy {
+        Some(s) => EnvStrategy::parse(s)?,
+        None => EnvStrategy::default(),
+    };
+    apply_environment(&mut builder, args, env)?;
     let scene = builder.build()?;
     let mut render = RenderSettings::default();
     render.width = args.width.or(file.width).unwrap_or(render.width);
@@ -296,8 +403,15 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     let mut integrator = IntegratorSettings {
         mis: MisHeuristic::parse(&args.mis)?,
         light_paths: args.light_paths,
+        env,
         ..Default::default()
     };
+    if let Some(n) = args.env_samples {
+        integrator.env_samples = n;
+    }
+    if let Some(n) = args.env_bsdf_samples {
+        integrator.env_bsdf_samples = n;
+    }
     integrator.max_depth = args
         .max_depth
         .or(file.max_depth)

@@ -263,7 +263,7 @@ pub unsafe extern "C" fn lacuna_render_job_free(job: *mut lacuna_render_job) {
 ///
 /// # Safety
 /// `job` must be NULL or a live job.
-unsafe fn with_settings(
+pub(crate) unsafe fn with_settings(
     function: &'static str,
     job: *mut lacuna_render_job,
     f: impl FnOnce(&mut JobSettings) -> CapiResult<()>,

@@ -20,6 +20,7 @@ mod buffer;
 mod builder;
 mod compare;
 mod context;
+mod environment;
 mod film;
 mod job;
 mod mesh;
@@ -34,6 +35,7 @@ pub use boundary::{
 pub use builder::*;
 pub use compare::*;
 pub use context::*;
+pub use environment::*;
 pub use film::*;
 pub use job::*;
 pub use mesh::*;

@@ -246,6 +246,42 @@ pub enum lacuna_film_channel {
     SampleCount = 4,
 }
 
+/// Layout of an environment map handed over as floats (`lacuna_environment_new_from_buffer`).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum lacuna_environment_layout {
+    /// Latitude-longitude, width = 2 x height, row 0 at the zenith, the middle column straight
+    /// ahead (-Z for a Y-up map), +X a quarter turn to the right.
+    LatLong = 0,
+    /// Horizontal cross of cube faces, width = 4/3 x height: -X, -Z, +X, +Z in the middle
+    /// row, +Y above -Z, -Y below it; black outside the faces.
+    CubeCross = 1,
+}
+
+/// How light sampling picks environment directions (`lacuna_render_job_set_environment_strategy`).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum lacuna_environment_strategy {
+    /// Classic 2-D piecewise-constant sampling of the lat-long map.
+    LatLong = 0,
+    /// Per-face cube-map CDFs, samples split evenly between the faces.
+    CubeUniform = 1,
+    /// Per-face cube-map CDFs, faces chosen by their power.
+    CubePower = 2,
+    /// Per-face cube-map CDFs with per-normal dynamic face balancing (the default).
+    CubeDynamic = 3,
+    /// No light sampling of the environment: only BSDF sampling finds it.
+    Bsdf = 4,
+}
+
+/// The world axis that is up for an environment map.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum lacuna_up_axis {
+    Y = 0,
+    Z = 1,
+}
+
 /// Converts a `uint32_t` from C into one of the enums above, naming the argument on failure.
 macro_rules! c_enum {
     ($ty:ident { $($variant:ident),+ $(,)? }) => {
@@ -285,6 +321,15 @@ c_enum!(lacuna_material_float { Exponent, Ior });
 c_enum!(lacuna_degenerate_policy { Error, Skip });
 c_enum!(lacuna_bvh_quality { Fast, Medium, High });
 c_enum!(lacuna_mis_heuristic { Balance, Power });
+c_enum!(lacuna_environment_layout { LatLong, CubeCross });
+c_enum!(lacuna_environment_strategy {
+    LatLong,
+    CubeUniform,
+    CubePower,
+    CubeDynamic,
+    Bsdf
+});
+c_enum!(lacuna_up_axis { Y, Z });
 c_enum!(lacuna_film_channel {
     Radiance,
     Albedo,

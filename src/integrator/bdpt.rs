@@ -22,6 +22,7 @@ use super::{
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::{offset_ray_origin, Ray};
+use crate::light::Light;
 use crate::math::{Rgb, Rng, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 
@@ -178,7 +179,9 @@ impl Bdpt {
         };
         let (index, pick) = sampler.sample(rng.uniform());
         let light = &scene.lights()[index];
-        let Some(es) = light.sample_emission(rng.uniform2(), rng.uniform2()) else {
+        let Some(es) =
+            light.sample_emission_with(self.settings.env, rng.uniform2(), rng.uniform2())
+        else {
             return;
         };
         let emission_pdf_w = es.pdf_emit * pick;
@@ -208,6 +211,13 @@ impl Bdpt {
             let cos_in = si.ns.dot(si.wo).abs();
             if cos_in == 0.0 {
                 break;
+            }
+            if state.path_len == 1 && matches!(light, Light::Environment { .. }) {
+                // Direct sampling of an environment direction depends on the receiver's
+                // normal, known only now: the density of choosing this direction from here.
+                let direct_pdf_w =
+                    light.direction_pdf(si.facing_normal(), self.settings.env, si.wo);
+                state.d_vcm = self.mis(direct_pdf_w * pick / emission_pdf_w);
             }
             if state.path_len > 1 || state.finite_light {
                 state.d_vcm *= self.mis(si.t * si.t);
@@ -346,7 +356,8 @@ impl Bdpt {
         };
         let (index, pick) = sampler.sample(rng.uniform());
         let light = &scene.lights()[index];
-        let Some(ls) = light.sample(si.p, rng.uniform2()) else {
+        let Some(ls) = light.sample_at(si.p, si.facing_normal(), self.settings.env, rng.uniform2())
+        else {
             return Rgb::ZERO;
         };
         if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
@@ -378,7 +389,7 @@ impl Bdpt {
         } else {
             (-ls.wi).dot(ls.normal).abs()
         };
-        let emission_pdf_w = light.emission_pdf(-ls.wi);
+        let emission_pdf_w = light.emission_pdf_with(self.settings.env, -ls.wi);
         let w_light = if light.is_delta() {
             0.0
         } else {
@@ -447,6 +458,38 @@ impl Bdpt {
             return Rgb::ZERO;
         }
         contribution
+    }
+}
+
+impl Bdpt {
+    /// s = 0 for a camera path that left the scene: the environment's radiance, weighted
+    /// against direct sampling at the last vertex (normal `prev_normal`) and light subpaths
+    /// leaving the environment (SmallVCM's background light: direction densities take the
+    /// place of area densities at infinity).
+    fn escaped(&self, scene: &Scene, dir: Vec3, state: &SubpathState, prev_normal: Vec3) -> Rgb {
+        let Some((index, env)) = scene.environment() else {
+            return Rgb::ZERO;
+        };
+        let le = env.radiance(dir);
+        if le == Rgb::ZERO {
+            return Rgb::ZERO;
+        }
+        if state.path_len == 1 {
+            return if env.visible_to_camera() {
+                le * self.keep(0, 2, 1.0)
+            } else {
+                Rgb::ZERO
+            };
+        }
+        let Some(sampler) = scene.light_sampler() else {
+            return Rgb::ZERO;
+        };
+        let light = &scene.lights()[index];
+        let pick = sampler.pmf(index);
+        let direct_pdf_w = pick * light.direction_pdf(prev_normal, self.settings.env, dir);
+        let emission_pdf_w = pick * light.emission_pdf_with(self.settings.env, -dir);
+        let w_camera = self.mis(direct_pdf_w) * state.d_vcm + self.mis(emission_pdf_w) * state.d_vc;
+        le * self.keep(0, state.path_len + 1, 1.0 / (1.0 + w_camera))
     }
 }
 
@@ -566,9 +609,11 @@ impl Integrator for Bdpt {
             finite_light: true,
         };
         let mut radiance = Rgb::ZERO;
+        let mut prev_normal = Vec3::ZERO;
         loop {
             counters.rays += 1;
             let Some(si) = scene.intersect(&ray) else {
+                radiance += state.throughput * self.escaped(scene, ray.dir, &state, prev_normal);
                 break;
             };
             if state.path_len == 1 {
@@ -626,6 +671,7 @@ impl Integrator for Bdpt {
             let Some(wi) = self.scatter(&bsdf, &si, &mut state, rng, Transport::Radiance) else {
                 break;
             };
+            prev_normal = si.facing_normal();
             ray = si.spawn_ray(wi);
             state.path_len += 1;
         }

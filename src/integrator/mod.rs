@@ -2,9 +2,11 @@
 //! file behind the small [`Integrator`] trait; [`create`] makes one by name.
 
 mod bdpt;
+mod env_direct;
 mod path;
 
 pub use bdpt::{Bdpt, ConnectionPolicy, StrategyFilter, UniformPerPixel};
+pub use env_direct::EnvDirect;
 pub use path::PathTracer;
 
 use std::any::Any;
@@ -12,6 +14,7 @@ use std::any::Any;
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
+use crate::light::EnvStrategy;
 use crate::math::Rgb;
 use crate::math::Rng;
 use crate::scene::{CameraFrame, Scene};
@@ -56,6 +59,12 @@ pub struct IntegratorSettings {
     pub rr_start_depth: u32,
     /// Bidirectional integrators: light subpaths traced per iteration (`None` = one per pixel).
     pub light_paths: Option<u32>,
+    /// How light sampling picks environment-map directions.
+    pub env: EnvStrategy,
+    /// `env_direct`: environment light samples per shading point (N_L, split between cube
+    /// faces by the strategy) and BSDF samples (N_B).
+    pub env_samples: u32,
+    pub env_bsdf_samples: u32,
 }
 
 impl Default for IntegratorSettings {
@@ -65,6 +74,9 @@ impl Default for IntegratorSettings {
             mis: MisHeuristic::Power,
             rr_start_depth: 3,
             light_paths: None,
+            env: EnvStrategy::default(),
+            env_samples: 30,
+            env_bsdf_samples: 30,
         }
     }
 }
@@ -136,11 +148,51 @@ pub trait Integrator: Send + Sync {
 }
 
 /// Names of the integrators this build offers.
-pub const NAMES: &[&str] = &["path", "bdpt"];
+pub const NAMES: &[&str] = &["path", "bdpt", "env_direct"];
 
-/// Creates an integrator by name.
-pub fn create(name: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
+/// Splits an integrator specification `NAME[:KEY=VALUE]...` into the name and the settings
+/// its options change: `env=STRATEGY` (environment sampling: latlong, cube-uniform,
+/// cube-power, cube-dynamic, bsdf), and for `env_direct` `samples=N` (light samples per
+/// shading point) and `bsdf=N` (BSDF samples). `path:env=latlong` is the path tracer with
+/// the classic lat-long environment sampling.
+pub fn parse_spec(
+    spec: &str,
+    mut settings: IntegratorSettings,
+) -> Result<(&str, IntegratorSettings)> {
+    let mut parts = spec.split(':');
+    let name = parts.next().unwrap_or_default().trim();
+    for option in parts {
+        let (key, value) = option.split_once('=').ok_or_else(|| {
+            Error::invalid(format!(
+                "integrator option '{option}' in '{spec}' must be KEY=VALUE"
+            ))
+        })?;
+        let count = || {
+            value.trim().parse::<u32>().map_err(|_| {
+                Error::invalid(format!(
+                    "integrator option {key}={value} in '{spec}' must be a non-negative integer"
+                ))
+            })
+        };
+        match key.trim() {
+            "env" => settings.env = EnvStrategy::parse(value.trim())?,
+            "samples" => settings.env_samples = count()?,
+            "bsdf" => settings.env_bsdf_samples = count()?,
+            other => {
+                return Err(Error::invalid(format!(
+                "unknown integrator option '{other}' in '{spec}' (expected env, samples or bsdf)"
+            )))
+            }
+        }
+    }
+    Ok((name, settings))
+}
+
+/// Creates an integrator from its specification (see [`parse_spec`]).
+pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
+    let (name, settings) = parse_spec(spec, settings)?;
     match name {
+        "env_direct" => Ok(Box::new(EnvDirect::new(settings)?)),
         "path" => Ok(Box::new(PathTracer::new(settings))),
         "bdpt" => {
             let bdpt = Bdpt::new(settings);

@@ -33,7 +33,8 @@ impl PathTracer {
         };
         let (index, pmf) = sampler.sample(rng.uniform());
         let light = &scene.lights()[index];
-        let Some(ls) = light.sample(si.p, rng.uniform2()) else {
+        let Some(ls) = light.sample_at(si.p, si.facing_normal(), self.settings.env, rng.uniform2())
+        else {
             return Rgb::ZERO;
         };
         // Reflection must stay on the side of the geometric surface that wo is on, or
@@ -61,6 +62,33 @@ impl PathTracer {
         };
         f * ls.radiance * (weight / light_pdf)
     }
+
+    /// Radiance of the environment along a ray that left the scene, MIS-weighted against
+    /// the environment's light sampling at the vertex the ray left (normal `prev_normal`);
+    /// camera rays see it unless it is hidden.
+    fn escaped(
+        &self,
+        scene: &Scene,
+        dir: Vec3,
+        depth: u32,
+        prev_delta: bool,
+        prev_pdf: f32,
+        prev_normal: Vec3,
+    ) -> Rgb {
+        let Some((index, env)) = scene.environment() else {
+            return Rgb::ZERO;
+        };
+        if depth == 0 && !env.visible_to_camera() {
+            return Rgb::ZERO;
+        }
+        let le = env.radiance(dir);
+        if prev_delta || le == Rgb::ZERO {
+            return le;
+        }
+        let pmf = scene.light_sampler().map_or(0.0, |s| s.pmf(index));
+        let light_pdf = pmf * env.pdf(self.settings.env, prev_normal, dir);
+        le * self.settings.mis.weight(prev_pdf, light_pdf)
+    }
 }
 
 impl Integrator for PathTracer {
@@ -83,10 +111,13 @@ impl Integrator for PathTracer {
         let mut prev_delta = true;
         let mut prev_pdf = 0.0f32;
         let mut prev_point = ray.origin;
+        let mut prev_normal = Vec3::ZERO;
         let mut depth = 0u32;
         loop {
             counters.rays += 1;
             let Some(si) = scene.intersect(&ray) else {
+                radiance +=
+                    beta * self.escaped(scene, ray.dir, depth, prev_delta, prev_pdf, prev_normal);
                 break;
             };
             if depth == 0 {
@@ -142,6 +173,7 @@ impl Integrator for PathTracer {
             prev_delta = bs.delta;
             prev_pdf = bs.pdf;
             prev_point = si.p;
+            prev_normal = si.facing_normal();
             ray = si.spawn_ray(wi);
             depth += 1;
 

@@ -2,7 +2,7 @@
 //! bidirectional methods start, with the densities MIS needs (SmallVCM's `Emit` and
 //! `Illuminate` quantities, Georgiev 2012 "Implementing vertex connection and merging").
 
-use super::Light;
+use super::{EnvStrategy, Light};
 use crate::math::{warp, Frame, Rgb, Vec2, Vec3, INV_4PI, INV_PI, PI};
 
 /// An emitted ray.
@@ -29,11 +29,22 @@ pub struct EmissionSample {
 impl Light {
     /// True when light leaves from a finite surface or point (not from infinity).
     pub fn is_finite(&self) -> bool {
-        !matches!(self, Light::Directional { .. })
+        !matches!(self, Light::Directional { .. } | Light::Environment { .. })
     }
 
     /// Samples an emitted ray with `u_pos` choosing the origin and `u_dir` the direction.
     pub fn sample_emission(&self, u_pos: Vec2, u_dir: Vec2) -> Option<EmissionSample> {
+        self.sample_emission_with(EnvStrategy::default(), u_pos, u_dir)
+    }
+
+    /// `sample_emission` where environment maps pick directions as `env.for_emission()`
+    /// does (there is no receiver normal).
+    pub fn sample_emission_with(
+        &self,
+        env: EnvStrategy,
+        u_pos: Vec2,
+        u_dir: Vec2,
+    ) -> Option<EmissionSample> {
         match *self {
             Light::Area {
                 p,
@@ -124,6 +135,33 @@ impl Light {
                     cos_light: 1.0,
                 })
             }
+            Light::Environment {
+                ref map,
+                scene_center,
+                scene_radius,
+            } => {
+                // A direction towards the map, then a point on the disk of the bounding
+                // sphere perpendicular to it, moved out of the sphere on the map's side; the
+                // ray travels back into the scene.
+                let s = map.sample(env.for_emission(), Vec3::ZERO, u_dir)?;
+                let frame = Frame::from_z(s.wi);
+                let d = warp::concentric_disk(u_pos) * scene_radius;
+                let origin = scene_center + frame.s * d.x + frame.t * d.y + s.wi * scene_radius;
+                let dir = -s.wi;
+                Some(EmissionSample {
+                    origin,
+                    origin_error: Vec3::ZERO,
+                    dir,
+                    normal: dir,
+                    value: s.radiance,
+                    pdf_emit: s.pdf / (PI * scene_radius * scene_radius),
+                    // Direct sampling of this direction depends on the receiver's normal:
+                    // this is its density with none; bidirectional methods put the density
+                    // at the first vertex in its place.
+                    pdf_direct_area: map.pdf(EnvStrategy::default(), Vec3::ZERO, s.wi),
+                    cos_light: 1.0,
+                })
+            }
         }
     }
 
@@ -131,6 +169,11 @@ impl Light {
     /// producing a ray leaving the light in direction `dir` (for directional lights, the
     /// density of the ray's origin on the disk).
     pub fn emission_pdf(&self, dir: Vec3) -> f32 {
+        self.emission_pdf_with(EnvStrategy::default(), dir)
+    }
+
+    /// `emission_pdf` for rays of `sample_emission_with(env, ..)`.
+    pub fn emission_pdf_with(&self, env: EnvStrategy, dir: Vec3) -> f32 {
         match *self {
             Light::Area { area, normal, .. } => {
                 let c = normal.dot(dir);
@@ -147,6 +190,11 @@ impl Light {
                 ..
             } => warp::uniform_cone_pdf(Vec3::new(0.0, 0.0, direction.dot(dir)), cos_outer),
             Light::Directional { scene_radius, .. } => 1.0 / (PI * scene_radius * scene_radius),
+            Light::Environment {
+                ref map,
+                scene_radius,
+                ..
+            } => map.pdf(env.for_emission(), Vec3::ZERO, -dir) / (PI * scene_radius * scene_radius),
         }
     }
 

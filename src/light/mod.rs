@@ -3,10 +3,14 @@
 //! (BSDF sampling hitting an emitter), so the two strategies can be combined by MIS.
 
 mod emission;
+pub mod environment;
 mod sampler;
 
 pub use emission::EmissionSample;
+pub use environment::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
 pub use sampler::LightSampler;
+
+use std::sync::Arc;
 
 use crate::error::{Error, Result};
 use crate::geometry::{barycentric_point_error, Bounds3};
@@ -98,7 +102,7 @@ impl LightDesc {
 }
 
 /// A light ready for sampling.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub enum Light {
     /// One emissive triangle, emitting `radiance` on the side of `normal`.
     Area {
@@ -124,6 +128,13 @@ pub enum Light {
     Directional {
         direction: Vec3,
         irradiance: Rgb,
+        scene_center: Vec3,
+        scene_radius: f32,
+    },
+    /// An environment map at infinity. Like a directional light, the scene's bounding sphere
+    /// gives its power and the disk where emitted rays start.
+    Environment {
+        map: Arc<EnvironmentMap>,
         scene_center: Vec3,
         scene_radius: f32,
     },
@@ -202,15 +213,37 @@ impl Light {
                 scene_radius,
                 ..
             } => PI * scene_radius * scene_radius * luminance(irradiance),
+            // The flux through the disk of the bounding sphere: pi r^2 times the integral
+            // of radiance over all directions.
+            Light::Environment {
+                ref map,
+                scene_radius,
+                ..
+            } => PI * scene_radius * scene_radius * map.luminance_integral(),
         }
     }
 
     pub fn is_delta(&self) -> bool {
-        !matches!(self, Light::Area { .. })
+        !matches!(self, Light::Area { .. } | Light::Environment { .. })
     }
 
-    /// Samples a point of the light as seen from `receiver`.
+    /// Samples a point of the light as seen from `receiver`, without knowing its normal
+    /// (environment maps then use the default strategy, balanced by face power).
     pub fn sample(&self, receiver: Vec3, u: Vec2) -> Option<LightSample> {
+        self.sample_at(receiver, Vec3::ZERO, EnvStrategy::default(), u)
+    }
+
+    /// Samples a point of the light as seen from `receiver` whose shading normal facing the
+    /// outgoing direction is `normal` (zero if unknown); `env` is how environment maps pick
+    /// directions (other lights ignore both). [`Light::direction_pdf`] gives the matching
+    /// density of environment directions.
+    pub fn sample_at(
+        &self,
+        receiver: Vec3,
+        normal: Vec3,
+        env: EnvStrategy,
+        u: Vec2,
+    ) -> Option<LightSample> {
         match *self {
             Light::Area {
                 p,
@@ -283,6 +316,28 @@ impl Light {
                 distance: f32::INFINITY,
                 delta: true,
             }),
+            Light::Environment { ref map, .. } => {
+                let s = map.sample(env, normal, u)?;
+                Some(LightSample {
+                    wi: s.wi,
+                    radiance: s.radiance,
+                    pdf: s.pdf,
+                    point: receiver,
+                    point_error: Vec3::ZERO,
+                    normal: -s.wi,
+                    distance: f32::INFINITY,
+                    delta: false,
+                })
+            }
+        }
+    }
+
+    /// Solid-angle density of `sample_at(.., normal, env, ..)` choosing direction `wi` of an
+    /// environment map; zero for other lights (their densities come from `pdf`).
+    pub fn direction_pdf(&self, normal: Vec3, env: EnvStrategy, wi: Vec3) -> f32 {
+        match self {
+            Light::Environment { map, .. } => map.pdf(env, normal, wi),
+            _ => 0.0,
         }
     }
 

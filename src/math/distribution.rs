@@ -92,33 +92,48 @@ impl Distribution1D {
     /// so that sampling stays defined (its `integral()` is then 0, which callers can test).
     pub fn new(values: &[f32]) -> Self {
         assert!(!values.is_empty());
+        let mut d = Distribution1D {
+            func: Vec::with_capacity(values.len()),
+            cdf: Vec::with_capacity(values.len() + 1),
+            integral: 0.0,
+        };
+        d.rebuild(values);
+        d
+    }
+
+    /// Rebuilds the distribution from new values in place, reusing its memory when the
+    /// length is unchanged (environment maps that change every frame).
+    pub fn rebuild(&mut self, values: &[f32]) {
+        assert!(!values.is_empty());
         let n = values.len();
-        let func: Vec<f32> = values
-            .iter()
-            .map(|&v| if v.is_finite() && v > 0.0 { v } else { 0.0 })
-            .collect();
-        let mut cdf = vec![0.0f32; n + 1];
+        self.func.clear();
+        self.func.extend(
+            values
+                .iter()
+                .map(|&v| if v.is_finite() && v > 0.0 { v } else { 0.0 }),
+        );
+        self.cdf.clear();
+        self.cdf.resize(n + 1, 0.0);
         let mut acc = 0.0f64;
         for i in 0..n {
-            acc += func[i] as f64 / n as f64;
-            cdf[i + 1] = acc as f32;
+            acc += self.func[i] as f64 / n as f64;
+            self.cdf[i + 1] = acc as f32;
         }
         let integral = acc as f32;
         if integral > 0.0 {
-            for c in cdf.iter_mut().skip(1) {
-                *c /= integral;
+            let inv = 1.0 / acc;
+            let mut acc = 0.0f64;
+            for i in 0..n {
+                acc += self.func[i] as f64 / n as f64;
+                self.cdf[i + 1] = (acc * inv) as f32;
             }
         } else {
-            for (i, c) in cdf.iter_mut().enumerate() {
+            for (i, c) in self.cdf.iter_mut().enumerate() {
                 *c = i as f32 / n as f32;
             }
         }
-        cdf[n] = 1.0;
-        Distribution1D {
-            func,
-            cdf,
-            integral,
-        }
+        self.cdf[n] = 1.0;
+        self.integral = integral;
     }
 
     pub fn len(&self) -> usize {
@@ -195,6 +210,18 @@ impl Distribution2D {
 
     pub fn integral(&self) -> f32 {
         self.marginal.integral()
+    }
+
+    /// Rebuilds the distribution in place from values of the same size (no allocation).
+    pub fn rebuild(&mut self, values: &[f32]) {
+        let (width, height) = (self.conditional[0].len(), self.conditional.len());
+        assert_eq!(values.len(), width * height);
+        let mut marginal_values = Vec::with_capacity(height);
+        for (row, d) in values.chunks(width).zip(self.conditional.iter_mut()) {
+            d.rebuild(row);
+            marginal_values.push(d.integral());
+        }
+        self.marginal.rebuild(&marginal_values);
     }
 
     /// Returns (u, v) in [0, 1)^2 and its density.

@@ -2,12 +2,13 @@
 //! immutable `Scene` (BVH, lights, light sampler). Every input is checked; a bad one gives an
 //! error naming it, never a panic.
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use super::{BuildStats, Camera, Material, Mesh, Scene, Texture, TriangleRef};
 use crate::error::{Error, Result};
 use crate::geometry::{Bounds3, Bvh, BvhQuality};
-use crate::light::{Light, LightDesc, LightSampler};
+use crate::light::{EnvironmentMap, Light, LightDesc, LightSampler};
 use crate::math::{is_finite3, Vec2, Vec3};
 
 /// What to do with zero-area triangles.
@@ -40,6 +41,7 @@ pub struct SceneBuilder {
     materials: Vec<Material>,
     textures: Vec<Texture>,
     lights: Vec<LightDesc>,
+    environment: Option<Arc<EnvironmentMap>>,
     camera: Option<Camera>,
     degenerate_policy: DegeneratePolicy,
     bvh_quality: BvhQuality,
@@ -114,6 +116,15 @@ impl SceneBuilder {
         light.validate()?;
         self.lights.push(light);
         Ok(())
+    }
+
+    /// Sets (or with `None` removes) the environment map lighting the scene from infinity.
+    pub fn set_environment(&mut self, map: Option<Arc<EnvironmentMap>>) {
+        self.environment = map;
+    }
+
+    pub fn environment(&self) -> Option<&Arc<EnvironmentMap>> {
+        self.environment.as_ref()
     }
 
     pub fn set_camera(&mut self, camera: Camera) -> Result<()> {
@@ -290,6 +301,10 @@ impl SceneBuilder {
         for desc in &self.lights {
             lights.push(Light::from_desc(desc, &bounds));
         }
+        let environment = self.environment.map(|map| {
+            lights.push(environment_light(map, &bounds));
+            (lights.len() - 1) as u32
+        });
         let light_sampler = LightSampler::new(&lights);
         let stats = BuildStats {
             triangles: triangles.len(),
@@ -298,18 +313,34 @@ impl SceneBuilder {
             bvh_nodes: bvh.node_count(),
         };
         Ok(Scene {
-            meshes: self.meshes,
-            triangles,
-            geometric_normals,
-            materials: self.materials,
-            textures: self.textures,
-            bvh,
+            meshes: Arc::new(self.meshes),
+            triangles: Arc::new(triangles),
+            geometric_normals: Arc::new(geometric_normals),
+            materials: Arc::new(self.materials),
+            textures: Arc::new(self.textures),
+            bvh: Arc::new(bvh),
             lights,
             light_sampler,
-            triangle_light,
+            environment,
+            triangle_light: Arc::new(triangle_light),
             camera: self.camera,
             bounds,
             stats,
         })
+    }
+}
+
+/// The environment as a light around the scene's bounding sphere (a unit sphere at the
+/// origin when the scene has no geometry).
+pub(super) fn environment_light(map: Arc<EnvironmentMap>, bounds: &Bounds3) -> Light {
+    let (center, radius) = if bounds.is_empty() {
+        (Vec3::ZERO, 1.0)
+    } else {
+        bounds.bounding_sphere()
+    };
+    Light::Environment {
+        map,
+        scene_center: center,
+        scene_radius: radius.max(1e-6),
     }
 }

@@ -16,7 +16,8 @@ use super::obj::{load_obj, ObjReport};
 use super::{Camera, Material, MaterialKind, MeshDesc, SceneBuilder, Texture};
 use crate::error::{Error, Result};
 use crate::geometry::Bounds3;
-use crate::light::LightDesc;
+use crate::light::environment::{EnvImage, Grid};
+use crate::light::{EnvSettings, EnvironmentMap, LightDesc, UpAxis};
 use crate::math::{Frame, Rgb, Vec2, Vec3, PI};
 
 /// Render settings a scene file may carry; every field is optional (the caller decides the
@@ -64,6 +65,7 @@ struct SceneFile {
     camera: Option<CameraSpec>,
     #[serde(default)]
     lights: Vec<LightSpec>,
+    environment: Option<EnvironmentSpec>,
     #[serde(default)]
     materials: BTreeMap<String, MaterialSpec>,
     #[serde(default)]
@@ -158,6 +160,76 @@ enum LightSpec {
         direction: [f32; 3],
         irradiance: Colour,
     },
+}
+
+/// An environment map: `file` (.exr or .hdr, 2:1 lat-long or 4:3 horizontal cross).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EnvironmentSpec {
+    file: PathBuf,
+    #[serde(default = "one")]
+    scale: f32,
+    /// Degrees about the up axis.
+    #[serde(default)]
+    rotate: f32,
+    /// "y" or "z".
+    #[serde(default = "default_env_up")]
+    up: String,
+    #[serde(default = "yes")]
+    visible: bool,
+    /// Resample to "latlong" or "cube" after loading.
+    layout: Option<String>,
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn default_env_up() -> String {
+    "y".into()
+}
+
+impl EnvironmentSpec {
+    fn load(&self, dir: &Path) -> Result<EnvironmentMap> {
+        let settings = EnvSettings {
+            scale: self.scale,
+            rotate_degrees: self.rotate,
+            up: UpAxis::parse(&self.up)?,
+            visible: self.visible,
+        };
+        settings.validate()?;
+        let mut image = EnvImage::load(&dir.join(&self.file))?;
+        if let Some(layout) = &self.layout {
+            image = convert_layout(&image, layout)?;
+        }
+        EnvironmentMap::new(image, settings)
+    }
+}
+
+/// Resamples an environment image to "latlong" (4F x 2F for faces of F) or "cube" (faces of
+/// width / 4); the same layout is returned unchanged.
+pub fn convert_layout(image: &EnvImage, layout: &str) -> Result<EnvImage> {
+    let grid = image.grid();
+    let target = match (layout, grid) {
+        ("latlong", Grid::LatLong { .. }) | ("cube", Grid::Cube { .. }) => return Ok(image.clone()),
+        ("latlong", Grid::Cube { face }) => Grid::LatLong {
+            width: 4 * face,
+            height: 2 * face,
+        },
+        ("cube", Grid::LatLong { width, .. }) => Grid::Cube {
+            face: (width / 4).max(1),
+        },
+        (other, _) => {
+            return Err(Error::invalid(format!(
+                "environment layout '{other}' must be latlong or cube"
+            )))
+        }
+    };
+    image.convert(target)
 }
 
 #[derive(Deserialize, Clone, Copy)]
@@ -330,6 +402,19 @@ pub fn load_scene_file(path: &Path) -> Result<LoadedScene> {
         builder
             .add_light(l.desc())
             .map_err(|e| fail(format!("lights[{i}]"), e))?;
+    }
+
+    if let Some(e) = &file.environment {
+        let map = e.load(&dir).map_err(|e| fail("environment".into(), e))?;
+        if map.image().clamped() > 0 {
+            warnings.push(format!(
+                "{}: environment map {}: {} negative texel values clamped to 0",
+                path.display(),
+                e.file.display(),
+                map.image().clamped()
+            ));
+        }
+        builder.set_environment(Some(std::sync::Arc::new(map)));
     }
 
     match &file.camera {

@@ -27,6 +27,17 @@ impl SurfaceInteraction {
     }
 
     /// A ray leaving the surface in direction `dir`, starting just off the side `dir` points to.
+    /// The shading normal turned to the side of `wo`: the hemisphere the (opaque) BSDFs
+    /// reflect into, which per-normal light sampling balances its samples for.
+    #[inline]
+    pub fn facing_normal(&self) -> Vec3 {
+        if self.ns.dot(self.wo) < 0.0 {
+            -self.ns
+        } else {
+            self.ns
+        }
+    }
+
     pub fn spawn_ray(&self, dir: Vec3) -> Ray {
         Ray::new(
             offset_ray_origin(self.p, self.p_error, self.ng, dir),

@@ -20,7 +20,7 @@ pub use builder::{DegeneratePolicy, MeshDesc, SceneBuilder};
 pub use builtin::two_rooms_builder;
 pub use camera::{Camera, CameraFrame};
 pub use corridor::{corridor_builder, corridor_render_settings};
-pub use file::{auto_camera, load_scene_file, LoadedScene, RenderSettingsFile};
+pub use file::{auto_camera, convert_layout, load_scene_file, LoadedScene, RenderSettingsFile};
 pub use interaction::SurfaceInteraction;
 pub use material::{
     fresnel_dielectric, Bsdf, BsdfSample, Material, MaterialKind, TextureId, Transport,
@@ -28,8 +28,10 @@ pub use material::{
 pub use obj::{load_obj, ObjReport, DEFAULT_MATERIAL_NAME};
 pub use texture::{srgb_to_linear, Texture};
 
+use std::sync::Arc;
+
 use crate::geometry::{barycentric_point_error, Bounds3, Bvh, Hit, Ray};
-use crate::light::{Light, LightSample, LightSampler};
+use crate::light::{EnvironmentMap, Light, LightSample, LightSampler};
 use crate::math::{Rgb, Vec2, Vec3};
 
 /// A triangle mesh as stored in the scene.
@@ -76,19 +78,24 @@ pub struct BuildStats {
 }
 
 /// An immutable, committed scene. `Send + Sync`: any number of threads may query it.
+///
+/// Geometry, materials and the BVH are shared (`Arc`) so that [`Scene::with_environment`] can
+/// light the same scene with a new environment map without copying them.
 pub struct Scene {
-    meshes: Vec<Mesh>,
-    triangles: Vec<TriangleRef>,
+    meshes: Arc<Vec<Mesh>>,
+    triangles: Arc<Vec<TriangleRef>>,
     /// Unit geometric normal of each global triangle, oriented as the conventions above say.
-    geometric_normals: Vec<Vec3>,
-    materials: Vec<Material>,
-    textures: Vec<Texture>,
-    bvh: Bvh,
+    geometric_normals: Arc<Vec<Vec3>>,
+    materials: Arc<Vec<Material>>,
+    textures: Arc<Vec<Texture>>,
+    bvh: Arc<Bvh>,
     lights: Vec<Light>,
     light_sampler: Option<LightSampler>,
+    /// Index in `lights` of the environment map, if any.
+    environment: Option<u32>,
     /// Light index of each global triangle (`u32::MAX` when it does not emit); empty when the
     /// scene has no area lights.
-    triangle_light: Vec<u32>,
+    triangle_light: Arc<Vec<u32>>,
     camera: Option<Camera>,
     bounds: Bounds3,
     stats: BuildStats,
@@ -113,6 +120,47 @@ impl Scene {
 
     pub fn light_sampler(&self) -> Option<&LightSampler> {
         self.light_sampler.as_ref()
+    }
+
+    /// The same scene lit by environment map `map` instead of its own (`None`: no map).
+    /// Everything but the lights and the light sampler is shared; O(lights).
+    pub fn with_environment(&self, map: Option<Arc<EnvironmentMap>>) -> Scene {
+        // The environment is always the last light, so area-light indices stay valid.
+        let mut lights: Vec<Light> = self
+            .lights
+            .iter()
+            .filter(|l| !matches!(l, Light::Environment { .. }))
+            .cloned()
+            .collect();
+        let environment = map.map(|m| {
+            lights.push(builder::environment_light(m, &self.bounds));
+            (lights.len() - 1) as u32
+        });
+        Scene {
+            meshes: self.meshes.clone(),
+            triangles: self.triangles.clone(),
+            geometric_normals: self.geometric_normals.clone(),
+            materials: self.materials.clone(),
+            textures: self.textures.clone(),
+            bvh: self.bvh.clone(),
+            light_sampler: LightSampler::new(&lights),
+            lights,
+            environment,
+            triangle_light: self.triangle_light.clone(),
+            camera: self.camera,
+            bounds: self.bounds,
+            stats: self.stats.clone(),
+        }
+    }
+
+    /// The environment map and its index among the lights.
+    #[inline]
+    pub fn environment(&self) -> Option<(usize, &EnvironmentMap)> {
+        let i = self.environment? as usize;
+        match &self.lights[i] {
+            Light::Environment { map, .. } => Some((i, map)),
+            _ => None,
+        }
     }
 
     pub fn camera(&self) -> Option<&Camera> {
@@ -183,7 +231,8 @@ impl Scene {
                 + self
                     .light_sampler
                     .as_ref()
-                    .map_or(0, LightSampler::memory_bytes),
+                    .map_or(0, LightSampler::memory_bytes)
+                + self.environment().map_or(0, |(_, e)| e.memory_bytes()),
         }
     }
 

@@ -4,6 +4,7 @@
 #include "lacuna.hpp"
 #include "lacuna.hpp"  // twice: include guards
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -51,6 +52,7 @@ static_assert(std::is_copy_constructible_v<lacuna::Film>, "refcounted handles co
 static_assert(!std::is_copy_constructible_v<lacuna::SceneBuilder>, "owners are move-only");
 static_assert(!std::is_copy_constructible_v<lacuna::RenderJob>, "owners are move-only");
 static_assert(!std::is_copy_constructible_v<lacuna::Mesh>, "owners are move-only");
+static_assert(!std::is_copy_constructible_v<lacuna::Environment>, "owners are move-only");
 static_assert(std::is_nothrow_move_constructible_v<lacuna::Scene>, "moves do not throw");
 
 static lacuna::Scene box(const lacuna::Context &ctx) {
@@ -68,6 +70,34 @@ static lacuna::Scene box(const lacuna::Context &ctx) {
     lacuna::Scene s = b.build();
     CHECK(!b);  // consumed
     return s;
+}
+
+// Environment maps: buffers, errors as exceptions, snapshots in scenes, updates.
+static void test_environment(const lacuna::Context &ctx) {
+    std::vector<float> sky(8 * 4 * 3, 1.0f);
+    lacuna::Environment env = lacuna::Environment::from_buffer(sky.data(), 8, 4, LACUNA_ENVIRONMENT_LAYOUT_LAT_LONG);
+    CHECK(env.info().width == 8 && env.info().height == 4);
+    EXPECT_ERROR(lacuna::Environment::from_buffer(sky.data(), 8, 3, LACUNA_ENVIRONMENT_LAYOUT_LAT_LONG),
+                 LACUNA_STATUS_INVALID_ARGUMENT, "lat-long");
+    EXPECT_ERROR(env.placement(-1, 0), LACUNA_STATUS_INVALID_ARGUMENT, "scale");
+    EXPECT_ERROR(lacuna::Environment::from_file("/nonexistent/sky.hdr"), LACUNA_STATUS_IO, "sky.hdr");
+    env.placement(1, 45, LACUNA_UP_AXIS_Z).prepare(LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC);
+    CHECK(env.info().cube_build_seconds > 0);
+    lacuna::SceneBuilder b(ctx);
+    b.set_camera(lacuna::vec3(0, 0, 0), lacuna::vec3(0, 0, -1), lacuna::vec3(0, 1, 0), 40).set_environment(&env);
+    lacuna::Scene scene = b.build();
+    lacuna::RenderJob job(scene, "path");
+    job.resolution(4, 4).samples_per_pixel(1).environment_strategy(LACUNA_ENVIRONMENT_STRATEGY_LAT_LONG);
+    EXPECT_ERROR(job.environment_strategy(99), LACUNA_STATUS_INVALID_ARGUMENT, "strategy");
+    EXPECT_ERROR(job.environment_samples(0, 0), LACUNA_STATUS_INVALID_ARGUMENT, "both 0");
+    CHECK(job.run().read()[0] == 1.0f);
+    std::fill(sky.begin(), sky.end(), 3.0f);
+    CHECK(env.update(sky.data(), 8, 4, LACUNA_ENVIRONMENT_LAYOUT_LAT_LONG) >= 0);
+    EXPECT_ERROR(env.update(sky.data(), 4, 2, LACUNA_ENVIRONMENT_LAYOUT_LAT_LONG), LACUNA_STATUS_INVALID_ARGUMENT,
+                 "new environment");
+    lacuna::Scene brighter = scene.with_environment(&env);
+    CHECK(lacuna::RenderJob(brighter, "path").resolution(4, 4).samples_per_pixel(1).run().read()[0] == 3.0f);
+    CHECK(lacuna::RenderJob(scene.with_environment(nullptr), "path").resolution(4, 4).samples_per_pixel(1).run().read()[0] == 0.0f);
 }
 
 int main(int argc, char **argv) {
@@ -183,6 +213,8 @@ int main(int argc, char **argv) {
     lacuna::RenderJob moved_job = std::move(slow);
     moved_job.time_budget(0).samples_per_pixel(1);
     CHECK(moved_job.run().stats().spp == 1);
+
+    test_environment(ctx);
 
     std::printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
