@@ -4,7 +4,9 @@
 
 use std::sync::atomic::AtomicBool;
 
-use lacuna::integrator::{self, IntegratorSettings, MisHeuristic};
+use lacuna::integrator::{
+    self, strategy_layer_name, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter,
+};
 use lacuna::light::LightDesc;
 use lacuna::math::{Rgb, Vec3};
 use lacuna::render::{render, RenderSettings};
@@ -391,83 +393,210 @@ fn v3(x: f32, y: f32, z: f32) -> Vec3 {
     Vec3::new(x, y, z)
 }
 
+fn render_once(
+    scene: &Scene,
+    camera: &Camera,
+    integrator: &dyn Integrator,
+    size: u32,
+    spp: u32,
+    seed: u64,
+    threads: Option<usize>,
+) -> lacuna::film::Film {
+    let rs = RenderSettings {
+        width: size,
+        height: size,
+        spp,
+        seed,
+        threads,
+        ..Default::default()
+    };
+    render(
+        scene,
+        camera,
+        integrator,
+        &rs,
+        &|_| true,
+        &AtomicBool::new(false),
+    )
+    .unwrap()
+    .0
+}
+
+/// Means of `block` x `block` pixel blocks of a `size` x `size` image.
+fn block_means(px: &[Rgb], size: u32, block: u32) -> Vec<f64> {
+    let n = size / block;
+    let mut sums = vec![0.0f64; (n * n) as usize];
+    for y in 0..size {
+        for x in 0..size {
+            sums[(y / block * n + x / block) as usize] +=
+                px[(y * size + x) as usize].element_sum() as f64 / 3.0;
+        }
+    }
+    sums.iter().map(|s| s / (block * block) as f64).collect()
+}
+
+fn mean(px: &[Rgb]) -> f64 {
+    px.iter().map(|p| p.element_sum() as f64 / 3.0).sum::<f64>() / px.len() as f64
+}
+
+fn layer(film: &lacuna::film::Film, s: u32, t: u32, weighted: bool) -> Vec<Rgb> {
+    let name = strategy_layer_name(s, t, weighted);
+    film.layer(
+        film.layer_index(&name)
+            .unwrap_or_else(|| panic!("no layer {name}")),
+    )
+}
+
 /// Each (s, t) strategy alone, without MIS weights, is an unbiased estimate of the light
-/// carried by paths of s + t - 1 segments: all strategies of one length agree.
+/// carried by paths of s + t - 1 segments: all strategies of one length agree, for a pinhole
+/// and for a thin lens (where t = 1 connects to sampled lens points). All strategies come
+/// from one render per seed, as strategy images.
 #[test]
 fn each_strategy_alone_is_unbiased() {
-    use lacuna::integrator::{Bdpt, Integrator, StrategyFilter};
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+    let cornell = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("scenes/cornell-box/cornell-box.json");
-    let scene = load_scene_file(&path).unwrap().builder.build().unwrap();
-    let camera = *scene.camera().unwrap();
-    let mean_of = |integrator: &dyn Integrator| -> (f64, f64) {
-        let xs: Vec<f64> = (0..10u64)
-            .map(|seed| {
-                let rs = RenderSettings {
-                    width: 16,
-                    height: 16,
-                    spp: 32,
-                    seed: seed * 31 + 5,
-                    ..Default::default()
-                };
-                let (film, _) = render(
-                    &scene,
-                    &camera,
-                    integrator,
-                    &rs,
-                    &|_| true,
-                    &AtomicBool::new(false),
-                )
-                .unwrap();
-                let px = film.radiance();
-                px.iter().map(|p| p.element_sum() as f64 / 3.0).sum::<f64>() / px.len() as f64
-            })
-            .collect();
-        let n = xs.len() as f64;
-        let m = xs.iter().sum::<f64>() / n;
-        let var = xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
-        (m, (var / n).sqrt())
-    };
+    let scene = load_scene_file(&cornell).unwrap().builder.build().unwrap();
+    let pinhole = *scene.camera().unwrap();
+    // A wide lens focused well in front of the box: the walls' edges blur over a few pixels.
+    let lens = pinhole.with_thin_lens(1.0, 1.5).unwrap();
     let settings = IntegratorSettings {
         max_depth: 6,
         ..Default::default()
     };
-    for segments in [2u32, 3] {
-        let estimates: Vec<((u32, u32), (f64, f64))> = (0..=segments)
-            .map(|s| {
-                let t = segments + 1 - s;
-                let filter = StrategyFilter {
-                    s,
-                    t,
-                    unweighted: true,
-                };
-                ((s, t), mean_of(&Bdpt::new(settings).with_strategy(filter)))
-            })
+    let bdpt = Bdpt::new(settings).with_strategy_images(4).unwrap();
+    for (label, camera) in [("pinhole", pinhole), ("thin lens", lens)] {
+        let films: Vec<_> = (0..16u64)
+            .map(|seed| render_once(&scene, &camera, &bdpt, 16, 32, seed * 31 + 5, None))
             .collect();
-        // The weighted strategies of this length sum to the same total.
-        let weighted: f64 = (0..=segments)
-            .map(|s| {
-                mean_of(&Bdpt::new(settings).with_strategy(StrategyFilter {
-                    s,
-                    t: segments + 1 - s,
-                    unweighted: false,
-                }))
-                .0
-            })
-            .sum();
-        let (reference, ref_err) = estimates[1].1; // s = 1: next-event estimation, low variance
-        assert!(reference > 0.0);
-        for ((s, t), (m, e)) in &estimates {
-            let sigma = (e * e + ref_err * ref_err).sqrt();
+        // Mean and standard error over the seeds of one layer's image mean.
+        let stat = |s: u32, t: u32, weighted: bool| -> (f64, f64) {
+            let xs: Vec<f64> = films
+                .iter()
+                .map(|f| mean(&layer(f, s, t, weighted)))
+                .collect();
+            let n = xs.len() as f64;
+            let m = xs.iter().sum::<f64>() / n;
+            let var = xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
+            (m, (var / n).sqrt())
+        };
+        for segments in [2u32, 3, 4] {
+            let (reference, ref_err) = stat(1, segments, false); // next-event estimation
+            assert!(reference > 0.0);
+            for s in 0..=segments {
+                let t = segments + 1 - s;
+                let (m, e) = stat(s, t, false);
+                let sigma = (e * e + ref_err * ref_err).sqrt();
+                assert!(
+                    (m - reference).abs() <= 4.5 * sigma,
+                    "{label}: ({s},{t}) {m} +- {e} vs (1,{segments}) {reference} +- {ref_err}"
+                );
+            }
+            // Light tracing through the lens blurs like the camera rays: the same means on
+            // 4x4-pixel blocks as next-event estimation.
+            let blocks = |s: u32, t: u32| -> Vec<(f64, f64)> {
+                let per_seed: Vec<Vec<f64>> = films
+                    .iter()
+                    .map(|f| block_means(&layer(f, s, t, false), 16, 4))
+                    .collect();
+                (0..per_seed[0].len())
+                    .map(|b| {
+                        let xs: Vec<f64> = per_seed.iter().map(|v| v[b]).collect();
+                        let n = xs.len() as f64;
+                        let m = xs.iter().sum::<f64>() / n;
+                        let var = xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
+                        (m, (var / n).sqrt())
+                    })
+                    .collect()
+            };
+            if segments <= 3 {
+                assert_agree(
+                    &format!("{label}: ({segments},1) vs (1,{segments}) on blocks"),
+                    &blocks(1, segments),
+                    &blocks(segments, 1),
+                );
+            }
+            // The weighted strategies of this length sum to the same total.
+            let weighted: f64 = (0..=segments)
+                .map(|s| stat(s, segments + 1 - s, true).0)
+                .sum();
             assert!(
-                (m - reference).abs() <= 4.5 * sigma,
-                "({s},{t}) {m} +- {e} vs (1,{}) {reference} +- {ref_err}",
-                segments
+                (weighted - reference).abs() <= 4.5 * ref_err * 2.0,
+                "{label}: weighted sum {weighted} vs {reference}"
             );
         }
+    }
+}
+
+/// The strategy images of one render: their weighted layers sum to the image, a render
+/// restricted to one strategy (`StrategyFilter`) equals that strategy's layer bit for bit, and
+/// the images do not depend on the thread count.
+#[test]
+fn strategy_images_sum_to_the_image_and_match_single_strategy_renders() {
+    let (scene, camera) = box_scene(true, true, true);
+    let settings = IntegratorSettings {
+        max_depth: 4,
+        light_paths: Some(150),
+        ..Default::default()
+    };
+    let bdpt = Bdpt::new(settings)
+        .with_light_paths(150)
+        .unwrap()
+        .with_strategy_images(99)
+        .unwrap();
+    // Every strategy of paths up to 5 segments (clamped to the maximum), weighted and not.
+    assert_eq!(bdpt.layers().len(), 2 * (1 + 3 + 4 + 5 + 6));
+    let film = render_once(&scene, &camera, &bdpt, 20, 6, 3, Some(2));
+    let image = film.radiance();
+    let mut sum = vec![Rgb::ZERO; image.len()];
+    for name in film
+        .layer_names()
+        .iter()
+        .filter(|n| n.ends_with("_weighted"))
+    {
+        for (acc, p) in sum
+            .iter_mut()
+            .zip(film.layer(film.layer_index(name).unwrap()))
+        {
+            *acc += p;
+        }
+    }
+    for (i, (a, b)) in image.iter().zip(&sum).enumerate() {
         assert!(
-            (weighted - reference).abs() <= 4.5 * ref_err * 2.0,
-            "weighted sum {weighted} vs {reference}"
+            (*a - *b).abs().max_element() <= 1e-4 * a.max_element().max(1e-3),
+            "pixel {i}: image {a} vs sum of weighted strategies {b}"
         );
     }
+    assert!(mean(&image) > 0.0);
+
+    for (s, t, unweighted) in [
+        (0, 3, true),
+        (1, 3, false),
+        (2, 2, true),
+        (3, 1, true),
+        (4, 1, false),
+    ] {
+        let single = Bdpt::new(settings)
+            .with_light_paths(150)
+            .unwrap()
+            .with_strategy(StrategyFilter { s, t, unweighted });
+        let alone = render_once(&scene, &camera, &single, 20, 6, 3, Some(1)).radiance();
+        assert_eq!(alone, layer(&film, s, t, !unweighted), "({s},{t})");
+        assert!(mean(&alone) > 0.0, "({s},{t}) is black");
+    }
+
+    let again = render_once(&scene, &camera, &bdpt, 20, 6, 3, Some(1));
+    assert_eq!(again.radiance(), image);
+    for (i, _) in film.layer_names().iter().enumerate() {
+        assert_eq!(again.layer(i), film.layer(i));
+    }
+}
+
+#[test]
+fn strategy_images_need_a_positive_length() {
+    assert!(Bdpt::new(IntegratorSettings::default())
+        .with_strategy_images(0)
+        .is_err());
+    assert!(Bdpt::new(IntegratorSettings::default())
+        .with_light_paths(0)
+        .is_err());
 }

@@ -4,7 +4,7 @@
 mod bdpt;
 mod path;
 
-pub use bdpt::{Bdpt, ConnectionPolicy, StrategyFilter, UniformPerPixel};
+pub use bdpt::{strategy_layer_name, Bdpt, ConnectionPolicy, StrategyFilter, UniformPerPixel};
 pub use path::PathTracer;
 
 use std::any::Any;
