@@ -177,12 +177,13 @@ pub struct Bdpt {
 const LIGHT_STREAM: u64 = 0x9E6C_63D0_676A_9A99;
 
 impl Bdpt {
+    /// A BDPT with `settings` (its `light_paths` included; 0 fails when rendering).
     pub fn new(settings: IntegratorSettings) -> Self {
         Bdpt {
             settings,
             strategy: None,
             strategy_images: None,
-            light_paths: None,
+            light_paths: settings.light_paths.map(|n| n as usize),
             policy: Box::new(UniformPerPixel),
         }
     }
@@ -863,6 +864,11 @@ impl Integrator for Bdpt {
         sample_index: u32,
     ) -> Result<Iteration> {
         let count = self.light_path_count(view);
+        if count == 0 {
+            return Err(Error::invalid(
+                "bdpt: light subpaths per iteration must be at least 1",
+            ));
+        }
         let (paths, out) = self.trace_light_paths(scene, view, seed, sample_index, count);
         Ok(Iteration {
             data: Some(Box::new(paths)),

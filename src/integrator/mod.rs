@@ -158,7 +158,7 @@ pub fn create(name: &str, settings: IntegratorSettings) -> Result<Box<dyn Integr
         "bdpt" => {
             let bdpt = Bdpt::new(settings);
             Ok(Box::new(match settings.light_paths {
-                Some(n) => bdpt.with_light_paths(n as usize)?,
+                Some(n) => bdpt.with_light_paths(n as usize)?, // validates n >= 1
                 None => bdpt,
             }))
         }
