@@ -578,7 +578,8 @@ fn strategy_images_sum_to_the_image_and_match_single_strategy_renders() {
         let single = Bdpt::new(settings)
             .with_light_paths(150)
             .unwrap()
-            .with_strategy(StrategyFilter { s, t, unweighted });
+            .with_strategy(StrategyFilter { s, t, unweighted })
+            .unwrap();
         let alone = render_once(&scene, &camera, &single, 20, 6, 3, Some(1)).radiance();
         assert_eq!(alone, layer(&film, s, t, !unweighted), "({s},{t})");
         assert!(mean(&alone) > 0.0, "({s},{t}) is black");
@@ -592,11 +593,43 @@ fn strategy_images_sum_to_the_image_and_match_single_strategy_renders() {
 }
 
 #[test]
-fn strategy_images_need_a_positive_length() {
+fn strategy_options_are_validated() {
+    for (s, t) in [(0, 0), (1, 0), (3, 0), (0, 1), (1, 1)] {
+        let f = StrategyFilter {
+            s,
+            t,
+            unweighted: false,
+        };
+        assert!(Bdpt::new(IntegratorSettings::default())
+            .with_strategy(f)
+            .is_err());
+    }
     assert!(Bdpt::new(IntegratorSettings::default())
         .with_strategy_images(0)
         .is_err());
     assert!(Bdpt::new(IntegratorSettings::default())
         .with_light_paths(0)
         .is_err());
+    let zero = IntegratorSettings {
+        light_paths: Some(0),
+        ..Default::default()
+    };
+    assert!(integrator::create("bdpt", zero).is_err());
+    let (scene, camera) = box_scene(false, true, false);
+    let rs = RenderSettings {
+        width: 4,
+        height: 4,
+        spp: 1,
+        ..Default::default()
+    };
+    let err = render(
+        &scene,
+        &camera,
+        &Bdpt::new(zero),
+        &rs,
+        &|_| true,
+        &AtomicBool::new(false),
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("at least 1"), "{err}");
 }

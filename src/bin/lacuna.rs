@@ -479,7 +479,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
                 s,
                 t,
                 unweighted: args.unweighted,
-            });
+            })?;
         }
         if args.strategy_images.is_some() {
             let max_len = prep.integrator.max_depth + 1;

@@ -42,8 +42,9 @@ pub struct ExrImage {
 const PREFIX: &str = "lacuna:";
 
 impl Film {
-    /// Writes mean radiance as R, G, B (float32), and the AOVs as `albedo.*`, `normal.*` and
-    /// `depth.Z` channels, with `metadata` in the header.
+    /// Writes mean radiance as R, G, B (float32), the AOVs as `albedo.*`, `normal.*` and
+    /// `depth.Z` channels and the integrator's layers as `NAME.R/G/B`, with `metadata` in the
+    /// header.
     pub fn write_exr(&self, path: &Path, metadata: &ExrMetadata) -> Result<()> {
         let (w, h) = (self.width() as usize, self.height() as usize);
         let radiance = self.radiance();
@@ -68,6 +69,13 @@ impl Film {
             channel("normal.Z", &normal, 2),
             x::AnyChannel::new("depth.Z", x::FlatSamples::F32(depth)),
         ];
+        let mut channels = channels;
+        for (index, name) in self.layer_names().iter().enumerate() {
+            let pixels = self.layer(index);
+            for (c, suffix) in ["R", "G", "B"].iter().enumerate() {
+                channels.push(channel(&format!("{name}.{suffix}"), &pixels, c));
+            }
+        }
         write_exr_channels(path, (w, h), channels, metadata)
     }
 

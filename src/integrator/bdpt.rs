@@ -103,6 +103,21 @@ pub struct StrategyFilter {
     pub unweighted: bool,
 }
 
+impl StrategyFilter {
+    /// Checks that bdpt has this strategy: t >= 1 (no light path hits the camera), s + t >= 2,
+    /// and not (1, 1) (an emitter seen directly is s = 0's alone).
+    pub fn validate(&self) -> Result<()> {
+        let (s, t) = (self.s, self.t);
+        if t == 0 || s + t < 2 || (s, t) == (1, 1) || s > 1 << 20 || t > 1 << 20 {
+            return Err(Error::invalid(format!(
+                "bdpt has no strategy ({s}, {t}): it needs t >= 1 and s + t >= 2, and (1, 1) is \
+                 left to s = 0"
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// What one strategy found for one path: its unweighted contribution (f / p times the
 /// subpath throughputs) and its MIS weight.
 #[derive(Clone, Copy, Debug)]
@@ -199,10 +214,11 @@ impl Bdpt {
         Ok(self)
     }
 
-    /// Keeps only the contributions of one strategy.
-    pub fn with_strategy(mut self, filter: StrategyFilter) -> Self {
+    /// Keeps only the contributions of one strategy (see [`StrategyFilter::validate`]).
+    pub fn with_strategy(mut self, filter: StrategyFilter) -> Result<Self> {
+        filter.validate()?;
         self.strategy = Some(filter);
-        self
+        Ok(self)
     }
 
     /// Also renders, from the same samples, the image of every strategy of paths up to
