@@ -125,6 +125,36 @@ fn bdpt_agrees_with_path_on_the_cornell_box() {
     }
 }
 
+/// Fewer and more light subpaths per iteration than pixels (24 x 24 = 576): camera paths share
+/// light subpaths, or some light subpaths only splat; the light-tracing weights use the count.
+#[test]
+fn bdpt_agrees_with_path_for_any_number_of_light_subpaths() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes/cornell-box/cornell-box.json");
+    let scene = load_scene_file(&path).unwrap().builder.build().unwrap();
+    let camera = *scene.camera().unwrap();
+    let settings = IntegratorSettings {
+        max_depth: 4,
+        ..Default::default()
+    };
+    let reference = region_means(&scene, &camera, "path", settings, 24, 8, 8);
+    for n in [37, 2000] {
+        let bdpt = region_means(
+            &scene,
+            &camera,
+            "bdpt",
+            IntegratorSettings {
+                light_paths: Some(n),
+                ..settings
+            },
+            24,
+            8,
+            8,
+        );
+        assert_agree(&format!("cornell, {n} light subpaths"), &reference, &bdpt);
+    }
+}
+
 #[test]
 fn bdpt_agrees_with_path_on_the_two_rooms() {
     let scene = two_rooms_builder().unwrap().build().unwrap();

@@ -38,6 +38,13 @@ use crate::math::{Rgb, Rng, Vec2, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 
 /// Chooses the light subpath a camera path connects to.
+///
+/// The MIS weights assume what the default [`UniformPerPixel`] does: every camera path
+/// connects all its vertices to one light subpath, each chosen as often as any other. A
+/// resampling policy (SkelBPT, 000 §11, eq. 186) chooses per camera vertex and per subpath
+/// length with a non-uniform probability; it will need the camera vertex here, a factor
+/// 1 / (N p) on each contribution and the connection count in the weights, which this trait
+/// does not have yet.
 pub trait ConnectionPolicy: Send + Sync {
     fn light_path_for(&self, pixel_index: u64, light_paths: usize) -> usize;
 }
@@ -255,7 +262,7 @@ impl Bdpt {
     /// Whether an estimate of strategy (s, t) is used at all (else its shadow ray is skipped).
     #[inline]
     fn wanted(&self, s: u32, t: u32) -> bool {
-        self.strategy.is_none_or(|f| f.s == s && f.t == t) || self.strategy_layer(s, t).is_some()
+        self.strategy.map_or(true, |f| f.s == s && f.t == t) || self.strategy_layer(s, t).is_some()
     }
 
     /// First of the two layers (weighted, unweighted) of strategy (s, t), if it has images.

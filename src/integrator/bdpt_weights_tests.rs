@@ -510,7 +510,7 @@ fn record(
         paths.ranges.push((start, paths.vertices.len() as u32));
     }
     rec.tracing_light = false;
-    let mut rng = Rng::new(seed ^ 0xCA3E_5A, 99);
+    let mut rng = Rng::new(seed ^ 0x00CA_3E5A, 99);
     for _ in 0..camera_paths {
         let (x, y) = (rng.below(view.width), rng.below(view.height));
         let pixel_index = (y * view.width + x) as u64;
