@@ -768,10 +768,10 @@ lacuna_status lacuna_film_write_png(const struct lacuna_film *film,
                                     float exposure);
 
 // Creates a render job of `scene` (kept alive by the job) with the integrator named
-// `integrator` (`"path"`; NULL for the scene file's integrator or `"path"`). Defaults: the
-// scene file's render settings when the scene came from one, else 512x512, 16 samples per
-// pixel, seed 0, max depth 8, power heuristic, the context's thread count; the scene's camera,
-// or one framing the scene when it has none. Thread-safe.
+// `integrator` (`"path"` or `"bdpt"`; NULL for the scene file's integrator or `"path"`).
+// Defaults: the scene file's render settings when the scene came from one, else 512x512, 16
+// samples per pixel, seed 0, max depth 8, power heuristic, the context's thread count; the
+// scene's camera, or one framing the scene when it has none. Thread-safe.
 lacuna_status lacuna_render_job_new(const struct lacuna_scene *scene,
                                     const char *integrator,
                                     struct lacuna_render_job **out_job);

@@ -348,6 +348,26 @@ fn bdpt_handles_delta_lights_through_delta_bsdfs() {
 
 /// Veach's door (pg2015 version) at low resolution: light reaches the camera room only
 /// through the gap of the door.
+/// Bitterli's "Veach, Ajar" at low resolution: the second door scene.
+#[test]
+fn bdpt_agrees_with_path_on_bitterlis_ajar_door() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes/veach-ajar-bitterli/veach-ajar-bitterli.json");
+    let scene = load_scene_file(&path).unwrap().builder.build().unwrap();
+    let camera = *scene.camera().unwrap();
+    compare(
+        "ajar door",
+        &scene,
+        &camera,
+        IntegratorSettings {
+            max_depth: 6,
+            ..Default::default()
+        },
+        16,
+        16,
+    );
+}
+
 #[test]
 fn bdpt_agrees_with_path_on_the_veach_door() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -222,10 +222,10 @@ impl lacuna_render_job {
 }
 
 /// Creates a render job of `scene` (kept alive by the job) with the integrator named
-/// `integrator` (`"path"`; NULL for the scene file's integrator or `"path"`). Defaults: the
-/// scene file's render settings when the scene came from one, else 512x512, 16 samples per
-/// pixel, seed 0, max depth 8, power heuristic, the context's thread count; the scene's camera,
-/// or one framing the scene when it has none. Thread-safe.
+/// `integrator` (`"path"` or `"bdpt"`; NULL for the scene file's integrator or `"path"`).
+/// Defaults: the scene file's render settings when the scene came from one, else 512x512, 16
+/// samples per pixel, seed 0, max depth 8, power heuristic, the context's thread count; the
+/// scene's camera, or one framing the scene when it has none. Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_new(
     scene: *const lacuna_scene,
