@@ -155,6 +155,43 @@ fn bdpt_agrees_with_path_for_any_number_of_light_subpaths() {
     }
 }
 
+/// The many-path estimator (000 eq. 185): every camera vertex connected to all 24 light
+/// subpaths of the iteration, each counting 1/24, with 24 connection samples in the weights.
+#[test]
+fn bdpt_connecting_to_every_light_subpath_agrees_with_path() {
+    use lacuna::integrator::AllLightPaths;
+    let (scene, camera) = box_scene(true, true, false);
+    let settings = IntegratorSettings {
+        max_depth: 4,
+        ..Default::default()
+    };
+    let path = region_means(&scene, &camera, "path", settings, 16, 8, 8);
+    let all = Bdpt::new(settings)
+        .with_light_paths(24)
+        .unwrap()
+        .with_policy(Box::new(AllLightPaths));
+    // Image mean and quadrant means (in region_means' order) over 8 seeds.
+    let runs: Vec<Vec<f64>> = (0..8u64)
+        .map(|seed| {
+            let px = render_once(&scene, &camera, &all, 16, 8, seed * 7919 + 1, None).radiance();
+            assert!(px.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
+            let mut q = vec![mean(&px)];
+            q.extend(block_means(&px, 16, 8));
+            q
+        })
+        .collect();
+    let bdpt: Vec<(f64, f64)> = (0..5)
+        .map(|k| {
+            let xs: Vec<f64> = runs.iter().map(|r| r[k]).collect();
+            let n = xs.len() as f64;
+            let m = xs.iter().sum::<f64>() / n;
+            let var = xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
+            (m, (var / n).sqrt())
+        })
+        .collect();
+    assert_agree("all light subpaths", &path, &bdpt);
+}
+
 #[test]
 fn bdpt_agrees_with_path_on_the_two_rooms() {
     let scene = two_rooms_builder().unwrap().build().unwrap();

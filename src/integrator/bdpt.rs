@@ -9,8 +9,9 @@
 //! `mis(x)` is x for the balance heuristic and x^2 for the power heuristic.
 //!
 //! Light subpaths are traced once per sample index ("iteration") for the whole image into a
-//! vertex pool; each camera path then connects to the light subpath a [`ConnectionPolicy`]
-//! picks (by default its own, one per pixel): the shape SkelBPT's resampling builds on.
+//! vertex pool; each camera vertex then connects to the light subpaths a [`ConnectionPolicy`]
+//! picks (by default its camera path's own, one per pixel), with the policy's sample count in
+//! the weights: the shape SkelBPT's resampling builds on.
 //! Russian roulette uses a per-vertex continuation probability (the BSDF's albedo), folded
 //! into both the forward and the reverse pdfs so the weights stay exact. It does not depend on
 //! the depth (so `rr_start_depth` is not used here): a vertex's reverse pdf must be known when
@@ -37,24 +38,82 @@ use crate::geometry::{offset_ray_origin, Ray};
 use crate::math::{Rgb, Rng, Vec2, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 
-/// Chooses the light subpath a camera path connects to.
-///
-/// The MIS weights assume what the default [`UniformPerPixel`] does: every camera path
-/// connects all its vertices to one light subpath, each chosen as often as any other. A
-/// resampling policy (SkelBPT, 000 §11, eq. 186) chooses per camera vertex and per subpath
-/// length with a non-uniform probability; it will need the camera vertex here, a factor
-/// 1 / (N p) on each contribution and the connection count in the weights, which this trait
-/// does not have yet.
-pub trait ConnectionPolicy: Send + Sync {
-    fn light_path_for(&self, pixel_index: u64, light_paths: usize) -> usize;
+/// A camera vertex about to be connected to stored light vertices.
+pub struct CameraVertex<'a> {
+    pub pixel_index: u64,
+    /// Segments from the camera to this vertex.
+    pub segments: u32,
+    pub si: &'a SurfaceInteraction,
 }
 
-/// Each pixel connects to "its" light subpath (index = pixel index modulo their number).
+/// Chooses the stored light subpaths each camera vertex connects to (all the valid vertices of
+/// each chosen subpath), the eye pass's pluggable part (000 §11: SkelBPT resamples them).
+///
+/// The estimate is unbiased when, over the policy's choices, the factors make every light
+/// subpath count as `connection_count` samples: E[sum of the factors given to subpath j] =
+/// connection_count / N for each of the N subpaths. `connection_count` is also the number of
+/// samples the connection strategies get in the MIS weights (000 eq. 185: the many-path
+/// estimator with every camera vertex connected to all N subpaths has N). A resampling policy
+/// (eq. 186) picks per camera vertex with probability p(j) and gives the factor
+/// connection_count / (N p(j)); choosing per subpath length, as SkelBPT does, will need a
+/// length here too.
+pub trait ConnectionPolicy: Send + Sync {
+    /// MIS sample count of the connection strategies, for `light_paths` subpaths.
+    fn connection_count(&self, light_paths: usize) -> f32;
+
+    /// Calls `connect(subpath, factor)` for each light subpath `vertex` connects to.
+    fn connect(
+        &self,
+        vertex: &CameraVertex,
+        light_paths: usize,
+        rng: &mut Rng,
+        connect: &mut dyn FnMut(usize, f32),
+    );
+}
+
+/// The default: every vertex of a camera path connects to the camera path's "own" light
+/// subpath (pixel index modulo their number), one connection per strategy.
 pub struct UniformPerPixel;
 
 impl ConnectionPolicy for UniformPerPixel {
-    fn light_path_for(&self, pixel_index: u64, light_paths: usize) -> usize {
-        (pixel_index % light_paths.max(1) as u64) as usize
+    fn connection_count(&self, _light_paths: usize) -> f32 {
+        1.0
+    }
+
+    fn connect(
+        &self,
+        vertex: &CameraVertex,
+        light_paths: usize,
+        _rng: &mut Rng,
+        connect: &mut dyn FnMut(usize, f32),
+    ) {
+        if light_paths > 0 {
+            connect((vertex.pixel_index % light_paths as u64) as usize, 1.0);
+        }
+    }
+}
+
+/// Every camera vertex connects to every light subpath, each counting 1/N: the many-path
+/// estimator of 000 eq. 185 that SkelBPT's resampling estimates, at N times the connections
+/// (a reference for resampling policies; use few light subpaths).
+pub struct AllLightPaths;
+
+impl ConnectionPolicy for AllLightPaths {
+    fn connection_count(&self, light_paths: usize) -> f32 {
+        light_paths.max(1) as f32
+    }
+
+    fn connect(
+        &self,
+        _vertex: &CameraVertex,
+        light_paths: usize,
+        _rng: &mut Rng,
+        connect: &mut dyn FnMut(usize, f32),
+    ) {
+        let factor = 1.0 / light_paths.max(1) as f32;
+        for j in 0..light_paths {
+            connect(j, factor);
+        }
     }
 }
 
@@ -88,6 +147,15 @@ struct LightTracingOutput {
 /// What one parallel task of light tracing produced: vertices, per-path ranges (relative to
 /// the chunk) and the rest.
 type LightPathChunk = (Vec<LightVertex>, Vec<(u32, u32)>, LightTracingOutput);
+
+/// MIS sample counts of the strategies that take more than one sample per camera path:
+/// light tracing (one sample per light subpath, over the image) and, per the connection
+/// policy, the connections. The others (s = 0, s = 1) take one.
+#[derive(Clone, Copy, Debug)]
+struct Counts {
+    light_paths: f32,
+    connections: f32,
+}
 
 /// Throughput and MIS partial sums of a subpath being extended.
 #[derive(Clone, Copy, Debug)]
@@ -136,13 +204,16 @@ pub(crate) struct Estimate {
 }
 
 /// The end vertex a strategy sampled that is in neither recorded subpath: the light point of
-/// s = 1 (light index and position), the lens point of t = 1.
+/// s = 1 (light index and position), the lens point of t = 1; for connections, which light
+/// subpath.
 #[derive(Clone, Copy, Debug)]
 #[cfg_attr(not(test), allow(dead_code))]
 pub(crate) enum Endpoint {
     None,
     Light(usize, Vec3),
     Lens(Vec3),
+    /// s >= 2, t >= 2: the light subpath connected to.
+    LightPath(usize),
 }
 
 /// Sees the subpaths a render traces and every estimate made from them (for tests; `()` sees
@@ -319,6 +390,13 @@ impl Bdpt {
         self.settings.max_depth + 1
     }
 
+    fn counts(&self, light_paths: usize) -> Counts {
+        Counts {
+            light_paths: light_paths.max(1) as f32,
+            connections: self.policy.connection_count(light_paths),
+        }
+    }
+
     fn light_path_count(&self, view: &View) -> usize {
         self.light_paths
             .unwrap_or(view.width as usize * view.height as usize)
@@ -331,7 +409,7 @@ impl Bdpt {
         &self,
         scene: &Scene,
         view: &View,
-        n_light: f32,
+        counts: Counts,
         rng: &mut Rng,
         vertices: &mut Vec<LightVertex>,
         out: &mut LightTracingOutput,
@@ -351,14 +429,16 @@ impl Bdpt {
             return;
         }
         let used_cos = if light.is_finite() { es.cos_light } else { 1.0 };
+        // The strategies these sums stand for (s = 1 and s = 0) take one sample where the
+        // connections take `counts.connections`.
         let mut state = SubpathState {
             throughput: es.value / emission_pdf_w,
             path_len: 1,
-            d_vcm: self.mis(direct_pdf_a / emission_pdf_w),
+            d_vcm: self.mis(direct_pdf_a / emission_pdf_w / counts.connections),
             d_vc: if light.is_delta() {
                 0.0
             } else {
-                self.mis(used_cos / emission_pdf_w)
+                self.mis(used_cos / emission_pdf_w / counts.connections)
             },
             finite_light: light.is_finite(),
         };
@@ -393,7 +473,7 @@ impl Bdpt {
                     if let Some((pixel, e, lens)) = self.connect_to_camera(
                         scene,
                         view,
-                        n_light,
+                        counts,
                         &vertex,
                         &bsdf,
                         rng,
@@ -425,7 +505,7 @@ impl Bdpt {
         &self,
         scene: &Scene,
         view: &View,
-        n_light: f32,
+        counts: Counts,
         v: &LightVertex,
         bsdf: &Bsdf,
         rng: &mut Rng,
@@ -457,11 +537,14 @@ impl Bdpt {
         // density d^2 / cos^3 (unit pixel area at image-plane distance d) times cos / dist^2.
         let image_dist = view.frame.image_plane_distance(view.height) / cos_at_camera;
         let image_to_surface = image_dist * image_dist / cos_at_camera * cos_to_camera / dist2;
-        let w_light = self.mis(image_to_surface / n_light) * (v.d_vcm + v.d_vc * self.mis(rev_pdf));
+        // Light tracing takes `counts.light_paths` samples, the connections compared with it
+        // `counts.connections`.
+        let w_light = self.mis(image_to_surface * counts.connections / counts.light_paths)
+            * (v.d_vcm + v.d_vc * self.mis(rev_pdf));
         let e = Estimate {
             s: v.path_len + 1,
             t: 1,
-            value: v.throughput * f * (image_to_surface / n_light),
+            value: v.throughput * f * (image_to_surface / counts.light_paths),
             weight: 1.0 / (1.0 + w_light),
         };
         if !crate::math::is_finite3(e.value) || e.value == Rgb::ZERO || !self.wanted(e.s, e.t) {
@@ -529,12 +612,14 @@ impl Bdpt {
 
     /// s = 1: one light sample at a camera vertex. Returns the estimate (camera throughput
     /// not applied) with the light and the sampled point.
+    #[allow(clippy::too_many_arguments)]
     fn direct_illumination(
         &self,
         scene: &Scene,
         si: &SurfaceInteraction,
         bsdf: &Bsdf,
         state: &SubpathState,
+        counts: Counts,
         rng: &mut Rng,
         counters: &mut TraceCounters,
     ) -> Option<(Estimate, Endpoint)> {
@@ -573,8 +658,11 @@ impl Bdpt {
         } else {
             self.mis(dir_pdf / (pick * direct_pdf_w))
         };
-        let w_camera = self.mis(emission_pdf_w * cos_to_light / (direct_pdf_w * cos_at_light))
-            * (state.d_vcm + state.d_vc * self.mis(rev_pdf));
+        // The strategies with more light vertices are connections (and light tracing, whose
+        // count the camera sums carry relative to the connections').
+        let w_camera = self.mis(
+            emission_pdf_w * cos_to_light * counts.connections / (direct_pdf_w * cos_at_light),
+        ) * (state.d_vcm + state.d_vc * self.mis(rev_pdf));
         let e = Estimate {
             s: 1,
             t: state.path_len + 1,
@@ -695,11 +783,7 @@ impl Bdpt {
     ) -> PixelSample {
         let mut out = PixelSample::default();
         let paths = ctx.iteration.and_then(|d| d.downcast_ref::<LightPaths>());
-        let n_light = paths.map_or(1, |p| p.ranges.len()).max(1) as f32;
-        let light_range = paths.map(|p| {
-            let (a, b) = p.ranges[self.policy.light_path_for(ctx.pixel_index, p.ranges.len())];
-            &p.vertices[a as usize..b as usize]
-        });
+        let counts = self.counts(paths.map_or(1, |p| p.ranges.len()));
         let cos_at_camera = ray.dir.dot(ctx.view.frame.forward);
         if !(cos_at_camera > 0.0) {
             return out;
@@ -711,7 +795,8 @@ impl Bdpt {
         let mut state = SubpathState {
             throughput: Rgb::ONE,
             path_len: 1,
-            d_vcm: self.mis(n_light / camera_pdf_w),
+            // Light tracing's sample count relative to the connections'.
+            d_vcm: self.mis(counts.light_paths / (counts.connections * camera_pdf_w)),
             d_vc: 0.0,
             finite_light: true,
         };
@@ -748,8 +833,9 @@ impl Bdpt {
                     let pick = sampler.pmf(l);
                     let direct_pdf_a = pick * light.direct_pdf_area();
                     let emission_pdf_w = pick * light.emission_pdf(si.wo);
+                    // d_vcm: s = 1 (one sample, like this); d_vc: connections and beyond.
                     let w_camera = self.mis(direct_pdf_a) * state.d_vcm
-                        + self.mis(emission_pdf_w) * state.d_vc;
+                        + self.mis(emission_pdf_w * counts.connections) * state.d_vc;
                     Some(1.0 / (1.0 + w_camera))
                 } else {
                     None
@@ -774,25 +860,35 @@ impl Bdpt {
             }
             if !bsdf.is_delta() {
                 if let Some((mut e, end)) =
-                    self.direct_illumination(scene, &si, &bsdf, &state, rng, counters)
+                    self.direct_illumination(scene, &si, &bsdf, &state, counts, rng, counters)
                 {
                     e.value *= state.throughput;
                     obs.estimate(&e, end);
                     radiance += self.accept(&e, ctx.layers);
                 }
-                if let Some(vertices) = light_range {
-                    for v in vertices {
-                        if v.path_len + 1 + state.path_len > self.max_len() {
-                            break;
+                if let Some(p) = paths {
+                    let vertex = CameraVertex {
+                        pixel_index: ctx.pixel_index,
+                        segments: state.path_len,
+                        si: &si,
+                    };
+                    let mut connect = |j: usize, factor: f32| {
+                        let (a, b) = p.ranges[j];
+                        for v in &p.vertices[a as usize..b as usize] {
+                            if v.path_len + 1 + state.path_len > self.max_len() {
+                                break;
+                            }
+                            if let Some(mut e) =
+                                self.connect_vertices(scene, &si, &bsdf, &state, v, counters)
+                            {
+                                e.value *= state.throughput * factor;
+                                obs.estimate(&e, Endpoint::LightPath(j));
+                                radiance += self.accept(&e, ctx.layers);
+                            }
                         }
-                        if let Some(mut e) =
-                            self.connect_vertices(scene, &si, &bsdf, &state, v, counters)
-                        {
-                            e.value *= state.throughput;
-                            obs.estimate(&e, Endpoint::None);
-                            radiance += self.accept(&e, ctx.layers);
-                        }
-                    }
+                    };
+                    self.policy
+                        .connect(&vertex, p.ranges.len(), rng, &mut connect);
                 }
             }
             let Some(wi) = self.scatter(&bsdf, &si, &mut state, rng, Transport::Radiance) else {
@@ -815,7 +911,7 @@ impl Bdpt {
         sample_index: u32,
         count: usize,
     ) -> (LightPaths, LightTracingOutput) {
-        let n_light = count as f32;
+        let counts = self.counts(count);
         const CHUNK: usize = 256;
         let chunks: Vec<LightPathChunk> = (0..count.div_ceil(CHUNK))
             .into_par_iter()
@@ -830,7 +926,7 @@ impl Bdpt {
                     self.trace_light_path(
                         scene,
                         view,
-                        n_light,
+                        counts,
                         &mut rng,
                         &mut vertices,
                         &mut out,

@@ -10,8 +10,10 @@
 //!
 //! The explicit model, for a path x_0 (camera or lens point) ... x_k (on a light) and strategy
 //! (s, t) with s + t = k + 1 (camera vertices x_0..x_{t-1}, light vertices x_t..x_k):
-//! p_{s,t} = prod_{i=1}^{t-1} Pc(i) * prod_{i=t}^{k} Pl(i), times the number of light subpaths
-//! when t = 1 (the image gets that many light-tracing samples per camera sample). Pc(i) is the
+//! p_{s,t} = prod_{i=1}^{t-1} Pc(i) * prod_{i=t}^{k} Pl(i), times the number of samples the
+//! strategy takes per camera path: the number of light subpaths when t = 1 (the image gets
+//! that many light-tracing samples per camera sample), the connection policy's count for
+//! s >= 2, t >= 2 (1 by default, N when every camera vertex connects to all N subpaths). Pc(i) is the
 //! area density of x_i sampled from x_{i-1} by the camera side, Pl(i) from x_{i+1} by the light
 //! side: BSDF pdf times continuation probability times cos / distance^2 (camera rays: d^2 /
 //! cos^3; emission: the light's direction density; directional lights: the disk density times
@@ -51,8 +53,6 @@ struct Recorder<'a> {
     scene: &'a Scene,
     /// Light, light point and surface vertices of each light subpath traced so far.
     light_paths: Vec<(usize, Vec3, Vec<SurfaceInteraction>)>,
-    /// The light subpath the current camera path connects to.
-    connect_to: usize,
     camera: Vec<PathPoint>,
     tracing_light: bool,
     recorded: Vec<Recorded>,
@@ -107,7 +107,7 @@ impl PathObserver for Recorder<'_> {
                     path.push(PathPoint::Light(light, si.p));
                 }
                 (1, Endpoint::Light(light, point)) => path.push(PathPoint::Light(light, point)),
-                (s, Endpoint::None) if s >= 2 => path.extend(self.light_part(self.connect_to, s)),
+                (s, Endpoint::LightPath(j)) if s >= 2 => path.extend(self.light_part(j, s)),
                 other => panic!("unexpected estimate {other:?}"),
             }
             path
@@ -156,6 +156,8 @@ impl Density {
 struct Model {
     mis: MisHeuristic,
     n_light: f64,
+    /// Samples of each connection strategy (s >= 2, t >= 2) per camera path.
+    n_conn: f64,
     /// Include the Russian-roulette continuation probabilities.
     roulette: bool,
     /// Include cos / dist^2 in densities through specular vertices (else 1, as pbrt-v3's
@@ -362,6 +364,8 @@ impl Explicit<'_> {
         let mut p = camera.times(light);
         if t == 1 {
             p.value *= self.model.n_light;
+        } else if s >= 2 {
+            p.value *= self.model.n_conn;
         }
         p
     }
@@ -467,7 +471,7 @@ fn test_scene() -> Scene {
 fn record(
     scene: &Scene,
     camera: &Camera,
-    settings: IntegratorSettings,
+    bdpt: &Bdpt,
     n_light: usize,
     camera_paths: usize,
     seed: u64,
@@ -477,11 +481,9 @@ fn record(
         width: 24,
         height: 24,
     };
-    let bdpt = Bdpt::new(settings).with_light_paths(n_light).unwrap();
     let mut rec = Recorder {
         scene,
         light_paths: Vec::new(),
-        connect_to: 0,
         camera: Vec::new(),
         tracing_light: true,
         recorded: Vec::new(),
@@ -498,7 +500,7 @@ fn record(
         bdpt.trace_light_path(
             scene,
             &view,
-            n_light as f32,
+            bdpt.counts(n_light),
             &mut rng,
             &mut paths.vertices,
             &mut out,
@@ -514,7 +516,6 @@ fn record(
     for _ in 0..camera_paths {
         let (x, y) = (rng.below(view.width), rng.below(view.height));
         let pixel_index = (y * view.width + x) as u64;
-        rec.connect_to = UniformPerPixel.light_path_for(pixel_index, n_light);
         rec.camera.clear();
         let ctx = SampleContext {
             pixel_index,
@@ -611,10 +612,11 @@ fn compare(scene: &Scene, view: &View, recorded: &[Recorded], model: Model) -> C
     c
 }
 
-fn model(settings: &IntegratorSettings, n_light: usize) -> Model {
+fn model(settings: &IntegratorSettings, n_light: usize, n_conn: usize) -> Model {
     Model {
         mis: settings.mis,
         n_light: n_light as f64,
+        n_conn: n_conn as f64,
         roulette: true,
         specular_geometry: true,
     }
@@ -643,23 +645,38 @@ fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
     )
     .unwrap();
     let lens = pinhole.with_thin_lens(0.15, 2.8).unwrap();
-    for (camera, mis, n_light) in [
-        (pinhole, MisHeuristic::Power, 1500),
-        (pinhole, MisHeuristic::Balance, 2000),
-        (lens, MisHeuristic::Power, 1500),
+    for (camera, mis, n_light, all) in [
+        (pinhole, MisHeuristic::Power, 1500, false),
+        (pinhole, MisHeuristic::Balance, 2000, false),
+        (lens, MisHeuristic::Power, 1500, false),
+        // Every camera vertex connected to all light subpaths (000 eq. 185).
+        (pinhole, MisHeuristic::Power, 40, true),
     ] {
         let settings = IntegratorSettings {
             max_depth: 6,
             mis,
             ..Default::default()
         };
-        let (view, recorded) = record(&scene, &camera, settings, n_light, 8000, 11);
-        let c = compare(&scene, &view, &recorded, model(&settings, n_light));
+        let mut bdpt = Bdpt::new(settings).with_light_paths(n_light).unwrap();
+        let n_conn = if all {
+            bdpt = bdpt.with_policy(Box::new(AllLightPaths));
+            n_light
+        } else {
+            1
+        };
+        let camera_paths = if all { 1500 } else { 8000 };
+        let (view, recorded) = record(&scene, &camera, &bdpt, n_light, camera_paths, 11);
+        let c = compare(&scene, &view, &recorded, model(&settings, n_light, n_conn));
         let label = format!(
-            "{mis:?}, {n_light} light paths, lens {}",
+            "{mis:?}, {n_light} light paths, lens {}, all paths {all}",
             camera.lens_radius
         );
         assert_close(&label, &c);
+        if all {
+            // Few light subpaths, but every camera vertex connects to each of them.
+            assert!(c.connections > 10_000, "{label}: {c:?}");
+            continue;
+        }
         // Every kind of strategy and path was exercised.
         assert!(c.checked > 5000, "{label}: {c:?}");
         for (what, n) in [
@@ -690,8 +707,9 @@ fn weight_comparison_catches_wrong_weights() {
         ..Default::default()
     };
     let n_light = 300;
-    let (view, recorded) = record(&scene, &camera, settings, n_light, 3000, 5);
-    let right = model(&settings, n_light);
+    let bdpt = Bdpt::new(settings).with_light_paths(n_light).unwrap();
+    let (view, recorded) = record(&scene, &camera, &bdpt, n_light, 3000, 5);
+    let right = model(&settings, n_light, 1);
     assert_close("right model", &compare(&scene, &view, &recorded, right));
     for (what, wrong) in [
         (
@@ -705,6 +723,13 @@ fn weight_comparison_catches_wrong_weights() {
             "one light subpath",
             Model {
                 n_light: 1.0,
+                ..right
+            },
+        ),
+        (
+            "connections counted as light tracing is",
+            Model {
+                n_conn: n_light as f64,
                 ..right
             },
         ),

@@ -4,7 +4,10 @@
 mod bdpt;
 mod path;
 
-pub use bdpt::{strategy_layer_name, Bdpt, ConnectionPolicy, StrategyFilter, UniformPerPixel};
+pub use bdpt::{
+    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, ConnectionPolicy, StrategyFilter,
+    UniformPerPixel,
+};
 pub use path::PathTracer;
 
 use std::any::Any;
