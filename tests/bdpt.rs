@@ -720,3 +720,60 @@ fn strategy_options_are_validated() {
     .unwrap_err();
     assert!(err.to_string().contains("at least 1"), "{err}");
 }
+
+/// `lacuna render --strategy-images DIR` writes every strategy's images (by default of all
+/// path lengths, here up to 3 segments) and the two sheets; the weighted EXRs sum to the
+/// rendered EXR.
+#[test]
+fn command_line_writes_strategy_images() {
+    let dir = std::env::temp_dir().join(format!("lacuna-strategies-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes/cornell-box/cornell-box.json");
+    let main = dir.join("main.exr");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_lacuna"))
+        .arg("render")
+        .arg(&scene)
+        .args(["--integrator", "bdpt", "--max-depth", "2", "--width", "12"])
+        .args(["--height", "10", "--spp", "2", "--quiet"])
+        .arg("--strategy-images")
+        .arg(&dir)
+        .arg("--out")
+        .arg(&main)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let image = lacuna::film::read_exr_rgb(&main).unwrap();
+    let mut sum = vec![Rgb::ZERO; image.pixels.len()];
+    let mut count = 0;
+    for k in 1..=3u32 {
+        for s in 0..=k {
+            let t = k + 1 - s;
+            if k == 1 && s == 1 {
+                continue;
+            }
+            for weighted in [true, false] {
+                let name = strategy_layer_name(s, t, weighted);
+                assert!(dir.join(format!("{name}.png")).exists(), "{name}.png");
+                let layer = lacuna::film::read_exr_rgb(&dir.join(format!("{name}.exr"))).unwrap();
+                if weighted {
+                    for (acc, p) in sum.iter_mut().zip(&layer.pixels) {
+                        *acc += *p;
+                    }
+                }
+                count += 1;
+            }
+        }
+    }
+    assert_eq!(count, 2 * (1 + 3 + 4));
+    assert!(!dir.join("s0_t5_weighted.exr").exists()); // longer than the longest path
+    for (a, b) in image.pixels.iter().zip(&sum) {
+        assert!((*a - *b).abs().max_element() <= 1e-4 * a.max_element().max(1e-3));
+    }
+    assert!(dir.join("weighted.png").exists() && dir.join("unweighted.png").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
