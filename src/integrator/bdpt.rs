@@ -833,9 +833,14 @@ impl Bdpt {
                     let pick = sampler.pmf(l);
                     let direct_pdf_a = pick * light.direct_pdf_area();
                     let emission_pdf_w = pick * light.emission_pdf(si.wo);
+                    // The sums converted the camera's density to area here with the shading
+                    // normal; light sampling and emission use the light's own normal, so
+                    // convert with that one (they differ on emitters with vertex normals).
+                    let to_light_normal = self.mis(cos_in / light.cos_at(si.wo));
                     // d_vcm: s = 1 (one sample, like this); d_vc: connections and beyond.
-                    let w_camera = self.mis(direct_pdf_a) * state.d_vcm
-                        + self.mis(emission_pdf_w * counts.connections) * state.d_vc;
+                    let w_camera = (self.mis(direct_pdf_a) * state.d_vcm
+                        + self.mis(emission_pdf_w * counts.connections) * state.d_vc)
+                        * to_light_normal;
                     Some(1.0 / (1.0 + w_camera))
                 } else {
                     None

@@ -395,7 +395,8 @@ impl Explicit<'_> {
 }
 
 /// A box open at the top: glossy floor, diffuse back wall, mirror left wall, sharp glossy right
-/// wall, a glass slab, a small area light, and point, spot and directional lights.
+/// wall, a glass slab, a small area light, and point, spot and directional lights. The floor
+/// and the area light have tilted vertex normals, so shading and geometric normals differ.
 fn test_scene() -> Scene {
     let mut b = SceneBuilder::new();
     let wall = b
@@ -413,9 +414,11 @@ fn test_scene() -> Scene {
         .add_material(Material::emissive(Rgb::splat(15.0)))
         .unwrap();
     let v = Vec3::new;
-    let mut quad = |p: [Vec3; 4], m: u32| {
+    // `tilt`: vertex normals leaning away from the geometric normal (shading normals).
+    let mut quad_with = |p: [Vec3; 4], m: u32, tilt: Option<Vec3>| {
         b.add_mesh(MeshDesc {
             positions: p.to_vec(),
+            normals: tilt.map_or(Vec::new(), |n| vec![n.normalize(); 4]),
             indices: vec![[0, 1, 2], [0, 2, 3]],
             materials: vec![m],
             ..Default::default()
@@ -423,7 +426,22 @@ fn test_scene() -> Scene {
         .unwrap();
     };
     let (a, c) = (-1.0, 1.0);
-    quad([v(a, a, a), v(a, a, c), v(c, a, c), v(c, a, a)], glossy);
+    quad_with(
+        [v(a, a, a), v(a, a, c), v(c, a, c), v(c, a, a)],
+        glossy,
+        Some(v(0.15, 1.0, -0.1)),
+    );
+    quad_with(
+        [
+            v(-0.2, 0.9, -0.5),
+            v(0.2, 0.9, -0.5),
+            v(0.2, 0.9, -0.1),
+            v(-0.2, 0.9, -0.1),
+        ],
+        light,
+        Some(v(0.3, -1.0, 0.2)),
+    );
+    let mut quad = |p: [Vec3; 4], m: u32| quad_with(p, m, None);
     quad([v(a, a, a), v(c, a, a), v(c, c, a), v(a, c, a)], wall);
     quad([v(a, a, a), v(a, c, a), v(a, c, c), v(a, a, c)], mirror);
     quad([v(c, a, a), v(c, a, c), v(c, c, c), v(c, c, a)], sharp);
@@ -435,15 +453,6 @@ fn test_scene() -> Scene {
             v(-0.3, -0.2, 0.3),
         ],
         glass,
-    );
-    quad(
-        [
-            v(-0.2, 0.9, -0.5),
-            v(0.2, 0.9, -0.5),
-            v(0.2, 0.9, -0.1),
-            v(-0.2, 0.9, -0.1),
-        ],
-        light,
     );
     b.add_light(LightDesc::Point {
         position: v(0.5, 0.5, 0.0),
