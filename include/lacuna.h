@@ -51,6 +51,9 @@
 // Largest maximum path depth accepted.
 #define LACUNA_MAX_DEPTH_LIMIT 1024
 
+// Largest number of light subpaths per iteration accepted.
+#define LACUNA_MAX_LIGHT_PATHS (1 << 28)
+
 // Index value meaning "none" (e.g. `lacuna_hit.triangle` of a ray that hit nothing).
 #define LACUNA_INVALID_INDEX UINT32_MAX
 
@@ -910,8 +913,25 @@ lacuna_status lacuna_film_read(const struct lacuna_film *film,
                                size_t pixel_stride,
                                size_t row_stride);
 
+// Copies the image of bdpt strategy (`s`, `t`), weighted by its MIS weight or not, into
+// `dst` (3 floats per pixel, layout as in `lacuna_film_read`). The film must come from a job
+// with `lacuna_render_job_set_strategy_images` (else `LACUNA_STATUS_INVALID_OPERATION`), and
+// (s, t) must be one of its strategies: s + t - 1 segments, at most the length set there
+// (else `LACUNA_STATUS_OUT_OF_RANGE`). The weighted images of all strategies sum to the
+// radiance. Thread-safe.
+lacuna_status lacuna_film_read_strategy_image(const struct lacuna_film *film,
+                                              uint32_t s,
+                                              uint32_t t,
+                                              bool weighted,
+                                              float *dst,
+                                              size_t width,
+                                              size_t height,
+                                              size_t pixel_stride,
+                                              size_t row_stride);
+
 // Writes the film as an OpenEXR file (float32 R, G, B, then albedo.*, normal.* and depth.Z
-// channels, with the render's figures as `lacuna:*` header attributes). Thread-safe.
+// channels, and for strategy images `sS_tT_weighted.R` ... channels, with the render's
+// figures as `lacuna:*` header attributes). Thread-safe.
 lacuna_status lacuna_film_write_exr(const struct lacuna_film *film, const char *path);
 
 // Writes the film's radiance, scaled by 2^exposure, as an 8-bit sRGB PNG. Thread-safe.
@@ -920,10 +940,10 @@ lacuna_status lacuna_film_write_png(const struct lacuna_film *film,
                                     float exposure);
 
 // Creates a render job of `scene` (kept alive by the job) with the integrator named
-// `integrator` (`"path"`; NULL for the scene file's integrator or `"path"`). Defaults: the
-// scene file's render settings when the scene came from one, else 512x512, 16 samples per
-// pixel, seed 0, max depth 8, power heuristic, the context's thread count; the scene's camera,
-// or one framing the scene when it has none. Thread-safe.
+// `integrator` (`"path"` or `"bdpt"`; NULL for the scene file's integrator or `"path"`).
+// Defaults: the scene file's render settings when the scene came from one, else 512x512, 16
+// samples per pixel, seed 0, max depth 8, power heuristic, the context's thread count; the
+// scene's camera, or one framing the scene when it has none. Thread-safe.
 lacuna_status lacuna_render_job_new(const struct lacuna_scene *scene,
                                     const char *integrator,
                                     struct lacuna_render_job **out_job);
@@ -969,6 +989,41 @@ lacuna_status lacuna_render_job_set_camera(struct lacuna_render_job *job,
                                            struct lacuna_vec3 target,
                                            struct lacuna_vec3 up,
                                            float vfov_degrees);
+
+// Gives the run's camera (the job's, the scene's or the automatic one) a thin lens of radius
+// `lens_radius` (>= 0, finite; 0 makes it a pinhole again) focused at `focus_distance` (> 0,
+// finite; ignored for a pinhole).
+lacuna_status lacuna_render_job_set_thin_lens(struct lacuna_render_job *job,
+                                              float lens_radius,
+                                              float focus_distance);
+
+// bdpt: traces `count` light subpaths per iteration (one iteration per sample per pixel);
+// each camera path connects to one of them, light tracing splats all of them. 0 restores the
+// default, one per pixel. At most `LACUNA_MAX_LIGHT_PATHS`. `LACUNA_STATUS_INVALID_OPERATION`
+// for jobs of other integrators.
+lacuna_status lacuna_render_job_set_light_paths(struct lacuna_render_job *job, uint32_t count);
+
+// bdpt, for debugging: renders only strategy (`s`, `t`) (s light vertices, t camera
+// vertices counting the camera, so paths of s + t - 1 segments), with its MIS weight or,
+// when `unweighted`, without (then the image is that strategy's own unbiased estimate).
+// Needs t >= 1, s + t >= 2 and (s, t) != (1, 1) (`LACUNA_STATUS_INVALID_ARGUMENT`).
+// `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+lacuna_status lacuna_render_job_set_strategy_filter(struct lacuna_render_job *job,
+                                                    uint32_t s,
+                                                    uint32_t t,
+                                                    bool unweighted);
+
+// Removes the strategy filter: every strategy renders again. Never fails on a live job.
+lacuna_status lacuna_render_job_clear_strategy_filter(struct lacuna_render_job *job);
+
+// bdpt: also renders, from the same samples, the image of every (s, t) strategy of paths of
+// up to `max_length` segments (clamped to the maximum path length, max depth + 1), weighted
+// by its MIS weight and unweighted (000 Figure 22). Read them with
+// `lacuna_film_read_strategy_image`; `lacuna_film_write_exr` adds them as channels. Each
+// strategy costs 48 bytes per pixel (counted against the memory budget). 0 turns them off.
+// `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+lacuna_status lacuna_render_job_set_strategy_images(struct lacuna_render_job *job,
+                                                    uint32_t max_length);
 
 // Registers (or, with NULL, removes) the progress callback; see `lacuna_progress_callback`.
 lacuna_status lacuna_render_job_set_progress_callback(struct lacuna_render_job *job,

@@ -5,6 +5,7 @@
 //! (seed, pixel, sample index), and each pixel's samples are summed in sample order within a
 //! pass, so for a given seed and sample budget the image does not depend on the thread count.
 
+use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -13,7 +14,7 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::integrator::{Integrator, SampleContext, TraceCounters, View};
-use crate::math::{Rng, Vec2};
+use crate::math::{Rgb, Rng, Vec2};
 use crate::scene::{Camera, Scene};
 
 const TILE: u32 = 16;
@@ -183,10 +184,11 @@ fn render_in_pool(
         height: h,
     };
     let iterative = integrator.uses_iterations();
+    let layer_names = integrator.layers();
     let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
-    let mut film = Film::new(w, h);
+    let mut film = Film::with_layers(w, h, &layer_names);
     let mut stats = RenderStats::default();
     let start = Instant::now();
     // Time spent in `on_pass`, subtracted from the clock.
@@ -226,7 +228,7 @@ fn render_in_pool(
             vec![(spp_done, pass)]
         };
         let work_units = (tiles.len() * sub_passes.len()) as u64;
-        let mut pass_film = Film::new(w, h);
+        let mut pass_film = Film::with_layers(w, h, &layer_names);
         let mut completed = true;
         for &(first, count) in &sub_passes {
             let iteration = if iterative {
@@ -243,8 +245,10 @@ fn render_in_pool(
                     }
                     let tw = TILE.min(w - x0);
                     let th = TILE.min(h - y0);
-                    let mut tile = Film::new(tw, th);
+                    let mut tile = Film::with_layers(tw, th, &layer_names);
                     let mut counters = TraceCounters::default();
+                    let layers = vec![Cell::new(Rgb::ZERO); layer_names.len()];
+                    let mut layer_values = vec![Rgb::ZERO; layer_names.len()];
                     for ty in 0..th {
                         for tx in 0..tw {
                             let (x, y) = (x0 + tx, y0 + ty);
@@ -253,6 +257,7 @@ fn render_in_pool(
                                 pixel_index,
                                 view: &view,
                                 iteration: data,
+                                layers: &layers,
                             };
                             for s in first..first + count {
                                 let mut rng = Rng::for_sample(settings.seed, pixel_index, s as u64);
@@ -264,6 +269,12 @@ fn render_in_pool(
                                 let sample =
                                     integrator.sample(scene, ray, &mut rng, &mut counters, &ctx);
                                 tile.add_sample(tx, ty, &sample);
+                                if !layers.is_empty() {
+                                    for (value, cell) in layer_values.iter_mut().zip(&layers) {
+                                        *value = cell.replace(Rgb::ZERO);
+                                    }
+                                    tile.add_layer_values(tx, ty, &layer_values);
+                                }
                             }
                         }
                     }
@@ -301,6 +312,9 @@ fn render_in_pool(
             if let Some(it) = iteration {
                 for (pixel, value) in it.splats {
                     pass_film.add_splat(pixel as usize, value);
+                }
+                for (layer, pixel, value) in it.layer_splats {
+                    pass_film.add_layer_splat(layer as usize, pixel as usize, value);
                 }
                 rays.fetch_add(it.rays, Ordering::Relaxed);
             }

@@ -366,6 +366,14 @@ public:
               size_t row_stride) const {
         detail::check(lacuna_film_read(p_, channel, dst, width, height, pixel_stride, row_stride));
     }
+    /// The image of bdpt strategy (s, t), weighted or not, packed RGB (films of jobs with
+    /// strategy_images()).
+    std::vector<float> read_strategy_image(uint32_t s, uint32_t t, bool weighted) const {
+        auto [w, h] = size();
+        std::vector<float> v(size_t(w) * h * 3);
+        detail::check(lacuna_film_read_strategy_image(p_, s, t, weighted, v.data(), w, h, 0, 0));
+        return v;
+    }
     void write_exr(const std::string &path) const { detail::check(lacuna_film_write_exr(p_, path.c_str())); }
     void write_png(const std::string &path, float exposure = 0) const {
         detail::check(lacuna_film_write_png(p_, path.c_str(), exposure));
@@ -407,6 +415,20 @@ public:
     }
     RenderJob &camera(lacuna_vec3 eye, lacuna_vec3 target, lacuna_vec3 up, float vfov_degrees) {
         return set(lacuna_render_job_set_camera(j_.get(), eye, target, up, vfov_degrees));
+    }
+    RenderJob &thin_lens(float lens_radius, float focus_distance) {
+        return set(lacuna_render_job_set_thin_lens(j_.get(), lens_radius, focus_distance));
+    }
+    /// bdpt: light subpaths per iteration (0 = one per pixel).
+    RenderJob &light_paths(uint32_t count) { return set(lacuna_render_job_set_light_paths(j_.get(), count)); }
+    /// bdpt: render only strategy (s, t); clear_strategy_filter() renders all again.
+    RenderJob &strategy_filter(uint32_t s, uint32_t t, bool unweighted) {
+        return set(lacuna_render_job_set_strategy_filter(j_.get(), s, t, unweighted));
+    }
+    RenderJob &clear_strategy_filter() { return set(lacuna_render_job_clear_strategy_filter(j_.get())); }
+    /// bdpt: also render every strategy's image for paths up to max_length segments (0 = off).
+    RenderJob &strategy_images(uint32_t max_length) {
+        return set(lacuna_render_job_set_strategy_images(j_.get(), max_length));
     }
     /// Progress callback: runs on worker threads (one call at a time); return false to
     /// cancel. An exception it throws cancels the render and is rethrown by run().

@@ -116,6 +116,13 @@ struct SceneArgs {
     /// env_direct: BSDF samples per shading point [default: 30].
     #[arg(long)]
     env_bsdf_samples: Option<u32>,
+    /// Thin-lens radius (0 = pinhole) [default: the scene file's, else 0].
+    #[arg(long, allow_hyphen_values = true)]
+    lens_radius: Option<f32>,
+    /// Distance of the plane in focus, for a thin lens [default: the scene file's, else the
+    /// distance from eye to target].
+    #[arg(long)]
+    focus_distance: Option<f32>,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -145,6 +152,16 @@ struct RenderArgs {
     /// With --strategy: without MIS weights.
     #[arg(long, requires = "strategy")]
     unweighted: bool,
+    /// bdpt only: also write, from the same render, the image of every (s, t) strategy into
+    /// this directory, weighted and unweighted (sS_tT_weighted.exr, sS_tT_unweighted.exr, with
+    /// PNG previews), and weighted.png / unweighted.png sheets with one row per path length
+    /// (000 Figure 22). Each strategy image costs 48 bytes per pixel while rendering.
+    #[arg(long, value_name = "DIR")]
+    strategy_images: Option<PathBuf>,
+    /// With --strategy-images: longest path (segments) whose strategies get images [default:
+    /// the maximum path length, max depth + 1].
+    #[arg(long, requires = "strategy_images")]
+    strategy_max_length: Option<u32>,
     /// Output file: .exr (float32 RGB with AOVs and metadata) or .png (sRGB preview).
     #[arg(long, short, default_value = "lacuna.png")]
     out: PathBuf,
@@ -433,6 +450,16 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     if let Some(f) = args.fov {
         camera.vfov_degrees = f;
     }
+    if let Some(r) = args.lens_radius {
+        if camera.lens_radius == 0.0 {
+            // A new lens focuses on the target unless told otherwise.
+            camera.focus_distance = (camera.target - camera.eye).length();
+        }
+        camera.lens_radius = r;
+    }
+    if let Some(f) = args.focus_distance {
+        camera.focus_distance = f;
+    }
     camera.validate()?;
     if args.verbose {
         let stats = scene.stats();
@@ -541,25 +568,38 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         .clone()
         .or(prep.file_integrator.clone())
         .unwrap_or_else(|| "path".into());
-    let integrator: Box<dyn integrator::Integrator> = match &args.strategy {
-        None => integrator::create(&name, prep.integrator)?,
-        Some(st) => {
-            if name != "bdpt" {
-                return Err(Error::invalid("--strategy needs --integrator bdpt"));
-            }
+    let integrator: Box<dyn integrator::Integrator> = if args.strategy.is_none()
+        && args.strategy_images.is_none()
+    {
+        integrator::create(&name, prep.integrator)?
+    } else {
+        if name != "bdpt" {
+            return Err(Error::invalid(
+                "--strategy and --strategy-images need --integrator bdpt",
+            ));
+        }
+        let mut bdpt = match prep.integrator.light_paths {
+            Some(n) => integrator::Bdpt::new(prep.integrator).with_light_paths(n as usize)?,
+            None => integrator::Bdpt::new(prep.integrator),
+        };
+        if let Some(st) = &args.strategy {
             let parts: Vec<Option<u32>> = st.split(',').map(|p| p.trim().parse().ok()).collect();
             let [Some(s), Some(t)] = parts[..] else {
                 return Err(Error::invalid(format!(
                     "--strategy '{st}' must be S,T (two integers)"
                 )));
             };
-            let filter = integrator::StrategyFilter {
+            bdpt = bdpt.with_strategy(integrator::StrategyFilter {
                 s,
                 t,
                 unweighted: args.unweighted,
-            };
-            Box::new(integrator::Bdpt::new(prep.integrator).with_strategy(filter))
+            })?;
         }
+        if args.strategy_images.is_some() {
+            let max_len = prep.integrator.max_depth + 1;
+            bdpt = bdpt.with_strategy_images(args.strategy_max_length.unwrap_or(max_len))?;
+        }
+        Box::new(bdpt)
     };
     let bar = ProgressBar::new(args.scene.quiet);
     let (film, stats) = render(
@@ -578,6 +618,9 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         .with("scene", &prep.label)
         .with("seconds", format!("{:.3}", stats.seconds));
     write_film(&film, &args.out, args.exposure, &meta)?;
+    if let Some(dir) = &args.strategy_images {
+        write_strategy_images(&film, dir, args.exposure, &meta)?;
+    }
     println!(
         "{}: {}x{}, {} spp of {} (max depth {}) in {:.2} s: {:.2} M samples/s, {:.2} M rays/s -> {}",
         prep.label,
@@ -591,6 +634,42 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         stats.rays_per_second() / 1e6,
         args.out.display()
     );
+    Ok(())
+}
+
+/// Writes every strategy layer of `film` as EXR and PNG, and the weighted and unweighted
+/// sheets: row k - 1 holds the strategies of paths of k segments, s = 0 on the left.
+fn write_strategy_images(film: &Film, dir: &Path, exposure: f32, meta: &ExrMetadata) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let (w, h) = (film.width(), film.height());
+    let mut cells = Vec::new();
+    for (index, name) in film.layer_names().iter().enumerate() {
+        let pixels = film.layer(index);
+        lacuna::film::write_exr_rgb(&dir.join(format!("{name}.exr")), w, h, &pixels, meta)?;
+        lacuna::film::write_png_rgb(&dir.join(format!("{name}.png")), w, h, &pixels, exposure)?;
+        let (st, kind) = name.rsplit_once('_').expect("layer names are sS_tT_kind");
+        let (s, t) = st
+            .strip_prefix('s')
+            .and_then(|r| r.split_once("_t"))
+            .and_then(|(s, t)| Some((s.parse::<u32>().ok()?, t.parse::<u32>().ok()?)))
+            .expect("layer names are sS_tT_kind");
+        cells.push((kind.to_string(), s, s + t - 1, pixels));
+    }
+    let max_len = cells.iter().map(|c| c.2).max().unwrap_or(0);
+    const GAP: u32 = 2;
+    for kind in ["weighted", "unweighted"] {
+        let (sw, sh) = ((max_len + 1) * (w + GAP), max_len * (h + GAP));
+        let mut sheet = vec![lacuna::math::Rgb::ZERO; sw as usize * sh as usize];
+        for (_, s, k, pixels) in cells.iter().filter(|c| c.0 == kind) {
+            let (x0, y0) = (s * (w + GAP), (k - 1) * (h + GAP));
+            for y in 0..h {
+                for x in 0..w {
+                    sheet[((y0 + y) * sw + x0 + x) as usize] = pixels[(y * w + x) as usize];
+                }
+            }
+        }
+        lacuna::film::write_png_rgb(&dir.join(format!("{kind}.png")), sw, sh, &sheet, exposure)?;
+    }
     Ok(())
 }
 

@@ -3,7 +3,7 @@
 use std::ffi::c_char;
 use std::sync::Arc;
 
-use super::boundary::{self, lacuna_status, CapiError};
+use super::boundary::{self, lacuna_status, CapiError, CapiResult};
 use super::buffer::{
     arc_clone, arc_into_handle, arc_release, arc_retain, arg, finite, image_layout, out_ptr,
     path_arg, write_out,
@@ -11,6 +11,7 @@ use super::buffer::{
 use super::context::lacuna_context;
 use super::types::*;
 use crate::film::{read_exr_rgb, ExrMetadata, Film, PixelSample};
+use crate::integrator::strategy_layer_name;
 use crate::render::RenderStats;
 
 /// The result of a render: per-pixel mean radiance and first-hit AOVs (albedo, normal, depth),
@@ -189,55 +190,136 @@ pub unsafe extern "C" fn lacuna_film_read(
             lacuna_film_channel::Depth | lacuna_film_channel::SampleCount => 1,
             _ => 3,
         };
-        let (ps, rs) = image_layout(width, pixel_stride, row_stride, components * 4)?;
-        if dst.is_null() {
-            return Err(CapiError::null("dst"));
+        let values = move || -> Vec<f32> {
+            match ch {
+                lacuna_film_channel::Radiance => f
+                    .film
+                    .radiance()
+                    .iter()
+                    .flat_map(|p| p.to_array())
+                    .collect(),
+                lacuna_film_channel::Albedo => {
+                    f.film.albedo().iter().flat_map(|p| p.to_array()).collect()
+                }
+                lacuna_film_channel::Normal => {
+                    f.film.normal().iter().flat_map(|p| p.to_array()).collect()
+                }
+                lacuna_film_channel::Depth => f.film.depth(),
+                lacuna_film_channel::SampleCount => (0..fh as u32)
+                    .flat_map(|y| (0..fw as u32).map(move |x| (x, y)))
+                    .map(|(x, y)| f.film.samples(x, y) as f32)
+                    .collect(),
+            }
+        };
+        // SAFETY: the caller promises `dst` spans the described image.
+        unsafe {
+            write_image(
+                dst,
+                width,
+                height,
+                pixel_stride,
+                row_stride,
+                components,
+                values,
+            )
         }
-        (height - 1)
-            .checked_mul(rs)
-            .and_then(|b| b.checked_add((width - 1) * ps + components * 4))
-            .and_then(|b| (dst as usize).checked_add(b))
-            .ok_or_else(|| {
-                CapiError::range(format!(
-                    "{width}x{height} pixels with row stride {rs} exceed the address space"
-                ))
-            })?;
-        let values: Vec<f32> = match ch {
-            lacuna_film_channel::Radiance => f
-                .film
-                .radiance()
+    })
+}
+
+/// Validates an output image layout of `components` floats per pixel and writes the row-major
+/// `values` (made only once the layout is valid) into it.
+///
+/// # Safety
+/// `dst` must be NULL or writable for the described image.
+unsafe fn write_image(
+    dst: *mut f32,
+    width: usize,
+    height: usize,
+    pixel_stride: usize,
+    row_stride: usize,
+    components: usize,
+    values: impl FnOnce() -> Vec<f32>,
+) -> CapiResult<()> {
+    let (ps, rs) = image_layout(width, pixel_stride, row_stride, components * 4)?;
+    if dst.is_null() {
+        return Err(CapiError::null("dst"));
+    }
+    (height - 1)
+        .checked_mul(rs)
+        .and_then(|b| b.checked_add((width - 1) * ps + components * 4))
+        .and_then(|b| (dst as usize).checked_add(b))
+        .ok_or_else(|| {
+            CapiError::range(format!(
+                "{width}x{height} pixels with row stride {rs} exceed the address space"
+            ))
+        })?;
+    let values = values();
+    let base = dst.cast::<u8>();
+    for y in 0..height {
+        for x in 0..width {
+            for c in 0..components {
+                let v = values[(y * width + x) * components + c];
+                // SAFETY: the offset is within the span checked above, which the caller
+                // promises writable; unaligned writes need no alignment.
+                unsafe { write_out(base.add(y * rs + x * ps + c * 4).cast::<f32>(), v) };
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Copies the image of bdpt strategy (`s`, `t`), weighted by its MIS weight or not, into
+/// `dst` (3 floats per pixel, layout as in `lacuna_film_read`). The film must come from a job
+/// with `lacuna_render_job_set_strategy_images` (else `LACUNA_STATUS_INVALID_OPERATION`), and
+/// (s, t) must be one of its strategies: s + t - 1 segments, at most the length set there
+/// (else `LACUNA_STATUS_OUT_OF_RANGE`). The weighted images of all strategies sum to the
+/// radiance. Thread-safe.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_film_read_strategy_image(
+    film: *const lacuna_film,
+    s: u32,
+    t: u32,
+    weighted: bool,
+    dst: *mut f32,
+    width: usize,
+    height: usize,
+    pixel_stride: usize,
+    row_stride: usize,
+) -> lacuna_status {
+    boundary::status("lacuna_film_read_strategy_image", |call| {
+        // SAFETY: NULL or a live film.
+        let f = unsafe { arg(film, "film") }?;
+        call.context(&f.ctx);
+        if f.film.layer_names().is_empty() {
+            return Err(CapiError::operation(
+                "the film has no strategy images (lacuna_render_job_set_strategy_images)",
+            ));
+        }
+        let name = strategy_layer_name(s, t, weighted);
+        let layer = f.film.layer_index(&name).ok_or_else(|| {
+            CapiError::range(format!("the film has no image of strategy ({s}, {t})"))
+        })?;
+        let (fw, fh) = (f.film.width() as usize, f.film.height() as usize);
+        if (width, height) != (fw, fh) {
+            return Err(CapiError::invalid(format!(
+                "destination is {width}x{height} but the film is {fw}x{fh}"
+            )));
+        }
+        let values = || {
+            f.film
+                .layer(layer)
                 .iter()
                 .flat_map(|p| p.to_array())
-                .collect(),
-            lacuna_film_channel::Albedo => {
-                f.film.albedo().iter().flat_map(|p| p.to_array()).collect()
-            }
-            lacuna_film_channel::Normal => {
-                f.film.normal().iter().flat_map(|p| p.to_array()).collect()
-            }
-            lacuna_film_channel::Depth => f.film.depth(),
-            lacuna_film_channel::SampleCount => (0..fh as u32)
-                .flat_map(|y| (0..fw as u32).map(move |x| (x, y)))
-                .map(|(x, y)| f.film.samples(x, y) as f32)
-                .collect(),
+                .collect()
         };
-        let base = dst.cast::<u8>();
-        for y in 0..height {
-            for x in 0..width {
-                for c in 0..components {
-                    let v = values[(y * width + x) * components + c];
-                    // SAFETY: the offset is within the span checked above, which the caller
-                    // promises writable; unaligned writes need no alignment.
-                    unsafe { write_out(base.add(y * rs + x * ps + c * 4).cast::<f32>(), v) };
-                }
-            }
-        }
-        Ok(())
+        // SAFETY: the caller promises `dst` spans the described image.
+        unsafe { write_image(dst, width, height, pixel_stride, row_stride, 3, values) }
     })
 }
 
 /// Writes the film as an OpenEXR file (float32 R, G, B, then albedo.*, normal.* and depth.Z
-/// channels, with the render's figures as `lacuna:*` header attributes). Thread-safe.
+/// channels, and for strategy images `sS_tT_weighted.R` ... channels, with the render's
+/// figures as `lacuna:*` header attributes). Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_film_write_exr(
     film: *const lacuna_film,

@@ -14,7 +14,7 @@ use super::scene::lacuna_scene;
 use super::types::*;
 use crate::error::Error;
 use crate::film::{ExrMetadata, Film};
-use crate::integrator::{self, Integrator, IntegratorSettings, MisHeuristic};
+use crate::integrator::{self, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter};
 use crate::render::{Progress, RenderSettings, RenderStats};
 use crate::scene::{auto_camera, Camera};
 
@@ -38,8 +38,43 @@ pub(crate) struct JobSettings {
     pub render: RenderSettings,
     pub integrator_settings: IntegratorSettings,
     pub camera: Option<Camera>,
+    /// Thin lens (radius, focus distance) applied to whichever camera the run uses.
+    pub lens: Option<(f32, f32)>,
+    /// bdpt: one strategy only, and the longest path whose strategies get images.
+    pub strategy: Option<StrategyFilter>,
+    pub strategy_images: Option<u32>,
     pub spp_set: bool,
     pub progress: Option<ProgressCallback>,
+}
+
+impl JobSettings {
+    /// The integrator these settings describe.
+    pub(crate) fn make_integrator(&self) -> crate::error::Result<Box<dyn Integrator>> {
+        if self.strategy.is_none() && self.strategy_images.is_none() {
+            return integrator::create(&self.integrator, self.integrator_settings);
+        }
+        // Only bdpt jobs can have these (checked by their setters).
+        let mut bdpt = Bdpt::new(self.integrator_settings);
+        if let Some(f) = self.strategy {
+            bdpt = bdpt.with_strategy(f)?;
+        }
+        if let Some(len) = self.strategy_images {
+            bdpt = bdpt.with_strategy_images(len)?;
+        }
+        Ok(Box::new(bdpt))
+    }
+
+    /// Fails unless the job's integrator is bidirectional (for its own settings).
+    fn require_bidirectional(&self, what: &str) -> CapiResult<()> {
+        if self.integrator == "bdpt" {
+            Ok(())
+        } else {
+            Err(CapiError::operation(format!(
+                "{what} applies to the bdpt integrator; this job renders with '{}'",
+                self.integrator
+            )))
+        }
+    }
 }
 
 /// A render of a scene: integrator, settings, progress callback. Runs produce films.
@@ -92,22 +127,30 @@ impl lacuna_render_job {
             settings.render.threads = self.scene.ctx.threads();
         }
         let (w, h) = (settings.render.width, settings.render.height);
-        let per_pixel = Film::new(1, 1).memory_bytes() as u64;
-        let bytes = w as u64 * h as u64 * per_pixel;
+        let integrator = settings.make_integrator()?;
+        let layers = integrator.layers().len();
+        let bytes = Film::memory_bytes_for(w, h, layers);
         let budget = self.scene.ctx.memory_budget();
         if bytes > budget {
+            let what = if layers > 0 {
+                format!("a {w}x{h} film with {layers} strategy images")
+            } else {
+                format!("a {w}x{h} film")
+            };
             return Err(Error::OverBudget {
-                what: format!("a {w}x{h} film"),
+                what,
                 bytes,
                 budget,
             }
             .into());
         }
-        let camera = settings
+        let mut camera = settings
             .camera
             .or_else(|| self.scene.scene.camera().copied())
             .unwrap_or_else(|| auto_camera(self.scene.scene.bounds(), w as f32 / h as f32));
-        let integrator = integrator::create(&settings.integrator, settings.integrator_settings)?;
+        if let Some((radius, focus)) = settings.lens {
+            camera = camera.with_thin_lens(radius, focus)?;
+        }
         Ok((
             guard,
             Prepared {
@@ -179,10 +222,10 @@ impl lacuna_render_job {
 }
 
 /// Creates a render job of `scene` (kept alive by the job) with the integrator named
-/// `integrator` (`"path"`; NULL for the scene file's integrator or `"path"`). Defaults: the
-/// scene file's render settings when the scene came from one, else 512x512, 16 samples per
-/// pixel, seed 0, max depth 8, power heuristic, the context's thread count; the scene's camera,
-/// or one framing the scene when it has none. Thread-safe.
+/// `integrator` (`"path"` or `"bdpt"`; NULL for the scene file's integrator or `"path"`).
+/// Defaults: the scene file's render settings when the scene came from one, else 512x512, 16
+/// samples per pixel, seed 0, max depth 8, power heuristic, the context's thread count; the
+/// scene's camera, or one framing the scene when it has none. Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_new(
     scene: *const lacuna_scene,
@@ -235,6 +278,9 @@ pub unsafe extern "C" fn lacuna_render_job_new(
                 render,
                 integrator_settings: integ,
                 camera: None,
+                lens: None,
+                strategy: None,
+                strategy_images: None,
                 spp_set: file.spp.is_some(),
                 progress: None,
             }),
@@ -452,6 +498,124 @@ pub unsafe extern "C" fn lacuna_render_job_set_camera(
                 up.finite("up")?,
                 vfov_degrees,
             )?);
+            Ok(())
+        })
+    }
+}
+
+/// Gives the run's camera (the job's, the scene's or the automatic one) a thin lens of radius
+/// `lens_radius` (>= 0, finite; 0 makes it a pinhole again) focused at `focus_distance` (> 0,
+/// finite; ignored for a pinhole).
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_thin_lens(
+    job: *mut lacuna_render_job,
+    lens_radius: f32,
+    focus_distance: f32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_thin_lens", job, |s| {
+            if !(lens_radius >= 0.0 && lens_radius.is_finite()) {
+                return Err(CapiError::invalid(format!(
+                    "lens_radius {lens_radius} must be >= 0 and finite"
+                )));
+            }
+            if lens_radius == 0.0 {
+                s.lens = None;
+                return Ok(());
+            }
+            if !(focus_distance > 0.0 && focus_distance.is_finite()) {
+                return Err(CapiError::invalid(format!(
+                    "focus_distance {focus_distance} must be > 0 and finite"
+                )));
+            }
+            s.lens = Some((lens_radius, focus_distance));
+            Ok(())
+        })
+    }
+}
+
+/// Largest number of light subpaths per iteration accepted.
+pub const LACUNA_MAX_LIGHT_PATHS: u32 = 1 << 28;
+
+/// bdpt: traces `count` light subpaths per iteration (one iteration per sample per pixel);
+/// each camera path connects to one of them, light tracing splats all of them. 0 restores the
+/// default, one per pixel. At most `LACUNA_MAX_LIGHT_PATHS`. `LACUNA_STATUS_INVALID_OPERATION`
+/// for jobs of other integrators.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_light_paths(
+    job: *mut lacuna_render_job,
+    count: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_light_paths", job, |s| {
+            s.require_bidirectional("light subpaths per iteration")?;
+            if count > LACUNA_MAX_LIGHT_PATHS {
+                return Err(CapiError::range(format!(
+                    "count {count} exceeds {LACUNA_MAX_LIGHT_PATHS}"
+                )));
+            }
+            s.integrator_settings.light_paths = (count > 0).then_some(count);
+            Ok(())
+        })
+    }
+}
+
+/// bdpt, for debugging: renders only strategy (`s`, `t`) (s light vertices, t camera
+/// vertices counting the camera, so paths of s + t - 1 segments), with its MIS weight or,
+/// when `unweighted`, without (then the image is that strategy's own unbiased estimate).
+/// Needs t >= 1, s + t >= 2 and (s, t) != (1, 1) (`LACUNA_STATUS_INVALID_ARGUMENT`).
+/// `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_strategy_filter(
+    job: *mut lacuna_render_job,
+    s: u32,
+    t: u32,
+    unweighted: bool,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_strategy_filter", job, |settings| {
+            settings.require_bidirectional("a strategy filter")?;
+            let filter = StrategyFilter { s, t, unweighted };
+            filter.validate()?;
+            settings.strategy = Some(filter);
+            Ok(())
+        })
+    }
+}
+
+/// Removes the strategy filter: every strategy renders again. Never fails on a live job.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_clear_strategy_filter(
+    job: *mut lacuna_render_job,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_clear_strategy_filter", job, |s| {
+            s.strategy = None;
+            Ok(())
+        })
+    }
+}
+
+/// bdpt: also renders, from the same samples, the image of every (s, t) strategy of paths of
+/// up to `max_length` segments (clamped to the maximum path length, max depth + 1), weighted
+/// by its MIS weight and unweighted (000 Figure 22). Read them with
+/// `lacuna_film_read_strategy_image`; `lacuna_film_write_exr` adds them as channels. Each
+/// strategy costs 48 bytes per pixel (counted against the memory budget). 0 turns them off.
+/// `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_strategy_images(
+    job: *mut lacuna_render_job,
+    max_length: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_strategy_images", job, |s| {
+            s.require_bidirectional("strategy images")?;
+            s.strategy_images = (max_length > 0).then_some(max_length);
             Ok(())
         })
     }

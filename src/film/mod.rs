@@ -1,12 +1,16 @@
 //! The film: per-pixel sums of radiance samples with their counts, plus the auxiliary
 //! outputs (AOVs) a denoiser or a host wants: first-hit albedo, shading normal and depth.
 //! Sums are kept in f64 so that long progressive renders do not lose precision.
+//!
+//! An integrator may also declare named RGB *layers* (e.g. bidirectional path tracing's
+//! per-strategy images): they are summed and averaged exactly like the radiance, so a layer is
+//! a per-pixel mean over the same samples, and a cancelled pass drops them together.
 
 pub mod metrics;
 mod output;
 
 pub use metrics::{image_errors, ImageErrors};
-pub use output::{encode_srgb, read_exr_rgb, write_png_rgb, ExrImage, ExrMetadata};
+pub use output::{encode_srgb, read_exr_rgb, write_exr_rgb, write_png_rgb, ExrImage, ExrMetadata};
 
 use crate::math::Rgb;
 
@@ -35,6 +39,10 @@ pub struct Film {
     samples: Vec<u32>,
     /// Camera samples that hit a surface (AOVs are averaged over these).
     hits: Vec<u32>,
+    /// Names of the integrator's layers, and their sums (pixel-major: all layers of pixel 0,
+    /// then of pixel 1, ...).
+    layer_names: Vec<String>,
+    layers: Vec<[f64; 3]>,
 }
 
 impl Film {
@@ -49,7 +57,71 @@ impl Film {
             depth: vec![0.0; n],
             samples: vec![0; n],
             hits: vec![0; n],
+            layer_names: Vec::new(),
+            layers: Vec::new(),
         }
+    }
+
+    /// A film that also accumulates the named layers.
+    pub fn with_layers(width: u32, height: u32, names: &[String]) -> Self {
+        let mut film = Film::new(width, height);
+        film.layers = vec![[0.0; 3]; film.samples.len() * names.len()];
+        film.layer_names = names.to_vec();
+        film
+    }
+
+    /// Bytes a `width` x `height` film with `layer_count` layers holds.
+    pub fn memory_bytes_for(width: u32, height: u32, layer_count: usize) -> u64 {
+        width as u64 * height as u64 * (PER_PIXEL_BYTES + 24 * layer_count as u64)
+    }
+
+    pub fn layer_names(&self) -> &[String] {
+        &self.layer_names
+    }
+
+    /// Index of the layer called `name`.
+    pub fn layer_index(&self, name: &str) -> Option<usize> {
+        self.layer_names.iter().position(|n| n == name)
+    }
+
+    /// Adds one camera sample's layer values to pixel (x, y) (the sample itself is counted by
+    /// `add_sample`). Non-finite values are dropped, as for radiance.
+    pub fn add_layer_values(&mut self, x: u32, y: u32, values: &[Rgb]) {
+        debug_assert_eq!(values.len(), self.layer_names.len());
+        let base = self.index(x, y) * self.layer_names.len();
+        for (sum, v) in self.layers[base..].iter_mut().zip(values) {
+            if crate::math::is_finite3(*v) {
+                for c in 0..3 {
+                    sum[c] += v[c] as f64;
+                }
+            }
+        }
+    }
+
+    /// Adds to one layer of a pixel without counting a sample (the layer's share of a splat).
+    pub fn add_layer_splat(&mut self, layer: usize, pixel_index: usize, value: Rgb) {
+        let n = self.layer_names.len();
+        if layer < n && pixel_index < self.samples.len() && crate::math::is_finite3(value) {
+            let sum = &mut self.layers[pixel_index * n + layer];
+            for c in 0..3 {
+                sum[c] += value[c] as f64;
+            }
+        }
+    }
+
+    /// Mean of layer `layer` per pixel, row-major (like `radiance`).
+    pub fn layer(&self, layer: usize) -> Vec<Rgb> {
+        let n = self.layer_names.len();
+        assert!(layer < n, "layer {layer} of {n}");
+        self.samples
+            .iter()
+            .enumerate()
+            .map(|(i, &count)| {
+                let r = self.layers[i * n + layer];
+                let k = count.max(1) as f64;
+                Rgb::new((r[0] / k) as f32, (r[1] / k) as f32, (r[2] / k) as f32)
+            })
+            .collect()
     }
 
     pub fn width(&self) -> u32 {
@@ -95,8 +167,10 @@ impl Film {
         }
     }
 
-    /// Adds the pixels of `tile` (a film of the tile's size) at offset (x0, y0).
+    /// Adds the pixels of `tile` (a film of the tile's size, with the same layers) at offset
+    /// (x0, y0).
     pub fn merge_tile(&mut self, x0: u32, y0: u32, tile: &Film) {
+        assert_eq!(self.layer_names.len(), tile.layer_names.len());
         for ty in 0..tile.height {
             for tx in 0..tile.width {
                 let (x, y) = (x0 + tx, y0 + ty);
@@ -112,6 +186,15 @@ impl Film {
                 self.depth[i] += tile.depth[j];
                 self.samples[i] += tile.samples[j];
                 self.hits[i] += tile.hits[j];
+                let n = tile.layer_names.len();
+                if n > 0 {
+                    let (dst, src) = (&mut self.layers[i * n..(i + 1) * n], &tile.layers[j * n..]);
+                    for (d, s) in dst.iter_mut().zip(src) {
+                        for c in 0..3 {
+                            d[c] += s[c];
+                        }
+                    }
+                }
             }
         }
     }
@@ -119,6 +202,7 @@ impl Film {
     /// Adds every pixel of another film of the same size.
     pub fn merge(&mut self, other: &Film) {
         assert_eq!((self.width, self.height), (other.width, other.height));
+        assert_eq!(self.layer_names, other.layer_names);
         self.merge_tile(0, 0, other);
     }
 
@@ -184,9 +268,12 @@ impl Film {
     }
 
     pub fn memory_bytes(&self) -> usize {
-        self.radiance.len() * (24 + 12 + 12 + 4 + 4 + 4)
+        Film::memory_bytes_for(self.width, self.height, self.layer_names.len()) as usize
     }
 }
+
+/// Radiance (f64 x 3), albedo and normal (f32 x 3), depth, sample and hit counts.
+const PER_PIXEL_BYTES: u64 = 24 + 12 + 12 + 4 + 4 + 4;
 
 #[cfg(test)]
 mod tests {

@@ -42,8 +42,9 @@ pub struct ExrImage {
 const PREFIX: &str = "lacuna:";
 
 impl Film {
-    /// Writes mean radiance as R, G, B (float32), and the AOVs as `albedo.*`, `normal.*` and
-    /// `depth.Z` channels, with `metadata` in the header.
+    /// Writes mean radiance as R, G, B (float32), the AOVs as `albedo.*`, `normal.*` and
+    /// `depth.Z` channels and the integrator's layers as `NAME.R/G/B`, with `metadata` in the
+    /// header.
     pub fn write_exr(&self, path: &Path, metadata: &ExrMetadata) -> Result<()> {
         let (w, h) = (self.width() as usize, self.height() as usize);
         let radiance = self.radiance();
@@ -68,30 +69,14 @@ impl Film {
             channel("normal.Z", &normal, 2),
             x::AnyChannel::new("depth.Z", x::FlatSamples::F32(depth)),
         ];
-        let mut attributes = x::LayerAttributes {
-            software_name: Some(Text::from(concat!("Lacuna ", env!("CARGO_PKG_VERSION")))),
-            ..Default::default()
-        };
-        let mut other = HashMap::new();
-        for (k, v) in &metadata.entries {
-            let key = format!("{PREFIX}{k}");
-            other.insert(
-                Text::new_or_none(&key)
-                    .ok_or_else(|| Error::invalid(format!("EXR attribute name {key}")))?,
-                text(v)?,
-            );
+        let mut channels = channels;
+        for (index, name) in self.layer_names().iter().enumerate() {
+            let pixels = self.layer(index);
+            for (c, suffix) in ["R", "G", "B"].iter().enumerate() {
+                channels.push(channel(&format!("{name}.{suffix}"), &pixels, c));
+            }
         }
-        attributes.other = other;
-        let layer = x::Layer::new(
-            (w, h),
-            attributes,
-            x::Encoding::FAST_LOSSLESS,
-            x::AnyChannels::sort(x::SmallVec::from_vec(channels)),
-        );
-        x::Image::from_layer(layer)
-            .write()
-            .to_file(path)
-            .map_err(|e| exr_error(path, e))
+        write_exr_channels(path, (w, h), channels, metadata)
     }
 
     /// Writes an 8-bit sRGB PNG of the radiance scaled by 2^exposure (clamped, no tone curve
@@ -105,6 +90,56 @@ impl Film {
             exposure,
         )
     }
+}
+
+/// Writes linear RGB pixels (row-major) as a float32 R, G, B EXR with `metadata` in the header.
+pub fn write_exr_rgb(
+    path: &Path,
+    width: u32,
+    height: u32,
+    pixels: &[Rgb],
+    metadata: &ExrMetadata,
+) -> Result<()> {
+    let channel = |name: &str, c: usize| {
+        x::AnyChannel::new(
+            name,
+            x::FlatSamples::F32(pixels.iter().map(|p| p[c]).collect()),
+        )
+    };
+    let channels = vec![channel("R", 0), channel("G", 1), channel("B", 2)];
+    write_exr_channels(path, (width as usize, height as usize), channels, metadata)
+}
+
+fn write_exr_channels(
+    path: &Path,
+    size: (usize, usize),
+    channels: Vec<x::AnyChannel<x::FlatSamples>>,
+    metadata: &ExrMetadata,
+) -> Result<()> {
+    let mut attributes = x::LayerAttributes {
+        software_name: Some(Text::from(concat!("Lacuna ", env!("CARGO_PKG_VERSION")))),
+        ..Default::default()
+    };
+    let mut other = HashMap::new();
+    for (k, v) in &metadata.entries {
+        let key = format!("{PREFIX}{k}");
+        other.insert(
+            Text::new_or_none(&key)
+                .ok_or_else(|| Error::invalid(format!("EXR attribute name {key}")))?,
+            text(v)?,
+        );
+    }
+    attributes.other = other;
+    let layer = x::Layer::new(
+        size,
+        attributes,
+        x::Encoding::FAST_LOSSLESS,
+        x::AnyChannels::sort(x::SmallVec::from_vec(channels)),
+    );
+    x::Image::from_layer(layer)
+        .write()
+        .to_file(path)
+        .map_err(|e| exr_error(path, e))
 }
 
 /// Writes linear RGB pixels as an 8-bit sRGB PNG.

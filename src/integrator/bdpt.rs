@@ -9,10 +9,23 @@
 //! `mis(x)` is x for the balance heuristic and x^2 for the power heuristic.
 //!
 //! Light subpaths are traced once per sample index ("iteration") for the whole image into a
-//! vertex pool; each camera path then connects to the light subpath a [`ConnectionPolicy`]
-//! picks (by default its own, one per pixel): the shape SkelBPT's resampling builds on.
+//! vertex pool; each camera vertex then connects to the light subpaths a [`ConnectionPolicy`]
+//! picks (by default its camera path's own, one per pixel), with the policy's sample count in
+//! the weights: the shape SkelBPT's resampling builds on.
 //! Russian roulette uses a per-vertex continuation probability (the BSDF's albedo), folded
-//! into both the forward and the reverse pdfs so the weights stay exact.
+//! into both the forward and the reverse pdfs so the weights stay exact. It does not depend on
+//! the depth (so `rr_start_depth` is not used here): a vertex's reverse pdf must be known when
+//! the vertex is stored, before the depth it would have on the other subpath is.
+//!
+//! Thin-lens cameras: light tracing (t = 1) samples a point on the lens as camera rays do;
+//! the camera ray's direction density at the lens, `d^2 / cos^3` with d the image-plane
+//! distance, is the pinhole's, so the weights are the same formulas.
+//!
+//! Every strategy hands its [`Estimate`] (unweighted value and MIS weight) to one place,
+//! [`Bdpt::accept`], which applies the strategy filter and fills the per-strategy images; a
+//! [`PathObserver`] sees the vertices and estimates (the weight tests use it).
+
+use std::cell::Cell;
 
 use rayon::prelude::*;
 
@@ -23,20 +36,85 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::{offset_ray_origin, Ray};
 use crate::light::Light;
-use crate::math::{Rgb, Rng, Vec3};
+use crate::math::{Rgb, Rng, Vec2, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 
-/// Chooses the light subpath a camera path connects to.
-pub trait ConnectionPolicy: Send + Sync {
-    fn light_path_for(&self, pixel_index: u64, light_paths: usize) -> usize;
+/// A camera vertex about to be connected to stored light vertices.
+pub struct CameraVertex<'a> {
+    pub pixel_index: u64,
+    /// Segments from the camera to this vertex.
+    pub segments: u32,
+    pub si: &'a SurfaceInteraction,
 }
 
-/// Each pixel connects to "its" light subpath (index = pixel index modulo their number).
+/// Chooses the stored light subpaths each camera vertex connects to (all the valid vertices of
+/// each chosen subpath), the eye pass's pluggable part (000 §11: SkelBPT resamples them).
+///
+/// The estimate is unbiased when, over the policy's choices, the factors make every light
+/// subpath count as `connection_count` samples: E[sum of the factors given to subpath j] =
+/// connection_count / N for each of the N subpaths. `connection_count` is also the number of
+/// samples the connection strategies get in the MIS weights (000 eq. 185: the many-path
+/// estimator with every camera vertex connected to all N subpaths has N). A resampling policy
+/// (eq. 186) picks per camera vertex with probability p(j) and gives the factor
+/// connection_count / (N p(j)); choosing per subpath length, as SkelBPT does, will need a
+/// length here too.
+pub trait ConnectionPolicy: Send + Sync {
+    /// MIS sample count of the connection strategies, for `light_paths` subpaths.
+    fn connection_count(&self, light_paths: usize) -> f32;
+
+    /// Calls `connect(subpath, factor)` for each light subpath `vertex` connects to.
+    fn connect(
+        &self,
+        vertex: &CameraVertex,
+        light_paths: usize,
+        rng: &mut Rng,
+        connect: &mut dyn FnMut(usize, f32),
+    );
+}
+
+/// The default: every vertex of a camera path connects to the camera path's "own" light
+/// subpath (pixel index modulo their number), one connection per strategy.
 pub struct UniformPerPixel;
 
 impl ConnectionPolicy for UniformPerPixel {
-    fn light_path_for(&self, pixel_index: u64, light_paths: usize) -> usize {
-        (pixel_index % light_paths.max(1) as u64) as usize
+    fn connection_count(&self, _light_paths: usize) -> f32 {
+        1.0
+    }
+
+    fn connect(
+        &self,
+        vertex: &CameraVertex,
+        light_paths: usize,
+        _rng: &mut Rng,
+        connect: &mut dyn FnMut(usize, f32),
+    ) {
+        if light_paths > 0 {
+            connect((vertex.pixel_index % light_paths as u64) as usize, 1.0);
+        }
+    }
+}
+
+/// Every camera vertex connects to every light subpath, each counting 1/N: the many-path
+/// estimator of 000 eq. 185 that SkelBPT's resampling estimates, at N times the connections
+/// (a reference for resampling policies; use few light subpaths).
+pub struct AllLightPaths;
+
+impl ConnectionPolicy for AllLightPaths {
+    fn connection_count(&self, light_paths: usize) -> f32 {
+        light_paths.max(1) as f32
+    }
+
+    fn connect(
+        &self,
+        _vertex: &CameraVertex,
+        light_paths: usize,
+        _rng: &mut Rng,
+        connect: &mut dyn FnMut(usize, f32),
+    ) {
+        let factor = 1.0 / light_paths.max(1) as f32;
+        for j in 0..light_paths {
+            connect(j, factor);
+        }
     }
 }
 
@@ -58,9 +136,27 @@ struct LightPaths {
     ranges: Vec<(u32, u32)>,
 }
 
+/// What light tracing produced besides the vertex pool: splats onto the image and onto the
+/// strategy images, and the rays traced.
+#[derive(Default)]
+struct LightTracingOutput {
+    splats: Vec<(u32, Rgb)>,
+    layer_splats: Vec<(u32, u32, Rgb)>,
+    counters: TraceCounters,
+}
+
 /// What one parallel task of light tracing produced: vertices, per-path ranges (relative to
-/// the chunk), splats and rays traced.
-type LightPathChunk = (Vec<LightVertex>, Vec<(u32, u32)>, Vec<(u32, Rgb)>, u64);
+/// the chunk) and the rest.
+type LightPathChunk = (Vec<LightVertex>, Vec<(u32, u32)>, LightTracingOutput);
+
+/// MIS sample counts of the strategies that take more than one sample per camera path:
+/// light tracing (one sample per light subpath, over the image) and, per the connection
+/// policy, the connections. The others (s = 0, s = 1) take one.
+#[derive(Clone, Copy, Debug)]
+struct Counts {
+    light_paths: f32,
+    connections: f32,
+}
 
 /// Throughput and MIS partial sums of a subpath being extended.
 #[derive(Clone, Copy, Debug)]
@@ -83,9 +179,89 @@ pub struct StrategyFilter {
     pub unweighted: bool,
 }
 
+impl StrategyFilter {
+    /// Checks that bdpt has this strategy: t >= 1 (no light path hits the camera), s + t >= 2,
+    /// and not (1, 1) (an emitter seen directly is s = 0's alone).
+    pub fn validate(&self) -> Result<()> {
+        let (s, t) = (self.s, self.t);
+        if t == 0 || s + t < 2 || (s, t) == (1, 1) || s > 1 << 20 || t > 1 << 20 {
+            return Err(Error::invalid(format!(
+                "bdpt has no strategy ({s}, {t}): it needs t >= 1 and s + t >= 2, and (1, 1) is \
+                 left to s = 0"
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// What one strategy found for one path: its unweighted contribution (f / p times the
+/// subpath throughputs) and its MIS weight.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Estimate {
+    pub s: u32,
+    pub t: u32,
+    pub value: Rgb,
+    pub weight: f32,
+}
+
+/// The end vertex a strategy sampled that is in neither recorded subpath: the light point of
+/// s = 1 (light index and position), the lens point of t = 1; for connections, which light
+/// subpath.
+#[derive(Clone, Copy, Debug)]
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) enum Endpoint {
+    None,
+    Light(usize, Vec3),
+    Lens(Vec3),
+    /// s >= 2, t >= 2: the light subpath connected to.
+    LightPath(usize),
+}
+
+/// Sees the subpaths a render traces and every estimate made from them (for tests; `()` sees
+/// nothing and compiles away). Light subpaths: `light_start` with the light and its sampled
+/// point, then `light_vertex` for every surface vertex, delta ones included. Camera paths:
+/// `camera_vertex` for the eye (or lens point), then for every surface vertex.
+pub(crate) trait PathObserver {
+    fn light_start(&mut self, _light: usize, _point: Vec3) {}
+    fn light_vertex(&mut self, _si: &SurfaceInteraction) {}
+    fn camera_vertex(&mut self, _p: Vec3, _si: Option<&SurfaceInteraction>) {}
+    fn estimate(&mut self, _e: &Estimate, _end: Endpoint) {}
+}
+
+impl PathObserver for () {}
+
+/// Index of strategy (s, t) among all strategies of paths of 1, 2, ... segments: (0, 2) for
+/// one segment, then (0, k + 1), (1, k), ..., (k, 1) for k segments (no (1, 1): a light point
+/// is never splatted, emitters seen directly are s = 0's alone).
+fn strategy_index(s: u32, t: u32) -> usize {
+    let k = (s + t - 1) as usize;
+    if k == 1 {
+        0
+    } else {
+        k * (k + 1) / 2 - 2 + s as usize
+    }
+}
+
+/// Name of the image of strategy (s, t), weighted by its MIS weight or not.
+pub fn strategy_layer_name(s: u32, t: u32, weighted: bool) -> String {
+    let kind = if weighted { "weighted" } else { "unweighted" };
+    format!("s{s}_t{t}_{kind}")
+}
+
+/// The strategies of paths of at most `max_len` segments, in layer order.
+fn strategies(max_len: u32) -> Vec<(u32, u32)> {
+    let mut list = vec![(0, 2)];
+    for k in 2..=max_len {
+        list.extend((0..=k).map(|s| (s, k + 1 - s)));
+    }
+    list
+}
+
 pub struct Bdpt {
     settings: IntegratorSettings,
     strategy: Option<StrategyFilter>,
+    /// Longest path (segments) whose strategies get images; `None` = no strategy images.
+    strategy_images: Option<u32>,
     /// Light subpaths per iteration; `None` = one per pixel.
     light_paths: Option<usize>,
     policy: Box<dyn ConnectionPolicy>,
@@ -95,11 +271,13 @@ pub struct Bdpt {
 const LIGHT_STREAM: u64 = 0x9E6C_63D0_676A_9A99;
 
 impl Bdpt {
+    /// A BDPT with `settings` (its `light_paths` included; 0 fails when rendering).
     pub fn new(settings: IntegratorSettings) -> Self {
         Bdpt {
             settings,
             strategy: None,
-            light_paths: None,
+            strategy_images: None,
+            light_paths: settings.light_paths.map(|n| n as usize),
             policy: Box::new(UniformPerPixel),
         }
     }
@@ -115,10 +293,25 @@ impl Bdpt {
         Ok(self)
     }
 
-    /// Keeps only the contributions of one strategy.
-    pub fn with_strategy(mut self, filter: StrategyFilter) -> Self {
+    /// Keeps only the contributions of one strategy (see [`StrategyFilter::validate`]).
+    pub fn with_strategy(mut self, filter: StrategyFilter) -> Result<Self> {
+        filter.validate()?;
         self.strategy = Some(filter);
-        self
+        Ok(self)
+    }
+
+    /// Also renders, from the same samples, the image of every strategy of paths up to
+    /// `max_length` segments (clamped to the maximum path length), weighted and unweighted,
+    /// as the layers named by [`strategy_layer_name`] (000 Figure 22). Each takes 24 bytes
+    /// per pixel and layer; the weighted ones sum to the image.
+    pub fn with_strategy_images(mut self, max_length: u32) -> Result<Self> {
+        if max_length == 0 {
+            return Err(Error::invalid(
+                "bdpt: strategy images need a path length of at least 1",
+            ));
+        }
+        self.strategy_images = Some(max_length.min(self.max_len()));
+        Ok(self)
     }
 
     /// Factor applied to the unweighted contribution of strategy (s, t) with MIS weight
@@ -135,6 +328,48 @@ impl Bdpt {
                 }
             }
             Some(_) => 0.0,
+        }
+    }
+
+    /// Whether an estimate of strategy (s, t) is used at all (else its shadow ray is skipped).
+    #[inline]
+    fn wanted(&self, s: u32, t: u32) -> bool {
+        self.strategy.map_or(true, |f| f.s == s && f.t == t) || self.strategy_layer(s, t).is_some()
+    }
+
+    /// First of the two layers (weighted, unweighted) of strategy (s, t), if it has images.
+    #[inline]
+    fn strategy_layer(&self, s: u32, t: u32) -> Option<usize> {
+        let max = self.strategy_images?;
+        (s + t - 1 <= max).then(|| 2 * strategy_index(s, t))
+    }
+
+    /// Where every estimate goes: its share of the pixel (strategy filter applied), and its
+    /// weighted and unweighted values into the strategy images.
+    #[inline]
+    fn accept(&self, e: &Estimate, layers: &[Cell<Rgb>]) -> Rgb {
+        if let (Some(l), false) = (self.strategy_layer(e.s, e.t), layers.is_empty()) {
+            layers[l].set(layers[l].get() + e.value * e.weight);
+            layers[l + 1].set(layers[l + 1].get() + e.value);
+        }
+        e.value * self.keep(e.s, e.t, e.weight)
+    }
+
+    /// `accept` for a light-tracing splat.
+    fn accept_splat(
+        &self,
+        e: &Estimate,
+        pixel: u32,
+        splats: &mut Vec<(u32, Rgb)>,
+        layer_splats: &mut Vec<(u32, u32, Rgb)>,
+    ) {
+        if let Some(l) = self.strategy_layer(e.s, e.t) {
+            layer_splats.push((l as u32, pixel, e.value * e.weight));
+            layer_splats.push((l as u32 + 1, pixel, e.value));
+        }
+        let value = e.value * self.keep(e.s, e.t, e.weight);
+        if value != Rgb::ZERO {
+            splats.push((pixel, value));
         }
     }
 
@@ -156,6 +391,13 @@ impl Bdpt {
         self.settings.max_depth + 1
     }
 
+    fn counts(&self, light_paths: usize) -> Counts {
+        Counts {
+            light_paths: light_paths.max(1) as f32,
+            connections: self.policy.connection_count(light_paths),
+        }
+    }
+
     fn light_path_count(&self, view: &View) -> usize {
         self.light_paths
             .unwrap_or(view.width as usize * view.height as usize)
@@ -164,15 +406,15 @@ impl Bdpt {
     /// Traces one light subpath, storing its vertices and splatting its light-tracing (t = 1)
     /// contributions.
     #[allow(clippy::too_many_arguments)]
-    fn trace_light_path(
+    fn trace_light_path<O: PathObserver>(
         &self,
         scene: &Scene,
         view: &View,
-        n_light: f32,
+        counts: Counts,
         rng: &mut Rng,
         vertices: &mut Vec<LightVertex>,
-        splats: &mut Vec<(u32, Rgb)>,
-        counters: &mut TraceCounters,
+        out: &mut LightTracingOutput,
+        obs: &mut O,
     ) {
         let Some(sampler) = scene.light_sampler() else {
             return;
@@ -190,21 +432,24 @@ impl Bdpt {
             return;
         }
         let used_cos = if light.is_finite() { es.cos_light } else { 1.0 };
+        // The strategies these sums stand for (s = 1 and s = 0) take one sample where the
+        // connections take `counts.connections`.
         let mut state = SubpathState {
             throughput: es.value / emission_pdf_w,
             path_len: 1,
-            d_vcm: self.mis(direct_pdf_a / emission_pdf_w),
+            d_vcm: self.mis(direct_pdf_a / emission_pdf_w / counts.connections),
             d_vc: if light.is_delta() {
                 0.0
             } else {
-                self.mis(used_cos / emission_pdf_w)
+                self.mis(used_cos / emission_pdf_w / counts.connections)
             },
             finite_light: light.is_finite(),
         };
+        obs.light_start(index, es.origin);
         let origin = offset_ray_origin(es.origin, es.origin_error, es.normal, es.dir);
         let mut ray = Ray::new(origin, es.dir, f32::INFINITY);
         loop {
-            counters.rays += 1;
+            out.counters.rays += 1;
             let Some(si) = scene.intersect(&ray) else {
                 break;
             };
@@ -224,6 +469,7 @@ impl Bdpt {
             }
             state.d_vcm /= self.mis(cos_in);
             state.d_vc /= self.mis(cos_in);
+            obs.light_vertex(&si);
             let bsdf = scene.bsdf(&si);
             if !bsdf.is_delta() {
                 let vertex = LightVertex {
@@ -234,7 +480,18 @@ impl Bdpt {
                     d_vc: state.d_vc,
                 };
                 if state.path_len < self.max_len() {
-                    self.connect_to_camera(scene, view, n_light, &vertex, &bsdf, splats, counters);
+                    if let Some((pixel, e, lens)) = self.connect_to_camera(
+                        scene,
+                        view,
+                        counts,
+                        &vertex,
+                        &bsdf,
+                        rng,
+                        &mut out.counters,
+                    ) {
+                        obs.estimate(&e, Endpoint::Lens(lens));
+                        self.accept_splat(&e, pixel, &mut out.splats, &mut out.layer_splats);
+                    }
                 }
                 if state.path_len + 2 <= self.max_len() {
                     vertices.push(vertex);
@@ -251,51 +508,66 @@ impl Bdpt {
         }
     }
 
-    /// Light tracing (t = 1): the light vertex seen by the pinhole camera.
+    /// Light tracing (t = 1): the light vertex seen by the camera through a point of its lens
+    /// (the eye for a pinhole). Returns the pixel, the estimate and the lens point.
     #[allow(clippy::too_many_arguments)]
     fn connect_to_camera(
         &self,
         scene: &Scene,
         view: &View,
-        n_light: f32,
+        counts: Counts,
         v: &LightVertex,
         bsdf: &Bsdf,
-        splats: &mut Vec<(u32, Rgb)>,
+        rng: &mut Rng,
         counters: &mut TraceCounters,
-    ) {
-        let Some((film, cos_at_camera)) = view.frame.project(v.si.p) else {
-            return;
+    ) -> Option<(u32, Estimate, Vec3)> {
+        // Pinholes draw no random number here, so their light subpaths do not depend on it.
+        let lens_u = if view.frame.lens_radius > 0.0 {
+            rng.uniform2()
+        } else {
+            Vec2::ZERO
         };
-        let to_camera = view.frame.eye - v.si.p;
+        let lens = view.frame.lens_point(lens_u);
+        let (film, cos_at_camera) = view.frame.project_from_lens(lens, v.si.p)?;
+        let to_camera = lens - v.si.p;
         let dist2 = to_camera.length_squared();
         let dir = to_camera / dist2.sqrt();
         if dir.dot(v.si.ng) * v.si.wo.dot(v.si.ng) <= 0.0 {
-            return;
+            return None;
         }
         let frame = v.si.shading_frame();
         let (wo_l, wi_l) = (frame.to_local(v.si.wo), frame.to_local(dir));
         let f = bsdf.eval(wo_l, wi_l) * shading_correction(&v.si, v.si.wo, dir);
         let cos_to_camera = wi_l.z.abs();
         if f == Rgb::ZERO || cos_to_camera == 0.0 {
-            return;
+            return None;
         }
         let rev_pdf = bsdf.pdf(wi_l, wo_l) * continuation(bsdf);
+        // Area density at the vertex of the camera ray through the lens point: the direction
+        // density d^2 / cos^3 (unit pixel area at image-plane distance d) times cos / dist^2.
         let image_dist = view.frame.image_plane_distance(view.height) / cos_at_camera;
         let image_to_surface = image_dist * image_dist / cos_at_camera * cos_to_camera / dist2;
-        let w_light = self.mis(image_to_surface / n_light) * (v.d_vcm + v.d_vc * self.mis(rev_pdf));
-        let weight = self.keep(v.path_len + 1, 1, 1.0 / (1.0 + w_light));
-        let contribution = v.throughput * f * (weight * image_to_surface / n_light);
-        if !crate::math::is_finite3(contribution) || contribution == Rgb::ZERO {
-            return;
+        // Light tracing takes `counts.light_paths` samples, the connections compared with it
+        // `counts.connections`.
+        let w_light = self.mis(image_to_surface * counts.connections / counts.light_paths)
+            * (v.d_vcm + v.d_vc * self.mis(rev_pdf));
+        let e = Estimate {
+            s: v.path_len + 1,
+            t: 1,
+            value: v.throughput * f * (image_to_surface / counts.light_paths),
+            weight: 1.0 / (1.0 + w_light),
+        };
+        if !crate::math::is_finite3(e.value) || e.value == Rgb::ZERO || !self.wanted(e.s, e.t) {
+            return None;
         }
         counters.rays += 1;
-        let shadow = v.si.spawn_ray_to(view.frame.eye, Vec3::ZERO, -dir);
+        let shadow = v.si.spawn_ray_to(lens, Vec3::ZERO, -dir);
         if scene.occluded(&shadow) {
-            return;
+            return None;
         }
         let x = ((film.x * view.width as f32) as u32).min(view.width - 1);
         let y = ((film.y * view.height as f32) as u32).min(view.height - 1);
-        splats.push((y * view.width + x, contribution));
+        Some((y * view.width + x, e, lens))
     }
 
     /// Samples the next direction and updates throughput and MIS sums (SmallVCM's
@@ -325,8 +597,15 @@ impl Bdpt {
         let cos_out = bs.wi.z.abs();
         let dir_pdf = bs.pdf * cont;
         if bs.delta {
+            // A Dirac lobe's densities are compared symbolically (Veach 1997 §10.2): in
+            // projected solid angle a reflection's delta is the same both ways and a
+            // refraction's scales by (eta_in / eta_out)^2 (conservation of etendue), so the
+            // reverse-to-forward ratio of solid-angle pdfs is cos_in / cos_out times that.
+            // In the general update below this leaves d_vc * mis(cos_in (eta_in/eta_out)^2).
+            // (SmallVCM's ratio 1 is the same for mirrors but not for refraction.) No strategy
+            // connects at this vertex, hence d_vcm = 0.
             state.d_vcm = 0.0;
-            state.d_vc *= self.mis(cos_out);
+            state.d_vc *= self.mis(wo_l.z.abs() * eta_ratio_squared(bsdf, wo_l, bs.wi));
         } else {
             let rev_pdf = bsdf.pdf(bs.wi, wo_l) * cont;
             state.d_vc =
@@ -341,38 +620,32 @@ impl Bdpt {
         (crate::math::is_finite3(state.throughput) && state.throughput != Rgb::ZERO).then_some(wi)
     }
 
-    /// s = 1: one light sample at a camera vertex.
+    /// s = 1: one light sample at a camera vertex. Returns the estimate (camera throughput
+    /// not applied) with the light and the sampled point.
+    #[allow(clippy::too_many_arguments)]
     fn direct_illumination(
         &self,
         scene: &Scene,
         si: &SurfaceInteraction,
         bsdf: &Bsdf,
         state: &SubpathState,
+        counts: Counts,
         rng: &mut Rng,
         counters: &mut TraceCounters,
-    ) -> Rgb {
-        let Some(sampler) = scene.light_sampler() else {
-            return Rgb::ZERO;
-        };
+    ) -> Option<(Estimate, Endpoint)> {
+        let sampler = scene.light_sampler()?;
         let (index, pick) = sampler.sample(rng.uniform());
         let light = &scene.lights()[index];
-        let Some(ls) = light.sample_at(si.p, si.facing_normal(), self.settings.env, rng.uniform2())
-        else {
-            return Rgb::ZERO;
-        };
+        let ls = light.sample_at(si.p, si.facing_normal(), self.settings.env, rng.uniform2())?;
         if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
-            return Rgb::ZERO;
+            return None;
         }
         let frame = si.shading_frame();
         let (wo_l, wi_l) = (frame.to_local(si.wo), frame.to_local(ls.wi));
         let f = bsdf.eval(wo_l, wi_l);
         let cos_to_light = wi_l.z.abs();
         if f == Rgb::ZERO || cos_to_light == 0.0 {
-            return Rgb::ZERO;
-        }
-        counters.rays += 1;
-        if !scene.unoccluded(si, &ls) {
-            return Rgb::ZERO;
+            return None;
         }
         let cont = continuation(bsdf);
         let dir_pdf = bsdf.pdf(wo_l, wi_l) * cont;
@@ -395,13 +668,29 @@ impl Bdpt {
         } else {
             self.mis(dir_pdf / (pick * direct_pdf_w))
         };
-        let w_camera = self.mis(emission_pdf_w * cos_to_light / (direct_pdf_w * cos_at_light))
-            * (state.d_vcm + state.d_vc * self.mis(rev_pdf));
-        let weight = self.keep(1, state.path_len + 1, 1.0 / (w_light + 1.0 + w_camera));
-        ls.radiance * f * (weight * cos_to_light / (pick * ls.pdf))
+        // The strategies with more light vertices are connections (and light tracing, whose
+        // count the camera sums carry relative to the connections').
+        let w_camera = self.mis(
+            emission_pdf_w * cos_to_light * counts.connections / (direct_pdf_w * cos_at_light),
+        ) * (state.d_vcm + state.d_vc * self.mis(rev_pdf));
+        let e = Estimate {
+            s: 1,
+            t: state.path_len + 1,
+            value: ls.radiance * f * (cos_to_light / (pick * ls.pdf)),
+            weight: 1.0 / (w_light + 1.0 + w_camera),
+        };
+        if !self.wanted(e.s, e.t) {
+            return None;
+        }
+        counters.rays += 1;
+        if !scene.unoccluded(si, &ls) {
+            return None;
+        }
+        Some((e, Endpoint::Light(index, ls.point)))
     }
 
-    /// s >= 2, t >= 2: connects camera vertex `si` to a stored light vertex.
+    /// s >= 2, t >= 2: connects camera vertex `si` to a stored light vertex. Returns the
+    /// estimate (camera throughput not applied).
     #[allow(clippy::too_many_arguments)]
     fn connect_vertices(
         &self,
@@ -411,17 +700,17 @@ impl Bdpt {
         state: &SubpathState,
         v: &LightVertex,
         counters: &mut TraceCounters,
-    ) -> Rgb {
+    ) -> Option<Estimate> {
         let d = v.si.p - si.p;
         let dist2 = d.length_squared();
         if dist2 == 0.0 {
-            return Rgb::ZERO;
+            return None;
         }
         let dir = d / dist2.sqrt();
         if dir.dot(si.ng) * si.wo.dot(si.ng) <= 0.0
             || (-dir).dot(v.si.ng) * v.si.wo.dot(v.si.ng) <= 0.0
         {
-            return Rgb::ZERO;
+            return None;
         }
         let frame_c = si.shading_frame();
         let (wo_c, wi_c) = (frame_c.to_local(si.wo), frame_c.to_local(dir));
@@ -433,7 +722,7 @@ impl Bdpt {
         let f_l = light_bsdf.eval(wo_l, wi_l) * shading_correction(&v.si, v.si.wo, -dir);
         let cos_l = wi_l.z.abs();
         if f_c == Rgb::ZERO || f_l == Rgb::ZERO || cos_c == 0.0 || cos_l == 0.0 {
-            return Rgb::ZERO;
+            return None;
         }
         let (cont_c, cont_l) = (continuation(bsdf), continuation(&light_bsdf));
         let camera_dir_pdf_a = bsdf.pdf(wo_c, wi_c) * cont_c * cos_l / dist2;
@@ -443,21 +732,21 @@ impl Bdpt {
         let w_light = self.mis(camera_dir_pdf_a) * (v.d_vcm + v.d_vc * self.mis(light_rev_pdf));
         let w_camera =
             self.mis(light_dir_pdf_a) * (state.d_vcm + state.d_vc * self.mis(camera_rev_pdf));
-        let weight = self.keep(
-            v.path_len + 1,
-            state.path_len + 1,
-            1.0 / (w_light + 1.0 + w_camera),
-        );
-        let contribution = v.throughput * f_c * f_l * (weight * cos_c * cos_l / dist2);
-        if contribution == Rgb::ZERO {
-            return Rgb::ZERO;
+        let e = Estimate {
+            s: v.path_len + 1,
+            t: state.path_len + 1,
+            value: v.throughput * f_c * f_l * (cos_c * cos_l / dist2),
+            weight: 1.0 / (w_light + 1.0 + w_camera),
+        };
+        if e.value == Rgb::ZERO || !self.wanted(e.s, e.t) {
+            return None;
         }
         counters.rays += 1;
         let shadow = si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng);
         if scene.occluded(&shadow) {
-            return Rgb::ZERO;
+            return None;
         }
-        contribution
+        Some(e)
     }
 }
 
@@ -499,6 +788,18 @@ fn continuation(bsdf: &Bsdf) -> f32 {
     bsdf.albedo_hint().max_element().clamp(0.0, 1.0)
 }
 
+/// (eta on `wo`'s side / eta on `wi`'s side)^2 for a specular scattering from `wo` to `wi`
+/// (local frame): 1 for reflections.
+fn eta_ratio_squared(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
+    match *bsdf {
+        Bsdf::Dielectric { eta } if wo.z * wi.z < 0.0 => {
+            let ratio = if wo.z > 0.0 { 1.0 / eta } else { eta };
+            ratio * ratio
+        }
+        _ => 1.0,
+    }
+}
+
 /// Adjoint correction for shading normals in importance transport (Veach 1997 §5.3):
 /// |wo.ns| |wi.ng| / (|wo.ng| |wi.ns|), with `wo` towards the light side and `wi` onward.
 fn shading_correction(si: &SurfaceInteraction, wo: Vec3, wi: Vec3) -> f32 {
@@ -511,103 +812,37 @@ fn shading_correction(si: &SurfaceInteraction, wo: Vec3, wi: Vec3) -> f32 {
     }
 }
 
-impl Integrator for Bdpt {
-    fn name(&self) -> &'static str {
-        "bdpt"
-    }
-
-    fn uses_iterations(&self) -> bool {
-        true
-    }
-
-    fn begin_iteration(
-        &self,
-        scene: &Scene,
-        view: &View,
-        seed: u64,
-        sample_index: u32,
-    ) -> Result<Iteration> {
-        if view.frame.lens_radius > 0.0 {
-            return Err(Error::invalid("bdpt: light tracing onto a thin-lens camera is not supported; use a pinhole camera"));
-        }
-        let count = self.light_path_count(view);
-        let n_light = count as f32;
-        const CHUNK: usize = 256;
-        let chunks: Vec<LightPathChunk> = (0..count.div_ceil(CHUNK))
-            .into_par_iter()
-            .map(|c| {
-                let mut vertices = Vec::new();
-                let mut ranges = Vec::new();
-                let mut splats = Vec::new();
-                let mut counters = TraceCounters::default();
-                for k in c * CHUNK..((c + 1) * CHUNK).min(count) {
-                    let mut rng =
-                        Rng::for_sample(seed ^ LIGHT_STREAM, k as u64, sample_index as u64);
-                    let start = vertices.len() as u32;
-                    self.trace_light_path(
-                        scene,
-                        view,
-                        n_light,
-                        &mut rng,
-                        &mut vertices,
-                        &mut splats,
-                        &mut counters,
-                    );
-                    ranges.push((start, vertices.len() as u32));
-                }
-                (vertices, ranges, splats, counters.rays)
-            })
-            .collect();
-        let mut paths = LightPaths {
-            vertices: Vec::new(),
-            ranges: Vec::with_capacity(count),
-        };
-        let mut splats = Vec::new();
-        let mut rays = 0;
-        for (v, r, s, n) in chunks {
-            let base = paths.vertices.len() as u32;
-            paths
-                .ranges
-                .extend(r.into_iter().map(|(a, b)| (a + base, b + base)));
-            paths.vertices.extend(v);
-            splats.extend(s);
-            rays += n;
-        }
-        Ok(Iteration {
-            data: Some(Box::new(paths)),
-            splats,
-            rays,
-        })
-    }
-
-    fn sample(
+impl Bdpt {
+    /// One camera path and its connections, with `obs` watching.
+    pub(crate) fn sample_observed<O: PathObserver>(
         &self,
         scene: &Scene,
         mut ray: Ray,
         rng: &mut Rng,
         counters: &mut TraceCounters,
         ctx: &SampleContext,
+        obs: &mut O,
     ) -> PixelSample {
         let mut out = PixelSample::default();
         let paths = ctx.iteration.and_then(|d| d.downcast_ref::<LightPaths>());
-        let n_light = paths.map_or(1, |p| p.ranges.len()).max(1) as f32;
-        let light_range = paths.map(|p| {
-            let (a, b) = p.ranges[self.policy.light_path_for(ctx.pixel_index, p.ranges.len())];
-            &p.vertices[a as usize..b as usize]
-        });
+        let counts = self.counts(paths.map_or(1, |p| p.ranges.len()));
         let cos_at_camera = ray.dir.dot(ctx.view.frame.forward);
         if !(cos_at_camera > 0.0) {
             return out;
         }
+        // Direction density of the camera ray (unit pixel area at image-plane distance d):
+        // d^2 / cos^3, for pinholes and, from the lens point, for thin lenses.
         let image_dist = ctx.view.frame.image_plane_distance(ctx.view.height) / cos_at_camera;
         let camera_pdf_w = image_dist * image_dist / cos_at_camera;
         let mut state = SubpathState {
             throughput: Rgb::ONE,
             path_len: 1,
-            d_vcm: self.mis(n_light / camera_pdf_w),
+            // Light tracing's sample count relative to the connections'.
+            d_vcm: self.mis(counts.light_paths / (counts.connections * camera_pdf_w)),
             d_vc: 0.0,
             finite_light: true,
         };
+        obs.camera_vertex(ray.origin, None);
         let mut radiance = Rgb::ZERO;
         let mut prev_normal = Vec3::ZERO;
         loop {
@@ -628,12 +863,13 @@ impl Integrator for Bdpt {
             state.d_vcm *= self.mis(si.t * si.t);
             state.d_vcm /= self.mis(cos_in);
             state.d_vc /= self.mis(cos_in);
+            obs.camera_vertex(si.p, Some(&si));
 
             // s = 0: the camera path found an emitter.
             let le = scene.emitted(&si);
             if le != Rgb::ZERO {
-                if state.path_len == 1 {
-                    radiance += state.throughput * le * self.keep(0, 2, 1.0);
+                let weight = if state.path_len == 1 {
+                    Some(1.0)
                 } else if let (Some(l), Some(sampler)) =
                     (scene.triangle_light(si.triangle), scene.light_sampler())
                 {
@@ -641,11 +877,27 @@ impl Integrator for Bdpt {
                     let pick = sampler.pmf(l);
                     let direct_pdf_a = pick * light.direct_pdf_area();
                     let emission_pdf_w = pick * light.emission_pdf(si.wo);
-                    let w_camera = self.mis(direct_pdf_a) * state.d_vcm
-                        + self.mis(emission_pdf_w) * state.d_vc;
-                    radiance += state.throughput
-                        * le
-                        * self.keep(0, state.path_len + 1, 1.0 / (1.0 + w_camera));
+                    // The sums converted the camera's density to area here with the shading
+                    // normal; light sampling and emission use the light's own normal, so
+                    // convert with that one (they differ on emitters with vertex normals).
+                    let to_light_normal = self.mis(cos_in / light.cos_at(si.wo));
+                    // d_vcm: s = 1 (one sample, like this); d_vc: connections and beyond.
+                    let w_camera = (self.mis(direct_pdf_a) * state.d_vcm
+                        + self.mis(emission_pdf_w * counts.connections) * state.d_vc)
+                        * to_light_normal;
+                    Some(1.0 / (1.0 + w_camera))
+                } else {
+                    None
+                };
+                if let Some(weight) = weight {
+                    let e = Estimate {
+                        s: 0,
+                        t: state.path_len + 1,
+                        value: state.throughput * le,
+                        weight,
+                    };
+                    obs.estimate(&e, Endpoint::None);
+                    radiance += self.accept(&e, ctx.layers);
                 }
             }
             if state.path_len >= self.max_len() {
@@ -656,16 +908,36 @@ impl Integrator for Bdpt {
                 out.albedo = bsdf.albedo_hint();
             }
             if !bsdf.is_delta() {
-                radiance += state.throughput
-                    * self.direct_illumination(scene, &si, &bsdf, &state, rng, counters);
-                if let Some(vertices) = light_range {
-                    for v in vertices {
-                        if v.path_len + 1 + state.path_len > self.max_len() {
-                            break;
+                if let Some((mut e, end)) =
+                    self.direct_illumination(scene, &si, &bsdf, &state, counts, rng, counters)
+                {
+                    e.value *= state.throughput;
+                    obs.estimate(&e, end);
+                    radiance += self.accept(&e, ctx.layers);
+                }
+                if let Some(p) = paths {
+                    let vertex = CameraVertex {
+                        pixel_index: ctx.pixel_index,
+                        segments: state.path_len,
+                        si: &si,
+                    };
+                    let mut connect = |j: usize, factor: f32| {
+                        let (a, b) = p.ranges[j];
+                        for v in &p.vertices[a as usize..b as usize] {
+                            if v.path_len + 1 + state.path_len > self.max_len() {
+                                break;
+                            }
+                            if let Some(mut e) =
+                                self.connect_vertices(scene, &si, &bsdf, &state, v, counters)
+                            {
+                                e.value *= state.throughput * factor;
+                                obs.estimate(&e, Endpoint::LightPath(j));
+                                radiance += self.accept(&e, ctx.layers);
+                            }
                         }
-                        radiance += state.throughput
-                            * self.connect_vertices(scene, &si, &bsdf, &state, v, counters);
-                    }
+                    };
+                    self.policy
+                        .connect(&vertex, p.ranges.len(), rng, &mut connect);
                 }
             }
             let Some(wi) = self.scatter(&bsdf, &si, &mut state, rng, Transport::Radiance) else {
@@ -678,4 +950,115 @@ impl Integrator for Bdpt {
         out.radiance = radiance;
         out
     }
+
+    /// The light subpaths of one iteration into the vertex pool, in parallel and
+    /// deterministically (fixed chunks merged in order, each path seeded by its index).
+    fn trace_light_paths(
+        &self,
+        scene: &Scene,
+        view: &View,
+        seed: u64,
+        sample_index: u32,
+        count: usize,
+    ) -> (LightPaths, LightTracingOutput) {
+        let counts = self.counts(count);
+        const CHUNK: usize = 256;
+        let chunks: Vec<LightPathChunk> = (0..count.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let mut vertices = Vec::new();
+                let mut ranges = Vec::new();
+                let mut out = LightTracingOutput::default();
+                for k in c * CHUNK..((c + 1) * CHUNK).min(count) {
+                    let mut rng =
+                        Rng::for_sample(seed ^ LIGHT_STREAM, k as u64, sample_index as u64);
+                    let start = vertices.len() as u32;
+                    self.trace_light_path(
+                        scene,
+                        view,
+                        counts,
+                        &mut rng,
+                        &mut vertices,
+                        &mut out,
+                        &mut (),
+                    );
+                    ranges.push((start, vertices.len() as u32));
+                }
+                (vertices, ranges, out)
+            })
+            .collect();
+        let mut paths = LightPaths {
+            vertices: Vec::new(),
+            ranges: Vec::with_capacity(count),
+        };
+        let mut total = LightTracingOutput::default();
+        for (v, r, out) in chunks {
+            let base = paths.vertices.len() as u32;
+            paths
+                .ranges
+                .extend(r.into_iter().map(|(a, b)| (a + base, b + base)));
+            paths.vertices.extend(v);
+            total.splats.extend(out.splats);
+            total.layer_splats.extend(out.layer_splats);
+            total.counters.rays += out.counters.rays;
+        }
+        (paths, total)
+    }
 }
+
+impl Integrator for Bdpt {
+    fn name(&self) -> &'static str {
+        "bdpt"
+    }
+
+    fn layers(&self) -> Vec<String> {
+        let Some(max) = self.strategy_images else {
+            return Vec::new();
+        };
+        strategies(max)
+            .into_iter()
+            .flat_map(|(s, t)| [true, false].map(|w| strategy_layer_name(s, t, w)))
+            .collect()
+    }
+
+    fn uses_iterations(&self) -> bool {
+        true
+    }
+
+    fn begin_iteration(
+        &self,
+        scene: &Scene,
+        view: &View,
+        seed: u64,
+        sample_index: u32,
+    ) -> Result<Iteration> {
+        let count = self.light_path_count(view);
+        if count == 0 {
+            return Err(Error::invalid(
+                "bdpt: light subpaths per iteration must be at least 1",
+            ));
+        }
+        let (paths, out) = self.trace_light_paths(scene, view, seed, sample_index, count);
+        Ok(Iteration {
+            data: Some(Box::new(paths)),
+            splats: out.splats,
+            layer_splats: out.layer_splats,
+            rays: out.counters.rays,
+        })
+    }
+
+    fn sample(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Rng,
+        counters: &mut TraceCounters,
+        ctx: &SampleContext,
+    ) -> PixelSample {
+        self.sample_observed(scene, ray, rng, counters, ctx, &mut ())
+    }
+}
+
+#[cfg(test)]
+#[path = "bdpt_weights_tests.rs"]
+mod weights_tests;

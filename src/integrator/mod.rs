@@ -5,11 +5,15 @@ mod bdpt;
 mod env_direct;
 mod path;
 
-pub use bdpt::{Bdpt, ConnectionPolicy, StrategyFilter, UniformPerPixel};
+pub use bdpt::{
+    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, ConnectionPolicy, StrategyFilter,
+    UniformPerPixel,
+};
 pub use env_direct::EnvDirect;
 pub use path::PathTracer;
 
 use std::any::Any;
+use std::cell::Cell;
 
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
@@ -104,6 +108,8 @@ pub struct Iteration {
     /// Contributions to add to pixels (row-major index), already scaled as one sample's worth
     /// (light tracing splats).
     pub splats: Vec<(u32, Rgb)>,
+    /// Splats into the integrator's layers: (layer, pixel, value).
+    pub layer_splats: Vec<(u32, u32, Rgb)>,
     pub rays: u64,
 }
 
@@ -113,12 +119,22 @@ pub struct SampleContext<'a> {
     pub pixel_index: u64,
     pub view: &'a View,
     pub iteration: Option<&'a (dyn Any + Send + Sync)>,
+    /// This sample's values of the integrator's layers (see [`Integrator::layers`]), zero on
+    /// entry; empty when the integrator has none.
+    pub layers: &'a [Cell<Rgb>],
 }
 
 /// An estimator of radiance along camera rays. Implementations are immutable during a render
 /// and shared by the worker threads.
 pub trait Integrator: Send + Sync {
     fn name(&self) -> &'static str;
+
+    /// Names of extra per-pixel RGB images the integrator writes through
+    /// [`SampleContext::layers`] and [`Iteration::layer_splats`] (debugging images; none by
+    /// default).
+    fn layers(&self) -> Vec<String> {
+        Vec::new()
+    }
 
     /// True when `begin_iteration` must run before the pixels of every sample index.
     fn uses_iterations(&self) -> bool {
@@ -197,7 +213,7 @@ pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integr
         "bdpt" => {
             let bdpt = Bdpt::new(settings);
             Ok(Box::new(match settings.light_paths {
-                Some(n) => bdpt.with_light_paths(n as usize)?,
+                Some(n) => bdpt.with_light_paths(n as usize)?, // validates n >= 1
                 None => bdpt,
             }))
         }

@@ -198,6 +198,14 @@ impl Light {
         }
     }
 
+    /// |cosine| between the light's normal and direction `w` (1 for lights without a surface).
+    pub fn cos_at(&self, w: Vec3) -> f32 {
+        match *self {
+            Light::Area { normal, .. } => normal.dot(w).abs(),
+            _ => 1.0,
+        }
+    }
+
     /// Area density of direct light sampling choosing a point of this light (1 for delta
     /// positions), without selection probability.
     pub fn direct_pdf_area(&self) -> f32 {

@@ -135,6 +135,37 @@ impl CameraFrame {
         Some((film, z / v.length()))
     }
 
+    /// The point of the lens chosen by `u` in [0, 1)^2 (uniform over the lens disk, as
+    /// `generate_ray` picks it); the eye itself for a pinhole.
+    pub fn lens_point(&self, u: Vec2) -> Vec3 {
+        if self.lens_radius <= 0.0 {
+            return self.eye;
+        }
+        let d = warp::concentric_disk(u) * self.lens_radius;
+        self.eye + self.right.normalize() * d.x + self.up.normalize() * d.y
+    }
+
+    /// Inverse of `generate_ray` for a given lens point: the film position of the camera ray
+    /// that leaves `lens_point` towards the world point `p`, with the cosine between that ray
+    /// and the view direction; `None` behind the lens or outside the image. For a pinhole
+    /// (`lens_point` = eye) this is `project`.
+    ///
+    /// A thin lens sends every ray through the film point's image on the plane in focus, so the
+    /// film position is the pinhole projection of the point where the ray meets that plane.
+    pub fn project_from_lens(&self, lens_point: Vec3, p: Vec3) -> Option<(Vec2, f32)> {
+        if self.lens_radius <= 0.0 {
+            return self.project(p);
+        }
+        let dir = (p - lens_point).normalize();
+        let cos = dir.dot(self.forward);
+        if !(cos > 0.0) {
+            return None;
+        }
+        let focus_point = lens_point + dir * (self.focus_distance / cos);
+        let (film, _) = self.project(focus_point)?;
+        Some((film, cos))
+    }
+
     /// Distance from the pinhole to the image plane measured in pixels, for an image `height`
     /// pixels high: the plane on which one pixel has unit area.
     pub fn image_plane_distance(&self, height: u32) -> f32 {
@@ -150,8 +181,7 @@ impl CameraFrame {
             return Ray::new(self.eye, dir, f32::INFINITY);
         }
         let focus_point = self.eye + dir * (self.focus_distance / dir.dot(self.forward));
-        let d = warp::concentric_disk(lens) * self.lens_radius;
-        let origin = self.eye + self.right.normalize() * d.x + self.up.normalize() * d.y;
+        let origin = self.lens_point(lens);
         Ray::new(origin, (focus_point - origin).normalize(), f32::INFINITY)
     }
 }
@@ -192,6 +222,30 @@ mod tests {
         let pa = a.at((5.0 - a.origin.dot(-Vec3::Z)) / a.dir.dot(-Vec3::Z));
         let pb = b.at((5.0 - b.origin.dot(-Vec3::Z)) / b.dir.dot(-Vec3::Z));
         assert!((pa - pb).length() < 1e-4);
+    }
+
+    /// `project_from_lens` finds the film position `generate_ray` started from, for pinholes
+    /// and thin lenses, and the cosine of the ray with the view direction.
+    #[test]
+    fn projection_from_the_lens_inverts_ray_generation() {
+        let pinhole = Camera::look_at(Vec3::new(1.0, 2.0, 3.0), Vec3::ZERO, Vec3::Y, 50.0).unwrap();
+        for camera in [pinhole, pinhole.with_thin_lens(0.2, 2.5).unwrap()] {
+            let f = camera.frame(1.5);
+            let mut rng = crate::math::Rng::new(7, 1);
+            for _ in 0..1000 {
+                let film = rng.uniform2();
+                let lens = rng.uniform2();
+                let ray = f.generate_ray(film, lens);
+                let origin = f.lens_point(lens);
+                assert!((origin - ray.origin).length() < 1e-6);
+                let p = ray.at(0.5 + 10.0 * rng.uniform());
+                let (back, cos) = f.project_from_lens(origin, p).expect("in view");
+                assert!((back - film).length() < 2e-4, "{film} -> {back}");
+                assert!((cos - ray.dir.dot(f.forward)).abs() < 1e-5);
+            }
+            // Behind the lens.
+            assert!(f.project_from_lens(f.eye, f.eye - f.forward).is_none());
+        }
     }
 
     #[test]

@@ -876,6 +876,141 @@ static void test_render(lacuna_context *ctx) {
 }
 
 /* ---------------------------------------------------------------------------------------- */
+/* Bidirectional path tracing: light subpaths, strategy filter, strategy images, thin lens. */
+
+static void test_bdpt(lacuna_context *ctx) {
+    lacuna_scene *scene = build_box_scene(ctx);
+    lacuna_render_job *pt = NULL, *job = NULL;
+    OK(lacuna_render_job_new(scene, "path", &pt));
+    EXPECT(lacuna_render_job_set_light_paths(pt, 10), LACUNA_STATUS_INVALID_OPERATION, "bdpt");
+    EXPECT(lacuna_render_job_set_strategy_filter(pt, 1, 2, false), LACUNA_STATUS_INVALID_OPERATION, "bdpt");
+    EXPECT(lacuna_render_job_set_strategy_images(pt, 3), LACUNA_STATUS_INVALID_OPERATION, "'path'");
+    OK(lacuna_render_job_clear_strategy_filter(pt));
+    OK(lacuna_render_job_new(scene, "bdpt", &job));
+    lacuna_scene_release(scene);
+    /* Error paths. */
+    EXPECT(lacuna_render_job_set_light_paths(NULL, 10), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_light_paths(job, LACUNA_MAX_LIGHT_PATHS + 1), LACUNA_STATUS_OUT_OF_RANGE,
+           "count");
+    EXPECT(lacuna_render_job_set_strategy_filter(NULL, 1, 2, false), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_strategy_filter(job, 1, 1, false), LACUNA_STATUS_INVALID_ARGUMENT, "(1, 1)");
+    EXPECT(lacuna_render_job_set_strategy_filter(job, 2, 0, true), LACUNA_STATUS_INVALID_ARGUMENT, "(2, 0)");
+    EXPECT(lacuna_render_job_set_strategy_filter(job, 0, 1, true), LACUNA_STATUS_INVALID_ARGUMENT, "(0, 1)");
+    EXPECT(lacuna_render_job_clear_strategy_filter(NULL), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_strategy_images(NULL, 3), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_thin_lens(NULL, 0.1f, 1), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_thin_lens(job, -0.1f, 1), LACUNA_STATUS_INVALID_ARGUMENT, "lens_radius");
+    EXPECT(lacuna_render_job_set_thin_lens(job, NAN, 1), LACUNA_STATUS_INVALID_ARGUMENT, "lens_radius");
+    EXPECT(lacuna_render_job_set_thin_lens(job, 0.1f, 0), LACUNA_STATUS_INVALID_ARGUMENT, "focus_distance");
+    EXPECT(lacuna_render_job_set_thin_lens(job, 0.1f, INFINITY), LACUNA_STATUS_INVALID_ARGUMENT,
+           "focus_distance");
+    /* A render with every strategy image of paths up to 4 segments (max depth 3). */
+    enum { W = 12, H = 10, N = W * H * 3 };
+    OK(lacuna_render_job_set_resolution(job, W, H));
+    OK(lacuna_render_job_set_samples_per_pixel(job, 4));
+    OK(lacuna_render_job_set_max_depth(job, 3));
+    OK(lacuna_render_job_set_seed(job, 3));
+    OK(lacuna_render_job_set_light_paths(job, 50));
+    OK(lacuna_render_job_set_strategy_images(job, 9)); /* clamped to 4 */
+    lacuna_film *film = NULL;
+    OK(lacuna_render_job_run(job, &film));
+    static float radiance[N], sum[N], img[N], unweighted_1_2[N];
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, radiance, W, H, 0, 0));
+    memset(sum, 0, sizeof sum);
+    int strategies = 0;
+    for (uint32_t k = 1; k <= 4; k++)
+        for (uint32_t s = 0; s <= k + 1; s++) {
+            uint32_t t = k + 1 - s;
+            if (t == 0 || (s == 1 && t == 1) || (k == 1 && s != 0)) continue;
+            OK(lacuna_film_read_strategy_image(film, s, t, true, img, W, H, 0, 0));
+            for (int i = 0; i < N; i++) sum[i] += img[i];
+            OK(lacuna_film_read_strategy_image(film, s, t, false, img, W, H, 0, 0));
+            strategies++;
+        }
+    CHECK(strategies == 1 + 3 + 4 + 5);
+    int close = 1;
+    double total = 0;
+    for (int i = 0; i < N; i++) {
+        close &= fabsf(sum[i] - radiance[i]) <= 1e-4f * fmaxf(radiance[i], 1e-3f);
+        total += radiance[i];
+    }
+    CHECK(close && total > 0 && isfinite(total));
+    OK(lacuna_film_read_strategy_image(film, 1, 2, false, unweighted_1_2, W, H, 0, 0));
+    /* Strided readback agrees with packed. */
+    enum { PS = 16, RS = W * PS + 4 };
+    static unsigned char padded[H * RS];
+    OK(lacuna_film_read_strategy_image(film, 1, 2, false, (float *)(void *)padded, W, H, PS, RS));
+    int same = 1;
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++) same &= memcmp(padded + y * RS + x * PS, &unweighted_1_2[(y * W + x) * 3], 12) == 0;
+    CHECK(same);
+    EXPECT(lacuna_film_read_strategy_image(film, 1, 1, true, img, W, H, 0, 0), LACUNA_STATUS_OUT_OF_RANGE,
+           "(1, 1)");
+    EXPECT(lacuna_film_read_strategy_image(film, 0, 6, true, img, W, H, 0, 0), LACUNA_STATUS_OUT_OF_RANGE,
+           "(0, 6)");
+    EXPECT(lacuna_film_read_strategy_image(film, 1, 2, true, img, W + 1, H, 0, 0), LACUNA_STATUS_INVALID_ARGUMENT,
+           "13x10");
+    EXPECT(lacuna_film_read_strategy_image(film, 1, 2, true, img, W, H, 4, 0), LACUNA_STATUS_INVALID_ARGUMENT,
+           "pixel_stride");
+    EXPECT(lacuna_film_read_strategy_image(film, 1, 2, true, NULL, W, H, 0, 0), LACUNA_STATUS_NULL_POINTER, "dst");
+    EXPECT(lacuna_film_read_strategy_image(NULL, 1, 2, true, img, W, H, 0, 0), LACUNA_STATUS_NULL_POINTER, "film");
+    OK(lacuna_film_write_exr(film, path_in_dir("strategies.exr")));
+    CHECK(file_exists(path_in_dir("strategies.exr")));
+    lacuna_film_release(film);
+
+    /* A film without strategy images. */
+    OK(lacuna_render_job_set_resolution(pt, W, H));
+    OK(lacuna_render_job_set_samples_per_pixel(pt, 1));
+    OK(lacuna_render_job_run(pt, &film));
+    EXPECT(lacuna_film_read_strategy_image(film, 1, 2, true, img, W, H, 0, 0), LACUNA_STATUS_INVALID_OPERATION,
+           "no strategy images");
+    lacuna_film_release(film);
+    lacuna_render_job_free(pt);
+
+    /* The strategy filter renders exactly that strategy's image of the same samples. */
+    OK(lacuna_render_job_set_strategy_images(job, 0));
+    OK(lacuna_render_job_set_strategy_filter(job, 1, 2, true));
+    OK(lacuna_render_job_run(job, &film));
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, img, W, H, 0, 0));
+    CHECK(memcmp(img, unweighted_1_2, sizeof img) == 0);
+    EXPECT(lacuna_film_read_strategy_image(film, 1, 2, true, img, W, H, 0, 0), LACUNA_STATUS_INVALID_OPERATION,
+           "no strategy images");
+    lacuna_film_release(film);
+    OK(lacuna_render_job_clear_strategy_filter(job));
+
+    /* Light tracing through a thin lens; radius 0 makes the camera a pinhole again. */
+    OK(lacuna_render_job_set_thin_lens(job, 0.05f, 0.9f));
+    OK(lacuna_render_job_run(job, &film));
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, img, W, H, 0, 0));
+    total = 0;
+    for (int i = 0; i < N; i++) total += img[i];
+    CHECK(total > 0 && isfinite(total));
+    lacuna_film_release(film);
+    OK(lacuna_render_job_set_thin_lens(job, 0, 0));
+    OK(lacuna_render_job_set_light_paths(job, 0)); /* back to one per pixel */
+    OK(lacuna_render_job_run(job, &film));
+    lacuna_film_release(film);
+    lacuna_render_job_free(job);
+
+    /* Strategy images count against the memory budget. */
+    lacuna_context *tight = NULL;
+    OK(lacuna_context_new(&tight));
+    OK(lacuna_context_set_memory_budget(tight, 20000));
+    lacuna_scene *s2 = build_box_scene(tight);
+    lacuna_context_release(tight);
+    lacuna_render_job *big = NULL;
+    OK(lacuna_render_job_new(s2, "bdpt", &big));
+    lacuna_scene_release(s2);
+    OK(lacuna_render_job_set_resolution(big, W, H));
+    OK(lacuna_render_job_set_samples_per_pixel(big, 1));
+    OK(lacuna_render_job_run(big, &film));
+    lacuna_film_release(film);
+    OK(lacuna_render_job_set_strategy_images(big, 3));
+    EXPECT(lacuna_render_job_run(big, &film), LACUNA_STATUS_OVER_BUDGET, "strategy images");
+    lacuna_render_job_free(big);
+}
+
+/* ---------------------------------------------------------------------------------------- */
 /* Empty-space analysis. */
 
 static int progress_calls;
@@ -997,6 +1132,7 @@ int main(int argc, char **argv) {
     test_builder(ctx);
     test_queries(ctx);
     test_render(ctx);
+    test_bdpt(ctx);
     test_analysis(ctx);
     lacuna_context_release(ctx);
     printf("%d passed, %d failed\n", passed, failed);

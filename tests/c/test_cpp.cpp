@@ -181,6 +181,28 @@ int main(int argc, char **argv) {
     EXPECT_ERROR(job.resolution(0, 1), LACUNA_STATUS_OUT_OF_RANGE, "resolution");
     EXPECT_ERROR(lacuna::RenderJob(scene, "nonesuch"), LACUNA_STATUS_INVALID_ARGUMENT, "nonesuch");
 
+    // Bidirectional path tracing: strategy images sum to the image.
+    {
+        lacuna::RenderJob bdpt(scene, "bdpt");
+        bdpt.resolution(8, 6).samples_per_pixel(2).max_depth(2).light_paths(20).strategy_images(3).thin_lens(0.02f, 1);
+        lacuna::Film f = bdpt.run();
+        auto image = f.read();
+        std::vector<float> total(image.size(), 0.0f);
+        for (uint32_t k = 1; k <= 3; k++)
+            for (uint32_t s = 0; s <= k; s++) {
+                if (k == 1 && s == 1) continue;
+                auto layer = f.read_strategy_image(s, k + 1 - s, true);
+                for (size_t i = 0; i < layer.size(); i++) total[i] += layer[i];
+            }
+        bool close = true;
+        for (size_t i = 0; i < image.size(); i++) close &= std::fabs(total[i] - image[i]) <= 1e-4f * std::fmax(image[i], 1e-3f);
+        CHECK(close);
+        EXPECT_ERROR(f.read_strategy_image(1, 1, true), LACUNA_STATUS_OUT_OF_RANGE, "(1, 1)");
+        EXPECT_ERROR(bdpt.strategy_filter(1, 1, false), LACUNA_STATUS_INVALID_ARGUMENT, "(1, 1)");
+        bdpt.strategy_filter(1, 2, true).clear_strategy_filter();
+        EXPECT_ERROR(job.light_paths(3), LACUNA_STATUS_INVALID_OPERATION, "bdpt");
+    }
+
     // A throwing callback cancels the render; run() rethrows its exception.
     job.on_progress([](double f) -> bool {
         if (f >= 0.0) throw std::runtime_error("callback failed on purpose");
