@@ -6,9 +6,10 @@
 //! (Pharr, Jakob and Humphreys, pbrt-v4 §6.8).
 
 mod bvh;
+mod sah;
 mod triangle;
 
-pub use bvh::{Bvh, BvhQuality};
+pub use bvh::{BuildMethod, Bvh, BvhQuality};
 pub use triangle::{intersect_triangle, RayPrecomp, TriangleHit};
 
 use crate::math::{gamma, next_float_down, next_float_up, Vec3};
