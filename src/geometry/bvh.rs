@@ -21,12 +21,14 @@ use crate::math::Vec3;
 /// Build quality: a trade between build time and traversal speed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum BvhQuality {
-    /// Shortest build (interactive edits).
+    /// Shortest build (interactive edits): obvhs's PLOC, "fast" parameters.
     Fast,
-    /// The default: close to Embree's build time with faster traversal (obvhs "medium").
+    /// The default: obvhs's PLOC ("medium" parameters), and up to 2^18 triangles also a
+    /// top-down SAH build, keeping the cheaper tree (see [`BvhQuality::method`]).
     #[default]
     Medium,
-    /// Spatial pre-splits and more reinsertion: best traversal, slower build.
+    /// PLOC with spatial pre-splits and more reinsertion, and the SAH build, keeping the
+    /// cheaper tree: best traversal, slowest build.
     High,
 }
 
