@@ -4,6 +4,7 @@
 //! ```text
 //! cargo bench --bench bvh                 # build times and rays/s (a few minutes)
 //! cargo bench --bench bvh -- kernels      # node-test and triangle-test study (1 thread)
+//! cargo bench --bench bvh -- methods      # BVH builders side by side (work per ray, rays/s)
 //! RUSTFLAGS="--cfg lacuna_embree" cargo bench --bench bvh   # also Embree 3 on the same rays
 //! ```
 //!
@@ -12,7 +13,7 @@
 //! `rtcIntersect1` / `rtcOccluded1` from the same rayon threads.
 //!
 //! Environment: `BVH_BENCH_REPS` (repetitions, default 3), `BVH_BENCH_MESHES` (comma-separated
-//! subset of `100k,1m,sponza`, or `room`), `BVH_BENCH_RAYS` (incoherent rays per set, default 2^20),
+//! subset of `100k,1m,sponza`, or `room` and `cornell`), `BVH_BENCH_RAYS` (incoherent rays per set, default 2^20),
 //! `BVH_BENCH_QUALITIES` (subset of `fast,medium,high`).
 //!
 //! Meshes:
@@ -191,6 +192,11 @@ fn main() {
         .collect();
 
     println!("load average at start: {}", load_average());
+    if args.iter().any(|a| a == "methods") {
+        methods::run(reps, n_incoherent, &pools);
+        println!("\nload average at end: {}", load_average());
+        return;
+    }
     if args.iter().any(|a| a == "kernels") {
         kernels::run(reps, n_incoherent, &pools);
         println!("\nload average at end: {}", load_average());
@@ -399,8 +405,9 @@ fn load_mesh(name: &str) -> Option<Mesh> {
         "1m" => Some(sphere_mesh("sphere-1m", 289)),
         "sponza" => sponza_mesh(),
         "room" => Some(room_mesh()),
+        "cornell" => cornell_mesh(),
         other => {
-            eprintln!("unknown mesh {other:?} (use 100k, 1m, sponza)");
+            eprintln!("unknown mesh {other:?} (use 100k, 1m, sponza, room, cornell)");
             None
         }
     }
@@ -486,20 +493,23 @@ fn room_mesh() -> Mesh {
     }
 }
 
-/// Crytek Sponza positions and faces, from the project's scene copy if present, otherwise
-/// from the shared scene directory.
-fn sponza_mesh() -> Option<Mesh> {
-    let candidates = [
-        concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/scenes/crytek-sponza/sponza.obj"
-        ),
-        "/work/shared/scenes/crytek-sponza/sponza.obj",
-    ];
-    let path = candidates
-        .iter()
-        .find(|p| std::path::Path::new(p).exists())?;
-    let t = Instant::now();
+/// The Cornell box of `scenes/cornell-box` (36 triangles), seen by its scene file's camera.
+fn cornell_mesh() -> Option<Mesh> {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/scenes/cornell-box/CornellBox-Original.obj"
+    );
+    Some(Mesh {
+        name: "cornell-box",
+        tris: obj_triangles(path)?,
+        eye: Vec3::new(0.0, 1.0, 3.9),
+        target: Vec3::new(0.0, 1.0, 0.0),
+        vfov_degrees: 40.0,
+    })
+}
+
+/// Positions and faces of an OBJ file (triangulated).
+fn obj_triangles(path: &str) -> Option<Vec<[Vec3; 3]>> {
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: false,
@@ -527,6 +537,24 @@ fn sponza_mesh() -> Option<Mesh> {
             tris.push([v(f[0]), v(f[1]), v(f[2])]);
         }
     }
+    Some(tris)
+}
+
+/// Crytek Sponza positions and faces, from the project's scene copy if present, otherwise
+/// from the shared scene directory.
+fn sponza_mesh() -> Option<Mesh> {
+    let candidates = [
+        concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenes/crytek-sponza/sponza.obj"
+        ),
+        "/work/shared/scenes/crytek-sponza/sponza.obj",
+    ];
+    let path = candidates
+        .iter()
+        .find(|p| std::path::Path::new(p).exists())?;
+    let t = Instant::now();
+    let tris = obj_triangles(path)?;
     eprintln!("loaded {path} in {:.2} s", t.elapsed().as_secs_f64());
     let (lo, hi) = bounds(&tris);
     let d = hi - lo;
@@ -1465,6 +1493,113 @@ mod kernels {
         fn medium() -> BvhBuildParams {
             BvhBuildParams::medium_build()
         }
+    }
+}
+
+/// The BVH builders side by side: build time, size, work per closest-hit ray and on-CPU
+/// rays/s on one thread (every method runs on each chunk of rays in turn, as in `kernels`).
+mod methods {
+    use lacuna::geometry::{BuildMethod, Bvh, BvhQuality, Ray};
+
+    use super::{load_mesh, median, thread_cpu_seconds, RaySets};
+
+    const CHUNK: usize = 4096;
+
+    pub fn run(reps: usize, n_incoherent: usize, pools: &[rayon::ThreadPool]) {
+        let methods = [
+            BuildMethod::Ploc(BvhQuality::Fast),
+            BuildMethod::Ploc(BvhQuality::Medium),
+            BuildMethod::Ploc(BvhQuality::High),
+            BuildMethod::Sah { reinsertion: 0.0 },
+            BuildMethod::Sah { reinsertion: 0.05 },
+            BuildMethod::Sah { reinsertion: 0.2 },
+            BuildMethod::Cheaper(BvhQuality::Medium, 0.0),
+            BuildMethod::Cheaper(BvhQuality::High, 0.05),
+        ];
+        let meshes = std::env::var("BVH_BENCH_MESHES").unwrap_or("room,cornell,100k,sponza".into());
+        for name in meshes.split(',') {
+            let Some(mesh) = load_mesh(name.trim()) else {
+                continue;
+            };
+            eprintln!("{}: {} triangles", mesh.name, mesh.tris.len());
+            let rays = RaySets::new(&mesh, n_incoherent);
+            let mut bvhs = Vec::new();
+            let mut build_seconds = Vec::new();
+            for &m in &methods {
+                let mut times = Vec::new();
+                let mut built = None;
+                for _ in 0..reps.min(3) {
+                    let t = std::time::Instant::now();
+                    built = Some(pools[1].install(|| Bvh::build_with(&mesh.tris, m)));
+                    times.push(t.elapsed().as_secs_f64());
+                }
+                bvhs.push(built.expect("built"));
+                build_seconds.push(median(&times));
+            }
+            println!(
+                "\n#### {} ({} triangles): builders, 1 thread on-CPU\n",
+                mesh.name,
+                mesh.tris.len()
+            );
+            println!("| method | build, 2 threads (s) | nodes | coherent: nodes / tris per ray | incoherent: nodes / tris per ray | coherent closest M/s | coherent any M/s | incoherent closest M/s | incoherent any M/s |");
+            println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+            let mut rates = vec![[Vec::new(), Vec::new(), Vec::new(), Vec::new()]; methods.len()];
+            pools[0].install(|| {
+                for _ in 0..reps {
+                    for (set, rs) in [&rays.coherent, &rays.incoherent].into_iter().enumerate() {
+                        let mut t = vec![[0.0f64; 2]; methods.len()];
+                        for (ci, chunk) in rs.chunks(CHUNK).enumerate() {
+                            for k in 0..methods.len() {
+                                let mi = (k + ci) % methods.len();
+                                let bvh = &bvhs[mi];
+                                let t0 = thread_cpu_seconds();
+                                let hits = closest(bvh, chunk);
+                                let t1 = thread_cpu_seconds();
+                                let occluded = any(bvh, chunk);
+                                let t2 = thread_cpu_seconds();
+                                std::hint::black_box((hits, occluded));
+                                t[mi][0] += t1 - t0;
+                                t[mi][1] += t2 - t1;
+                            }
+                        }
+                        for mi in 0..methods.len() {
+                            rates[mi][2 * set].push(rs.len() as f64 / t[mi][0]);
+                            rates[mi][2 * set + 1].push(rs.len() as f64 / t[mi][1]);
+                        }
+                    }
+                }
+            });
+            for (mi, m) in methods.iter().enumerate() {
+                let work = |rs: &[Ray]| {
+                    let (mut n, mut t) = (0u64, 0u64);
+                    for r in rs {
+                        let (a, b) = bvhs[mi].closest_hit_work(r);
+                        n += a as u64;
+                        t += b as u64;
+                    }
+                    (n as f64 / rs.len() as f64, t as f64 / rs.len() as f64)
+                };
+                let (cn, ct) = work(&rays.coherent);
+                let (in_, it) = work(&rays.incoherent);
+                println!(
+                    "| {m:?} | {:.3} | {} | {cn:.1} / {ct:.1} | {in_:.1} / {it:.1} | {:.2} | {:.2} | {:.2} | {:.2} |",
+                    build_seconds[mi],
+                    bvhs[mi].node_count(),
+                    median(&rates[mi][0]) / 1e6,
+                    median(&rates[mi][1]) / 1e6,
+                    median(&rates[mi][2]) / 1e6,
+                    median(&rates[mi][3]) / 1e6,
+                );
+            }
+        }
+    }
+
+    fn closest(bvh: &Bvh, rays: &[Ray]) -> usize {
+        rays.iter().filter(|r| bvh.intersect(r).is_some()).count()
+    }
+
+    fn any(bvh: &Bvh, rays: &[Ray]) -> usize {
+        rays.iter().filter(|r| bvh.occluded(r)).count()
     }
 }
 

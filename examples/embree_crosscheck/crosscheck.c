@@ -56,13 +56,18 @@
  *   where such a ray crosses a plane is only known to about (rounding of the coordinates) /
  *   angle, which for angles down to 1e-6 rad spans a good part of a triangle; float origins
  *   computed near a wall often lie in its plane. Two correct tracers then pick different
- *   triangles, or one passes a fold or a box edge the other hits.
+ *   triangles, or one passes a fold or a box edge the other hits. Was 1e-2 while Lacuna's
+ *   conservative bound on t rejected grazing hits far from the origin (0.2-0.5 % of these
+ *   rays missed a wall Embree hit); since that bound was tightened and borderline hits are
+ *   re-tested in double precision, at most 4e-4 of them disagree seriously (Cornell box: 3
+ *   hit/miss and 54 other-triangle cases; the double-precision reference backed Lacuna 34
+ *   times and Embree never).
  * - in-plane rays (exactly parallel to the triangle they were aimed at): reported only; a ray
  *   inside a triangle's plane has no defined answer.
  * Lacuna single-ray and batched queries must agree exactly. */
 #define REL_T 1e-4
 #define MAX_EDGE_FRACTION 5e-5
-#define MAX_GRAZING_FRACTION 1e-2
+#define MAX_GRAZING_FRACTION 1e-3
 #define IMAGE_DEPTH_TOL 1e-3  /* relative depth difference counted as a differing pixel */
 #define MAX_IMAGE_DIFF_FRACTION 1e-3
 

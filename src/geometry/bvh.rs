@@ -3,8 +3,14 @@
 //! triangle test inside the traversal loop.
 
 use glam::{UVec2, Vec3A};
+use obvhs::aabb::Aabb;
+use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
+use obvhs::bvh2::Bvh2;
+use obvhs::cwbvh::bvh2_to_cwbvh::{bvh2_to_cwbvh, Bvh2Converter};
 use obvhs::cwbvh::node::{extract_byte64, CwBvhNode};
-use obvhs::cwbvh::{builder::build_cwbvh_from_tris, CwBvh};
+use obvhs::cwbvh::CwBvh;
+use obvhs::ploc::PlocBuilder;
+use obvhs::splits::split_aabbs_preset;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 use rayon::prelude::*;
@@ -15,23 +21,99 @@ use crate::math::Vec3;
 /// Build quality: a trade between build time and traversal speed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum BvhQuality {
-    /// Shortest build (interactive edits).
+    /// Shortest build (interactive edits): obvhs's PLOC, "fast" parameters.
     Fast,
-    /// The default: close to Embree's build time with faster traversal (obvhs "medium").
+    /// The default: obvhs's PLOC ("medium" parameters), and up to 2^18 triangles also a
+    /// top-down SAH build, keeping the cheaper tree (see [`BvhQuality::method`]).
     #[default]
     Medium,
-    /// Spatial pre-splits and more reinsertion: best traversal, slower build.
+    /// PLOC with spatial pre-splits and more reinsertion, and the SAH build, keeping the
+    /// cheaper tree: best traversal, slowest build.
     High,
 }
 
 impl BvhQuality {
-    fn params(self) -> BvhBuildParams {
+    fn ploc_params(self) -> BvhBuildParams {
         match self {
             BvhQuality::Fast => BvhBuildParams::fast_build(),
             BvhQuality::Medium => BvhBuildParams::medium_build(),
             BvhQuality::High => BvhBuildParams::slow_build(),
         }
     }
+
+    /// The builder behind each quality for `n` triangles (measured with `benches/bvh.rs
+    /// methods`, BENCHMARKS.md): neither builder wins everywhere. PLOC clusters across the walls
+    /// of closed rooms (7x the node visits of a top-down SAH build on a 3,072-triangle room),
+    /// while on Sponza PLOC with reinsertion visits 25-35 % fewer nodes than the SAH build.
+    /// Medium builds both up to 2^18 triangles (the SAH build then costs at most a few tens of
+    /// milliseconds) and High always, keeping the cheaper tree.
+    pub fn method(self, n: usize) -> BuildMethod {
+        match self {
+            BvhQuality::Fast => BuildMethod::Ploc(BvhQuality::Fast),
+            BvhQuality::Medium if n <= 1 << 18 => BuildMethod::Cheaper(BvhQuality::Medium, 0.0),
+            BvhQuality::Medium => BuildMethod::Ploc(BvhQuality::Medium),
+            BvhQuality::High => BuildMethod::Cheaper(BvhQuality::High, 0.05),
+        }
+    }
+}
+
+/// How the binary BVH that obvhs converts to the 8-wide layout is built. Public for
+/// `benches/bvh.rs`, which compares them; use [`BvhQuality`] otherwise.
+#[doc(hidden)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BuildMethod {
+    /// obvhs's PLOC with the parameters of a quality (High adds spatial pre-splits).
+    Ploc(BvhQuality),
+    /// Top-down SAH (`sah.rs`), then obvhs's reinsertion optimizer over this fraction of the
+    /// nodes (0 = none).
+    Sah { reinsertion: f32 },
+    /// Both of the above; keeps the tree whose 8-wide form has the lower SAH cost (the cost
+    /// model of obvhs's BVH2 -> CWBVH conversion, Ylitie et al. 2017).
+    Cheaper(BvhQuality, f32),
+}
+
+/// obvhs's `build_cwbvh_from_tris` up to the binary BVH: PLOC over the triangles (or over
+/// pre-split boxes when the parameters ask for it), then reinsertion.
+fn ploc_bvh2(tris: &[Triangle], params: BvhBuildParams) -> Bvh2 {
+    let mut bvh2 = if params.pre_split {
+        let mut aabbs: Vec<Aabb> = tris.iter().map(|t| t.aabb()).collect();
+        let largest = aabbs.iter().map(Aabb::half_area).fold(0.0f32, f32::max);
+        let average = aabbs.iter().map(Aabb::half_area).sum::<f32>() / aabbs.len() as f32;
+        let mut indices: Vec<u32> = (0..tris.len() as u32).collect();
+        split_aabbs_preset(&mut aabbs, &mut indices, tris, average, largest);
+        PlocBuilder::with_capacity(aabbs.len()).build(
+            params.ploc_search_distance,
+            &aabbs,
+            indices,
+            params.sort_precision,
+            params.search_depth_threshold,
+        )
+    } else {
+        PlocBuilder::with_capacity(tris.len()).build(
+            params.ploc_search_distance,
+            tris,
+            (0..tris.len() as u32).collect(),
+            params.sort_precision,
+            params.search_depth_threshold,
+        )
+    };
+    bvh2.uses_spatial_splits = params.pre_split;
+    ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+    bvh2
+}
+
+fn sah_bvh2(tris: &[Triangle], reinsertion: f32) -> Bvh2 {
+    let aabbs: Vec<Aabb> = tris.par_iter().map(|t| t.aabb()).collect();
+    let mut bvh2 = super::sah::build_sah_bvh2(&aabbs);
+    ReinsertionOptimizer::default().run(&mut bvh2, reinsertion, None);
+    bvh2
+}
+
+/// SAH cost of the 8-wide tree the conversion would make (leaves of up to 3 triangles).
+fn cwbvh_cost(bvh2: &Bvh2) -> f32 {
+    let mut converter = Bvh2Converter::new(bvh2, false, false);
+    converter.calculate_cost(3);
+    converter.decisions[0].cost
 }
 
 /// Triangle vertices in leaf order, padded to 16-byte vectors, with the global triangle index
@@ -54,15 +136,30 @@ pub struct Bvh {
     cwbvh: CwBvh,
     /// `leaf_tris[i]` is the triangle referenced by leaf slot `i`.
     leaf_tris: Vec<LeafTriangle>,
+    /// Whether traversal prefetches the children it will visit: only when nodes and
+    /// triangles do not fit in a core's L2 (on small scenes the prefetch loop is pure
+    /// overhead, 2 % of a Cornell-box path tracer's instructions).
+    prefetch: bool,
 }
+
+/// Size above which a BVH is prefetched during traversal (the L2 of this project's machines
+/// is 2 MiB per core; half of it is left to the rest of the renderer).
+const PREFETCH_MIN_BYTES: usize = 1 << 20;
 
 impl Bvh {
     /// Builds the BVH over triangles given as vertex triples (global triangle order).
     pub fn build(triangles: &[[Vec3; 3]], quality: BvhQuality) -> Bvh {
+        Bvh::build_with(triangles, quality.method(triangles.len()))
+    }
+
+    /// Builds with an explicit method (benchmarks).
+    #[doc(hidden)]
+    pub fn build_with(triangles: &[[Vec3; 3]], method: BuildMethod) -> Bvh {
         if triangles.is_empty() {
             return Bvh {
                 cwbvh: CwBvh::default(),
                 leaf_tris: Vec::new(),
+                prefetch: false,
             };
         }
         let tris: Vec<Triangle> = triangles
@@ -73,8 +170,24 @@ impl Bvh {
                 v2: t[2].into(),
             })
             .collect();
-        let mut build_time = std::time::Duration::ZERO;
-        let mut cwbvh = build_cwbvh_from_tris(&tris, quality.params(), &mut build_time);
+        let bvh2 = match method {
+            BuildMethod::Ploc(quality) => ploc_bvh2(&tris, quality.ploc_params()),
+            BuildMethod::Sah { reinsertion } => sah_bvh2(&tris, reinsertion),
+            BuildMethod::Cheaper(quality, reinsertion) => {
+                let (ploc, sah) = rayon::join(
+                    || ploc_bvh2(&tris, quality.ploc_params()),
+                    || sah_bvh2(&tris, reinsertion),
+                );
+                if cwbvh_cost(&sah) < cwbvh_cost(&ploc) {
+                    sah
+                } else {
+                    ploc
+                }
+            }
+        };
+        // As obvhs's own builder converts: leaves of up to 3 triangles chosen by the
+        // conversion's SAH cost, children ordered by direction.
+        let mut cwbvh = bvh2_to_cwbvh(&bvh2, 3, true, false);
         let leaf_tris = cwbvh
             .primitive_indices
             .par_iter()
@@ -90,7 +203,13 @@ impl Bvh {
             .collect();
         // Traversal reads `leaf_tris` only.
         cwbvh.primitive_indices = Vec::new();
-        Bvh { cwbvh, leaf_tris }
+        let mut bvh = Bvh {
+            cwbvh,
+            leaf_tris,
+            prefetch: false,
+        };
+        bvh.prefetch = bvh.memory_bytes() > PREFETCH_MIN_BYTES;
+        bvh
     }
 
     pub fn is_empty(&self) -> bool {
@@ -206,12 +325,46 @@ impl Bvh {
         hit
     }
 
+    /// Nodes visited and triangles tested by a closest-hit query (BVH quality figures for
+    /// `benches/bvh.rs` and tests; the same traversal as [`Bvh::intersect`]).
+    #[doc(hidden)]
+    pub fn closest_hit_work(&self, ray: &Ray) -> (u32, u32) {
+        if self.is_empty() || !(ray.t_max > 0.0) {
+            return (0, 0);
+        }
+        let pre = RayPrecomp::new(ray.origin, ray.dir);
+        let node_ray = NodeRay::new(ray.origin, ray.dir);
+        let mut t_max = ray.t_max;
+        let (mut nodes, mut tris) = (0u32, 0u32);
+        let mut state = self.cwbvh.new_traversal(ray.dir.into());
+        let mut node;
+        obvhs::traverse!(
+            self.cwbvh,
+            node,
+            state,
+            {
+                nodes += 1;
+                self.intersect_node(node, &node_ray, t_max, state.oct_inv4)
+            },
+            {
+                tris += 1;
+                let t = &self.leaf_tris[state.primitive_id as usize];
+                if let Some(h) = intersect_triangle(&pre, t.p0, t.p1.into(), t.p2.into(), t_max) {
+                    t_max = h.t;
+                }
+            }
+        );
+        (nodes, tris)
+    }
+
     /// Ray against the eight quantized child boxes of a node; returns the traversal hit mask
     /// in obvhs's layout, and prefetches what was hit.
     #[inline(always)]
     fn intersect_node(&self, node: &CwBvhNode, r: &NodeRay, t_max: f32, oct_inv4: u32) -> u32 {
         let mut hits = child_hits(node, r, t_max);
-        self.prefetch_children(node, hits);
+        if self.prefetch {
+            self.prefetch_children(node, hits);
+        }
         let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
         let mut mask = 0u32;
         while hits != 0 {
@@ -481,8 +634,14 @@ mod tests {
         let unit_tris = random_triangles(2000, &mut rng);
         for scale in [1e-4f32, 1.0, 1e4] {
             let tris: Vec<[Vec3; 3]> = unit_tris.iter().map(|t| t.map(|p| p * scale)).collect();
-            for quality in [BvhQuality::Fast, BvhQuality::Medium, BvhQuality::High] {
-                let bvh = Bvh::build(&tris, quality);
+            for quality in [
+                BuildMethod::Ploc(BvhQuality::Fast),
+                BuildMethod::Ploc(BvhQuality::High),
+                BuildMethod::Sah { reinsertion: 0.0 },
+                BuildMethod::Sah { reinsertion: 0.05 },
+                BvhQuality::Medium.method(tris.len()),
+            ] {
+                let bvh = Bvh::build_with(&tris, quality);
                 for i in 0..3000 {
                     let o = if i % 2 == 0 {
                         (Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 12.0 - Vec3::ONE)
@@ -546,8 +705,12 @@ mod tests {
         let unit_tris = random_triangles(1500, &mut rng);
         for scale in [1e-4f32, 1.0, 1e4] {
             let tris: Vec<[Vec3; 3]> = unit_tris.iter().map(|t| t.map(|p| p * scale)).collect();
-            for quality in [BvhQuality::Fast, BvhQuality::High] {
-                let bvh = Bvh::build(&tris, quality);
+            for quality in [
+                BuildMethod::Ploc(BvhQuality::Fast),
+                BuildMethod::Sah { reinsertion: 0.0 },
+                BvhQuality::High.method(tris.len()),
+            ] {
+                let bvh = Bvh::build_with(&tris, quality);
                 for i in 0..4000 {
                     let axis = rng.below(3) as usize;
                     let mut d = Vec3::ZERO;
@@ -620,6 +783,57 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A closed room (each wall 16 x 16 quads, axis-aligned, as the Embree cross-check's):
+    /// PLOC merges pieces of different walls; the default build must not (node visits per
+    /// camera ray, which do not depend on timing: PLOC Medium needs about 45, SAH about 6).
+    #[test]
+    fn closed_room_tree_separates_the_walls() {
+        let n = 16;
+        let mut tris = Vec::new();
+        for axis in 0..3 {
+            for side in [-1.0f32, 1.0] {
+                let p = |i: usize, j: usize| {
+                    let mut c = Vec3::ZERO;
+                    c[axis] = side;
+                    c[(axis + 1) % 3] = 2.0 * i as f32 / n as f32 - 1.0;
+                    c[(axis + 2) % 3] = 2.0 * j as f32 / n as f32 - 1.0;
+                    c
+                };
+                for i in 0..n {
+                    for j in 0..n {
+                        tris.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
+                        tris.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
+                    }
+                }
+            }
+        }
+        let mut rng = Rng::new(2, 2);
+        let rays: Vec<Ray> = (0..4000)
+            .map(|_| {
+                let o = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 1.6 - 0.8;
+                Ray::new(o, warp::uniform_sphere(rng.uniform2()), f32::INFINITY)
+            })
+            .collect();
+        let visits = |bvh: &Bvh| {
+            rays.iter()
+                .map(|r| bvh.closest_hit_work(r).0 as f64)
+                .sum::<f64>()
+                / rays.len() as f64
+        };
+        let ploc = visits(&Bvh::build_with(
+            &tris,
+            BuildMethod::Ploc(BvhQuality::Medium),
+        ));
+        let bvh = Bvh::build(&tris, BvhQuality::Medium);
+        let default = visits(&bvh);
+        assert!(
+            default < 10.0 && default < 0.5 * ploc,
+            "{default} vs PLOC {ploc}"
+        );
+        // The room is closed: no ray from inside escapes.
+        assert!(rays.iter().all(|r| bvh.intersect(r).is_some()));
     }
 
     #[test]

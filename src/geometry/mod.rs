@@ -6,9 +6,10 @@
 //! (Pharr, Jakob and Humphreys, pbrt-v4 §6.8).
 
 mod bvh;
+mod sah;
 mod triangle;
 
-pub use bvh::{Bvh, BvhQuality};
+pub use bvh::{BuildMethod, Bvh, BvhQuality};
 pub use triangle::{intersect_triangle, RayPrecomp, TriangleHit};
 
 use crate::math::{gamma, next_float_down, next_float_up, Vec3};
@@ -53,22 +54,30 @@ pub fn barycentric_point_error(p: [Vec3; 3], b: [f32; 3]) -> Vec3 {
 /// Moves `p` along the geometric normal `n` by the projection of its error box, towards the
 /// side `w` points to, then rounds away from the surface: the spawned ray cannot re-hit the
 /// surface it leaves, at any scene scale.
-#[inline]
+#[inline(always)]
 pub fn offset_ray_origin(p: Vec3, p_error: Vec3, n: Vec3, w: Vec3) -> Vec3 {
     let d = n.abs().dot(p_error);
-    let mut offset = n * d;
-    if w.dot(n) < 0.0 {
-        offset = -offset;
+    let offset = if w.dot(n) < 0.0 { -(n * d) } else { n * d };
+    let po = p + offset;
+    // Inlined and written per axis (not as a loop over indexed components): this runs three
+    // times per bounce, and the indexed loop with calls was 5 % of a path tracer's time.
+    Vec3::new(
+        round_away(po.x, offset.x),
+        round_away(po.y, offset.y),
+        round_away(po.z, offset.z),
+    )
+}
+
+/// `v` moved one ulp in the direction of the sign of `towards` (unchanged when it is 0).
+#[inline(always)]
+fn round_away(v: f32, towards: f32) -> f32 {
+    if towards > 0.0 {
+        next_float_up(v)
+    } else if towards < 0.0 {
+        next_float_down(v)
+    } else {
+        v
     }
-    let mut po = p + offset;
-    for i in 0..3 {
-        if offset[i] > 0.0 {
-            po[i] = next_float_up(po[i]);
-        } else if offset[i] < 0.0 {
-            po[i] = next_float_down(po[i]);
-        }
-    }
-    po
 }
 
 /// Fraction of a shadow ray's length that is not tested, so the ray stops short of the surface

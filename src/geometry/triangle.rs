@@ -9,6 +9,8 @@ use crate::math::{gamma, Vec3};
 #[derive(Clone, Copy, Debug)]
 pub struct RayPrecomp {
     origin: Vec3,
+    /// Kept for the double-precision re-test of hits too close to call in f32.
+    dir: Vec3,
     kx: usize,
     ky: usize,
     kz: usize,
@@ -40,6 +42,7 @@ impl RayPrecomp {
         let sz = 1.0 / dir[kz];
         RayPrecomp {
             origin,
+            dir,
             kx,
             ky,
             kz,
@@ -68,10 +71,14 @@ pub fn intersect_triangle(
     p2: Vec3,
     t_max: f32,
 ) -> Option<TriangleHit> {
-    let (kx, ky, kz) = (r.kx, r.ky, r.kz);
-    let a = p0 - r.origin;
-    let b = p1 - r.origin;
-    let c = p2 - r.origin;
+    // Axis indices masked to 0..4 on 4-element arrays: no bounds check and no branch per
+    // access (glam's `Vec3` indexing is a match; it was about a third of this test's
+    // instructions). `RayPrecomp` keeps them in 0..3.
+    let (kx, ky, kz) = (r.kx & 3, r.ky & 3, r.kz & 3);
+    let padded = |v: Vec3| [v.x, v.y, v.z, 0.0];
+    let a = padded(p0 - r.origin);
+    let b = padded(p1 - r.origin);
+    let c = padded(p2 - r.origin);
     let ax = a[kx] - r.sx * a[kz];
     let ay = a[ky] - r.sy * a[kz];
     let bx = b[kx] - r.sx * b[kz];
@@ -118,19 +125,100 @@ pub fn intersect_triangle(
     let delta_z = gamma(3) * max_zt;
     let max_xt = ax.abs().max(bx.abs()).max(cx.abs());
     let max_yt = ay.abs().max(by.abs()).max(cy.abs());
-    let delta_x = gamma(5) * (max_xt + max_zt);
-    let delta_y = gamma(5) * (max_yt + max_zt);
+    // Error of the sheared x = a[kx] - sx * a[kz] (likewise y). pbrt bounds it by
+    // gamma(5) * (max_xt + max_zt), i.e. it takes |sx * a[kz]| <= max_zt. For a ray grazing a
+    // plane that contains its dominant axis (a wall hit at 1e-5 rad), x is tiny while z is
+    // not, the bound is 1e5 times too large, and so is delta_t: hits far out along the ray
+    // were rejected (issue 2's grazing misses). Re-derived with the product term kept:
+    // a[kx] and a[kz] round once, sx twice (1/d, times d), the product and the difference
+    // once each, so |error| <= gamma(2)|x| + gamma(6)|sx a[kz]| up to second-order terms;
+    // gamma(5) and gamma(7) cover those and the rounding of this bound itself.
+    let max_kz = a[kz].abs().max(b[kz].abs()).max(c[kz].abs());
+    let delta_x = gamma(5) * max_xt + gamma(7) * (r.sx.abs() * max_kz);
+    let delta_y = gamma(5) * max_yt + gamma(7) * (r.sy.abs() * max_kz);
     let delta_e = 2.0 * (gamma(2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
     let max_e = e0.abs().max(e1.abs()).max(e2.abs());
     let delta_t =
         3.0 * (gamma(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv_det.abs();
     if t <= delta_t {
-        return None;
+        // Too close to call in f32: grazing rays (det -> 0) have a large bound even far from
+        // the origin. Re-test in f64, whose bound is 2^29 times smaller; rays leaving a
+        // surface are still rejected there (their true t is <= 0).
+        return intersect_triangle_f64(r, p0, p1, p2, t_max);
     }
     Some(TriangleHit {
         t,
         b1: e1 * inv_det,
         b2: e2 * inv_det,
+    })
+}
+
+/// Higham's gamma_n for f64.
+fn gamma_f64(n: i32) -> f64 {
+    let e = f64::EPSILON * 0.5;
+    (n as f64 * e) / (1.0 - n as f64 * e)
+}
+
+/// The same test as [`intersect_triangle`] in double precision, for the rare hits whose f32
+/// error bound on t does not exclude t <= 0. Same permutation and shear, same bound
+/// (pbrt-v4 §6.8.7 with the shear term of `intersect_triangle`), in f64 roundings; the
+/// inputs are the f32 values, so its answer is about the same ray and triangle.
+#[cold]
+#[inline(never)]
+fn intersect_triangle_f64(
+    r: &RayPrecomp,
+    p0: Vec3,
+    p1: Vec3,
+    p2: Vec3,
+    t_max: f32,
+) -> Option<TriangleHit> {
+    let (kx, ky, kz) = (r.kx, r.ky, r.kz);
+    let d = r.dir.as_dvec3();
+    let o = r.origin.as_dvec3();
+    let sz = 1.0 / d[kz];
+    let (sx, sy) = (d[kx] * sz, d[ky] * sz);
+    let a = p0.as_dvec3() - o;
+    let b = p1.as_dvec3() - o;
+    let c = p2.as_dvec3() - o;
+    let (ax, ay) = (a[kx] - sx * a[kz], a[ky] - sy * a[kz]);
+    let (bx, by) = (b[kx] - sx * b[kz], b[ky] - sy * b[kz]);
+    let (cx, cy) = (c[kx] - sx * c[kz], c[ky] - sy * c[kz]);
+    let e0 = bx * cy - by * cx;
+    let e1 = cx * ay - cy * ax;
+    let e2 = ax * by - ay * bx;
+    if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0) {
+        return None;
+    }
+    let det = e0 + e1 + e2;
+    if det == 0.0 {
+        return None;
+    }
+    let (az, bz, cz) = (sz * a[kz], sz * b[kz], sz * c[kz]);
+    let inv_det = 1.0 / det;
+    let t = (e0 * az + e1 * bz + e2 * cz) * inv_det;
+    if !(t > 0.0 && t < t_max as f64) {
+        return None;
+    }
+    let max_zt = az.abs().max(bz.abs()).max(cz.abs());
+    let delta_z = gamma_f64(3) * max_zt;
+    let max_xt = ax.abs().max(bx.abs()).max(cx.abs());
+    let max_yt = ay.abs().max(by.abs()).max(cy.abs());
+    let max_kz = a[kz].abs().max(b[kz].abs()).max(c[kz].abs());
+    let delta_x = gamma_f64(5) * max_xt + gamma_f64(7) * (sx.abs() * max_kz);
+    let delta_y = gamma_f64(5) * max_yt + gamma_f64(7) * (sy.abs() * max_kz);
+    let delta_e = 2.0 * (gamma_f64(2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+    let max_e = e0.abs().max(e1.abs()).max(e2.abs());
+    let delta_t =
+        3.0 * (gamma_f64(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv_det.abs();
+    // The f32 distance must also be positive and below t_max.
+    let t32 = t as f32;
+    if t <= delta_t || !(t32 > 0.0 && t32 < t_max) {
+        return None;
+    }
+    Some(TriangleHit {
+        t: t32,
+        b1: (e1 * inv_det) as f32,
+        b2: (e2 * inv_det) as f32,
     })
 }
 
@@ -203,6 +291,215 @@ mod tests {
                     .iter()
                     .any(|t| intersect_triangle(&r, t[0], t[1], t[2], f32::INFINITY).is_some());
                 assert!(hit, "ray through a shared edge/vertex missed at scale {scale}: target {target:?}, dir {dir:?}");
+            }
+        }
+    }
+
+    /// Double-precision Moller-Trumbore on the exact f32 inputs: (t, b1, b2) of the line
+    /// through the ray crossing the triangle's plane, whether inside the triangle or not.
+    fn reference_f64(o: Vec3, d: Vec3, p: [Vec3; 3]) -> Option<(f64, f64, f64)> {
+        let v = |a: Vec3| [a.x as f64, a.y as f64, a.z as f64];
+        let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let cross = |a: [f64; 3], b: [f64; 3]| {
+            [
+                a[1] * b[2] - a[2] * b[1],
+                a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0],
+            ]
+        };
+        let (o, d) = (v(o), v(d));
+        let (p0, p1, p2) = (v(p[0]), v(p[1]), v(p[2]));
+        let (e1, e2) = (sub(p1, p0), sub(p2, p0));
+        let pv = cross(d, e2);
+        let det = dot(e1, pv);
+        if det == 0.0 {
+            return None;
+        }
+        let s = sub(o, p0);
+        let b1 = dot(s, pv) / det;
+        let q = cross(s, e1);
+        let b2 = dot(d, q) / det;
+        let t = dot(e2, q) / det;
+        Some((t, b1, b2))
+    }
+
+    /// Issue 2's one-triangle reproduction of the Embree cross-check's grazing misses: a ray
+    /// about 1e-5 rad off a wall's plane, hitting it at t = 0.667 well inside the triangle,
+    /// was rejected because the conservative lower bound on t grew past 0.667 (the shear's
+    /// rounding was bounded by the ray's whole z extent instead of its tiny x part).
+    #[test]
+    fn grazing_hit_far_from_the_origin_is_found() {
+        let p = [
+            Vec3::new(1.0, 0.75, -0.375),
+            Vec3::new(1.0, 0.875, -0.25),
+            Vec3::new(1.0, 0.75, -0.25),
+        ];
+        let (b1, b2) = (0.41f32, 0.49f32);
+        let target = p[0] * (1.0 - b1 - b2) + p[1] * b1 + p[2] * b2;
+        let mut checked = 0;
+        for dx in [8.5e-6f32, 1e-5, 1e-6, 1e-7, 1e-4, 1e-3, 1e-2, -1e-5] {
+            let d = Vec3::new(dx, 0.691, -0.723).normalize();
+            let o = target - d * 0.667;
+            let r = RayPrecomp::new(o, d);
+            let h = intersect_triangle(&r, p[0], p[1], p[2], f32::INFINITY);
+            let (t_ref, rb1, rb2) = reference_f64(o, d, p).unwrap();
+            // The origin's rounding moves the true crossing by up to about 1e-7 / dx: judge
+            // by the exact crossing of the f32 ray, and only where it is clearly inside.
+            if rb1.min(rb2).min(1.0 - rb1 - rb2) < 0.02 {
+                continue;
+            }
+            checked += 1;
+            let h = h.unwrap_or_else(|| panic!("dx {dx}: missed, reference t {t_ref}"));
+            assert!(
+                (h.t as f64 - t_ref).abs() < 1e-3,
+                "dx {dx}: t {} vs {t_ref}",
+                h.t
+            );
+        }
+        assert!(checked >= 6, "{checked}");
+    }
+
+    /// Grazing rays aimed at points well inside random triangles, at every scale, hit them at
+    /// the distance a double-precision test finds. Two families: triangles in an axis plane
+    /// (walls, floors: the Embree cross-check's misses), down to 1e-7 rad; and arbitrarily
+    /// oriented ones, down to 1e-5 rad. For the latter, f32 itself cannot tell inside from
+    /// outside within about 4e-7 / angle (in barycentrics) of an edge: the sheared coordinates
+    /// round by an ulp of the vertex coordinates while the triangle's projection is only
+    /// `angle` times its size wide; points closer than that to an edge are not asked for.
+    #[test]
+    fn grazing_rays_hit_like_double_precision() {
+        let mut rng = Rng::new(99, 4);
+        let mut checked = [0usize; 2];
+        for scale in [1e-4f32, 1.0, 1e4] {
+            for i in 0..60_000 {
+                let axis_plane = i % 2 == 0;
+                let c = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 4.0 * scale;
+                let mut p = [
+                    c,
+                    c + crate::math::warp::uniform_sphere(rng.uniform2()) * scale,
+                    c + crate::math::warp::uniform_sphere(rng.uniform2()) * scale,
+                ];
+                if axis_plane {
+                    let k = rng.below(3) as usize;
+                    for v in &mut p {
+                        v[k] = c[k];
+                    }
+                }
+                let n = (p[1] - p[0]).cross(p[2] - p[0]);
+                if n.length() < 0.1 * scale * scale {
+                    continue; // sliver: no clear inside
+                }
+                let n = n.normalize();
+                let (b0, b1) = crate::math::warp::uniform_triangle(rng.uniform2());
+                let target = p[0] * b0 + p[1] * b1 + p[2] * (1.0 - b0 - b1);
+                // A unit direction in the plane, tilted out of it by `angle`.
+                let in_plane = crate::math::Frame::from_z(n);
+                let phi = rng.uniform() * std::f32::consts::TAU;
+                let u = in_plane.s * phi.cos() + in_plane.t * phi.sin();
+                let angles: &[f32] = if axis_plane {
+                    &[1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2]
+                } else {
+                    &[1e-5, 1e-4, 1e-3, 1e-2]
+                };
+                let angle = angles[(i / 2) % angles.len()];
+                let side = if rng.uniform() < 0.5 { 1.0 } else { -1.0 };
+                let d = (u * angle.cos() + n * (side * angle.sin())).normalize();
+                let o = target - d * ((0.2 + 3.0 * rng.uniform()) * scale);
+                // The f32 origin moves the true crossing: judge by the exact one.
+                let Some((t_ref, rb1, rb2)) = reference_f64(o, d, p) else {
+                    continue;
+                };
+                let margin = if axis_plane {
+                    0.01
+                } else {
+                    0.01 + 4e-7 / angle as f64
+                };
+                if rb1.min(rb2).min(1.0 - rb1 - rb2) < margin || t_ref < 0.01 * scale as f64 {
+                    continue;
+                }
+                checked[axis_plane as usize] += 1;
+                let r = RayPrecomp::new(o, d);
+                let h =
+                    intersect_triangle(&r, p[0], p[1], p[2], f32::INFINITY).unwrap_or_else(|| {
+                        panic!(
+                            "scale {scale}, angle {angle}, axis plane {axis_plane}: missed \
+                             {p:?} from {o:?} along {d:?}, reference t {t_ref}"
+                        )
+                    });
+                // f32 distances of grazing hits are good to about an ulp of the coordinates
+                // over the angle.
+                let tol = 1e-4 * t_ref + 1e-6 * (t_ref + scale as f64) / angle as f64;
+                assert!(
+                    (h.t as f64 - t_ref).abs() <= tol,
+                    "scale {scale}, angle {angle}: t {} vs {t_ref}",
+                    h.t
+                );
+            }
+        }
+        assert!(checked[0] > 40_000 && checked[1] > 40_000, "{checked:?}");
+    }
+
+    /// The other side of the t bound: rays leaving a point of a plane made of several exactly
+    /// coplanar triangles (origin offset as the renderer does), at grazing angles down to
+    /// 1e-8 rad, near shared edges and vertices, never hit a triangle of that plane.
+    #[test]
+    fn grazing_rays_leaving_a_plane_never_hit_it() {
+        let mut rng = Rng::new(7, 8);
+        // Coordinates with 12 significant bits: 0.5 x + 0.25 y is then exact in f32, so the
+        // tilted plane's vertices lie exactly on it.
+        // Scales are powers of two (about 1e-4 and 1e4) for the same reason.
+        let q = |v: f32| (v * 4096.0).round() / 4096.0;
+        for scale in [1.0f32 / 8192.0, 1.0, 8192.0] {
+            for tilted in [false, true] {
+                let height = |x: f32, y: f32| if tilted { 0.5 * x + 0.25 * y } else { 0.375 };
+                // A 3 x 3 grid of quads, each split in two: triangles share edges and vertices.
+                let vtx = |i: usize, j: usize| {
+                    let (x, y) = (q(i as f32 * 0.3125), q(j as f32 * 0.375));
+                    Vec3::new(x, y, height(x, y)) * scale
+                };
+                let mut tris = Vec::new();
+                for i in 0..3 {
+                    for j in 0..3 {
+                        tris.push([vtx(i, j), vtx(i + 1, j), vtx(i + 1, j + 1)]);
+                        tris.push([vtx(i, j), vtx(i + 1, j + 1), vtx(i, j + 1)]);
+                    }
+                }
+                let n = (tris[0][1] - tris[0][0])
+                    .cross(tris[0][2] - tris[0][0])
+                    .normalize();
+                let frame = crate::math::Frame::from_z(n);
+                for k in 0..30_000 {
+                    let t = tris[rng.below(tris.len() as u32) as usize];
+                    // Vertices, edge points and interior points.
+                    let (b0, b1) = match k % 3 {
+                        0 => [(1.0, 0.0), (0.0, 1.0), (0.0, 0.0)][rng.below(3) as usize],
+                        1 => {
+                            let u = rng.uniform();
+                            [(u, 1.0 - u), (0.0, u), (u, 0.0)][rng.below(3) as usize]
+                        }
+                        _ => crate::math::warp::uniform_triangle(rng.uniform2()),
+                    };
+                    let b = [b0, b1, 1.0 - b0 - b1];
+                    let p = t[0] * b[0] + t[1] * b[1] + t[2] * b[2];
+                    let err = crate::geometry::barycentric_point_error(t, b);
+                    let phi = rng.uniform() * std::f32::consts::TAU;
+                    let u = frame.s * phi.cos() + frame.t * phi.sin();
+                    let angle = [1e-8f32, 1e-7, 1e-6, 1e-5, 1e-4, 1e-2][k % 6];
+                    let side = if rng.uniform() < 0.5 { 1.0 } else { -1.0 };
+                    let d = (u * angle.cos() + n * (side * angle.sin())).normalize();
+                    let o = crate::geometry::offset_ray_origin(p, err, n, d);
+                    let r = RayPrecomp::new(o, d);
+                    for (ti, tri) in tris.iter().enumerate() {
+                        let h = intersect_triangle(&r, tri[0], tri[1], tri[2], f32::INFINITY);
+                        assert!(
+                            h.is_none(),
+                            "scale {scale}, tilted {tilted}, angle {angle}: ray {o:?} {d:?} \
+                             leaving triangle {t:?} hit triangle {ti} at {:?}",
+                            h
+                        );
+                    }
+                }
             }
         }
     }

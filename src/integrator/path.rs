@@ -5,7 +5,7 @@
 use super::{Integrator, IntegratorSettings, SampleContext, TraceCounters};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::math::{Rgb, Rng, Vec3};
+use crate::math::{Frame, Rgb, Rng, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 
 pub struct PathTracer {
@@ -19,10 +19,12 @@ impl PathTracer {
 
     /// Next-event estimation: radiance from one light sample, MIS-weighted against BSDF
     /// sampling. `wo` is local to the shading frame.
+    #[allow(clippy::too_many_arguments)]
     fn sample_light(
         &self,
         scene: &Scene,
         si: &SurfaceInteraction,
+        frame: &Frame,
         bsdf: &Bsdf,
         wo_local: Vec3,
         rng: &mut Rng,
@@ -42,7 +44,6 @@ impl PathTracer {
         if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
             return Rgb::ZERO;
         }
-        let frame = si.shading_frame();
         let wi_local = frame.to_local(ls.wi);
         let f = bsdf.eval(wo_local, wi_local) * wi_local.z.abs();
         if f == Rgb::ZERO {
@@ -151,7 +152,8 @@ impl Integrator for PathTracer {
             let frame = si.shading_frame();
             let wo_local = frame.to_local(si.wo);
             if !bsdf.is_delta() {
-                radiance += beta * self.sample_light(scene, &si, &bsdf, wo_local, rng, counters);
+                radiance +=
+                    beta * self.sample_light(scene, &si, &frame, &bsdf, wo_local, rng, counters);
             }
 
             let uc = rng.uniform();

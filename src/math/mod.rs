@@ -68,7 +68,7 @@ pub fn balance_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
 
 /// Next representable float towards +infinity (pbrt's `NextFloatUp`), used to push spawned
 /// ray origins off a surface by exactly the rounding error and no more.
-#[inline]
+#[inline(always)]
 pub fn next_float_up(v: f32) -> f32 {
     if v.is_infinite() && v > 0.0 {
         return v;
@@ -80,7 +80,7 @@ pub fn next_float_up(v: f32) -> f32 {
 }
 
 /// Next representable float towards -infinity.
-#[inline]
+#[inline(always)]
 pub fn next_float_down(v: f32) -> f32 {
     if v.is_infinite() && v < 0.0 {
         return v;

@@ -1,0 +1,333 @@
+//! Top-down surface-area-heuristic (SAH) build of a binary BVH with one triangle per leaf, in
+//! obvhs's `Bvh2` layout, for obvhs's BVH2 -> CWBVH conversion (which picks the leaf sizes).
+//!
+//! Why: obvhs builds with PLOC, which merges clusters that are close in Morton order. In closed
+//! rooms (walls, floor, ceiling: the Cornell box, architecture) that merges pieces of different
+//! walls into boxes spanning the room, and a ray inside the room enters most of them: 45 nodes
+//! per camera ray on a 3,072-triangle room (BENCHMARKS.md). A top-down SAH split separates the
+//! walls first. Splits are binned (32 bins per axis) for large nodes and an exact sweep over
+//! sorted centroids for small ones; large subtrees are built in parallel.
+
+use glam::Vec3A;
+use obvhs::aabb::Aabb;
+use obvhs::bvh2::node::Bvh2Node;
+use obvhs::bvh2::Bvh2;
+
+/// Bins per axis in binned splits.
+const BINS: usize = 32;
+/// Nodes with at most this many triangles get the exact sweep instead of bins.
+const SWEEP_MAX: usize = 32;
+/// Subtrees with more triangles than this are built on two rayon tasks.
+const PARALLEL_MIN: usize = 4096;
+/// Beyond this depth, split at the median: keeps the BVH shallow enough for obvhs's 32-entry
+/// traversal stack (which silently overwrites its last entry when full) on any input, e.g.
+/// SAH peeling one small triangle at a time off a huge one.
+const SAH_MAX_DEPTH: u32 = 40;
+
+/// A triangle's bounds and its index in the input.
+#[derive(Clone, Copy)]
+struct PrimRef {
+    aabb: Aabb,
+    index: u32,
+}
+
+impl PrimRef {
+    #[inline]
+    fn centroid(&self) -> Vec3A {
+        (self.aabb.min + self.aabb.max) * 0.5
+    }
+}
+
+/// Surface area / 2 of a box, 0 for an empty one.
+#[inline]
+fn half_area(b: &Aabb) -> f32 {
+    let d = (b.max - b.min).max(Vec3A::ZERO);
+    (d.x + d.y) * d.z + d.x * d.y
+}
+
+/// Builds the BVH2 over the given bounds (one per triangle, in input order).
+pub fn build_sah_bvh2(aabbs: &[Aabb]) -> Bvh2 {
+    let n = aabbs.len();
+    let mut bvh = Bvh2::default();
+    if n == 0 {
+        return bvh;
+    }
+    let mut prims: Vec<PrimRef> = aabbs
+        .iter()
+        .enumerate()
+        .map(|(i, &aabb)| PrimRef {
+            aabb,
+            index: i as u32,
+        })
+        .collect();
+    let bounds = aabbs.iter().fold(Aabb::empty(), |b, a| b.union(a));
+    // A subtree over m triangles has exactly 2m - 1 nodes, so every subtree's block of the
+    // node array is known before it is built, and subtrees fill disjoint blocks in parallel.
+    let mut nodes = vec![Bvh2Node::default(); 2 * n - 1];
+    let (root, descendants) = nodes.split_at_mut(1);
+    let depth = build_node(&mut prims, 0, bounds, &mut root[0], descendants, 1, 0);
+    bvh.primitive_indices = prims.iter().map(|p| p.index).collect();
+    bvh.nodes = nodes;
+    bvh.children_are_ordered_after_parents = true;
+    bvh.max_depth = bvh.max_depth.max(depth as usize + 1);
+    bvh
+}
+
+/// Builds the subtree over `prims` (whose first element is leaf slot `prim_offset`) into
+/// `node`, its descendants into `desc` (global index `desc_offset` onwards, 2m - 2 nodes).
+/// Returns the subtree's depth below `node`.
+fn build_node(
+    prims: &mut [PrimRef],
+    prim_offset: u32,
+    bounds: Aabb,
+    node: &mut Bvh2Node,
+    desc: &mut [Bvh2Node],
+    desc_offset: u32,
+    depth: u32,
+) -> u32 {
+    let m = prims.len();
+    if m == 1 {
+        *node = Bvh2Node::new(bounds, 1, prim_offset);
+        return 0;
+    }
+    let split = if depth >= SAH_MAX_DEPTH {
+        median_split(prims)
+    } else if m <= SWEEP_MAX {
+        sweep_split(prims)
+    } else {
+        binned_split(prims)
+    };
+    debug_assert!(split > 0 && split < m);
+    *node = Bvh2Node::new(bounds, 0, desc_offset);
+    let (left_prims, right_prims) = prims.split_at_mut(split);
+    let left_bounds = union_of(left_prims);
+    let right_bounds = union_of(right_prims);
+    let (children, rest) = desc.split_at_mut(2);
+    let (left_node, right_node) = children.split_at_mut(1);
+    let (left_desc, right_desc) = rest.split_at_mut(2 * split - 2);
+    let left_desc_offset = desc_offset + 2;
+    let right_desc_offset = desc_offset + 2 * split as u32;
+    let right_prim_offset = prim_offset + split as u32;
+    let mut build_left = || {
+        build_node(
+            left_prims,
+            prim_offset,
+            left_bounds,
+            &mut left_node[0],
+            left_desc,
+            left_desc_offset,
+            depth + 1,
+        )
+    };
+    let mut build_right = || {
+        build_node(
+            right_prims,
+            right_prim_offset,
+            right_bounds,
+            &mut right_node[0],
+            right_desc,
+            right_desc_offset,
+            depth + 1,
+        )
+    };
+    let (dl, dr) = if m > PARALLEL_MIN {
+        rayon::join(build_left, build_right)
+    } else {
+        (build_left(), build_right())
+    };
+    1 + dl.max(dr)
+}
+
+fn union_of(prims: &[PrimRef]) -> Aabb {
+    prims.iter().fold(Aabb::empty(), |b, p| b.union(&p.aabb))
+}
+
+fn centroid_bounds(prims: &[PrimRef]) -> Aabb {
+    let mut b = Aabb::empty();
+    for p in prims {
+        b.extend(p.centroid());
+    }
+    b
+}
+
+/// Splits at the median of the centroids' widest axis; returns the size of the left part.
+fn median_split(prims: &mut [PrimRef]) -> usize {
+    let axis = centroid_bounds(prims).largest_axis();
+    let mid = prims.len() / 2;
+    prims.select_nth_unstable_by(mid, |a, b| {
+        a.centroid()[axis].total_cmp(&b.centroid()[axis])
+    });
+    mid
+}
+
+/// Exact SAH: every split between centroids sorted along each axis. Reorders `prims` so the
+/// split is `prims[..k]`, `prims[k..]`, and returns k.
+fn sweep_split(prims: &mut [PrimRef]) -> usize {
+    let m = prims.len();
+    let mut best = (f32::INFINITY, 0usize, 0usize); // (cost, axis, k)
+    let mut right_area = vec![0.0f32; m];
+    for axis in 0..3 {
+        prims.sort_unstable_by(|a, b| a.centroid()[axis].total_cmp(&b.centroid()[axis]));
+        let mut acc = Aabb::empty();
+        for k in (1..m).rev() {
+            acc = acc.union(&prims[k].aabb);
+            right_area[k] = half_area(&acc);
+        }
+        let mut acc = Aabb::empty();
+        for k in 1..m {
+            acc = acc.union(&prims[k - 1].aabb);
+            let cost = half_area(&acc) * k as f32 + right_area[k] * (m - k) as f32;
+            if cost < best.0 {
+                best = (cost, axis, k);
+            }
+        }
+    }
+    let (_, axis, k) = best;
+    if k == 0 {
+        // Every cost was NaN (non-finite bounds): any balanced split will do.
+        return m / 2;
+    }
+    if axis != 2 {
+        prims.sort_unstable_by(|a, b| a.centroid()[axis].total_cmp(&b.centroid()[axis]));
+    }
+    k
+}
+
+/// Binned SAH (Wald 2007): centroids binned along each axis, the best of the 3 x (BINS - 1)
+/// bin boundaries; `prims` is partitioned in place and the left size returned.
+fn binned_split(prims: &mut [PrimRef]) -> usize {
+    let m = prims.len();
+    let cb = centroid_bounds(prims);
+    let extent = cb.max - cb.min;
+    let mut best = (f32::INFINITY, 0usize, 0usize); // (cost, axis, boundary)
+    for axis in 0..3 {
+        if !(extent[axis] > 0.0) {
+            continue;
+        }
+        let scale = BINS as f32 / extent[axis];
+        let mut bin_bounds = [Aabb::empty(); BINS];
+        let mut bin_count = [0usize; BINS];
+        for p in prims.iter() {
+            let b = bin_of(p.centroid()[axis], cb.min[axis], scale);
+            bin_bounds[b] = bin_bounds[b].union(&p.aabb);
+            bin_count[b] += 1;
+        }
+        let mut right_area = [0.0f32; BINS];
+        let mut right_count = [0usize; BINS];
+        let (mut acc, mut count) = (Aabb::empty(), 0);
+        for b in (1..BINS).rev() {
+            acc = acc.union(&bin_bounds[b]);
+            count += bin_count[b];
+            right_area[b] = half_area(&acc);
+            right_count[b] = count;
+        }
+        let (mut acc, mut count) = (Aabb::empty(), 0);
+        for b in 1..BINS {
+            acc = acc.union(&bin_bounds[b - 1]);
+            count += bin_count[b - 1];
+            if count == 0 || right_count[b] == 0 {
+                continue;
+            }
+            let cost = half_area(&acc) * count as f32 + right_area[b] * right_count[b] as f32;
+            if cost < best.0 {
+                best = (cost, axis, b);
+            }
+        }
+    }
+    let (_, axis, boundary) = best;
+    if boundary == 0 {
+        // All centroids coincide (or the bounds are not finite): no plane separates them.
+        return median_split(prims);
+    }
+    let scale = BINS as f32 / extent[axis];
+    let mut left = 0;
+    for i in 0..m {
+        if bin_of(prims[i].centroid()[axis], cb.min[axis], scale) < boundary {
+            prims.swap(i, left);
+            left += 1;
+        }
+    }
+    left
+}
+
+#[inline]
+fn bin_of(c: f32, min: f32, scale: f32) -> usize {
+    (((c - min) * scale) as usize).min(BINS - 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Rng;
+
+    fn check_tree(bvh: &Bvh2, n: usize) {
+        assert_eq!(bvh.nodes.len(), 2 * n - 1);
+        let mut seen = vec![false; n];
+        let mut stack = vec![0usize];
+        while let Some(i) = stack.pop() {
+            let node = &bvh.nodes[i];
+            if node.is_leaf() {
+                assert_eq!(node.prim_count, 1);
+                let p = bvh.primitive_indices[node.first_index as usize] as usize;
+                assert!(!seen[p], "triangle {p} in two leaves");
+                seen[p] = true;
+            } else {
+                let (l, r) = (node.first_index as usize, node.first_index as usize + 1);
+                assert!(l > i, "children after parents");
+                for c in [l, r] {
+                    let cb = bvh.nodes[c].aabb();
+                    assert!(
+                        node.aabb().min.cmple(cb.min).all() && cb.max.cmple(node.aabb().max).all()
+                    );
+                }
+                stack.push(l);
+                stack.push(r);
+            }
+        }
+        assert!(seen.iter().all(|&s| s), "every triangle in a leaf");
+    }
+
+    fn tree_depth(bvh: &Bvh2, i: usize) -> usize {
+        let node = &bvh.nodes[i];
+        if node.is_leaf() {
+            0
+        } else {
+            let c = node.first_index as usize;
+            1 + tree_depth(bvh, c).max(tree_depth(bvh, c + 1))
+        }
+    }
+
+    #[test]
+    fn every_triangle_in_exactly_one_leaf_and_boxes_nest() {
+        let mut rng = Rng::new(4, 4);
+        for n in [1usize, 2, 3, 31, 32, 33, 100, 5000, 20_000] {
+            let aabbs: Vec<Aabb> = (0..n)
+                .map(|_| {
+                    let c = Vec3A::new(rng.uniform(), rng.uniform(), rng.uniform()) * 10.0;
+                    let e = Vec3A::new(rng.uniform(), rng.uniform(), rng.uniform()) * 0.5;
+                    Aabb::new(c - e, c + e)
+                })
+                .collect();
+            check_tree(&build_sah_bvh2(&aabbs), n);
+        }
+    }
+
+    /// Identical boxes (no plane separates their centroids) and a geometric series of sizes
+    /// (SAH peels one at a time): still a valid tree, and depth stays bounded.
+    #[test]
+    fn degenerate_inputs_stay_shallow() {
+        let same = vec![Aabb::new(Vec3A::ZERO, Vec3A::ONE); 10_000];
+        let bvh = build_sah_bvh2(&same);
+        check_tree(&bvh, same.len());
+        let nested: Vec<Aabb> = (0..3000)
+            .map(|i| {
+                let s = 1.0e-3 * 1.01f32.powi(i);
+                Aabb::new(Vec3A::splat(-s), Vec3A::splat(s))
+            })
+            .collect();
+        let bvh = build_sah_bvh2(&nested);
+        check_tree(&bvh, nested.len());
+        let depth = tree_depth(&bvh, 0);
+        assert!(depth <= SAH_MAX_DEPTH as usize + 13, "depth {depth}");
+    }
+}
