@@ -12,7 +12,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::film::Film;
-use crate::integrator::{Integrator, SampleContext, TraceCounters, View};
+use crate::integrator::{Integrator, Precomputation, SampleContext, TraceCounters, View};
 use crate::math::{Rng, Vec2};
 use crate::scene::{Camera, Scene};
 
@@ -133,6 +133,25 @@ pub fn render(
     })
 }
 
+/// Runs the integrator's per-scene precomputation ([`Integrator::prepare`]) on `threads`
+/// worker threads (`None`: all cores), as the render would use them. Cheap for integrators
+/// that need nothing.
+pub fn prepare(
+    integrator: &mut dyn Integrator,
+    scene: &Scene,
+    threads: Option<usize>,
+    progress: &(dyn Fn(&str, f64) -> bool + Sync),
+) -> Result<Precomputation> {
+    if threads == Some(0) {
+        return Err(Error::invalid("thread count must be at least 1"));
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.unwrap_or(0))
+        .build()
+        .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
+    pool.install(|| integrator.prepare(scene, progress))
+}
+
 /// What an observer learns after each completed pass.
 #[derive(Clone, Copy, Debug)]
 pub struct PassReport {
@@ -176,6 +195,7 @@ fn render_in_pool(
     cancel: &AtomicBool,
     on_pass: &mut (dyn FnMut(&Film, PassReport) + Send),
 ) -> Result<(Film, RenderStats)> {
+    integrator.check_prepared(scene)?;
     let (w, h) = (settings.width, settings.height);
     let view = View {
         frame: camera.frame(w as f32 / h as f32),

@@ -115,7 +115,7 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
                 r.film.height()
             )));
         }
-        let contenders = names
+        let mut contenders = names
             .iter()
             .enumerate()
             .map(|(i, &n)| {
@@ -143,7 +143,7 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
         let cmp = compare(
             &j.scene.scene,
             &p.camera,
-            &contenders,
+            &mut contenders,
             &pixels,
             noise,
             &settings,

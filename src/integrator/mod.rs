@@ -9,12 +9,14 @@ pub use path::PathTracer;
 
 use std::any::Any;
 
+use crate::analysis::StageTime;
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
+use crate::guide::SkeletonGuideSettings;
 use crate::geometry::Ray;
 use crate::math::Rgb;
 use crate::math::Rng;
-use crate::scene::{CameraFrame, Scene};
+use crate::scene::{CameraFrame, RenderSettingsFile, Scene};
 
 /// How one-sample MIS weights two strategies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -56,6 +58,8 @@ pub struct IntegratorSettings {
     pub rr_start_depth: u32,
     /// Bidirectional integrators: light subpaths traced per iteration (`None` = one per pixel).
     pub light_paths: Option<u32>,
+    /// `path_skeleton`: skeleton guiding (c_skel, strength, analysis resolution ...).
+    pub skeleton: SkeletonGuideSettings,
 }
 
 impl Default for IntegratorSettings {
@@ -65,7 +69,37 @@ impl Default for IntegratorSettings {
             mis: MisHeuristic::Power,
             rr_start_depth: 3,
             light_paths: None,
+            skeleton: SkeletonGuideSettings::default(),
         }
+    }
+}
+
+impl IntegratorSettings {
+    /// Applies what a scene file says about integrators: its maximum depth and `path_skeleton`
+    /// guide options.
+    pub fn apply_file(&mut self, file: &RenderSettingsFile) -> Result<()> {
+        if let Some(d) = file.max_depth {
+            self.max_depth = d;
+        }
+        for (key, value) in file.skeleton_options() {
+            self.skeleton.set(&key, &value)?;
+        }
+        Ok(())
+    }
+}
+
+/// What an integrator computed for a scene before rendering it, stage by stage (for the render
+/// summary, and counted in equal-time budgets).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Precomputation {
+    pub stages: Vec<StageTime>,
+    /// Facts worth a line of the summary ("43 filtered nodes, 5 importance nodes").
+    pub notes: Vec<String>,
+}
+
+impl Precomputation {
+    pub fn seconds(&self) -> f64 {
+        self.stages.iter().map(|s| s.seconds).sum()
     }
 }
 
@@ -108,6 +142,23 @@ pub struct SampleContext<'a> {
 pub trait Integrator: Send + Sync {
     fn name(&self) -> &'static str;
 
+    /// Builds what this integrator needs of `scene` (and nothing else: most need nothing).
+    /// Must run before rendering `scene` (see [`crate::render::prepare`], which runs it on
+    /// the render's worker threads); running it again rebuilds. `progress(stage, fraction)`
+    /// may cancel by returning false.
+    fn prepare(
+        &mut self,
+        _scene: &Scene,
+        _progress: &dyn Fn(&str, f64) -> bool,
+    ) -> Result<Precomputation> {
+        Ok(Precomputation::default())
+    }
+
+    /// Fails when rendering `scene` needs a `prepare` for it that has not run.
+    fn check_prepared(&self, _scene: &Scene) -> Result<()> {
+        Ok(())
+    }
+
     /// True when `begin_iteration` must run before the pixels of every sample index.
     fn uses_iterations(&self) -> bool {
         false
@@ -136,12 +187,55 @@ pub trait Integrator: Send + Sync {
 }
 
 /// Names of the integrators this build offers.
-pub const NAMES: &[&str] = &["path", "bdpt"];
+pub const NAMES: &[&str] = &["path", "path_skeleton", "bdpt"];
+
+/// Creates an integrator from a spec `name[:key=value]...`: the options override `settings`
+/// (`max_depth`, `mis`, and `path_skeleton`'s guide options, see
+/// [`SkeletonGuideSettings::set`]), e.g. `path_skeleton:strength=16:c_skel=0.3`. Lets one
+/// comparison run several variants of an integrator.
+pub fn create_from_spec(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
+    let mut parts = spec.split(':');
+    let name = parts.next().unwrap_or_default().trim();
+    let mut settings = settings;
+    let mut options = parts.peekable();
+    while let Some(option) = options.next() {
+        // "strength=auto:64" arrives split in two: glue a bare number back to `auto`.
+        let mut option = option.to_string();
+        if option.ends_with("=auto") {
+            if let Some(max) = options.peek().filter(|o| !o.contains('=')) {
+                option = format!("{option}:{max}");
+                options.next();
+            }
+        }
+        let (key, value) = option.split_once('=').ok_or_else(|| {
+            Error::invalid(format!(
+                "integrator spec '{spec}': option '{option}' must be key=value"
+            ))
+        })?;
+        let (key, value) = (key.trim(), value.trim());
+        match key {
+            "max_depth" => {
+                settings.max_depth = value.parse().map_err(|_| {
+                    Error::invalid(format!("integrator spec '{spec}': max_depth '{value}'"))
+                })?
+            }
+            "mis" => settings.mis = MisHeuristic::parse(value)?,
+            _ if name == "path_skeleton" => settings.skeleton.set(key, value)?,
+            _ => {
+                return Err(Error::invalid(format!(
+                    "integrator spec '{spec}': '{name}' has no option '{key}'"
+                )))
+            }
+        }
+    }
+    create(name, settings)
+}
 
 /// Creates an integrator by name.
 pub fn create(name: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
     match name {
         "path" => Ok(Box::new(PathTracer::new(settings))),
+        "path_skeleton" => Ok(Box::new(PathTracer::skeleton_guided(settings)?)),
         "bdpt" => {
             let bdpt = Bdpt::new(settings);
             Ok(Box::new(match settings.light_paths {

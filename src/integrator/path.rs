@@ -1,30 +1,65 @@
 //! Unidirectional path tracing (000 §4.1, lines 1214-1304): BSDF sampling plus next-event
 //! estimation at every non-delta vertex, combined by MIS (Veach's one-sample-per-strategy
 //! estimator), with Russian roulette.
+//!
+//! `path_skeleton` (000 §9.4-9.5) is the same path tracer with a direction guide: at every
+//! non-delta vertex the guide ([`crate::guide::GuideQuery`]) proposes skeleton lobes, and the
+//! next direction comes from them with probability `c_skel`, from the BSDF otherwise. Every
+//! density this file uses for a direction (the throughput's denominator, the MIS weights of
+//! next-event estimation and of emitters hit) is then the density of that one-sample mixture,
+//! so both integrators estimate the same image.
 
-use super::{Integrator, IntegratorSettings, SampleContext, TraceCounters};
+use std::sync::Arc;
+
+use super::{Integrator, IntegratorSettings, Precomputation, SampleContext, TraceCounters};
+use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
+use crate::guide::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide};
 use crate::math::{Rgb, Rng, Vec3};
-use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
+use crate::scene::{Bsdf, Scene, SurfaceInteraction};
 
 pub struct PathTracer {
     settings: IntegratorSettings,
+    /// `path_skeleton`: `Some`, holding the guide once `prepare` has built it.
+    guiding: Option<Option<Arc<SkeletonGuide>>>,
 }
 
 impl PathTracer {
     pub fn new(settings: IntegratorSettings) -> Self {
-        PathTracer { settings }
+        PathTracer {
+            settings,
+            guiding: None,
+        }
     }
 
-    /// Next-event estimation: radiance from one light sample, MIS-weighted against BSDF
-    /// sampling. `wo` is local to the shading frame.
+    /// `path_skeleton`: path tracing guided by the skeleton of the empty space, with the
+    /// guide settings in `settings.skeleton` (validated here; the guide is built by
+    /// `prepare`).
+    pub fn skeleton_guided(settings: IntegratorSettings) -> Result<Self> {
+        settings.skeleton.validate()?;
+        Ok(PathTracer {
+            settings,
+            guiding: Some(None),
+        })
+    }
+
+    /// The skeleton guide built by the last `prepare`.
+    pub fn guide(&self) -> Option<&Arc<SkeletonGuide>> {
+        self.guiding.as_ref().and_then(|g| g.as_ref())
+    }
+
+    /// Next-event estimation: radiance from one light sample, MIS-weighted against direction
+    /// sampling (the BSDF, mixed with the guide's lobes where `query` is guided). `wo` is
+    /// local to the shading frame.
+    #[allow(clippy::too_many_arguments)]
     fn sample_light(
         &self,
         scene: &Scene,
         si: &SurfaceInteraction,
         bsdf: &Bsdf,
         wo_local: Vec3,
+        query: &GuideQuery,
         rng: &mut Rng,
         counters: &mut TraceCounters,
     ) -> Rgb {
@@ -55,9 +90,8 @@ impl PathTracer {
         let weight = if ls.delta {
             1.0
         } else {
-            self.settings
-                .mis
-                .weight(light_pdf, bsdf.pdf(wo_local, wi_local))
+            let direction_pdf = query.mixture_pdf(ls.wi, bsdf.pdf(wo_local, wi_local));
+            self.settings.mis.weight(light_pdf, direction_pdf)
         };
         f * ls.radiance * (weight / light_pdf)
     }
@@ -65,7 +99,49 @@ impl PathTracer {
 
 impl Integrator for PathTracer {
     fn name(&self) -> &'static str {
-        "path"
+        if self.guiding.is_some() {
+            "path_skeleton"
+        } else {
+            "path"
+        }
+    }
+
+    fn prepare(
+        &mut self,
+        scene: &Scene,
+        progress: &dyn Fn(&str, f64) -> bool,
+    ) -> Result<Precomputation> {
+        let Some(slot) = self.guiding.as_mut() else {
+            return Ok(Precomputation::default());
+        };
+        *slot = None;
+        let guide = SkeletonGuide::build(scene, &self.settings.skeleton, progress)?;
+        let notes = vec![format!(
+            "skeleton guide: {} nodes ({} raw), {} importance nodes ({} found), {} of {} nodes guided, {:.1} MiB",
+            guide.node_count(),
+            guide.raw_node_count(),
+            guide.importance_nodes().len(),
+            guide.importance_nodes_found(),
+            guide.guided_node_count(),
+            guide.node_count(),
+            guide.memory_bytes() as f64 / (1024.0 * 1024.0)
+        )];
+        let stages = guide.timings().to_vec();
+        *slot = Some(Arc::new(guide));
+        Ok(Precomputation { stages, notes })
+    }
+
+    fn check_prepared(&self, scene: &Scene) -> Result<()> {
+        match &self.guiding {
+            None => Ok(()),
+            Some(Some(guide)) if guide.built_for(scene) => Ok(()),
+            Some(Some(_)) => Err(Error::invalid(
+                "path_skeleton was prepared for another scene: prepare it for this one",
+            )),
+            Some(None) => Err(Error::invalid(
+                "path_skeleton needs its skeleton guide: prepare the integrator for the scene before rendering",
+            )),
+        }
     }
 
     fn sample(
@@ -84,6 +160,8 @@ impl Integrator for PathTracer {
         let mut prev_pdf = 0.0f32;
         let mut prev_point = ray.origin;
         let mut depth = 0u32;
+        let guide = self.guide();
+        let mut query = GuideQuery::new();
         loop {
             counters.rays += 1;
             let Some(si) = scene.intersect(&ray) else {
@@ -119,12 +197,17 @@ impl Integrator for PathTracer {
             }
             let frame = si.shading_frame();
             let wo_local = frame.to_local(si.wo);
+            // No guiding at delta BSDFs: no mixture with a Dirac lobe has a density.
+            query.clear();
+            if let (Some(guide), false) = (guide, bsdf.is_delta()) {
+                counters.rays += query.init(guide, scene, si.p, si.p_error, si.ng, si.wo) as u64;
+            }
             if !bsdf.is_delta() {
-                radiance += beta * self.sample_light(scene, &si, &bsdf, wo_local, rng, counters);
+                radiance += beta
+                    * self.sample_light(scene, &si, &bsdf, wo_local, &query, rng, counters);
             }
 
-            let uc = rng.uniform();
-            let Some(bs) = bsdf.sample(wo_local, uc, rng.uniform2(), Transport::Radiance) else {
+            let Some(bs) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &query, rng) else {
                 break;
             };
             let wi = frame.to_world(bs.wi);

@@ -1,0 +1,45 @@
+//! One-sample MIS of BSDF sampling and a guide (000 eq. 168-170): the strategy is chosen at
+//! random with the query's guiding probability `c`, and whichever produced the direction, its
+//! density is that of the mixture, `c p_guide + (1 - c) p_bsdf` ([`GuideQuery::mixture_pdf`]),
+//! so the estimator `f |cos| / pdf` is the balance-heuristic combination of both.
+
+use super::GuideQuery;
+use crate::math::{Frame, Rgb, Rng, Vec3};
+use crate::scene::{Bsdf, BsdfSample, Transport};
+
+/// Samples an incident direction at a surface for radiance transport: from `bsdf` (local to
+/// `frame`, outgoing direction `wo_local`), or with the query's guiding probability from its
+/// lobes. The sample is local to `frame` and its pdf is the mixture's (for a delta BSDF sample,
+/// the BSDF's own: no guided point has a delta BSDF, see the module docs of `guide`). With an
+/// unguided query this is exactly `bsdf.sample` and draws the same random numbers. `None` when
+/// the sample carries nothing (absorbed, or a guided direction the BSDF does not reflect into).
+pub fn sample_bsdf_or_guide(
+    bsdf: &Bsdf,
+    wo_local: Vec3,
+    frame: &Frame,
+    query: &GuideQuery,
+    rng: &mut Rng,
+) -> Option<BsdfSample> {
+    let c = query.guiding_probability();
+    if c > 0.0 && rng.uniform() < c {
+        let (wi, _) = query.sample(rng.uniform(), rng.uniform2())?;
+        let wi_local = frame.to_local(wi);
+        let f = bsdf.eval(wo_local, wi_local);
+        if f == Rgb::ZERO {
+            return None;
+        }
+        let pdf = query.mixture_pdf(wi, bsdf.pdf(wo_local, wi_local));
+        return Some(BsdfSample {
+            wi: wi_local,
+            f,
+            pdf,
+            delta: false,
+        });
+    }
+    let uc = rng.uniform();
+    let mut bs = bsdf.sample(wo_local, uc, rng.uniform2(), Transport::Radiance)?;
+    if c > 0.0 && !bs.delta {
+        bs.pdf = query.mixture_pdf(frame.to_world(bs.wi), bs.pdf);
+    }
+    Some(bs)
+}
