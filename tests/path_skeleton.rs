@@ -398,6 +398,40 @@ fn path_skeleton_agrees_with_path_on_the_cornell_box() {
     agree("cornell", &scene, &camera, 5, 24, 8, VARIANTS);
 }
 
+/// Direct lighting only in a box whose whole ceiling emits, where the lobes of the floor point
+/// at the light and the noise is low: a wrong MIS weight between light sampling and a guided
+/// direction hitting the light shows. (Both the weight of next-event estimation and that of
+/// emitters hit must use the mixture's density.)
+#[test]
+fn path_skeleton_agrees_with_path_in_direct_lighting() {
+    let mut b = SceneBuilder::new();
+    let wall = b.add_material(Material::diffuse(Rgb::splat(0.6))).unwrap();
+    let light = b.add_material(Material::emissive(Rgb::splat(2.0))).unwrap();
+    closed_box(&mut b, Vec3::ZERO, wall);
+    let v = Vec3::new;
+    quad(
+        &mut b,
+        [
+            v(-0.99, 0.99, -0.99),
+            v(0.99, 0.99, -0.99),
+            v(0.99, 0.99, 0.99),
+            v(-0.99, 0.99, 0.99),
+        ],
+        light,
+    );
+    let scene = b.build().unwrap();
+    let camera = Camera::look_at(v(0.0, 0.5, 0.9), v(0.0, -1.0, -0.5), Vec3::Y, 70.0).unwrap();
+    agree(
+        "lit box, direct",
+        &scene,
+        &camera,
+        1,
+        16,
+        32,
+        &["path_skeleton:c_skel=0.9:strength=8"],
+    );
+}
+
 #[test]
 fn path_skeleton_agrees_with_path_on_the_corridor() {
     let scene = corridor_builder().unwrap().build().unwrap();
