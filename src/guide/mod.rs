@@ -11,6 +11,7 @@
 //! skeleton mixture, so that a path tracer can combine it with BSDF sampling by MIS
 //! (eq. 168-170, [`GuideQuery::mixture_pdf`]).
 
+mod fast_map;
 mod mixture;
 mod skeleton;
 
