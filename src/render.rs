@@ -91,6 +91,9 @@ pub struct RenderStats {
     pub rays: u64,
     pub passes: u32,
     pub cancelled: bool,
+    /// The integrator's per-scene precomputation before this render ([`prepare`]): not part
+    /// of `seconds`; left 0 by `render`, filled in by the caller that ran it.
+    pub precompute_seconds: f64,
 }
 
 impl RenderStats {

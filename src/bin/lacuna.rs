@@ -337,7 +337,10 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
         ("c_skel", args.c_skel.map(|v| v.to_string())),
         ("strength", args.skel_strength.clone()),
         ("resolution", args.skel_resolution.map(|v| v.to_string())),
-        ("voxel_budget", args.skel_voxel_budget.map(|v| v.to_string())),
+        (
+            "voxel_budget",
+            args.skel_voxel_budget.map(|v| v.to_string()),
+        ),
         ("light_rays", args.skel_light_rays.map(|v| v.to_string())),
         ("lobes", args.skel_lobes.map(|v| v.to_string())),
         (

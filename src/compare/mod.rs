@@ -92,6 +92,7 @@ pub fn render_reference(
         rays: stats_a.rays + stats_b.rays,
         passes: stats_a.passes + stats_b.passes,
         cancelled: false,
+        precompute_seconds: 0.0,
     };
     Ok(Reference { film, stats, noise })
 }

@@ -46,8 +46,7 @@ use rayon::prelude::*;
 
 use super::fast_map::FastNodeMap;
 use crate::analysis::{
-    Analysis, AnalysisSettings, Graph, Resolution, Skeleton, SkeletonSettings,
-    StageTime, VoxelGrid,
+    Analysis, AnalysisSettings, Graph, Resolution, Skeleton, SkeletonSettings, StageTime, VoxelGrid,
 };
 use crate::error::{Error, Result};
 use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
@@ -82,7 +81,9 @@ impl SkeletonStrength {
             }
         } else if let Some(max) = text.strip_prefix("auto:") {
             let max = max.trim().parse::<f32>().map_err(|_| {
-                Error::invalid(format!("skeleton strength '{text}': 'auto:MAX' needs a number"))
+                Error::invalid(format!(
+                    "skeleton strength '{text}': 'auto:MAX' needs a number"
+                ))
             })?;
             SkeletonStrength::Auto { max }
         } else {
@@ -210,10 +211,11 @@ impl SkeletonGuideSettings {
     /// `importance_nodes`, `lobes`, `visibility` (true/false). Validates the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
-            value
-                .trim()
-                .parse()
-                .map_err(|_| Error::invalid(format!("skeleton option {key}: '{value}' is not a valid number")))
+            value.trim().parse().map_err(|_| {
+                Error::invalid(format!(
+                    "skeleton option {key}: '{value}' is not a valid number"
+                ))
+            })
         }
         let mut next = *self;
         match key {
@@ -373,6 +375,9 @@ impl SkeletonGuide {
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<SkeletonGuide> {
         settings.validate()?;
+        if !progress("start", 0.0) {
+            return Err(Error::Cancelled);
+        }
         let mut timings = Vec::new();
         let mut stage = |name: &'static str, t: Instant, fraction: f64| -> Result<()> {
             timings.push(StageTime {
@@ -810,11 +815,15 @@ impl GuideQuery {
         for (i, &(axis, exponent, weight)) in lobes.iter().enumerate() {
             let unit = axis.normalize_or_zero();
             if !crate::math::is_finite3(axis) || unit == Vec3::ZERO {
-                return Err(Error::invalid(format!("lobe {i}: axis {axis} is not a direction")));
+                return Err(Error::invalid(format!(
+                    "lobe {i}: axis {axis} is not a direction"
+                )));
             }
             SkeletonStrength::Fixed(exponent).validate()?;
             if !(weight.is_finite() && weight >= 0.0) {
-                return Err(Error::invalid(format!("lobe {i}: weight {weight} must be >= 0")));
+                return Err(Error::invalid(format!(
+                    "lobe {i}: weight {weight} must be >= 0"
+                )));
             }
             q.lobes[i] = ActiveLobe {
                 frame: Frame::from_z(unit),
@@ -823,7 +832,9 @@ impl GuideQuery {
             };
         }
         if !(total > 0.0 && total.is_finite()) {
-            return Err(Error::invalid("the lobes need a positive finite total weight"));
+            return Err(Error::invalid(
+                "the lobes need a positive finite total weight",
+            ));
         }
         q.count = lobes.len();
         q.c_skel = c_skel;
@@ -1044,7 +1055,10 @@ mod tests {
                 fast += (guide.fast_map.uniform[v] != crate::analysis::UNDEFINED_NODE) as u32;
             }
         }
-        assert!(fast * 10 > total, "only {fast} of {total} points took the table");
+        assert!(
+            fast * 10 > total,
+            "only {fast} of {total} points took the table"
+        );
     }
 
     #[test]

@@ -203,8 +203,8 @@ impl Integrator for PathTracer {
                 counters.rays += query.init(guide, scene, si.p, si.p_error, si.ng, si.wo) as u64;
             }
             if !bsdf.is_delta() {
-                radiance += beta
-                    * self.sample_light(scene, &si, &bsdf, wo_local, &query, rng, counters);
+                radiance +=
+                    beta * self.sample_light(scene, &si, &bsdf, wo_local, &query, rng, counters);
             }
 
             let Some(bs) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &query, rng) else {
