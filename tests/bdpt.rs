@@ -8,9 +8,11 @@ use std::sync::atomic::AtomicBool;
 
 use common::agreement::{assert_agree, box_scene, region_means};
 use lacuna::integrator::{self, IntegratorSettings, MisHeuristic};
-use lacuna::math::Vec3;
+use lacuna::math::{Rgb, Vec3};
 use lacuna::render::{render, RenderSettings};
-use lacuna::scene::{load_scene_file, two_rooms_builder, Camera, Scene};
+use lacuna::scene::{
+    load_scene_file, two_rooms_builder, Camera, Material, MeshDesc, Scene, SceneBuilder,
+};
 
 fn compare(
     label: &str,

@@ -65,7 +65,10 @@ fn chi2_directions(
 ) -> f64 {
     let probs = grid.integrate(|w| pdf(to32(w)));
     let integral: f64 = probs.iter().sum();
-    assert!(integral <= 1.0 + 1e-3, "{name}: pdf integrates to {integral}");
+    assert!(
+        integral <= 1.0 + 1e-3,
+        "{name}: pdf integrates to {integral}"
+    );
     let mut observed = vec![0u64; grid.cells() + 1];
     let mut rng = Rng::new(seed, 77);
     for _ in 0..SAMPLES {
@@ -86,7 +89,8 @@ fn chi2_directions(
 #[test]
 fn chi2_skeleton_lobes_and_their_mixture() {
     let axis = Vec3::new(0.3, -0.5, 0.8).normalize();
-    let cases: Vec<(&str, Vec<(Vec3, f32, f32)>)> = vec![
+    type Lobes = Vec<(Vec3, f32, f32)>;
+    let cases: Vec<(&str, Lobes)> = vec![
         ("lobe s=1", vec![(axis, 1.0, 1.0)]),
         ("lobe s=16", vec![(axis, 16.0, 1.0)]),
         ("lobe s=300", vec![(-axis, 300.0, 1.0)]),
@@ -184,7 +188,10 @@ fn chi2_and_albedo_of_the_bsdf_and_skeleton_mixture() {
                 (0.6 * guided + 0.4 * bsdf.pdf(wo_local, frame.to_local(w))) as f64
             },
         );
-        assert!(integral < 1.0, "{name}: part of a lobe is below the surface");
+        assert!(
+            integral < 1.0,
+            "{name}: part of a lobe is below the surface"
+        );
         let albedo = if albedo.is_nan() {
             grid.integrate(|w| {
                 let wi = frame.to_local(to32(w));
@@ -282,7 +289,7 @@ fn queries_drop_lobes_below_the_surface_and_hidden_importance_points() {
             let total: f32 = (0..q.lobe_count()).map(|i| q.lobe(i).unwrap().2).sum();
             for i in 0..q.lobe_count() {
                 let (axis, s, _) = q.lobe(i).unwrap();
-                assert!(axis.dot(side) > 0.0 && s >= 1.0 && s <= 64.0);
+                assert!(axis.dot(side) > 0.0 && (1.0..=64.0).contains(&s));
             }
             if expected > 0 {
                 guided += 1;
@@ -295,7 +302,10 @@ fn queries_drop_lobes_below_the_surface_and_hidden_importance_points() {
         assert!(guided > 100, "{guided} guided points");
         assert!(dropped_side > 0, "no lobe below a surface in 3000 points");
         if visibility_test {
-            assert!(dropped_hidden > 0, "no hidden importance point in 3000 points");
+            assert!(
+                dropped_hidden > 0,
+                "no hidden importance point in 3000 points"
+            );
         } else {
             assert!(kept_hidden > 0);
         }
@@ -316,12 +326,42 @@ fn quad(b: &mut SceneBuilder, p: [Vec3; 4], m: u32) {
 fn closed_box(b: &mut SceneBuilder, c: Vec3, m: u32) {
     let v = |x: f32, y: f32, z: f32| c + Vec3::new(x, y, z);
     let faces = [
-        [v(-1., -1., -1.), v(1., -1., -1.), v(1., -1., 1.), v(-1., -1., 1.)],
-        [v(-1., 1., -1.), v(-1., 1., 1.), v(1., 1., 1.), v(1., 1., -1.)],
-        [v(-1., -1., -1.), v(-1., 1., -1.), v(1., 1., -1.), v(1., -1., -1.)],
-        [v(-1., -1., 1.), v(1., -1., 1.), v(1., 1., 1.), v(-1., 1., 1.)],
-        [v(-1., -1., -1.), v(-1., -1., 1.), v(-1., 1., 1.), v(-1., 1., -1.)],
-        [v(1., -1., -1.), v(1., 1., -1.), v(1., 1., 1.), v(1., -1., 1.)],
+        [
+            v(-1., -1., -1.),
+            v(1., -1., -1.),
+            v(1., -1., 1.),
+            v(-1., -1., 1.),
+        ],
+        [
+            v(-1., 1., -1.),
+            v(-1., 1., 1.),
+            v(1., 1., 1.),
+            v(1., 1., -1.),
+        ],
+        [
+            v(-1., -1., -1.),
+            v(-1., 1., -1.),
+            v(1., 1., -1.),
+            v(1., -1., -1.),
+        ],
+        [
+            v(-1., -1., 1.),
+            v(1., -1., 1.),
+            v(1., 1., 1.),
+            v(-1., 1., 1.),
+        ],
+        [
+            v(-1., -1., -1.),
+            v(-1., -1., 1.),
+            v(-1., 1., 1.),
+            v(-1., 1., -1.),
+        ],
+        [
+            v(1., -1., -1.),
+            v(1., 1., -1.),
+            v(1., 1., 1.),
+            v(1., -1., 1.),
+        ],
     ];
     for f in faces {
         quad(b, f, m);
@@ -335,7 +375,9 @@ fn closed_box(b: &mut SceneBuilder, c: Vec3, m: u32) {
 fn nodes_without_a_path_to_an_importance_node_are_not_guided() {
     let mut b = SceneBuilder::new();
     let wall = b.add_material(Material::diffuse(Rgb::splat(0.6))).unwrap();
-    let light = b.add_material(Material::emissive(Rgb::splat(10.0))).unwrap();
+    let light = b
+        .add_material(Material::emissive(Rgb::splat(10.0)))
+        .unwrap();
     closed_box(&mut b, Vec3::ZERO, wall);
     closed_box(&mut b, Vec3::new(3.0, 0.0, 0.0), wall);
     let v = Vec3::new;
@@ -360,7 +402,14 @@ fn nodes_without_a_path_to_an_importance_node_are_not_guided() {
     assert!(guide.lobes(node).is_empty());
     assert_eq!(q.guiding_probability(), 0.0);
     // The floor of the lit box is guided.
-    q.init(&guide, &scene, v(0.2, -1.0, 0.1), Vec3::ZERO, Vec3::Y, Vec3::Y);
+    q.init(
+        &guide,
+        &scene,
+        v(0.2, -1.0, 0.1),
+        Vec3::ZERO,
+        Vec3::Y,
+        Vec3::Y,
+    );
     assert_eq!(q.guiding_probability(), 0.5);
     let camera = Camera::look_at(v(0.0, 0.0, 0.9), v(0.0, -0.3, -1.0), Vec3::Y, 80.0).unwrap();
     agree("two boxes", &scene, &camera, 6, 16, 16, &["path_skeleton"]);
@@ -457,7 +506,10 @@ fn path_skeleton_agrees_with_path_on_the_veach_door() {
         6,
         16,
         16,
-        &["path_skeleton", "path_skeleton:strength=auto:16:visibility=false"],
+        &[
+            "path_skeleton",
+            "path_skeleton:strength=auto:16:visibility=false",
+        ],
     );
 }
 
@@ -482,12 +534,25 @@ fn rendering_needs_the_precomputation_for_the_same_scene() {
         ..Default::default()
     };
     let run = |i: &dyn integrator::Integrator| {
-        render(&cornell, &camera, i, &rs, &|_| true, &AtomicBool::new(false))
+        render(
+            &cornell,
+            &camera,
+            i,
+            &rs,
+            &|_| true,
+            &AtomicBool::new(false),
+        )
     };
-    let err = run(skel.as_ref()).err().expect("unprepared").to_string();
+    let Err(err) = run(skel.as_ref()) else {
+        panic!("rendered unprepared")
+    };
+    let err = err.to_string();
     assert!(err.contains("prepare"), "{err}");
     prepare(skel.as_mut(), &rooms, Some(1), &|_, _| true).unwrap();
-    let err = run(skel.as_ref()).err().expect("other scene").to_string();
+    let Err(err) = run(skel.as_ref()) else {
+        panic!("rendered with another scene's guide")
+    };
+    let err = err.to_string();
     assert!(err.contains("another scene"), "{err}");
     let pre = prepare(skel.as_mut(), &cornell, Some(2), &|_, _| true).unwrap();
     assert!(pre.seconds() > 0.0 && pre.stages.len() >= 4);
@@ -534,6 +599,10 @@ fn settings_and_specs_are_validated() {
     ] {
         integrator::create_from_spec(good, base).unwrap_or_else(|e| panic!("{good}: {e}"));
     }
+    assert_eq!(
+        lacuna::capi::LACUNA_SKELETON_MAX_STRENGTH,
+        lacuna::guide::MAX_STRENGTH
+    );
     let mut s = SkeletonGuideSettings::default();
     s.set("strength", "12").unwrap();
     assert_eq!(s.strength, SkeletonStrength::Fixed(12.0));

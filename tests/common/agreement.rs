@@ -203,4 +203,3 @@ pub fn box_scene(delta_bsdfs: bool, area_light: bool, delta_lights: bool) -> (Sc
     let camera = Camera::look_at(v(0.0, 0.2, 3.0), v(0.0, -0.2, 0.0), Vec3::Y, 50.0).unwrap();
     (scene, camera)
 }
-
