@@ -11,7 +11,6 @@
 //! skeleton mixture, so that a path tracer can combine it with BSDF sampling by MIS
 //! (eq. 168-170, [`GuideQuery::mixture_pdf`]).
 
-mod fast_map;
 mod mixture;
 mod skeleton;
 

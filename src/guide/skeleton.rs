@@ -44,9 +44,9 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::fast_map::FastNodeMap;
 use crate::analysis::{
-    Analysis, AnalysisSettings, Graph, Resolution, Skeleton, SkeletonSettings, StageTime, VoxelGrid,
+    map_point, Analysis, AnalysisSettings, Graph, Resolution, Skeleton, SkeletonSettings,
+    StageTime, VoxelGrid,
 };
 use crate::error::{Error, Result};
 use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
@@ -346,7 +346,6 @@ pub struct SkeletonGuide {
     settings: SkeletonGuideSettings,
     grid: VoxelGrid,
     node_map: Vec<u32>,
-    fast_map: FastNodeMap,
     node_positions: Vec<Vec3>,
     node_radii: Vec<f32>,
     /// Lobes of node k: `lobes[lobe_start[k]..lobe_start[k + 1]]`, by decreasing probability.
@@ -418,12 +417,7 @@ impl SkeletonGuide {
         stage("skeleton (thinning, filter, node map)", t, 0.7)?;
 
         let t = Instant::now();
-        let fast_map = FastNodeMap::new(&grid, &node_map);
-        stage("node lookup table", t, 0.75)?;
-
-        let t = Instant::now();
-        let map = |p: Vec3, n: Vec3, w: Vec3| fast_map.map_point(&grid, &node_map, p, n, w);
-        let power = trace_light_power(scene, &map, graph.nodes.len(), settings);
+        let power = trace_light_power(scene, &grid, &node_map, graph.nodes.len(), settings);
         let mut importance: Vec<ImportanceNode> = power
             .iter()
             .enumerate()
@@ -464,7 +458,6 @@ impl SkeletonGuide {
             settings: *settings,
             grid,
             node_map,
-            fast_map,
             node_positions: graph.nodes.iter().map(|n| n.position).collect(),
             node_radii: graph.nodes.iter().map(|n| n.radius).collect(),
             lobe_start,
@@ -534,11 +527,9 @@ impl SkeletonGuide {
         self.lobe_start.windows(2).filter(|w| w[1] > w[0]).count()
     }
 
-    /// Node of a surface point (eq. 151-155), as `analysis::map_point` gives it (through an
-    /// exact lookup table where the answer cannot depend on the directions).
+    /// Node of a surface point (eq. 151-155).
     pub fn map_point(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<u32> {
-        self.fast_map
-            .map_point(&self.grid, &self.node_map, p, normal, incident)
+        map_point(&self.grid, &self.node_map, p, normal, incident)
     }
 
     pub fn grid(&self) -> &VoxelGrid {
@@ -557,7 +548,6 @@ impl SkeletonGuide {
     /// Bytes held (node map, nodes, lobes).
     pub fn memory_bytes(&self) -> usize {
         self.node_map.len() * 4
-            + self.fast_map.memory_bytes()
             + self.node_positions.len() * 16
             + self.lobe_start.len() * 4
             + self.lobes.len() * std::mem::size_of::<GuideLobe>()
@@ -570,7 +560,8 @@ impl SkeletonGuide {
 /// per-chunk streams, chunk sums added in chunk order).
 fn trace_light_power(
     scene: &Scene,
-    map_point: &(dyn Fn(Vec3, Vec3, Vec3) -> Option<u32> + Sync),
+    grid: &VoxelGrid,
+    node_map: &[u32],
     nodes: usize,
     settings: &SkeletonGuideSettings,
 ) -> Vec<f64> {
@@ -599,7 +590,7 @@ fn trace_light_power(
                 let Some(si) = scene.intersect(&Ray::new(origin, e.dir, f32::INFINITY)) else {
                     continue;
                 };
-                if let Some(node) = map_point(si.p, si.ng, si.wo) {
+                if let Some(node) = map_point(grid, node_map, si.p, si.ng, si.wo) {
                     sums[node as usize] += weight;
                 }
             }
@@ -1016,49 +1007,6 @@ mod tests {
         assert_eq!(auto.exponent(1.0, 0.0), 1.0);
         assert_eq!(auto.exponent(1.0, 1e6), 1000.0);
         assert_eq!(SkeletonStrength::Fixed(7.0).exponent(1.0, 2.0), 7.0);
-    }
-
-    /// The lookup table answers exactly as the full search of eq. 151-155, on surface points
-    /// of the corridor and off them, with random normals and incident directions.
-    #[test]
-    fn fast_node_lookup_is_exact() {
-        let scene = crate::scene::corridor_builder().unwrap().build().unwrap();
-        let guide = SkeletonGuide::build(
-            &scene,
-            &SkeletonGuideSettings {
-                light_rays: 256,
-                ..Default::default()
-            },
-            &|_, _| true,
-        )
-        .unwrap();
-        let mut rng = Rng::new(4, 4);
-        let b = scene.bounds();
-        let (mut fast, mut total) = (0, 0);
-        for i in 0..20_000 {
-            let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
-            let o = b.min - Vec3::splat(0.5) + (b.max - b.min + Vec3::splat(1.0)) * u;
-            let n = warp::uniform_sphere(rng.uniform2());
-            let w = warp::uniform_sphere(rng.uniform2());
-            let p = if i % 2 == 0 {
-                match scene.intersect(&Ray::new(o, n, f32::INFINITY)) {
-                    Some(si) => si.p,
-                    None => continue,
-                }
-            } else {
-                o
-            };
-            total += 1;
-            let exact = crate::analysis::map_point(&guide.grid, &guide.node_map, p, n, w);
-            assert_eq!(guide.map_point(p, n, w), exact, "at {p} n {n} w {w}");
-            if let Some(v) = guide.grid.voxel_at(p) {
-                fast += (guide.fast_map.uniform[v] != crate::analysis::UNDEFINED_NODE) as u32;
-            }
-        }
-        assert!(
-            fast * 10 > total,
-            "only {fast} of {total} points took the table"
-        );
     }
 
     #[test]
