@@ -167,10 +167,13 @@ fn chi2_and_albedo_of_the_bsdf_and_skeleton_mixture() {
             &grid,
             200 + k as u64,
             |rng| {
-                let Some(s) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &q, rng) else {
+                let Some(m) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &q, rng) else {
                     estimate.add(0.0);
                     return None;
                 };
+                let s = m.sample;
+                let own = bsdf.pdf(wo_local, s.wi);
+                assert!((m.bsdf_pdf - own).abs() <= 1e-4 * own, "{name}: BSDF pdf");
                 let w = frame.to_world(s.wi);
                 let expected = q.mixture_pdf(w, bsdf.pdf(wo_local, s.wi));
                 assert!(

@@ -7,6 +7,19 @@ use super::GuideQuery;
 use crate::math::{Frame, Rgb, Rng, Vec3};
 use crate::scene::{Bsdf, BsdfSample, Transport};
 
+/// A direction sampled by [`sample_bsdf_or_guide`].
+#[derive(Clone, Copy, Debug)]
+pub struct MixtureSample {
+    /// Local to the frame; `pdf` is the mixture's density.
+    pub sample: BsdfSample,
+    /// The BSDF's own density of the direction (BSDF sampling alone would have used it):
+    /// `f |cos| / bsdf_pdf` is the throughput BSDF sampling would carry, which is what Russian
+    /// roulette should look at. Guided directions have a smaller mixture throughput exactly
+    /// where they are more likely to lead to light; a roulette on it would end guided paths
+    /// because they were guided.
+    pub bsdf_pdf: f32,
+}
+
 /// Samples an incident direction at a surface for radiance transport: from `bsdf` (local to
 /// `frame`, outgoing direction `wo_local`), or with the query's guiding probability from its
 /// lobes. The sample is local to `frame` and its pdf is the mixture's (for a delta BSDF sample,
@@ -19,7 +32,7 @@ pub fn sample_bsdf_or_guide(
     frame: &Frame,
     query: &GuideQuery,
     rng: &mut Rng,
-) -> Option<BsdfSample> {
+) -> Option<MixtureSample> {
     let c = query.guiding_probability();
     if c > 0.0 && rng.uniform() < c {
         let (wi, _) = query.sample(rng.uniform(), rng.uniform2())?;
@@ -28,18 +41,26 @@ pub fn sample_bsdf_or_guide(
         if f == Rgb::ZERO {
             return None;
         }
-        let pdf = query.mixture_pdf(wi, bsdf.pdf(wo_local, wi_local));
-        return Some(BsdfSample {
-            wi: wi_local,
-            f,
-            pdf,
-            delta: false,
+        let bsdf_pdf = bsdf.pdf(wo_local, wi_local);
+        let pdf = query.mixture_pdf(wi, bsdf_pdf);
+        return Some(MixtureSample {
+            sample: BsdfSample {
+                wi: wi_local,
+                f,
+                pdf,
+                delta: false,
+            },
+            bsdf_pdf: if bsdf_pdf > 0.0 { bsdf_pdf } else { pdf },
         });
     }
     let uc = rng.uniform();
     let mut bs = bsdf.sample(wo_local, uc, rng.uniform2(), Transport::Radiance)?;
+    let bsdf_pdf = bs.pdf;
     if c > 0.0 && !bs.delta {
         bs.pdf = query.mixture_pdf(frame.to_world(bs.wi), bs.pdf);
     }
-    Some(bs)
+    Some(MixtureSample {
+        sample: bs,
+        bsdf_pdf,
+    })
 }

@@ -14,7 +14,7 @@
 mod mixture;
 mod skeleton;
 
-pub use mixture::sample_bsdf_or_guide;
+pub use mixture::{sample_bsdf_or_guide, MixtureSample};
 pub use skeleton::{
     GuideLobe, GuideQuery, ImportanceNode, SkeletonGuide, SkeletonGuideSettings, SkeletonStrength,
     DEFAULT_AUTO_MAX, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH, OPTION_NAMES,

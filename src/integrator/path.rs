@@ -155,6 +155,9 @@ impl Integrator for PathTracer {
         let mut out = PixelSample::default();
         let mut radiance = Rgb::ZERO;
         let mut beta = Rgb::ONE;
+        // The throughput BSDF sampling alone would carry, for Russian roulette (see
+        // `guide::MixtureSample::bsdf_pdf`); equal to `beta` when nothing is guided.
+        let mut rr_beta = Rgb::ONE;
         // State of the previous vertex, for MIS when a BSDF-sampled ray hits an emitter.
         let mut prev_delta = true;
         let mut prev_pdf = 0.0f32;
@@ -207,9 +210,10 @@ impl Integrator for PathTracer {
                     beta * self.sample_light(scene, &si, &bsdf, wo_local, &query, rng, counters);
             }
 
-            let Some(bs) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &query, rng) else {
+            let Some(ms) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &query, rng) else {
                 break;
             };
+            let bs = ms.sample;
             let wi = frame.to_world(bs.wi);
             // Reflections must leave on wo's side of the geometric surface, transmissions on
             // the other side; shading normals can disagree near silhouettes.
@@ -219,6 +223,7 @@ impl Integrator for PathTracer {
                 break;
             }
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
+            rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
             if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
                 break;
             }
@@ -229,11 +234,12 @@ impl Integrator for PathTracer {
             depth += 1;
 
             if depth >= self.settings.rr_start_depth {
-                let q = (1.0 - beta.max_element()).max(0.05);
+                let q = (1.0 - rr_beta.max_element()).max(0.05);
                 if rng.uniform() < q {
                     break;
                 }
                 beta /= 1.0 - q;
+                rr_beta /= 1.0 - q;
             }
         }
         out.radiance = radiance;
