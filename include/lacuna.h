@@ -924,7 +924,7 @@ lacuna_status lacuna_render_job_set_skeleton_resolution(struct lacuna_render_job
                                                         uint64_t voxel_budget);
 
 // `path_skeleton`: rays traced from the lights to find the importance nodes (>= 1, default
-// 65536), the most powerful importance nodes kept (>= 1, default 32), and the lobes per node
+// 16384), the most powerful importance nodes kept (>= 1, default 32), and the lobes per node
 // (1..=`LACUNA_SKELETON_MAX_LOBES`, default 4).
 lacuna_status lacuna_render_job_set_skeleton_importance(struct lacuna_render_job *job,
                                                         uint32_t light_rays,

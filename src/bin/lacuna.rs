@@ -100,7 +100,7 @@ struct SceneArgs {
     /// path_skeleton: most voxels in the analysis grid [default: 1048576].
     #[arg(long)]
     skel_voxel_budget: Option<u64>,
-    /// path_skeleton: rays traced from the lights to find the importance nodes [default: 65536].
+    /// path_skeleton: rays traced from the lights to find the importance nodes [default: 16384].
     #[arg(long)]
     skel_light_rays: Option<u32>,
     /// path_skeleton: lobes per skeleton node, 1..=8 [default: 4].

@@ -538,7 +538,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_skeleton_resolution(
 }
 
 /// `path_skeleton`: rays traced from the lights to find the importance nodes (>= 1, default
-/// 65536), the most powerful importance nodes kept (>= 1, default 32), and the lobes per node
+/// 16384), the most powerful importance nodes kept (>= 1, default 32), and the lobes per node
 /// (1..=`LACUNA_SKELETON_MAX_LOBES`, default 4).
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_set_skeleton_importance(

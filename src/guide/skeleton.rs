@@ -19,7 +19,7 @@
 //!    close as it gets), the `max_lobes` largest kept and normalised (eq. 165); and the
 //!    **skeleton importance point** (eq. 162): the centre of mass of the longest prefix of the
 //!    shortest path from `n_k` to `n_i` whose nodes are all visible from `n_k` (one shadow ray
-//!    per prefix node). The smallest maximal-ball radius along that prefix is kept for the
+//!    per prefix node), at most `MAX_PREFIX` nodes long (our bound on its cost). The smallest maximal-ball radius along that prefix is kept for the
 //!    automatic strength.
 //!
 //! # Query ([`GuideQuery`])
@@ -184,7 +184,7 @@ impl Default for SkeletonGuideSettings {
                 max: DEFAULT_AUTO_MAX,
             },
             resolution: Resolution::VoxelBudget(DEFAULT_VOXEL_BUDGET),
-            light_rays: 1 << 16,
+            light_rays: 1 << 14,
             max_importance_nodes: 32,
             max_lobes: 4,
             visibility_test: true,
@@ -359,6 +359,12 @@ pub struct SkeletonGuide {
     timings: Vec<StageTime>,
     fingerprint: SceneFingerprint,
 }
+
+/// Longest visible prefix averaged into an importance point. Eq. 162 takes the whole visible
+/// prefix; in long open spaces (Sibenik's nave) that means hundreds of shadow rays per node and
+/// lobe (3 s of Sibenik's precomputation under load), while the nodes beyond the first few
+/// dozen only move the point further along the same line of sight.
+const MAX_PREFIX: u32 = 24;
 
 /// Seed of the light-tracing pass (the guide is a deterministic function of the scene).
 const LIGHT_TRACING_SEED: u64 = 0x5ce1_e70a;
@@ -714,7 +720,7 @@ fn node_lobes(
             let mut count = 1u32;
             let mut radius = node.radius;
             let mut current = k as u32;
-            while tree.next[current as usize] != u32::MAX {
+            while tree.next[current as usize] != u32::MAX && count < MAX_PREFIX {
                 current = tree.next[current as usize];
                 let n = &graph.nodes[current as usize];
                 if !visible(scene, from, n.position) {
