@@ -51,6 +51,12 @@
 // Largest maximum path depth accepted.
 #define LACUNA_MAX_DEPTH_LIMIT 1024
 
+// Largest skeleton strength accepted.
+#define LACUNA_SKELETON_MAX_STRENGTH 10000.0
+
+// Most lobes per skeleton node.
+#define LACUNA_SKELETON_MAX_LOBES 8
+
 // Largest number of light subpaths per iteration accepted.
 #define LACUNA_MAX_LIGHT_PATHS (1 << 28)
 
@@ -333,6 +339,13 @@ typedef struct lacuna_environment lacuna_environment;
 // function taking a `const lacuna_film*` may be called from any number of threads at once.
 typedef struct lacuna_film lacuna_film;
 
+// The skeleton sampling distribution at one surface point: initialise it at a point, then
+// sample directions and evaluate densities there.
+//
+// Single owner (`lacuna_guide_query_new`/`lacuna_guide_query_free`); keeps its guide alive.
+// Not thread-safe: give each worker thread its own query and reuse it from point to point.
+typedef struct lacuna_guide_query lacuna_guide_query;
+
 // A triangle mesh description: positions, optional normals and uvs, triangle indices and
 // material indices, each copied from the host's buffers when set (the host's buffers may be
 // freed right after the call).
@@ -366,6 +379,13 @@ typedef struct lacuna_scene lacuna_scene;
 // `lacuna_scene_builder_build`. Not thread-safe: one thread at a time may use a builder.
 // It keeps its context alive.
 typedef struct lacuna_scene_builder lacuna_scene_builder;
+
+// The skeleton guide of a scene (000 chapter 9): the skeleton of its empty space, importance
+// nodes found by light tracing, shortest paths and importance points.
+//
+// Refcounted (`lacuna_skeleton_guide_retain`/`_release`); keeps its scene alive. Immutable:
+// every function may be called from any number of threads at once.
+typedef struct lacuna_skeleton_guide lacuna_skeleton_guide;
 
 // Progress of a render: `user_data` as registered and the fraction done in [0, 1]. Return
 // false to cancel (the run then fails with `LACUNA_STATUS_CANCELLED`). Called on Lacuna's
@@ -460,7 +480,26 @@ typedef struct lacuna_render_stats {
     uint64_t samples;
     uint64_t rays;
     bool cancelled;
+    // Seconds the integrator's per-scene precomputation took before the render (the skeleton
+    // guide of `path_skeleton`; 0 for integrators that need none). Not part of `seconds`.
+    double precompute_seconds;
 } lacuna_render_stats;
+
+// Figures of a skeleton guide.
+typedef struct lacuna_skeleton_guide_info {
+    // Nodes of the filtered skeleton, and of the skeleton before filtering.
+    uint32_t nodes;
+    uint32_t raw_nodes;
+    // Importance nodes kept (the most powerful of those that received light).
+    uint32_t importance_nodes;
+    // Nodes with at least one lobe (a path to an importance node).
+    uint32_t guided_nodes;
+    // Analysis grid size in voxels.
+    uint32_t grid[3];
+    size_t memory_bytes;
+    // Wall-clock time of the whole precomputation.
+    double seconds;
+} lacuna_skeleton_guide_info;
 
 // A ray for the scene queries. The layout (32 bytes, 4-byte aligned) never changes with build
 // options. Fill it with `lacuna_ray_init()` then set the fields.
@@ -744,7 +783,8 @@ lacuna_status lacuna_render_job_run_reference(struct lacuna_render_job *job,
                                               struct lacuna_film **out_film,
                                               struct lacuna_image_errors *out_noise);
 
-// Runs each of the `integrator_count` integrators named in `integrators` for the same
+// Runs each of the `integrator_count` integrators named in `integrators` (names, or specs
+// `name:key=value:...` as `lacuna compare --integrators` takes them) for the same
 // wall-clock time `seconds_per_run` (> 0), `runs` times (>= 1), with the job's resolution,
 // seed, depth, MIS heuristic, threads and camera, measuring errors against `reference` (a film
 // of the job's resolution) after every pass; then writes the report into directory `out_dir`
@@ -939,11 +979,81 @@ lacuna_status lacuna_film_write_png(const struct lacuna_film *film,
                                     const char *path,
                                     float exposure);
 
+// Builds the skeleton guide of `scene` with the skeleton settings of `settings` (a render job
+// whose `lacuna_render_job_set_skeleton_*` setters chose them, or one a scene file configured;
+// NULL for the defaults). `progress` (may be NULL) is called between stages on the calling
+// thread; returning false cancels (`LACUNA_STATUS_CANCELLED`). Runs on the scene context's
+// worker threads. On success `*out_guide` receives a new reference. Thread-safe.
+lacuna_status lacuna_skeleton_guide_build(const struct lacuna_scene *scene,
+                                          const struct lacuna_render_job *settings,
+                                          lacuna_progress_callback progress,
+                                          void *user_data,
+                                          struct lacuna_skeleton_guide **out_guide);
+
+// Adds a reference. NULL is a no-op. Thread-safe.
+void lacuna_skeleton_guide_retain(const struct lacuna_skeleton_guide *guide);
+
+// Drops a reference; the last one frees the guide. NULL is a no-op. Thread-safe.
+void lacuna_skeleton_guide_release(const struct lacuna_skeleton_guide *guide);
+
+// Writes the guide's figures to `*out_info`. Thread-safe.
+lacuna_status lacuna_skeleton_guide_get_info(const struct lacuna_skeleton_guide *guide,
+                                             struct lacuna_skeleton_guide_info *out_info);
+
+// Creates a query on `guide` (kept alive by the query), unguided until initialised.
+// Thread-safe.
+lacuna_status lacuna_guide_query_new(const struct lacuna_skeleton_guide *guide,
+                                     struct lacuna_guide_query **out_query);
+
+// Frees a query. NULL is a no-op.
+void lacuna_guide_query_free(struct lacuna_guide_query *query);
+
+// Sets the query up at surface point `position` with geometric normal `normal` (non-zero,
+// either orientation) and incident direction `incident` (non-zero, pointing from the point
+// back to where the path came from). `*out_guided` (may be NULL) says whether any skeleton
+// lobe applies there; where none does (no path to light along the skeleton, every importance
+// point below the surface or hidden from the point), sample the BSDF alone. Do not guide at
+// delta BSDFs (perfect mirrors and glass): no mixture with a Dirac lobe has a density.
+lacuna_status lacuna_guide_query_init(struct lacuna_guide_query *query,
+                                      struct lacuna_vec3 position,
+                                      struct lacuna_vec3 normal,
+                                      struct lacuna_vec3 incident,
+                                      bool *out_guided);
+
+// Probability of sampling the skeleton instead of the BSDF at the current point: the
+// guide's `c_skel` where the query is guided, 0 elsewhere (and before any init). A host's
+// one-sample MIS draws the skeleton with this probability `c` and the BSDF otherwise, and
+// divides by `c * p_skel + (1 - c) * p_bsdf` whichever it drew (000 eq. 168-170).
+lacuna_status lacuna_guide_query_guiding_probability(const struct lacuna_guide_query *query,
+                                                     float *out_probability);
+
+// Samples the skeleton mixture at the current point from the host's random numbers `u0`
+// (picks a lobe), `u1`, `u2` (the direction in it), each in [0, 1): writes the unit direction
+// and its solid-angle density under the whole mixture (the value
+// `lacuna_guide_query_pdf` gives). `LACUNA_STATUS_INVALID_OPERATION` when the query is not
+// guided at its point.
+lacuna_status lacuna_guide_query_sample(const struct lacuna_guide_query *query,
+                                        float u0,
+                                        float u1,
+                                        float u2,
+                                        struct lacuna_vec3 *out_direction,
+                                        float *out_pdf);
+
+// Solid-angle density of the skeleton mixture at the current point in direction `direction`
+// (non-zero; normalised here): 0 where no lobe reaches, and 0 everywhere when not guided.
+lacuna_status lacuna_guide_query_pdf(const struct lacuna_guide_query *query,
+                                     struct lacuna_vec3 direction,
+                                     float *out_pdf);
+
 // Creates a render job of `scene` (kept alive by the job) with the integrator named
-// `integrator` (`"path"` or `"bdpt"`; NULL for the scene file's integrator or `"path"`).
-// Defaults: the scene file's render settings when the scene came from one, else 512x512, 16
-// samples per pixel, seed 0, max depth 8, power heuristic, the context's thread count; the
-// scene's camera, or one framing the scene when it has none. Thread-safe.
+// `integrator` (`"path"`, `"path_skeleton"`, `"bdpt"`, `"env_direct"`, optionally with
+// options as `NAME:KEY=VALUE...`; NULL for the scene file's integrator or `"path"`).
+// Integrators with a per-scene precomputation (`path_skeleton`'s skeleton guide) run it at
+// the start of every run, on the job's threads; its time is reported in
+// `lacuna_render_stats::precompute_seconds`. Defaults: the scene file's render settings when
+// the scene came from one, else 512x512, 16 samples per pixel, seed 0, max depth 8, power
+// heuristic, the context's thread count; the scene's camera, or one framing the scene when it
+// has none. Thread-safe.
 lacuna_status lacuna_render_job_new(const struct lacuna_scene *scene,
                                     const char *integrator,
                                     struct lacuna_render_job **out_job);
@@ -981,6 +1091,43 @@ lacuna_status lacuna_render_job_set_thread_count(struct lacuna_render_job *job,
 // Sets the MIS heuristic: a `lacuna_mis_heuristic` value.
 lacuna_status lacuna_render_job_set_mis_heuristic(struct lacuna_render_job *job,
                                                   uint32_t heuristic);
+
+// `path_skeleton`: probability `c_skel` of sampling the skeleton lobes instead of the BSDF at
+// a guided point, in [0, 1) (default 0.5).
+lacuna_status lacuna_render_job_set_skeleton_probability(struct lacuna_render_job *job,
+                                                         float c_skel);
+
+// `path_skeleton`: one fixed skeleton strength (power-cosine exponent) `strength` in
+// [0, `LACUNA_SKELETON_MAX_STRENGTH`] for every lobe, as in the thesis.
+lacuna_status lacuna_render_job_set_skeleton_strength(struct lacuna_render_job *job,
+                                                      float strength);
+
+// `path_skeleton`: the automatic skeleton strength (the default, with `max_strength` 64):
+// per point and lobe, the exponent whose half-maximum angle is the angle under which the
+// narrowest free space on the way to the importance point is seen, clamped to
+// [1, `max_strength`]; `max_strength` in [1, `LACUNA_SKELETON_MAX_STRENGTH`].
+lacuna_status lacuna_render_job_set_skeleton_strength_auto(struct lacuna_render_job *job,
+                                                           float max_strength);
+
+// `path_skeleton`: resolution of the skeleton's analysis grid: `longest_axis_voxels`
+// (4..=4096) voxels along the longest side of the scene bounds, or, when that is 0, at most
+// `voxel_budget` voxels (64..=2^31; the default is a budget of 2^20).
+lacuna_status lacuna_render_job_set_skeleton_resolution(struct lacuna_render_job *job,
+                                                        uint32_t longest_axis_voxels,
+                                                        uint64_t voxel_budget);
+
+// `path_skeleton`: rays traced from the lights to find the importance nodes (>= 1, default
+// 16384), the most powerful importance nodes kept (>= 1, default 32), and the lobes per node
+// (1..=`LACUNA_SKELETON_MAX_LOBES`, default 4).
+lacuna_status lacuna_render_job_set_skeleton_importance(struct lacuna_render_job *job,
+                                                        uint32_t light_rays,
+                                                        uint32_t importance_nodes,
+                                                        uint32_t lobes_per_node);
+
+// `path_skeleton`: whether a lobe whose importance point is hidden from the shading point is
+// dropped there (one shadow ray per lobe and point; default true).
+lacuna_status lacuna_render_job_set_skeleton_visibility_test(struct lacuna_render_job *job,
+                                                             bool enabled);
 
 // Sets the job's camera (overriding the scene's): pinhole at `eye` looking at `target`, with
 // `up` and a vertical field of view in (0, 180) degrees.

@@ -9,6 +9,7 @@ pub mod compare;
 pub mod error;
 pub mod film;
 pub mod geometry;
+pub mod guide;
 pub mod integrator;
 pub mod light;
 pub mod math;

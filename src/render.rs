@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::film::Film;
-use crate::integrator::{Integrator, SampleContext, TraceCounters, View};
+use crate::integrator::{Integrator, Precomputation, SampleContext, TraceCounters, View};
 use crate::math::{Rgb, Rng, Vec2};
 use crate::scene::{Camera, Scene};
 
@@ -92,6 +92,9 @@ pub struct RenderStats {
     pub rays: u64,
     pub passes: u32,
     pub cancelled: bool,
+    /// The integrator's per-scene precomputation before this render ([`prepare`]): not part
+    /// of `seconds`; left 0 by `render`, filled in by the caller that ran it.
+    pub precompute_seconds: f64,
 }
 
 impl RenderStats {
@@ -132,6 +135,25 @@ pub fn render(
             &mut |_, _| {},
         )
     })
+}
+
+/// Runs the integrator's per-scene precomputation ([`Integrator::prepare`]) on `threads`
+/// worker threads (`None`: all cores), as the render would use them. Cheap for integrators
+/// that need nothing.
+pub fn prepare(
+    integrator: &mut dyn Integrator,
+    scene: &Scene,
+    threads: Option<usize>,
+    progress: &(dyn Fn(&str, f64) -> bool + Sync),
+) -> Result<Precomputation> {
+    if threads == Some(0) {
+        return Err(Error::invalid("thread count must be at least 1"));
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.unwrap_or(0))
+        .build()
+        .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
+    pool.install(|| integrator.prepare(scene, progress))
 }
 
 /// What an observer learns after each completed pass.
@@ -177,6 +199,7 @@ fn render_in_pool(
     cancel: &AtomicBool,
     on_pass: &mut (dyn FnMut(&Film, PassReport) + Send),
 ) -> Result<(Film, RenderStats)> {
+    integrator.check_prepared(scene)?;
     let (w, h) = (settings.width, settings.height);
     let view = View {
         frame: camera.frame(w as f32 / h as f32),

@@ -2,91 +2,19 @@
 //! means within their measured error, on scenes with area, point, spot and directional lights,
 //! glossy, mirror and glass surfaces; and never produce NaN.
 
+mod common;
+
 use std::sync::atomic::AtomicBool;
 
+use common::agreement::{assert_agree, box_scene, region_means};
 use lacuna::integrator::{
     self, strategy_layer_name, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter,
 };
-use lacuna::light::LightDesc;
 use lacuna::math::{Rgb, Vec3};
 use lacuna::render::{render, RenderSettings};
 use lacuna::scene::{
     load_scene_file, two_rooms_builder, Camera, Material, MeshDesc, Scene, SceneBuilder,
 };
-
-/// Means of the whole image and of its four quadrants, with standard errors over seeds.
-fn region_means(
-    scene: &Scene,
-    camera: &Camera,
-    name: &str,
-    settings: IntegratorSettings,
-    size: u32,
-    spp: u32,
-    seeds: u64,
-) -> Vec<(f64, f64)> {
-    let integrator = integrator::create(name, settings).unwrap();
-    let runs: Vec<Vec<f64>> = (0..seeds)
-        .map(|seed| {
-            let rs = RenderSettings {
-                width: size,
-                height: size,
-                spp,
-                seed: seed * 7919 + 1,
-                ..Default::default()
-            };
-            let (film, _) = render(
-                scene,
-                camera,
-                integrator.as_ref(),
-                &rs,
-                &|_| true,
-                &AtomicBool::new(false),
-            )
-            .unwrap();
-            let px = film.radiance();
-            for p in &px {
-                assert!(p.is_finite() && p.min_element() >= 0.0, "{name}: pixel {p}");
-            }
-            let mut sums = [0.0f64; 5];
-            let h = size / 2;
-            for y in 0..size {
-                for x in 0..size {
-                    let v = px[(y * size + x) as usize].element_sum() as f64 / 3.0;
-                    sums[0] += v;
-                    sums[1 + (y / h * 2 + x / h) as usize] += v;
-                }
-            }
-            let n = (size * size) as f64;
-            vec![
-                sums[0] / n,
-                sums[1] * 4.0 / n,
-                sums[2] * 4.0 / n,
-                sums[3] * 4.0 / n,
-                sums[4] * 4.0 / n,
-            ]
-        })
-        .collect();
-    (0..5)
-        .map(|k| {
-            let xs: Vec<f64> = runs.iter().map(|r| r[k]).collect();
-            let n = xs.len() as f64;
-            let mean = xs.iter().sum::<f64>() / n;
-            let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-            (mean, (var / n).sqrt())
-        })
-        .collect()
-}
-
-/// z-test of every region mean at 4.5 sigma (Bonferroni-safe over the regions and scenes).
-fn assert_agree(label: &str, a: &[(f64, f64)], b: &[(f64, f64)]) {
-    for (k, ((ma, ea), (mb, eb))) in a.iter().zip(b).enumerate() {
-        let sigma = (ea * ea + eb * eb).sqrt();
-        assert!(
-            (ma - mb).abs() <= 4.5 * sigma + 1e-6 * ma.abs().max(mb.abs()),
-            "{label} region {k}: path {ma} +- {ea}, bdpt {mb} +- {eb}"
-        );
-    }
-}
 
 fn compare(
     label: &str,
@@ -99,7 +27,7 @@ fn compare(
     let path = region_means(scene, camera, "path", settings, size, spp, 8);
     let bdpt = region_means(scene, camera, "bdpt", settings, size, spp, 8);
     assert!(path[0].0 > 0.0, "{label}: black image");
-    assert_agree(label, &path, &bdpt);
+    assert_agree(label, ("path", &path), ("bdpt", &bdpt));
 }
 
 #[test]
@@ -151,7 +79,11 @@ fn bdpt_agrees_with_path_for_any_number_of_light_subpaths() {
             8,
             8,
         );
-        assert_agree(&format!("cornell, {n} light subpaths"), &reference, &bdpt);
+        assert_agree(
+            &format!("cornell, {n} light subpaths"),
+            ("path", &reference),
+            ("bdpt", &bdpt),
+        );
     }
 }
 
@@ -189,7 +121,7 @@ fn bdpt_connecting_to_every_light_subpath_agrees_with_path() {
             (m, (var / n).sqrt())
         })
         .collect();
-    assert_agree("all light subpaths", &path, &bdpt);
+    assert_agree("all light subpaths", ("path", &path), ("bdpt", &bdpt));
 }
 
 #[test]
@@ -207,123 +139,6 @@ fn bdpt_agrees_with_path_on_the_two_rooms() {
         20,
         16,
     );
-}
-
-/// A box open at the top with glossy (exponent 50 and 1e4), mirror and glass surfaces, a small
-/// area light, and optionally point, spot and directional lights.
-fn box_scene(delta_bsdfs: bool, area_light: bool, delta_lights: bool) -> (Scene, Camera) {
-    let mut b = SceneBuilder::new();
-    let wall = b
-        .add_material(Material::diffuse(Rgb::new(0.7, 0.6, 0.5)))
-        .unwrap();
-    let glossy = b
-        .add_material(Material::glossy(Rgb::splat(0.3), Rgb::splat(0.5), 50.0))
-        .unwrap();
-    let sharp = b
-        .add_material(Material::glossy(Rgb::splat(0.2), Rgb::splat(0.7), 1e4))
-        .unwrap();
-    let mirror = b.add_material(Material::mirror(Rgb::splat(0.9))).unwrap();
-    let glass = b.add_material(Material::dielectric(1.5)).unwrap();
-    let light = b
-        .add_material(Material::emissive(Rgb::splat(15.0)))
-        .unwrap();
-    let quad = |b: &mut SceneBuilder, p: [Vec3; 4], m: u32| {
-        b.add_mesh(MeshDesc {
-            positions: p.to_vec(),
-            indices: vec![[0, 1, 2], [0, 2, 3]],
-            materials: vec![m],
-            ..Default::default()
-        })
-        .unwrap();
-    };
-    let v = Vec3::new;
-    quad(
-        &mut b,
-        [
-            v(-1., -1., -1.),
-            v(-1., -1., 1.),
-            v(1., -1., 1.),
-            v(1., -1., -1.),
-        ],
-        glossy,
-    );
-    quad(
-        &mut b,
-        [
-            v(-1., -1., -1.),
-            v(1., -1., -1.),
-            v(1., 1., -1.),
-            v(-1., 1., -1.),
-        ],
-        wall,
-    );
-    quad(
-        &mut b,
-        [
-            v(-1., -1., -1.),
-            v(-1., 1., -1.),
-            v(-1., 1., 1.),
-            v(-1., -1., 1.),
-        ],
-        if delta_bsdfs { mirror } else { wall },
-    );
-    quad(
-        &mut b,
-        [
-            v(1., -1., -1.),
-            v(1., -1., 1.),
-            v(1., 1., 1.),
-            v(1., 1., -1.),
-        ],
-        sharp,
-    );
-    if delta_bsdfs {
-        quad(
-            &mut b,
-            [
-                v(-0.3, -0.2, -0.3),
-                v(0.3, -0.2, -0.3),
-                v(0.3, -0.2, 0.3),
-                v(-0.3, -0.2, 0.3),
-            ],
-            glass,
-        );
-    }
-    if area_light {
-        quad(
-            &mut b,
-            [
-                v(-0.2, 0.9, -0.5),
-                v(0.2, 0.9, -0.5),
-                v(0.2, 0.9, -0.1),
-                v(-0.2, 0.9, -0.1),
-            ],
-            light,
-        );
-    }
-    if delta_lights {
-        b.add_light(LightDesc::Point {
-            position: v(0.5, 0.5, 0.0),
-            intensity: Rgb::splat(2.0),
-        })
-        .unwrap();
-        b.add_light(LightDesc::Spot {
-            position: v(-0.5, 0.8, 0.5),
-            direction: v(0.2, -1.0, -0.3),
-            intensity: Rgb::splat(4.0),
-            inner_degrees: 15.0,
-            outer_degrees: 35.0,
-        })
-        .unwrap();
-        b.add_light(LightDesc::Directional {
-            direction: v(0.3, -1.0, -0.2),
-            irradiance: Rgb::splat(1.5),
-        })
-        .unwrap();
-    }
-    let scene = b.build().unwrap();
-    let camera = Camera::look_at(v(0.0, 0.2, 3.0), v(0.0, -0.2, 0.0), Vec3::Y, 50.0).unwrap();
-    (scene, camera)
 }
 
 /// Glossy, mirror and glass surfaces under an area light: the path tracer reaches every path
@@ -598,8 +413,8 @@ fn each_strategy_alone_is_unbiased() {
             if segments <= 3 {
                 assert_agree(
                     &format!("{label}: ({segments},1) vs (1,{segments}) on blocks"),
-                    &blocks(1, segments),
-                    &blocks(segments, 1),
+                    ("(1,t)", &blocks(1, segments)),
+                    ("(s,1)", &blocks(segments, 1)),
                 );
             }
             // The weighted strategies of this length sum to the same total.

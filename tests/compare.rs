@@ -107,7 +107,7 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
     let reference =
         render_reference(&scene, &camera, path().as_ref(), &settings, &|_| true).unwrap();
     assert!(reference.noise.mae > 0.0);
-    let contenders = vec![
+    let mut contenders = vec![
         Contender {
             label: "path".into(),
             integrator: path(),
@@ -132,7 +132,7 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
     let cmp = compare(
         &scene,
         &camera,
-        &contenders,
+        &mut contenders,
         &ref_pixels,
         Some(reference.noise),
         &settings,

@@ -123,6 +123,32 @@ struct SceneArgs {
     /// distance from eye to target].
     #[arg(long)]
     focus_distance: Option<f32>,
+    /// path_skeleton: probability c_skel of sampling the skeleton lobes instead of the BSDF,
+    /// in [0, 1) [default: 0.5].
+    #[arg(long)]
+    c_skel: Option<f32>,
+    /// path_skeleton: skeleton strength s (power-cosine exponent): a number >= 0, `auto`
+    /// (per point, from the free-space radius and the distance to the importance point) or
+    /// `auto:MAX` [default: auto:64].
+    #[arg(long)]
+    skel_strength: Option<String>,
+    /// path_skeleton: analysis voxels along the longest axis of the scene [default: a budget
+    /// of 2^20 voxels, see --skel-voxel-budget].
+    #[arg(long, conflicts_with = "skel_voxel_budget")]
+    skel_resolution: Option<u32>,
+    /// path_skeleton: most voxels in the analysis grid [default: 1048576].
+    #[arg(long)]
+    skel_voxel_budget: Option<u64>,
+    /// path_skeleton: rays traced from the lights to find the importance nodes [default: 16384].
+    #[arg(long)]
+    skel_light_rays: Option<u32>,
+    /// path_skeleton: lobes per skeleton node, 1..=8 [default: 4].
+    #[arg(long)]
+    skel_lobes: Option<u32>,
+    /// path_skeleton: keep lobes whose importance point is hidden from the shading point
+    /// (saves one shadow ray per lobe and point).
+    #[arg(long)]
+    skel_no_visibility: bool,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -135,8 +161,10 @@ struct SceneArgs {
 struct RenderArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Integrator (available: path, bdpt, env_direct), with options as NAME:KEY=VALUE...
-    /// (env=STRATEGY; env_direct also samples=N, bsdf=N) [default: path, or the scene file's].
+    /// Integrator (available: path, path_skeleton, bdpt, env_direct), with options as
+    /// NAME:KEY=VALUE... (max_depth, mis, env=STRATEGY; env_direct also samples=N, bsdf=N;
+    /// path_skeleton its guide options, see `compare --integrators`) [default: path, or the
+    /// scene file's].
     #[arg(long)]
     integrator: Option<String>,
     /// Samples per pixel [default: 16, or the scene file's].
@@ -189,7 +217,10 @@ struct ReferenceArgs {
 struct CompareArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Comma-separated integrator names; the first is the baseline.
+    /// Comma-separated integrator names; the first is the baseline. A name may carry options
+    /// that override the command line's for that contender, as `name:key=value:...`: `max_depth`,
+    /// `mis`, and for path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
+    /// `importance_nodes`, `lobes`, `visibility` (e.g. `path,path_skeleton:strength=16,path_skeleton`).
     #[arg(long, default_value = "path")]
     integrators: String,
     /// Seconds per integrator per run.
@@ -429,10 +460,31 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     if let Some(n) = args.env_bsdf_samples {
         integrator.env_bsdf_samples = n;
     }
-    integrator.max_depth = args
-        .max_depth
-        .or(file.max_depth)
-        .unwrap_or(integrator.max_depth);
+    integrator.apply_file(&file)?;
+    if let Some(d) = args.max_depth {
+        integrator.max_depth = d;
+    }
+    let skel = &mut integrator.skeleton;
+    let options = [
+        ("c_skel", args.c_skel.map(|v| v.to_string())),
+        ("strength", args.skel_strength.clone()),
+        ("resolution", args.skel_resolution.map(|v| v.to_string())),
+        (
+            "voxel_budget",
+            args.skel_voxel_budget.map(|v| v.to_string()),
+        ),
+        ("light_rays", args.skel_light_rays.map(|v| v.to_string())),
+        ("lobes", args.skel_lobes.map(|v| v.to_string())),
+        (
+            "visibility",
+            args.skel_no_visibility.then(|| "false".to_string()),
+        ),
+    ];
+    for (key, value) in options {
+        if let Some(value) = value {
+            skel.set(key, &value)?;
+        }
+    }
     let aspect = render.width as f32 / render.height.max(1) as f32;
     let mut camera = scene
         .camera()
@@ -568,7 +620,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         .clone()
         .or(prep.file_integrator.clone())
         .unwrap_or_else(|| "path".into());
-    let integrator: Box<dyn integrator::Integrator> = if args.strategy.is_none()
+    let mut integrator: Box<dyn integrator::Integrator> = if args.strategy.is_none()
         && args.strategy_images.is_none()
     {
         integrator::create(&name, prep.integrator)?
@@ -601,6 +653,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         }
         Box::new(bdpt)
     };
+    let precomputation = prepare_integrator(integrator.as_mut(), &prep)?;
     let bar = ProgressBar::new(args.scene.quiet);
     let (film, stats) = render(
         &prep.scene,
@@ -616,7 +669,11 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         .with("integrator", &name)
         .with("max_depth", prep.integrator.max_depth)
         .with("scene", &prep.label)
-        .with("seconds", format!("{:.3}", stats.seconds));
+        .with("seconds", format!("{:.3}", stats.seconds))
+        .with(
+            "precompute_seconds",
+            format!("{:.3}", precomputation.seconds()),
+        );
     write_film(&film, &args.out, args.exposure, &meta)?;
     if let Some(dir) = &args.strategy_images {
         write_strategy_images(&film, dir, args.exposure, &meta)?;
@@ -673,6 +730,32 @@ fn write_strategy_images(film: &Film, dir: &Path, exposure: f32, meta: &ExrMetad
     Ok(())
 }
 
+/// Runs the integrator's per-scene precomputation and prints its stages (nothing when there
+/// is none).
+fn prepare_integrator(
+    integrator: &mut dyn integrator::Integrator,
+    prep: &Prepared,
+) -> Result<integrator::Precomputation> {
+    let pre = lacuna::render::prepare(integrator, &prep.scene, prep.render.threads, &|_, _| true)?;
+    if !pre.stages.is_empty() {
+        let stages: Vec<String> = pre
+            .stages
+            .iter()
+            .map(|s| format!("{} {:.3} s", s.stage, s.seconds))
+            .collect();
+        println!(
+            "{}: precomputation {:.3} s ({})",
+            integrator.name(),
+            pre.seconds(),
+            stages.join(", ")
+        );
+        for note in &pre.notes {
+            println!("{}: {note}", integrator.name());
+        }
+    }
+    Ok(pre)
+}
+
 fn write_film(film: &Film, out: &Path, exposure: f32, meta: &ExrMetadata) -> Result<()> {
     ensure_parent(out)?;
     match out
@@ -694,7 +777,8 @@ fn run_reference(args: &ReferenceArgs) -> Result<()> {
     let mut prep = prepare(&args.scene)?;
     prep.render.spp = args.spp;
     let name = args.integrator.clone().unwrap_or_else(|| "path".into());
-    let integrator = integrator::create(&name, prep.integrator)?;
+    let mut integrator = integrator::create(&name, prep.integrator)?;
+    prepare_integrator(integrator.as_mut(), &prep)?;
     let bar = ProgressBar::new(args.scene.quiet);
     let reference = render_reference(
         &prep.scene,
@@ -777,7 +861,7 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
         .map(str::trim)
         .filter(|s| !s.is_empty())
         .collect();
-    let contenders = names
+    let mut contenders = names
         .iter()
         .map(|n| {
             Ok(Contender {
@@ -797,7 +881,7 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
     let cmp = compare(
         &prep.scene,
         &prep.camera,
-        &contenders,
+        &mut contenders,
         &reference.pixels,
         noise,
         &prep.render,

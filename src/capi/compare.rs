@@ -30,18 +30,20 @@ pub unsafe extern "C" fn lacuna_render_job_run_reference(
         let j = unsafe { arg(job.cast_const(), "job") }?;
         call.context(&j.scene.ctx);
         let out = out_ptr(out_film, "out_film")?;
-        let (_guard, p) = j.start()?;
+        let (_guard, mut p) = j.start()?;
+        let precompute_seconds = j.prepare(&mut p)?;
         let last = Mutex::new(0.0);
         let progress = j.progress_fn(p.settings.progress, &last);
         let mut settings = p.settings.render.clone();
         settings.time_limit = None;
-        let reference = render_reference(
+        let mut reference = render_reference(
             &j.scene.scene,
             &p.camera,
             p.integrator.as_ref(),
             &settings,
             &progress,
         )?;
+        reference.stats.precompute_seconds = precompute_seconds;
         j.set_last_stats(reference.stats);
         let n = reference.noise;
         let meta = j
@@ -67,7 +69,8 @@ pub unsafe extern "C" fn lacuna_render_job_run_reference(
     })
 }
 
-/// Runs each of the `integrator_count` integrators named in `integrators` for the same
+/// Runs each of the `integrator_count` integrators named in `integrators` (names, or specs
+/// `name:key=value:...` as `lacuna compare --integrators` takes them) for the same
 /// wall-clock time `seconds_per_run` (> 0), `runs` times (>= 1), with the job's resolution,
 /// seed, depth, MIS heuristic, threads and camera, measuring errors against `reference` (a film
 /// of the job's resolution) after every pass; then writes the report into directory `out_dir`
@@ -115,7 +118,7 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
                 r.film.height()
             )));
         }
-        let contenders = names
+        let mut contenders = names
             .iter()
             .enumerate()
             .map(|(i, &n)| {
@@ -143,7 +146,7 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
         let cmp = compare(
             &j.scene.scene,
             &p.camera,
-            &contenders,
+            &mut contenders,
             &pixels,
             noise,
             &settings,

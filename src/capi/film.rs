@@ -34,6 +34,7 @@ pub(crate) fn stats_to_c(s: &RenderStats) -> lacuna_render_stats {
         samples: s.samples,
         rays: s.rays,
         cancelled: s.cancelled,
+        precompute_seconds: s.precompute_seconds,
     }
 }
 

@@ -14,6 +14,7 @@ use super::scene::lacuna_scene;
 use super::types::*;
 use crate::error::Error;
 use crate::film::{ExrMetadata, Film};
+use crate::guide::SkeletonStrength;
 use crate::integrator::{self, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter};
 use crate::render::{Progress, RenderSettings, RenderStats};
 use crate::scene::{auto_camera, Camera};
@@ -192,6 +193,29 @@ impl lacuna_render_job {
         }
     }
 
+    /// Runs the integrator's per-scene precomputation on the job's threads and returns its
+    /// seconds; a cancel request stops it between stages.
+    pub(crate) fn prepare(&self, p: &mut Prepared) -> CapiResult<f64> {
+        let start = std::time::Instant::now();
+        let pre = crate::render::prepare(
+            p.integrator.as_mut(),
+            &self.scene.scene,
+            p.settings.render.threads,
+            &|_, _| !self.cancel.load(Ordering::Relaxed),
+        )?;
+        // Wall-clock time, stage bookkeeping included; none for integrators needing nothing.
+        Ok(if pre.stages.is_empty() {
+            0.0
+        } else {
+            start.elapsed().as_secs_f64()
+        })
+    }
+
+    /// The job's skeleton guide settings.
+    pub(crate) fn skeleton_settings(&self) -> crate::guide::SkeletonGuideSettings {
+        lock(&self.settings).integrator_settings.skeleton
+    }
+
     pub(crate) fn set_last_stats(&self, stats: RenderStats) {
         *lock(&self.last_stats) = Some(stats);
     }
@@ -222,10 +246,14 @@ impl lacuna_render_job {
 }
 
 /// Creates a render job of `scene` (kept alive by the job) with the integrator named
-/// `integrator` (`"path"` or `"bdpt"`; NULL for the scene file's integrator or `"path"`).
-/// Defaults: the scene file's render settings when the scene came from one, else 512x512, 16
-/// samples per pixel, seed 0, max depth 8, power heuristic, the context's thread count; the
-/// scene's camera, or one framing the scene when it has none. Thread-safe.
+/// `integrator` (`"path"`, `"path_skeleton"`, `"bdpt"`, `"env_direct"`, optionally with
+/// options as `NAME:KEY=VALUE...`; NULL for the scene file's integrator or `"path"`).
+/// Integrators with a per-scene precomputation (`path_skeleton`'s skeleton guide) run it at
+/// the start of every run, on the job's threads; its time is reported in
+/// `lacuna_render_stats::precompute_seconds`. Defaults: the scene file's render settings when
+/// the scene came from one, else 512x512, 16 samples per pixel, seed 0, max depth 8, power
+/// heuristic, the context's thread count; the scene's camera, or one framing the scene when it
+/// has none. Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_new(
     scene: *const lacuna_scene,
@@ -247,9 +275,7 @@ pub unsafe extern "C" fn lacuna_render_job_new(
             unsafe { str_arg(integrator, "integrator") }?.to_string()
         };
         let mut integ = IntegratorSettings::default();
-        if let Some(d) = file.max_depth {
-            integ.max_depth = d;
-        }
+        integ.apply_file(file)?;
         integrator::create(&name, integ)?;
         let mut render = RenderSettings::default();
         if let Some(w) = file.width {
@@ -479,6 +505,132 @@ pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
     }
 }
 
+/// `path_skeleton`: probability `c_skel` of sampling the skeleton lobes instead of the BSDF at
+/// a guided point, in [0, 1) (default 0.5).
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_skeleton_probability(
+    job: *mut lacuna_render_job,
+    c_skel: f32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_skeleton_probability", job, |s| {
+            s.integrator_settings
+                .skeleton
+                .set("c_skel", &c_skel.to_string())?;
+            Ok(())
+        })
+    }
+}
+
+/// `path_skeleton`: one fixed skeleton strength (power-cosine exponent) `strength` in
+/// [0, `LACUNA_SKELETON_MAX_STRENGTH`] for every lobe, as in the thesis.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_skeleton_strength(
+    job: *mut lacuna_render_job,
+    strength: f32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_skeleton_strength", job, |s| {
+            let fixed = SkeletonStrength::Fixed(strength);
+            fixed.validate()?;
+            s.integrator_settings.skeleton.strength = fixed;
+            Ok(())
+        })
+    }
+}
+
+/// `path_skeleton`: the automatic skeleton strength (the default, with `max_strength` 64):
+/// per point and lobe, the exponent whose half-maximum angle is the angle under which the
+/// narrowest free space on the way to the importance point is seen, clamped to
+/// [1, `max_strength`]; `max_strength` in [1, `LACUNA_SKELETON_MAX_STRENGTH`].
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_skeleton_strength_auto(
+    job: *mut lacuna_render_job,
+    max_strength: f32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_skeleton_strength_auto", job, |s| {
+            let auto = SkeletonStrength::Auto { max: max_strength };
+            auto.validate()?;
+            s.integrator_settings.skeleton.strength = auto;
+            Ok(())
+        })
+    }
+}
+
+/// `path_skeleton`: resolution of the skeleton's analysis grid: `longest_axis_voxels`
+/// (4..=4096) voxels along the longest side of the scene bounds, or, when that is 0, at most
+/// `voxel_budget` voxels (64..=2^31; the default is a budget of 2^20).
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_skeleton_resolution(
+    job: *mut lacuna_render_job,
+    longest_axis_voxels: u32,
+    voxel_budget: u64,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_skeleton_resolution", job, |s| {
+            let sk = &mut s.integrator_settings.skeleton;
+            if longest_axis_voxels > 0 {
+                sk.set("resolution", &longest_axis_voxels.to_string())?;
+            } else {
+                sk.set("voxel_budget", &voxel_budget.to_string())?;
+            }
+            Ok(())
+        })
+    }
+}
+
+/// `path_skeleton`: rays traced from the lights to find the importance nodes (>= 1, default
+/// 16384), the most powerful importance nodes kept (>= 1, default 32), and the lobes per node
+/// (1..=`LACUNA_SKELETON_MAX_LOBES`, default 4).
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_skeleton_importance(
+    job: *mut lacuna_render_job,
+    light_rays: u32,
+    importance_nodes: u32,
+    lobes_per_node: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_skeleton_importance", job, |s| {
+            let sk = &mut s.integrator_settings.skeleton;
+            sk.set("light_rays", &light_rays.to_string())?;
+            sk.set("importance_nodes", &importance_nodes.to_string())?;
+            sk.set("lobes", &lobes_per_node.to_string())?;
+            Ok(())
+        })
+    }
+}
+
+/// `path_skeleton`: whether a lobe whose importance point is hidden from the shading point is
+/// dropped there (one shadow ray per lobe and point; default true).
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_skeleton_visibility_test(
+    job: *mut lacuna_render_job,
+    enabled: bool,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_skeleton_visibility_test", job, |s| {
+            s.integrator_settings.skeleton.visibility_test = enabled;
+            Ok(())
+        })
+    }
+}
+
+/// Largest skeleton strength accepted.
+pub const LACUNA_SKELETON_MAX_STRENGTH: f32 = 10000.0;
+/// Most lobes per skeleton node.
+pub const LACUNA_SKELETON_MAX_LOBES: u32 = 8;
+
+// Literals for cbindgen; they must be the library's values (the strength is checked by
+// tests/path_skeleton.rs: float comparisons in constants need Rust 1.83).
+const _: () = assert!(LACUNA_SKELETON_MAX_LOBES as usize == crate::guide::MAX_LOBES);
+
 /// Sets the job's camera (overriding the scene's): pinhole at `eye` looking at `target`, with
 /// `up` and a vertical field of view in (0, 180) degrees.
 #[no_mangle]
@@ -669,10 +821,11 @@ pub unsafe extern "C" fn lacuna_render_job_run(
         let j = unsafe { arg(job.cast_const(), "job") }?;
         call.context(&j.scene.ctx);
         let out = out_ptr(out_film, "out_film")?;
-        let (_guard, p) = j.start()?;
+        let (_guard, mut p) = j.start()?;
+        let precompute_seconds = j.prepare(&mut p)?;
         let last = Mutex::new(0.0);
         let progress = j.progress_fn(p.settings.progress, &last);
-        let (film, stats) = crate::render::render(
+        let (film, mut stats) = crate::render::render(
             &j.scene.scene,
             &p.camera,
             p.integrator.as_ref(),
@@ -680,6 +833,7 @@ pub unsafe extern "C" fn lacuna_render_job_run(
             &progress,
             &j.cancel,
         )?;
+        stats.precompute_seconds = precompute_seconds;
         j.set_last_stats(stats);
         if stats.cancelled {
             *lock(&j.partial) = Some(film);

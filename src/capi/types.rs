@@ -154,6 +154,9 @@ pub struct lacuna_render_stats {
     pub samples: u64,
     pub rays: u64,
     pub cancelled: bool,
+    /// Seconds the integrator's per-scene precomputation took before the render (the skeleton
+    /// guide of `path_skeleton`; 0 for integrators that need none). Not part of `seconds`.
+    pub precompute_seconds: f64,
 }
 
 /// Estimated errors of an image (mean absolute error, root mean square error, relative MSE).

@@ -8,13 +8,13 @@ mod report;
 pub use report::{error_image, write_report};
 
 use std::sync::atomic::AtomicBool;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use crate::error::{Error, Result};
 use crate::film::{image_errors, Film, ImageErrors};
 use crate::integrator::Integrator;
 use crate::math::Rgb;
-use crate::render::{render, render_observed, Progress, RenderSettings, RenderStats};
+use crate::render::{prepare, render, render_observed, Progress, RenderSettings, RenderStats};
 use crate::scene::{Camera, Scene};
 
 /// A high-sample render and the estimate of its own error.
@@ -92,6 +92,7 @@ pub fn render_reference(
         rays: stats_a.rays + stats_b.rays,
         passes: stats_a.passes + stats_b.passes,
         cancelled: false,
+        precompute_seconds: 0.0,
     };
     Ok(Reference { film, stats, noise })
 }
@@ -107,6 +108,7 @@ pub struct Contender {
 pub struct CurvePoint {
     pub contender: usize,
     pub run: u32,
+    /// Time since the run started, its precomputation included.
     pub seconds: f64,
     pub spp: u32,
     pub errors: ImageErrors,
@@ -117,6 +119,8 @@ pub struct CurvePoint {
 pub struct RunResult {
     pub contender: usize,
     pub run: u32,
+    /// Time the integrator's per-scene precomputation took in this run (part of its budget).
+    pub precompute_seconds: f64,
     pub stats: RenderStats,
     pub errors: ImageErrors,
 }
@@ -163,6 +167,8 @@ pub struct Summary {
     pub rmse: Spread,
     pub rel_mse: Spread,
     pub spp: Spread,
+    /// Per-scene precomputation time (included in the budget and in every time below).
+    pub precompute_seconds: Spread,
     /// Time at which this contender reached the baseline's final MAE (median over runs);
     /// `None` when no run reached it.
     pub time_to_baseline_error: Option<Spread>,
@@ -237,12 +243,15 @@ pub struct Comparison {
 
 /// Runs every contender for the same wall-clock time, `runs` times, in one process, rotating
 /// the order each run so that no contender always goes first; logs errors against `reference`
-/// after every pass. The first contender is the baseline.
+/// after every pass. Each run starts with the contender's per-scene precomputation
+/// ([`Integrator::prepare`], built afresh), which is timed and spent from the same budget: the
+/// render gets what is left, and curve times count from the start of the precomputation. The
+/// first contender is the baseline.
 #[allow(clippy::too_many_arguments)]
 pub fn compare(
     scene: &Scene,
     camera: &Camera,
-    contenders: &[Contender],
+    contenders: &mut [Contender],
     reference: &[Rgb],
     reference_noise: Option<ImageErrors>,
     settings: &RenderSettings,
@@ -277,9 +286,32 @@ pub fn compare(
     for run in 0..runs {
         for k in 0..n {
             let c = (k + run as usize) % n;
+            let start = Instant::now();
+            let offset = done;
+            let prepare_progress = |_: &str, _: f64| {
+                progress(Progress {
+                    fraction: offset / total,
+                    spp_done: 0,
+                    elapsed: start.elapsed(),
+                })
+            };
+            prepare(
+                contenders[c].integrator.as_mut(),
+                scene,
+                settings.threads,
+                &prepare_progress,
+            )?;
+            let precompute_seconds = start.elapsed().as_secs_f64();
+            let render_seconds = seconds_per_run - precompute_seconds;
+            if render_seconds <= 0.0 {
+                return Err(Error::invalid(format!(
+                    "{}: its precomputation took {precompute_seconds:.3} s, the whole budget of {seconds_per_run} s",
+                    contenders[c].label
+                )));
+            }
             let rs = RenderSettings {
                 spp: u32::MAX,
-                time_limit: Some(Duration::from_secs_f64(seconds_per_run)),
+                time_limit: Some(Duration::from_secs_f64(render_seconds)),
                 seed: run_seed(settings.seed, run, c),
                 ..settings.clone()
             };
@@ -289,7 +321,7 @@ pub fn compare(
                     run_points.push(CurvePoint {
                         contender: c,
                         run,
-                        seconds: pass.seconds,
+                        seconds: precompute_seconds + pass.seconds,
                         spp: pass.spp,
                         errors,
                     });
@@ -319,6 +351,7 @@ pub fn compare(
             results.push(RunResult {
                 contender: c,
                 run,
+                precompute_seconds,
                 stats,
                 errors,
             });
@@ -460,6 +493,7 @@ fn summarize(
                 rmse: of(c, &|r| r.errors.rmse),
                 rel_mse: of(c, &|r| r.errors.rel_mse),
                 spp: of(c, &|r| r.stats.spp as f64),
+                precompute_seconds: of(c, &|r| r.precompute_seconds),
                 time_to_baseline_error,
                 speedup,
                 indistinguishable,

@@ -146,6 +146,7 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
     let _ = writeln!(
         s,
         "{} s per run, {} run(s) per integrator, errors against the reference as median [min, max] over runs. \
+         Each run's per-scene precomputation is spent from its budget and counted in every time below. \
          The first integrator is the baseline.\n",
         cmp.seconds_per_run, cmp.runs
     );
@@ -157,8 +158,8 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
             n.mae, n.rmse, n.rel_mse
         );
     }
-    let _ = writeln!(s, "| integrator | MAE | RMSE | relMSE | spp reached | time to baseline's MAE (s) | speedup | log-log slope |");
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "| integrator | MAE | RMSE | relMSE | spp reached | precomputation (s) | time to baseline's MAE (s) | speedup | log-log slope |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
     for (c, sm) in cmp.summaries.iter().enumerate() {
         let time = sm
             .time_to_baseline_error
@@ -190,14 +191,21 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
             Some(v) => format!("{v:.2}"),
             None => "-".to_string(),
         };
+        let pre = &sm.precompute_seconds;
+        let precompute = if pre.min == pre.max {
+            format!("{:.3}", pre.median)
+        } else {
+            format!("{:.3} [{:.3}, {:.3}]", pre.median, pre.min, pre.max)
+        };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {:.0} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {:.0} | {} | {} | {} | {} |",
             sm.label,
             fmt_spread(&sm.mae, 3),
             fmt_spread(&sm.rmse, 3),
             fmt_spread(&sm.rel_mse, 3),
             sm.spp.median,
+            precompute,
             time,
             speedup,
             slope

@@ -15,13 +15,15 @@ pub use path::PathTracer;
 use std::any::Any;
 use std::cell::Cell;
 
+use crate::analysis::StageTime;
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
+use crate::guide::SkeletonGuideSettings;
 use crate::light::EnvStrategy;
 use crate::math::Rgb;
 use crate::math::Rng;
-use crate::scene::{CameraFrame, Scene};
+use crate::scene::{CameraFrame, RenderSettingsFile, Scene};
 
 /// How one-sample MIS weights two strategies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -69,6 +71,8 @@ pub struct IntegratorSettings {
     /// faces by the strategy) and BSDF samples (N_B).
     pub env_samples: u32,
     pub env_bsdf_samples: u32,
+    /// `path_skeleton`: skeleton guiding (c_skel, strength, analysis resolution ...).
+    pub skeleton: SkeletonGuideSettings,
 }
 
 impl Default for IntegratorSettings {
@@ -81,7 +85,37 @@ impl Default for IntegratorSettings {
             env: EnvStrategy::default(),
             env_samples: 30,
             env_bsdf_samples: 30,
+            skeleton: SkeletonGuideSettings::default(),
         }
+    }
+}
+
+impl IntegratorSettings {
+    /// Applies what a scene file says about integrators: its maximum depth and `path_skeleton`
+    /// guide options.
+    pub fn apply_file(&mut self, file: &RenderSettingsFile) -> Result<()> {
+        if let Some(d) = file.max_depth {
+            self.max_depth = d;
+        }
+        for (key, value) in file.skeleton_options() {
+            self.skeleton.set(&key, &value)?;
+        }
+        Ok(())
+    }
+}
+
+/// What an integrator computed for a scene before rendering it, stage by stage (for the render
+/// summary, and counted in equal-time budgets).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Precomputation {
+    pub stages: Vec<StageTime>,
+    /// Facts worth a line of the summary ("43 filtered nodes, 5 importance nodes").
+    pub notes: Vec<String>,
+}
+
+impl Precomputation {
+    pub fn seconds(&self) -> f64 {
+        self.stages.iter().map(|s| s.seconds).sum()
     }
 }
 
@@ -136,6 +170,23 @@ pub trait Integrator: Send + Sync {
         Vec::new()
     }
 
+    /// Builds what this integrator needs of `scene` (and nothing else: most need nothing).
+    /// Must run before rendering `scene` (see [`crate::render::prepare`], which runs it on
+    /// the render's worker threads); running it again rebuilds. `progress(stage, fraction)`
+    /// may cancel by returning false.
+    fn prepare(
+        &mut self,
+        _scene: &Scene,
+        _progress: &dyn Fn(&str, f64) -> bool,
+    ) -> Result<Precomputation> {
+        Ok(Precomputation::default())
+    }
+
+    /// Fails when rendering `scene` needs a `prepare` for it that has not run.
+    fn check_prepared(&self, _scene: &Scene) -> Result<()> {
+        Ok(())
+    }
+
     /// True when `begin_iteration` must run before the pixels of every sample index.
     fn uses_iterations(&self) -> bool {
         false
@@ -164,40 +215,55 @@ pub trait Integrator: Send + Sync {
 }
 
 /// Names of the integrators this build offers.
-pub const NAMES: &[&str] = &["path", "bdpt", "env_direct"];
+pub const NAMES: &[&str] = &["path", "path_skeleton", "bdpt", "env_direct"];
 
 /// Splits an integrator specification `NAME[:KEY=VALUE]...` into the name and the settings
-/// its options change: `env=STRATEGY` (environment sampling: latlong, cube-uniform,
-/// cube-power, cube-dynamic, bsdf), and for `env_direct` `samples=N` (light samples per
-/// shading point) and `bsdf=N` (BSDF samples). `path:env=latlong` is the path tracer with
-/// the classic lat-long environment sampling.
+/// its options change, so one comparison can race variants of an integrator:
+/// - any integrator: `max_depth=D`, `mis=power|balance`, `env=STRATEGY` (environment
+///   sampling: latlong, cube-uniform, cube-power, cube-dynamic, bsdf);
+/// - `env_direct`: `samples=N` (light samples per shading point) and `bsdf=N` (BSDF samples);
+/// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
+///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`.
 pub fn parse_spec(
     spec: &str,
     mut settings: IntegratorSettings,
 ) -> Result<(&str, IntegratorSettings)> {
     let mut parts = spec.split(':');
     let name = parts.next().unwrap_or_default().trim();
-    for option in parts {
+    let mut options = parts.peekable();
+    while let Some(option) = options.next() {
+        // "strength=auto:64" arrives split in two: glue a bare number back to `auto`.
+        let mut option = option.to_string();
+        if option.ends_with("=auto") {
+            if let Some(max) = options.peek().filter(|o| !o.contains('=')) {
+                option = format!("{option}:{max}");
+                options.next();
+            }
+        }
         let (key, value) = option.split_once('=').ok_or_else(|| {
             Error::invalid(format!(
                 "integrator option '{option}' in '{spec}' must be KEY=VALUE"
             ))
         })?;
+        let (key, value) = (key.trim(), value.trim());
         let count = || {
-            value.trim().parse::<u32>().map_err(|_| {
+            value.parse::<u32>().map_err(|_| {
                 Error::invalid(format!(
                     "integrator option {key}={value} in '{spec}' must be a non-negative integer"
                 ))
             })
         };
-        match key.trim() {
-            "env" => settings.env = EnvStrategy::parse(value.trim())?,
-            "samples" => settings.env_samples = count()?,
-            "bsdf" => settings.env_bsdf_samples = count()?,
+        match key {
+            "max_depth" => settings.max_depth = count()?,
+            "mis" => settings.mis = MisHeuristic::parse(value)?,
+            "env" => settings.env = EnvStrategy::parse(value)?,
+            "samples" if name == "env_direct" => settings.env_samples = count()?,
+            "bsdf" if name == "env_direct" => settings.env_bsdf_samples = count()?,
+            _ if name == "path_skeleton" => settings.skeleton.set(key, value)?,
             other => {
                 return Err(Error::invalid(format!(
-                "unknown integrator option '{other}' in '{spec}' (expected env, samples or bsdf)"
-            )))
+                    "integrator '{name}' has no option '{other}' (in '{spec}')"
+                )))
             }
         }
     }
@@ -210,6 +276,7 @@ pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integr
     match name {
         "env_direct" => Ok(Box::new(EnvDirect::new(settings)?)),
         "path" => Ok(Box::new(PathTracer::new(settings))),
+        "path_skeleton" => Ok(Box::new(PathTracer::skeleton_guided(settings)?)),
         "bdpt" => {
             let bdpt = Bdpt::new(settings);
             Ok(Box::new(match settings.light_paths {

@@ -1,24 +1,57 @@
 //! Unidirectional path tracing (000 §4.1, lines 1214-1304): BSDF sampling plus next-event
 //! estimation at every non-delta vertex, combined by MIS (Veach's one-sample-per-strategy
 //! estimator), with Russian roulette.
+//!
+//! `path_skeleton` (000 §9.4-9.5) is the same path tracer with a direction guide: at every
+//! non-delta vertex the guide ([`crate::guide::GuideQuery`]) proposes skeleton lobes, and the
+//! next direction comes from them with probability `c_skel`, from the BSDF otherwise. Every
+//! density this file uses for a direction (the throughput's denominator, the MIS weights of
+//! next-event estimation and of emitters hit) is then the density of that one-sample mixture,
+//! so both integrators estimate the same image.
 
-use super::{Integrator, IntegratorSettings, SampleContext, TraceCounters};
+use std::sync::Arc;
+
+use super::{Integrator, IntegratorSettings, Precomputation, SampleContext, TraceCounters};
+use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
+use crate::guide::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide};
 use crate::math::{Frame, Rgb, Rng, Vec3};
-use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
+use crate::scene::{Bsdf, Scene, SurfaceInteraction};
 
 pub struct PathTracer {
     settings: IntegratorSettings,
+    /// `path_skeleton`: `Some`, holding the guide once `prepare` has built it.
+    guiding: Option<Option<Arc<SkeletonGuide>>>,
 }
 
 impl PathTracer {
     pub fn new(settings: IntegratorSettings) -> Self {
-        PathTracer { settings }
+        PathTracer {
+            settings,
+            guiding: None,
+        }
     }
 
-    /// Next-event estimation: radiance from one light sample, MIS-weighted against BSDF
-    /// sampling. `wo` is local to the shading frame.
+    /// `path_skeleton`: path tracing guided by the skeleton of the empty space, with the
+    /// guide settings in `settings.skeleton` (validated here; the guide is built by
+    /// `prepare`).
+    pub fn skeleton_guided(settings: IntegratorSettings) -> Result<Self> {
+        settings.skeleton.validate()?;
+        Ok(PathTracer {
+            settings,
+            guiding: Some(None),
+        })
+    }
+
+    /// The skeleton guide built by the last `prepare`.
+    pub fn guide(&self) -> Option<&Arc<SkeletonGuide>> {
+        self.guiding.as_ref().and_then(|g| g.as_ref())
+    }
+
+    /// Next-event estimation: radiance from one light sample, MIS-weighted against direction
+    /// sampling (the BSDF, mixed with the guide's lobes where `query` is guided). `wo` is
+    /// local to the shading frame.
     #[allow(clippy::too_many_arguments)]
     fn sample_light(
         &self,
@@ -27,6 +60,7 @@ impl PathTracer {
         frame: &Frame,
         bsdf: &Bsdf,
         wo_local: Vec3,
+        query: &GuideQuery,
         rng: &mut Rng,
         counters: &mut TraceCounters,
     ) -> Rgb {
@@ -57,9 +91,8 @@ impl PathTracer {
         let weight = if ls.delta {
             1.0
         } else {
-            self.settings
-                .mis
-                .weight(light_pdf, bsdf.pdf(wo_local, wi_local))
+            let direction_pdf = query.mixture_pdf(ls.wi, bsdf.pdf(wo_local, wi_local));
+            self.settings.mis.weight(light_pdf, direction_pdf)
         };
         f * ls.radiance * (weight / light_pdf)
     }
@@ -94,7 +127,49 @@ impl PathTracer {
 
 impl Integrator for PathTracer {
     fn name(&self) -> &'static str {
-        "path"
+        if self.guiding.is_some() {
+            "path_skeleton"
+        } else {
+            "path"
+        }
+    }
+
+    fn prepare(
+        &mut self,
+        scene: &Scene,
+        progress: &dyn Fn(&str, f64) -> bool,
+    ) -> Result<Precomputation> {
+        let Some(slot) = self.guiding.as_mut() else {
+            return Ok(Precomputation::default());
+        };
+        *slot = None;
+        let guide = SkeletonGuide::build(scene, &self.settings.skeleton, progress)?;
+        let notes = vec![format!(
+            "skeleton guide: {} nodes ({} raw), {} importance nodes ({} found), {} of {} nodes guided, {:.1} MiB",
+            guide.node_count(),
+            guide.raw_node_count(),
+            guide.importance_nodes().len(),
+            guide.importance_nodes_found(),
+            guide.guided_node_count(),
+            guide.node_count(),
+            guide.memory_bytes() as f64 / (1024.0 * 1024.0)
+        )];
+        let stages = guide.timings().to_vec();
+        *slot = Some(Arc::new(guide));
+        Ok(Precomputation { stages, notes })
+    }
+
+    fn check_prepared(&self, scene: &Scene) -> Result<()> {
+        match &self.guiding {
+            None => Ok(()),
+            Some(Some(guide)) if guide.built_for(scene) => Ok(()),
+            Some(Some(_)) => Err(Error::invalid(
+                "path_skeleton was prepared for another scene: prepare it for this one",
+            )),
+            Some(None) => Err(Error::invalid(
+                "path_skeleton needs its skeleton guide: prepare the integrator for the scene before rendering",
+            )),
+        }
     }
 
     fn sample(
@@ -108,12 +183,17 @@ impl Integrator for PathTracer {
         let mut out = PixelSample::default();
         let mut radiance = Rgb::ZERO;
         let mut beta = Rgb::ONE;
+        // The throughput BSDF sampling alone would carry, for Russian roulette (see
+        // `guide::MixtureSample::bsdf_pdf`); equal to `beta` when nothing is guided.
+        let mut rr_beta = Rgb::ONE;
         // State of the previous vertex, for MIS when a BSDF-sampled ray hits an emitter.
         let mut prev_delta = true;
         let mut prev_pdf = 0.0f32;
         let mut prev_point = ray.origin;
         let mut prev_normal = Vec3::ZERO;
         let mut depth = 0u32;
+        let guide = self.guide();
+        let mut query = GuideQuery::new();
         loop {
             counters.rays += 1;
             let Some(si) = scene.intersect(&ray) else {
@@ -151,15 +231,20 @@ impl Integrator for PathTracer {
             }
             let frame = si.shading_frame();
             let wo_local = frame.to_local(si.wo);
+            // No guiding at delta BSDFs: no mixture with a Dirac lobe has a density.
+            query.clear();
+            if let (Some(guide), false) = (guide, bsdf.is_delta()) {
+                counters.rays += query.init(guide, scene, si.p, si.p_error, si.ng, si.wo) as u64;
+            }
             if !bsdf.is_delta() {
-                radiance +=
-                    beta * self.sample_light(scene, &si, &frame, &bsdf, wo_local, rng, counters);
+                radiance += beta
+                    * self.sample_light(scene, &si, &frame, &bsdf, wo_local, &query, rng, counters);
             }
 
-            let uc = rng.uniform();
-            let Some(bs) = bsdf.sample(wo_local, uc, rng.uniform2(), Transport::Radiance) else {
+            let Some(ms) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &query, rng) else {
                 break;
             };
+            let bs = ms.sample;
             let wi = frame.to_world(bs.wi);
             // Reflections must leave on wo's side of the geometric surface, transmissions on
             // the other side; shading normals can disagree near silhouettes.
@@ -169,6 +254,7 @@ impl Integrator for PathTracer {
                 break;
             }
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
+            rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
             if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
                 break;
             }
@@ -180,11 +266,12 @@ impl Integrator for PathTracer {
             depth += 1;
 
             if depth >= self.settings.rr_start_depth {
-                let q = (1.0 - beta.max_element()).max(0.05);
+                let q = (1.0 - rr_beta.max_element()).max(0.05);
                 if rng.uniform() < q {
                     break;
                 }
                 beta /= 1.0 - q;
+                rr_beta /= 1.0 - q;
             }
         }
         out.radiance = radiance;

@@ -36,6 +36,27 @@ pub struct RenderSettingsFile {
     pub seed: Option<u64>,
     /// Time budget in seconds (render until it runs out instead of a fixed spp).
     pub time: Option<f64>,
+    /// Options of `path_skeleton`'s guide by name (`c_skel`, `strength`, `resolution`, ...:
+    /// see `guide::SkeletonGuideSettings::set`), numbers, strings or booleans.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub skeleton: Option<BTreeMap<String, serde_json::Value>>,
+}
+
+impl RenderSettingsFile {
+    /// The `skeleton` options as (key, text) pairs, in key order.
+    pub fn skeleton_options(&self) -> Vec<(String, String)> {
+        self.skeleton
+            .iter()
+            .flatten()
+            .map(|(k, v)| {
+                let text = match v {
+                    serde_json::Value::String(s) => s.clone(),
+                    other => other.to_string(),
+                };
+                (k.clone(), text)
+            })
+            .collect()
+    }
 }
 
 /// A scene file loaded into a builder, not yet built.
@@ -475,6 +496,12 @@ fn check_settings(s: &RenderSettingsFile) -> std::result::Result<(), (String, St
                 format!("time {t} must be a positive number of seconds"),
             ));
         }
+    }
+    let mut skeleton = crate::guide::SkeletonGuideSettings::default();
+    for (key, value) in s.skeleton_options() {
+        skeleton
+            .set(&key, &value)
+            .map_err(|e| (format!("render.skeleton.{key}"), e.to_string()))?;
     }
     if let Some(i) = &s.integrator {
         if i.is_empty() {
@@ -948,7 +975,7 @@ mod tests {
             "lamp_mat": { "emission": 8 }
           },
           "render": { "width": 320, "height": 240, "spp": 64, "max_depth": 8, "integrator": "path",
-                      "seed": 3, "time": 1.5 }
+                      "seed": 3, "time": 1.5, "skeleton": { "c_skel": 0.25, "strength": 16 } }
         }"#;
         let path = dir.write("scene.json", json);
         let loaded = load_scene_file(&path).unwrap();
@@ -962,7 +989,22 @@ mod tests {
                 integrator: Some("path".into()),
                 seed: Some(3),
                 time: Some(1.5),
+                skeleton: Some(
+                    [
+                        ("c_skel".to_string(), serde_json::json!(0.25)),
+                        ("strength".to_string(), serde_json::json!(16)),
+                    ]
+                    .into_iter()
+                    .collect()
+                ),
             }
+        );
+        assert_eq!(
+            loaded.settings.skeleton_options(),
+            vec![
+                ("c_skel".to_string(), "0.25".to_string()),
+                ("strength".to_string(), "16".to_string())
+            ]
         );
         assert_eq!(loaded.objects.len(), 3);
         // scale 2, rotate 90 degrees about z, translate x 10: (1, 0, 0) -> (10, 2, 0).
@@ -1149,6 +1191,18 @@ mod tests {
             ),
             (r#"{"render": {"width": 0}}"#, "render.width"),
             (r#"{"render": {"time": -1}}"#, "render.time"),
+            (
+                r#"{"render": {"skeleton": {"c_skel": 1.5}}}"#,
+                "render.skeleton.c_skel",
+            ),
+            (
+                r#"{"render": {"skeleton": {"strength": "loud"}}}"#,
+                "render.skeleton.strength",
+            ),
+            (
+                r#"{"render": {"skeleton": {"colour": 1}}}"#,
+                "render.skeleton.colour",
+            ),
         ];
         for (json, loc) in cases {
             let path = dir.write("v.json", json);

@@ -1117,6 +1117,157 @@ static void test_analysis(lacuna_context *ctx) {
     lacuna_analysis_retain(NULL);
 }
 
+
+/* Skeleton-guided path tracing: the job's skeleton settings, and the guide and query API. */
+static void test_skeleton_guide(lacuna_context *ctx) {
+    lacuna_scene *scene = build_box_scene(ctx);
+    lacuna_render_job *job = NULL;
+    OK(lacuna_render_job_new(scene, "path_skeleton", &job));
+    /* Setters and their errors. */
+    EXPECT(lacuna_render_job_set_skeleton_probability(NULL, 0.5f), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_skeleton_probability(job, 1.0f), LACUNA_STATUS_INVALID_ARGUMENT, "c_skel");
+    EXPECT(lacuna_render_job_set_skeleton_probability(job, NAN), LACUNA_STATUS_INVALID_ARGUMENT, "c_skel");
+    EXPECT(lacuna_render_job_set_skeleton_strength(NULL, 4), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_skeleton_strength(job, -1), LACUNA_STATUS_INVALID_ARGUMENT, "strength");
+    EXPECT(lacuna_render_job_set_skeleton_strength(job, 2 * LACUNA_SKELETON_MAX_STRENGTH),
+           LACUNA_STATUS_INVALID_ARGUMENT, "strength");
+    EXPECT(lacuna_render_job_set_skeleton_strength_auto(NULL, 16), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_skeleton_strength_auto(job, 0.5f), LACUNA_STATUS_INVALID_ARGUMENT, "bound");
+    EXPECT(lacuna_render_job_set_skeleton_strength_auto(job, NAN), LACUNA_STATUS_INVALID_ARGUMENT, "bound");
+    EXPECT(lacuna_render_job_set_skeleton_resolution(NULL, 16, 0), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_skeleton_resolution(job, 2, 0), LACUNA_STATUS_INVALID_ARGUMENT, "resolution");
+    EXPECT(lacuna_render_job_set_skeleton_resolution(job, 0, 10), LACUNA_STATUS_INVALID_ARGUMENT,
+           "voxel budget");
+    EXPECT(lacuna_render_job_set_skeleton_importance(NULL, 1, 1, 1), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_skeleton_importance(job, 0, 1, 1), LACUNA_STATUS_INVALID_ARGUMENT, "light rays");
+    EXPECT(lacuna_render_job_set_skeleton_importance(job, 1, 0, 1), LACUNA_STATUS_INVALID_ARGUMENT,
+           "importance node");
+    EXPECT(lacuna_render_job_set_skeleton_importance(job, 1, 1, LACUNA_SKELETON_MAX_LOBES + 1),
+           LACUNA_STATUS_INVALID_ARGUMENT, "max_lobes");
+    EXPECT(lacuna_render_job_set_skeleton_visibility_test(NULL, true), LACUNA_STATUS_NULL_POINTER, "job");
+    OK(lacuna_render_job_set_skeleton_probability(job, 0.6f));
+    OK(lacuna_render_job_set_skeleton_strength(job, 8));
+    OK(lacuna_render_job_set_skeleton_strength_auto(job, 32));
+    OK(lacuna_render_job_set_skeleton_resolution(job, 0, 1 << 14));
+    OK(lacuna_render_job_set_skeleton_resolution(job, 20, 0));
+    OK(lacuna_render_job_set_skeleton_importance(job, 4096, 8, 2));
+    OK(lacuna_render_job_set_skeleton_visibility_test(job, false));
+    OK(lacuna_render_job_set_skeleton_visibility_test(job, true));
+    OK(lacuna_render_job_set_resolution(job, 8, 6));
+    OK(lacuna_render_job_set_samples_per_pixel(job, 2));
+    /* A run builds the guide first and reports its time. */
+    lacuna_film *film = NULL;
+    OK(lacuna_render_job_run(job, &film));
+    lacuna_render_stats rs;
+    OK(lacuna_render_job_get_stats(job, &rs));
+    CHECK(rs.spp == 2 && rs.precompute_seconds > 0 && rs.rays > 0);
+    float px[8 * 6 * 3];
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, px, 8, 6, 0, 0));
+    double sum = 0;
+    for (int i = 0; i < 8 * 6 * 3; i++) sum += px[i];
+    CHECK(sum > 0 && isfinite(sum));
+    lacuna_film_release(film);
+    /* A cancel request stops the next run during its precomputation. */
+    film = NULL;
+    OK(lacuna_render_job_cancel(job));
+    EXPECT(lacuna_render_job_run(job, &film), LACUNA_STATUS_CANCELLED, NULL);
+    CHECK(film == NULL);
+    /* Integrators without precomputation report none. */
+    lacuna_render_job *plain = NULL;
+    OK(lacuna_render_job_new(scene, "path", &plain));
+    OK(lacuna_render_job_set_resolution(plain, 4, 4));
+    OK(lacuna_render_job_set_samples_per_pixel(plain, 1));
+    OK(lacuna_render_job_run(plain, &film));
+    OK(lacuna_render_job_get_stats(plain, &rs));
+    CHECK(rs.precompute_seconds == 0);
+    lacuna_film_release(film);
+    lacuna_render_job_free(plain);
+
+    /* Building a guide. */
+    lacuna_skeleton_guide *g = NULL;
+    EXPECT(lacuna_skeleton_guide_build(NULL, job, NULL, NULL, &g), LACUNA_STATUS_NULL_POINTER, "scene");
+    EXPECT(lacuna_skeleton_guide_build(scene, job, NULL, NULL, NULL), LACUNA_STATUS_NULL_POINTER, "out_guide");
+    EXPECT(lacuna_skeleton_guide_build(scene, NULL, stop_at_once, NULL, &g), LACUNA_STATUS_CANCELLED, NULL);
+    EXPECT(lacuna_skeleton_guide_build(scene, job, stop_at_once, NULL, &g), LACUNA_STATUS_CANCELLED, NULL);
+    CHECK(g == NULL);
+    progress_calls = 0;
+    OK(lacuna_skeleton_guide_build(scene, job, count_progress, NULL, &g));
+    CHECK(g != NULL && progress_calls > 1);
+    lacuna_skeleton_guide_info info;
+    EXPECT(lacuna_skeleton_guide_get_info(NULL, &info), LACUNA_STATUS_NULL_POINTER, "guide");
+    EXPECT(lacuna_skeleton_guide_get_info(g, NULL), LACUNA_STATUS_NULL_POINTER, "out_info");
+    OK(lacuna_skeleton_guide_get_info(g, &info));
+    CHECK(info.nodes > 0 && info.raw_nodes >= info.nodes && info.importance_nodes >= 1 &&
+          info.guided_nodes >= 1 && info.guided_nodes <= info.nodes);
+    CHECK(info.grid[0] > 0 && info.grid[1] > 0 && info.grid[2] > 0 && info.memory_bytes > 0 && info.seconds >= 0);
+    lacuna_render_job_free(job);
+
+    /* Queries. */
+    lacuna_guide_query *q = NULL;
+    EXPECT(lacuna_guide_query_new(NULL, &q), LACUNA_STATUS_NULL_POINTER, "guide");
+    EXPECT(lacuna_guide_query_new(g, NULL), LACUNA_STATUS_NULL_POINTER, "out_query");
+    OK(lacuna_guide_query_new(g, &q));
+    /* The query keeps the guide (and the guide the scene) alive. */
+    lacuna_skeleton_guide_release(g);
+    lacuna_scene_release(scene);
+    float c = -1;
+    OK(lacuna_guide_query_guiding_probability(q, &c));
+    CHECK(c == 0); /* not initialised yet */
+    EXPECT(lacuna_guide_query_guiding_probability(NULL, &c), LACUNA_STATUS_NULL_POINTER, "query");
+    EXPECT(lacuna_guide_query_guiding_probability(q, NULL), LACUNA_STATUS_NULL_POINTER, "out_probability");
+    bool guided = false;
+    lacuna_vec3 floor_point = v3(0.1f, -1.0f, 0.2f), up = v3(0, 1, 0);
+    EXPECT(lacuna_guide_query_init(NULL, floor_point, up, up, &guided), LACUNA_STATUS_NULL_POINTER, "query");
+    EXPECT(lacuna_guide_query_init(q, v3(NAN, 0, 0), up, up, &guided), LACUNA_STATUS_INVALID_ARGUMENT,
+           "position");
+    EXPECT(lacuna_guide_query_init(q, floor_point, v3(0, 0, 0), up, &guided), LACUNA_STATUS_INVALID_ARGUMENT,
+           "normal");
+    EXPECT(lacuna_guide_query_init(q, floor_point, up, v3(0, INFINITY, 0), &guided),
+           LACUNA_STATUS_INVALID_ARGUMENT, "incident");
+    OK(lacuna_guide_query_init(q, floor_point, up, up, NULL));
+    OK(lacuna_guide_query_init(q, floor_point, up, up, &guided));
+    CHECK(guided);
+    OK(lacuna_guide_query_guiding_probability(q, &c));
+    CHECK(fabsf(c - 0.6f) < 1e-6f);
+    lacuna_vec3 d;
+    float pdf = -1, pdf2 = -1;
+    EXPECT(lacuna_guide_query_sample(NULL, 0.1f, 0.2f, 0.3f, &d, &pdf), LACUNA_STATUS_NULL_POINTER, "query");
+    EXPECT(lacuna_guide_query_sample(q, 0.1f, 0.2f, 0.3f, NULL, &pdf), LACUNA_STATUS_NULL_POINTER, "out_direction");
+    EXPECT(lacuna_guide_query_sample(q, 0.1f, 0.2f, 0.3f, &d, NULL), LACUNA_STATUS_NULL_POINTER, "out_pdf");
+    EXPECT(lacuna_guide_query_sample(q, 1.0f, 0.2f, 0.3f, &d, &pdf), LACUNA_STATUS_INVALID_ARGUMENT, "u0");
+    EXPECT(lacuna_guide_query_sample(q, 0.1f, -0.1f, 0.3f, &d, &pdf), LACUNA_STATUS_INVALID_ARGUMENT, "u1");
+    EXPECT(lacuna_guide_query_sample(q, 0.1f, 0.2f, NAN, &d, &pdf), LACUNA_STATUS_INVALID_ARGUMENT, "u2");
+    CHECK(pdf == -1);
+    EXPECT(lacuna_guide_query_pdf(NULL, up, &pdf), LACUNA_STATUS_NULL_POINTER, "query");
+    EXPECT(lacuna_guide_query_pdf(q, up, NULL), LACUNA_STATUS_NULL_POINTER, "out_pdf");
+    EXPECT(lacuna_guide_query_pdf(q, v3(0, 0, 0), &pdf), LACUNA_STATUS_INVALID_ARGUMENT, "direction");
+    /* Sampled directions are unit and carry the mixture's density; most point up from the
+       floor, toward the lit inside of the box. */
+    int upward = 0;
+    for (int i = 0; i < 64; i++) {
+        float u0 = (i % 4) / 4.0f + 0.1f, u1 = (i / 4 % 4) / 4.0f + 0.05f, u2 = (i / 16) / 4.0f + 0.12f;
+        OK(lacuna_guide_query_sample(q, u0, u1, u2, &d, &pdf));
+        CHECK(fabsf(d.x * d.x + d.y * d.y + d.z * d.z - 1) < 1e-4f && pdf > 0 && isfinite(pdf));
+        OK(lacuna_guide_query_pdf(q, d, &pdf2));
+        CHECK(fabsf(pdf - pdf2) <= 1e-4f * pdf);
+        upward += d.y > 0;
+    }
+    CHECK(upward > 48);
+    /* Outside the grid nothing is guided: sampling is refused, the density is 0. */
+    OK(lacuna_guide_query_init(q, v3(50, 50, 50), up, up, &guided));
+    CHECK(!guided);
+    OK(lacuna_guide_query_guiding_probability(q, &c));
+    CHECK(c == 0);
+    EXPECT(lacuna_guide_query_sample(q, 0.1f, 0.2f, 0.3f, &d, &pdf), LACUNA_STATUS_INVALID_OPERATION,
+           "not guided");
+    OK(lacuna_guide_query_pdf(q, up, &pdf));
+    CHECK(pdf == 0);
+    lacuna_guide_query_free(q);
+    lacuna_guide_query_free(NULL);
+    lacuna_skeleton_guide_retain(NULL);
+    lacuna_skeleton_guide_release(NULL);
+}
+
 int main(int argc, char **argv) {
     if (argc < 2) {
         fprintf(stderr, "usage: %s SCRATCH_DIR\n", argv[0]);
@@ -1134,6 +1285,7 @@ int main(int argc, char **argv) {
     test_render(ctx);
     test_bdpt(ctx);
     test_analysis(ctx);
+    test_skeleton_guide(ctx);
     lacuna_context_release(ctx);
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;

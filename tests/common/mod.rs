@@ -4,5 +4,6 @@
 //! Each test binary uses only part of this module.
 #![allow(dead_code)]
 
+pub mod agreement;
 pub mod chi2;
 pub mod sphere;

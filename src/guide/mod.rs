@@ -1,0 +1,21 @@
+//! What integrators ask of the empty-space analysis (DESIGN.md §3): a direction and its pdf.
+//! Integrators never reach into the voxel grid or the skeleton graph themselves.
+//!
+//! [`SkeletonGuide`] is skeleton-guided ray sampling (000 chapter 9, lines 2600-2790, and the
+//! early write-up 004): importance nodes found by light tracing (eq. 171-176), shortest paths
+//! along the filtered skeleton (Dijkstra), skeleton importance points (eq. 162), power-cosine
+//! lobes toward them (eq. 163) mixed by one-sample MIS with inverse-square selection
+//! probabilities (eq. 164-167). [`GuideQuery`] follows Open PGL's surface sampling
+//! distribution: one reusable query per worker thread, initialised at each surface point, that
+//! samples a direction from host-supplied random numbers and returns the exact pdf of the whole
+//! skeleton mixture, so that a path tracer can combine it with BSDF sampling by MIS
+//! (eq. 168-170, [`GuideQuery::mixture_pdf`]).
+
+mod mixture;
+mod skeleton;
+
+pub use mixture::{sample_bsdf_or_guide, MixtureSample};
+pub use skeleton::{
+    GuideLobe, GuideQuery, ImportanceNode, SkeletonGuide, SkeletonGuideSettings, SkeletonStrength,
+    DEFAULT_AUTO_MAX, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH, OPTION_NAMES,
+};

@@ -1,0 +1,674 @@
+//! Skeleton-guided path tracing (`path_skeleton`, 000 chapter 9):
+//!
+//! - the skeleton lobes and their mixture (eq. 163-167) and the one-sample MIS with BSDF
+//!   sampling (eq. 168-170): chi-square of sampled directions against the pdf, the pdf
+//!   integrates to 1, `sample` agrees with `pdf`, and the estimator f cos / pdf is unbiased;
+//! - the guide's robustness rules: lobes toward importance points below the surface or hidden
+//!   from the point are dropped (and only those), nodes without a path to an importance node
+//!   are unguided, delta BSDFs are never guided;
+//! - unbiasedness of the integrator: the same image mean and region means as `path` within
+//!   their measured error on the Cornell box, the corridor, the two rooms, the Veach door and a
+//!   box of glossy, mirror and glass surfaces, with the automatic and with an aggressive fixed
+//!   strength; no NaN;
+//! - the precomputation hook: rendering without it fails, and `compare` spends it from the
+//!   equal-time budget.
+
+mod common;
+
+use std::sync::atomic::AtomicBool;
+
+use common::agreement::{assert_agree, box_scene, region_means};
+use common::chi2::{assert_chi2, assert_z, Stats};
+use common::sphere::SphereGrid;
+use glam::DVec3;
+use lacuna::compare::{compare, Contender};
+use lacuna::guide::{
+    sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonGuideSettings, SkeletonStrength,
+};
+use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::math::{Frame, Rgb, Rng, Vec3};
+use lacuna::render::{prepare, render, RenderSettings};
+use lacuna::scene::{
+    corridor_builder, load_scene_file, two_rooms_builder, Bsdf, Camera, Material, MeshDesc, Scene,
+    SceneBuilder,
+};
+
+const SAMPLES: usize = 200_000;
+
+fn to64(v: Vec3) -> DVec3 {
+    DVec3::new(v.x as f64, v.y as f64, v.z as f64)
+}
+
+fn to32(v: DVec3) -> Vec3 {
+    Vec3::new(v.x as f32, v.y as f32, v.z as f32)
+}
+
+/// A sphere grid refined around every lobe axis.
+fn grid_for(lobes: &[(Vec3, f32, f32)]) -> SphereGrid {
+    let mut grid = SphereGrid::uniform(20, 40);
+    for &(axis, n, _) in lobes {
+        if n > 0.0 {
+            grid.refine_lobe(to64(axis), 1.0 / (n as f64).sqrt(), 5.0, 8);
+        }
+    }
+    grid
+}
+
+/// Chi-square of `sample` (None = no sample) against `pdf` over `grid`, with the "no sample"
+/// cell; returns the pdf's integral over the sphere.
+fn chi2_directions(
+    name: &str,
+    grid: &SphereGrid,
+    seed: u64,
+    mut sample: impl FnMut(&mut Rng) -> Option<Vec3>,
+    pdf: impl Fn(Vec3) -> f64,
+) -> f64 {
+    let probs = grid.integrate(|w| pdf(to32(w)));
+    let integral: f64 = probs.iter().sum();
+    assert!(
+        integral <= 1.0 + 1e-3,
+        "{name}: pdf integrates to {integral}"
+    );
+    let mut observed = vec![0u64; grid.cells() + 1];
+    let mut rng = Rng::new(seed, 77);
+    for _ in 0..SAMPLES {
+        match sample(&mut rng) {
+            Some(w) => observed[grid.cell_of(to64(w))] += 1,
+            None => observed[grid.cells()] += 1,
+        }
+    }
+    let n = SAMPLES as f64;
+    let mut expected: Vec<f64> = probs.iter().map(|p| p * n).collect();
+    expected.push((1.0 - integral).max(0.0) * n);
+    assert_chi2(name, &observed, &expected);
+    integral
+}
+
+/// The skeleton lobe (eq. 163) and mixtures of lobes (eq. 167): chi-square, integral 1,
+/// sample pdf = pdf().
+#[test]
+fn chi2_skeleton_lobes_and_their_mixture() {
+    let axis = Vec3::new(0.3, -0.5, 0.8).normalize();
+    type Lobes = Vec<(Vec3, f32, f32)>;
+    let cases: Vec<(&str, Lobes)> = vec![
+        ("lobe s=1", vec![(axis, 1.0, 1.0)]),
+        ("lobe s=16", vec![(axis, 16.0, 1.0)]),
+        ("lobe s=300", vec![(-axis, 300.0, 1.0)]),
+        (
+            "mixture of 3",
+            vec![
+                (axis, 8.0, 2.0),
+                (Vec3::new(-1.0, 0.2, 0.1), 40.0, 1.0),
+                (Vec3::new(0.0, 0.0, -1.0), 2.0, 0.5),
+            ],
+        ),
+    ];
+    for (k, (name, lobes)) in cases.iter().enumerate() {
+        let q = GuideQuery::with_lobes(0.5, lobes).unwrap();
+        let grid = grid_for(lobes);
+        let integral = chi2_directions(
+            name,
+            &grid,
+            100 + k as u64,
+            |rng| {
+                let (w, pdf) = q.sample(rng.uniform(), rng.uniform2())?;
+                let p = q.pdf(w);
+                assert!(
+                    (pdf - p).abs() <= 1e-4 * p,
+                    "{name}: sample pdf {pdf} but pdf() {p}"
+                );
+                Some(w)
+            },
+            |w| q.pdf(w) as f64,
+        );
+        assert!(
+            (integral - 1.0).abs() < 1e-3,
+            "{name}: pdf integrates to {integral}"
+        );
+    }
+}
+
+fn lambert() -> Bsdf {
+    Material::diffuse(Rgb::splat(0.8)).bsdf(Rgb::splat(0.8))
+}
+
+fn phong() -> Bsdf {
+    let m = Material::glossy(Rgb::splat(0.3), Rgb::splat(0.6), 30.0);
+    m.bsdf(m.diffuse)
+}
+
+/// The one-sample MIS of BSDF sampling and the lobes (eq. 168-170) as `path_skeleton` draws it:
+/// directions follow `c p_skel + (1 - c) p_bsdf` (guided directions the BSDF does not reflect
+/// into are returned as "no sample"), each sample carries that density, and f cos / pdf
+/// estimates the BSDF's albedo without bias.
+#[test]
+fn chi2_and_albedo_of_the_bsdf_and_skeleton_mixture() {
+    let normal = Vec3::new(0.2, 0.3, 0.9).normalize();
+    let frame = Frame::from_z(normal);
+    let wo_local = Vec3::new(0.4, -0.2, 0.7).normalize();
+    let lobes = [
+        // One lobe well above the surface, one grazing so that part of it is below.
+        (frame.to_world(Vec3::new(0.5, 0.1, 0.8)), 12.0, 2.0),
+        (frame.to_world(Vec3::new(-0.9, 0.3, 0.05)), 4.0, 1.0),
+    ];
+    for (k, (name, bsdf, albedo)) in [
+        ("lambert + lobes", lambert(), 0.8),
+        ("phong + lobes", phong(), f64::NAN),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let q = GuideQuery::with_lobes(0.6, &lobes).unwrap();
+        let grid = grid_for(&lobes);
+        let mut estimate = Stats::default();
+        let reflects = |w: Vec3| bsdf.eval(wo_local, frame.to_local(w)) != Rgb::ZERO;
+        let integral = chi2_directions(
+            name,
+            &grid,
+            200 + k as u64,
+            |rng| {
+                let Some(m) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &q, rng) else {
+                    estimate.add(0.0);
+                    return None;
+                };
+                let s = m.sample;
+                let own = bsdf.pdf(wo_local, s.wi);
+                assert!((m.bsdf_pdf - own).abs() <= 1e-4 * own, "{name}: BSDF pdf");
+                let w = frame.to_world(s.wi);
+                let expected = q.mixture_pdf(w, bsdf.pdf(wo_local, s.wi));
+                assert!(
+                    (s.pdf - expected).abs() <= 1e-4 * expected,
+                    "{name}: sample pdf {} but mixture pdf {expected}",
+                    s.pdf
+                );
+                let f = bsdf.eval(wo_local, s.wi);
+                assert!((s.f - f).abs().max_element() <= 1e-4 * f.max_element());
+                estimate.add((s.f.x * s.wi.z.abs() / s.pdf) as f64);
+                Some(w)
+            },
+            |w| {
+                let guided = if reflects(w) { q.pdf(w) } else { 0.0 };
+                (0.6 * guided + 0.4 * bsdf.pdf(wo_local, frame.to_local(w))) as f64
+            },
+        );
+        assert!(
+            integral < 1.0,
+            "{name}: part of a lobe is below the surface"
+        );
+        let albedo = if albedo.is_nan() {
+            grid.integrate(|w| {
+                let wi = frame.to_local(to32(w));
+                (bsdf.eval(wo_local, wi).x * wi.z.abs()) as f64
+            })
+            .iter()
+            .sum()
+        } else {
+            albedo
+        };
+        assert_z(
+            &format!("{name}: albedo"),
+            estimate.mean(),
+            albedo,
+            estimate.std_err(),
+        );
+    }
+}
+
+fn load(path: &str) -> Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
+    load_scene_file(&path).unwrap().builder.build().unwrap()
+}
+
+fn guide_of(scene: &Scene, settings: SkeletonGuideSettings) -> SkeletonGuide {
+    SkeletonGuide::build(scene, &settings, &|_, _| true).unwrap()
+}
+
+/// Random surface points of a scene with their geometric normal and a random incident
+/// direction on the normal's side (or the other side, half of the time).
+fn surface_points(scene: &Scene, count: usize, seed: u64) -> Vec<(Vec3, Vec3, Vec3, Vec3)> {
+    let mut rng = Rng::new(seed, 3);
+    let bounds = scene.bounds();
+    let mut out = Vec::new();
+    while out.len() < count {
+        // A random ray from a random point inside the bounds.
+        let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
+        let o = bounds.min + (bounds.max - bounds.min) * u;
+        let d = lacuna::math::warp::uniform_sphere(rng.uniform2());
+        let ray = lacuna::geometry::Ray::new(o, d, f32::INFINITY);
+        if let Some(si) = scene.intersect(&ray) {
+            out.push((si.p, si.p_error, si.ng, si.wo));
+        }
+    }
+    out
+}
+
+/// Lobes pointing below the surface are dropped, hidden importance points too (with the
+/// visibility test), and nothing else: every active lobe points to the side of the normal the
+/// path comes from and, with the test, at a visible importance point.
+#[test]
+fn queries_drop_lobes_below_the_surface_and_hidden_importance_points() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    for visibility_test in [true, false] {
+        let guide = guide_of(
+            &scene,
+            SkeletonGuideSettings {
+                visibility_test,
+                ..Default::default()
+            },
+        );
+        assert!(!guide.importance_nodes().is_empty());
+        let (mut guided, mut dropped_side, mut dropped_hidden, mut kept_hidden) = (0, 0, 0, 0);
+        let mut q = GuideQuery::new();
+        for (p, p_error, ng, wo) in surface_points(&scene, 3000, 9) {
+            q.init(&guide, &scene, p, p_error, ng, wo);
+            let side = if ng.dot(wo) >= 0.0 { ng } else { -ng };
+            let Some(node) = q.node() else {
+                assert_eq!(q.guiding_probability(), 0.0);
+                continue;
+            };
+            let lobes = guide.lobes(node);
+            let mut expected = 0;
+            for lobe in lobes {
+                let to = lobe.point - p;
+                if to.normalize().dot(side) <= 0.0 {
+                    dropped_side += 1;
+                    continue;
+                }
+                let origin = lacuna::geometry::offset_ray_origin(p, p_error, side, to);
+                let ray = lacuna::geometry::Ray::new(
+                    origin,
+                    to.normalize(),
+                    to.length() * (1.0 - lacuna::geometry::SHADOW_EPSILON),
+                );
+                let hidden = scene.occluded(&ray);
+                if hidden && visibility_test {
+                    dropped_hidden += 1;
+                    continue;
+                }
+                kept_hidden += hidden as u32;
+                expected += 1;
+            }
+            assert_eq!(q.lobe_count(), expected, "at {p}");
+            let total: f32 = (0..q.lobe_count()).map(|i| q.lobe(i).unwrap().2).sum();
+            for i in 0..q.lobe_count() {
+                let (axis, s, _) = q.lobe(i).unwrap();
+                assert!(axis.dot(side) > 0.0 && (1.0..=64.0).contains(&s));
+            }
+            if expected > 0 {
+                guided += 1;
+                assert!((total - 1.0).abs() < 1e-5);
+                assert_eq!(q.guiding_probability(), guide.settings().c_skel);
+            } else {
+                assert_eq!(q.guiding_probability(), 0.0);
+            }
+        }
+        assert!(guided > 100, "{guided} guided points");
+        assert!(dropped_side > 0, "no lobe below a surface in 3000 points");
+        if visibility_test {
+            assert!(
+                dropped_hidden > 0,
+                "no hidden importance point in 3000 points"
+            );
+        } else {
+            assert!(kept_hidden > 0);
+        }
+    }
+}
+
+fn quad(b: &mut SceneBuilder, p: [Vec3; 4], m: u32) {
+    b.add_mesh(MeshDesc {
+        positions: p.to_vec(),
+        indices: vec![[0, 1, 2], [0, 2, 3]],
+        materials: vec![m],
+        ..Default::default()
+    })
+    .unwrap();
+}
+
+/// A closed box of side 2 centred at `c` (faces pointing inwards).
+fn closed_box(b: &mut SceneBuilder, c: Vec3, m: u32) {
+    let v = |x: f32, y: f32, z: f32| c + Vec3::new(x, y, z);
+    let faces = [
+        [
+            v(-1., -1., -1.),
+            v(1., -1., -1.),
+            v(1., -1., 1.),
+            v(-1., -1., 1.),
+        ],
+        [
+            v(-1., 1., -1.),
+            v(-1., 1., 1.),
+            v(1., 1., 1.),
+            v(1., 1., -1.),
+        ],
+        [
+            v(-1., -1., -1.),
+            v(-1., 1., -1.),
+            v(1., 1., -1.),
+            v(1., -1., -1.),
+        ],
+        [
+            v(-1., -1., 1.),
+            v(1., -1., 1.),
+            v(1., 1., 1.),
+            v(-1., 1., 1.),
+        ],
+        [
+            v(-1., -1., -1.),
+            v(-1., -1., 1.),
+            v(-1., 1., 1.),
+            v(-1., 1., -1.),
+        ],
+        [
+            v(1., -1., -1.),
+            v(1., 1., -1.),
+            v(1., 1., 1.),
+            v(1., -1., 1.),
+        ],
+    ];
+    for f in faces {
+        quad(b, f, m);
+    }
+}
+
+/// Two closed boxes, a light in the first only: the second box's empty space has no path to
+/// any importance node, so its points are not guided, and rendering the lit box still agrees
+/// with `path`.
+#[test]
+fn nodes_without_a_path_to_an_importance_node_are_not_guided() {
+    let mut b = SceneBuilder::new();
+    let wall = b.add_material(Material::diffuse(Rgb::splat(0.6))).unwrap();
+    let light = b
+        .add_material(Material::emissive(Rgb::splat(10.0)))
+        .unwrap();
+    closed_box(&mut b, Vec3::ZERO, wall);
+    closed_box(&mut b, Vec3::new(3.0, 0.0, 0.0), wall);
+    let v = Vec3::new;
+    quad(
+        &mut b,
+        [
+            v(-0.3, 0.95, -0.3),
+            v(0.3, 0.95, -0.3),
+            v(0.3, 0.95, 0.3),
+            v(-0.3, 0.95, 0.3),
+        ],
+        light,
+    );
+    let scene = b.build().unwrap();
+    let guide = guide_of(&scene, SkeletonGuideSettings::default());
+    assert!(guide.guided_node_count() < guide.node_count());
+    let mut q = GuideQuery::new();
+    // The floor of the dark box, seen from inside.
+    let p = v(3.2, -1.0, 0.1);
+    q.init(&guide, &scene, p, Vec3::ZERO, Vec3::Y, Vec3::Y);
+    let node = q.node().expect("the dark box's floor maps to a node");
+    assert!(guide.lobes(node).is_empty());
+    assert_eq!(q.guiding_probability(), 0.0);
+    // The floor of the lit box is guided.
+    q.init(
+        &guide,
+        &scene,
+        v(0.2, -1.0, 0.1),
+        Vec3::ZERO,
+        Vec3::Y,
+        Vec3::Y,
+    );
+    assert_eq!(q.guiding_probability(), 0.5);
+    let camera = Camera::look_at(v(0.0, 0.0, 0.9), v(0.0, -0.3, -1.0), Vec3::Y, 80.0).unwrap();
+    agree("two boxes", &scene, &camera, 6, 16, 16, &["path_skeleton"]);
+}
+
+/// Renders `path` and each spec over 8 seeds and z-tests their region means.
+fn agree(
+    label: &str,
+    scene: &Scene,
+    camera: &Camera,
+    max_depth: u32,
+    size: u32,
+    spp: u32,
+    specs: &[&str],
+) {
+    let settings = IntegratorSettings {
+        max_depth,
+        ..Default::default()
+    };
+    let path = region_means(scene, camera, "path", settings, size, spp, 8);
+    assert!(path[0].0 > 0.0, "{label}: black image");
+    for spec in specs {
+        let skel = region_means(scene, camera, spec, settings, size, spp, 8);
+        assert_agree(label, ("path", &path), (spec, &skel));
+    }
+}
+
+/// Default (automatic strength) and an aggressive fixed setting (c_skel 0.9, s = 64).
+const VARIANTS: &[&str] = &["path_skeleton", "path_skeleton:c_skel=0.9:strength=64"];
+
+#[test]
+fn path_skeleton_agrees_with_path_on_the_cornell_box() {
+    let scene = load("scenes/cornell-box/cornell-box.json");
+    let camera = *scene.camera().unwrap();
+    agree("cornell", &scene, &camera, 5, 24, 8, VARIANTS);
+}
+
+/// Direct lighting only in a box whose whole ceiling emits, where the lobes of the floor point
+/// at the light and the noise is low: a wrong MIS weight between light sampling and a guided
+/// direction hitting the light shows. (Both the weight of next-event estimation and that of
+/// emitters hit must use the mixture's density.)
+#[test]
+fn path_skeleton_agrees_with_path_in_direct_lighting() {
+    let mut b = SceneBuilder::new();
+    let wall = b.add_material(Material::diffuse(Rgb::splat(0.6))).unwrap();
+    let light = b.add_material(Material::emissive(Rgb::splat(2.0))).unwrap();
+    closed_box(&mut b, Vec3::ZERO, wall);
+    let v = Vec3::new;
+    quad(
+        &mut b,
+        [
+            v(-0.99, 0.99, -0.99),
+            v(0.99, 0.99, -0.99),
+            v(0.99, 0.99, 0.99),
+            v(-0.99, 0.99, 0.99),
+        ],
+        light,
+    );
+    let scene = b.build().unwrap();
+    let camera = Camera::look_at(v(0.0, 0.5, 0.9), v(0.0, -1.0, -0.5), Vec3::Y, 70.0).unwrap();
+    agree(
+        "lit box, direct",
+        &scene,
+        &camera,
+        1,
+        16,
+        32,
+        &["path_skeleton:c_skel=0.9:strength=8"],
+    );
+}
+
+#[test]
+fn path_skeleton_agrees_with_path_on_the_corridor() {
+    let scene = corridor_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    agree("corridor", &scene, &camera, 8, 16, 64, VARIANTS);
+}
+
+#[test]
+fn path_skeleton_agrees_with_path_on_the_two_rooms() {
+    let scene = two_rooms_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    agree("two rooms", &scene, &camera, 6, 20, 16, VARIANTS);
+}
+
+#[test]
+fn path_skeleton_agrees_with_path_on_the_veach_door() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let camera = *scene.camera().unwrap();
+    agree(
+        "veach door",
+        &scene,
+        &camera,
+        6,
+        16,
+        16,
+        &[
+            "path_skeleton",
+            "path_skeleton:strength=auto:16:visibility=false",
+        ],
+    );
+}
+
+/// Glossy (exponents 50 and 1e4), mirror and glass: delta vertices are never guided, glossy
+/// ones are, and the image agrees with `path`.
+#[test]
+fn path_skeleton_agrees_with_path_on_glossy_mirror_and_glass() {
+    let (scene, camera) = box_scene(true, true, false);
+    agree("glossy+delta bsdfs", &scene, &camera, 6, 20, 16, VARIANTS);
+}
+
+#[test]
+fn rendering_needs_the_precomputation_for_the_same_scene() {
+    let cornell = load("scenes/cornell-box/cornell-box.json");
+    let rooms = two_rooms_builder().unwrap().build().unwrap();
+    let camera = *cornell.camera().unwrap();
+    let mut skel = integrator::create("path_skeleton", IntegratorSettings::default()).unwrap();
+    let rs = RenderSettings {
+        width: 8,
+        height: 8,
+        spp: 1,
+        ..Default::default()
+    };
+    let run = |i: &dyn integrator::Integrator| {
+        render(
+            &cornell,
+            &camera,
+            i,
+            &rs,
+            &|_| true,
+            &AtomicBool::new(false),
+        )
+    };
+    let Err(err) = run(skel.as_ref()) else {
+        panic!("rendered unprepared")
+    };
+    let err = err.to_string();
+    assert!(err.contains("prepare"), "{err}");
+    prepare(skel.as_mut(), &rooms, Some(1), &|_, _| true).unwrap();
+    let Err(err) = run(skel.as_ref()) else {
+        panic!("rendered with another scene's guide")
+    };
+    let err = err.to_string();
+    assert!(err.contains("another scene"), "{err}");
+    let pre = prepare(skel.as_mut(), &cornell, Some(2), &|_, _| true).unwrap();
+    assert!(pre.seconds() > 0.0 && pre.stages.len() >= 4);
+    assert!(pre.notes[0].contains("importance nodes"));
+    run(skel.as_ref()).unwrap();
+    // Cancelling the precomputation.
+    let err = prepare(skel.as_mut(), &cornell, None, &|_, _| false).err();
+    assert!(matches!(err, Some(lacuna::Error::Cancelled)));
+    // `path` needs nothing.
+    let mut path = integrator::create("path", IntegratorSettings::default()).unwrap();
+    assert!(prepare(path.as_mut(), &cornell, None, &|_, _| true)
+        .unwrap()
+        .stages
+        .is_empty());
+}
+
+#[test]
+fn settings_and_specs_are_validated() {
+    let base = IntegratorSettings::default();
+    for bad in [
+        "path_skeleton:c_skel=1",
+        "path_skeleton:c_skel=-0.1",
+        "path_skeleton:strength=-3",
+        "path_skeleton:strength=auto:0.5",
+        "path_skeleton:lobes=0",
+        "path_skeleton:lobes=9",
+        "path_skeleton:resolution=2",
+        "path_skeleton:voxel_budget=10",
+        "path_skeleton:light_rays=0",
+        "path_skeleton:importance_nodes=0",
+        "path_skeleton:visibility=maybe",
+        "path_skeleton:colour=red",
+        "path_skeleton:c_skel",
+        "path:strength=4",
+        "path_skeletons",
+    ] {
+        assert!(integrator::create(bad, base).is_err(), "{bad}");
+    }
+    for good in [
+        "path_skeleton",
+        "path_skeleton:c_skel=0:strength=0",
+        "path_skeleton:strength=auto:16:lobes=8:visibility=false",
+        "path:max_depth=3:mis=balance",
+    ] {
+        integrator::create(good, base).unwrap_or_else(|e| panic!("{good}: {e}"));
+    }
+    assert_eq!(
+        lacuna::capi::LACUNA_SKELETON_MAX_STRENGTH,
+        lacuna::guide::MAX_STRENGTH
+    );
+    let mut s = SkeletonGuideSettings::default();
+    s.set("strength", "12").unwrap();
+    assert_eq!(s.strength, SkeletonStrength::Fixed(12.0));
+    // A failed set leaves the settings as they were.
+    assert!(s.set("c_skel", "2").is_err());
+    assert_eq!(s.c_skel, 0.5);
+}
+
+/// `compare` runs the precomputation in every run and spends it from the run's budget: the
+/// curves of `path_skeleton` start after it.
+#[test]
+fn compare_counts_the_precomputation_in_the_budget() {
+    let scene = load("scenes/cornell-box/cornell-box.json");
+    let camera = *scene.camera().unwrap();
+    let settings = IntegratorSettings {
+        max_depth: 4,
+        ..Default::default()
+    };
+    // A coarse grid keeps the precomputation short even on a loaded machine.
+    let mut contenders: Vec<Contender> = ["path", "path_skeleton:resolution=24"]
+        .iter()
+        .map(|n| Contender {
+            label: n.to_string(),
+            integrator: integrator::create(n, settings).unwrap(),
+        })
+        .collect();
+    let rs = RenderSettings {
+        width: 16,
+        height: 16,
+        ..Default::default()
+    };
+    let reference = vec![Rgb::splat(0.5); 256];
+    let cmp = compare(
+        &scene,
+        &camera,
+        &mut contenders,
+        &reference,
+        None,
+        &rs,
+        3.0,
+        1,
+        &|_| true,
+    )
+    .unwrap();
+    let skel = cmp.results.iter().find(|r| r.contender == 1).unwrap();
+    assert!(skel.precompute_seconds > 0.0);
+    let first = cmp.points.iter().find(|p| p.contender == 1).unwrap();
+    assert!(first.seconds >= skel.precompute_seconds);
+    assert!(cmp.summaries[1].precompute_seconds.median > 0.0);
+    // A budget the precomputation alone exceeds is refused.
+    let err = compare(
+        &scene,
+        &camera,
+        &mut contenders[1..],
+        &reference,
+        None,
+        &rs,
+        1e-6,
+        1,
+        &|_| true,
+    )
+    .err()
+    .expect("budget too small")
+    .to_string();
+    assert!(err.contains("precomputation"), "{err}");
+}
