@@ -31,6 +31,8 @@ pub mod complex;
 pub mod skeleton;
 mod skeleton_report;
 pub mod thinning;
+#[cfg(test)]
+mod thinning_oracle;
 
 pub use complex::{diagonal_contacts, Betti, Complex};
 pub use skeleton::{

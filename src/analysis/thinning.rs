@@ -1062,4 +1062,73 @@ mod tests {
             assert!(t.complex().is_subcomplex_of(&cx));
         }
     }
+    /// The fast collapse equals the literal oracle after every sub-step, with the same
+    /// constraint set and dates, through piercing and re-thinning.
+    #[test]
+    fn equals_the_naive_oracle() {
+        use crate::analysis::thinning_oracle::Oracle;
+        let mut rng = Rng::new(23, 5);
+        for case in 0..40 {
+            let dims = [3 + case % 6, 3 + (case * 5) % 6, 2 + (case * 3) % 5];
+            let occ = random_occupied(dims, [0.1f32, 0.2, 0.35, 0.5][case % 4], &mut rng);
+            let cx = Complex::from_occupied(dims, &occ);
+            let (d1, dc) = maps(dims, &occ);
+            let constrained = case % 3 != 0;
+            let constraint = if constrained {
+                Constraint::Lifespan {
+                    distance: &d1,
+                    decenterness: &dc,
+                }
+            } else {
+                Constraint::None
+            };
+            let mut fast = Thinning::new(cx.clone(), constraint, case % 2 == 0, true);
+            fast.set_chunk_size(if case % 2 == 0 { 5 } else { 0 });
+            let mut oracle = Oracle::new(cx.clone(), constrained.then_some((&d1[..], &dc[..])));
+            for round in 0..10 {
+                let mut steps = Vec::new();
+                oracle.run(&mut |c| steps.push(c.bytes().to_vec()));
+                let mut k = 0;
+                fast.run(&mut |c, _| {
+                    assert_eq!(
+                        c.bytes(),
+                        &steps[k][..],
+                        "case {case} round {round} sub-step {k}"
+                    );
+                    k += 1;
+                });
+                assert_eq!(k, steps.len(), "case {case}: iterations");
+                assert_eq!(fast.iteration(), oracle.iteration);
+                assert_eq!(fast.inhibited(), &oracle.inhibit[..], "case {case}: W");
+                for i in 0..cx.len() {
+                    for a in 0..3 {
+                        assert_eq!(
+                            fast.birth(i, a).unwrap(),
+                            oracle.birth[3 * i + a],
+                            "case {case} birth"
+                        );
+                    }
+                    for span in 0..8u8 {
+                        assert_eq!(
+                            fast.death(i, span).unwrap(),
+                            oracle.death[8 * i + span as usize]
+                        );
+                    }
+                }
+                let before = fast.complex().clone();
+                if fast.pierce(Some(&d1)) == 0 {
+                    break;
+                }
+                for i in 0..cx.len() {
+                    let gone = before.byte(i) & !fast.complex().byte(i);
+                    for span in [3u8, 5, 6] {
+                        if gone & SPAN_BIT[span as usize] != 0 {
+                            oracle.remove_square(i, span);
+                        }
+                    }
+                }
+                assert_eq!(fast.complex(), &oracle.complex);
+            }
+        }
+    }
 }
