@@ -263,7 +263,13 @@ impl Complex {
         }
     }
 
+    /// Adds one cell (the caller keeps the complex closed).
+    pub(crate) fn add_cell(&mut self, i: usize, span: u8) {
+        self.bits[i] |= SPAN_BIT[span as usize];
+    }
+
     /// Removes one cell (the caller keeps the complex closed).
+    #[cfg(test)]
     pub(crate) fn remove(&mut self, i: usize, span: u8) {
         self.bits[i] &= !SPAN_BIT[span as usize];
     }

@@ -651,12 +651,11 @@ impl Skeleton {
             }
         };
 
-        let t = Instant::now();
-        let complex = Complex::from_occupied(dims, occupied);
-        stage("complex", &mut timings, t)?;
-
+        // The thinning builds its own (bit-plane) complex; the byte complex is only needed for
+        // the Betti numbers.
         let t = Instant::now();
         let (empty_space, contacts) = if settings.topology {
+            let complex = Complex::from_occupied(dims, occupied);
             (Some(complex.betti()), diagonal_contacts(dims, occupied))
         } else {
             (None, 0)
@@ -664,8 +663,9 @@ impl Skeleton {
         stage("empty-space topology", &mut timings, t)?;
 
         let t = Instant::now();
-        let mut thinning = Thinning::new(
-            complex,
+        let mut thinning = Thinning::from_occupied(
+            dims,
+            occupied,
             Constraint::Lifespan {
                 distance: distance_l1,
                 decenterness: decenterness_l1,
@@ -673,12 +673,15 @@ impl Skeleton {
             settings.parallel,
             false,
         );
-        thinning.run(&mut |_, _| {});
+        stage("complex", &mut timings, t)?;
+
+        let t = Instant::now();
+        thinning.run(None);
         stage("thinning (Alg. 2-3)", &mut timings, t)?;
 
         let t = Instant::now();
         while thinning.pierce(Some(sq_distance)) > 0 {
-            thinning.run(&mut |_, _| {});
+            thinning.run(None);
         }
         stage("piercing + re-thinning", &mut timings, t)?;
 
