@@ -24,6 +24,7 @@ mod film;
 mod job;
 mod mesh;
 mod scene;
+mod skeleton;
 mod types;
 mod version;
 
@@ -38,5 +39,6 @@ pub use film::*;
 pub use job::*;
 pub use mesh::*;
 pub use scene::*;
+pub use skeleton::*;
 pub use types::*;
 pub use version::*;
