@@ -78,7 +78,7 @@ pub struct lacuna_skeleton_info {
     pub seconds: f64,
 }
 
-fn graph<'a>(s: &'a lacuna_skeleton, which: u32) -> Result<&'a Graph, CapiError> {
+fn graph(s: &lacuna_skeleton, which: u32) -> Result<&Graph, CapiError> {
     match which {
         LACUNA_SKELETON_GRAPH_RAW => Ok(&s.skeleton.raw),
         LACUNA_SKELETON_GRAPH_FILTERED => Ok(&s.skeleton.filtered.graph),
