@@ -60,6 +60,25 @@
 // Largest number of light subpaths per iteration accepted.
 #define LACUNA_MAX_LIGHT_PATHS (1 << 28)
 
+// Thin on the calling thread only (the result is identical; default: the context's workers).
+#define LACUNA_SKELETON_SEQUENTIAL 1
+
+// Also compute the Betti numbers of the empty space (`lacuna_skeleton_get_info`).
+#define LACUNA_SKELETON_TOPOLOGY 2
+
+// The curvilinear skeleton, one node per point of the thinned complex.
+#define LACUNA_SKELETON_GRAPH_RAW 0
+
+// The filtered skeleton (maximal-ball clusters, 000 Algorithm 4); the node map and
+// `lacuna_skeleton_map_point` refer to its nodes.
+#define LACUNA_SKELETON_GRAPH_FILTERED 1
+
+// Wavefront OBJ: one `v` per node, one `l` per edge.
+#define LACUNA_SKELETON_FORMAT_OBJ 0
+
+// ASCII PLY: vertices with a `radius` property (world units) and an `edge` element.
+#define LACUNA_SKELETON_FORMAT_PLY 1
+
 // Index value meaning "none" (e.g. `lacuna_hit.triangle` of a ray that hit nothing).
 #define LACUNA_INVALID_INDEX UINT32_MAX
 
@@ -380,6 +399,13 @@ typedef struct lacuna_scene lacuna_scene;
 // It keeps its context alive.
 typedef struct lacuna_scene_builder lacuna_scene_builder;
 
+// The skeleton of the empty space of an analysis.
+//
+// Refcounted (`lacuna_skeleton_retain`/`lacuna_skeleton_release`); keeps its analysis (and so
+// its scene) alive. Immutable: every function may be called from any number of threads at
+// once.
+typedef struct lacuna_skeleton lacuna_skeleton;
+
 // The skeleton guide of a scene (000 chapter 9): the skeleton of its empty space, importance
 // nodes found by light tracing, shortest paths and importance points.
 //
@@ -561,6 +587,39 @@ typedef struct lacuna_scene_stats {
     struct lacuna_vec3 bounds_min;
     struct lacuna_vec3 bounds_max;
 } lacuna_scene_stats;
+
+// Sizes and topology of a skeleton.
+typedef struct lacuna_skeleton_info {
+    size_t raw_nodes;
+    size_t raw_edges;
+    size_t filtered_nodes;
+    size_t filtered_edges;
+    // Connected components and cycle rank (edges - nodes + components) of the raw graph; the
+    // filtered graph has the same.
+    size_t components;
+    size_t cycle_rank;
+    // Whether the empty-space Betti numbers below were computed (`LACUNA_SKELETON_TOPOLOGY`).
+    bool has_topology;
+    size_t b0;
+    size_t b1;
+    size_t b2;
+    int64_t euler;
+    // Wall-clock seconds of the skeleton stages.
+    double seconds;
+} lacuna_skeleton_info;
+
+// A skeleton node.
+typedef struct lacuna_skeleton_node {
+    // World position (a voxel corner of the analysis grid).
+    struct lacuna_vec3 position;
+    // Radius of the largest ball centred on the node's voxel that holds no occupied voxel
+    // centre (exact Euclidean distance, world units).
+    float radius;
+    // Number of edges at the node.
+    uint32_t degree;
+    // For a raw node: the filtered node it belongs to; for a filtered node: its own index.
+    uint32_t filtered;
+} lacuna_skeleton_node;
 
 #ifdef __cplusplus
 extern "C" {
@@ -1308,6 +1367,61 @@ lacuna_status lacuna_scene_get_memory_report(const struct lacuna_scene *scene,
 // Writes the scene's figures (counts, bounds, build time) to `*out_stats`. Thread-safe.
 lacuna_status lacuna_scene_get_stats(const struct lacuna_scene *scene,
                                      struct lacuna_scene_stats *out_stats);
+
+// Builds the skeleton of `analysis`'s empty space. The thinning has no parameter (000
+// Algorithm 3); `flags` combines `LACUNA_SKELETON_*`. An analysis built with
+// `LACUNA_ANALYSIS_ALL_MAPS` and a solid outside lends its maps; otherwise they are computed
+// here. `progress` (may be NULL) is called between stages with the fraction done, on the
+// calling thread; returning false cancels (`LACUNA_STATUS_CANCELLED`, nothing written). Runs
+// on the scene context's worker threads. On success `*out_skeleton` receives a new reference.
+// Thread-safe.
+lacuna_status lacuna_skeleton_build(const struct lacuna_analysis *analysis,
+                                    uint32_t flags,
+                                    lacuna_progress_callback progress,
+                                    void *user_data,
+                                    struct lacuna_skeleton **out_skeleton);
+
+// Adds a reference. NULL is a no-op. Thread-safe.
+void lacuna_skeleton_retain(const struct lacuna_skeleton *skeleton);
+
+// Drops a reference; the last one frees the skeleton. NULL is a no-op. Thread-safe.
+void lacuna_skeleton_release(const struct lacuna_skeleton *skeleton);
+
+// Sizes, topology and build time of the skeleton. Thread-safe.
+lacuna_status lacuna_skeleton_get_info(const struct lacuna_skeleton *skeleton,
+                                       struct lacuna_skeleton_info *out_info);
+
+// Node `index` of graph `graph` (`LACUNA_SKELETON_GRAPH_*`; 0 <= index < its node count).
+// Thread-safe.
+lacuna_status lacuna_skeleton_get_node(const struct lacuna_skeleton *skeleton,
+                                       uint32_t graph,
+                                       size_t index,
+                                       struct lacuna_skeleton_node *out_node);
+
+// Edge `index` of graph `graph` (0 <= index < its edge count): its two node indices, the
+// smaller first (`out_nodes`: 2 values). Edges are sorted. Thread-safe.
+lacuna_status lacuna_skeleton_get_edge(const struct lacuna_skeleton *skeleton,
+                                       uint32_t graph,
+                                       size_t index,
+                                       uint32_t *out_nodes);
+
+// The filtered node of a surface point (000 eq. 151-155): `point` on a surface with normal
+// `normal` (either orientation), seen from `incident` (pointing from the point towards where
+// the path comes from; any length). Writes `LACUNA_INVALID_INDEX` when no empty voxel next to
+// the point maps to a node. A point outside the analysis grid fails with
+// `LACUNA_STATUS_OUT_OF_RANGE`; non-finite vectors and a zero normal are invalid. Thread-safe.
+lacuna_status lacuna_skeleton_map_point(const struct lacuna_skeleton *skeleton,
+                                        const struct lacuna_vec3 *point,
+                                        const struct lacuna_vec3 *normal,
+                                        const struct lacuna_vec3 *incident,
+                                        uint32_t *out_node);
+
+// Writes graph `graph` to the file `path` (UTF-8) as `format` (`LACUNA_SKELETON_FORMAT_*`).
+// Fails with `LACUNA_STATUS_IO` when the file cannot be written. Thread-safe.
+lacuna_status lacuna_skeleton_export(const struct lacuna_skeleton *skeleton,
+                                     uint32_t graph,
+                                     uint32_t format,
+                                     const char *path);
 
 // The library's version packed as `LACUNA_VERSION` is (`major << 16 | minor << 8 | patch`).
 // Compare it with `LACUNA_VERSION` to check that the header matches the library. Thread-safe.

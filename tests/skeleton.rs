@@ -56,44 +56,97 @@ fn skeleton_of(dims: [usize; 3], occ: &VoxelSet, parallel: bool) -> Skeleton {
     .unwrap()
 }
 
-/// Every voxel 6-reachable through empty voxels from a node's voxel is mapped, to a node of
-/// the same graph component as a node whose voxel reaches it; nothing else is.
+/// Breadth-first reach through empty voxels from `seeds`, through face neighbours (6) or
+/// also edge and corner neighbours (26).
+fn reach(g: &VoxelGrid, occ: &VoxelSet, seeds: &[usize], full: bool) -> Vec<bool> {
+    let mut seen = vec![false; g.len()];
+    let mut queue: VecDeque<usize> = seeds.iter().copied().collect();
+    for &q in seeds {
+        seen[q] = true;
+    }
+    while let Some(i) = queue.pop_front() {
+        let c = g.coords(i).map(|x| x as i64);
+        for dz in -1i64..=1 {
+            for dy in -1i64..=1 {
+                for dx in -1i64..=1 {
+                    let order = dx.abs() + dy.abs() + dz.abs();
+                    if order == 0 || (!full && order > 1) {
+                        continue;
+                    }
+                    let n = [c[0] + dx, c[1] + dy, c[2] + dz];
+                    if (0..3).any(|a| n[a] < 0 || n[a] >= g.dims[a] as i64) {
+                        continue;
+                    }
+                    let j = g.index(n[0] as usize, n[1] as usize, n[2] as usize);
+                    if !occ.get(j) && !seen[j] {
+                        seen[j] = true;
+                        queue.push_back(j);
+                    }
+                }
+            }
+        }
+    }
+    seen
+}
+
+/// The node map is total on the components of the empty space (26-connected, the complex's
+/// convention) that hold a node's seed voxel, and empty elsewhere; a voxel 6-reachable from
+/// the seeds maps to a node whose seed is 6-reachable from it (Algorithm 5).
 fn check_node_map(s: &Skeleton, occ: &VoxelSet) {
     let g = &s.grid;
     let nodes = &s.filtered.graph.nodes;
-    let mut reach = vec![false; g.len()];
     let seeds = node_map_seeds(g, occ, nodes);
-    let mut queue = VecDeque::new();
+    let mut seed_voxels = Vec::new();
     for (n, seed) in nodes.iter().zip(&seeds) {
         assert!(!occ.get(n.voxel as usize), "node voxel is empty");
         let Some(q) = *seed else { continue };
         let c = g.coords(q as usize);
         assert!((0..3).all(|a| n.lattice[a] as usize == c[a] || n.lattice[a] as usize == c[a] + 1));
-        assert!(!occ.get(q as usize) && !reach[q as usize]);
-        reach[q as usize] = true;
-        queue.push_back(q as usize);
+        assert!(!occ.get(q as usize) && !seed_voxels.contains(&(q as usize)));
+        seed_voxels.push(q as usize);
     }
-    while let Some(i) = queue.pop_front() {
-        let c = g.coords(i);
-        for a in 0..3 {
-            for d in [-1i64, 1] {
-                let mut n = c.map(|x| x as i64);
-                n[a] += d;
-                if n[a] < 0 || n[a] >= g.dims[a] as i64 {
-                    continue;
-                }
-                let j = g.index(n[0] as usize, n[1] as usize, n[2] as usize);
-                if !occ.get(j) && !reach[j] {
-                    reach[j] = true;
-                    queue.push_back(j);
+    let six = reach(g, occ, &seed_voxels, false);
+    let all = reach(g, occ, &seed_voxels, true);
+    for i in 0..g.len() {
+        assert_eq!(all[i], s.node_map[i] != UNDEFINED_NODE, "voxel {i}");
+        if all[i] {
+            assert!((s.node_map[i] as usize) < nodes.len());
+        }
+    }
+    // Phase 1 stays within 6-components.
+    let mut comp = vec![u32::MAX; g.len()];
+    let mut count = 0;
+    let mut stack = Vec::new();
+    for start in 0..g.len() {
+        if occ.get(start) || comp[start] != u32::MAX {
+            continue;
+        }
+        comp[start] = count;
+        stack.push(start);
+        while let Some(i) = stack.pop() {
+            let c = g.coords(i);
+            for a in 0..3 {
+                for up in [false, true] {
+                    if (!up && c[a] == 0) || (up && c[a] + 1 == g.dims[a]) {
+                        continue;
+                    }
+                    let mut n = c;
+                    n[a] = if up { c[a] + 1 } else { c[a] - 1 };
+                    let j = g.index(n[0], n[1], n[2]);
+                    if !occ.get(j) && comp[j] == u32::MAX {
+                        comp[j] = count;
+                        stack.push(j);
+                    }
                 }
             }
         }
+        count += 1;
     }
     for i in 0..g.len() {
-        assert_eq!(reach[i], s.node_map[i] != UNDEFINED_NODE, "voxel {i}");
-        if reach[i] {
-            assert!((s.node_map[i] as usize) < nodes.len());
+        if six[i] {
+            let node = s.node_map[i] as usize;
+            let seed = seeds[node].expect("a mapped node has a seed") as usize;
+            assert_eq!(comp[i], comp[seed], "voxel {i} mapped across a diagonal");
         }
     }
 }
@@ -489,4 +542,32 @@ fn analyze_command_writes_the_skeleton() {
         );
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Two closed rooms that touch only along one edge: the closed-cube complex joins them (one
+/// component, a tree through the shared edge), the contact is reported, and the node map
+/// covers both rooms.
+#[test]
+fn rooms_touching_along_an_edge_are_one_component() {
+    let dims = [14, 14, 8];
+    let occ = solid(dims, |x, y, z| {
+        let a = (1..7).contains(&x) && (1..7).contains(&y);
+        let b = (7..13).contains(&x) && (7..13).contains(&y);
+        !((a || b) && (1..7).contains(&z))
+    });
+    let s = check(dims, &occ, Some((1, 0, 0)));
+    assert!(s.diagonal_contacts > 0);
+    assert_eq!(s.raw.components(), 1);
+    // Nodes on both sides of the contact, joined through the shared edge (x = y = 7).
+    let side = |n: &lacuna::analysis::Node| (n.lattice[0] + n.lattice[1]).cmp(&14);
+    assert!(s.raw.nodes.iter().any(|n| side(n).is_lt()));
+    assert!(s.raw.nodes.iter().any(|n| side(n).is_gt()));
+    assert!(s
+        .raw
+        .nodes
+        .iter()
+        .any(|n| n.lattice[0] == 7 && n.lattice[1] == 7));
+    for i in 0..s.grid.len() {
+        assert_eq!(occ.get(i), s.node_map[i] == UNDEFINED_NODE);
+    }
 }

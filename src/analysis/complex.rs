@@ -24,9 +24,9 @@
 //! the skeleton and the reported topology of the empty space always agree. A wall made of
 //! voxels that only touch diagonally lets the skeleton through; [`diagonal_contacts`] counts
 //! the lattice vertices where empty voxels meet only diagonally so such leaks can be reported.
-//! The node map (Algorithm 5) propagates through 6-connected voxels, as the thesis does; a
-//! region reached only through a diagonal contact is then mapped to nodes found beyond it only
-//! if the skeleton itself passes there.
+//! The node map (Algorithm 5) propagates through 6-connected voxels, as the thesis does, and
+//! then across diagonal contacts too, so that it covers every component of this complex that
+//! holds a node (see [`super::skeleton::node_map`]).
 
 use rayon::prelude::*;
 
@@ -263,7 +263,13 @@ impl Complex {
         }
     }
 
+    /// Adds one cell (the caller keeps the complex closed).
+    pub(crate) fn add_cell(&mut self, i: usize, span: u8) {
+        self.bits[i] |= SPAN_BIT[span as usize];
+    }
+
     /// Removes one cell (the caller keeps the complex closed).
+    #[cfg(test)]
     pub(crate) fn remove(&mut self, i: usize, span: u8) {
         self.bits[i] &= !SPAN_BIT[span as usize];
     }

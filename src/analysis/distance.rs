@@ -217,6 +217,12 @@ pub fn distance_map(
 ) -> DistanceMap {
     let n = dims[0] * dims[1] * dims[2];
     assert_eq!(occupied.len(), n);
+    if !nearest && metric != Metric::Chessboard {
+        return DistanceMap {
+            values: distance_values(dims, occupied, metric, outside),
+            nearest: None,
+        };
+    }
     let mut data: Vec<(u32, u32)> = (0..n)
         .into_par_iter()
         .map(|i| {
@@ -235,6 +241,121 @@ pub fn distance_map(
     let values = data.par_iter().map(|p| p.0).collect();
     let nearest = nearest.then(|| data.par_iter().map(|p| p.1).collect());
     DistanceMap { values, nearest }
+}
+
+/// Stand-in for "no site" in the value-only passes (u32 sums of it never overflow).
+const FAR: u32 = u32::MAX / 4;
+
+/// L1 along one line: the min of the value and one more than the previous value, forward and
+/// backward; `edge` is the value of the virtual site beyond both ends (0 for a solid outside).
+#[inline]
+fn sweep_l1(line: &mut [u32], edge: u32) {
+    let mut prev = edge;
+    for v in line.iter_mut() {
+        prev = (*v).min(prev + 1);
+        *v = prev;
+    }
+    prev = edge;
+    for v in line.iter_mut().rev() {
+        prev = (*v).min(prev + 1);
+        *v = prev;
+    }
+}
+
+/// Squared Euclidean along one line (Felzenszwalb and Huttenlocher 2012): the lower envelope of
+/// the parabolas (x − q)² + f(q) over the sites q with a finite value, plus the virtual sites
+/// at −1 and n when the outside is solid. Intersections are computed in f64: the inputs are
+/// integers below 2^22, so every value and numerator is exact, and a computed intersection can
+/// only be off where two parabolas are equal at an integer, which leaves the minimum unchanged.
+fn envelope_sq(line: &mut [u32], solid: bool, sites: &mut Vec<(f64, f64)>, starts: &mut Vec<f64>) {
+    let n = line.len();
+    sites.clear();
+    starts.clear();
+    let mut push = |q: f64, fq: f64| {
+        while let Some(&(p, fp)) = sites.last() {
+            let s = ((fq + q * q) - (fp + p * p)) / (2.0 * (q - p));
+            if s <= *starts.last().unwrap() {
+                sites.pop();
+                starts.pop();
+            } else {
+                sites.push((q, fq));
+                starts.push(s);
+                return;
+            }
+        }
+        sites.push((q, fq));
+        starts.push(f64::NEG_INFINITY);
+    };
+    if solid {
+        push(-1.0, 0.0);
+    }
+    for (q, &v) in line.iter().enumerate() {
+        if v < FAR {
+            push(q as f64, v as f64);
+        }
+    }
+    if solid {
+        push(n as f64, 0.0);
+    }
+    if sites.is_empty() {
+        line.fill(FAR);
+        return;
+    }
+    let mut k = 0;
+    for (x, v) in line.iter_mut().enumerate() {
+        let xf = x as f64;
+        while k + 1 < sites.len() && starts[k + 1] < xf {
+            k += 1;
+        }
+        let (q, fq) = sites[k];
+        *v = ((xf - q) * (xf - q) + fq) as u32;
+    }
+}
+
+/// L1 or squared Euclidean distance values (no nearest feature), on plain u32 lines: the
+/// fast path of [`distance_map`] that the skeleton uses.
+fn distance_values(
+    dims: [usize; 3],
+    occupied: &VoxelSet,
+    metric: Metric,
+    outside: Outside,
+) -> Vec<u32> {
+    let n = dims[0] * dims[1] * dims[2];
+    let solid = outside == Outside::Solid;
+    let edge = if solid { 0 } else { FAR };
+    let nx = dims[0].max(1);
+    // Along x, from the occupancy bits: the 1-D distance to the nearest occupied voxel.
+    let mut d = vec![0u32; n];
+    d.par_chunks_mut(nx).enumerate().for_each(|(r, row)| {
+        let base = r * nx;
+        for (x, v) in row.iter_mut().enumerate() {
+            *v = if occupied.get(base + x) { 0 } else { FAR };
+        }
+        sweep_l1(row, edge);
+        if metric == Metric::SquaredEuclidean {
+            for v in row.iter_mut() {
+                *v = if *v >= FAR { FAR } else { *v * *v };
+            }
+        }
+    });
+    for axis in 1..3 {
+        match metric {
+            Metric::L1 => for_each_line(dims, axis, &mut d, || (), |_, line| sweep_l1(line, edge)),
+            _ => for_each_line(
+                dims,
+                axis,
+                &mut d,
+                || (Vec::new(), Vec::new()),
+                |(sites, starts), line| envelope_sq(line, solid, sites, starts),
+            ),
+        }
+    }
+    d.par_iter_mut().for_each(|v| {
+        if *v >= FAR {
+            *v = INFINITE;
+        }
+    });
+    d
 }
 
 /// Distance between two voxels of a grid under a metric (squared for Euclidean).
@@ -310,6 +431,9 @@ mod tests {
                     for outside in [Outside::Solid, Outside::Empty] {
                         let got = distance_map(dims, &occ, metric, outside, true);
                         let want = brute(dims, &occ, metric, outside);
+                        // The value-only fast path agrees too.
+                        let values = distance_map(dims, &occ, metric, outside, false).values;
+                        assert_eq!(values, want, "values {dims:?} {density} {metric:?}");
                         assert_eq!(
                             got.values, want,
                             "{dims:?} density {density} {metric:?} {outside:?}"

@@ -31,11 +31,13 @@ pub mod complex;
 pub mod skeleton;
 mod skeleton_report;
 pub mod thinning;
+#[cfg(test)]
+mod thinning_oracle;
 
 pub use complex::{diagonal_contacts, Betti, Complex};
 pub use skeleton::{
     filter_skeleton, graph_from_complex, map_point, node_map, node_map_seeds, Filtered, Graph,
-    Node, Skeleton, SkeletonSettings, UNDEFINED_NODE,
+    Node, Skeleton, SkeletonMaps, SkeletonSettings, UNDEFINED_NODE,
 };
 pub use skeleton_report::{skeleton_obj, skeleton_ply, write_skeleton, write_skeleton_images};
 pub use thinning::{Constraint, SubStep, Thinning, ThinningStats};

@@ -113,83 +113,186 @@ pub fn opening_map_26(dims: [usize; 3], distance: &[u32]) -> OpeningMap {
 /// Omega_1(x) = max { D_1(y) : d_1(x, y) < D_1(y) }.
 ///
 /// Levels r = max D_1 .. 1 are processed in decreasing order; level r floods from the voxels of
-/// distance exactly r (a larger ball contains the smaller one of the same centre) with a budget
-/// of r - 1 steps, assigning r to voxels not assigned yet. A voxel reached with a budget no
-/// larger than one it was already expanded with is not expanded again: everything within that
-/// budget already received a larger level. 6-connected steps through empty voxels are L1 steps.
+/// distance exactly r with a budget of r - 1 steps, assigning r to voxels not assigned yet. A
+/// voxel reached with a budget no larger than one it was already expanded with is not expanded
+/// again: everything within that budget already received a larger level. 6-connected steps
+/// through empty voxels are L1 steps. Only centres of maximal balls seed a level: a voxel with
+/// a 6-neighbour one farther from the solid has its ball inside that neighbour's larger ball
+/// (d_1 = 1 <= (r + 1) - r), which floods the same voxels first with a larger value and at
+/// least the same budget. The grid is padded with one layer of solid so that steps need no
+/// bounds test.
 pub fn opening_map_l1(dims: [usize; 3], distance_l1: &[u32]) -> Vec<u32> {
-    let n = dims[0] * dims[1] * dims[2];
+    opening_l1(dims, distance_l1, false)
+}
+
+/// [`opening_map_l1`], with 32-bit flood words even when 16 bits would do if `wide`.
+fn opening_l1(dims: [usize; 3], distance_l1: &[u32], wide: bool) -> Vec<u32> {
+    let [nx, ny, nz] = dims;
+    assert_eq!(distance_l1.len(), nx * ny * nz);
+    let (px, py) = (nx + 2, ny + 2);
+    let plane = px * py;
+    let padded = |x: usize, y: usize, z: usize| (x + 1) + px * (y + 1) + plane * (z + 1);
+    let mut dist = vec![0u32; plane * (nz + 2)];
+    for z in 0..nz {
+        for y in 0..ny {
+            let row = &distance_l1[nx * (y + ny * z)..nx * (y + 1 + ny * z)];
+            let start = padded(0, y, z);
+            dist[start..start + nx].copy_from_slice(row);
+        }
+    }
+    let steps = [1, px, plane];
     let max_d = distance_l1
         .iter()
         .copied()
         .filter(|&d| d != u32::MAX)
         .max()
         .unwrap_or(0) as usize;
-    let mut by_level: Vec<Vec<u32>> = vec![Vec::new(); max_d + 1];
-    for (i, &d) in distance_l1.iter().enumerate() {
-        if d > 0 && d != u32::MAX {
-            by_level[d as usize].push(i as u32);
-        }
+    // Maximal-ball centres by level (counting sort).
+    let is_centre = |i: usize| {
+        let d = dist[i];
+        d > 0
+            && d != u32::MAX
+            && steps
+                .iter()
+                .all(|&s| dist[i - s] != d + 1 && dist[i + s] != d + 1)
+    };
+    let centres: Vec<u32> = (0..nz)
+        .into_par_iter()
+        .flat_map_iter(|z| {
+            let mut out = Vec::new();
+            for y in 0..ny {
+                for x in 0..nx {
+                    let i = padded(x, y, z);
+                    if is_centre(i) {
+                        out.push(i as u32);
+                    }
+                }
+            }
+            out
+        })
+        .collect();
+    let mut first = vec![0usize; max_d + 2];
+    for &i in &centres {
+        first[dist[i as usize] as usize + 1] += 1;
     }
-    let mut opening = vec![0u32; n];
-    // Largest remaining budget a voxel was expanded with, plus one (0 = never).
-    let mut expanded = vec![0u32; n];
+    for r in 0..=max_d {
+        first[r + 1] += first[r];
+    }
+    let mut by_level = vec![0u32; centres.len()];
+    let mut fill = first.clone();
+    for &i in &centres {
+        let r = dist[i as usize] as usize;
+        by_level[fill[r]] = i;
+        fill[r] += 1;
+    }
+    // 16-bit state and levels halve the memory traffic of the flood when the distances fit.
+    let opening: Vec<u32> = if !wide && max_d < u16::MAX as usize - 1 {
+        flood::<u16>(&dist, &by_level, &first, max_d, steps)
+    } else {
+        flood::<u32>(&dist, &by_level, &first, max_d, steps)
+    };
+    let mut out = vec![0u32; nx * ny * nz];
+    out.par_chunks_mut(nx.max(1))
+        .enumerate()
+        .for_each(|(r, row)| {
+            let (y, z) = (r % ny, r / ny);
+            let start = padded(0, y, z);
+            row.copy_from_slice(&opening[start..start + nx]);
+        });
+    out
+}
+
+/// A level or budget word of the L1 flood (u16 when the distances fit, u32 otherwise).
+trait Word: Copy + Ord + Send + Sync {
+    const ZERO: Self;
+    const SOLID: Self;
+    fn of(v: u32) -> Self;
+    fn get(self) -> u32;
+}
+
+impl Word for u16 {
+    const ZERO: Self = 0;
+    const SOLID: Self = u16::MAX;
+    fn of(v: u32) -> Self {
+        v as u16
+    }
+    fn get(self) -> u32 {
+        self as u32
+    }
+}
+
+impl Word for u32 {
+    const ZERO: Self = 0;
+    const SOLID: Self = u32::MAX;
+    fn of(v: u32) -> Self {
+        v
+    }
+    fn get(self) -> u32 {
+        self
+    }
+}
+
+/// The level-by-level flood of [`opening_map_l1`] on the padded grid; returns the padded
+/// opening map.
+fn flood<W: Word>(
+    dist: &[u32],
+    by_level: &[u32],
+    first: &[usize],
+    max_d: usize,
+    steps: [usize; 3],
+) -> Vec<u32> {
+    // Per voxel: the largest remaining budget it was expanded with, plus one (0 = never;
+    // solid voxels count as expanded with an unbounded budget, so one test rejects both).
+    let mut state: Vec<W> = dist
+        .par_iter()
+        .map(|&d| if d == 0 { W::SOLID } else { W::ZERO })
+        .collect();
+    let mut opening: Vec<W> = vec![W::ZERO; state.len()];
     let mut frontier: Vec<u32> = Vec::new();
     let mut next: Vec<u32> = Vec::new();
-    let (sx, sy) = (dims[0], dims[0] * dims[1]);
     for r in (1..=max_d).rev() {
         frontier.clear();
-        for &i in &by_level[r] {
-            let budget = r as u32 - 1;
-            if expanded[i as usize] <= budget {
-                expanded[i as usize] = budget + 1;
+        let level = W::of(r as u32);
+        let mut budget = r as u32 - 1;
+        for &i in &by_level[first[r]..first[r + 1]] {
+            if state[i as usize].get() <= budget {
+                state[i as usize] = W::of(budget + 1);
                 frontier.push(i);
             }
         }
-        let mut budget = r as u32 - 1;
-        loop {
+        while !frontier.is_empty() {
+            next.clear();
+            let (below, mark) = (W::of(budget.wrapping_sub(1)), W::of(budget));
             for &i in &frontier {
-                if opening[i as usize] == 0 {
-                    opening[i as usize] = r as u32;
+                let i = i as usize;
+                if opening[i] == W::ZERO {
+                    opening[i] = level;
+                }
+                if budget == 0 {
+                    continue;
+                }
+                for j in [
+                    i - steps[0],
+                    i + steps[0],
+                    i - steps[1],
+                    i + steps[1],
+                    i - steps[2],
+                    i + steps[2],
+                ] {
+                    if state[j] <= below {
+                        state[j] = mark;
+                        next.push(j as u32);
+                    }
                 }
             }
-            if budget == 0 || frontier.is_empty() {
+            if budget == 0 {
                 break;
             }
             budget -= 1;
-            next.clear();
-            for &i in &frontier {
-                let i = i as usize;
-                let (x, y, z) = (i % sx, (i / sx) % dims[1], i / sy);
-                let mut push = |j: usize| {
-                    if distance_l1[j] > 0 && expanded[j] <= budget {
-                        expanded[j] = budget + 1;
-                        next.push(j as u32);
-                    }
-                };
-                if x > 0 {
-                    push(i - 1);
-                }
-                if x + 1 < dims[0] {
-                    push(i + 1);
-                }
-                if y > 0 {
-                    push(i - sx);
-                }
-                if y + 1 < dims[1] {
-                    push(i + sx);
-                }
-                if z > 0 {
-                    push(i - sy);
-                }
-                if z + 1 < dims[2] {
-                    push(i + sy);
-                }
-            }
             std::mem::swap(&mut frontier, &mut next);
         }
     }
-    opening
+    opening.par_iter().map(|w| w.get()).collect()
 }
 
 #[cfg(test)]
@@ -258,11 +361,9 @@ mod tests {
                         assert_eq!(c == x, om.opening[x] == d26[x]);
                     }
                     let d1 = distance_map(dims, &occ, Metric::L1, outside, false).values;
-                    assert_eq!(
-                        opening_map_l1(dims, &d1),
-                        brute_opening(dims, &d1, Metric::L1),
-                        "L1 {dims:?}"
-                    );
+                    let want = brute_opening(dims, &d1, Metric::L1);
+                    assert_eq!(opening_map_l1(dims, &d1), want, "L1 {dims:?}");
+                    assert_eq!(opening_l1(dims, &d1, true), want, "L1 wide {dims:?}");
                 }
             }
         }

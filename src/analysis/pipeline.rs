@@ -4,8 +4,9 @@ use std::time::Instant;
 
 use super::distance::{distance_map, Metric, Outside};
 use super::grid::{Resolution, VoxelGrid, VoxelSet};
-use super::opening::{opening_map_26, opening_map_l1, OpeningMap};
+use super::opening::{opening_map_26, OpeningMap};
 use super::regions::{find_portals, label_regions, sample_portal, Portal, Region, NO_REGION};
+use super::skeleton::SkeletonMaps;
 use super::voxelize::{fill_interiors, voxelize};
 use crate::error::{Error, Result};
 use crate::math::{Vec2, Vec3};
@@ -136,7 +137,7 @@ impl Analysis {
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Analysis> {
         let mut timings = Vec::new();
-        let stages = if settings.all_maps { 10.0 } else { 6.0 };
+        let stages = if settings.all_maps { 8.0 } else { 6.0 };
         let mut done = 0.0;
         let mut stage =
             |name: &'static str, timings: &mut Vec<StageTime>, start: Instant| -> Result<()> {
@@ -190,30 +191,16 @@ impl Analysis {
             let d1 = distance_map(dims, &occupied, Metric::L1, settings.outside, false).values;
             stage("distance L1", &mut timings, t)?;
             let t = Instant::now();
-            distance_sq_euclidean = Some(
-                distance_map(
-                    dims,
-                    &occupied,
-                    Metric::SquaredEuclidean,
-                    settings.outside,
-                    false,
-                )
-                .values,
-            );
-            stage("distance Euclidean", &mut timings, t)?;
-            let t = Instant::now();
-            let o1 = opening_map_l1(dims, &d1);
-            stage("opening L1", &mut timings, t)?;
-            let t = Instant::now();
-            decenterness_l1 = Some(
-                o1.iter()
-                    .zip(&d1)
-                    .map(|(&o, &d)| o.saturating_sub(d))
-                    .collect(),
-            );
-            stage("decenterness L1", &mut timings, t)?;
-            distance_l1 = Some(d1);
-            opening_l1 = Some(o1);
+            let maps = SkeletonMaps::from_l1(dims, &occupied, settings.outside, d1);
+            stage(
+                "opening L1 + decenterness || distance Euclidean",
+                &mut timings,
+                t,
+            )?;
+            distance_l1 = Some(maps.distance_l1);
+            opening_l1 = Some(maps.opening_l1);
+            decenterness_l1 = Some(maps.decenterness_l1);
+            distance_sq_euclidean = Some(maps.sq_euclidean);
         }
         Ok(Analysis {
             grid,

@@ -32,6 +32,8 @@
 //! inside a ball is kept as a ring of a few representatives instead of one node.
 
 use std::collections::{HashMap, VecDeque};
+
+use rayon::prelude::*;
 use std::time::Instant;
 
 use super::complex::{diagonal_contacts, Betti, Complex, UnionFind, POINT, SPAN_BIT};
@@ -380,52 +382,113 @@ pub fn node_map_seeds(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> 
 }
 
 /// Algorithm 5: multi-source breadth-first search over 6-connected empty voxels from the
-/// nodes' seed voxels ([`node_map_seeds`]), in node index order. Occupied and unreached voxels
-/// get [`UNDEFINED_NODE`].
+/// nodes' seed voxels ([`node_map_seeds`]), in node index order. Then, because the empty-space
+/// complex also joins voxels that touch only along an edge or at a corner (see
+/// [`super::complex`]), empty voxels still unmapped take, layer by layer, the node of an
+/// already mapped voxel among their 26 neighbours (face neighbours first, then edge, then
+/// corner): the map is total on every component of the empty space that holds a node.
+/// Occupied voxels and components without a node get [`UNDEFINED_NODE`].
 pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u32> {
-    let dims = grid.dims;
-    let mut map = vec![UNDEFINED_NODE; grid.len()];
-    let mut queue = VecDeque::with_capacity(nodes.len());
+    const BLOCKED: u32 = UNDEFINED_NODE - 1;
+    let [nx, ny, nz] = grid.dims;
+    // One layer of padding (blocked), so that steps need no bounds test.
+    let (px, py) = (nx + 2, ny + 2);
+    let plane = px * py;
+    let padded = |k: usize| (k % nx + 1) + px * ((k / nx) % ny + 1) + plane * (k / (nx * ny) + 1);
+    let mut map = vec![BLOCKED; plane * (nz + 2)];
+    map.par_chunks_mut(plane)
+        .enumerate()
+        .for_each(|(pz, slab)| {
+            if pz == 0 || pz > nz {
+                return;
+            }
+            for y in 0..ny {
+                let row = nx * (y + ny * (pz - 1));
+                for x in 0..nx {
+                    if !occupied.get(row + x) {
+                        slab[(x + 1) + px * (y + 1)] = UNDEFINED_NODE;
+                    }
+                }
+            }
+        });
+    let mut queue: Vec<u32> = Vec::with_capacity(grid.len());
     for (l, seed) in node_map_seeds(grid, occupied, nodes)
         .into_iter()
         .enumerate()
     {
         if let Some(k) = seed {
-            map[k as usize] = l as u32;
-            queue.push_back(k);
+            let p = padded(k as usize);
+            map[p] = l as u32;
+            queue.push(p as u32);
         }
     }
-    let (sx, sy) = (dims[0], dims[0] * dims[1]);
-    while let Some(i) = queue.pop_front() {
-        let i = i as usize;
+    let faces = [
+        1isize,
+        -1,
+        px as isize,
+        -(px as isize),
+        plane as isize,
+        -(plane as isize),
+    ];
+    let mut head = 0;
+    while head < queue.len() {
+        let i = queue[head] as usize;
+        head += 1;
         let label = map[i];
-        let (x, y, z) = (i % sx, (i / sx) % dims[1], i / sy);
-        let mut visit = |j: usize| {
-            if map[j] == UNDEFINED_NODE && !occupied.get(j) {
+        for &o in &faces {
+            let j = i.wrapping_add_signed(o);
+            if map[j] == UNDEFINED_NODE {
                 map[j] = label;
-                queue.push_back(j as u32);
+                queue.push(j as u32);
             }
-        };
-        if x > 0 {
-            visit(i - 1);
-        }
-        if x + 1 < dims[0] {
-            visit(i + 1);
-        }
-        if y > 0 {
-            visit(i - sx);
-        }
-        if y + 1 < dims[1] {
-            visit(i + sx);
-        }
-        if z > 0 {
-            visit(i - sy);
-        }
-        if z + 1 < dims[2] {
-            visit(i + sy);
         }
     }
-    map
+    let mut unmapped: Vec<u32> = (0..map.len() as u32)
+        .filter(|&i| map[i as usize] == UNDEFINED_NODE)
+        .collect();
+    if !unmapped.is_empty() && !queue.is_empty() {
+        let mut around: Vec<isize> = Vec::with_capacity(26);
+        for order in 1..=3 {
+            for dz in -1isize..=1 {
+                for dy in -1isize..=1 {
+                    for dx in -1isize..=1 {
+                        if dx.abs() + dy.abs() + dz.abs() == order {
+                            around.push(dx + dy * px as isize + dz * plane as isize);
+                        }
+                    }
+                }
+            }
+        }
+        loop {
+            let layer: Vec<(u32, u32)> = unmapped
+                .iter()
+                .filter_map(|&i| {
+                    around.iter().find_map(|&o| {
+                        let m = map[(i as usize).wrapping_add_signed(o)];
+                        (m < BLOCKED).then_some((i, m))
+                    })
+                })
+                .collect();
+            if layer.is_empty() {
+                break;
+            }
+            for &(i, m) in &layer {
+                map[i as usize] = m;
+            }
+            unmapped.retain(|&i| map[i as usize] == UNDEFINED_NODE);
+        }
+    }
+    let mut out = vec![UNDEFINED_NODE; grid.len()];
+    out.par_chunks_mut(nx.max(1))
+        .enumerate()
+        .for_each(|(r, row)| {
+            let start = padded(r * nx);
+            for (x, v) in row.iter_mut().enumerate() {
+                let m = map[start + x];
+                *v = if m < BLOCKED { m } else { UNDEFINED_NODE };
+            }
+        });
+    out
 }
 
 /// Eq. 151-155: the node of a surface point `p` with normal `normal`, seen from incident
@@ -515,6 +578,53 @@ pub fn map_point(
     search(vx, false)
 }
 
+/// The voxel maps the skeleton needs (000 §6.2.2), all measured with the same `Outside`: the
+/// L1 distance D1 and opening Ω1 (the collapse's clock and the constraint of Algorithm 3), the
+/// decenterness Ω1 − D1, and the squared Euclidean distance (maximal-ball radii, piercing
+/// priority).
+pub struct SkeletonMaps {
+    pub distance_l1: Vec<u32>,
+    pub opening_l1: Vec<u32>,
+    pub decenterness_l1: Vec<u32>,
+    pub sq_euclidean: Vec<u32>,
+}
+
+impl SkeletonMaps {
+    /// All the maps of the empty space of `occupied`.
+    pub fn new(dims: [usize; 3], occupied: &VoxelSet, outside: Outside) -> SkeletonMaps {
+        let d1 = distance_map(dims, occupied, Metric::L1, outside, false).values;
+        Self::from_l1(dims, occupied, outside, d1)
+    }
+
+    /// The maps from an L1 distance map: the L1 opening (a sequential flood) and the Euclidean
+    /// distance (parallel passes) run concurrently on the rayon pool.
+    pub fn from_l1(
+        dims: [usize; 3],
+        occupied: &VoxelSet,
+        outside: Outside,
+        distance_l1: Vec<u32>,
+    ) -> SkeletonMaps {
+        let ((opening_l1, decenterness_l1), sq_euclidean) = rayon::join(
+            || {
+                let o1 = opening_map_l1(dims, &distance_l1);
+                let dc = o1
+                    .iter()
+                    .zip(&distance_l1)
+                    .map(|(o, d)| o.saturating_sub(*d))
+                    .collect();
+                (o1, dc)
+            },
+            || distance_map(dims, occupied, Metric::SquaredEuclidean, outside, false).values,
+        );
+        SkeletonMaps {
+            distance_l1,
+            opening_l1,
+            decenterness_l1,
+            sq_euclidean,
+        }
+    }
+}
+
 /// Options of the skeleton pipeline.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SkeletonSettings {
@@ -594,20 +704,16 @@ impl Skeleton {
         ) {
             (Some(d1), Some(dc), Some(sq)) => (d1, dc, sq),
             _ => {
-                let d1 = distance_map(dims, occ, Metric::L1, Outside::Solid, false).values;
-                let o1 = opening_map_l1(dims, &d1);
-                let dc = o1
-                    .iter()
-                    .zip(&d1)
-                    .map(|(o, d)| o.saturating_sub(*d))
-                    .collect();
-                let sq =
-                    distance_map(dims, occ, Metric::SquaredEuclidean, Outside::Solid, false).values;
+                let maps = SkeletonMaps::new(dims, occ, Outside::Solid);
                 timings.push(StageTime {
                     stage: "skeleton maps (L1, Euclidean)",
                     seconds: t.elapsed().as_secs_f64(),
                 });
-                (d1.into(), dc, sq.into())
+                (
+                    maps.distance_l1.into(),
+                    maps.decenterness_l1.into(),
+                    maps.sq_euclidean.into(),
+                )
             }
         };
         Self::from_maps(
@@ -651,12 +757,11 @@ impl Skeleton {
             }
         };
 
-        let t = Instant::now();
-        let complex = Complex::from_occupied(dims, occupied);
-        stage("complex", &mut timings, t)?;
-
+        // The thinning builds its own (bit-plane) complex; the byte complex is only needed for
+        // the Betti numbers.
         let t = Instant::now();
         let (empty_space, contacts) = if settings.topology {
+            let complex = Complex::from_occupied(dims, occupied);
             (Some(complex.betti()), diagonal_contacts(dims, occupied))
         } else {
             (None, 0)
@@ -664,8 +769,9 @@ impl Skeleton {
         stage("empty-space topology", &mut timings, t)?;
 
         let t = Instant::now();
-        let mut thinning = Thinning::new(
-            complex,
+        let mut thinning = Thinning::from_occupied(
+            dims,
+            occupied,
             Constraint::Lifespan {
                 distance: distance_l1,
                 decenterness: decenterness_l1,
@@ -673,12 +779,15 @@ impl Skeleton {
             settings.parallel,
             false,
         );
-        thinning.run(&mut |_, _| {});
+        stage("complex", &mut timings, t)?;
+
+        let t = Instant::now();
+        thinning.run(None);
         stage("thinning (Alg. 2-3)", &mut timings, t)?;
 
         let t = Instant::now();
         while thinning.pierce(Some(sq_distance)) > 0 {
-            thinning.run(&mut |_, _| {});
+            thinning.run(None);
         }
         stage("piercing + re-thinning", &mut timings, t)?;
 

@@ -17,43 +17,58 @@
 //! the start of the iteration. A sub-step takes every pair (f, g) that is free *now*, has the
 //! sub-step's direction, orientation and dimension, g ∉ W, and f ∈ L (then g ∈ L too, L being
 //! closed), and removes them all. Two such pairs have distinct cofaces, so by Corollary 5.13 the
-//! removal is a collapse whatever the order: the pairs are gathered read-only (in parallel over
-//! chunks of the candidate list, results kept in list order) and then cleared, so the complex
-//! after every sub-step is identical bit for bit in parallel and sequential runs (tested). L is
-//! marked with atomic ORs in parallel; only the order of internal work lists depends on the
-//! schedule, never a result. Without the restriction to L a single
-//! sub-step would peel a whole row of cubes; with it one iteration removes one layer, so the
-//! death date of a cube equals its L1 distance to the complement (tested below): the clock of
-//! the collapse is the 6-distance, which is why the constraint uses the L1 maps.
+//! removal is a collapse whatever the order. Without the restriction to L a single sub-step
+//! would peel a whole row of cubes; with it one iteration removes one layer, so the death date
+//! of a cube equals its L1 distance to the complement (tested below): the clock of the collapse
+//! is the 6-distance, which is why the constraint uses the L1 maps. `thinning_oracle.rs` is the
+//! same algorithm written literally (a full rescan per sub-step); the tests check that this
+//! implementation equals it after every sub-step.
 //!
-//! Candidates: a cell's freeness depends only on its cofaces, so after the first full scan the
-//! only cells that may have become free are those that lost a coface: when (f, g) is removed,
-//! the facets of f other than g and the facets of g (at most 9 cells). A face free at the start
-//! of an iteration is always removed or loses its coface during it (f ∈ L, so its sub-step
-//! takes it unless f went first), so nothing else needs re-testing: the work per iteration is
-//! O(pairs removed + |L|). Within an iteration each sub-step scans the vertices of L (sorted,
-//! and bucketed by the spans of their present cells in L, the only candidates for the free
-//! face), which is cheaper than tracking the pairs that appear between sub-steps.
+//! # Bit-parallel layout
+//!
+//! The collapse keeps the complex as 8 bit planes (one per cell kind) over *bricks* of 4x4x4
+//! lattice vertices, one 64-bit word per brick and plane: bit x + 4y + 16z of a brick is the
+//! vertex at offset (x, y, z). A free-pair test is pure bit logic on the cell's cofaces, which
+//! sit at the same vertex or one step back along an axis; "one step back" is a shift of the
+//! brick word plus the bits coming from the neighbouring brick. So one word operation tests a
+//! cell kind at 64 vertices. Cubes (rather than rows) keep the work proportional to the moving
+//! border: a layer of the collapse crosses a brick in 4 iterations along any axis, where a
+//! 64-vertex row would stay busy for 64 iterations under a front moving along it.
+//!
+//! Work per iteration: only bricks near a change can hold a free face. A cell's freeness
+//! depends on its cofaces, so when cells of brick b are removed only the faces of removed
+//! cells change, and those lie in b or its +x, +y, +z neighbours (the set A). A face free at
+//! the start of an iteration is always removed or loses its coface during it (its coface is in
+//! L, so its sub-step takes it unless the coface went first), so no free face lies outside A.
+//! Each iteration therefore computes, on A only: births, the free faces, the cofaces of free
+//! pairs, their closure L (which reaches the bricks one step forward), and runs the 18
+//! sub-steps on the bricks where L is not empty. Each sub-step first computes the pairs of
+//! every brick from the unchanged planes, then removes them; both passes write only the
+//! brick they process, so they run in parallel over bricks (rayon) with results identical to
+//! the sequential order (tested). Scratch planes are atomics with relaxed loads and stores:
+//! plain moves on x86-64, and no `unsafe`.
 //!
 //! # Dates and the constraint (Definitions 6.1-6.3, Algorithm 3)
 //!
 //! Iterations are numbered from 1. Death(f) = the iteration that removes f. Birth(e) of an edge
 //! = the first l such that after l iterations e is a facet (no incident square) or has been
-//! removed; it is recorded at the start of iteration l + 1, when the edge is re-tested as a face
-//! of its last square (or at the edge's removal). The static W of Algorithm 3 is defined with
-//! the lifespans of the unconstrained collapse; like both reference implementations we apply
-//! the constraint lazily instead: at the start of
-//! iteration l, an edge born and still present is added to W (with its two points, so W stays
-//! a complex) when removing it now would give it a lifespan l − Birth(e) greater than
+//! removed; it is found at the start of iteration l + 1 among the edges of A (or at the edge's
+//! removal). The static W of Algorithm 3 is defined with the lifespans of the unconstrained
+//! collapse; like both reference implementations we apply the constraint lazily instead: at
+//! the start of iteration l, an edge born and still present is added to W (with its two
+//! points, so W stays a complex) when removing it now would give it a lifespan l − Birth(e)
+//! greater than
 //!
 //!   DC1cc(e) + Birth(e) − D1cc(e),
 //!
 //! which is the printed condition of Algorithm 3, line 1 (Lifespan > DC + Birth − D, where
-//! Birth − D estimates the lifespan of the squares around e). D1cc and DC1cc of an edge are the
-//! maxima of the voxel maps over the (up to four) voxels containing it: the printed definition
-//! "max over g ∈ δ* ∩ F_n^n" is garbled; we read δ* as the proper star of f, the n-faces that
-//! contain f, which is what "in the same way" for Ω and DC and both reference codes do. W only
-//! grows, so a birth date never changes and a constrained edge is never removed.
+//! Birth − D estimates the lifespan of the squares around e). The first such l is known at the
+//! edge's birth, max(Birth + 1, 2 Birth + DC − D + 1), so each born edge waits in a bucket for
+//! that iteration. D1cc and DC1cc of an edge are the maxima of the voxel maps over the (up to
+//! four) voxels containing it: the printed definition "max over g ∈ δ* ∩ F_n^n" is garbled; we
+//! read δ* as the proper star of f, the n-faces that contain f, which is what "in the same
+//! way" for Ω and DC and both reference codes do. W only grows, so a birth date never changes
+//! and a constrained edge is never removed.
 //!
 //! # Piercing (§6.2.4)
 //!
@@ -67,15 +82,16 @@
 //! central), and repeat until no square remains. The iteration count goes on through the
 //! re-thinning, so the edges of a pierced surface are born late, get large thresholds, and the
 //! surface collapses onto the curves attached to it (Figure 36c) instead of growing branches.
-//! A part where no square separates two complement
-//! components (a contractible 2-complex such as Bing's house) is pierced anyway; that raises b1
-//! and is counted in [`ThinningStats::forced_pierces`].
+//! A part where no square separates two complement components (a contractible 2-complex such
+//! as Bing's house) is pierced anyway; that raises b1 and is counted in
+//! [`ThinningStats::forced_pierces`].
 
-use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 
 use rayon::prelude::*;
 
-use super::complex::{Complex, CUBE, POINT, SPAN_BIT, SQUARES};
+use super::complex::{Complex, SPAN_BIT};
+use super::grid::VoxelSet;
 
 /// Date of a cell that is never born or never dies.
 pub const NEVER: u32 = u32::MAX;
@@ -115,247 +131,452 @@ pub struct ThinningStats {
     pub pierce_rounds: u32,
 }
 
-/// A pair kind of one sub-step: free face of span `g` at v, coface of span `f` at v − f_off,
-/// and the other cofaces of g, which must all be absent.
-#[derive(Clone, Copy, Debug)]
-struct Kind {
-    g_span: u8,
-    g_bit: u8,
-    f_span: u8,
-    f_bit: u8,
-    f_off: usize,
-    /// Cofaces of g other than f owned by g's own vertex (must be absent), as one mask.
-    own_absent: u8,
-    /// The other cofaces of g, owned by g − offset.
-    absent: [(usize, u8); 5],
-    n_absent: usize,
-    /// Cells to re-test after removing the pair: bytes at g + offset (offset relative to g,
-    /// possibly negative), merged per vertex.
-    touched: [(isize, u8); 8],
-    n_touched: usize,
-}
+/// Observer of the sub-steps (tests): the complex after each one.
+pub type Observer<'o, 'f> = Option<&'o mut (dyn FnMut(&Complex, SubStep) + 'f)>;
 
-#[derive(Clone, Copy, Debug)]
-struct Living {
-    vertex: u32,
-    axis: u8,
-    birth: u32,
-}
+/// Bits of a brick word with x = 0, x = 3, y = 0, y = 3 (bit = x + 4y + 16z).
+const X0: u64 = 0x1111_1111_1111_1111;
+const X3: u64 = X0 << 3;
+const Y0: u64 = 0x000F_000F_000F_000F;
+const Y3: u64 = Y0 << 12;
 
-/// Gathers `f(items, out)` over the items, in item order; in parallel over chunks of `chunk`
-/// items if `chunk` > 0 (0 = sequential). `f` sees a whole chunk so its loop stays tight.
-fn gather<T: Send>(chunk: usize, items: &[u32], f: impl Fn(&[u32], &mut Vec<T>) + Sync) -> Vec<T> {
-    if chunk > 0 && items.len() > chunk {
-        let parts: Vec<Vec<T>> = items
-            .par_chunks(chunk)
-            .map(|c| {
-                let mut out = Vec::new();
-                f(c, &mut out);
-                out
-            })
-            .collect();
-        let mut all = Vec::with_capacity(parts.iter().map(Vec::len).sum());
-        for mut p in parts {
-            all.append(&mut p);
-        }
-        all
-    } else {
-        let mut out = Vec::new();
-        f(items, &mut out);
-        out
+/// Span of a square from its two axes, and of an edge from its axis.
+const EDGE: [usize; 3] = [1, 2, 4];
+const CUBE_SPAN: usize = 7;
+
+/// 8 planes per brick (index 8 brick + span), written by at most one task per brick at a time.
+struct Planes(Vec<AtomicU64>);
+
+impl Planes {
+    fn new(bricks: usize) -> Planes {
+        Planes((0..8 * bricks).map(|_| AtomicU64::new(0)).collect())
+    }
+    #[inline(always)]
+    fn get(&self, b: usize, span: usize) -> u64 {
+        self.0[8 * b + span].load(Relaxed)
+    }
+    #[inline(always)]
+    fn set(&self, b: usize, span: usize, v: u64) {
+        self.0[8 * b + span].store(v, Relaxed)
+    }
+    #[inline(always)]
+    fn or(&self, b: usize, span: usize, v: u64) {
+        self.set(b, span, self.get(b, span) | v)
+    }
+    #[inline(always)]
+    fn clear(&self, b: usize, span: usize, v: u64) {
+        self.set(b, span, self.get(b, span) & !v)
+    }
+    fn any(&self, b: usize) -> bool {
+        (0..8).any(|s| self.get(b, s) != 0)
     }
 }
 
-/// Views an exclusively borrowed byte slice as atomics, so that parallel tasks can set and
-/// clear bits of shared bytes.
-fn atomic_bytes(v: &mut [u8]) -> &[AtomicU8] {
-    // SAFETY: AtomicU8 has the size and alignment of u8, and the exclusive borrow guarantees
-    // that nothing accesses the bytes non-atomically while the returned slice lives.
-    unsafe { &*(v as *mut [u8] as *const [AtomicU8]) }
+/// Brick geometry: bricks of 4x4x4 internal vertices (the [`Complex`] layout, coordinates
+/// 0..size), with one layer of always-empty bricks around so that neighbour reads need no test.
+#[derive(Clone, Copy, Debug)]
+struct Layout {
+    /// Internal vertices per axis (voxel dims + 2).
+    size: [usize; 3],
+    /// Bricks per axis, padding included.
+    nb: [usize; 3],
+    /// Index step of one brick along each axis.
+    step: [usize; 3],
 }
 
-/// The state of a directional collapse: the complex, the constraint set W, dates.
+impl Layout {
+    fn new(dims: [usize; 3]) -> Layout {
+        let size = dims.map(|d| d + 2);
+        let nb = size.map(|s| s.div_ceil(4) + 2);
+        Layout {
+            size,
+            nb,
+            step: [1, nb[0], nb[0] * nb[1]],
+        }
+    }
+
+    fn bricks(&self) -> usize {
+        self.nb[0] * self.nb[1] * self.nb[2]
+    }
+
+    /// Brick and bit of internal vertex coordinates.
+    #[inline]
+    fn locate(&self, c: [usize; 3]) -> (usize, u32) {
+        let b = (0..3).map(|a| ((c[a] >> 2) + 1) * self.step[a]).sum();
+        (b, (c[0] & 3 | (c[1] & 3) << 2 | (c[2] & 3) << 4) as u32)
+    }
+
+    /// Internal vertex coordinates of a bit of a brick (possibly past `size`).
+    #[inline]
+    fn coords(&self, b: usize, bit: u32) -> [usize; 3] {
+        let bc = [
+            b % self.nb[0],
+            (b / self.nb[0]) % self.nb[1],
+            b / self.step[2],
+        ];
+        let off = [bit & 3, (bit >> 2) & 3, bit >> 4].map(|o| o as usize);
+        [0, 1, 2].map(|a| (bc[a] - 1) * 4 + off[a])
+    }
+
+    /// Whether a brick holds vertices (is not padding).
+    #[inline]
+    fn real(&self, b: usize) -> bool {
+        let bc = [
+            b % self.nb[0],
+            (b / self.nb[0]) % self.nb[1],
+            b / self.step[2],
+        ];
+        (0..3).all(|a| bc[a] >= 1 && bc[a] + 1 < self.nb[a])
+    }
+}
+
+/// The word of plane `span` at v − e_axis, for the 64 vertices v of brick b.
+#[inline(always)]
+fn back(p: &Planes, b: usize, span: usize, axis: usize, step: &[usize; 3]) -> u64 {
+    match axis {
+        0 => ((p.get(b, span) << 1) & !X0) | ((p.get(b - 1, span) >> 3) & X0),
+        1 => ((p.get(b, span) << 4) & !Y0) | ((p.get(b - step[1], span) >> 12) & Y0),
+        _ => (p.get(b, span) << 16) | (p.get(b - step[2], span) >> 48),
+    }
+}
+
+/// The word of plane `span` at v + e_axis, for the 64 vertices v of brick b.
+#[inline(always)]
+fn fwd(p: &Planes, b: usize, span: usize, axis: usize, step: &[usize; 3]) -> u64 {
+    match axis {
+        0 => ((p.get(b, span) >> 1) & !X3) | ((p.get(b + 1, span) << 3) & X3),
+        1 => ((p.get(b, span) >> 4) & !Y3) | ((p.get(b + step[1], span) << 12) & Y3),
+        _ => (p.get(b, span) >> 16) | (p.get(b + step[2], span) << 48),
+    }
+}
+
+/// Iterates the set bits of a word.
+#[inline]
+fn bits(mut w: u64) -> impl Iterator<Item = u32> {
+    std::iter::from_fn(move || {
+        (w != 0).then(|| {
+            let b = w.trailing_zeros();
+            w &= w - 1;
+            b
+        })
+    })
+}
+
+/// A pair kind of one sub-step: free face of span `g`, coface of span `f` at the same vertex
+/// (negative orientation) or one step back along the axis (positive), the other cofaces of g.
+#[derive(Clone, Copy, Debug)]
+struct Kind {
+    g: usize,
+    f: usize,
+    /// Other cofaces of g: (span, axis of the step back or 3 = same vertex).
+    others: [(usize, usize); 5],
+    n_others: usize,
+}
+
+/// Cofaces of a cell of each span: (span, axis of the step back, or 3 = same vertex), and
+/// how many there are.
+const COFACES: [([(usize, usize); 6], usize); 8] = {
+    let mut table = [([(0, 0); 6], 0); 8];
+    let mut span = 0;
+    while span < 8 {
+        let mut n = 0;
+        let mut b = 0;
+        while b < 3 {
+            if span & (1 << b) == 0 {
+                table[span].0[n] = (span | 1 << b, 3);
+                table[span].0[n + 1] = (span | 1 << b, b);
+                n += 2;
+            }
+            b += 1;
+        }
+        table[span].1 = n;
+        span += 1;
+    }
+    table
+};
+
+#[inline(always)]
+fn cofaces(span: usize) -> &'static [(usize, usize)] {
+    &COFACES[span].0[..COFACES[span].1]
+}
+
+/// The 18 sub-steps: kinds indexed by 3 * (2 * axis + orientation) + (3 - dim).
+fn sub_step_kinds() -> Vec<Vec<Kind>> {
+    let mut steps = Vec::with_capacity(18);
+    for axis in 0..3usize {
+        for positive in [false, true] {
+            for dim in [3u32, 2, 1] {
+                let mut list = Vec::new();
+                for g in 0..8usize {
+                    if g.count_ones() != dim - 1 || g & (1 << axis) != 0 {
+                        continue;
+                    }
+                    let f = g | 1 << axis;
+                    let f_at = if positive { axis } else { 3 };
+                    let mut others = [(0, 0); 5];
+                    let mut n_others = 0;
+                    for &c in cofaces(g) {
+                        if c != (f, f_at) {
+                            others[n_others] = c;
+                            n_others += 1;
+                        }
+                    }
+                    list.push(Kind {
+                        g,
+                        f,
+                        others,
+                        n_others,
+                    });
+                }
+                steps.push(list);
+            }
+        }
+    }
+    steps
+}
+
+/// A born edge waiting for the iteration at which the constraint catches it.
+#[derive(Clone, Copy, Debug)]
+struct Waiting {
+    brick: u32,
+    bit: u8,
+    axis: u8,
+}
+
+/// The state of a directional collapse: the complex (as brick planes), W, dates.
 pub struct Thinning<'a> {
-    complex: Complex,
+    dims: [usize; 3],
+    layout: Layout,
     constraint: Constraint<'a>,
-    /// W, one byte per vertex like the complex (always closed).
-    inhibit: Vec<u8>,
-    /// L of the current iteration.
-    border: Vec<u8>,
-    border_vertices: Vec<u32>,
-    /// Cells that may have become free (or, for edges, born) since the last border
-    /// computation: one byte of cells per vertex, and the vertices with a nonzero byte.
-    dirty: Vec<u8>,
-    dirty_vertices: Vec<u32>,
-    /// The first border computation scans every cell.
-    full_scan: bool,
+    cells: Planes,
+    /// W: points and edges (planes 0, 1, 2, 4).
+    inhibit: Planes,
+    /// Born edges (planes 1, 2, 4).
+    born: Planes,
+    /// Scratch per iteration: free faces, L, pair masks (planes 0 and 1 = the kinds).
+    free: Planes,
+    border: Planes,
+    masks: Planes,
+    /// Bricks whose cells changed since the last iteration started.
+    changed: Vec<u32>,
+    /// Per brick: the last `mark` that listed it (deduplicates brick lists).
+    stamp: Vec<u32>,
+    /// Per brick: whether it holds vertices (is not padding).
+    real: Vec<bool>,
+    mark: u32,
     iteration: u32,
-    /// Born edges: bit `axis` per vertex.
-    born: Vec<u8>,
-    /// Birth date per edge (3 per vertex, by axis), if dates are recorded.
+    /// Born edges by the iteration at which they become constrained.
+    waiting: Vec<Vec<Waiting>>,
+    /// Birth date per edge (3 per internal vertex, by axis) and death date per cell (8 per
+    /// vertex, by span), if recorded (complex layout).
     birth: Option<Vec<u32>>,
-    /// Death date per cell (8 per vertex, by span), if recorded.
     death: Option<Vec<u32>>,
-    living: Vec<Living>,
-    /// Parallel chunk size (0 = sequential).
+    /// Bricks per parallel task (0 = sequential).
     chunk: usize,
-    /// Sub-step kinds, indexed by 3 * (2 * axis + orientation) + (3 - dim).
     kinds: Vec<Vec<Kind>>,
-    /// The vertices of L holding a present, unconstrained cell of each span in L.
-    by_span: [Vec<u32>; 7],
-    /// Cofaces of a cell of each span, as (offset to subtract, span).
-    cofaces: [Vec<(usize, u8)>; 8],
-    /// Closure of a cell of each span, as (offset to add, byte of cells).
-    closure: [Vec<(usize, u8)>; 8],
     pub stats: ThinningStats,
 }
 
 impl<'a> Thinning<'a> {
-    /// Prepares the collapse of `complex`. `parallel` gathers the pairs of each sub-step on the
-    /// current rayon pool (if it has more than one thread); `record_dates` keeps a birth date per edge and a death date per cell.
+    /// Prepares the collapse of `complex`. `parallel` runs the per-brick passes on the current
+    /// rayon pool (if it has more than one thread); `record_dates` keeps a birth date per edge
+    /// and a death date per cell.
     pub fn new(
         complex: Complex,
         constraint: Constraint<'a>,
         parallel: bool,
         record_dates: bool,
     ) -> Thinning<'a> {
-        let n = complex.len();
-        let s = complex.stride();
-        let mut cofaces: [Vec<(usize, u8)>; 8] = Default::default();
-        let mut closure: [Vec<(usize, u8)>; 8] = Default::default();
-        for span in 0..8u8 {
-            for b in 0..3 {
-                if span & (1 << b) == 0 {
-                    cofaces[span as usize].push((0, span | 1 << b));
-                    cofaces[span as usize].push((s[b], span | 1 << b));
-                }
+        let mut t = Thinning::empty(complex.dims(), constraint, parallel, record_dates);
+        let size = t.layout.size;
+        for (i, &byte) in complex.bytes().iter().enumerate() {
+            if byte == 0 {
+                continue;
             }
-            for shift in 0..8u8 {
-                if shift & span != shift {
-                    continue;
-                }
-                let off: usize = (0..3).filter(|a| shift & (1 << a) != 0).map(|a| s[a]).sum();
-                let mut byte = 0u8;
-                for sub in 0..8u8 {
-                    if sub & (span & !shift) == sub {
-                        byte |= SPAN_BIT[sub as usize];
-                    }
-                }
-                closure[span as usize].push((off, byte));
-            }
-        }
-        let mut kinds = Vec::with_capacity(18);
-        for axis in 0..3usize {
-            for positive in [false, true] {
-                for dim in [3u32, 2, 1] {
-                    let mut list = Vec::new();
-                    for g_span in 0..8u8 {
-                        if g_span.count_ones() != dim - 1 || g_span & (1 << axis) != 0 {
-                            continue;
-                        }
-                        let f_span = g_span | 1 << axis;
-                        // X−: g is the lower face of f, f owned by the same vertex.
-                        let f_off = if positive { s[axis] } else { 0 };
-                        let mut absent = [(0usize, 0u8); 5];
-                        let (mut n_absent, mut own_absent) = (0, 0u8);
-                        for &(off, span) in &cofaces[g_span as usize] {
-                            if span == f_span && off == f_off {
-                                continue;
-                            }
-                            if off == 0 {
-                                own_absent |= SPAN_BIT[span as usize];
-                            } else {
-                                absent[n_absent] = (off, SPAN_BIT[span as usize]);
-                                n_absent += 1;
-                            }
-                        }
-                        // Facets of f (at g − f_off) and of g (at g): their cofaces change.
-                        let mut touched = [(0isize, 0u8); 8];
-                        let mut n_touched = 0;
-                        for (base, span) in [(-(f_off as isize), f_span), (0, g_span)] {
-                            for a in 0..3 {
-                                if span & (1 << a) == 0 {
-                                    continue;
-                                }
-                                let face = SPAN_BIT[(span & !(1 << a)) as usize];
-                                for off in [base, base + s[a] as isize] {
-                                    match touched[..n_touched].iter_mut().find(|t| t.0 == off) {
-                                        Some(t) => t.1 |= face,
-                                        None => {
-                                            touched[n_touched] = (off, face);
-                                            n_touched += 1;
-                                        }
-                                    }
-                                }
-                            }
-                        }
-                        list.push(Kind {
-                            g_span,
-                            g_bit: SPAN_BIT[g_span as usize],
-                            f_span,
-                            f_bit: SPAN_BIT[f_span as usize],
-                            f_off,
-                            own_absent,
-                            absent,
-                            n_absent,
-                            touched,
-                            n_touched,
-                        });
-                    }
-                    kinds.push(list);
+            let c = [
+                i % size[0],
+                (i / size[0]) % size[1],
+                i / (size[0] * size[1]),
+            ];
+            let (b, bit) = t.layout.locate(c);
+            for span in 0..8 {
+                if byte & SPAN_BIT[span] != 0 {
+                    t.cells.or(b, span, 1 << bit);
                 }
             }
         }
-        assert!(n < 1 << 29, "complex too large for packed cell indices");
-        let mut t = Thinning {
-            constraint,
-            inhibit: vec![0; n],
-            border: vec![0; n],
-            border_vertices: Vec::new(),
-            dirty: vec![0; n],
-            dirty_vertices: Vec::new(),
-            full_scan: true,
-            iteration: 0,
-            born: vec![0; n],
-            birth: record_dates.then(|| vec![NEVER; 3 * n]),
-            death: record_dates.then(|| vec![NEVER; 8 * n]),
-            living: Vec::new(),
-            // One worker: the sequential path (no atomics, no task overhead).
-            chunk: if parallel && rayon::current_num_threads() > 1 {
-                2048
-            } else {
-                0
-            },
-            kinds,
-            by_span: Default::default(),
-            cofaces,
-            closure,
-            stats: ThinningStats::default(),
-            complex,
-        };
-        // Edges that are facets from the start are born at 0.
-        for i in 0..n {
-            for axis in 0..3u8 {
-                if t.complex.has(i, 1 << axis) {
-                    t.check_birth(i, axis, 0);
-                }
-            }
-        }
+        t.start();
         t
     }
 
-    /// Sets the number of candidates per parallel task (tests use small chunks to exercise
-    /// the parallel path on small grids); 0 = sequential.
+    /// The collapse of the empty-space complex of a voxel grid (the closure of the closed
+    /// cubes of the voxels not in `occupied`), built directly in brick planes.
+    pub fn from_occupied(
+        dims: [usize; 3],
+        occupied: &VoxelSet,
+        constraint: Constraint<'a>,
+        parallel: bool,
+        record_dates: bool,
+    ) -> Thinning<'a> {
+        let t = Thinning::empty(dims, constraint, parallel, record_dates);
+        let (layout, step) = (t.layout, t.layout.step);
+        let real: Vec<u32> = (0..layout.bricks() as u32)
+            .filter(|&b| layout.real(b as usize))
+            .collect();
+        // Cubes: voxel v is the cube of internal vertex v + 1.
+        t.for_each(&real, |b| {
+            let mut word = 0u64;
+            let base = layout.coords(b, 0);
+            for bit in 0..64u32 {
+                let c = [bit & 3, (bit >> 2) & 3, bit >> 4].map(|o| o as usize);
+                let v: [usize; 3] = [0, 1, 2].map(|a| base[a] + c[a]);
+                if (0..3).all(|a| v[a] >= 1 && v[a] <= dims[a]) {
+                    let k = (v[0] - 1) + dims[0] * ((v[1] - 1) + dims[1] * (v[2] - 1));
+                    if !occupied.get(k) {
+                        word |= 1 << bit;
+                    }
+                }
+            }
+            t.cells.set(b, CUBE_SPAN, word);
+        });
+        // Closure, one dimension at a time: a cell is present if a coface is.
+        for dim in [2u32, 1, 0] {
+            t.for_each(&real, |b| {
+                for span in (0..8usize).filter(|s| s.count_ones() == dim) {
+                    let mut w = 0;
+                    for &(up, at) in cofaces(span) {
+                        w |= if at == 3 {
+                            t.cells.get(b, up)
+                        } else {
+                            back(&t.cells, b, up, at, &step)
+                        };
+                    }
+                    t.cells.set(b, span, w);
+                }
+            });
+        }
+        let mut t = t;
+        t.start();
+        t
+    }
+
+    fn empty(
+        dims: [usize; 3],
+        constraint: Constraint<'a>,
+        parallel: bool,
+        record_dates: bool,
+    ) -> Thinning<'a> {
+        let layout = Layout::new(dims);
+        let n = layout.bricks();
+        let vertices = layout.size[0] * layout.size[1] * layout.size[2];
+        assert!(n < 1 << 31, "complex too large");
+        Thinning {
+            dims,
+            layout,
+            constraint,
+            cells: Planes::new(n),
+            inhibit: Planes::new(n),
+            born: Planes::new(n),
+            free: Planes::new(n),
+            border: Planes::new(n),
+            masks: Planes::new(n),
+            changed: Vec::new(),
+            stamp: vec![0; n],
+            real: (0..n).map(|b| layout.real(b)).collect(),
+            mark: 0,
+            iteration: 0,
+            waiting: Vec::new(),
+            birth: record_dates.then(|| vec![NEVER; 3 * vertices]),
+            death: record_dates.then(|| vec![NEVER; 8 * vertices]),
+            // One worker: the sequential path (no task overhead).
+            chunk: if parallel && rayon::current_num_threads() > 1 {
+                64
+            } else {
+                0
+            },
+            kinds: sub_step_kinds(),
+            stats: ThinningStats::default(),
+        }
+    }
+
+    /// After the cells are set: every brick is to be examined, edges without a square are
+    /// born at 0.
+    fn start(&mut self) {
+        let layout = self.layout;
+        self.changed = (0..layout.bricks() as u32)
+            .filter(|&b| layout.real(b as usize) && self.cells.any(b as usize))
+            .collect();
+        let all = self.changed.clone();
+        self.births(&all, 0, 1);
+    }
+
+    /// Sets the number of bricks per parallel task (tests use small chunks to exercise the
+    /// parallel path on small grids); 0 = sequential.
     pub fn set_chunk_size(&mut self, chunk: usize) {
         self.chunk = chunk;
     }
 
-    pub fn complex(&self) -> &Complex {
-        &self.complex
+    /// Runs `f` on every brick of the list, in parallel chunks if enabled.
+    fn for_each(&self, list: &[u32], f: impl Fn(usize) + Sync) {
+        if self.chunk > 0 && list.len() > self.chunk {
+            list.par_chunks(self.chunk)
+                .for_each(|c| c.iter().for_each(|&b| f(b as usize)));
+        } else {
+            list.iter().for_each(|&b| f(b as usize));
+        }
+    }
+
+    /// The bricks of the list for which `keep` holds, in list order.
+    fn filter(&self, list: &[u32], keep: impl Fn(usize) -> bool + Sync) -> Vec<u32> {
+        if self.chunk > 0 && list.len() > self.chunk {
+            list.par_chunks(self.chunk)
+                .map(|c| c.iter().copied().filter(|&b| keep(b as usize)).collect())
+                .collect::<Vec<Vec<u32>>>()
+                .concat()
+        } else {
+            list.iter().copied().filter(|&b| keep(b as usize)).collect()
+        }
+    }
+
+    /// The real bricks of `list` shifted by each of `offsets`, without duplicates (sorted, for
+    /// memory locality, if `sorted`).
+    fn dilate(&mut self, list: &[u32], offsets: &[isize], sorted: bool) -> Vec<u32> {
+        self.mark += 1;
+        let mark = self.mark;
+        let mut out = Vec::with_capacity(list.len() * 2);
+        for &b in list {
+            for &o in offsets {
+                let c = (b as isize + o) as usize;
+                if self.stamp[c] != mark && self.real[c] {
+                    self.stamp[c] = mark;
+                    out.push(c as u32);
+                }
+            }
+        }
+        if sorted {
+            out.sort_unstable();
+        }
+        out
+    }
+
+    /// The complex (converted from the brick planes).
+    pub fn complex(&self) -> Complex {
+        let mut c = Complex::empty(self.dims);
+        let size = self.layout.size;
+        for b in 0..self.layout.bricks() {
+            for span in 0..8u8 {
+                for bit in bits(self.cells.get(b, span as usize)) {
+                    let v = self.layout.coords(b, bit);
+                    debug_assert!((0..3).all(|a| v[a] < size[a]));
+                    c.add_cell(v[0] + size[0] * (v[1] + size[1] * v[2]), span);
+                }
+            }
+        }
+        c
     }
 
     pub fn into_complex(self) -> Complex {
-        self.complex
+        self.complex()
     }
 
     /// Completed iterations.
@@ -363,19 +584,22 @@ impl<'a> Thinning<'a> {
         self.iteration
     }
 
-    /// The constraint set W (same layout as the complex bytes).
-    pub fn inhibited(&self) -> &[u8] {
-        &self.inhibit
-    }
-
-    /// Adds a cell and its faces to W.
-    pub fn inhibit_closed(&mut self, i: usize, span: u8) {
-        for &(off, byte) in &self.closure[span as usize] {
-            self.inhibit[i + off] |= byte;
+    /// The constraint set W, one byte per vertex like [`Complex::bytes`].
+    pub fn inhibited(&self) -> Vec<u8> {
+        let size = self.layout.size;
+        let mut out = vec![0u8; size[0] * size[1] * size[2]];
+        for b in 0..self.layout.bricks() {
+            for span in [0usize, 1, 2, 4] {
+                for bit in bits(self.inhibit.get(b, span)) {
+                    let v = self.layout.coords(b, bit);
+                    out[v[0] + size[0] * (v[1] + size[1] * v[2])] |= SPAN_BIT[span];
+                }
+            }
         }
+        out
     }
 
-    /// Birth date of the edge along `axis` owned by internal vertex `i`.
+    /// Birth date of the edge along `axis` owned by internal vertex `i` (complex layout).
     pub fn birth(&self, i: usize, axis: usize) -> Option<u32> {
         self.birth.as_ref().map(|b| b[3 * i + axis])
     }
@@ -385,36 +609,17 @@ impl<'a> Thinning<'a> {
         self.death.as_ref().map(|d| d[8 * i + span as usize])
     }
 
-    /// Marks an edge born at `l` if it is present, not yet born and has no incident square.
-    fn check_birth(&mut self, i: usize, axis: u8, l: u32) {
-        let span = 1u8 << axis;
-        if self.born[i] & span != 0 || !self.complex.has(i, span) {
-            return;
-        }
-        let has_square = self.cofaces[span as usize]
-            .iter()
-            .any(|&(off, sq)| self.complex.has(i - off, sq));
-        if !has_square {
-            self.mark_born(i, axis, l);
-        }
+    /// Internal vertex index (complex layout) of a brick bit.
+    #[inline]
+    fn vertex_index(&self, b: usize, bit: u32) -> usize {
+        let v = self.layout.coords(b, bit);
+        let s = self.layout.size;
+        v[0] + s[0] * (v[1] + s[1] * v[2])
     }
 
-    /// Records the birth of a present edge (a facet now) and follows it for the constraint.
-    fn mark_born(&mut self, i: usize, axis: u8, l: u32) {
-        self.born[i] |= 1 << axis;
-        if let Some(b) = &mut self.birth {
-            b[3 * i + axis as usize] = l;
-        }
-        self.living.push(Living {
-            vertex: i as u32,
-            axis,
-            birth: l,
-        });
-    }
-
-    /// Threshold of Algorithm 3 for a born edge: it is constrained at iteration l when
-    /// l − birth > DC1cc + birth − D1cc.
-    fn limit(&self, e: &Living) -> Option<i64> {
+    /// First iteration at which a born edge is constrained: l > 2 Birth + DC1cc − D1cc, and
+    /// at least the next iteration. `None` without a constraint.
+    fn constraint_date(&self, v: [usize; 3], axis: usize, birth: u32) -> Option<u32> {
         let Constraint::Lifespan {
             distance,
             decenterness,
@@ -422,484 +627,433 @@ impl<'a> Thinning<'a> {
         else {
             return None;
         };
-        let dims = self.complex.dims();
-        let c = self.complex.coords(e.vertex as usize);
+        let dims = self.dims;
         let (mut d, mut dc) = (0i64, 0i64);
+        // Voxels containing the edge: lattice vertex (internal − 1) minus a subset of the
+        // other axes.
         for s in 0..8usize {
-            if s & (1 << e.axis) != 0 {
+            if s & (1 << axis) != 0 {
                 continue;
             }
-            let mut v = [0usize; 3];
+            let mut k = 0;
+            let mut scale = 1;
             let mut inside = true;
             for a in 0..3 {
-                let x = c[a] - ((s >> a) & 1) as isize;
+                let x = v[a] as isize - 1 - ((s >> a) & 1) as isize;
                 inside &= x >= 0 && (x as usize) < dims[a];
-                v[a] = x.max(0) as usize;
+                k += x.max(0) as usize * scale;
+                scale *= dims[a];
             }
             if inside {
-                let k = v[0] + dims[0] * (v[1] + dims[1] * v[2]);
                 d = d.max(distance[k] as i64);
                 dc = dc.max(decenterness[k] as i64);
             }
         }
-        Some(2 * e.birth as i64 + dc - d)
+        let date = (2 * birth as i64 + dc - d + 1).max(birth as i64 + 1);
+        Some(date.min(u32::MAX as i64 - 1) as u32)
     }
 
-    /// Start of iteration l: constrain the born edges whose lifespan would exceed their
-    /// threshold if they were removed now.
-    #[inline(never)]
-    fn apply_constraints(&mut self, l: u32) {
-        if matches!(self.constraint, Constraint::None) {
-            self.living.clear();
-            return;
-        }
-        let living = std::mem::take(&mut self.living);
-        let mut keep = Vec::with_capacity(living.len());
-        for e in living {
-            let (i, span) = (e.vertex as usize, 1u8 << e.axis);
-            if !self.complex.has(i, span) || self.inhibit[i] & SPAN_BIT[span as usize] != 0 {
-                continue;
-            }
-            let limit = self.limit(&e).expect("lifespan constraint");
-            if l as i64 > limit {
-                self.inhibit_closed(i, span);
-                self.stats.constrained_edges += 1;
-            } else {
-                keep.push(e);
-            }
-        }
-        self.living = keep;
+    /// Adds an edge and its two points to W.
+    fn inhibit_edge(&mut self, b: usize, bit: u32, axis: usize) {
+        self.inhibit.or(b, EDGE[axis], 1 << bit);
+        self.inhibit.or(b, 0, 1 << bit);
+        let mut v = self.layout.coords(b, bit);
+        v[axis] += 1;
+        let (b2, bit2) = self.layout.locate(v);
+        self.inhibit.or(b2, 0, 1 << bit2);
+        self.stats.constrained_edges += 1;
     }
 
-    /// Number of present cofaces of a cell (0, 1 or 2 = "two or more") and the last one seen.
-    #[inline]
-    fn coface_state(bits: &[u8], cofaces: &[(usize, u8)], i: usize) -> (u8, usize, u8) {
-        let mut found = (0u8, 0usize, 0u8);
-        for &(off, span) in cofaces {
-            if bits[i - off] & SPAN_BIT[span as usize] != 0 {
-                if found.0 == 1 {
-                    return (2, 0, 0);
-                }
-                found = (1, i - off, span);
-            }
-        }
-        found
-    }
-
-    /// Start of iteration l: tests the candidate cells (every cell the first time). Edges left
-    /// without a square are born at l − 1 (recorded here rather than at the end of the previous
-    /// iteration: an edge only loses its last square when that square is removed, and then it
-    /// is a candidate). Then applies the constraint (see `apply_constraints`), builds L = the
-    /// closure of the cofaces of the unconstrained free pairs, and the vertices of L sorted
-    /// and bucketed by the spans of their present, unconstrained cells in L (the only cells
-    /// that can be the free face of a pair removed in this iteration). Returns false if there
-    /// is no unconstrained free pair.
-    #[inline(never)]
-    fn collect_border(&mut self) -> bool {
-        let l = self.iteration + 1;
-        // (g, g span, f, f span); f span = NO_SPAN marks the birth of edge g.
-        const NO_SPAN: u8 = 0xff;
-        let found: Vec<(u32, u8, u32, u8)> = {
-            let bits = self.complex.bytes();
-            let (inhibit, cofaces, born) = (&self.inhibit, &self.cofaces, &self.born);
-            let test = |v: usize, cells: u8, out: &mut Vec<(u32, u8, u32, u8)>| {
-                let cells = cells & bits[v] & !CUBE & !inhibit[v];
-                if cells == 0 {
-                    return;
-                }
-                for span in 0..7u8 {
-                    if cells & SPAN_BIT[span as usize] == 0 {
-                        continue;
-                    }
-                    match Self::coface_state(bits, &cofaces[span as usize], v) {
-                        (1, f, fs) => out.push((v as u32, span, f as u32, fs)),
-                        (0, _, _) if span.count_ones() == 1 && born[v] & span == 0 => {
-                            out.push((v as u32, span, 0, NO_SPAN))
+    /// Edges of the listed bricks that are present, not yet born and without a square are born
+    /// at `date`; each waits for (or, if due by iteration `now`, gets) its constraint.
+    fn births(&mut self, list: &[u32], date: u32, now: u32) {
+        let (cells, born, step) = (&self.cells, &self.born, self.layout.step);
+        let found: Vec<(u32, u8, u64)> = {
+            let scan = |c: &[u32]| {
+                let mut out = Vec::new();
+                for &b in c {
+                    let b = b as usize;
+                    for axis in 0..3 {
+                        let e = cells.get(b, EDGE[axis]) & !born.get(b, EDGE[axis]);
+                        if e == 0 {
+                            continue;
                         }
-                        _ => {}
+                        let mut squares = 0;
+                        for other in (0..3).filter(|&o| o != axis) {
+                            let sq = EDGE[axis] | EDGE[other];
+                            squares |= cells.get(b, sq) | back(cells, b, sq, other, &step);
+                        }
+                        let new = e & !squares;
+                        if new != 0 {
+                            out.push((b as u32, axis as u8, new));
+                        }
                     }
                 }
+                out
             };
-            if self.full_scan {
-                let all: Vec<u32> = (0..bits.len() as u32)
-                    .filter(|&v| bits[v as usize] != 0)
-                    .collect();
-                gather(self.chunk, &all, |c, out| {
-                    for &v in c {
-                        test(v as usize, 0xff, out)
-                    }
-                })
+            if self.chunk > 0 && list.len() > self.chunk {
+                list.par_chunks(self.chunk)
+                    .map(scan)
+                    .collect::<Vec<_>>()
+                    .concat()
             } else {
-                let dirty = &self.dirty;
-                gather(self.chunk, &self.dirty_vertices, |c, out| {
-                    for &v in c {
-                        test(v as usize, dirty[v as usize], out)
-                    }
-                })
+                scan(list)
             }
         };
-        self.full_scan = false;
-        for &v in &self.dirty_vertices {
-            self.dirty[v as usize] = 0;
-        }
-        self.dirty_vertices.clear();
-        for &(g, span, _, fs) in &found {
-            if fs == NO_SPAN {
-                self.mark_born(g as usize, span.trailing_zeros() as u8, l - 1);
+        for (b, axis, new) in found {
+            let (b, axis) = (b as usize, axis as usize);
+            self.born.or(b, EDGE[axis], new);
+            for bit in bits(new) {
+                if let Some(birth) = &mut self.birth {
+                    let i = {
+                        let v = self.layout.coords(b, bit);
+                        let s = self.layout.size;
+                        v[0] + s[0] * (v[1] + s[1] * v[2])
+                    };
+                    birth[3 * i + axis] = date;
+                }
+                let v = self.layout.coords(b, bit);
+                if let Some(when) = self.constraint_date(v, axis, date) {
+                    if when <= now {
+                        self.inhibit_edge(b, bit, axis);
+                    } else {
+                        let when = when as usize;
+                        if self.waiting.len() <= when {
+                            self.waiting.resize(when + 1, Vec::new());
+                        }
+                        self.waiting[when].push(Waiting {
+                            brick: b as u32,
+                            bit: bit as u8,
+                            axis: axis as u8,
+                        });
+                    }
+                }
             }
         }
+    }
+
+    /// Start of iteration l: the waiting edges due now and still present join W.
+    fn apply_constraints(&mut self, l: u32) {
+        let Some(due) = self.waiting.get_mut(l as usize).map(std::mem::take) else {
+            return;
+        };
+        for w in due {
+            let (b, axis) = (w.brick as usize, w.axis as usize);
+            let m = 1u64 << w.bit;
+            if self.cells.get(b, EDGE[axis]) & m != 0 && self.inhibit.get(b, EDGE[axis]) & m == 0 {
+                self.inhibit_edge(b, w.bit as u32, axis);
+            }
+        }
+    }
+
+    /// One iteration of Algorithm 2. Returns false (and changes nothing but W) if no
+    /// unconstrained free pair exists.
+    pub fn iterate(&mut self, mut observer: Observer<'_, '_>) -> bool {
+        let l = self.iteration + 1;
+        let step = self.layout.step;
+        let (sx, sy, sz) = (step[0] as isize, step[1] as isize, step[2] as isize);
+        // A: the bricks holding faces of cells removed since the last iteration began.
+        let changed = std::mem::take(&mut self.changed);
+        let active = self.dilate(&changed, &[0, sx, sy, sz], true);
+        self.births(&active, l - 1, l);
         self.apply_constraints(l);
 
-        // L: the closures of the cofaces, marked in parallel (atomic OR); the vertices whose
-        // byte was zero are collected, then sorted.
-        let (closure, inhibit, chunk) = (&self.closure, &self.inhibit, self.chunk.max(1));
-        let border = atomic_bytes(&mut self.border);
-        let mark = |c: &[(u32, u8, u32, u8)], out: &mut Vec<u32>| {
-            for &(g, g_span, f, fs) in c {
-                if fs == NO_SPAN || inhibit[g as usize] & SPAN_BIT[g_span as usize] != 0 {
+        // Free faces (g present, not in W, exactly one coface) on A.
+        let (cells, inhibit, free) = (&self.cells, &self.inhibit, &self.free);
+        let any_free = self.filter(&active, |b| {
+            let mut any = 0;
+            for g in 0..7usize {
+                let present = cells.get(b, g) & !inhibit.get(b, g);
+                if present == 0 {
                     continue;
                 }
-                for &(off, byte) in &closure[fs as usize] {
-                    let j = f as usize + off;
-                    if border[j].fetch_or(byte, Ordering::Relaxed) == 0 {
-                        out.push(j as u32);
-                    }
+                let (mut one, mut two) = (0u64, 0u64);
+                for &(up, at) in cofaces(g) {
+                    let c = if at == 3 {
+                        cells.get(b, up)
+                    } else {
+                        back(cells, b, up, at, &step)
+                    };
+                    two |= one & c;
+                    one |= c;
                 }
+                let f = present & one & !two;
+                free.set(b, g, f);
+                any |= f;
             }
-        };
-        let mut vertices: Vec<u32> = if self.chunk > 0 && found.len() > chunk {
-            found
-                .par_chunks(chunk)
-                .map(|c| {
-                    let mut out = Vec::new();
-                    mark(c, &mut out);
-                    out
-                })
-                .collect::<Vec<_>>()
-                .concat()
-        } else {
-            let mut out = Vec::new();
-            mark(&found, &mut out);
-            out
-        };
-        if vertices.is_empty() {
+            any != 0
+        });
+        if any_free.is_empty() {
+            self.finish_scratch(&active, &[]);
             return false;
         }
-        if self.chunk > 0 {
-            vertices.par_sort_unstable();
+        // Cofaces of free pairs (C = A and one brick back), then their closure L (one brick
+        // forward along each axis).
+        let with_cofaces = self.dilate(&any_free, &[0, -sx, -sy, -sz], false);
+        let (cells, free, border) = (&self.cells, &self.free, &self.border);
+        self.for_each(&with_cofaces, |b| {
+            for f in 1..8usize {
+                let present = cells.get(b, f);
+                if present == 0 {
+                    continue;
+                }
+                let mut has_free_face = 0;
+                for a in (0..3).filter(|a| f & (1 << a) != 0) {
+                    let g = f & !(1 << a);
+                    has_free_face |= free.get(b, g) | fwd(free, b, g, a, &step);
+                }
+                border.set(b, f, present & has_free_face);
+            }
+        });
+        // The closure only reaches further than C through faces of cubes and squares of C:
+        // one brick forward per dimension stepped down.
+        let any_in = |spans: &[usize]| {
+            with_cofaces
+                .iter()
+                .any(|&b| spans.iter().any(|&s| border.get(b as usize, s) != 0))
+        };
+        let top_dim = if any_in(&[CUBE_SPAN]) {
+            3
+        } else if any_in(&[3, 5, 6]) {
+            2
         } else {
-            vertices.sort_unstable();
+            1
+        };
+        let closure = match top_dim {
+            3 => {
+                let mut c = with_cofaces;
+                for o in [sx, sy, sz] {
+                    c = self.dilate(&c, &[0, o], false);
+                }
+                c
+            }
+            2 => self.dilate(&with_cofaces, &[0, sx, sy, sz], false),
+            _ => with_cofaces,
+        };
+        let border = &self.border;
+        for dim in (1..top_dim).rev() {
+            self.for_each(&closure, |b| {
+                for span in (1..7usize).filter(|s| s.count_ones() == dim) {
+                    let mut w = border.get(b, span);
+                    for &(up, at) in cofaces(span) {
+                        w |= if at == 3 {
+                            border.get(b, up)
+                        } else {
+                            back(border, b, up, at, &step)
+                        };
+                    }
+                    border.set(b, span, w);
+                }
+            });
         }
-        self.border_vertices = vertices;
-        let (bits, border) = (self.complex.bytes(), &self.border);
+        // Per coface span: the bricks holding present cells of that span in L.
+        let cells = &self.cells;
         let bucket = |c: &[u32]| {
-            let mut lists: [Vec<u32>; 7] = Default::default();
-            for &v in c {
-                let i = v as usize;
-                let cells = border[i] & bits[i] & !inhibit[i] & !CUBE;
-                for span in 0..7u8 {
-                    if cells & SPAN_BIT[span as usize] != 0 {
-                        lists[span as usize].push(v);
+            let mut lists: [Vec<u32>; 8] = Default::default();
+            for &b in c {
+                for f in 1..8 {
+                    if border.get(b as usize, f) & cells.get(b as usize, f) != 0 {
+                        lists[f].push(b);
                     }
                 }
             }
             lists
         };
-        let parts: Vec<[Vec<u32>; 7]> = if self.chunk > 0 && self.border_vertices.len() > chunk {
-            self.border_vertices.par_chunks(chunk).map(bucket).collect()
+        let parts: Vec<[Vec<u32>; 8]> = if self.chunk > 0 && closure.len() > self.chunk {
+            closure.par_chunks(self.chunk).map(bucket).collect()
         } else {
-            vec![bucket(&self.border_vertices)]
+            vec![bucket(&closure)]
         };
-        for (span, list) in self.by_span.iter_mut().enumerate() {
-            list.clear();
+        let mut by_coface: [Vec<u32>; 8] = Default::default();
+        for (f, list) in by_coface.iter_mut().enumerate() {
             for p in &parts {
-                list.extend_from_slice(&p[span]);
+                list.extend_from_slice(&p[f]);
             }
         }
-        true
-    }
 
-    /// The free pairs of sub-step `step` with their coface in L, in vertex order (read-only).
-    #[inline(never)]
-    fn substep_pairs(&self, step: usize) -> Vec<(u32, u8)> {
-        let (bits, inhibit, border) = (self.complex.bytes(), &self.inhibit, &self.border);
-        let mut pairs = Vec::new();
-        for (k, kind) in self.kinds[step].iter().enumerate() {
-            let kind = *kind;
-            let found = gather(self.chunk, &self.by_span[kind.g_span as usize], |c, out| {
-                for &v in c {
-                    let v = v as usize;
-                    let own = bits[v];
-                    if own & kind.g_bit == 0
-                        || own & kind.own_absent != 0
-                        || inhibit[v] & kind.g_bit != 0
-                    {
-                        continue;
-                    }
-                    let f = v - kind.f_off;
-                    if bits[f] & kind.f_bit == 0 || border[f] & kind.f_bit == 0 {
-                        continue;
-                    }
-                    if kind.absent[..kind.n_absent]
-                        .iter()
-                        .all(|&(off, bit)| bits[v - off] & bit == 0)
-                    {
-                        out.push((v as u32, k as u8));
-                    }
-                }
-            });
-            pairs.extend(found);
-        }
-        pairs
-    }
-
-    /// Removes the pairs of a sub-step, recording dates and the cells to re-test.
-    #[inline(never)]
-    fn remove_pairs(&mut self, step: usize, pairs: &[(u32, u8)], l: u32) {
-        self.stats.pairs_removed += pairs.len() as u64;
-        for &(v, k) in pairs {
-            let kind = self.kinds[step][k as usize];
-            let (g, f) = (v as usize, v as usize - kind.f_off);
-            self.complex.remove(g, kind.g_span);
-            self.complex.remove(f, kind.f_span);
-            // Cells whose cofaces changed: the facets of f and of g.
-            for &(off, faces) in &kind.touched[..kind.n_touched] {
-                let w = g.wrapping_add_signed(off);
-                let d = &mut self.dirty[w];
-                if *d == 0 {
-                    self.dirty_vertices.push(w as u32);
-                }
-                *d |= faces;
-            }
-            if let Some(death) = &mut self.death {
-                death[8 * g + kind.g_span as usize] = l;
-                death[8 * f + kind.f_span as usize] = l;
-            }
-            // An edge removed before it was seen as a facet is born at its death (Def. 6.2).
-            for (cell, span) in [(g, kind.g_span), (f, kind.f_span)] {
-                if span.count_ones() == 1 && self.born[cell] & span == 0 {
-                    self.born[cell] |= span;
-                    if let Some(b) = &mut self.birth {
-                        b[3 * cell + span.trailing_zeros() as usize] = l;
-                    }
-                }
+        for s in 0..self.kinds.len() {
+            let removed = self.sub_step(s, l, &by_coface);
+            if let Some(obs) = observer.as_mut() {
+                obs(
+                    &self.complex(),
+                    SubStep {
+                        iteration: l,
+                        axis: (s / 6) as u8,
+                        positive: (s / 3) % 2 == 1,
+                        dim: 3 - (s % 3) as u8,
+                        removed_pairs: removed,
+                    },
+                );
             }
         }
-    }
-
-    /// One iteration of Algorithm 2. Returns false (and changes nothing) if no unconstrained
-    /// free pair exists.
-    pub fn iterate(&mut self, observer: &mut dyn FnMut(&Complex, SubStep)) -> bool {
-        let l = self.iteration + 1;
-        if !self.collect_border() {
-            return false;
-        }
-        for step in 0..self.kinds.len() {
-            let pairs = self.substep_pairs(step);
-            self.remove_pairs(step, &pairs, l);
-            observer(
-                &self.complex,
-                SubStep {
-                    iteration: l,
-                    axis: (step / 6) as u8,
-                    positive: (step / 3) % 2 == 1,
-                    dim: 3 - (step % 3) as u8,
-                    removed_pairs: pairs.len(),
-                },
-            );
-        }
-        for &v in &self.border_vertices {
-            self.border[v as usize] = 0;
-        }
+        self.finish_scratch(&active, &closure);
         self.iteration = l;
         self.stats.iterations = l;
         true
     }
 
-    /// Adds the faces of a removed cell (a pierced square) to the candidates.
-    fn touch_faces(&mut self, i: usize, span: u8) {
-        let s = self.complex.stride();
-        for a in 0..3 {
-            if span & (1 << a) != 0 {
-                let face = span & !(1 << a);
-                for w in [i, i + s[a]] {
-                    if self.dirty[w] == 0 {
-                        self.dirty_vertices.push(w as u32);
+    /// Clears the scratch planes of an iteration.
+    fn finish_scratch(&self, active: &[u32], closure: &[u32]) {
+        let (free, border) = (&self.free, &self.border);
+        self.for_each(active, |b| (0..7).for_each(|s| free.set(b, s, 0)));
+        self.for_each(closure, |b| (0..8).for_each(|s| border.set(b, s, 0)));
+    }
+
+    /// Sub-step `s` of iteration l: for each pair kind, finds the pairs from the current planes
+    /// on the bricks where L holds a coface of the kind (`by_coface`), then removes them. The
+    /// kinds of one sub-step are independent (a dim-2 sub-step along t removes squares
+    /// containing t with one edge, and never touches the cells the other kind's test reads), so
+    /// taking them one after the other equals taking them at once. Returns the number of pairs.
+    fn sub_step(&mut self, s: usize, l: u32, by_coface: &[Vec<u32>; 8]) -> usize {
+        let axis = s / 6;
+        let positive = (s / 3) % 2 == 1;
+        let step = self.layout.step;
+        let o = step[axis] as isize;
+        let mut removed = 0;
+        for k in 0..self.kinds[s].len() {
+            let kind = self.kinds[s][k];
+            if by_coface[kind.f].is_empty() {
+                continue;
+            }
+            // g lies at f's vertex, or one step forward.
+            let candidates = if positive {
+                self.dilate(&by_coface[kind.f], &[0, o], false)
+            } else {
+                by_coface[kind.f].clone()
+            };
+            let (cells, inhibit, border, masks) =
+                (&self.cells, &self.inhibit, &self.border, &self.masks);
+            let with_pairs = self.filter(&candidates, |b| {
+                let mut m = cells.get(b, kind.g) & !inhibit.get(b, kind.g);
+                if m != 0 {
+                    m &= if positive {
+                        back(cells, b, kind.f, axis, &step) & back(border, b, kind.f, axis, &step)
+                    } else {
+                        cells.get(b, kind.f) & border.get(b, kind.f)
+                    };
+                }
+                for &(up, at) in &kind.others[..kind.n_others] {
+                    if m == 0 {
+                        break;
                     }
-                    self.dirty[w] |= SPAN_BIT[face as usize];
+                    m &= !if at == 3 {
+                        cells.get(b, up)
+                    } else {
+                        back(cells, b, up, at, &step)
+                    };
+                }
+                masks.set(b, 0, m);
+                m != 0
+            });
+            // Bricks with an f to clear: f lies at g's vertex or one step back.
+            let touched = if positive {
+                self.dilate(&with_pairs, &[0, -o], false)
+            } else {
+                with_pairs.clone()
+            };
+            let (cells, masks) = (&self.cells, &self.masks);
+            self.for_each(&touched, |b| {
+                let m = masks.get(b, 0);
+                cells.clear(b, kind.g, m);
+                let fm = if positive {
+                    fwd(masks, b, 0, axis, &step)
+                } else {
+                    m
+                };
+                cells.clear(b, kind.f, fm);
+            });
+            for &b in &with_pairs {
+                let b = b as usize;
+                let m = self.masks.get(b, 0);
+                removed += m.count_ones() as usize;
+                if self.death.is_some() {
+                    for bit in bits(m) {
+                        self.record_removal(b, bit, &kind, axis, positive, l);
+                    }
+                }
+            }
+            for &b in &candidates {
+                self.masks.set(b as usize, 0, 0);
+            }
+            self.changed.extend_from_slice(&touched);
+        }
+        self.stats.pairs_removed += removed as u64;
+        removed
+    }
+
+    /// Dates of a removed pair (g at brick b, bit; f at the same vertex or one step back).
+    fn record_removal(
+        &mut self,
+        b: usize,
+        bit: u32,
+        kind: &Kind,
+        axis: usize,
+        positive: bool,
+        l: u32,
+    ) {
+        let g = self.vertex_index(b, bit);
+        let s = self.layout.size;
+        let f = if positive {
+            g - [1, s[0], s[0] * s[1]][axis]
+        } else {
+            g
+        };
+        if let Some(death) = &mut self.death {
+            death[8 * g + kind.g] = l;
+            death[8 * f + kind.f] = l;
+        }
+        // An edge removed before it was seen as a facet is born at its death (Def. 6.2).
+        if let Some(birth) = &mut self.birth {
+            for (cell, span) in [(g, kind.g), (f, kind.f)] {
+                let e = 3 * cell + span.trailing_zeros() as usize;
+                if span.count_ones() == 1 && birth[e] == NEVER {
+                    birth[e] = l;
                 }
             }
         }
     }
 
     /// Runs Algorithm 2 until no unconstrained free pair is left. Returns the iterations run.
-    pub fn run(&mut self, observer: &mut dyn FnMut(&Complex, SubStep)) -> u32 {
+    pub fn run(&mut self, mut observer: Observer<'_, '_>) -> u32 {
         let start = self.iteration;
-        while self.iterate(observer) {}
+        while self.iterate(observer.as_deref_mut()) {}
         self.iteration - start
     }
 
     /// Runs at most `layers` iterations (Algorithm 2 with ℓ = layers).
-    pub fn run_layers(&mut self, layers: u32, observer: &mut dyn FnMut(&Complex, SubStep)) {
+    pub fn run_layers(&mut self, layers: u32, mut observer: Observer<'_, '_>) {
         for _ in 0..layers {
-            if !self.iterate(observer) {
+            if !self.iterate(observer.as_deref_mut()) {
                 break;
             }
         }
-    }
-
-    /// All squares, as (vertex, span), in index order.
-    fn squares(&self) -> Vec<(u32, u8)> {
-        const CHUNK: usize = 1 << 16;
-        let parts: Vec<Vec<(u32, u8)>> = self
-            .complex
-            .bytes()
-            .par_chunks(CHUNK)
-            .enumerate()
-            .map(|(c, bytes)| {
-                let mut out = Vec::new();
-                for (k, &b) in bytes.iter().enumerate() {
-                    let b = b & SQUARES;
-                    if b == 0 {
-                        continue;
-                    }
-                    for span in [3u8, 5, 6] {
-                        if b & SPAN_BIT[span as usize] != 0 {
-                            out.push(((c * CHUNK + k) as u32, span));
-                        }
-                    }
-                }
-                out
-            })
-            .collect();
-        parts.concat()
     }
 
     /// Pierces every surface part once (see the module docs). `priority` is a per-voxel map
     /// (larger = pierce there first; e.g. the squared Euclidean distance). Returns the number
     /// of squares removed (0 when no square is left).
     pub fn pierce(&mut self, priority: Option<&[u32]>) -> usize {
-        let squares = self.squares();
-        if squares.is_empty() {
+        let complex = self.complex();
+        let Some((chosen, forced)) = choose_pierced_squares(&complex, priority) else {
             return 0;
-        }
+        };
         self.stats.pierce_rounds += 1;
-        // Index of a present square: the first index of its vertex plus its rank there (the
-        // list is sorted by vertex, then span 3, 5, 6).
-        let mut first = vec![u32::MAX; self.complex.len()];
-        for (k, &(v, _)) in squares.iter().enumerate().rev() {
-            first[v as usize] = k as u32;
-        }
-        let bits = self.complex.bytes();
-        let index = |v: usize, span: u8| -> usize {
-            let below = [3u8, 5, 6]
-                .iter()
-                .filter(|&&t| t < span && bits[v] & SPAN_BIT[t as usize] != 0)
-                .count();
-            first[v] as usize + below
-        };
-        let s = self.complex.stride();
-        // Surface parts: squares joined through shared edges.
-        let mut parts = super::complex::UnionFind::new(squares.len());
-        for (k, &(v, span)) in squares.iter().enumerate() {
-            for a in 0..3 {
-                if span & (1 << a) == 0 {
-                    continue;
-                }
-                let e = span & !(1 << a);
-                for owner in [v as usize, v as usize + s[a]] {
-                    for &(off, sq) in &self.cofaces[e as usize] {
-                        let w = owner - off;
-                        if bits[w] & SPAN_BIT[sq as usize] != 0 {
-                            parts.union(k, index(w, sq));
-                        }
-                    }
-                }
-            }
-        }
-        drop(first);
-        let (labels, components) = self.complex.complement_labels();
-        let mut sides = super::complex::UnionFind::new(components);
-        let dims = self.complex.dims();
-        let prio = |cube: usize| -> u32 {
-            let Some(p) = priority else { return 0 };
-            let c = self.complex.coords(cube);
-            if (0..3).all(|a| c[a] >= 0 && (c[a] as usize) < dims[a]) {
-                p[c[0] as usize + dims[0] * (c[1] as usize + dims[1] * c[2] as usize)]
-            } else {
-                0
-            }
-        };
-        // Per square: its two cube positions (the square's own vertex and one step back along
-        // its normal) and priority.
-        let info: Vec<(usize, usize, u32)> = squares
-            .iter()
-            .map(|&(v, span)| {
-                let normal = (0..3).find(|a| span & (1 << a) == 0).unwrap();
-                let (c1, c2) = (v as usize, v as usize - s[normal]);
-                (c1, c2, prio(c1).max(prio(c2)))
-            })
-            .collect();
-        let mut members: Vec<Vec<usize>> = vec![Vec::new(); squares.len()];
-        for k in 0..squares.len() {
-            members[parts.find(k)].push(k);
-        }
-        let mut chosen = Vec::new();
-        for part in members.iter().filter(|m| !m.is_empty()) {
-            let mut best: Option<usize> = None;
-            for &k in part {
-                let (c1, c2, p) = info[k];
-                let (l1, l2) = (labels[c1] as usize, labels[c2] as usize);
-                let better = match best {
-                    None => true,
-                    Some(b) => p > info[b].2,
-                };
-                if sides.find(l1) != sides.find(l2) && better {
-                    best = Some(k);
-                }
-            }
-            let k = match best {
-                Some(k) => {
-                    let (c1, c2, _) = info[k];
-                    sides.union(labels[c1] as usize, labels[c2] as usize);
-                    k
-                }
-                None => {
-                    self.stats.forced_pierces += 1;
-                    let mut b = part[0];
-                    for &k in part {
-                        if info[k].2 > info[b].2 {
-                            b = k;
-                        }
-                    }
-                    b
-                }
-            };
-            chosen.push(k);
-        }
-        chosen.sort_unstable();
+        self.stats.forced_pierces += forced;
+        let size = self.layout.size;
         let l = self.iteration;
-        for &k in &chosen {
-            let (v, span) = squares[k];
-            self.complex.remove(v as usize, span);
+        for &(v, span) in &chosen {
+            let v = v as usize;
+            let c = [
+                v % size[0],
+                (v / size[0]) % size[1],
+                v / (size[0] * size[1]),
+            ];
+            let (b, bit) = self.layout.locate(c);
+            self.cells.clear(b, span as usize, 1 << bit);
+            self.changed.push(b as u32);
             if let Some(death) = &mut self.death {
-                death[8 * v as usize + span as usize] = l;
+                death[8 * v + span as usize] = l;
             }
-        }
-        for &k in &chosen {
-            let (v, span) = squares[k];
-            for a in 0..3 {
-                if span & (1 << a) != 0 {
-                    let e = span & !(1 << a);
-                    let axis = e.trailing_zeros() as u8;
-                    self.check_birth(v as usize, axis, l);
-                    self.check_birth(v as usize + s[a], axis, l);
-                }
-            }
-        }
-        for &k in &chosen {
-            let (v, span) = squares[k];
-            self.touch_faces(v as usize, span);
         }
         self.stats.pierced += chosen.len() as u64;
         chosen.len()
@@ -907,16 +1061,241 @@ impl<'a> Thinning<'a> {
 
     /// Algorithm 3 followed by piercing and re-thinning until the complex has no square: the
     /// result is a 1-complex (points and edges). `priority` as in [`Thinning::pierce`].
-    pub fn curvilinear(
-        &mut self,
-        priority: Option<&[u32]>,
-        observer: &mut dyn FnMut(&Complex, SubStep),
-    ) {
-        self.run(observer);
+    pub fn curvilinear(&mut self, priority: Option<&[u32]>, mut observer: Observer<'_, '_>) {
+        self.run(observer.as_deref_mut());
         while self.pierce(priority) > 0 {
-            self.run(observer);
+            self.run(observer.as_deref_mut());
         }
-        debug_assert!(self.complex.bytes().iter().all(|&b| b & !(POINT | 14) == 0));
+    }
+}
+
+/// The squares to pierce in a complex without cubes (see the module docs): one per surface
+/// part, as (internal vertex, span), and how many of them were forced. `None` if the complex
+/// has no square.
+fn choose_pierced_squares(
+    complex: &Complex,
+    priority: Option<&[u32]>,
+) -> Option<(Vec<(u32, u8)>, u64)> {
+    use super::complex::{UnionFind, SQUARES};
+    let bits = complex.bytes();
+    let squares: Vec<(u32, u8)> = bits
+        .iter()
+        .enumerate()
+        .filter(|(_, &b)| b & SQUARES != 0)
+        .flat_map(|(i, &b)| {
+            [3u8, 5, 6]
+                .into_iter()
+                .filter(move |&span| b & SPAN_BIT[span as usize] != 0)
+                .map(move |span| (i as u32, span))
+        })
+        .collect();
+    if squares.is_empty() {
+        return None;
+    }
+    // Index of a present square: the first index of its vertex plus its rank there (the list
+    // is sorted by vertex, then span 3, 5, 6).
+    let mut first = vec![u32::MAX; complex.len()];
+    for (k, &(v, _)) in squares.iter().enumerate().rev() {
+        first[v as usize] = k as u32;
+    }
+    let index = |v: usize, span: u8| -> usize {
+        let below = [3u8, 5, 6]
+            .iter()
+            .filter(|&&t| t < span && bits[v] & SPAN_BIT[t as usize] != 0)
+            .count();
+        first[v] as usize + below
+    };
+    let s = complex.stride();
+    // Surface parts: squares joined through shared edges.
+    let mut parts = UnionFind::new(squares.len());
+    for (k, &(v, span)) in squares.iter().enumerate() {
+        for a in 0..3 {
+            if span & (1 << a) == 0 {
+                continue;
+            }
+            let e = (span & !(1 << a)) as usize;
+            for owner in [v as usize, v as usize + s[a]] {
+                for &(sq, at) in cofaces(e) {
+                    let w = if at == 3 { owner } else { owner - s[at] };
+                    if bits[w] & SPAN_BIT[sq] != 0 {
+                        parts.union(k, index(w, sq as u8));
+                    }
+                }
+            }
+        }
+    }
+    drop(first);
+    let dims = complex.dims();
+    let (runs, mut sides) = ComplementRuns::new(dims.map(|d| d + 2), &squares);
+    let prio = |cube: usize| -> u32 {
+        let Some(p) = priority else { return 0 };
+        let c = complex.coords(cube);
+        if (0..3).all(|a| c[a] >= 0 && (c[a] as usize) < dims[a]) {
+            p[c[0] as usize + dims[0] * (c[1] as usize + dims[1] * c[2] as usize)]
+        } else {
+            0
+        }
+    };
+    // Per square: its two cube positions (the square's own vertex and one step back along its
+    // normal) and priority.
+    let info: Vec<(usize, usize, u32)> = squares
+        .iter()
+        .map(|&(v, span)| {
+            let normal = (0..3).find(|a| span & (1 << a) == 0).unwrap();
+            let (c1, c2) = (v as usize, v as usize - s[normal]);
+            (c1, c2, prio(c1).max(prio(c2)))
+        })
+        .collect();
+    // Squares grouped by part (parts in order of their smallest square, as before).
+    let mut by_part: Vec<(u32, u32)> = (0..squares.len())
+        .map(|k| (parts.find(k) as u32, k as u32))
+        .collect();
+    by_part.sort_unstable();
+    let mut chosen = Vec::new();
+    let mut forced = 0;
+    for part in by_part.chunk_by(|a, b| a.0 == b.0) {
+        let part: Vec<usize> = part.iter().map(|&(_, k)| k as usize).collect();
+        let mut best: Option<usize> = None;
+        for &k in &part {
+            let (c1, c2, p) = info[k];
+            let (l1, l2) = (runs.run_of(c1), runs.run_of(c2));
+            let better = match best {
+                None => true,
+                Some(b) => p > info[b].2,
+            };
+            if sides.find(l1) != sides.find(l2) && better {
+                best = Some(k);
+            }
+        }
+        let k = match best {
+            Some(k) => {
+                let (c1, c2, _) = info[k];
+                sides.union(runs.run_of(c1), runs.run_of(c2));
+                k
+            }
+            None => {
+                forced += 1;
+                let mut b = part[0];
+                for &k in &part {
+                    if info[k].2 > info[b].2 {
+                        b = k;
+                    }
+                }
+                b
+            }
+        };
+        chosen.push(squares[k]);
+    }
+    chosen.sort_unstable();
+    Some((chosen, forced))
+}
+
+/// The connected components of the complement of a complex that has no cube (what a collapse
+/// leaves), for piercing. The complement is the union of the open cells not in the complex;
+/// an absent cell's cofaces are absent too, so every component holds open unit cubes, and two
+/// cubes that share an absent square are in one component ([`Complex::complement_labels`]).
+/// Without cubes every cube position of the internal array is open, and only present squares
+/// separate neighbours; so the cube positions of one row along x split into runs at the YZ
+/// squares, and runs of neighbouring rows join where their overlap has a column without an
+/// XZ (rows along y) or XY (rows along z) square. Work: O(rows + squares), against a
+/// union-find over every cube position.
+struct ComplementRuns {
+    size: [usize; 3],
+    /// Per row (y + size_y z): the x of its YZ squares (sorted), as CSR offsets into `cuts`.
+    cut_start: Vec<u32>,
+    cuts: Vec<u32>,
+}
+
+impl ComplementRuns {
+    /// The runs and their components (a union-find over runs: run r of row w is number
+    /// `cut_start[w] + w + r`).
+    fn new(size: [usize; 3], squares: &[(u32, u8)]) -> (ComplementRuns, super::complex::UnionFind) {
+        let rows = size[1] * size[2];
+        // Per span of square (XY = 3, XZ = 5, YZ = 6): CSR lists of x per row; `squares` is
+        // sorted by vertex, so by row and then x.
+        let csr = |span: u8| {
+            let mut start = vec![0u32; rows + 1];
+            let mut xs = Vec::new();
+            for &(v, sp) in squares {
+                if sp == span {
+                    start[v as usize / size[0] + 1] += 1;
+                    xs.push((v as usize % size[0]) as u32);
+                }
+            }
+            for w in 0..rows {
+                start[w + 1] += start[w];
+            }
+            (start, xs)
+        };
+        let (cut_start, cuts) = csr(6);
+        let runs = cuts.len() + rows;
+        let mut components = super::complex::UnionFind::new(runs);
+        // Joins the runs of row a and row b (b one step after a along y or z) wherever their
+        // overlap has a column not blocked by a square of `blocks` (listed for row b).
+        let join = |uf: &mut super::complex::UnionFind,
+                    a: usize,
+                    b: usize,
+                    blocks: &(Vec<u32>, Vec<u32>)| {
+            let bounds = |w: usize| {
+                let c = &cuts[cut_start[w] as usize..cut_start[w + 1] as usize];
+                (c, cut_start[w] as usize + w)
+            };
+            let ((ca, ra), (cb, rb)) = (bounds(a), bounds(b));
+            let blocked = &blocks.1[blocks.0[b] as usize..blocks.0[b + 1] as usize];
+            let (mut i, mut j, mut k) = (0usize, 0usize, 0usize);
+            let mut x = 0u32;
+            let end = size[0] as u32;
+            while x < end {
+                let ea = ca.get(i).copied().unwrap_or(end);
+                let eb = cb.get(j).copied().unwrap_or(end);
+                let stop = ea.min(eb);
+                // Blocked columns in [x, stop).
+                while k < blocked.len() && blocked[k] < x {
+                    k += 1;
+                }
+                let mut n = 0;
+                while k + n < blocked.len() && blocked[k + n] < stop {
+                    n += 1;
+                }
+                if (n as u32) < stop - x {
+                    uf.union(ra + i, rb + j);
+                }
+                x = stop;
+                if ea == stop {
+                    i += 1;
+                }
+                if eb == stop {
+                    j += 1;
+                }
+            }
+        };
+        let (xz, xy) = (csr(5), csr(3));
+        for z in 0..size[2] {
+            for y in 0..size[1] {
+                let w = y + size[1] * z;
+                if y > 0 {
+                    join(&mut components, w - 1, w, &xz);
+                }
+                if z > 0 {
+                    join(&mut components, w - size[1], w, &xy);
+                }
+            }
+        }
+        (
+            ComplementRuns {
+                size,
+                cut_start,
+                cuts,
+            },
+            components,
+        )
+    }
+
+    /// The run holding a cube position (internal vertex index).
+    fn run_of(&self, cube: usize) -> usize {
+        let (w, x) = (cube / self.size[0], (cube % self.size[0]) as u32);
+        let c = &self.cuts[self.cut_start[w] as usize..self.cut_start[w + 1] as usize];
+        self.cut_start[w] as usize + w + c.partition_point(|&cut| cut <= x)
     }
 }
 
@@ -958,7 +1337,7 @@ mod tests {
             let d1 = distance_map(dims, &occ, Metric::L1, Outside::Solid, false).values;
             let cx = Complex::from_occupied(dims, &occ);
             let mut t = Thinning::new(cx, Constraint::None, false, true);
-            t.run(&mut |_, _| {});
+            t.run(None);
             for z in 0..dims[2] {
                 for y in 0..dims[1] {
                     for x in 0..dims[0] {
@@ -996,10 +1375,10 @@ mod tests {
             let mut seq = Thinning::new(cx.clone(), constraint, false, true);
             let euler = before.euler;
             let mut steps_seq = Vec::new();
-            seq.run(&mut |c, _| {
+            seq.run(Some(&mut |c, _| {
                 assert_eq!(c.euler(), euler);
                 steps_seq.push(c.bytes().to_vec());
-            });
+            }));
             assert!(seq.complex().is_closed());
             assert_eq!(seq.complex().betti(), before);
             let mut par = Thinning::new(cx.clone(), constraint, true, false);
@@ -1010,16 +1389,18 @@ mod tests {
                 .build()
                 .unwrap()
                 .install(|| {
-                    par.run(&mut |c, _| {
+                    par.run(Some(&mut |c, _| {
                         assert_eq!(c.bytes(), &steps_seq[k][..]);
                         k += 1;
-                    })
+                    }))
                 });
             assert_eq!(k, steps_seq.len());
             // Idempotent: nothing left to collapse with the same W.
             let before_rerun = seq.complex().clone();
-            assert_eq!(seq.run(&mut |_, _| {}), 0);
-            assert_eq!(seq.complex(), &before_rerun);
+            assert_eq!(seq.run(None), 0);
+            assert_eq!(seq.complex(), before_rerun);
+            let inhibited = seq.inhibited();
+            let final_complex = seq.complex();
             // Dates: births never exceed deaths; constrained edges stay.
             for i in 0..cx.len() {
                 for a in 0..3 {
@@ -1027,8 +1408,8 @@ mod tests {
                     if d != NEVER {
                         assert!(b <= d, "birth {b} death {d}");
                     }
-                    if seq.inhibited()[i] & SPAN_BIT[1 << a] != 0 {
-                        assert!(seq.complex().has(i, 1 << a));
+                    if inhibited[i] & SPAN_BIT[1 << a] != 0 {
+                        assert!(final_complex.has(i, 1 << a));
                     }
                 }
             }
@@ -1053,7 +1434,7 @@ mod tests {
                 false,
                 false,
             );
-            t.curvilinear(Some(&d1), &mut |_, _| {});
+            t.curvilinear(Some(&d1), None);
             let after = t.complex().betti();
             assert_eq!(t.stats.forced_pierces, 0);
             assert_eq!(t.complex().counts()[2..], [0, 0]);
@@ -1061,5 +1442,128 @@ mod tests {
             assert_eq!(t.stats.pierced as usize, before.b2);
             assert!(t.complex().is_subcomplex_of(&cx));
         }
+    }
+    /// The fast collapse equals the literal oracle after every sub-step, with the same
+    /// constraint set and dates, through piercing and re-thinning.
+    #[test]
+    fn equals_the_naive_oracle() {
+        use crate::analysis::thinning_oracle::Oracle;
+        let mut rng = Rng::new(23, 5);
+        for case in 0..48 {
+            let dims = if case < 40 {
+                [3 + case % 6, 3 + (case * 5) % 6, 2 + (case * 3) % 5]
+            } else {
+                [9 + case % 7, 10 + (case * 5) % 6, 9 + (case * 3) % 5]
+            };
+            let occ = random_occupied(dims, [0.1f32, 0.2, 0.35, 0.5][case % 4], &mut rng);
+            let cx = Complex::from_occupied(dims, &occ);
+            let (d1, dc) = maps(dims, &occ);
+            let constrained = case % 3 != 0;
+            let constraint = if constrained {
+                Constraint::Lifespan {
+                    distance: &d1,
+                    decenterness: &dc,
+                }
+            } else {
+                Constraint::None
+            };
+            // Built from the voxels directly or from the byte complex: the same planes.
+            let mut fast = if case % 3 == 1 {
+                Thinning::from_occupied(dims, &occ, constraint, case % 2 == 0, true)
+            } else {
+                Thinning::new(cx.clone(), constraint, case % 2 == 0, true)
+            };
+            assert_eq!(fast.complex(), cx);
+            fast.set_chunk_size(if case % 2 == 0 { 5 } else { 0 });
+            let mut oracle = Oracle::new(cx.clone(), constrained.then_some((&d1[..], &dc[..])));
+            for round in 0..10 {
+                let mut steps = Vec::new();
+                oracle.run(&mut |c| steps.push(c.bytes().to_vec()));
+                let mut k = 0;
+                fast.run(Some(&mut |c: &Complex, _| {
+                    assert_eq!(
+                        c.bytes(),
+                        &steps[k][..],
+                        "case {case} round {round} sub-step {k}"
+                    );
+                    k += 1;
+                }));
+                assert_eq!(k, steps.len(), "case {case}: iterations");
+                assert_eq!(fast.iteration(), oracle.iteration);
+                assert_eq!(fast.inhibited(), oracle.inhibit, "case {case}: W");
+                for i in 0..cx.len() {
+                    for a in 0..3 {
+                        assert_eq!(
+                            fast.birth(i, a).unwrap(),
+                            oracle.birth[3 * i + a],
+                            "case {case} birth"
+                        );
+                    }
+                    for span in 0..8u8 {
+                        assert_eq!(
+                            fast.death(i, span).unwrap(),
+                            oracle.death[8 * i + span as usize]
+                        );
+                    }
+                }
+                let before = fast.complex();
+                if fast.pierce(Some(&d1)) == 0 {
+                    break;
+                }
+                let after = fast.complex();
+                for i in 0..cx.len() {
+                    let gone = before.byte(i) & !after.byte(i);
+                    for span in [3u8, 5, 6] {
+                        if gone & SPAN_BIT[span as usize] != 0 {
+                            oracle.remove_square(i, span);
+                        }
+                    }
+                }
+                assert_eq!(fast.complex(), oracle.complex);
+            }
+        }
+    }
+
+    /// The run-based components of the complement equal the union-find over every cube
+    /// position, on collapsed random complexes (no cubes, surfaces around cavities).
+    #[test]
+    fn complement_runs_equal_complement_labels() {
+        let mut rng = Rng::new(31, 7);
+        let mut cavities = 0;
+        for case in 0..30 {
+            let dims = [5 + case % 7, 4 + (case * 5) % 6, 4 + (case * 3) % 5];
+            let occ = random_occupied(dims, [0.15f32, 0.3, 0.45][case % 3], &mut rng);
+            let (d1, dc) = maps(dims, &occ);
+            let mut t = Thinning::from_occupied(
+                dims,
+                &occ,
+                Constraint::Lifespan {
+                    distance: &d1,
+                    decenterness: &dc,
+                },
+                false,
+                false,
+            );
+            t.run(None);
+            let c = t.complex();
+            assert_eq!(c.counts()[3], 0);
+            let squares: Vec<(u32, u8)> = (0..c.len())
+                .flat_map(|i| [3u8, 5, 6].map(|s| (i as u32, s)))
+                .filter(|&(i, s)| c.has(i as usize, s))
+                .collect();
+            let (labels, count) = c.complement_labels();
+            cavities += count - 1;
+            let (runs, mut uf) = ComplementRuns::new(dims.map(|d| d + 2), &squares);
+            // The same partition: label -> root and root -> label are both functions.
+            let mut root_of = vec![usize::MAX; count];
+            let mut label_of = std::collections::HashMap::new();
+            for i in 0..c.len() {
+                let (l, r) = (labels[i] as usize, uf.find(runs.run_of(i)));
+                assert!(root_of[l] == usize::MAX || root_of[l] == r, "case {case}");
+                root_of[l] = r;
+                assert_eq!(*label_of.entry(r).or_insert(l), l, "case {case}");
+            }
+        }
+        assert!(cavities > 5, "the cases should hold cavities ({cavities})");
     }
 }

@@ -30,6 +30,16 @@ pub struct lacuna_analysis {
     analysis: Analysis,
 }
 
+impl lacuna_analysis {
+    pub(crate) fn scene(&self) -> &lacuna_scene {
+        &self.scene
+    }
+
+    pub(crate) fn inner(&self) -> &Analysis {
+        &self.analysis
+    }
+}
+
 /// One opening-forest region.
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]

@@ -26,6 +26,7 @@ mod guide;
 mod job;
 mod mesh;
 mod scene;
+mod skeleton;
 mod types;
 mod version;
 
@@ -42,5 +43,6 @@ pub use guide::*;
 pub use job::*;
 pub use mesh::*;
 pub use scene::*;
+pub use skeleton::*;
 pub use types::*;
 pub use version::*;

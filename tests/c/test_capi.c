@@ -1268,6 +1268,149 @@ static void test_skeleton_guide(lacuna_context *ctx) {
     lacuna_skeleton_guide_release(NULL);
 }
 
+/* ---------------------------------------------------------------------------------------- */
+/* Curvilinear skeleton. */
+
+static int count_lines(const char *path, const char *prefix) {
+    FILE *f = fopen(path, "r");
+    if (!f) {
+        return -1;
+    }
+    char line[512];
+    int n = 0;
+    while (fgets(line, sizeof line, f)) {
+        if (strncmp(line, prefix, strlen(prefix)) == 0) {
+            n++;
+        }
+    }
+    fclose(f);
+    return n;
+}
+
+static void test_skeleton(lacuna_context *ctx) {
+    lacuna_scene *scene = build_box_scene(ctx);
+    lacuna_analysis *a = NULL;
+    OK(lacuna_analysis_build(scene, 24, 0, 0, LACUNA_ANALYSIS_ALL_MAPS, NULL, NULL, &a));
+    lacuna_scene_release(scene);
+    lacuna_skeleton *s = NULL;
+    /* Error paths first: nothing is written on failure. */
+    EXPECT(lacuna_skeleton_build(NULL, 0, NULL, NULL, &s), LACUNA_STATUS_NULL_POINTER, "analysis");
+    EXPECT(lacuna_skeleton_build(a, 0, NULL, NULL, NULL), LACUNA_STATUS_NULL_POINTER, "out_skeleton");
+    EXPECT(lacuna_skeleton_build(a, 8, NULL, NULL, &s), LACUNA_STATUS_INVALID_ARGUMENT, "flags");
+    EXPECT(lacuna_skeleton_build(a, 0, stop_at_once, NULL, &s), LACUNA_STATUS_CANCELLED, NULL);
+    CHECK(s == NULL);
+    progress_calls = 0;
+    OK(lacuna_skeleton_build(a, LACUNA_SKELETON_TOPOLOGY, count_progress, NULL, &s));
+    CHECK(s != NULL && progress_calls > 3);
+
+    lacuna_skeleton_info info;
+    EXPECT(lacuna_skeleton_get_info(NULL, &info), LACUNA_STATUS_NULL_POINTER, "skeleton");
+    EXPECT(lacuna_skeleton_get_info(s, NULL), LACUNA_STATUS_NULL_POINTER, "out_info");
+    OK(lacuna_skeleton_get_info(s, &info));
+    /* The inside of the box and the padding shell around it: two components, no cycle. */
+    CHECK(info.has_topology && info.b0 == 2 && info.b1 == 0);
+    CHECK(info.components == info.b0 && info.cycle_rank == info.b1);
+    CHECK(info.euler == (int64_t)info.b0 - (int64_t)info.b1 + (int64_t)info.b2);
+    CHECK(info.raw_nodes >= info.filtered_nodes && info.filtered_nodes >= 2);
+    CHECK(info.raw_edges + info.components == info.raw_nodes + info.cycle_rank);
+    CHECK(info.seconds >= 0);
+
+    /* Nodes and edges of both graphs. */
+    lacuna_skeleton_node node;
+    uint32_t e[2];
+    EXPECT(lacuna_skeleton_get_node(s, 7, 0, &node), LACUNA_STATUS_INVALID_ARGUMENT, "graph 7");
+    EXPECT(lacuna_skeleton_get_node(s, LACUNA_SKELETON_GRAPH_RAW, info.raw_nodes, &node), LACUNA_STATUS_OUT_OF_RANGE,
+           "node index");
+    EXPECT(lacuna_skeleton_get_node(s, LACUNA_SKELETON_GRAPH_RAW, 0, NULL), LACUNA_STATUS_NULL_POINTER, "out_node");
+    EXPECT(lacuna_skeleton_get_node(NULL, 0, 0, &node), LACUNA_STATUS_NULL_POINTER, "skeleton");
+    EXPECT(lacuna_skeleton_get_edge(s, 2, 0, e), LACUNA_STATUS_INVALID_ARGUMENT, "graph 2");
+    EXPECT(lacuna_skeleton_get_edge(s, LACUNA_SKELETON_GRAPH_FILTERED, info.filtered_edges, e),
+           LACUNA_STATUS_OUT_OF_RANGE, "edge index");
+    EXPECT(lacuna_skeleton_get_edge(s, LACUNA_SKELETON_GRAPH_RAW, 0, NULL), LACUNA_STATUS_NULL_POINTER, "out_nodes");
+    EXPECT(lacuna_skeleton_get_edge(NULL, 0, 0, e), LACUNA_STATUS_NULL_POINTER, "skeleton");
+    for (uint32_t g = 0; g < 2; g++) {
+        size_t nodes = g ? info.filtered_nodes : info.raw_nodes;
+        size_t edges = g ? info.filtered_edges : info.raw_edges;
+        size_t degrees = 0;
+        int bad = 0;
+        for (size_t i = 0; i < nodes; i++) {
+            OK(lacuna_skeleton_get_node(s, g, i, &node));
+            degrees += node.degree;
+            bad += !(node.radius > 0 && isfinite(node.position.x) && node.filtered < info.filtered_nodes);
+            bad += g == LACUNA_SKELETON_GRAPH_FILTERED && node.filtered != i;
+            /* Every node lies in the padded box [-1, 1]^3 grown by a few voxels. */
+            bad += fabsf(node.position.x) > 1.5f || fabsf(node.position.y) > 1.5f || fabsf(node.position.z) > 1.5f;
+        }
+        CHECK(bad == 0);
+        size_t edge_ends = 0;
+        for (size_t i = 0; i < edges; i++) {
+            OK(lacuna_skeleton_get_edge(s, g, i, e));
+            bad += !(e[0] < e[1] && e[1] < nodes);
+            edge_ends += 2;
+        }
+        CHECK(bad == 0 && degrees == edge_ends);
+    }
+
+    /* A point on the floor seen from above maps to a filtered node inside the box. */
+    lacuna_vec3 floor = v3(0.2f, -1.0f, 0.1f), up = v3(0, 1, 0), from = v3(0.1f, 1, 0.3f);
+    uint32_t n = LACUNA_INVALID_INDEX;
+    OK(lacuna_skeleton_map_point(s, &floor, &up, &from, &n));
+    CHECK(n < info.filtered_nodes);
+    OK(lacuna_skeleton_get_node(s, LACUNA_SKELETON_GRAPH_FILTERED, n, &node));
+    CHECK(fabsf(node.position.x) < 1 && fabsf(node.position.y) < 1 && fabsf(node.position.z) < 1);
+    /* The same point seen from below (outside the box) maps to the outside shell. */
+    lacuna_vec3 below = v3(0, -1, 0);
+    uint32_t n2 = LACUNA_INVALID_INDEX;
+    OK(lacuna_skeleton_map_point(s, &floor, &up, &below, &n2));
+    CHECK(n2 < info.filtered_nodes && n2 != n);
+    lacuna_vec3 far_away = v3(100, 0, 0), bad = v3(NAN, 0, 0), zero = v3(0, 0, 0);
+    EXPECT(lacuna_skeleton_map_point(s, &far_away, &up, &from, &n), LACUNA_STATUS_OUT_OF_RANGE, "outside");
+    EXPECT(lacuna_skeleton_map_point(s, &bad, &up, &from, &n), LACUNA_STATUS_INVALID_ARGUMENT, "point");
+    EXPECT(lacuna_skeleton_map_point(s, &floor, &bad, &from, &n), LACUNA_STATUS_INVALID_ARGUMENT, "normal");
+    EXPECT(lacuna_skeleton_map_point(s, &floor, &up, &bad, &n), LACUNA_STATUS_INVALID_ARGUMENT, "incident");
+    EXPECT(lacuna_skeleton_map_point(s, &floor, &zero, &from, &n), LACUNA_STATUS_INVALID_ARGUMENT, "zero");
+    EXPECT(lacuna_skeleton_map_point(s, NULL, &up, &from, &n), LACUNA_STATUS_NULL_POINTER, "point");
+    EXPECT(lacuna_skeleton_map_point(s, &floor, NULL, &from, &n), LACUNA_STATUS_NULL_POINTER, "normal");
+    EXPECT(lacuna_skeleton_map_point(s, &floor, &up, NULL, &n), LACUNA_STATUS_NULL_POINTER, "incident");
+    EXPECT(lacuna_skeleton_map_point(s, &floor, &up, &from, NULL), LACUNA_STATUS_NULL_POINTER, "out_node");
+    EXPECT(lacuna_skeleton_map_point(NULL, &floor, &up, &from, &n), LACUNA_STATUS_NULL_POINTER, "skeleton");
+
+    /* Export: OBJ and PLY with the right counts. */
+    OK(lacuna_skeleton_export(s, LACUNA_SKELETON_GRAPH_RAW, LACUNA_SKELETON_FORMAT_OBJ, path_in_dir("skel.obj")));
+    CHECK(count_lines(path_in_dir("skel.obj"), "v ") == (int)info.raw_nodes);
+    CHECK(count_lines(path_in_dir("skel.obj"), "l ") == (int)info.raw_edges);
+    OK(lacuna_skeleton_export(s, LACUNA_SKELETON_GRAPH_FILTERED, LACUNA_SKELETON_FORMAT_PLY,
+                              path_in_dir("skel.ply")));
+    CHECK(count_lines(path_in_dir("skel.ply"), "property float radius") == 1);
+    char header[64];
+    snprintf(header, sizeof header, "element vertex %zu", info.filtered_nodes);
+    CHECK(count_lines(path_in_dir("skel.ply"), header) == 1);
+    EXPECT(lacuna_skeleton_export(s, 0, 9, path_in_dir("x")), LACUNA_STATUS_INVALID_ARGUMENT, "format");
+    EXPECT(lacuna_skeleton_export(s, 9, 0, path_in_dir("x")), LACUNA_STATUS_INVALID_ARGUMENT, "graph");
+    EXPECT(lacuna_skeleton_export(s, 0, 0, path_in_dir("no-such-dir/skel.obj")), LACUNA_STATUS_IO, "no-such-dir");
+    EXPECT(lacuna_skeleton_export(s, 0, 0, NULL), LACUNA_STATUS_NULL_POINTER, "path");
+    EXPECT(lacuna_skeleton_export(NULL, 0, 0, path_in_dir("x")), LACUNA_STATUS_NULL_POINTER, "skeleton");
+
+    /* Sequential thinning gives the same skeleton; without TOPOLOGY no Betti numbers. */
+    lacuna_skeleton *seq = NULL;
+    OK(lacuna_skeleton_build(a, LACUNA_SKELETON_SEQUENTIAL, NULL, NULL, &seq));
+    lacuna_skeleton_info si;
+    OK(lacuna_skeleton_get_info(seq, &si));
+    CHECK(!si.has_topology && si.raw_nodes == info.raw_nodes && si.raw_edges == info.raw_edges &&
+          si.filtered_nodes == info.filtered_nodes);
+    lacuna_skeleton_release(seq);
+
+    /* The skeleton keeps its analysis alive. */
+    lacuna_skeleton_retain(s);
+    lacuna_analysis_release(a);
+    OK(lacuna_skeleton_map_point(s, &floor, &up, &from, &n2));
+    CHECK(n2 == n);
+    lacuna_skeleton_release(s);
+    lacuna_skeleton_release(s);
+    lacuna_skeleton_release(NULL);
+    lacuna_skeleton_retain(NULL);
+}
+
 int main(int argc, char **argv) {
     if (argc < 2) {
         fprintf(stderr, "usage: %s SCRATCH_DIR\n", argv[0]);
@@ -1286,6 +1429,7 @@ int main(int argc, char **argv) {
     test_bdpt(ctx);
     test_analysis(ctx);
     test_skeleton_guide(ctx);
+    test_skeleton(ctx);
     lacuna_context_release(ctx);
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;

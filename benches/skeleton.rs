@@ -1,0 +1,184 @@
+//! Skeleton build time per stage (issue 6): the stages the skeleton needs, the definition of the
+//! BENCHMARKS.md table (voxelize, L1 distance, then the L1 opening and decenterness with the
+//! squared Euclidean distance alongside, then the thinning pipeline of `Skeleton::from_maps`),
+//! run in one process so that configurations can be compared side by side. Prints a markdown
+//! table on stdout.
+//!
+//! ```text
+//! cargo bench --bench skeleton -- SCENE.obj RESOLUTION [RESOLUTION...]
+//! ```
+//!
+//! Environment: `SKELETON_BENCH_REPS` (repetitions, default 5), `SKELETON_BENCH_THREADS`
+//! (comma-separated thread counts, default `1,2`). Each figure is the median over the
+//! repetitions, which are interleaved over the thread counts. "cpu" is the on-CPU time of all
+//! the process's threads during the stage (from /proc/self/task/*/schedstat), which does not
+//! count the time spent waiting for a core on a loaded machine; "wall" is elapsed time.
+
+use std::path::Path;
+use std::time::Instant;
+
+use lacuna::analysis::{
+    distance_map, voxelize, Metric, Outside, Resolution, Skeleton, SkeletonMaps, SkeletonSettings,
+    VoxelGrid,
+};
+use lacuna::math::Vec3;
+use lacuna::scene::{load_obj, SceneBuilder};
+
+/// On-CPU nanoseconds of all threads of this process so far.
+fn cpu_ns() -> u64 {
+    let Ok(dir) = std::fs::read_dir("/proc/self/task") else {
+        return 0;
+    };
+    dir.filter_map(|e| e.ok())
+        .filter_map(|e| std::fs::read_to_string(e.path().join("schedstat")).ok())
+        .filter_map(|s| s.split_whitespace().next()?.parse::<u64>().ok())
+        .sum()
+}
+
+/// Wall and CPU seconds of `f`.
+fn timed<T>(f: impl FnOnce() -> T) -> (T, f64, f64) {
+    let (c, t) = (cpu_ns(), Instant::now());
+    let v = f();
+    (v, t.elapsed().as_secs_f64(), (cpu_ns() - c) as f64 * 1e-9)
+}
+
+#[derive(Default, Clone)]
+struct Row {
+    /// (stage, wall, cpu) in stage order.
+    stages: Vec<(String, f64, f64)>,
+    nodes: usize,
+    filtered: usize,
+    grid: [usize; 3],
+}
+
+fn run(triangles: &[[Vec3; 3]], grid: VoxelGrid) -> Row {
+    let dims = grid.dims;
+    let mut row = Row {
+        grid: dims,
+        ..Default::default()
+    };
+    let (occ, w, c) = timed(|| voxelize(&grid, triangles));
+    row.stages.push(("voxelize".into(), w, c));
+    let (d1, w, c) = timed(|| distance_map(dims, &occ, Metric::L1, Outside::Solid, false).values);
+    row.stages.push(("distance L1".into(), w, c));
+    let (maps, w, c) = timed(|| SkeletonMaps::from_l1(dims, &occ, Outside::Solid, d1));
+    row.stages.push((
+        "opening L1 + decenterness || distance Euclidean".into(),
+        w,
+        c,
+    ));
+    let (d1, dc, sq) = (maps.distance_l1, maps.decenterness_l1, maps.sq_euclidean);
+    let settings = SkeletonSettings {
+        parallel: true,
+        topology: false,
+    };
+    // The progress callback runs after each stage: it splits the CPU time by stage.
+    let marks = std::sync::Mutex::new(vec![cpu_ns()]);
+    let progress = |_: &str, _: f64| {
+        marks.lock().unwrap().push(cpu_ns());
+        true
+    };
+    let (s, w, c) = timed(|| {
+        Skeleton::from_maps(grid, &occ, &d1, &dc, &sq, &settings, &progress, Vec::new())
+            .expect("skeleton")
+    });
+    let marks = marks.into_inner().unwrap();
+    for (k, t) in s.timings.iter().enumerate() {
+        if t.stage != "empty-space topology" {
+            let cpu = (marks[k + 1] - marks[k]) as f64 * 1e-9;
+            row.stages.push((t.stage.to_string(), t.seconds, cpu));
+        }
+    }
+    row.stages.push(("skeleton (from maps)".into(), w, c));
+    row.nodes = s.raw.nodes.len();
+    row.filtered = s.filtered.graph.nodes.len();
+    row
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.retain(|x| !x.is_nan());
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| a != "--bench")
+        .collect();
+    let Some((scene, resolutions)) = args.split_first() else {
+        eprintln!("usage: cargo bench --bench skeleton -- SCENE.obj RESOLUTION [RESOLUTION...]");
+        std::process::exit(2);
+    };
+    let reps: usize = std::env::var("SKELETON_BENCH_REPS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(5);
+    let threads: Vec<usize> = std::env::var("SKELETON_BENCH_THREADS")
+        .unwrap_or("1,2".into())
+        .split(',')
+        .filter_map(|s| s.trim().parse().ok())
+        .collect();
+    let mut builder = SceneBuilder::new();
+    load_obj(Path::new(scene), &mut builder, None).expect("scene loads");
+    let scene_data = builder.build().expect("scene builds");
+    let triangles: Vec<[Vec3; 3]> = (0..scene_data.triangle_count() as u32)
+        .map(|t| scene_data.triangle_vertices(t))
+        .collect();
+    let pools: Vec<rayon::ThreadPool> = threads
+        .iter()
+        .map(|&n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        })
+        .collect();
+    println!("| scene | longest axis | grid | threads | stage | wall (s) | cpu (s) |");
+    println!("|---|---|---|---|---|---|---|");
+    for res in resolutions {
+        let res: u32 = res.parse().expect("resolution");
+        let grid = VoxelGrid::new(scene_data.bounds(), Resolution::LongestAxis(res), 2).unwrap();
+        let mut rows: Vec<Vec<Row>> = vec![Vec::new(); threads.len()];
+        for _ in 0..reps {
+            for (k, pool) in pools.iter().enumerate() {
+                rows[k].push(pool.install(|| run(&triangles, grid)));
+            }
+        }
+        for (k, runs) in rows.iter().enumerate() {
+            let first = &runs[0];
+            let [w, h, d] = first.grid;
+            let mut total = (0.0, 0.0);
+            for (i, (stage, _, _)) in first.stages.iter().enumerate() {
+                let wall = median(runs.iter().map(|r| r.stages[i].1).collect());
+                let cpu = median(runs.iter().map(|r| r.stages[i].2).collect());
+                if i < 3 || stage.starts_with("skeleton (") {
+                    total.0 += wall;
+                    total.1 += cpu;
+                }
+                println!(
+                    "| {} | {res} | {w}x{h}x{d} | {} | {stage} | {wall:.4} | {} |",
+                    Path::new(scene).file_stem().unwrap().to_string_lossy(),
+                    threads[k],
+                    if cpu.is_nan() {
+                        "".into()
+                    } else {
+                        format!("{cpu:.4}")
+                    }
+                );
+            }
+            println!(
+                "| {} | {res} | {w}x{h}x{d} | {} | **total** ({} nodes, {} filtered) | **{:.4}** | {:.4} |",
+                Path::new(scene).file_stem().unwrap().to_string_lossy(),
+                threads[k],
+                first.nodes,
+                first.filtered,
+                total.0,
+                total.1
+            );
+        }
+    }
+}
