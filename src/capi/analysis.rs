@@ -2,13 +2,14 @@
 //! opening maps, opening-forest regions and portals), with point queries and portal sampling.
 
 use std::ffi::c_void;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use super::boundary::{self, lacuna_status, CapiError};
 use super::buffer::{
     arc_clone, arc_into_handle, arc_release, arc_retain, arg, out_ptr, read_arg, write_out,
 };
 use super::job::lacuna_progress_callback;
+use super::job::stage_progress;
 use super::scene::lacuna_scene;
 use super::types::{lacuna_vec3, LACUNA_INVALID_INDEX};
 use crate::analysis::{Analysis, AnalysisSettings, Outside, Resolution};
@@ -138,16 +139,7 @@ pub unsafe extern "C" fn lacuna_analysis_build(
             },
             ..Default::default()
         };
-        let user_data = user_data as usize;
-        // The callback runs between stages on this thread; the mutex keeps the closure Sync.
-        let callback = Mutex::new(progress);
-        let report = |_: &str, fraction: f64| -> bool {
-            match *callback.lock().unwrap_or_else(|e| e.into_inner()) {
-                // SAFETY: the host registered this callback with this user data.
-                Some(f) => unsafe { f(user_data as *mut c_void, fraction.clamp(0.0, 1.0)) },
-                None => true,
-            }
-        };
+        let report = stage_progress(progress, user_data);
         let pool = s.ctx.pool()?;
         let analysis = pool.install(|| Analysis::build(&s.scene, &settings, &report))?;
         // SAFETY: the scene handle is live (checked above); the analysis keeps one reference.

@@ -4,12 +4,13 @@
 //! direction with the exact density of the whole skeleton mixture.
 
 use std::ffi::c_void;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use super::boundary::{self, lacuna_status, CapiError};
 use super::buffer::{
     arc_clone, arc_into_handle, arc_release, arc_retain, arg, box_free, out_ptr, write_out,
 };
+use super::job::stage_progress;
 use super::job::{lacuna_progress_callback, lacuna_render_job};
 use super::scene::lacuna_scene;
 use super::types::lacuna_vec3;
@@ -81,15 +82,7 @@ pub unsafe extern "C" fn lacuna_skeleton_guide_build(
             // SAFETY: a live job (checked non-NULL).
             unsafe { arg(settings, "settings") }?.skeleton_settings()
         };
-        let user_data = user_data as usize;
-        let callback = Mutex::new(progress);
-        let report = |_: &str, fraction: f64| -> bool {
-            match *callback.lock().unwrap_or_else(|e| e.into_inner()) {
-                // SAFETY: the host registered this callback with this user data.
-                Some(f) => unsafe { f(user_data as *mut c_void, fraction.clamp(0.0, 1.0)) },
-                None => true,
-            }
-        };
+        let report = stage_progress(progress, user_data);
         let pool = s.ctx.pool()?;
         let guide = pool.install(|| SkeletonGuide::build(&s.scene, &skeleton, &report))?;
         // SAFETY: the scene handle is live (checked above); the guide keeps one reference.

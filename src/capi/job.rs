@@ -26,6 +26,24 @@ use crate::scene::{auto_camera, Camera};
 pub type lacuna_progress_callback =
     Option<unsafe extern "C" fn(user_data: *mut c_void, fraction: f64) -> bool>;
 
+/// The host's callback as the `progress(stage, fraction)` closure that staged builds
+/// (analysis, skeleton, skeleton guide) take. The mutex makes the closure `Sync` and keeps
+/// calls one at a time, as the callback's contract promises; fractions are clamped to [0, 1].
+pub(crate) fn stage_progress(
+    progress: lacuna_progress_callback,
+    user_data: *mut c_void,
+) -> impl Fn(&str, f64) -> bool + Sync {
+    let user_data = user_data as usize;
+    let callback = Mutex::new(progress);
+    move |_: &str, fraction: f64| -> bool {
+        match *callback.lock().unwrap_or_else(|e| e.into_inner()) {
+            // SAFETY: the host registered this callback with this user data.
+            Some(f) => unsafe { f(user_data as *mut c_void, fraction.clamp(0.0, 1.0)) },
+            None => true,
+        }
+    }
+}
+
 #[derive(Clone, Copy)]
 pub(crate) struct ProgressCallback {
     function: unsafe extern "C" fn(*mut c_void, f64) -> bool,

@@ -3,7 +3,7 @@
 //! (000 eq. 151-155) and OBJ / PLY export.
 
 use std::ffi::{c_char, c_void};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use super::analysis::lacuna_analysis;
 use super::boundary::{self, lacuna_status, CapiError};
@@ -11,6 +11,7 @@ use super::buffer::{
     arc_clone, arc_into_handle, arc_release, arc_retain, arg, out_ptr, read_arg, str_arg, write_out,
 };
 use super::job::lacuna_progress_callback;
+use super::job::stage_progress;
 use super::types::{lacuna_vec3, LACUNA_INVALID_INDEX};
 use crate::analysis::{skeleton_obj, skeleton_ply, Graph, Skeleton, SkeletonSettings};
 
@@ -120,16 +121,7 @@ pub unsafe extern "C" fn lacuna_skeleton_build(
             parallel: flags & LACUNA_SKELETON_SEQUENTIAL == 0,
             topology: flags & LACUNA_SKELETON_TOPOLOGY != 0,
         };
-        let user_data = user_data as usize;
-        // The callback runs between stages on this thread; the mutex keeps the closure Sync.
-        let callback = Mutex::new(progress);
-        let report = |_: &str, fraction: f64| -> bool {
-            match *callback.lock().unwrap_or_else(|e| e.into_inner()) {
-                // SAFETY: the host registered this callback with this user data.
-                Some(f) => unsafe { f(user_data as *mut c_void, fraction.clamp(0.0, 1.0)) },
-                None => true,
-            }
-        };
+        let report = stage_progress(progress, user_data);
         let pool = ctx.pool()?;
         let skeleton = pool.install(|| Skeleton::build(a.inner(), &settings, &report))?;
         // SAFETY: the analysis handle is live (checked above); the skeleton keeps a reference.
