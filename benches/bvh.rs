@@ -540,19 +540,15 @@ fn obj_triangles(path: &str) -> Option<Vec<[Vec3; 3]>> {
     Some(tris)
 }
 
-/// Crytek Sponza positions and faces, from the project's scene copy if present, otherwise
-/// from the shared scene directory.
+/// Crytek Sponza positions and faces, from the project's scene copy (skipped when absent).
 fn sponza_mesh() -> Option<Mesh> {
-    let candidates = [
-        concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/scenes/crytek-sponza/sponza.obj"
-        ),
-        "/work/shared/scenes/crytek-sponza/sponza.obj",
-    ];
-    let path = candidates
-        .iter()
-        .find(|p| std::path::Path::new(p).exists())?;
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/scenes/crytek-sponza/sponza.obj"
+    );
+    if !std::path::Path::new(path).exists() {
+        return None;
+    }
     let t = Instant::now();
     let tris = obj_triangles(path)?;
     eprintln!("loaded {path} in {:.2} s", t.elapsed().as_secs_f64());
