@@ -257,6 +257,27 @@ fn queries_drop_lobes_below_the_surface_and_hidden_importance_points() {
             },
         );
         assert!(!guide.importance_nodes().is_empty());
+        // Each node's lobes: a distribution (eq. 165), by decreasing probability, and no two
+        // alike (lobes of importance nodes sharing a visible prefix are merged into one).
+        for node in 0..guide.node_count() as u32 {
+            let lobes = guide.lobes(node);
+            assert!(lobes.len() <= guide.settings().max_lobes as usize);
+            if lobes.is_empty() {
+                continue;
+            }
+            let total: f32 = lobes.iter().map(|l| l.probability).sum();
+            assert!((total - 1.0).abs() < 1e-5, "node {node}: {total}");
+            for (i, a) in lobes.iter().enumerate() {
+                assert!(a.probability > 0.0);
+                for b in &lobes[i + 1..] {
+                    assert!(a.probability >= b.probability, "node {node}: not sorted");
+                    assert!(
+                        a.point != b.point || a.radius != b.radius,
+                        "node {node}: two equal lobes"
+                    );
+                }
+            }
+        }
         let (mut guided, mut dropped_side, mut dropped_hidden, mut kept_hidden) = (0, 0, 0, 0);
         let mut q = GuideQuery::new();
         for (p, p_error, ng, wo) in surface_points(&scene, 3000, 9) {
