@@ -6,8 +6,6 @@
 //! (Definition 10.7). The 1-opening (L1 balls, used by the skeleton's decenterness map, 000
 //! §6.2.2) is computed level by level from the largest radius down, with pruning.
 
-use std::sync::atomic::{AtomicU16, AtomicU32, Ordering::Relaxed};
-
 use rayon::prelude::*;
 
 use super::grid::for_each_line;
@@ -124,17 +122,11 @@ pub fn opening_map_26(dims: [usize; 3], distance: &[u32]) -> OpeningMap {
 /// least the same budget. The grid is padded with one layer of solid so that steps need no
 /// bounds test.
 pub fn opening_map_l1(dims: [usize; 3], distance_l1: &[u32]) -> Vec<u32> {
-    opening_l1(dims, distance_l1, false, PARALLEL_FRONTIER)
+    opening_l1(dims, distance_l1, false)
 }
 
-/// [`opening_map_l1`], with 32-bit flood words even when 16 bits would do if `wide`, and
-/// rounds split over the pool from `parallel_frontier` voxels (tests force small splits).
-fn opening_l1(
-    dims: [usize; 3],
-    distance_l1: &[u32],
-    wide: bool,
-    parallel_frontier: usize,
-) -> Vec<u32> {
+/// [`opening_map_l1`], with 32-bit flood words even when 16 bits would do if `wide`.
+fn opening_l1(dims: [usize; 3], distance_l1: &[u32], wide: bool) -> Vec<u32> {
     let [nx, ny, nz] = dims;
     assert_eq!(distance_l1.len(), nx * ny * nz);
     let (px, py) = (nx + 2, ny + 2);
@@ -195,9 +187,9 @@ fn opening_l1(
     }
     // 16-bit state and levels halve the memory traffic of the flood when the distances fit.
     let opening: Vec<u32> = if !wide && max_d < u16::MAX as usize - 1 {
-        flood::<u16>(&dist, &by_level, &first, max_d, steps, parallel_frontier)
+        flood::<u16>(&dist, &by_level, &first, max_d, steps)
     } else {
-        flood::<u32>(&dist, &by_level, &first, max_d, steps, parallel_frontier)
+        flood::<u32>(&dist, &by_level, &first, max_d, steps)
     };
     let mut out = vec![0u32; nx * ny * nz];
     out.par_chunks_mut(nx.max(1))
@@ -210,21 +202,15 @@ fn opening_l1(
     out
 }
 
-/// A level or budget word of the L1 flood (u16 when the distances fit, u32 otherwise), kept
-/// in an atomic so that the rounds of a large flood can be split over threads.
+/// A level or budget word of the L1 flood (u16 when the distances fit, u32 otherwise).
 trait Word: Copy + Ord + Send + Sync {
-    type Atomic: Send + Sync;
     const ZERO: Self;
     const SOLID: Self;
     fn of(v: u32) -> Self;
     fn get(self) -> u32;
-    fn atomic(v: Self) -> Self::Atomic;
-    fn load(a: &Self::Atomic) -> Self;
-    fn store(a: &Self::Atomic, v: Self);
 }
 
 impl Word for u16 {
-    type Atomic = AtomicU16;
     const ZERO: Self = 0;
     const SOLID: Self = u16::MAX;
     fn of(v: u32) -> Self {
@@ -233,21 +219,9 @@ impl Word for u16 {
     fn get(self) -> u32 {
         self as u32
     }
-    fn atomic(v: Self) -> AtomicU16 {
-        AtomicU16::new(v)
-    }
-    #[inline(always)]
-    fn load(a: &AtomicU16) -> Self {
-        a.load(Relaxed)
-    }
-    #[inline(always)]
-    fn store(a: &AtomicU16, v: Self) {
-        a.store(v, Relaxed)
-    }
 }
 
 impl Word for u32 {
-    type Atomic = AtomicU32;
     const ZERO: Self = 0;
     const SOLID: Self = u32::MAX;
     fn of(v: u32) -> Self {
@@ -256,51 +230,24 @@ impl Word for u32 {
     fn get(self) -> u32 {
         self
     }
-    fn atomic(v: Self) -> AtomicU32 {
-        AtomicU32::new(v)
-    }
-    #[inline(always)]
-    fn load(a: &AtomicU32) -> Self {
-        a.load(Relaxed)
-    }
-    #[inline(always)]
-    fn store(a: &AtomicU32, v: Self) {
-        a.store(v, Relaxed)
-    }
 }
-
-/// Frontier size from which a round of the flood is split over the pool (an expansion costs
-/// some 10 ns, a split microseconds), and voxels per task.
-const PARALLEL_FRONTIER: usize = 8192;
-const FRONTIER_CHUNK: usize = 2048;
 
 /// The level-by-level flood of [`opening_map_l1`] on the padded grid; returns the padded
 /// opening map.
-///
-/// A round (one budget of one level) expands its frontier in parallel when it is large.
-/// Within a round every store to `state` writes the round's mark and every store to
-/// `opening` the level, so racing tasks can only both see a voxel as new and push it twice;
-/// expanding it twice with the same budget changes nothing. The rounds and levels stay in
-/// order, so the map equals the sequential flood's (tested with forced splits).
 fn flood<W: Word>(
     dist: &[u32],
     by_level: &[u32],
     first: &[usize],
     max_d: usize,
     steps: [usize; 3],
-    parallel_frontier: usize,
 ) -> Vec<u32> {
     // Per voxel: the largest remaining budget it was expanded with, plus one (0 = never;
     // solid voxels count as expanded with an unbounded budget, so one test rejects both).
-    let state: Vec<W::Atomic> = dist
+    let mut state: Vec<W> = dist
         .par_iter()
-        .map(|&d| W::atomic(if d == 0 { W::SOLID } else { W::ZERO }))
+        .map(|&d| if d == 0 { W::SOLID } else { W::ZERO })
         .collect();
-    let opening: Vec<W::Atomic> = (0..state.len())
-        .into_par_iter()
-        .map(|_| W::atomic(W::ZERO))
-        .collect();
-    let split = rayon::current_num_threads() > 1;
+    let mut opening: Vec<W> = vec![W::ZERO; state.len()];
     let mut frontier: Vec<u32> = Vec::new();
     let mut next: Vec<u32> = Vec::new();
     for r in (1..=max_d).rev() {
@@ -308,20 +255,21 @@ fn flood<W: Word>(
         let level = W::of(r as u32);
         let mut budget = r as u32 - 1;
         for &i in &by_level[first[r]..first[r + 1]] {
-            if W::load(&state[i as usize]).get() <= budget {
-                W::store(&state[i as usize], W::of(budget + 1));
+            if state[i as usize].get() <= budget {
+                state[i as usize] = W::of(budget + 1);
                 frontier.push(i);
             }
         }
         while !frontier.is_empty() {
+            next.clear();
             let (below, mark) = (W::of(budget.wrapping_sub(1)), W::of(budget));
-            let expand = |i: u32, out: &mut Vec<u32>| {
+            for &i in &frontier {
                 let i = i as usize;
-                if W::load(&opening[i]) == W::ZERO {
-                    W::store(&opening[i], level);
+                if opening[i] == W::ZERO {
+                    opening[i] = level;
                 }
                 if budget == 0 {
-                    return;
+                    continue;
                 }
                 for j in [
                     i - steps[0],
@@ -331,25 +279,11 @@ fn flood<W: Word>(
                     i - steps[2],
                     i + steps[2],
                 ] {
-                    if W::load(&state[j]) <= below {
-                        W::store(&state[j], mark);
-                        out.push(j as u32);
+                    if state[j] <= below {
+                        state[j] = mark;
+                        next.push(j as u32);
                     }
                 }
-            };
-            if split && frontier.len() >= parallel_frontier {
-                next = frontier
-                    .par_chunks(FRONTIER_CHUNK.min(parallel_frontier.max(1)))
-                    .map(|c| {
-                        let mut out = Vec::with_capacity(2 * c.len());
-                        c.iter().for_each(|&i| expand(i, &mut out));
-                        out
-                    })
-                    .collect::<Vec<Vec<u32>>>()
-                    .concat();
-            } else {
-                next.clear();
-                frontier.iter().for_each(|&i| expand(i, &mut next));
             }
             if budget == 0 {
                 break;
@@ -358,7 +292,7 @@ fn flood<W: Word>(
             std::mem::swap(&mut frontier, &mut next);
         }
     }
-    opening.par_iter().map(|w| W::load(w).get()).collect()
+    opening.par_iter().map(|w| w.get()).collect()
 }
 
 #[cfg(test)]
@@ -429,16 +363,7 @@ mod tests {
                     let d1 = distance_map(dims, &occ, Metric::L1, outside, false).values;
                     let want = brute_opening(dims, &d1, Metric::L1);
                     assert_eq!(opening_map_l1(dims, &d1), want, "L1 {dims:?}");
-                    assert_eq!(opening_l1(dims, &d1, true, 8192), want, "L1 wide {dims:?}");
-                    // Every round split into tiny tasks on a pool of four threads.
-                    let pool = rayon::ThreadPoolBuilder::new()
-                        .num_threads(4)
-                        .build()
-                        .unwrap();
-                    for wide in [false, true] {
-                        let split = pool.install(|| opening_l1(dims, &d1, wide, 1));
-                        assert_eq!(split, want, "L1 split {wide} {dims:?}");
-                    }
+                    assert_eq!(opening_l1(dims, &d1, true), want, "L1 wide {dims:?}");
                 }
             }
         }
