@@ -242,3 +242,49 @@ fn budget_and_cancellation() {
     assert!(a.decenterness_l1.is_some() && a.memory().total() > 0);
     assert!(a.opening_at(Vec3::splat(1e6)).is_none());
 }
+
+/// Without the regions (what the skeleton guide asks for) the analysis holds the same
+/// occupancy and skeleton maps, computes no 26-distance, opening, labels or portals, answers
+/// region queries with "none", reports every stage it ran and reaches progress 1.
+#[test]
+fn skeleton_maps_without_regions() {
+    let scene = two_rooms_builder().unwrap().build().unwrap();
+    let full = AnalysisSettings {
+        resolution: Resolution::LongestAxis(40),
+        all_maps: true,
+        ..Default::default()
+    };
+    let lean = AnalysisSettings {
+        regions: false,
+        ..full.clone()
+    };
+    let a = Analysis::build(&scene, &full, &|_, _| true).unwrap();
+    let last = std::sync::Mutex::new(0.0f64);
+    let b = Analysis::build(&scene, &lean, &|_, f| {
+        *last.lock().unwrap() = f;
+        true
+    })
+    .unwrap();
+    assert_eq!(*last.lock().unwrap(), 1.0);
+    assert!(a.has_regions && !b.has_regions);
+    assert_eq!(a.occupied, b.occupied);
+    assert_eq!(a.distance_l1, b.distance_l1);
+    assert_eq!(a.distance_sq_euclidean, b.distance_sq_euclidean);
+    assert_eq!(a.opening_l1, b.opening_l1);
+    assert_eq!(a.decenterness_l1, b.decenterness_l1);
+    assert!(b.distance26.is_empty() && b.labels.is_empty() && b.portals.is_empty());
+    assert!(b.regions.is_empty() && b.opening.opening.is_empty());
+    let stages: Vec<&str> = b.timings.iter().map(|t| t.stage).collect();
+    assert!(!stages.contains(&"distance 26") && !stages.contains(&"portals"));
+    assert!(stages.contains(&"distance L1"));
+    let inside = a
+        .grid
+        .voxel_center(a.grid.index(a.grid.dims[0] / 2, a.grid.dims[1] / 2, 5));
+    assert!(a.opening_at(inside).is_some() && b.opening_at(inside).is_none());
+    assert!(b.label_at(inside).is_none());
+    assert!(b
+        .sample_portal(0, 0.5, lacuna::math::Vec2::new(0.5, 0.5))
+        .is_err());
+    assert!(Analysis::estimate_bytes(&b.grid, &lean) < Analysis::estimate_bytes(&a.grid, &full));
+    assert!(b.memory().total() < a.memory().total());
+}

@@ -5,7 +5,9 @@ use std::time::Instant;
 use super::distance::{distance_map, Metric, Outside};
 use super::grid::{Resolution, VoxelGrid, VoxelSet};
 use super::opening::{opening_map_26, OpeningMap};
-use super::regions::{find_portals, label_regions, sample_portal, Portal, Region, NO_REGION};
+use super::regions::{
+    find_portals, label_regions, sample_portal, Labeling, Portal, Region, NO_REGION,
+};
 use super::skeleton::SkeletonMaps;
 use super::voxelize::{fill_interiors, voxelize};
 use crate::error::{Error, Result};
@@ -29,6 +31,11 @@ pub struct AnalysisSettings {
     /// Also compute the L1 and squared Euclidean distance maps, the L1 opening and the
     /// decenterness map (the skeleton needs them; the labeling does not).
     pub all_maps: bool,
+    /// Compute the 26-distance, the 26-opening and its forest, the region labels and the
+    /// portals. The skeleton uses none of them, so a caller that only wants the skeleton
+    /// (the skeleton guide) turns this off and keeps `all_maps`: the analysis then holds the
+    /// occupancy and the skeleton's maps, and its region queries answer "none".
+    pub regions: bool,
 }
 
 impl Default for AnalysisSettings {
@@ -40,6 +47,7 @@ impl Default for AnalysisSettings {
             outside: Outside::Solid,
             memory_budget: 4 << 30,
             all_maps: false,
+            regions: true,
         }
     }
 }
@@ -72,7 +80,8 @@ impl MemoryUse {
 pub struct Analysis {
     pub grid: VoxelGrid,
     pub occupied: VoxelSet,
-    /// 26-distance to the occupied voxels (0 on them).
+    /// 26-distance to the occupied voxels (0 on them). This, `opening`, `labels`, `regions`
+    /// and `portals` are empty when the settings turned `regions` off (`has_regions`).
     pub distance26: Vec<u32>,
     pub opening: OpeningMap,
     /// Opening-forest label of each voxel (`NO_REGION` on occupied voxels).
@@ -86,21 +95,28 @@ pub struct Analysis {
     pub decenterness_l1: Option<Vec<u32>>,
     pub timings: Vec<StageTime>,
     pub interior_voxels_filled: usize,
+    /// Whether `distance26`, `opening`, `labels`, `regions` and `portals` were computed.
+    pub has_regions: bool,
 }
 
 /// Peak bytes per voxel of the pipeline (occupancy bits, maps, and the separable passes'
-/// line buffers and outputs), used to refuse a resolution before allocating.
+/// line buffers and outputs), used to refuse a resolution before allocating: with the
+/// regions, with the regions and the skeleton maps, with the skeleton maps only (four u32
+/// maps and the flood's and passes' scratch), and with neither (the occupancy bits).
 const BYTES_PER_VOXEL: u64 = 48;
 const BYTES_PER_VOXEL_ALL_MAPS: u64 = 64;
+const BYTES_PER_VOXEL_SKELETON_MAPS: u64 = 32;
+const BYTES_PER_VOXEL_OCCUPANCY: u64 = 1;
 
 impl Analysis {
     /// Predicted peak memory of analysing a grid.
     pub fn estimate_bytes(grid: &VoxelGrid, settings: &AnalysisSettings) -> u64 {
         grid.len() as u64
-            * if settings.all_maps {
-                BYTES_PER_VOXEL_ALL_MAPS
-            } else {
-                BYTES_PER_VOXEL
+            * match (settings.regions, settings.all_maps) {
+                (true, true) => BYTES_PER_VOXEL_ALL_MAPS,
+                (true, false) => BYTES_PER_VOXEL,
+                (false, true) => BYTES_PER_VOXEL_SKELETON_MAPS,
+                (false, false) => BYTES_PER_VOXEL_OCCUPANCY,
             }
     }
 
@@ -137,7 +153,11 @@ impl Analysis {
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Analysis> {
         let mut timings = Vec::new();
-        let stages = if settings.all_maps { 8.0 } else { 6.0 };
+        // Stages actually run, so that the progress reaches 1.
+        let stages = 1.0
+            + if settings.fill_interiors { 1.0 } else { 0.0 }
+            + if settings.regions { 4.0 } else { 0.0 }
+            + if settings.all_maps { 2.0 } else { 0.0 };
         let mut done = 0.0;
         let mut stage =
             |name: &'static str, timings: &mut Vec<StageTime>, start: Instant| -> Result<()> {
@@ -167,22 +187,36 @@ impl Analysis {
             stage("fill interiors", &mut timings, t)?;
         }
 
-        let t = Instant::now();
-        let distance26 =
-            distance_map(dims, &occupied, Metric::Chessboard, settings.outside, false).values;
-        stage("distance 26", &mut timings, t)?;
+        let (mut distance26, mut opening, mut labeling, mut portals) = (
+            Vec::new(),
+            OpeningMap {
+                opening: Vec::new(),
+                center: Vec::new(),
+            },
+            Labeling {
+                labels: Vec::new(),
+                regions: Vec::new(),
+            },
+            Vec::new(),
+        );
+        if settings.regions {
+            let t = Instant::now();
+            distance26 =
+                distance_map(dims, &occupied, Metric::Chessboard, settings.outside, false).values;
+            stage("distance 26", &mut timings, t)?;
 
-        let t = Instant::now();
-        let opening = opening_map_26(dims, &distance26);
-        stage("opening 26 + forest", &mut timings, t)?;
+            let t = Instant::now();
+            opening = opening_map_26(dims, &distance26);
+            stage("opening 26 + forest", &mut timings, t)?;
 
-        let t = Instant::now();
-        let labeling = label_regions(&grid, &opening);
-        stage("labels", &mut timings, t)?;
+            let t = Instant::now();
+            labeling = label_regions(&grid, &opening);
+            stage("labels", &mut timings, t)?;
 
-        let t = Instant::now();
-        let portals = find_portals(&grid, &labeling.labels);
-        stage("portals", &mut timings, t)?;
+            let t = Instant::now();
+            portals = find_portals(&grid, &labeling.labels);
+            stage("portals", &mut timings, t)?;
+        }
 
         let (mut distance_l1, mut distance_sq_euclidean, mut opening_l1, mut decenterness_l1) =
             (None, None, None, None);
@@ -216,6 +250,7 @@ impl Analysis {
             decenterness_l1,
             timings,
             interior_voxels_filled,
+            has_regions: settings.regions,
         })
     }
 
@@ -246,16 +281,20 @@ impl Analysis {
         }
     }
 
-    /// 26-opening (in voxels) at a world point; `None` outside the grid, 0 in occupied voxels.
+    /// 26-opening (in voxels) at a world point; `None` outside the grid or without the
+    /// regions, 0 in occupied voxels.
     pub fn opening_at(&self, p: Vec3) -> Option<u32> {
-        self.grid.voxel_at(p).map(|i| self.opening.opening[i])
+        self.grid
+            .voxel_at(p)
+            .and_then(|i| self.opening.opening.get(i).copied())
     }
 
-    /// Region label at a world point; `None` outside the grid or in occupied voxels.
+    /// Region label at a world point; `None` outside the grid, in occupied voxels or without
+    /// the regions.
     pub fn label_at(&self, p: Vec3) -> Option<u32> {
         self.grid
             .voxel_at(p)
-            .map(|i| self.labels[i])
+            .and_then(|i| self.labels.get(i).copied())
             .filter(|&l| l != NO_REGION)
     }
 

@@ -96,7 +96,7 @@ fn write_slice(
 }
 
 /// Writes `summary.json`, `regions.csv`, `portals.obj` and mid-slices of the opening map and
-/// labels along each axis into `dir`.
+/// labels along each axis into `dir` (no slices for an analysis without the regions).
 pub fn write_analysis(dir: &Path, a: &Analysis) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     write(&dir.join("summary.json"), &summary_json(a))?;
@@ -148,6 +148,9 @@ pub fn write_analysis(dir: &Path, a: &Analysis) -> Result<()> {
     }
     write(&dir.join("portals.obj"), &obj)?;
 
+    if !a.has_regions {
+        return Ok(());
+    }
     let max_opening = a.opening.opening.iter().copied().max().unwrap_or(1).max(1) as f32;
     for axis in 0..3 {
         let k = a.grid.dims[axis] / 2;

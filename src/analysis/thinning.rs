@@ -335,6 +335,22 @@ fn sub_step_kinds() -> Vec<Vec<Kind>> {
     steps
 }
 
+/// Rough cost of one brick in a pass, in units of a sub-step's pair test (a few tens of
+/// instructions): the free-face, birth, border and closure passes read about four times as
+/// many words per brick.
+#[derive(Clone, Copy, Debug)]
+enum Work {
+    Light = 1,
+    Heavy = 4,
+}
+
+/// Brick visits (in [`Work`] units) below which a pass is cheaper on the calling thread than
+/// split over the pool: a split costs microseconds (waking a sleeping worker more), a light
+/// brick visit some 10 ns. The long tail of the collapse (hundreds of iterations of a few
+/// hundred bricks after the piercing) then runs without any task overhead, while the first
+/// iterations (thousands of bricks per pass) still split. Measured on the door and Sponza.
+const MIN_PARALLEL_WORK: usize = 2048;
+
 /// A born edge waiting for the iteration at which the constraint catches it.
 #[derive(Clone, Copy, Debug)]
 struct Waiting {
@@ -373,6 +389,9 @@ pub struct Thinning<'a> {
     death: Option<Vec<u32>>,
     /// Bricks per parallel task (0 = sequential).
     chunk: usize,
+    /// Work (brick visits weighted by [`Work`]) below which a pass runs on the calling
+    /// thread.
+    min_parallel_work: usize,
     kinds: Vec<Vec<Kind>>,
     pub stats: ThinningStats,
 }
@@ -424,7 +443,7 @@ impl<'a> Thinning<'a> {
             .filter(|&b| layout.real(b as usize))
             .collect();
         // Cubes: voxel v is the cube of internal vertex v + 1.
-        t.for_each(&real, |b| {
+        t.for_each(&real, Work::Heavy, |b| {
             let mut word = 0u64;
             let base = layout.coords(b, 0);
             for bit in 0..64u32 {
@@ -441,7 +460,7 @@ impl<'a> Thinning<'a> {
         });
         // Closure, one dimension at a time: a cell is present if a coface is.
         for dim in [2u32, 1, 0] {
-            t.for_each(&real, |b| {
+            t.for_each(&real, Work::Heavy, |b| {
                 for span in (0..8usize).filter(|s| s.count_ones() == dim) {
                     let mut w = 0;
                     for &(up, at) in cofaces(span) {
@@ -494,6 +513,7 @@ impl<'a> Thinning<'a> {
             } else {
                 0
             },
+            min_parallel_work: MIN_PARALLEL_WORK,
             kinds: sub_step_kinds(),
             stats: ThinningStats::default(),
         }
@@ -510,15 +530,23 @@ impl<'a> Thinning<'a> {
         self.births(&all, 0, 1);
     }
 
-    /// Sets the number of bricks per parallel task (tests use small chunks to exercise the
-    /// parallel path on small grids); 0 = sequential.
+    /// Sets the number of bricks per parallel task and splits every list longer than that,
+    /// however little work it holds (tests use small chunks to exercise the parallel path on
+    /// small grids); 0 = sequential.
     pub fn set_chunk_size(&mut self, chunk: usize) {
         self.chunk = chunk;
+        self.min_parallel_work = 0;
     }
 
-    /// Runs `f` on every brick of the list, in parallel chunks if enabled.
-    fn for_each(&self, list: &[u32], f: impl Fn(usize) + Sync) {
-        if self.chunk > 0 && list.len() > self.chunk {
+    /// Whether a pass of `work` over `len` bricks is split into parallel tasks.
+    #[inline]
+    fn split(&self, len: usize, work: Work) -> bool {
+        self.chunk > 0 && len > self.chunk && len * work as usize >= self.min_parallel_work
+    }
+
+    /// Runs `f` on every brick of the list, in parallel chunks if enabled and worth it.
+    fn for_each(&self, list: &[u32], work: Work, f: impl Fn(usize) + Sync) {
+        if self.split(list.len(), work) {
             list.par_chunks(self.chunk)
                 .for_each(|c| c.iter().for_each(|&b| f(b as usize)));
         } else {
@@ -527,8 +555,8 @@ impl<'a> Thinning<'a> {
     }
 
     /// The bricks of the list for which `keep` holds, in list order.
-    fn filter(&self, list: &[u32], keep: impl Fn(usize) -> bool + Sync) -> Vec<u32> {
-        if self.chunk > 0 && list.len() > self.chunk {
+    fn filter(&self, list: &[u32], work: Work, keep: impl Fn(usize) -> bool + Sync) -> Vec<u32> {
+        if self.split(list.len(), work) {
             list.par_chunks(self.chunk)
                 .map(|c| c.iter().copied().filter(|&b| keep(b as usize)).collect())
                 .collect::<Vec<Vec<u32>>>()
@@ -691,7 +719,7 @@ impl<'a> Thinning<'a> {
                 }
                 out
             };
-            if self.chunk > 0 && list.len() > self.chunk {
+            if self.split(list.len(), Work::Heavy) {
                 list.par_chunks(self.chunk)
                     .map(scan)
                     .collect::<Vec<_>>()
@@ -760,7 +788,7 @@ impl<'a> Thinning<'a> {
 
         // Free faces (g present, not in W, exactly one coface) on A.
         let (cells, inhibit, free) = (&self.cells, &self.inhibit, &self.free);
-        let any_free = self.filter(&active, |b| {
+        let any_free = self.filter(&active, Work::Heavy, |b| {
             let mut any = 0;
             for g in 0..7usize {
                 let present = cells.get(b, g) & !inhibit.get(b, g);
@@ -791,7 +819,7 @@ impl<'a> Thinning<'a> {
         // forward along each axis).
         let with_cofaces = self.dilate(&any_free, &[0, -sx, -sy, -sz], false);
         let (cells, free, border) = (&self.cells, &self.free, &self.border);
-        self.for_each(&with_cofaces, |b| {
+        self.for_each(&with_cofaces, Work::Heavy, |b| {
             for f in 1..8usize {
                 let present = cells.get(b, f);
                 if present == 0 {
@@ -832,7 +860,7 @@ impl<'a> Thinning<'a> {
         };
         let border = &self.border;
         for dim in (1..top_dim).rev() {
-            self.for_each(&closure, |b| {
+            self.for_each(&closure, Work::Heavy, |b| {
                 for span in (1..7usize).filter(|s| s.count_ones() == dim) {
                     let mut w = border.get(b, span);
                     for &(up, at) in cofaces(span) {
@@ -859,7 +887,7 @@ impl<'a> Thinning<'a> {
             }
             lists
         };
-        let parts: Vec<[Vec<u32>; 8]> = if self.chunk > 0 && closure.len() > self.chunk {
+        let parts: Vec<[Vec<u32>; 8]> = if self.split(closure.len(), Work::Light) {
             closure.par_chunks(self.chunk).map(bucket).collect()
         } else {
             vec![bucket(&closure)]
@@ -895,8 +923,12 @@ impl<'a> Thinning<'a> {
     /// Clears the scratch planes of an iteration.
     fn finish_scratch(&self, active: &[u32], closure: &[u32]) {
         let (free, border) = (&self.free, &self.border);
-        self.for_each(active, |b| (0..7).for_each(|s| free.set(b, s, 0)));
-        self.for_each(closure, |b| (0..8).for_each(|s| border.set(b, s, 0)));
+        self.for_each(active, Work::Light, |b| {
+            (0..7).for_each(|s| free.set(b, s, 0))
+        });
+        self.for_each(closure, Work::Light, |b| {
+            (0..8).for_each(|s| border.set(b, s, 0))
+        });
     }
 
     /// Sub-step `s` of iteration l: for each pair kind, finds the pairs from the current planes
@@ -923,7 +955,7 @@ impl<'a> Thinning<'a> {
             };
             let (cells, inhibit, border, masks) =
                 (&self.cells, &self.inhibit, &self.border, &self.masks);
-            let with_pairs = self.filter(&candidates, |b| {
+            let with_pairs = self.filter(&candidates, Work::Light, |b| {
                 let mut m = cells.get(b, kind.g) & !inhibit.get(b, kind.g);
                 if m != 0 {
                     m &= if positive {
@@ -952,7 +984,7 @@ impl<'a> Thinning<'a> {
                 with_pairs.clone()
             };
             let (cells, masks) = (&self.cells, &self.masks);
-            self.for_each(&touched, |b| {
+            self.for_each(&touched, Work::Light, |b| {
                 let m = masks.get(b, 0);
                 cells.clear(b, kind.g, m);
                 let fm = if positive {

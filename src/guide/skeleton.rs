@@ -402,9 +402,11 @@ impl SkeletonGuide {
         };
 
         let t = Instant::now();
+        // Only what the skeleton uses: its maps, not the regions and portals.
         let analysis_settings = AnalysisSettings {
             resolution: settings.resolution,
             all_maps: true,
+            regions: false,
             ..Default::default()
         };
         let analysis = Analysis::build(scene, &analysis_settings, &|_, _| true)?;
