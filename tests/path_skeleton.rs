@@ -611,6 +611,8 @@ fn settings_and_specs_are_validated() {
         "path_skeleton:colour=red",
         "path_skeleton:c_skel",
         "path:strength=4",
+        "path:rr_depth=-1",
+        "bdpt:rr_depth=3",
         "path_skeletons",
     ] {
         assert!(integrator::create(bad, base).is_err(), "{bad}");
@@ -620,9 +622,13 @@ fn settings_and_specs_are_validated() {
         "path_skeleton:c_skel=0:strength=0",
         "path_skeleton:strength=auto:16:lobes=8:visibility=false",
         "path:max_depth=3:mis=balance",
+        "path:rr_depth=5",
+        "path_skeleton:rr_depth=0",
     ] {
         integrator::create(good, base).unwrap_or_else(|e| panic!("{good}: {e}"));
     }
+    let (name, s) = integrator::parse_spec("path:rr_depth=5:max_depth=7", base).unwrap();
+    assert_eq!((name, s.rr_start_depth, s.max_depth), ("path", 5, 7));
     assert_eq!(
         lacuna::capi::LACUNA_SKELETON_MAX_STRENGTH,
         lacuna::guide::MAX_STRENGTH

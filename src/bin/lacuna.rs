@@ -162,8 +162,9 @@ struct RenderArgs {
     #[command(flatten)]
     scene: SceneArgs,
     /// Integrator (available: path, path_skeleton, bdpt, env_direct), with options as
-    /// NAME:KEY=VALUE... (max_depth, mis, env=STRATEGY; env_direct also samples=N, bsdf=N;
-    /// path_skeleton its guide options, see `compare --integrators`) [default: path, or the
+    /// NAME:KEY=VALUE... (max_depth, mis, env=STRATEGY; path and path_skeleton also rr_depth=D,
+    /// the bounces before Russian roulette; env_direct also samples=N, bsdf=N; path_skeleton
+    /// its guide options, see `compare --integrators`) [default: path, or the
     /// scene file's].
     #[arg(long)]
     integrator: Option<String>,
@@ -219,8 +220,9 @@ struct CompareArgs {
     scene: SceneArgs,
     /// Comma-separated integrator names; the first is the baseline. A name may carry options
     /// that override the command line's for that contender, as `name:key=value:...`: `max_depth`,
-    /// `mis`, and for path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
-    /// `importance_nodes`, `lobes`, `visibility` (e.g. `path,path_skeleton:strength=16,path_skeleton`).
+    /// `mis`, for path and path_skeleton `rr_depth` (bounces before Russian roulette), and for
+    /// path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
+    /// `importance_nodes`, `lobes`, `visibility` (e.g. `path,path:rr_depth=5,path_skeleton`).
     #[arg(long, default_value = "path")]
     integrators: String,
     /// Seconds per integrator per run.

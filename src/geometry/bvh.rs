@@ -268,25 +268,23 @@ impl Bvh {
         if self.is_empty() || !(ray.t_max > 0.0) {
             return None;
         }
-        let pre = RayPrecomp::new(ray.origin, ray.dir);
-        let node_ray = NodeRay::new(ray.origin, ray.dir);
-        let mut t_max = ray.t_max;
+        let q = QueryRay::new(ray);
         let mut best: Option<(u32, super::TriangleHit)> = None;
-        let mut state = self.cwbvh.new_traversal(ray.dir.into());
-        let mut node;
-        obvhs::traverse!(
-            self.cwbvh,
-            node,
-            state,
-            self.intersect_node(node, &node_ray, t_max, state.oct_inv4),
-            {
-                let slot = state.primitive_id as usize;
-                let t = &self.leaf_tris[slot];
-                if let Some(h) = intersect_triangle(&pre, t.p0, t.p1.into(), t.p2.into(), t_max) {
-                    t_max = h.t;
-                    best = Some((state.primitive_id, h));
+        self.traverse(
+            &q,
+            ray.t_max,
+            #[inline(always)]
+            || {},
+            #[inline(always)]
+            |slot, t_max| {
+                let t = &self.leaf_tris[slot as usize];
+                if let Some(h) = intersect_triangle(&q.tri, t.p0, t.p1.into(), t.p2.into(), *t_max)
+                {
+                    *t_max = h.t;
+                    best = Some((slot, h));
                 }
-            }
+                false
+            },
         );
         best.map(|(slot, h)| Hit {
             t: h.t,
@@ -301,27 +299,20 @@ impl Bvh {
         if self.is_empty() || !(ray.t_max > 0.0) {
             return false;
         }
-        let pre = RayPrecomp::new(ray.origin, ray.dir);
-        let node_ray = NodeRay::new(ray.origin, ray.dir);
-        let t_max = ray.t_max;
-        let mut state = self.cwbvh.new_traversal(ray.dir.into());
-        let mut node;
+        let q = QueryRay::new(ray);
         let mut hit = false;
-        'outer: {
-            obvhs::traverse!(
-                self.cwbvh,
-                node,
-                state,
-                self.intersect_node(node, &node_ray, t_max, state.oct_inv4),
-                {
-                    let t = &self.leaf_tris[state.primitive_id as usize];
-                    if intersect_triangle(&pre, t.p0, t.p1.into(), t.p2.into(), t_max).is_some() {
-                        hit = true;
-                        break 'outer;
-                    }
-                }
-            );
-        }
+        self.traverse(
+            &q,
+            ray.t_max,
+            #[inline(always)]
+            || {},
+            #[inline(always)]
+            |slot, t_max| {
+                let t = &self.leaf_tris[slot as usize];
+                hit = intersect_triangle(&q.tri, t.p0, t.p1.into(), t.p2.into(), *t_max).is_some();
+                hit
+            },
+        );
         hit
     }
 
@@ -332,29 +323,91 @@ impl Bvh {
         if self.is_empty() || !(ray.t_max > 0.0) {
             return (0, 0);
         }
-        let pre = RayPrecomp::new(ray.origin, ray.dir);
-        let node_ray = NodeRay::new(ray.origin, ray.dir);
-        let mut t_max = ray.t_max;
+        let q = QueryRay::new(ray);
         let (mut nodes, mut tris) = (0u32, 0u32);
-        let mut state = self.cwbvh.new_traversal(ray.dir.into());
-        let mut node;
-        obvhs::traverse!(
-            self.cwbvh,
-            node,
-            state,
-            {
-                nodes += 1;
-                self.intersect_node(node, &node_ray, t_max, state.oct_inv4)
-            },
-            {
+        self.traverse(
+            &q,
+            ray.t_max,
+            #[inline(always)]
+            || nodes += 1,
+            #[inline(always)]
+            |slot, t_max| {
                 tris += 1;
-                let t = &self.leaf_tris[state.primitive_id as usize];
-                if let Some(h) = intersect_triangle(&pre, t.p0, t.p1.into(), t.p2.into(), t_max) {
-                    t_max = h.t;
+                let t = &self.leaf_tris[slot as usize];
+                if let Some(h) = intersect_triangle(&q.tri, t.p0, t.p1.into(), t.p2.into(), *t_max)
+                {
+                    *t_max = h.t;
                 }
-            }
+                false
+            },
         );
         (nodes, tris)
+    }
+
+    /// Stack traversal of the compressed 8-wide BVH (Ylitie et al. 2017), in obvhs's order
+    /// (`obvhs::traverse!`: children nearest-first by the ray's octant, a leaf's triangles from
+    /// its highest hit bit down), but without its general traversal state: it starts at the
+    /// root's node test, keeps its groups in registers and takes the ray's constants from
+    /// `q`. Calls `on_node` per node tested and `on_triangle(slot, &mut t_max)` per triangle
+    /// (its leaf slot), which may lower `t_max` and returns true to end the traversal.
+    #[inline(always)]
+    fn traverse(
+        &self,
+        q: &QueryRay,
+        mut t_max: f32,
+        mut on_node: impl FnMut(),
+        mut on_triangle: impl FnMut(u32, &mut f32) -> bool,
+    ) {
+        let nodes = &self.cwbvh.nodes;
+        // Node groups still to visit: (first child node, hit bits << 24 | the node's imask).
+        // Saturates at the last entry as obvhs's stack does; the builders keep trees
+        // shallower than that (`sah.rs`, and PLOC's depth on real scenes).
+        let mut stack = [UVec2::ZERO; TRAVERSAL_STACK];
+        let mut depth = 0usize;
+        on_node();
+        let (mut group, mut triangles) = self.visit_node(&nodes[0], q, t_max);
+        loop {
+            while triangles.y != 0 {
+                let bit = 31 - triangles.y.leading_zeros();
+                triangles.y &= !(1 << bit);
+                if on_triangle(triangles.x + bit, &mut t_max) {
+                    return;
+                }
+            }
+            if group.y & 0xff00_0000 != 0 {
+                let hit_bits = group.y;
+                let bit = 31 - hit_bits.leading_zeros();
+                group.y &= !(1 << bit);
+                if group.y & 0xff00_0000 != 0 {
+                    stack[depth] = group;
+                    depth = (depth + 1).min(TRAVERSAL_STACK - 1);
+                }
+                // Child slot of the hit, and the child's rank among the node's inner children.
+                let slot = (bit - 24) ^ (q.oct_inv4 & 0xff);
+                let rank = (hit_bits & !(u32::MAX << slot)).count_ones();
+                on_node();
+                (group, triangles) = self.visit_node(&nodes[(group.x + rank) as usize], q, t_max);
+            } else if depth > 0 {
+                depth -= 1;
+                group = stack[depth];
+            } else {
+                return;
+            }
+        }
+    }
+
+    /// A node's test as traversal groups: (first child node, hit bits << 24 | the node's
+    /// imask) and (first triangle, one bit per triangle to test).
+    #[inline(always)]
+    fn visit_node(&self, node: &CwBvhNode, q: &QueryRay, t_max: f32) -> (UVec2, UVec2) {
+        let hits = self.intersect_node(node, &q.node, t_max, q.oct_inv4);
+        (
+            UVec2::new(
+                node.child_base_idx,
+                (hits & 0xff00_0000) | node.imask as u32,
+            ),
+            UVec2::new(node.primitive_base_idx, hits & 0x00ff_ffff),
+        )
     }
 
     /// Ray against the eight quantized child boxes of a node; returns the traversal hit mask
@@ -456,6 +509,37 @@ fn has_x86_64_v3() -> bool {
     }
 }
 
+/// Entries of the traversal stack (as obvhs's `traverse!`).
+const TRAVERSAL_STACK: usize = 32;
+
+/// Everything a query needs of its ray, computed once: the node test's constants and the
+/// triangle test's share one reciprocal of the direction (one vector division per query
+/// instead of four scalar ones), and the octant that orders children.
+struct QueryRay {
+    node: NodeRay,
+    tri: RayPrecomp,
+    /// obvhs's `ray_get_octant_inv4`: in every byte, bit 2 / 1 / 0 set where the direction's
+    /// x / y / z is not negative.
+    oct_inv4: u32,
+}
+
+impl QueryRay {
+    #[inline(always)]
+    fn new(ray: &Ray) -> QueryRay {
+        let dir = Vec3A::from(ray.dir);
+        let recip = dir.recip();
+        let negative = dir.cmplt(Vec3A::ZERO).bitmask();
+        let positive = |axis: u32| (!negative >> axis) & 1;
+        QueryRay {
+            node: NodeRay::from_reciprocal(ray.origin, recip),
+            tri: RayPrecomp::with_reciprocal(ray.origin, ray.dir, recip.into()),
+            oct_inv4: (positive(0) * 0x0404_0404)
+                | (positive(1) * 0x0202_0202)
+                | (positive(2) * 0x0101_0101),
+        }
+    }
+}
+
 /// Per-ray constants of the node test.
 ///
 /// Child box planes are on a grid: plane q (0..=255) of an axis lies at `p + q * ext`, so its
@@ -471,8 +555,9 @@ struct NodeRay {
     /// +inf on clamped axes, -inf elsewhere: a clamped axis has an unbounded far plane, which
     /// keeps the test conservative although its distances are then underestimated.
     far_floor: Vec3A,
-    /// Sign of `inv_dir` (so of `dir`, also for -0.0): swaps near and far planes.
-    negative: [bool; 3],
+    /// Bit `axis` set when `inv_dir[axis] < 0` (so `dir` negative, also -0.0): swaps near and
+    /// far planes.
+    negative: u32,
 }
 
 const INV_DIR_LIMIT: f32 = (1u64 << 40) as f32;
@@ -486,25 +571,28 @@ const SLACK_GRID: f32 = 255.0 / 65536.0;
 const SLACK_ROUNDING: f32 = crate::math::gamma(7);
 
 impl NodeRay {
+    /// From `recip = 1 / dir` (unclamped), on all three axes at once.
     #[inline(always)]
-    fn new(origin: Vec3, dir: Vec3) -> NodeRay {
-        let mut inv = [0.0f32; 3];
-        let mut floor = [f32::NEG_INFINITY; 3];
-        for i in 0..3 {
-            let r = 1.0 / dir[i];
-            if r.abs() <= INV_DIR_LIMIT {
-                inv[i] = r;
-            } else {
-                inv[i] = INV_DIR_LIMIT.copysign(r);
-                floor[i] = f32::INFINITY;
-            }
-        }
+    fn from_reciprocal(origin: Vec3, recip: Vec3A) -> NodeRay {
+        let limit = Vec3A::splat(INV_DIR_LIMIT);
+        // Written so that NaN takes the clamped branch, as `r.abs() <= limit` did per axis.
+        let in_range = recip.abs().cmple(limit);
+        let inv_dir = Vec3A::select(in_range, recip, limit.copysign(recip));
         NodeRay {
             origin: origin.into(),
-            inv_dir: inv.into(),
-            far_floor: floor.into(),
-            negative: [inv[0] < 0.0, inv[1] < 0.0, inv[2] < 0.0],
+            inv_dir,
+            far_floor: Vec3A::select(
+                in_range,
+                Vec3A::splat(f32::NEG_INFINITY),
+                Vec3A::splat(f32::INFINITY),
+            ),
+            negative: inv_dir.cmplt(Vec3A::ZERO).bitmask(),
         }
+    }
+
+    #[inline(always)]
+    fn is_negative(&self, axis: usize) -> bool {
+        (self.negative >> axis) & 1 != 0
     }
 
     /// `(a, b_near, b_far)` of a node: distance of grid plane q is `q * a + b`, moved towards
@@ -548,7 +636,7 @@ fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
         for axis in 0..3 {
             // [8 x min | 8 x max] -> [near | far] for this ray's direction.
             let q = _mm_loadu_si128(base.add(16 * axis) as *const __m128i);
-            let q = if r.negative[axis] {
+            let q = if r.is_negative(axis) {
                 _mm_shuffle_epi32::<0x4E>(q)
             } else {
                 q
@@ -588,7 +676,7 @@ fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
         let mut enter = 0.0f32;
         let mut exit = t_max;
         for (axis, (lo, hi)) in planes.iter().enumerate() {
-            let (qn, qf) = if r.negative[axis] {
+            let (qn, qf) = if r.is_negative(axis) {
                 (hi[c], lo[c])
             } else {
                 (lo[c], hi[c])
@@ -602,10 +690,6 @@ fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
     }
     hits
 }
-
-// The traversal macro names `UVec2` unqualified.
-#[allow(unused_imports)]
-use UVec2 as _;
 
 #[cfg(test)]
 mod tests {

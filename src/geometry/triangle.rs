@@ -22,6 +22,14 @@ pub struct RayPrecomp {
 impl RayPrecomp {
     #[inline]
     pub fn new(origin: Vec3, dir: Vec3) -> Self {
+        RayPrecomp::with_reciprocal(origin, dir, dir.recip())
+    }
+
+    /// The same constants from `recip = 1 / dir` (per component, unclamped) that the caller
+    /// has already computed: BVH queries share it with their node test, which saves a
+    /// division per query.
+    #[inline(always)]
+    pub fn with_reciprocal(origin: Vec3, dir: Vec3, recip: Vec3) -> Self {
         let a = dir.abs();
         let kz = if a.x > a.y {
             if a.x > a.z {
@@ -34,20 +42,22 @@ impl RayPrecomp {
         } else {
             2
         };
-        let mut kx = (kz + 1) % 3;
-        let mut ky = (kx + 1) % 3;
-        if dir[kz] < 0.0 {
+        // (kz + 1) % 3 and (kz + 2) % 3, swapped so that the shear keeps the winding; padded
+        // arrays masked to 0..4 as in `intersect_triangle`.
+        let (mut kx, mut ky) = [(1, 2), (2, 0), (0, 1), (1, 2)][kz & 3];
+        let dir4 = [dir.x, dir.y, dir.z, 0.0];
+        if dir4[kz & 3] < 0.0 {
             std::mem::swap(&mut kx, &mut ky);
         }
-        let sz = 1.0 / dir[kz];
+        let sz = [recip.x, recip.y, recip.z, 0.0][kz & 3];
         RayPrecomp {
             origin,
             dir,
             kx,
             ky,
             kz,
-            sx: dir[kx] * sz,
-            sy: dir[ky] * sz,
+            sx: dir4[kx & 3] * sz,
+            sy: dir4[ky & 3] * sz,
             sz,
         }
     }

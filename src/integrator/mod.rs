@@ -61,7 +61,10 @@ pub struct IntegratorSettings {
     /// direct lighting. A path has at most `max_depth + 1` segments.
     pub max_depth: u32,
     pub mis: MisHeuristic,
-    /// Bounce after which Russian roulette may end paths.
+    /// Russian roulette (`path`, `path_skeleton`): a path that has made this many bounces may
+    /// be ended before the next one, surviving with probability `min(max(throughput), 0.95)`
+    /// (see `path.rs`). Lower starts make samples cheaper and noisier; 3 is the best of 3, 4
+    /// and 5 at equal time on the Cornell box (BENCHMARKS.md, issue 2 perf, round 3).
     pub rr_start_depth: u32,
     /// Bidirectional integrators: light subpaths traced per iteration (`None` = one per pixel).
     pub light_paths: Option<u32>,
@@ -221,6 +224,7 @@ pub const NAMES: &[&str] = &["path", "path_skeleton", "bdpt", "env_direct"];
 /// its options change, so one comparison can race variants of an integrator:
 /// - any integrator: `max_depth=D`, `mis=power|balance`, `env=STRATEGY` (environment
 ///   sampling: latlong, cube-uniform, cube-power, cube-dynamic, bsdf);
+/// - `path` and `path_skeleton`: `rr_depth=D` (bounces before Russian roulette starts);
 /// - `env_direct`: `samples=N` (light samples per shading point) and `bsdf=N` (BSDF samples);
 /// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
 ///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`.
@@ -255,6 +259,9 @@ pub fn parse_spec(
         };
         match key {
             "max_depth" => settings.max_depth = count()?,
+            "rr_depth" if name == "path" || name == "path_skeleton" => {
+                settings.rr_start_depth = count()?
+            }
             "mis" => settings.mis = MisHeuristic::parse(value)?,
             "env" => settings.env = EnvStrategy::parse(value)?,
             "samples" if name == "env_direct" => settings.env_samples = count()?,
