@@ -239,8 +239,7 @@ fn add_models(
                 let (name, material) = match material_id {
                     Some(i) => {
                         let dir = material_dirs.get(i).cloned().unwrap_or_default();
-                        let m =
-                            convert_material(
+                        let m = convert_material(
                             &materials[i],
                             &dir,
                             builder,
@@ -1062,15 +1061,21 @@ map_Kd does_not_exist.png
         let mut mtl = String::new();
         for (i, n) in names.iter().enumerate() {
             // m4 and m5 share one missing file.
-            mtl += &format!("newmtl {n}\nKd 0.3 0.3 0.3\nmap_Kd textures/gone{}.png\n", i.min(4));
+            mtl += &format!(
+                "newmtl {n}\nKd 0.3 0.3 0.3\nmap_Kd textures/gone{}.png\n",
+                i.min(4)
+            );
         }
         dir.write("quads.mtl", &mtl);
         let refs: Vec<&str> = names.iter().map(String::as_str).collect();
         let path = dir.write("quads.obj", &quads_obj(&refs));
         let mut b = SceneBuilder::new();
         let r = load_obj(&path, &mut b, None).unwrap();
-        let texture_warnings: Vec<&String> =
-            r.warnings.iter().filter(|w| w.contains("texture")).collect();
+        let texture_warnings: Vec<&String> = r
+            .warnings
+            .iter()
+            .filter(|w| w.contains("texture"))
+            .collect();
         assert_eq!(texture_warnings.len(), 1, "{:?}", r.warnings);
         let w = texture_warnings[0];
         assert!(w.starts_with("5 map_Kd textures not loaded"), "{w}");
