@@ -377,7 +377,8 @@ impl Bvh {
     /// descending to a node of depth d holds at most d entries on obvhs's traversal stack (one
     /// node group per level above it), so traversal is exact only while this is at most
     /// [`MAX_TRAVERSAL_DEPTH`].
-    pub(crate) fn inner_depth(&self) -> usize {
+    #[cfg(test)]
+    fn inner_depth(&self) -> usize {
         cwbvh_inner_depth(&self.cwbvh)
     }
 
