@@ -120,6 +120,7 @@ fn write_exr_channels(
         software_name: Some(Text::from(concat!("Lacuna ", env!("CARGO_PKG_VERSION")))),
         ..Default::default()
     };
+    // A HashMap because `exr` wants one: `sort_header_attributes` fixes the order on disk.
     let mut other = HashMap::new();
     for (k, v) in &metadata.entries {
         let key = format!("{PREFIX}{k}");
@@ -136,10 +137,57 @@ fn write_exr_channels(
         x::Encoding::FAST_LOSSLESS,
         x::AnyChannels::sort(x::SmallVec::from_vec(channels)),
     );
+    let mut bytes = Vec::new();
     x::Image::from_layer(layer)
         .write()
-        .to_file(path)
-        .map_err(|e| exr_error(path, e))
+        .to_buffered(std::io::Cursor::new(&mut bytes))
+        .map_err(|e| exr_error(path, e))?;
+    sort_header_attributes(&mut bytes)
+        .ok_or_else(|| Error::invalid("the EXR encoder wrote a header Lacuna cannot parse"))?;
+    std::fs::write(path, &bytes).map_err(|e| Error::io(path, e))
+}
+
+/// Sorts the attributes of a single-part EXR header by name, in place.
+///
+/// Why: the `exr` crate keeps custom attributes in a `HashMap` with a random per-map hasher
+/// and writes them in its iteration order, so two identical renders gave files that differed
+/// byte for byte. The EXR format leaves attribute order free, and sorting only permutes the
+/// header's bytes: its length, and so every chunk offset after it, stays the same.
+/// Returns `None` when `bytes` is not a header this parser understands (left untouched).
+fn sort_header_attributes(bytes: &mut [u8]) -> Option<()> {
+    const MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+    const MULTIPART: u8 = 0x10;
+    if bytes.len() < 8 || bytes[..4] != MAGIC || bytes[5] & MULTIPART != 0 {
+        return None;
+    }
+    let start = 8;
+    let mut attributes: Vec<std::ops::Range<usize>> = Vec::new();
+    let mut pos = start;
+    // Each attribute: name NUL, type name NUL, i32 little-endian size, value. A NUL ends the list.
+    while *bytes.get(pos)? != 0 {
+        let begin = pos;
+        let name_end = pos + bytes[pos..].iter().position(|&b| b == 0)?;
+        let type_end = name_end + 1 + bytes[name_end + 1..].iter().position(|&b| b == 0)?;
+        let size_at = type_end + 1;
+        let size = i32::from_le_bytes(bytes.get(size_at..size_at + 4)?.try_into().ok()?);
+        pos = size_at + 4 + usize::try_from(size).ok()?;
+        if pos > bytes.len() {
+            return None;
+        }
+        attributes.push(begin..pos);
+    }
+    let name = |r: &std::ops::Range<usize>| {
+        let b = &bytes[r.clone()];
+        &b[..b.iter().position(|&c| c == 0).unwrap_or(b.len())]
+    };
+    let mut sorted = attributes.clone();
+    sorted.sort_by(|a, b| name(a).cmp(name(b)));
+    let header: Vec<u8> = sorted
+        .iter()
+        .flat_map(|r| bytes[r.clone()].iter().copied())
+        .collect();
+    bytes[start..pos].copy_from_slice(&header);
+    Some(())
 }
 
 /// Writes linear RGB pixels as an 8-bit sRGB PNG.
@@ -269,6 +317,74 @@ mod tests {
         assert!(read_exr_rgb(&dir.join("missing.exr")).is_err());
         std::fs::write(dir.join("bad.exr"), b"not an exr").unwrap();
         assert!(read_exr_rgb(&dir.join("bad.exr")).is_err());
+    }
+
+    /// Identical films with identical metadata give identical files. The `exr` crate stores
+    /// custom attributes in a `HashMap` with a fresh random hasher per map, so before the
+    /// header was sorted, twelve attributes came out in a different order almost every time.
+    #[test]
+    fn identical_renders_give_identical_exr_files() {
+        let mut f = Film::new(4, 3);
+        f.add_sample(
+            1,
+            2,
+            &PixelSample {
+                radiance: Rgb::new(0.25, 0.5, 2.0),
+                ..Default::default()
+            },
+        );
+        let meta = (0..12).fold(ExrMetadata::default(), |m, i| {
+            m.with(&format!("key{i}"), i * 7)
+        });
+        let dir = std::env::temp_dir().join(format!("lacuna-exr-det-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let files: Vec<Vec<u8>> = (0..4)
+            .map(|i| {
+                let path = dir.join(format!("{i}.exr"));
+                f.write_exr(&path, &meta).unwrap();
+                std::fs::read(&path).unwrap()
+            })
+            .collect();
+        for other in &files[1..] {
+            assert!(
+                other == &files[0],
+                "EXR bytes differ between identical writes"
+            );
+        }
+        // Still a valid file with every attribute, and the header really is sorted.
+        let img = read_exr_rgb(&dir.join("0.exr")).unwrap();
+        assert_eq!(img.metadata.entries.len(), 12);
+        assert_eq!(img.metadata.get("key11"), Some("77"));
+        assert_eq!(img.pixels[2 * 4 + 1], Rgb::new(0.25, 0.5, 2.0));
+        let header = String::from_utf8_lossy(&files[0]);
+        let keys: Vec<usize> = (0..12)
+            .map(|i| header.find(&format!("lacuna:key{i}\0")).unwrap())
+            .collect();
+        let order = [0, 1, 10, 11, 2, 3, 4, 5, 6, 7, 8, 9]; // byte order of the names
+        assert!(
+            order.windows(2).all(|w| keys[w[0]] < keys[w[1]]),
+            "{keys:?}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// Header sorting refuses what it cannot parse instead of scrambling it.
+    #[test]
+    fn header_sorting_rejects_malformed_input() {
+        let mut not_exr = b"not an exr file".to_vec();
+        assert!(sort_header_attributes(&mut not_exr).is_none());
+        let mut truncated = vec![
+            0x76, 0x2f, 0x31, 0x01, 2, 0, 0, 0, b'a', 0, b'i', b'n', b't', 0, 9,
+        ];
+        assert!(sort_header_attributes(&mut truncated).is_none());
+        let mut huge = vec![
+            0x76, 0x2f, 0x31, 0x01, 2, 0, 0, 0, b'a', 0, b'i', 0, 100, 0, 0, 0, 0,
+        ];
+        assert!(sort_header_attributes(&mut huge).is_none());
+        let mut two = vec![0x76, 0x2f, 0x31, 0x01, 2, 0, 0, 0];
+        two.extend_from_slice(b"b\0t\0\x01\0\0\0Ba\0t\0\x01\0\0\0A\0");
+        sort_header_attributes(&mut two).unwrap();
+        assert_eq!(&two[8..], b"a\0t\0\x01\0\0\0Ab\0t\0\x01\0\0\0B\0");
     }
 
     #[test]

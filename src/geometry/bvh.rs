@@ -109,11 +109,58 @@ fn sah_bvh2(tris: &[Triangle], reinsertion: f32) -> Bvh2 {
     bvh2
 }
 
+/// The 8-wide tree, converted as obvhs's own builder does: leaves of up to 3 triangles chosen
+/// by the conversion's SAH cost, children ordered by direction.
+fn to_cwbvh(bvh2: &Bvh2) -> CwBvh {
+    bvh2_to_cwbvh(bvh2, 3, true, false)
+}
+
+/// A tree within [`MAX_TRAVERSAL_DEPTH`], for input on which the requested build came out too
+/// deep: degenerate input such as a geometric series of positions, where PLOC merges one
+/// triangle per step. The depth-bounded SAH build if it is shallow enough, else median splits
+/// throughout: that binary tree is balanced, its deepest inner node at depth
+/// ceil(log2 n) - 1 <= 31 for any u32 count, and an inner node of the 8-wide tree is an inner
+/// node of the binary one strictly below its parent's, so the 8-wide tree is no deeper.
+fn shallow_cwbvh(tris: &[Triangle]) -> CwBvh {
+    let aabbs: Vec<Aabb> = tris.par_iter().map(|t| t.aabb()).collect();
+    let sah = to_cwbvh(&super::sah::build_sah_bvh2(&aabbs));
+    if cwbvh_inner_depth(&sah) <= MAX_TRAVERSAL_DEPTH {
+        return sah;
+    }
+    let median = to_cwbvh(&super::sah::build_bvh2(&aabbs, 0));
+    debug_assert!(cwbvh_inner_depth(&median) <= MAX_TRAVERSAL_DEPTH);
+    median
+}
+
 /// SAH cost of the 8-wide tree the conversion would make (leaves of up to 3 triangles).
 fn cwbvh_cost(bvh2: &Bvh2) -> f32 {
     let mut converter = Bvh2Converter::new(bvh2, false, false);
     converter.calculate_cost(3);
     converter.decisions[0].cost
+}
+
+/// Deepest inner node an 8-wide tree may have: obvhs's traversal stack holds 32 node groups
+/// and silently overwrites its top entry when full, losing part of the tree. One entry is
+/// kept spare, as obvhs's own `CwBvh::validate` asks (depth < 32).
+pub(crate) const MAX_TRAVERSAL_DEPTH: usize = 31;
+
+/// Depth of the deepest inner node (root 0). Inner children of a node are stored
+/// contiguously from `child_base_idx`, one per bit of `imask`.
+fn cwbvh_inner_depth(cwbvh: &CwBvh) -> usize {
+    if cwbvh.nodes.is_empty() {
+        return 0;
+    }
+    let mut deepest = 0;
+    let mut stack = vec![(0usize, 0usize)];
+    while let Some((i, depth)) = stack.pop() {
+        deepest = deepest.max(depth);
+        let node = &cwbvh.nodes[i];
+        let first = node.child_base_idx as usize;
+        for c in first..first + node.imask.count_ones() as usize {
+            stack.push((c, depth + 1));
+        }
+    }
+    deepest
 }
 
 /// Triangle vertices in leaf order, padded to 16-byte vectors, with the global triangle index
@@ -185,9 +232,10 @@ impl Bvh {
                 }
             }
         };
-        // As obvhs's own builder converts: leaves of up to 3 triangles chosen by the
-        // conversion's SAH cost, children ordered by direction.
-        let mut cwbvh = bvh2_to_cwbvh(&bvh2, 3, true, false);
+        let mut cwbvh = to_cwbvh(&bvh2);
+        if cwbvh_inner_depth(&cwbvh) > MAX_TRAVERSAL_DEPTH {
+            cwbvh = shallow_cwbvh(&tris);
+        }
         let leaf_tris = cwbvh
             .primitive_indices
             .par_iter()
@@ -314,6 +362,15 @@ impl Bvh {
             },
         );
         hit
+    }
+
+    /// Depth of the deepest inner node of the 8-wide tree (the root is at depth 0). A ray
+    /// descending to a node of depth d holds at most d entries on obvhs's traversal stack (one
+    /// node group per level above it), so traversal is exact only while this is at most
+    /// [`MAX_TRAVERSAL_DEPTH`].
+    #[cfg(test)]
+    fn inner_depth(&self) -> usize {
+        cwbvh_inner_depth(&self.cwbvh)
     }
 
     /// Nodes visited and triangles tested by a closest-hit query (BVH quality figures for
@@ -695,6 +752,98 @@ fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
 mod tests {
     use super::*;
     use crate::math::{warp, Rng};
+
+    /// Degenerate inputs on which PLOC merges about one triangle per step, and others that
+    /// stress the builders (coincident, collinear): every tree fits obvhs's traversal stack
+    /// and answers what brute force answers. The geometric chain's raw PLOC tree is deeper
+    /// than the stack (checked, else this test would not test the fallback); rays along the
+    /// chain hit every node box on their way, the worst case for the stack.
+    #[test]
+    fn degenerate_inputs_fit_the_traversal_stack() {
+        // A triangle in the plane x = c.x, so a ray along x passes through all of them.
+        let across = |c: Vec3, s: f32| [c, c + Vec3::new(0.0, s, 0.0), c + Vec3::new(0.0, 0.0, s)];
+        let chain: Vec<[Vec3; 3]> = (0..850)
+            .map(|i| across(Vec3::new(1.1f32.powi(i), 0.0, 0.0), 1e-3))
+            .collect();
+        let to_obvhs = |tris: &[[Vec3; 3]]| -> Vec<Triangle> {
+            tris.iter()
+                .map(|t| Triangle {
+                    v0: t[0].into(),
+                    v1: t[1].into(),
+                    v2: t[2].into(),
+                })
+                .collect()
+        };
+        let raw = cwbvh_inner_depth(&to_cwbvh(&ploc_bvh2(
+            &to_obvhs(&chain),
+            BvhQuality::Fast.ploc_params(),
+        )));
+        assert!(raw > MAX_TRAVERSAL_DEPTH, "raw PLOC depth {raw}");
+        let nested: Vec<[Vec3; 3]> = (0..3000)
+            .map(|i| {
+                let s = 1e-3 * 1.01f32.powi(i);
+                [
+                    Vec3::new(-s, -s, 0.0),
+                    Vec3::new(s, -s, 0.0),
+                    Vec3::new(0.0, s, s),
+                ]
+            })
+            .collect();
+        let identical = vec![across(Vec3::ZERO, 1.0); 4000];
+        let collinear: Vec<[Vec3; 3]> = (0..20_000)
+            .map(|i| across(Vec3::new(i as f32 * 1e-3, 0.0, 0.0), 0.5))
+            .collect();
+        let mut rng = Rng::new(5, 9);
+        for (name, tris) in [
+            ("chain", &chain),
+            ("nested", &nested),
+            ("identical", &identical),
+            ("collinear", &collinear),
+        ] {
+            let first = tris[0][0];
+            let last = tris[tris.len() - 1][0];
+            let mut rays: Vec<Ray> = (0..40)
+                .flat_map(|_| {
+                    // Along the x axis through the triangles, from between two of them.
+                    let i = rng.below(tris.len() as u32 - 1) as usize;
+                    let x = (tris[i][0].x + tris[i + 1][0].x) * 0.5;
+                    let o = Vec3::new(x, 2e-4, 3e-4);
+                    [
+                        Ray::new(o, Vec3::X, f32::INFINITY),
+                        Ray::new(o, -Vec3::X, f32::INFINITY),
+                    ]
+                })
+                .collect();
+            for _ in 0..200 {
+                let o = first.lerp(last, rng.uniform()) + warp::uniform_sphere(rng.uniform2());
+                rays.push(Ray::new(
+                    o,
+                    warp::uniform_sphere(rng.uniform2()),
+                    f32::INFINITY,
+                ));
+            }
+            for method in [
+                BuildMethod::Ploc(BvhQuality::Fast),
+                BuildMethod::Ploc(BvhQuality::Medium),
+                BuildMethod::Ploc(BvhQuality::High),
+                BuildMethod::Sah { reinsertion: 0.0 },
+                BvhQuality::Medium.method(tris.len()),
+            ] {
+                let bvh = Bvh::build_with(tris, method);
+                let depth = bvh.inner_depth();
+                assert!(
+                    depth <= MAX_TRAVERSAL_DEPTH,
+                    "{name} {method:?}: depth {depth}"
+                );
+                for ray in &rays {
+                    let brute = brute_force(tris, ray);
+                    let got = bvh.intersect(ray);
+                    assert_eq!(got.map(|h| h.t), brute.map(|b| b.1), "{name} {method:?}");
+                    assert_eq!(bvh.occluded(ray), brute.is_some(), "{name} {method:?}");
+                }
+            }
+        }
+    }
 
     fn random_triangles(n: usize, rng: &mut Rng) -> Vec<[Vec3; 3]> {
         (0..n)

@@ -20,8 +20,9 @@ const SWEEP_MAX: usize = 32;
 /// Subtrees with more triangles than this are built on two rayon tasks.
 const PARALLEL_MIN: usize = 4096;
 /// Beyond this depth, split at the median: keeps the BVH shallow enough for obvhs's 32-entry
-/// traversal stack (which silently overwrites its last entry when full) on any input, e.g.
-/// SAH peeling one small triangle at a time off a huge one.
+/// traversal stack (which silently overwrites its last entry when full) on nearly any input,
+/// e.g. SAH peeling one small triangle at a time off a huge one. `Bvh::build_with` checks the
+/// final depth and falls back to median splits throughout ([`build_bvh2`] with 0).
 const SAH_MAX_DEPTH: u32 = 40;
 
 /// A triangle's bounds and its index in the input.
@@ -47,6 +48,12 @@ fn half_area(b: &Aabb) -> f32 {
 
 /// Builds the BVH2 over the given bounds (one per triangle, in input order).
 pub fn build_sah_bvh2(aabbs: &[Aabb]) -> Bvh2 {
+    build_bvh2(aabbs, SAH_MAX_DEPTH)
+}
+
+/// As [`build_sah_bvh2`], with SAH splits down to depth `sah_max_depth` and median splits
+/// below (0: median splits throughout, a balanced tree of depth ceil(log2 n)).
+pub fn build_bvh2(aabbs: &[Aabb], sah_max_depth: u32) -> Bvh2 {
     let n = aabbs.len();
     let mut bvh = Bvh2::default();
     if n == 0 {
@@ -65,7 +72,15 @@ pub fn build_sah_bvh2(aabbs: &[Aabb]) -> Bvh2 {
     // node array is known before it is built, and subtrees fill disjoint blocks in parallel.
     let mut nodes = vec![Bvh2Node::default(); 2 * n - 1];
     let (root, descendants) = nodes.split_at_mut(1);
-    let depth = build_node(&mut prims, 0, bounds, &mut root[0], descendants, 1, 0);
+    let depth = build_node(
+        &mut prims,
+        0,
+        bounds,
+        &mut root[0],
+        descendants,
+        1,
+        (0, sah_max_depth),
+    );
     bvh.primitive_indices = prims.iter().map(|p| p.index).collect();
     bvh.nodes = nodes;
     bvh.children_are_ordered_after_parents = true;
@@ -83,14 +98,14 @@ fn build_node(
     node: &mut Bvh2Node,
     desc: &mut [Bvh2Node],
     desc_offset: u32,
-    depth: u32,
+    (depth, sah_max_depth): (u32, u32),
 ) -> u32 {
     let m = prims.len();
     if m == 1 {
         *node = Bvh2Node::new(bounds, 1, prim_offset);
         return 0;
     }
-    let split = if depth >= SAH_MAX_DEPTH {
+    let split = if depth >= sah_max_depth {
         median_split(prims)
     } else if m <= SWEEP_MAX {
         sweep_split(prims)
@@ -116,7 +131,7 @@ fn build_node(
             &mut left_node[0],
             left_desc,
             left_desc_offset,
-            depth + 1,
+            (depth + 1, sah_max_depth),
         )
     };
     let mut build_right = || {
@@ -127,7 +142,7 @@ fn build_node(
             &mut right_node[0],
             right_desc,
             right_desc_offset,
-            depth + 1,
+            (depth + 1, sah_max_depth),
         )
     };
     let (dl, dr) = if m > PARALLEL_MIN {
@@ -329,5 +344,13 @@ mod tests {
         check_tree(&bvh, nested.len());
         let depth = tree_depth(&bvh, 0);
         assert!(depth <= SAH_MAX_DEPTH as usize + 13, "depth {depth}");
+        // Median splits throughout (the fallback of `Bvh::build_with` for trees too deep for
+        // the traversal stack): balanced, whatever the input.
+        for input in [&same, &nested] {
+            let bvh = build_bvh2(input, 0);
+            check_tree(&bvh, input.len());
+            let balanced = (input.len() as f64).log2().ceil() as usize;
+            assert_eq!(tree_depth(&bvh, 0), balanced);
+        }
     }
 }

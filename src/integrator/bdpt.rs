@@ -259,7 +259,14 @@ fn strategies(max_len: u32) -> Vec<(u32, u32)> {
 
 pub struct Bdpt {
     settings: IntegratorSettings,
-    strategy: Option<StrategyFilter>,
+    /// The strategy filter, in force when `filtered` (read through [`Bdpt::filter`]). Not an
+    /// `Option`, whose `None` leaves the filter's bytes unwritten: the optimizer may compare
+    /// `s` and `t` before it looks at the discriminant (harmless, the result is then
+    /// discarded), and valgrind reports that branch as a conditional jump on uninitialised
+    /// values. It did in `sample` on ab1a4d0 (`keep(0, 2, ..)` became a branch on the
+    /// unwritten `s` and `t`), which kept bdpt out of the C tests under valgrind.
+    strategy: StrategyFilter,
+    filtered: bool,
     /// Longest path (segments) whose strategies get images; `None` = no strategy images.
     strategy_images: Option<u32>,
     /// Light subpaths per iteration; `None` = one per pixel.
@@ -275,7 +282,12 @@ impl Bdpt {
     pub fn new(settings: IntegratorSettings) -> Self {
         Bdpt {
             settings,
-            strategy: None,
+            strategy: StrategyFilter {
+                s: 0,
+                t: 0,
+                unweighted: false,
+            },
+            filtered: false,
             strategy_images: None,
             light_paths: settings.light_paths.map(|n| n as usize),
             policy: Box::new(UniformPerPixel),
@@ -296,8 +308,15 @@ impl Bdpt {
     /// Keeps only the contributions of one strategy (see [`StrategyFilter::validate`]).
     pub fn with_strategy(mut self, filter: StrategyFilter) -> Result<Self> {
         filter.validate()?;
-        self.strategy = Some(filter);
+        self.strategy = filter;
+        self.filtered = true;
         Ok(self)
+    }
+
+    /// The strategy filter in force, if any.
+    #[inline]
+    fn filter(&self) -> Option<StrategyFilter> {
+        self.filtered.then_some(self.strategy)
     }
 
     /// Also renders, from the same samples, the image of every strategy of paths up to
@@ -318,7 +337,7 @@ impl Bdpt {
     /// `weight`.
     #[inline]
     fn keep(&self, s: u32, t: u32, weight: f32) -> f32 {
-        match self.strategy {
+        match self.filter() {
             None => weight,
             Some(f) if f.s == s && f.t == t => {
                 if f.unweighted {
@@ -334,7 +353,7 @@ impl Bdpt {
     /// Whether an estimate of strategy (s, t) is used at all (else its shadow ray is skipped).
     #[inline]
     fn wanted(&self, s: u32, t: u32) -> bool {
-        self.strategy.map_or(true, |f| f.s == s && f.t == t) || self.strategy_layer(s, t).is_some()
+        self.filter().map_or(true, |f| f.s == s && f.t == t) || self.strategy_layer(s, t).is_some()
     }
 
     /// First of the two layers (weighted, unweighted) of strategy (s, t), if it has images.

@@ -224,6 +224,7 @@ fn add_models(
     // tobj material index -> builder material index (created on first use).
     let mut material_map: HashMap<Option<usize>, u32> = HashMap::new();
     let mut textures: HashMap<PathBuf, Option<u32>> = HashMap::new();
+    let mut failed_textures: Vec<FailedTexture> = Vec::new();
     for model in models {
         let mesh = &model.mesh;
         let nv = mesh.positions.len() / 3;
@@ -238,8 +239,13 @@ fn add_models(
                 let (name, material) = match material_id {
                     Some(i) => {
                         let dir = material_dirs.get(i).cloned().unwrap_or_default();
-                        let m =
-                            convert_material(&materials[i], &dir, builder, &mut textures, report);
+                        let m = convert_material(
+                            &materials[i],
+                            &dir,
+                            builder,
+                            (&mut textures, &mut failed_textures),
+                            report,
+                        );
                         (materials[i].name.clone(), m)
                     }
                     None => (
@@ -332,7 +338,46 @@ fn add_models(
         report.triangles += nt - (builder.degenerate_skipped() - before);
     }
     report.textures = textures.values().filter(|t| t.is_some()).count();
+    if let Some(w) = failed_textures_warning(&failed_textures) {
+        report.warnings.push(w);
+    }
     Ok(())
+}
+
+/// A `map_Kd` texture that could not be loaded: its path, the first material naming it, and
+/// why.
+struct FailedTexture {
+    path: PathBuf,
+    material: String,
+    error: String,
+}
+
+/// How many failed textures the summary warning names.
+const FAILED_TEXTURES_NAMED: usize = 3;
+
+/// One warning for every texture that could not be loaded, naming the count and the first few:
+/// a scene shipped without its textures (Crytek Sponza here) would otherwise print one line per
+/// material at every load.
+fn failed_textures_warning(failed: &[FailedTexture]) -> Option<String> {
+    let first = failed.first()?;
+    let named: Vec<String> = failed
+        .iter()
+        .take(FAILED_TEXTURES_NAMED)
+        .map(|f| format!("{} (material '{}')", f.path.display(), f.material))
+        .collect();
+    let more = match failed.len().saturating_sub(FAILED_TEXTURES_NAMED) {
+        0 => String::new(),
+        n => format!(" and {n} more"),
+    };
+    let count = match failed.len() {
+        1 => "1 map_Kd texture".to_string(),
+        n => format!("{n} map_Kd textures"),
+    };
+    Some(format!(
+        "{count} not loaded, their materials use Kd: {}{more}; first error: {}",
+        named.join(", "),
+        first.error
+    ))
 }
 
 fn invalid_message(e: Error) -> String {
@@ -359,7 +404,7 @@ fn convert_material(
     m: &tobj::Material,
     mtl_dir: &Path,
     builder: &mut SceneBuilder,
-    textures: &mut HashMap<PathBuf, Option<u32>>,
+    (textures, failed_textures): (&mut HashMap<PathBuf, Option<u32>>, &mut Vec<FailedTexture>),
     report: &mut ObjReport,
 ) -> Material {
     let name = m.name.as_str();
@@ -379,9 +424,12 @@ fn convert_material(
                 .or_insert_with(|| match Texture::load(&full) {
                     Ok(t) => Some(builder.add_texture(t)),
                     Err(e) => {
-                        warnings.push(format!(
-                            "material '{name}': map_Kd texture not loaded ({e}); using Kd"
-                        ));
+                        // Reported once for all textures, after every material is converted.
+                        failed_textures.push(FailedTexture {
+                            path: full.clone(),
+                            material: name.to_string(),
+                            error: e.to_string(),
+                        });
                         None
                     }
                 })
@@ -1002,6 +1050,44 @@ map_Kd does_not_exist.png
     fn material<'a>(b: &'a mut SceneBuilder, r: &ObjReport, name: &str) -> &'a Material {
         let idx = r.materials.iter().find(|(n, _)| n == name).unwrap().1;
         &b.materials_mut()[idx as usize]
+    }
+
+    /// Missing textures (a scene shipped without them) give one warning naming how many and
+    /// the first few, not one per material; a texture shared by two materials counts once.
+    #[test]
+    fn missing_textures_are_reported_once() {
+        let dir = TempDir::new("obj-missing-tex");
+        let names: Vec<String> = (0..6).map(|i| format!("m{i}")).collect();
+        let mut mtl = String::new();
+        for (i, n) in names.iter().enumerate() {
+            // m4 and m5 share one missing file.
+            mtl += &format!(
+                "newmtl {n}\nKd 0.3 0.3 0.3\nmap_Kd textures/gone{}.png\n",
+                i.min(4)
+            );
+        }
+        dir.write("quads.mtl", &mtl);
+        let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+        let path = dir.write("quads.obj", &quads_obj(&refs));
+        let mut b = SceneBuilder::new();
+        let r = load_obj(&path, &mut b, None).unwrap();
+        let texture_warnings: Vec<&String> = r
+            .warnings
+            .iter()
+            .filter(|w| w.contains("texture"))
+            .collect();
+        assert_eq!(texture_warnings.len(), 1, "{:?}", r.warnings);
+        let w = texture_warnings[0];
+        assert!(w.starts_with("5 map_Kd textures not loaded"), "{w}");
+        for i in 0..3 {
+            assert!(w.contains(&format!("gone{i}.png (material 'm{i}')")), "{w}");
+        }
+        assert!(!w.contains("gone3.png") && w.contains("and 2 more"), "{w}");
+        assert_eq!(r.textures, 0);
+        for n in &names {
+            let m = material(&mut b, &r, n).clone();
+            assert_eq!((m.diffuse_texture, m.diffuse), (None, Rgb::splat(0.3)));
+        }
     }
 
     #[test]
