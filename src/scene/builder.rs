@@ -35,6 +35,12 @@ pub struct MeshDesc {
     pub materials: Vec<u32>,
 }
 
+/// Largest accepted coordinate magnitude. Far beyond any real scene (the renderer is tested
+/// at scales 1e-4 to 1e4), and small enough that the BVH builders' surface areas (squares of
+/// extents, summed over nodes) stay finite in f32: obvhs's PLOC build indexes out of bounds on
+/// triangles near 1e29, where those areas overflow.
+pub const MAX_COORDINATE: f32 = 1e15;
+
 #[derive(Default)]
 pub struct SceneBuilder {
     meshes: Vec<Mesh>,
@@ -144,6 +150,16 @@ impl SceneBuilder {
         if let Some(i) = desc.positions.iter().position(|p| !is_finite3(*p)) {
             return Err(Error::invalid(format!(
                 "{name}: position {i} is {} (must be finite)",
+                desc.positions[i]
+            )));
+        }
+        if let Some(i) = desc
+            .positions
+            .iter()
+            .position(|p| p.abs().max_element() > MAX_COORDINATE)
+        {
+            return Err(Error::invalid(format!(
+                "{name}: position {i} is {} (coordinates must be within +-{MAX_COORDINATE:e})",
                 desc.positions[i]
             )));
         }
@@ -342,5 +358,33 @@ pub(super) fn environment_light(map: Arc<EnvironmentMap>, bounds: &Bounds3) -> L
         map,
         scene_center: center,
         scene_radius: radius.max(1e-6),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one_triangle(corner: f32) -> MeshDesc {
+        MeshDesc {
+            name: "tri".into(),
+            positions: vec![Vec3::new(corner, 0.0, 0.0), Vec3::X, Vec3::Y],
+            indices: vec![[0, 1, 2]],
+            materials: vec![0],
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn positions_must_be_finite_and_within_the_coordinate_bound() {
+        let mut builder = SceneBuilder::new();
+        builder
+            .add_material(Material::diffuse(crate::math::Rgb::splat(0.5)))
+            .unwrap();
+        assert!(builder.add_mesh(one_triangle(-1e4)).is_ok());
+        for bad in [f32::NAN, f32::INFINITY, 1e29, -2e15] {
+            let message = builder.add_mesh(one_triangle(bad)).unwrap_err().to_string();
+            assert!(message.contains("tri: position 0"), "{message}");
+        }
     }
 }
