@@ -1,7 +1,7 @@
 /* Tests of Lacuna's C API, written in C: every function, every error path. Built and run by
  * tests/c_api.rs (plain, under AddressSanitizer and under valgrind). argv[1] is a scratch
  * directory. Prints "N passed, N failed" and exits non-zero on any failure. */
-#include "lacuna.h"
+#include "check.h"
 
 #include <math.h>
 #include <pthread.h>
@@ -10,48 +10,6 @@
 #include <string.h>
 #include <time.h>
 #include <unistd.h>
-
-static int passed, failed;
-static char dir[1024];
-
-#define CHECK(cond)                                                                  \
-    do {                                                                             \
-        if (cond) {                                                                  \
-            passed++;                                                                \
-        } else {                                                                     \
-            failed++;                                                                \
-            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
-        }                                                                            \
-    } while (0)
-
-/* Checks a status against the expected one; a failure's message must contain `needle`
- * (unless it is NULL). */
-static void expect_status(lacuna_status got, lacuna_status want, const char *needle, const char *call,
-                          int line) {
-    const char *message = lacuna_last_error_message();
-    if (got != want) {
-        failed++;
-        fprintf(stderr, "%s:%d: %s returned %s, expected %s (%s)\n", __FILE__, line, call,
-                lacuna_status_string(got), lacuna_status_string(want), message);
-    } else if (want != LACUNA_STATUS_OK && needle != NULL && strstr(message, needle) == NULL) {
-        failed++;
-        fprintf(stderr, "%s:%d: message \"%s\" lacks \"%s\"\n", __FILE__, line, message, needle);
-    } else {
-        passed++;
-    }
-}
-
-#define EXPECT(call, want, needle) expect_status((call), (want), (needle), #call, __LINE__)
-
-#define OK(call) EXPECT(call, LACUNA_STATUS_OK, NULL)
-
-static const char *path_in_dir(const char *name) {
-    static char buf[8][1200];
-    static int next;
-    char *p = buf[next++ % 8];
-    snprintf(p, 1200, "%s/%s", dir, name);
-    return p;
-}
 
 static void write_file(const char *name, const char *text) {
     FILE *f = fopen(path_in_dir(name), "w");
@@ -64,22 +22,6 @@ static void write_file(const char *name, const char *text) {
 }
 
 static bool file_exists(const char *path) { return access(path, F_OK) == 0; }
-
-static lacuna_vec3 v3(float x, float y, float z) {
-    lacuna_vec3 v;
-    v.x = x;
-    v.y = y;
-    v.z = z;
-    return v;
-}
-
-static lacuna_rgb rgb(float r, float g, float b) {
-    lacuna_rgb c;
-    c.r = r;
-    c.g = g;
-    c.b = b;
-    return c;
-}
 
 /* ---------------------------------------------------------------------------------------- */
 
@@ -1116,7 +1058,6 @@ static void test_analysis(lacuna_context *ctx) {
     lacuna_analysis_release(NULL);
     lacuna_analysis_retain(NULL);
 }
-
 
 /* Skeleton-guided path tracing: the job's skeleton settings, and the guide and query API. */
 static void test_skeleton_guide(lacuna_context *ctx) {
