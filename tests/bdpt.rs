@@ -6,7 +6,7 @@ mod common;
 
 use std::sync::atomic::AtomicBool;
 
-use common::agreement::{assert_agree, box_scene, region_means};
+use common::agreement::{assert_agree, box_scene, region_means, render_image};
 use lacuna::integrator::{
     self, strategy_layer_name, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter,
 };
@@ -279,15 +279,7 @@ fn bdpt_renders_lightless_scenes_black() {
     .unwrap();
     let scene = b.build().unwrap();
     let camera = Camera::look_at(v3(0., 2., 2.), Vec3::ZERO, Vec3::Y, 40.0).unwrap();
-    let (film, _) = render(
-        &scene,
-        &camera,
-        integrator.as_ref(),
-        &rs,
-        &|_| true,
-        &AtomicBool::new(false),
-    )
-    .unwrap();
+    let film = render_image(&scene, &camera, integrator.as_ref(), &rs);
     assert!(film.radiance().iter().all(|p| *p == Rgb::ZERO));
 }
 

@@ -17,15 +17,15 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
+use common::agreement::render_image;
 use common::chi2::{assert_chi2, Stats};
 use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::light::environment::{EnvImage, Grid};
 use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap};
 use lacuna::math::{luminance, warp, Rgb, Rng, Vec3, PI};
-use lacuna::render::{render, RenderSettings};
+use lacuna::render::RenderSettings;
 use lacuna::scene::{Camera, Material, MeshDesc, Scene, SceneBuilder};
 
 fn repo(rel: &str) -> PathBuf {
@@ -431,15 +431,7 @@ fn region_means(
             seed: seed * 7919 + 11,
             ..Default::default()
         };
-        let (film, _) = render(
-            scene,
-            camera,
-            integrator.as_ref(),
-            &rs,
-            &|_| true,
-            &AtomicBool::new(false),
-        )
-        .unwrap();
+        let film = render_image(scene, camera, integrator.as_ref(), &rs);
         let px = film.radiance();
         let mut sums = [0.0f64; 5];
         let h = size / 2;
@@ -512,15 +504,7 @@ fn uniform_environment_around_a_diffuse_sphere_matches_the_closed_form() {
                 seed: seed + 1,
                 ..Default::default()
             };
-            let (film, _) = render(
-                &scene,
-                &camera,
-                integrator.as_ref(),
-                &rs,
-                &|_| true,
-                &AtomicBool::new(false),
-            )
-            .unwrap();
+            let film = render_image(&scene, &camera, integrator.as_ref(), &rs);
             // Pixels wholly on the sphere (away from its silhouette) and wholly on the sky.
             for y in 0..24u32 {
                 for x in 0..24u32 {
@@ -626,15 +610,7 @@ fn a_bright_sun_gives_no_fireflies_with_mis() {
             seed: 5,
             ..Default::default()
         };
-        let (film, _) = render(
-            &scene,
-            &camera,
-            integrator.as_ref(),
-            &rs,
-            &|_| true,
-            &AtomicBool::new(false),
-        )
-        .unwrap();
+        let film = render_image(&scene, &camera, integrator.as_ref(), &rs);
         // Pixels on the lit part of the ground (all of them see the sun): per-pixel means
         // over 64 samples stay close to each other.
         let px = film.radiance();
@@ -773,15 +749,7 @@ fn zero_rows_and_black_maps_keep_sampling_valid() {
         spp: 4,
         ..Default::default()
     };
-    let (film, _) = render(
-        &scene,
-        &camera,
-        integrator.as_ref(),
-        &rs,
-        &|_| true,
-        &AtomicBool::new(false),
-    )
-    .unwrap();
+    let film = render_image(&scene, &camera, integrator.as_ref(), &rs);
     assert!(film.radiance().iter().all(|p| *p == Rgb::ZERO));
 }
 
@@ -802,15 +770,7 @@ fn hidden_maps_light_the_scene_but_are_not_seen() {
             spp: 4,
             ..Default::default()
         };
-        let (film, _) = render(
-            &scene,
-            &camera,
-            integrator.as_ref(),
-            &rs,
-            &|_| true,
-            &AtomicBool::new(false),
-        )
-        .unwrap();
+        let film = render_image(&scene, &camera, integrator.as_ref(), &rs);
         assert_eq!(
             film.pixel(0, 0),
             Rgb::ZERO,

@@ -4,11 +4,31 @@
 
 use std::sync::atomic::AtomicBool;
 
-use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::film::Film;
+use lacuna::integrator::{self, Integrator, IntegratorSettings};
 use lacuna::light::LightDesc;
 use lacuna::math::{Rgb, Vec3};
 use lacuna::render::{render, RenderSettings};
 use lacuna::scene::{Camera, Material, MeshDesc, Scene, SceneBuilder};
+
+/// Renders to completion, without progress reports or cancellation: what most tests need.
+pub fn render_image(
+    scene: &Scene,
+    camera: &Camera,
+    integrator: &dyn Integrator,
+    settings: &RenderSettings,
+) -> Film {
+    let (film, _) = render(
+        scene,
+        camera,
+        integrator,
+        settings,
+        &|_| true,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
+    film
+}
 
 /// Means of the whole image and of its four quadrants, with standard errors over seeds, of the
 /// integrator `name` (a spec: `name[:key=value]...`), prepared for the scene first.
@@ -32,15 +52,7 @@ pub fn region_means(
                 seed: seed * 7919 + 1,
                 ..Default::default()
             };
-            let (film, _) = render(
-                scene,
-                camera,
-                integrator.as_ref(),
-                &rs,
-                &|_| true,
-                &AtomicBool::new(false),
-            )
-            .unwrap();
+            let film = render_image(scene, camera, integrator.as_ref(), &rs);
             let px = film.radiance();
             for p in &px {
                 assert!(p.is_finite() && p.min_element() >= 0.0, "{name}: pixel {p}");
