@@ -15,7 +15,8 @@ use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 
-use super::{intersect_triangle, Hit, Ray, RayPrecomp};
+use super::triangle::{intersect_triangle_block, RayLanes, TriangleBlock};
+use super::{Hit, Ray, RayPrecomp};
 use crate::math::Vec3;
 
 /// Build quality: a trade between build time and traversal speed.
@@ -163,26 +164,71 @@ fn cwbvh_inner_depth(cwbvh: &CwBvh) -> usize {
     deepest
 }
 
-/// Triangle vertices in leaf order, padded to 16-byte vectors, with the global triangle index
-/// in the padding after `p0`: a closest hit reads it from the cache line the test just loaded
-/// instead of from a separate array (one cache miss less per hit on large scenes).
-#[derive(Clone, Copy, Debug)]
-#[repr(C)]
-struct LeafTriangle {
-    p0: Vec3,
-    id: u32,
-    p1: Vec3A,
-    p2: Vec3A,
+/// Lays out the leaf triangles of the 8-wide tree in [`TriangleBlock`]s of four, so that
+/// traversal tests up to four of a node's triangles with one SIMD test. Every node's
+/// triangles start a new block (its `primitive_base_idx` is rewritten to a multiple of 4),
+/// and a leaf that would straddle two blocks is moved to the next one when the node's leaves
+/// still fit the 24 triangle bits of the traversal mask (its `child_meta` offsets are
+/// rewritten), so that a leaf of up to 3 triangles is one test. Slot `s` of the rewritten
+/// tree is lane `s % 4` of block `s / 4`; the lanes carry the global triangle ids.
+fn triangle_blocks(cwbvh: &mut CwBvh, tris: &[Triangle]) -> Vec<TriangleBlock> {
+    let mut blocks: Vec<TriangleBlock> = Vec::new();
+    for node in cwbvh.nodes.iter_mut() {
+        // Leaf children of this node, by their offset: (child slot, offset, count).
+        let mut leaves: Vec<(usize, u32, u32)> = (0..8)
+            .filter(|&c| node.imask & (1 << c) == 0 && node.child_meta[c] != 0)
+            .map(|c| {
+                let meta = node.child_meta[c];
+                (c, (meta & 0x1f) as u32, (meta >> 5).count_ones())
+            })
+            .collect();
+        leaves.sort_by_key(|&(_, offset, _)| offset);
+        let mut aligned = Vec::with_capacity(leaves.len());
+        let mut end = 0u32;
+        for &(_, _, count) in &leaves {
+            let start = if end % 4 + count > 4 {
+                end.next_multiple_of(4)
+            } else {
+                end
+            };
+            aligned.push(start);
+            end = start + count;
+        }
+        let fits = end <= 24;
+        let first_block = blocks.len();
+        let old_base = node.primitive_base_idx;
+        let mut used = 0u32;
+        for (i, &(child, offset, count)) in leaves.iter().enumerate() {
+            let new_offset = if fits { aligned[i] } else { offset };
+            used = used.max(new_offset + count);
+            for k in 0..count {
+                let slot = (new_offset + k) as usize;
+                while blocks.len() <= first_block + slot / 4 {
+                    blocks.push(TriangleBlock::default());
+                }
+                let id = cwbvh.primitive_indices[(old_base + offset + k) as usize];
+                let t = &tris[id as usize];
+                blocks[first_block + slot / 4].set(
+                    slot % 4,
+                    [t.v0.into(), t.v1.into(), t.v2.into()],
+                    id,
+                );
+            }
+            node.child_meta[child] = (node.child_meta[child] & !0x1f) | new_offset as u8;
+        }
+        debug_assert!(blocks.len() == first_block + used.div_ceil(4) as usize);
+        node.primitive_base_idx = (first_block * 4) as u32;
+    }
+    blocks
 }
-
-const _: () = assert!(std::mem::size_of::<LeafTriangle>() == 48);
 
 /// The acceleration structure of a scene. Immutable and `Sync`: queries may run from any number
 /// of threads.
 pub struct Bvh {
     cwbvh: CwBvh,
-    /// `leaf_tris[i]` is the triangle referenced by leaf slot `i`.
-    leaf_tris: Vec<LeafTriangle>,
+    /// Leaf slot `s` (`primitive_base_idx` plus a leaf's offset) is lane `s % 4` of
+    /// `blocks[s / 4]` (see [`triangle_blocks`]).
+    blocks: Vec<TriangleBlock>,
     /// Whether traversal prefetches the children it will visit: only when nodes and
     /// triangles do not fit in a core's L2 (on small scenes the prefetch loop is pure
     /// overhead, 2 % of a Cornell-box path tracer's instructions).
@@ -205,7 +251,7 @@ impl Bvh {
         if triangles.is_empty() {
             return Bvh {
                 cwbvh: CwBvh::default(),
-                leaf_tris: Vec::new(),
+                blocks: Vec::new(),
                 prefetch: false,
             };
         }
@@ -236,24 +282,12 @@ impl Bvh {
         if cwbvh_inner_depth(&cwbvh) > MAX_TRAVERSAL_DEPTH {
             cwbvh = shallow_cwbvh(&tris);
         }
-        let leaf_tris = cwbvh
-            .primitive_indices
-            .par_iter()
-            .map(|&i| {
-                let t = &tris[i as usize];
-                LeafTriangle {
-                    p0: t.v0.into(),
-                    id: i,
-                    p1: t.v1,
-                    p2: t.v2,
-                }
-            })
-            .collect();
-        // Traversal reads `leaf_tris` only.
+        let blocks = triangle_blocks(&mut cwbvh, &tris);
+        // Traversal reads `blocks` only.
         cwbvh.primitive_indices = Vec::new();
         let mut bvh = Bvh {
             cwbvh,
-            leaf_tris,
+            blocks,
             prefetch: false,
         };
         bvh.prefetch = bvh.memory_bytes() > PREFETCH_MIN_BYTES;
@@ -261,13 +295,13 @@ impl Bvh {
     }
 
     pub fn is_empty(&self) -> bool {
-        self.leaf_tris.is_empty()
+        self.blocks.is_empty()
     }
 
     /// Bytes held by nodes and leaf data.
     pub fn memory_bytes(&self) -> usize {
         self.cwbvh.nodes.len() * std::mem::size_of::<CwBvhNode>()
-            + self.leaf_tris.len() * std::mem::size_of::<LeafTriangle>()
+            + self.blocks.len() * std::mem::size_of::<TriangleBlock>()
     }
 
     pub fn node_count(&self) -> usize {
@@ -317,29 +351,36 @@ impl Bvh {
             return None;
         }
         let q = QueryRay::new(ray);
-        let mut best: Option<(u32, super::TriangleHit)> = None;
+        let mut best: Option<Hit> = None;
         self.traverse(
             &q,
             ray.t_max,
             #[inline(always)]
             || {},
             #[inline(always)]
-            |slot, t_max| {
-                let t = &self.leaf_tris[slot as usize];
-                if let Some(h) = intersect_triangle(&q.tri, t.p0, t.p1.into(), t.p2.into(), *t_max)
-                {
-                    *t_max = h.t;
-                    best = Some((slot, h));
+            |index, lanes, t_max| {
+                let block = &self.blocks[index as usize];
+                let hits = intersect_triangle_block(&q.tri, &q.lanes, block, lanes, *t_max);
+                // Highest lane first, keeping a hit only if strictly nearer: the order and
+                // rule of testing the triangles one by one.
+                let mut mask = hits.mask;
+                while mask != 0 {
+                    let lane = (31 - mask.leading_zeros()) as usize;
+                    mask &= !(1 << lane);
+                    if hits.t[lane] < *t_max {
+                        *t_max = hits.t[lane];
+                        best = Some(Hit {
+                            t: hits.t[lane],
+                            triangle: block.id(lane),
+                            b1: hits.b1[lane],
+                            b2: hits.b2[lane],
+                        });
+                    }
                 }
                 false
             },
         );
-        best.map(|(slot, h)| Hit {
-            t: h.t,
-            triangle: self.leaf_tris[slot as usize].id,
-            b1: h.b1,
-            b2: h.b2,
-        })
+        best
     }
 
     #[inline(always)]
@@ -355,9 +396,9 @@ impl Bvh {
             #[inline(always)]
             || {},
             #[inline(always)]
-            |slot, t_max| {
-                let t = &self.leaf_tris[slot as usize];
-                hit = intersect_triangle(&q.tri, t.p0, t.p1.into(), t.p2.into(), *t_max).is_some();
+            |index, lanes, t_max| {
+                let block = &self.blocks[index as usize];
+                hit = intersect_triangle_block(&q.tri, &q.lanes, block, lanes, *t_max).mask != 0;
                 hit
             },
         );
@@ -388,12 +429,14 @@ impl Bvh {
             #[inline(always)]
             || nodes += 1,
             #[inline(always)]
-            |slot, t_max| {
-                tris += 1;
-                let t = &self.leaf_tris[slot as usize];
-                if let Some(h) = intersect_triangle(&q.tri, t.p0, t.p1.into(), t.p2.into(), *t_max)
-                {
-                    *t_max = h.t;
+            |index, lanes, t_max| {
+                tris += lanes.count_ones();
+                let block = &self.blocks[index as usize];
+                let hits = intersect_triangle_block(&q.tri, &q.lanes, block, lanes, *t_max);
+                for lane in 0..4 {
+                    if hits.mask & (1 << lane) != 0 && hits.t[lane] < *t_max {
+                        *t_max = hits.t[lane];
+                    }
                 }
                 false
             },
@@ -405,15 +448,16 @@ impl Bvh {
     /// (`obvhs::traverse!`: children nearest-first by the ray's octant, a leaf's triangles from
     /// its highest hit bit down), but without its general traversal state: it starts at the
     /// root's node test, keeps its groups in registers and takes the ray's constants from
-    /// `q`. Calls `on_node` per node tested and `on_triangle(slot, &mut t_max)` per triangle
-    /// (its leaf slot), which may lower `t_max` and returns true to end the traversal.
+    /// `q`. Calls `on_node` per node tested and `on_block(block, lanes, &mut t_max)` per
+    /// triangle block with triangles to test (bit `lane` of `lanes` set for each), highest
+    /// block first; it may lower `t_max` and returns true to end the traversal.
     #[inline(always)]
     fn traverse(
         &self,
         q: &QueryRay,
         mut t_max: f32,
         mut on_node: impl FnMut(),
-        mut on_triangle: impl FnMut(u32, &mut f32) -> bool,
+        mut on_block: impl FnMut(u32, u32, &mut f32) -> bool,
     ) {
         let nodes = &self.cwbvh.nodes;
         // Node groups still to visit: (first child node, hit bits << 24 | the node's imask).
@@ -424,10 +468,13 @@ impl Bvh {
         on_node();
         let (mut group, mut triangles) = self.visit_node(&nodes[0], q, t_max);
         loop {
+            // `triangles.x` is a multiple of 4 (`triangle_blocks`): each nibble of the
+            // triangle bits is one block.
             while triangles.y != 0 {
-                let bit = 31 - triangles.y.leading_zeros();
-                triangles.y &= !(1 << bit);
-                if on_triangle(triangles.x + bit, &mut t_max) {
+                let nibble = (31 - triangles.y.leading_zeros()) / 4;
+                let lanes = (triangles.y >> (4 * nibble)) & 0xf;
+                triangles.y &= !(0xf << (4 * nibble));
+                if on_block(triangles.x / 4 + nibble, lanes, &mut t_max) {
                     return;
                 }
             }
@@ -506,13 +553,14 @@ impl Bvh {
                     self.cwbvh.nodes[(node.child_base_idx + rank) as usize..].as_ptr() as _
                 } else {
                     let first = node.primitive_base_idx + (meta & 0x1f) as u32;
-                    self.leaf_tris[first as usize..].as_ptr() as _
+                    self.blocks[first as usize / 4..].as_ptr() as _
                 };
                 // SAFETY: a prefetch has no architectural effect (it cannot fault) and `p`
                 // points into a live slice; SSE is part of x86-64.
                 unsafe {
                     _mm_prefetch::<_MM_HINT_T0>(p);
                     _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(64));
+                    _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(128));
                 }
             }
         }
@@ -575,6 +623,7 @@ const TRAVERSAL_STACK: usize = 32;
 struct QueryRay {
     node: NodeRay,
     tri: RayPrecomp,
+    lanes: RayLanes,
     /// obvhs's `ray_get_octant_inv4`: in every byte, bit 2 / 1 / 0 set where the direction's
     /// x / y / z is not negative.
     oct_inv4: u32,
@@ -587,9 +636,11 @@ impl QueryRay {
         let recip = dir.recip();
         let negative = dir.cmplt(Vec3A::ZERO).bitmask();
         let positive = |axis: u32| (!negative >> axis) & 1;
+        let tri = RayPrecomp::with_reciprocal(ray.origin, ray.dir, recip.into());
         QueryRay {
             node: NodeRay::from_reciprocal(ray.origin, recip),
-            tri: RayPrecomp::with_reciprocal(ray.origin, ray.dir, recip.into()),
+            lanes: RayLanes::new(&tri),
+            tri,
             oct_inv4: (positive(0) * 0x0404_0404)
                 | (positive(1) * 0x0202_0202)
                 | (positive(2) * 0x0101_0101),
@@ -751,7 +802,45 @@ fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::intersect_triangle;
     use crate::math::{warp, Rng};
+
+    /// `triangle_blocks`: every triangle in exactly one lane, with its vertices; node bases
+    /// on block boundaries; leaves in one block wherever the node's leaves fit that way.
+    #[test]
+    fn triangle_blocks_hold_every_triangle_once() {
+        let mut rng = Rng::new(5, 1);
+        for n in [1usize, 2, 3, 5, 17, 300, 5000] {
+            let tris = random_triangles(n, &mut rng);
+            let bvh = Bvh::build(&tris, BvhQuality::Medium);
+            let mut seen = vec![0u32; n];
+            for node in &bvh.cwbvh.nodes {
+                assert_eq!(node.primitive_base_idx % 4, 0);
+                let mut leaves: Vec<(u32, u32)> = (0..8)
+                    .filter(|&c| node.imask & (1 << c) == 0 && node.child_meta[c] != 0)
+                    .map(|c| {
+                        let meta = node.child_meta[c];
+                        ((meta & 0x1f) as u32, (meta >> 5).count_ones())
+                    })
+                    .collect();
+                leaves.sort();
+                let packed: u32 = leaves.iter().map(|l| l.1).sum();
+                let straddles = leaves.iter().any(|&(o, c)| o / 4 != (o + c - 1) / 4);
+                // Only a node whose aligned leaves would not fit 24 bits keeps a straddle.
+                assert!(!straddles || packed > 16, "{leaves:?}");
+                for (offset, count) in leaves {
+                    for k in 0..count {
+                        let slot = (node.primitive_base_idx + offset + k) as usize;
+                        let block = &bvh.blocks[slot / 4];
+                        let id = block.id(slot % 4) as usize;
+                        assert_eq!(block.triangle(slot % 4), tris[id]);
+                        seen[id] += 1;
+                    }
+                }
+            }
+            assert!(seen.iter().all(|&s| s == 1), "n = {n}");
+        }
+    }
 
     /// Degenerate inputs on which PLOC merges about one triangle per step, and others that
     /// stress the builders (coincident, collinear): every tree fits obvhs's traversal stack

@@ -2,6 +2,8 @@
 //! Intersection", JCGT 2013), with pbrt-v4's conservative lower bound on t so that a ray
 //! leaving a surface is never reported to hit it again at t ~ 0.
 
+use glam::Vec4;
+
 use crate::math::{gamma, Vec3};
 
 /// Per-ray constants of the watertight test: the permutation that makes the largest direction
@@ -163,6 +165,221 @@ pub fn intersect_triangle(
     })
 }
 
+/// Four triangles in structure-of-arrays form, one per SIMD lane, so that a BVH leaf's
+/// triangles are tested against a ray together ([`intersect_triangle_block`]) instead of one
+/// after another. `v[vertex][axis]` holds that coordinate of that vertex for the four lanes;
+/// axis 3 is padding (so that the ray's axis permutation indexes with `k & 3`, without a
+/// bounds check), and `v[0][3]` carries the lanes' triangle ids as bits (see
+/// [`TriangleBlock::ids`]). Unused lanes hold a degenerate triangle.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+pub struct TriangleBlock {
+    v: [[Vec4; 4]; 3],
+}
+
+const _: () = assert!(std::mem::size_of::<TriangleBlock>() == 192);
+
+impl Default for TriangleBlock {
+    fn default() -> Self {
+        TriangleBlock {
+            v: [[Vec4::ZERO; 4]; 3],
+        }
+    }
+}
+
+impl TriangleBlock {
+    /// Puts triangle `p` with id `id` in `lane` (0..4).
+    pub fn set(&mut self, lane: usize, p: [Vec3; 3], id: u32) {
+        for (vertex, point) in p.iter().enumerate() {
+            self.v[vertex][0][lane] = point.x;
+            self.v[vertex][1][lane] = point.y;
+            self.v[vertex][2][lane] = point.z;
+        }
+        self.v[0][3][lane] = f32::from_bits(id);
+    }
+
+    /// The triangle in `lane`.
+    pub fn triangle(&self, lane: usize) -> [Vec3; 3] {
+        let v = &self.v;
+        std::array::from_fn(|i| Vec3::new(v[i][0][lane], v[i][1][lane], v[i][2][lane]))
+    }
+
+    /// The id given to [`TriangleBlock::set`] for `lane`.
+    #[inline(always)]
+    pub fn id(&self, lane: usize) -> u32 {
+        self.v[0][3].to_array()[lane & 3].to_bits()
+    }
+}
+
+/// A ray's constants of the watertight test splatted across the four lanes of a
+/// [`TriangleBlock`]: the origin's coordinates in the permuted axis order and the shear.
+#[derive(Clone, Copy, Debug)]
+pub struct RayLanes {
+    ox: Vec4,
+    oy: Vec4,
+    oz: Vec4,
+    sx: Vec4,
+    sy: Vec4,
+    sz: Vec4,
+}
+
+impl RayLanes {
+    #[inline(always)]
+    pub fn new(r: &RayPrecomp) -> Self {
+        let o = [r.origin.x, r.origin.y, r.origin.z, 0.0];
+        RayLanes {
+            ox: Vec4::splat(o[r.kx & 3]),
+            oy: Vec4::splat(o[r.ky & 3]),
+            oz: Vec4::splat(o[r.kz & 3]),
+            sx: Vec4::splat(r.sx),
+            sy: Vec4::splat(r.sy),
+            sz: Vec4::splat(r.sz),
+        }
+    }
+}
+
+/// The hits of a [`TriangleBlock`]: bit `lane` of `mask` set where that lane's triangle is
+/// hit, with its distance and barycentrics in `t`, `b1`, `b2` (undefined elsewhere).
+#[derive(Clone, Copy, Debug)]
+pub struct BlockHits {
+    pub mask: u32,
+    pub t: [f32; 4],
+    pub b1: [f32; 4],
+    pub b2: [f32; 4],
+}
+
+/// [`intersect_triangle`] on the triangles of `block` whose bit is set in `lanes`, all four
+/// at once: the same arithmetic in the same order lane by lane (SSE on x86-64, which every
+/// x86-64 CPU has), so every lane answers exactly as the one-triangle test does with the same
+/// `t_max`, including its double-precision re-evaluation of zero edge functions and its
+/// double-precision re-test of hits within the f32 error bound (both rare, done per lane).
+#[inline(always)]
+pub fn intersect_triangle_block(
+    r: &RayPrecomp,
+    l: &RayLanes,
+    block: &TriangleBlock,
+    lanes: u32,
+    t_max: f32,
+) -> BlockHits {
+    let (kx, ky, kz) = (r.kx & 3, r.ky & 3, r.kz & 3);
+    let v = &block.v;
+    let zero = Vec4::ZERO;
+    // Vertex coordinates relative to the origin, in the permuted axis order.
+    let a = [v[0][kx] - l.ox, v[0][ky] - l.oy, v[0][kz] - l.oz];
+    let b = [v[1][kx] - l.ox, v[1][ky] - l.oy, v[1][kz] - l.oz];
+    let c = [v[2][kx] - l.ox, v[2][ky] - l.oy, v[2][kz] - l.oz];
+    let ax = a[0] - l.sx * a[2];
+    let ay = a[1] - l.sy * a[2];
+    let bx = b[0] - l.sx * b[2];
+    let by = b[1] - l.sy * b[2];
+    let cx = c[0] - l.sx * c[2];
+    let cy = c[1] - l.sy * c[2];
+
+    let mut e0 = bx * cy - by * cx;
+    let mut e1 = cx * ay - cy * ax;
+    let mut e2 = ax * by - ay * bx;
+    let zero_edge = (e0.cmpeq(zero) | e1.cmpeq(zero) | e2.cmpeq(zero)).bitmask() & lanes;
+    if zero_edge != 0 {
+        (e0, e1, e2) = edges_f64(zero_edge, [ax, ay, bx, by, cx, cy], [e0, e1, e2]);
+    }
+    let negative = e0.cmplt(zero) | e1.cmplt(zero) | e2.cmplt(zero);
+    let positive = e0.cmpgt(zero) | e1.cmpgt(zero) | e2.cmpgt(zero);
+    let det = e0 + e1 + e2;
+    let az = l.sz * a[2];
+    let bz = l.sz * b[2];
+    let cz = l.sz * c[2];
+    let t_scaled = e0 * az + e1 * bz + e2 * cz;
+    let t_max4 = Vec4::splat(t_max);
+    let bound = t_max4 * det;
+    let out_negative = det.cmplt(zero) & (t_scaled.cmpge(zero) | t_scaled.cmplt(bound));
+    let out_positive = det.cmpgt(zero) & (t_scaled.cmple(zero) | t_scaled.cmpgt(bound));
+    let inv_det = Vec4::ONE / det;
+    let t = t_scaled * inv_det;
+    let rejected = (negative & positive) | det.cmpeq(zero) | out_negative | out_positive;
+    let mut mask = !rejected.bitmask() & t.cmplt(t_max4).bitmask() & lanes;
+    let mut hits = BlockHits {
+        mask: 0,
+        t: t.to_array(),
+        b1: (e1 * inv_det).to_array(),
+        b2: (e2 * inv_det).to_array(),
+    };
+    if mask == 0 {
+        return hits;
+    }
+
+    // The conservative bound on t of `intersect_triangle`, lane by lane.
+    let max_zt = az.abs().max(bz.abs()).max(cz.abs());
+    let delta_z = Vec4::splat(gamma(3)) * max_zt;
+    let max_xt = ax.abs().max(bx.abs()).max(cx.abs());
+    let max_yt = ay.abs().max(by.abs()).max(cy.abs());
+    let max_kz = a[2].abs().max(b[2].abs()).max(c[2].abs());
+    let (g2, g3, g5, g7) = (
+        Vec4::splat(gamma(2)),
+        Vec4::splat(gamma(3)),
+        Vec4::splat(gamma(5)),
+        Vec4::splat(gamma(7)),
+    );
+    let delta_x = g5 * max_xt + g7 * (l.sx.abs() * max_kz);
+    let delta_y = g5 * max_yt + g7 * (l.sy.abs() * max_kz);
+    let delta_e = Vec4::splat(2.0) * (g2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+    let max_e = e0.abs().max(e1.abs()).max(e2.abs());
+    let delta_t = Vec4::splat(3.0)
+        * (g3 * max_e * max_zt + delta_e * max_zt + delta_z * max_e)
+        * inv_det.abs();
+    let close = t.cmple(delta_t).bitmask() & mask;
+    if close != 0 {
+        mask &= !close;
+        mask |= retest_f64(r, block, close, t_max, &mut hits);
+    }
+    hits.mask = mask;
+    hits
+}
+
+/// The zero-edge rule of [`intersect_triangle`] for the lanes in `lanes`: all three edge
+/// functions of those lanes re-evaluated in double precision.
+#[cold]
+#[inline(never)]
+fn edges_f64(lanes: u32, sheared: [Vec4; 6], edges: [Vec4; 3]) -> (Vec4, Vec4, Vec4) {
+    let [ax, ay, bx, by, cx, cy] = sheared.map(|v| v.as_dvec4().to_array());
+    let mut e = edges.map(|v| v.to_array());
+    for lane in 0..4 {
+        if lanes & (1 << lane) != 0 {
+            e[0][lane] = (bx[lane] * cy[lane] - by[lane] * cx[lane]) as f32;
+            e[1][lane] = (cx[lane] * ay[lane] - cy[lane] * ax[lane]) as f32;
+            e[2][lane] = (ax[lane] * by[lane] - ay[lane] * bx[lane]) as f32;
+        }
+    }
+    let [e0, e1, e2] = e.map(Vec4::from_array);
+    (e0, e1, e2)
+}
+
+/// The double-precision re-test of [`intersect_triangle`] for the lanes in `lanes`; writes
+/// their hits into `hits` and returns the lanes that hit.
+#[cold]
+#[inline(never)]
+fn retest_f64(
+    r: &RayPrecomp,
+    block: &TriangleBlock,
+    lanes: u32,
+    t_max: f32,
+    hits: &mut BlockHits,
+) -> u32 {
+    let mut mask = 0;
+    for lane in 0..4 {
+        if lanes & (1 << lane) == 0 {
+            continue;
+        }
+        let [p0, p1, p2] = block.triangle(lane);
+        if let Some(h) = intersect_triangle_f64(r, p0, p1, p2, t_max) {
+            hits.t[lane] = h.t;
+            hits.b1[lane] = h.b1;
+            hits.b2[lane] = h.b2;
+            mask |= 1 << lane;
+        }
+    }
+    mask
+}
+
 /// Higham's gamma_n for f64.
 fn gamma_f64(n: i32) -> f64 {
     let e = f64::EPSILON * 0.5;
@@ -303,6 +520,118 @@ mod tests {
                 assert!(hit, "ray through a shared edge/vertex missed at scale {scale}: target {target:?}, dir {dir:?}");
             }
         }
+    }
+
+    /// The four-lane test answers every lane exactly as the one-triangle test does (same
+    /// hit or miss, bit-identical t and barycentrics), on random, degenerate, shared-edge,
+    /// axis-aligned, grazing and surface-leaving rays, so that the zero-edge and f64 re-test
+    /// paths of both are exercised, with random lane masks and t_max.
+    #[test]
+    fn block_test_matches_one_triangle_test() {
+        let mut rng = Rng::new(7, 3);
+        let mut compared = 0usize;
+        let mut hits = 0usize;
+        for scale in [1e-4f32, 1.0, 1e4] {
+            for i in 0..40_000 {
+                let random_point = |rng: &mut Rng| {
+                    Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 2.0 - Vec3::ONE
+                };
+                // A fan around a grid point: shared edges and vertices, axis-aligned planes.
+                let c = (random_point(&mut rng) * 4.0).round() * scale;
+                let mut tris: Vec<[Vec3; 3]> = (0..4)
+                    .map(|_| {
+                        let mut p = [c, c + random_point(&mut rng) * scale, Vec3::ZERO];
+                        p[2] = c + random_point(&mut rng) * scale;
+                        if i % 3 == 0 {
+                            // Axis plane: one coordinate shared by all three vertices.
+                            let k = rng.below(3) as usize;
+                            for v in &mut p {
+                                v[k] = c[k];
+                            }
+                        }
+                        p
+                    })
+                    .collect();
+                if i % 7 == 0 {
+                    tris[rng.below(4) as usize] = [c, c, c + Vec3::X * scale];
+                }
+                let target_tri = tris[rng.below(4) as usize];
+                let (o, d) = match i % 4 {
+                    // Leaving a triangle from a point on it (t ~ 0: the f64 re-test).
+                    0 => {
+                        let (b0, b1) = crate::math::warp::uniform_triangle(rng.uniform2());
+                        let o = target_tri[0] * b0
+                            + target_tri[1] * b1
+                            + target_tri[2] * (1.0 - b0 - b1);
+                        (o, crate::math::warp::uniform_sphere(rng.uniform2()))
+                    }
+                    // Through the shared vertex or an edge, often along an axis.
+                    1 => {
+                        let target = c + (target_tri[1] - c) * rng.uniform();
+                        let d = if rng.uniform() < 0.5 {
+                            let k = rng.below(3) as usize;
+                            let mut d = Vec3::ZERO;
+                            d[k] = if rng.uniform() < 0.5 { 1.0 } else { -1.0 };
+                            d
+                        } else {
+                            crate::math::warp::uniform_sphere(rng.uniform2())
+                        };
+                        (target - d * scale * 2.0, d)
+                    }
+                    // Grazing: along the triangle's plane, tilted by a tiny angle.
+                    2 => {
+                        let n = (target_tri[1] - target_tri[0])
+                            .cross(target_tri[2] - target_tri[0])
+                            .normalize_or_zero();
+                        let u = (target_tri[1] - target_tri[0]).normalize_or_zero();
+                        let d = (u + n * 1e-4 * (rng.uniform() - 0.5)).normalize_or(Vec3::X);
+                        (target_tri[0] - d * scale, d)
+                    }
+                    _ => (
+                        random_point(&mut rng) * 3.0 * scale,
+                        crate::math::warp::uniform_sphere(rng.uniform2()),
+                    ),
+                };
+                let r = RayPrecomp::new(o, d);
+                let lanes_r = RayLanes::new(&r);
+                let mut block = TriangleBlock::default();
+                for (lane, t) in tris.iter().enumerate() {
+                    block.set(lane, *t, lane as u32 + 10);
+                }
+                let lanes = rng.below(16) as u32 | if i % 2 == 0 { 0xf } else { 0 };
+                let t_max = if i % 5 == 0 {
+                    rng.uniform() * 3.0 * scale
+                } else {
+                    f32::INFINITY
+                };
+                let got = intersect_triangle_block(&r, &lanes_r, &block, lanes, t_max);
+                assert_eq!(got.mask & !lanes, 0);
+                for (lane, t) in tris.iter().enumerate() {
+                    assert_eq!(block.triangle(lane), *t);
+                    assert_eq!(block.id(lane), lane as u32 + 10);
+                    if lanes & (1 << lane) == 0 {
+                        continue;
+                    }
+                    compared += 1;
+                    let want = intersect_triangle(&r, t[0], t[1], t[2], t_max);
+                    let have = (got.mask & (1 << lane) != 0).then(|| TriangleHit {
+                        t: got.t[lane],
+                        b1: got.b1[lane],
+                        b2: got.b2[lane],
+                    });
+                    let bits = |h: Option<TriangleHit>| {
+                        h.map(|h| (h.t.to_bits(), h.b1.to_bits(), h.b2.to_bits()))
+                    };
+                    assert_eq!(
+                        bits(have),
+                        bits(want),
+                        "scale {scale}, case {i}, lane {lane}: {have:?} vs {want:?}, o {o:?}, d {d:?}, tri {t:?}"
+                    );
+                    hits += want.is_some() as usize;
+                }
+            }
+        }
+        assert!(compared > 200_000 && hits > 10_000, "{compared} {hits}");
     }
 
     /// Double-precision Moller-Trumbore on the exact f32 inputs: (t, b1, b2) of the line
