@@ -248,6 +248,15 @@ pub struct BlockHits {
     pub b2: [f32; 4],
 }
 
+impl BlockHits {
+    const MISS: BlockHits = BlockHits {
+        mask: 0,
+        t: [0.0; 4],
+        b1: [0.0; 4],
+        b2: [0.0; 4],
+    };
+}
+
 /// [`intersect_triangle`] on the triangles of `block` whose bit is set in `lanes`, all four
 /// at once: the same arithmetic in the same order lane by lane (SSE on x86-64, which every
 /// x86-64 CPU has), so every lane answers exactly as the one-triangle test does with the same
@@ -284,6 +293,11 @@ pub fn intersect_triangle_block(
     }
     let negative = e0.cmplt(zero) | e1.cmplt(zero) | e2.cmplt(zero);
     let positive = e0.cmpgt(zero) | e1.cmpgt(zero) | e2.cmpgt(zero);
+    // Most blocks a ray reaches have no triangle it passes through: stop before the
+    // distances.
+    if !(negative & positive).bitmask() & lanes == 0 {
+        return BlockHits::MISS;
+    }
     let det = e0 + e1 + e2;
     let az = l.sz * a[2];
     let bz = l.sz * b[2];
