@@ -612,7 +612,7 @@ mod tests {
                 for (lane, t) in tris.iter().enumerate() {
                     block.set(lane, *t, lane as u32 + 10);
                 }
-                let lanes = rng.below(16) as u32 | if i % 2 == 0 { 0xf } else { 0 };
+                let lanes = rng.below(16) | if i % 2 == 0 { 0xf } else { 0 };
                 let t_max = if i % 5 == 0 {
                     rng.uniform() * 3.0 * scale
                 } else {
