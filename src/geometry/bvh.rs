@@ -1,6 +1,7 @@
 //! Compressed 8-wide BVH (obvhs CWBVH, PLOC build) over triangles, with the triangles copied
-//! into BVH leaf order so traversal touches memory sequentially, and Lacuna's own watertight
-//! triangle test inside the traversal loop.
+//! into BVH leaf order (in SIMD blocks of four, [`TriangleBlock`]) so traversal touches memory
+//! sequentially, and Lacuna's own watertight triangle test, four triangles at a time, inside
+//! the traversal loop.
 
 use glam::{UVec2, Vec3A};
 use obvhs::aabb::Aabb;
@@ -172,26 +173,29 @@ fn cwbvh_inner_depth(cwbvh: &CwBvh) -> usize {
 /// rewritten), so that a leaf of up to 3 triangles is one test. Slot `s` of the rewritten
 /// tree is lane `s % 4` of block `s / 4`; the lanes carry the global triangle ids.
 fn triangle_blocks(cwbvh: &mut CwBvh, tris: &[Triangle]) -> Vec<TriangleBlock> {
-    let mut blocks: Vec<TriangleBlock> = Vec::new();
+    let mut blocks: Vec<TriangleBlock> = Vec::with_capacity(tris.len().div_ceil(3));
     for node in cwbvh.nodes.iter_mut() {
         // Leaf children of this node, by their offset: (child slot, offset, count).
-        let mut leaves: Vec<(usize, u32, u32)> = (0..8)
-            .filter(|&c| node.imask & (1 << c) == 0 && node.child_meta[c] != 0)
-            .map(|c| {
-                let meta = node.child_meta[c];
-                (c, (meta & 0x1f) as u32, (meta >> 5).count_ones())
-            })
-            .collect();
-        leaves.sort_by_key(|&(_, offset, _)| offset);
-        let mut aligned = Vec::with_capacity(leaves.len());
+        let mut leaves = [(0usize, 0u32, 0u32); 8];
+        let mut leaf_count = 0;
+        for c in 0..8 {
+            let meta = node.child_meta[c];
+            if node.imask & (1 << c) == 0 && meta != 0 {
+                leaves[leaf_count] = (c, (meta & 0x1f) as u32, (meta >> 5).count_ones());
+                leaf_count += 1;
+            }
+        }
+        let leaves = &mut leaves[..leaf_count];
+        leaves.sort_unstable_by_key(|&(_, offset, _)| offset);
+        let mut aligned = [0u32; 8];
         let mut end = 0u32;
-        for &(_, _, count) in &leaves {
+        for (i, &(_, _, count)) in leaves.iter().enumerate() {
             let start = if end % 4 + count > 4 {
                 end.next_multiple_of(4)
             } else {
                 end
             };
-            aligned.push(start);
+            aligned[i] = start;
             end = start + count;
         }
         let fits = end <= 24;
