@@ -300,40 +300,126 @@ fn cofaces(span: usize) -> &'static [(usize, usize)] {
     &COFACES[span].0[..COFACES[span].1]
 }
 
-/// The 18 sub-steps: kinds indexed by 3 * (2 * axis + orientation) + (3 - dim).
-fn sub_step_kinds() -> Vec<Vec<Kind>> {
-    let mut steps = Vec::with_capacity(18);
-    for axis in 0..3usize {
-        for positive in [false, true] {
-            for dim in [3u32, 2, 1] {
-                let mut list = Vec::new();
-                for g in 0..8usize {
-                    if g.count_ones() != dim - 1 || g & (1 << axis) != 0 {
-                        continue;
-                    }
-                    let f = g | 1 << axis;
-                    let f_at = if positive { axis } else { 3 };
-                    let mut others = [(0, 0); 5];
-                    let mut n_others = 0;
-                    for &c in cofaces(g) {
-                        if c != (f, f_at) {
-                            others[n_others] = c;
-                            n_others += 1;
-                        }
-                    }
-                    list.push(Kind {
-                        g,
-                        f,
-                        others,
-                        n_others,
-                    });
-                }
-                steps.push(list);
-            }
+/// The cells of span `G` of brick b that are free faces: present, not in W, exactly one
+/// coface present. Generic over the span so that the coface loop unrolls to straight word
+/// logic (this and the two passes below are most of an iteration's work).
+#[inline(always)]
+fn free_faces<const G: usize>(
+    cells: &Planes,
+    inhibit: &Planes,
+    b: usize,
+    step: &[usize; 3],
+) -> u64 {
+    let present = cells.get(b, G) & !inhibit.get(b, G);
+    if present == 0 {
+        return 0;
+    }
+    let (mut one, mut two) = (0u64, 0u64);
+    for &(up, at) in cofaces(G) {
+        let c = if at == 3 {
+            cells.get(b, up)
+        } else {
+            back(cells, b, up, at, step)
+        };
+        two |= one & c;
+        one |= c;
+    }
+    present & one & !two
+}
+
+/// The present cells of span `F` of brick b that have a free face (the cofaces of free pairs):
+/// the face without axis a lies at the same vertex or one step forward along a.
+#[inline(always)]
+fn cofaces_of_free<const F: usize>(
+    cells: &Planes,
+    free: &Planes,
+    b: usize,
+    step: &[usize; 3],
+) -> u64 {
+    let present = cells.get(b, F);
+    if present == 0 {
+        return 0;
+    }
+    let mut has_free_face = 0;
+    for a in 0..3 {
+        if F & (1 << a) != 0 {
+            let g = F & !(1 << a);
+            has_free_face |= free.get(b, g) | fwd(free, b, g, a, step);
         }
     }
-    steps
+    present & has_free_face
 }
+
+/// Plane `SPAN` of brick b in the closure of the border: its own bits and the faces of the
+/// cofaces already in it.
+#[inline(always)]
+fn closed_up<const SPAN: usize>(border: &Planes, b: usize, step: &[usize; 3]) -> u64 {
+    let mut w = border.get(b, SPAN);
+    for &(up, at) in cofaces(SPAN) {
+        w |= if at == 3 {
+            border.get(b, up)
+        } else {
+            back(border, b, up, at, step)
+        };
+    }
+    w
+}
+
+/// The pair kinds of the 18 sub-steps, indexed by 3 * (2 * axis + orientation) + (3 - dim),
+/// at most two per sub-step (dim 2: both square orientations containing the axis), and how
+/// many each sub-step has. A constant, so that the pair test of each kind compiles to straight
+/// word logic ([`Thinning::remove_kind`]).
+const KINDS: ([[Kind; 2]; 18], [usize; 18]) = {
+    let empty = Kind {
+        g: 0,
+        f: 0,
+        others: [(0, 0); 5],
+        n_others: 0,
+    };
+    let mut table = [[empty; 2]; 18];
+    let mut count = [0usize; 18];
+    let mut axis = 0;
+    while axis < 3 {
+        let mut orient = 0;
+        while orient < 2 {
+            let mut d = 0;
+            while d < 3 {
+                let dim = 3 - d as u32;
+                let s = 3 * (2 * axis + orient) + d;
+                let mut g = 0usize;
+                while g < 8 {
+                    if g.count_ones() == dim - 1 && g & (1 << axis) == 0 {
+                        let f = g | 1 << axis;
+                        let f_at = if orient == 1 { axis } else { 3 };
+                        let (list, n) = COFACES[g];
+                        let mut others = [(0, 0); 5];
+                        let mut n_others = 0;
+                        let mut i = 0;
+                        while i < n {
+                            if !(list[i].0 == f && list[i].1 == f_at) {
+                                others[n_others] = list[i];
+                                n_others += 1;
+                            }
+                            i += 1;
+                        }
+                        table[s][count[s]] = Kind {
+                            g,
+                            f,
+                            others,
+                            n_others,
+                        };
+                        count[s] += 1;
+                    }
+                    g += 1;
+                }
+                d += 1;
+            }
+            orient += 1;
+        }
+        axis += 1;
+    }
+    (table, count)
+};
 
 /// Rough cost of one brick in a pass, in units of a sub-step's pair test (a few tens of
 /// instructions): the free-face, birth, border and closure passes read about four times as
@@ -375,11 +461,14 @@ pub struct Thinning<'a> {
     masks: Planes,
     /// Bricks whose cells changed since the last iteration started.
     changed: Vec<u32>,
-    /// Per brick: the last `mark` that listed it (deduplicates brick lists).
+    /// Per brick: the last `mark` that listed it (deduplicates brick lists); `u32::MAX` for
+    /// padding bricks, which are never listed (one test per neighbour in [`Thinning::dilate`]).
     stamp: Vec<u32>,
-    /// Per brick: whether it holds vertices (is not padding).
-    real: Vec<bool>,
     mark: u32,
+    /// Per brick: the `epoch` that last listed it in `changed`.
+    changed_in: Vec<u32>,
+    /// Number of times `changed` was taken (by an iteration) plus one.
+    epoch: u32,
     iteration: u32,
     /// Born edges by the iteration at which they become constrained.
     waiting: Vec<Vec<Waiting>>,
@@ -392,7 +481,6 @@ pub struct Thinning<'a> {
     /// Work (brick visits weighted by [`Work`]) below which a pass runs on the calling
     /// thread.
     min_parallel_work: usize,
-    kinds: Vec<Vec<Kind>>,
     pub stats: ThinningStats,
 }
 
@@ -446,13 +534,23 @@ impl<'a> Thinning<'a> {
         t.for_each(&real, Work::Heavy, |b| {
             let mut word = 0u64;
             let base = layout.coords(b, 0);
-            for bit in 0..64u32 {
-                let c = [bit & 3, (bit >> 2) & 3, bit >> 4].map(|o| o as usize);
-                let v: [usize; 3] = [0, 1, 2].map(|a| base[a] + c[a]);
-                if (0..3).all(|a| v[a] >= 1 && v[a] <= dims[a]) {
-                    let k = (v[0] - 1) + dims[0] * ((v[1] - 1) + dims[1] * (v[2] - 1));
-                    if !occupied.get(k) {
-                        word |= 1 << bit;
+            let inside = |a: usize, v: usize| v >= 1 && v <= dims[a];
+            for z in 0..4 {
+                let vz = base[2] + z;
+                if !inside(2, vz) {
+                    continue;
+                }
+                for y in 0..4 {
+                    let vy = base[1] + y;
+                    if !inside(1, vy) {
+                        continue;
+                    }
+                    let row = dims[0] * ((vy - 1) + dims[1] * (vz - 1));
+                    for x in 0..4 {
+                        let vx = base[0] + x;
+                        if inside(0, vx) && !occupied.get(row + vx - 1) {
+                            word |= 1 << (x + 4 * y + 16 * z);
+                        }
                     }
                 }
             }
@@ -500,9 +598,12 @@ impl<'a> Thinning<'a> {
             border: Planes::new(n),
             masks: Planes::new(n),
             changed: Vec::new(),
-            stamp: vec![0; n],
-            real: (0..n).map(|b| layout.real(b)).collect(),
+            stamp: (0..n)
+                .map(|b| if layout.real(b) { 0 } else { u32::MAX })
+                .collect(),
             mark: 0,
+            changed_in: vec![0; n],
+            epoch: 1,
             iteration: 0,
             waiting: Vec::new(),
             birth: record_dates.then(|| vec![NEVER; 3 * vertices]),
@@ -514,7 +615,6 @@ impl<'a> Thinning<'a> {
                 0
             },
             min_parallel_work: MIN_PARALLEL_WORK,
-            kinds: sub_step_kinds(),
             stats: ThinningStats::default(),
         }
     }
@@ -569,13 +669,22 @@ impl<'a> Thinning<'a> {
     /// The real bricks of `list` shifted by each of `offsets`, without duplicates (sorted, for
     /// memory locality, if `sorted`).
     fn dilate(&mut self, list: &[u32], offsets: &[isize], sorted: bool) -> Vec<u32> {
+        if self.mark == u32::MAX - 1 {
+            // Marks wrapped (some 10^9 lists): forget them.
+            self.stamp
+                .iter_mut()
+                .filter(|s| **s != u32::MAX)
+                .for_each(|s| *s = 0);
+            self.mark = 0;
+        }
         self.mark += 1;
         let mark = self.mark;
         let mut out = Vec::with_capacity(list.len() * 2);
         for &b in list {
             for &o in offsets {
                 let c = (b as isize + o) as usize;
-                if self.stamp[c] != mark && self.real[c] {
+                // Earlier marks are smaller; padding (u32::MAX) is never taken.
+                if self.stamp[c] < mark {
                     self.stamp[c] = mark;
                     out.push(c as u32);
                 }
@@ -585,6 +694,18 @@ impl<'a> Thinning<'a> {
             out.sort_unstable();
         }
         out
+    }
+
+    /// Lists bricks whose cells changed for the next iteration, once each (per `epoch`: the
+    /// changes made since the last iteration took the list).
+    fn note_changed(&mut self, bricks: &[u32]) {
+        let m = self.epoch;
+        for &b in bricks {
+            if self.changed_in[b as usize] != m {
+                self.changed_in[b as usize] = m;
+                self.changed.push(b);
+            }
+        }
     }
 
     /// The complex (converted from the brick planes).
@@ -782,6 +903,7 @@ impl<'a> Thinning<'a> {
         let (sx, sy, sz) = (step[0] as isize, step[1] as isize, step[2] as isize);
         // A: the bricks holding faces of cells removed since the last iteration began.
         let changed = std::mem::take(&mut self.changed);
+        self.epoch += 1;
         let active = self.dilate(&changed, &[0, sx, sy, sz], true);
         self.births(&active, l - 1, l);
         self.apply_constraints(l);
@@ -790,25 +912,16 @@ impl<'a> Thinning<'a> {
         let (cells, inhibit, free) = (&self.cells, &self.inhibit, &self.free);
         let any_free = self.filter(&active, Work::Heavy, |b| {
             let mut any = 0;
-            for g in 0..7usize {
-                let present = cells.get(b, g) & !inhibit.get(b, g);
-                if present == 0 {
-                    continue;
-                }
-                let (mut one, mut two) = (0u64, 0u64);
-                for &(up, at) in cofaces(g) {
-                    let c = if at == 3 {
-                        cells.get(b, up)
-                    } else {
-                        back(cells, b, up, at, &step)
-                    };
-                    two |= one & c;
-                    one |= c;
-                }
-                let f = present & one & !two;
-                free.set(b, g, f);
-                any |= f;
+            macro_rules! spans {
+                ($($g:literal)*) => {$(
+                    let f = free_faces::<$g>(cells, inhibit, b, &step);
+                    if f != 0 {
+                        free.set(b, $g, f);
+                        any |= f;
+                    }
+                )*};
             }
+            spans!(0 1 2 3 4 5 6);
             any != 0
         });
         if any_free.is_empty() {
@@ -820,18 +933,15 @@ impl<'a> Thinning<'a> {
         let with_cofaces = self.dilate(&any_free, &[0, -sx, -sy, -sz], false);
         let (cells, free, border) = (&self.cells, &self.free, &self.border);
         self.for_each(&with_cofaces, Work::Heavy, |b| {
-            for f in 1..8usize {
-                let present = cells.get(b, f);
-                if present == 0 {
-                    continue;
-                }
-                let mut has_free_face = 0;
-                for a in (0..3).filter(|a| f & (1 << a) != 0) {
-                    let g = f & !(1 << a);
-                    has_free_face |= free.get(b, g) | fwd(free, b, g, a, &step);
-                }
-                border.set(b, f, present & has_free_face);
+            macro_rules! spans {
+                ($($f:literal)*) => {$(
+                    let w = cofaces_of_free::<$f>(cells, free, b, &step);
+                    if w != 0 {
+                        border.set(b, $f, w);
+                    }
+                )*};
             }
+            spans!(1 2 3 4 5 6 7);
         });
         // The closure only reaches further than C through faces of cubes and squares of C:
         // one brick forward per dimension stepped down.
@@ -861,16 +971,18 @@ impl<'a> Thinning<'a> {
         let border = &self.border;
         for dim in (1..top_dim).rev() {
             self.for_each(&closure, Work::Heavy, |b| {
-                for span in (1..7usize).filter(|s| s.count_ones() == dim) {
-                    let mut w = border.get(b, span);
-                    for &(up, at) in cofaces(span) {
-                        w |= if at == 3 {
-                            border.get(b, up)
-                        } else {
-                            back(border, b, up, at, &step)
-                        };
-                    }
-                    border.set(b, span, w);
+                macro_rules! spans {
+                    ($($s:literal)*) => {$(
+                        let w = closed_up::<$s>(border, b, &step);
+                        if w != 0 {
+                            border.set(b, $s, w);
+                        }
+                    )*};
+                }
+                if dim == 2 {
+                    spans!(3 5 6);
+                } else {
+                    spans!(1 2 4);
                 }
             });
         }
@@ -899,7 +1011,7 @@ impl<'a> Thinning<'a> {
             }
         }
 
-        for s in 0..self.kinds.len() {
+        for s in 0..KINDS.0.len() {
             let removed = self.sub_step(s, l, &by_coface);
             if let Some(obs) = observer.as_mut() {
                 obs(
@@ -937,79 +1049,103 @@ impl<'a> Thinning<'a> {
     /// containing t with one edge, and never touches the cells the other kind's test reads), so
     /// taking them one after the other equals taking them at once. Returns the number of pairs.
     fn sub_step(&mut self, s: usize, l: u32, by_coface: &[Vec<u32>; 8]) -> usize {
-        let axis = s / 6;
-        let positive = (s / 3) % 2 == 1;
+        macro_rules! dispatch {
+            ($($s:literal)*) => {
+                match s {
+                    $($s => {
+                        let first = self.remove_kind::<$s, 0>(l, by_coface);
+                        first + self.remove_kind::<$s, 1>(l, by_coface)
+                    })*
+                    _ => unreachable!("18 sub-steps"),
+                }
+            };
+        }
+        let removed = dispatch!(0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17);
+        self.stats.pairs_removed += removed as u64;
+        removed
+    }
+
+    /// Pair kind `K` of sub-step `S` (see [`Thinning::sub_step`]); 0 if the sub-step has no
+    /// such kind. Generic so that the kind's spans and axis are constants.
+    fn remove_kind<const S: usize, const K: usize>(
+        &mut self,
+        l: u32,
+        by_coface: &[Vec<u32>; 8],
+    ) -> usize {
+        if K >= KINDS.1[S] {
+            return 0;
+        }
+        let (kind, axis, positive) = const { (KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
         let step = self.layout.step;
         let o = step[axis] as isize;
         let mut removed = 0;
-        for k in 0..self.kinds[s].len() {
-            let kind = self.kinds[s][k];
-            if by_coface[kind.f].is_empty() {
-                continue;
-            }
-            // g lies at f's vertex, or one step forward.
-            let candidates = if positive {
-                self.dilate(&by_coface[kind.f], &[0, o], false)
-            } else {
-                by_coface[kind.f].clone()
-            };
-            let (cells, inhibit, border, masks) =
-                (&self.cells, &self.inhibit, &self.border, &self.masks);
-            let with_pairs = self.filter(&candidates, Work::Light, |b| {
-                let mut m = cells.get(b, kind.g) & !inhibit.get(b, kind.g);
-                if m != 0 {
-                    m &= if positive {
-                        back(cells, b, kind.f, axis, &step) & back(border, b, kind.f, axis, &step)
-                    } else {
-                        cells.get(b, kind.f) & border.get(b, kind.f)
-                    };
-                }
-                for &(up, at) in &kind.others[..kind.n_others] {
-                    if m == 0 {
-                        break;
-                    }
-                    m &= !if at == 3 {
-                        cells.get(b, up)
-                    } else {
-                        back(cells, b, up, at, &step)
-                    };
-                }
-                masks.set(b, 0, m);
-                m != 0
-            });
-            // Bricks with an f to clear: f lies at g's vertex or one step back.
-            let touched = if positive {
-                self.dilate(&with_pairs, &[0, -o], false)
-            } else {
-                with_pairs.clone()
-            };
-            let (cells, masks) = (&self.cells, &self.masks);
-            self.for_each(&touched, Work::Light, |b| {
-                let m = masks.get(b, 0);
-                cells.clear(b, kind.g, m);
-                let fm = if positive {
-                    fwd(masks, b, 0, axis, &step)
-                } else {
-                    m
-                };
-                cells.clear(b, kind.f, fm);
-            });
-            for &b in &with_pairs {
-                let b = b as usize;
-                let m = self.masks.get(b, 0);
-                removed += m.count_ones() as usize;
-                if self.death.is_some() {
-                    for bit in bits(m) {
-                        self.record_removal(b, bit, &kind, axis, positive, l);
-                    }
-                }
-            }
-            for &b in &candidates {
-                self.masks.set(b as usize, 0, 0);
-            }
-            self.changed.extend_from_slice(&touched);
+        if by_coface[kind.f].is_empty() {
+            return 0;
         }
-        self.stats.pairs_removed += removed as u64;
+        // g lies at f's vertex, or one step forward.
+        let candidates = if positive {
+            self.dilate(&by_coface[kind.f], &[0, o], false)
+        } else {
+            by_coface[kind.f].clone()
+        };
+        let (cells, inhibit, border, masks) =
+            (&self.cells, &self.inhibit, &self.border, &self.masks);
+        let with_pairs = self.filter(&candidates, Work::Light, |b| {
+            // Constants here, not captured: the closure body then folds the kind's spans.
+            let (kind, axis, positive) = const { (KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
+            let mut m = cells.get(b, kind.g) & !inhibit.get(b, kind.g);
+            if m != 0 {
+                m &= if positive {
+                    back(cells, b, kind.f, axis, &step) & back(border, b, kind.f, axis, &step)
+                } else {
+                    cells.get(b, kind.f) & border.get(b, kind.f)
+                };
+            }
+            for &(up, at) in &kind.others[..kind.n_others] {
+                if m == 0 {
+                    break;
+                }
+                m &= !if at == 3 {
+                    cells.get(b, up)
+                } else {
+                    back(cells, b, up, at, &step)
+                };
+            }
+            masks.set(b, 0, m);
+            m != 0
+        });
+        // Bricks with an f to clear: f lies at g's vertex or one step back.
+        let touched = if positive {
+            self.dilate(&with_pairs, &[0, -o], false)
+        } else {
+            with_pairs.clone()
+        };
+        let (cells, masks) = (&self.cells, &self.masks);
+        self.for_each(&touched, Work::Light, |b| {
+            let (kind, axis, positive) = const { (KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
+            let m = masks.get(b, 0);
+            cells.clear(b, kind.g, m);
+            let fm = if positive {
+                fwd(masks, b, 0, axis, &step)
+            } else {
+                m
+            };
+            cells.clear(b, kind.f, fm);
+        });
+        for &b in &with_pairs {
+            let b = b as usize;
+            let m = self.masks.get(b, 0);
+            removed += m.count_ones() as usize;
+            if self.death.is_some() {
+                for bit in bits(m) {
+                    self.record_removal(b, bit, &kind, axis, positive, l);
+                }
+            }
+        }
+        for &b in &candidates {
+            self.masks.set(b as usize, 0, 0);
+        }
+        self.note_changed(&touched);
         removed
     }
 
@@ -1061,12 +1197,28 @@ impl<'a> Thinning<'a> {
         }
     }
 
+    /// The present squares as (internal vertex, span), sorted by vertex and then span (3, 5,
+    /// 6): read from the brick planes, so a pierce round costs O(bricks + squares) rather than
+    /// a pass over every lattice vertex.
+    fn squares(&self) -> Vec<(u32, u8)> {
+        let mut squares = Vec::new();
+        for b in 0..self.layout.bricks() {
+            for span in [3u8, 5, 6] {
+                for bit in bits(self.cells.get(b, span as usize)) {
+                    squares.push((self.vertex_index(b, bit) as u32, span));
+                }
+            }
+        }
+        squares.sort_unstable();
+        squares
+    }
+
     /// Pierces every surface part once (see the module docs). `priority` is a per-voxel map
     /// (larger = pierce there first; e.g. the squared Euclidean distance). Returns the number
     /// of squares removed (0 when no square is left).
     pub fn pierce(&mut self, priority: Option<&[u32]>) -> usize {
-        let complex = self.complex();
-        let Some((chosen, forced)) = choose_pierced_squares(&complex, priority) else {
+        let squares = self.squares();
+        let Some((chosen, forced)) = choose_pierced_squares(self.dims, &squares, priority) else {
             return 0;
         };
         self.stats.pierce_rounds += 1;
@@ -1082,7 +1234,7 @@ impl<'a> Thinning<'a> {
             ];
             let (b, bit) = self.layout.locate(c);
             self.cells.clear(b, span as usize, 1 << bit);
-            self.changed.push(b as u32);
+            self.note_changed(&[b as u32]);
             if let Some(death) = &mut self.death {
                 death[8 * v + span as usize] = l;
             }
@@ -1102,42 +1254,38 @@ impl<'a> Thinning<'a> {
 }
 
 /// The squares to pierce in a complex without cubes (see the module docs): one per surface
-/// part, as (internal vertex, span), and how many of them were forced. `None` if the complex
-/// has no square.
+/// part, as (internal vertex, span), and how many of them were forced. `squares` lists every
+/// square of the complex (internal vertex index of a complex of voxel dims `dims`, sorted by
+/// vertex, then span 3, 5, 6). `None` if there is no square.
 fn choose_pierced_squares(
-    complex: &Complex,
+    dims: [usize; 3],
+    squares: &[(u32, u8)],
     priority: Option<&[u32]>,
 ) -> Option<(Vec<(u32, u8)>, u64)> {
-    use super::complex::{UnionFind, SQUARES};
-    let bits = complex.bytes();
-    let squares: Vec<(u32, u8)> = bits
-        .iter()
-        .enumerate()
-        .filter(|(_, &b)| b & SQUARES != 0)
-        .flat_map(|(i, &b)| {
-            [3u8, 5, 6]
-                .into_iter()
-                .filter(move |&span| b & SPAN_BIT[span as usize] != 0)
-                .map(move |span| (i as u32, span))
-        })
-        .collect();
+    use super::complex::UnionFind;
     if squares.is_empty() {
         return None;
     }
+    let size = dims.map(|d| d + 2);
+    let len = size[0] * size[1] * size[2];
+    // The square bits per vertex, and the first index of each vertex's squares plus one (0 =
+    // none). Zeroed allocations: only the pages around the squares are ever touched.
+    let mut bits = vec![0u8; len];
+    let mut first = vec![0u32; len];
+    for (k, &(v, span)) in squares.iter().enumerate().rev() {
+        bits[v as usize] |= SPAN_BIT[span as usize];
+        first[v as usize] = k as u32 + 1;
+    }
     // Index of a present square: the first index of its vertex plus its rank there (the list
     // is sorted by vertex, then span 3, 5, 6).
-    let mut first = vec![u32::MAX; complex.len()];
-    for (k, &(v, _)) in squares.iter().enumerate().rev() {
-        first[v as usize] = k as u32;
-    }
     let index = |v: usize, span: u8| -> usize {
         let below = [3u8, 5, 6]
             .iter()
             .filter(|&&t| t < span && bits[v] & SPAN_BIT[t as usize] != 0)
             .count();
-        first[v] as usize + below
+        first[v] as usize - 1 + below
     };
-    let s = complex.stride();
+    let s = [1, size[0], size[0] * size[1]];
     // Surface parts: squares joined through shared edges.
     let mut parts = UnionFind::new(squares.len());
     for (k, &(v, span)) in squares.iter().enumerate() {
@@ -1156,14 +1304,18 @@ fn choose_pierced_squares(
             }
         }
     }
-    drop(first);
-    let dims = complex.dims();
-    let (runs, mut sides) = ComplementRuns::new(dims.map(|d| d + 2), &squares);
+    drop((bits, first));
+    let (runs, mut sides) = ComplementRuns::new(size, squares);
+    // Priority of a cube position (internal vertex v is the cube of voxel v - 1).
     let prio = |cube: usize| -> u32 {
         let Some(p) = priority else { return 0 };
-        let c = complex.coords(cube);
-        if (0..3).all(|a| c[a] >= 0 && (c[a] as usize) < dims[a]) {
-            p[c[0] as usize + dims[0] * (c[1] as usize + dims[1] * c[2] as usize)]
+        let c = [
+            cube % size[0],
+            (cube / size[0]) % size[1],
+            cube / (size[0] * size[1]),
+        ];
+        if (0..3).all(|a| c[a] >= 1 && c[a] <= dims[a]) {
+            p[(c[0] - 1) + dims[0] * ((c[1] - 1) + dims[1] * (c[2] - 1))]
         } else {
             0
         }
