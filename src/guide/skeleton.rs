@@ -791,7 +791,11 @@ fn bottleneck(graph: &Graph, tree: &ShortestPaths, k: usize) -> Option<(Vec3, f3
     while tree.next[current as usize] != u32::MAX && steps < MAX_BOTTLENECK_SEARCH {
         current = tree.next[current as usize];
         let n = &graph.nodes[current as usize];
-        if best.is_none_or(|(_, r, _, _)| n.radius < r) {
+        let narrower = match best {
+            Some((_, r, _, _)) => n.radius < r,
+            None => true,
+        };
+        if narrower {
             let after = tree.next[current as usize];
             let ahead = if after == u32::MAX {
                 n.position
