@@ -23,7 +23,8 @@ use common::sphere::SphereGrid;
 use glam::DVec3;
 use lacuna::compare::{compare, Contender};
 use lacuna::guide::{
-    sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonGuideSettings, SkeletonStrength,
+    sample_bsdf_or_guide, GuideQuery, LobeAim, SkeletonGuide, SkeletonGuideSettings,
+    SkeletonStrength,
 };
 use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::math::{Frame, Rgb, Rng, Vec3};
@@ -253,6 +254,7 @@ fn queries_drop_lobes_below_the_surface_and_hidden_importance_points() {
             &scene,
             SkeletonGuideSettings {
                 visibility_test,
+                aim: LobeAim::ImportancePoint,
                 ..Default::default()
             },
         );
@@ -272,7 +274,10 @@ fn queries_drop_lobes_below_the_surface_and_hidden_importance_points() {
                 for b in &lobes[i + 1..] {
                     assert!(a.probability >= b.probability, "node {node}: not sorted");
                     assert!(
-                        a.point != b.point || a.radius != b.radius,
+                        a.point != b.point
+                            || a.radius != b.radius
+                            || a.opening != b.opening
+                            || a.opening_radius != b.opening_radius,
                         "node {node}: two equal lobes"
                     );
                 }
@@ -334,6 +339,131 @@ fn queries_drop_lobes_below_the_surface_and_hidden_importance_points() {
             assert!(kept_hidden > 0);
         }
     }
+}
+
+/// With `aim=opening` each lobe aims at its path's opening where the point sees it (above the
+/// surface, unoccluded), else at its importance point where the point sees that, else is
+/// dropped: the per-point rule, decided before sampling, on the Veach door.
+#[test]
+fn queries_aim_at_the_opening_where_the_point_sees_it() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let guide = guide_of(
+        &scene,
+        SkeletonGuideSettings {
+            aim: LobeAim::Opening,
+            ..Default::default()
+        },
+    );
+    let sees = |p: Vec3, p_error: Vec3, side: Vec3, target: Vec3| -> Option<Vec3> {
+        let to = target - p;
+        let axis = to.normalize();
+        if axis.dot(side) <= 0.0 {
+            return None;
+        }
+        let origin = lacuna::geometry::offset_ray_origin(p, p_error, side, axis);
+        let ray = lacuna::geometry::Ray::new(
+            origin,
+            axis,
+            to.length() * (1.0 - lacuna::geometry::SHADOW_EPSILON),
+        );
+        (!scene.occluded(&ray)).then_some(axis)
+    };
+    let (mut at_opening, mut at_point) = (0, 0);
+    let mut q = GuideQuery::new();
+    for (p, p_error, ng, wo) in surface_points(&scene, 3000, 17) {
+        q.init(&guide, &scene, p, p_error, ng, wo);
+        let Some(node) = q.node() else {
+            continue;
+        };
+        let side = if ng.dot(wo) >= 0.0 { ng } else { -ng };
+        let mut expected = Vec::new();
+        for lobe in guide.lobes(node) {
+            let has_opening = lobe.opening != lobe.point || lobe.opening_radius != lobe.radius;
+            if let Some(axis) = has_opening
+                .then(|| sees(p, p_error, side, lobe.opening))
+                .flatten()
+            {
+                expected.push(axis);
+                at_opening += 1;
+            } else if let Some(axis) = sees(p, p_error, side, lobe.point) {
+                expected.push(axis);
+                at_point += 1;
+            }
+        }
+        assert_eq!(q.lobe_count(), expected.len(), "at {p}");
+        for (i, axis) in expected.iter().enumerate() {
+            let (got, _, _) = q.lobe(i).unwrap();
+            assert!(
+                got.dot(*axis) > 1.0 - 1e-5,
+                "at {p}: lobe {i} {got} not {axis}"
+            );
+        }
+    }
+    assert!(
+        at_opening > 100 && at_point > 100,
+        "{at_opening} lobes at openings, {at_point} at importance points"
+    );
+}
+
+/// Camera-room points of the two rooms (z > 0; the far room is z < -0.1) where the guide
+/// applies, and how many of them have a lobe whose axis, traced from the point, first hits
+/// the far room: a lobe aimed through the doorway.
+fn lobes_through_the_doorway(scene: &Scene, aim: LobeAim) -> (u32, u32) {
+    let guide = guide_of(
+        scene,
+        SkeletonGuideSettings {
+            aim,
+            ..Default::default()
+        },
+    );
+    let mut q = GuideQuery::new();
+    let (mut guided, mut through) = (0, 0);
+    for (p, p_error, ng, wo) in surface_points(scene, 6000, 21) {
+        if p.z < 0.01 {
+            continue;
+        }
+        q.init(&guide, scene, p, p_error, ng, wo);
+        if q.lobe_count() == 0 {
+            continue;
+        }
+        guided += 1;
+        let side = if ng.dot(wo) >= 0.0 { ng } else { -ng };
+        let aims_through = (0..q.lobe_count()).any(|i| {
+            let (axis, _, _) = q.lobe(i).unwrap();
+            let origin = lacuna::geometry::offset_ray_origin(p, p_error, side, axis);
+            let ray = lacuna::geometry::Ray::new(origin, axis, f32::INFINITY);
+            scene.intersect(&ray).is_some_and(|hit| hit.p.z < -0.1)
+        });
+        through += aims_through as u32;
+    }
+    (guided, through)
+}
+
+/// The importance point of eq. 162 averages the path prefix visible from the *node*, which in
+/// the camera room ends before the door: its lobes aim at a point inside the camera room. With
+/// `aim=opening` a point that sees the path's bottleneck (the narrow free space behind the
+/// ajar door panel) aims at it, through the doorway.
+#[test]
+fn lobes_aim_through_the_door_opening() {
+    let scene = two_rooms_builder().unwrap().build().unwrap();
+    let (guided_point, through_point) = lobes_through_the_doorway(&scene, LobeAim::ImportancePoint);
+    let (guided_opening, through_opening) = lobes_through_the_doorway(&scene, LobeAim::Opening);
+    eprintln!(
+        "importance point: {through_point} of {guided_point} guided camera-room points aim \
+         through the doorway; opening: {through_opening} of {guided_opening}"
+    );
+    // Which lobes apply is decided per point; the same points are guided either way (a lobe
+    // whose opening is hidden falls back to the importance point, tested as before).
+    assert!(guided_opening > 1000, "{guided_opening} guided points");
+    assert!(
+        through_opening as f64 > 1.4 * through_point as f64,
+        "aiming at the opening: {through_opening} points aim through the doorway, \
+         against {through_point} aiming at the importance point"
+    );
+    assert!(
+        3 * through_opening > guided_opening,
+        "only {through_opening} of {guided_opening} points aim through the doorway"
+    );
 }
 
 fn quad(b: &mut SceneBuilder, p: [Vec3; 4], m: u32) {

@@ -16,6 +16,7 @@ mod skeleton;
 
 pub use mixture::{sample_bsdf_or_guide, MixtureSample};
 pub use skeleton::{
-    GuideLobe, GuideQuery, ImportanceNode, SkeletonGuide, SkeletonGuideSettings, SkeletonStrength,
-    DEFAULT_AUTO_MAX, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH, OPTION_NAMES,
+    GuideLobe, GuideQuery, ImportanceNode, LobeAim, SkeletonGuide, SkeletonGuideSettings,
+    SkeletonStrength, DEFAULT_AUTO_MAX, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH,
+    OPTION_NAMES,
 };

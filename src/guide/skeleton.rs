@@ -26,6 +26,30 @@
 //!    one lobe evaluation per vertex instead of several (on the door, every way to the back
 //!    room leaves through the gap: 18.6 rays per sample became 10.5).
 //!
+//! # Aiming through the opening (a variant of eq. 162, `aim=opening`)
+//!
+//! The thesis motivates eq. 162 as "the point to aim at to get towards the importance node"
+//! (000 §9.3, 004). The centre of the prefix visible *from the node* is a good such point in
+//! open space, but where the way to the light leaves a room through a narrow opening it lies
+//! inside the room: the nodes beyond the opening are hidden from the node's position (the
+//! medial axis runs through the room's middle), so the prefix stops short and the lobes of
+//! the whole room converge on a point in its middle (the Veach door, BENCHMARKS.md "Why the
+//! door gains nothing"). What a surface point x should aim at is the opening itself, and what
+//! matters is whether *x* sees it, not whether the node does. So each lobe also keeps the
+//! path's **bottleneck**: the first node of smallest maximal-ball radius on the whole
+//! shortest path (after the node itself, at most `MAX_BOTTLENECK_SEARCH` nodes: a walk along
+//! the Dijkstra tree, no rays), provided the path narrows there (a ball at least
+//! `OPENING_NARROWING` times wider comes before it; a corridor has no opening), and the size
+//! of the opening there: the radius of the disc of its area across the path, measured with
+//! `OPENING_RAYS` rays at precomputation (a maximal ball measures only an opening's
+//! narrowest width, and the door's gap is a slit as tall as the door). At a point x with
+//! `aim=opening` the lobe aims at the bottleneck when x sees it (one shadow ray with the
+//! visibility test) and it is above the surface, with the automatic strength taken from that
+//! radius at the bottleneck's distance from x (the lobe as wide as the opening looks from
+//! x); otherwise it falls back to the importance point of eq. 162 (a second shadow ray). Which target a lobe takes is
+//! decided per point before any sampling, from x alone, so sampling and the pdf see the same
+//! mixture and the estimator stays unbiased whatever the aim.
+//!
 //! # Query ([`GuideQuery`])
 //!
 //! At a surface point x with geometric normal n and incident direction wo, x is mapped to its
@@ -178,6 +202,44 @@ pub struct SkeletonGuideSettings {
     /// Drop a lobe whose importance point is hidden from the shading point (one shadow ray
     /// per lobe per point).
     pub visibility_test: bool,
+    /// Where each lobe aims (see [`LobeAim`]). By default through the opening: on the Veach
+    /// door it lowers the error per sample by a fifth and the squared RMSE by 2.7x against
+    /// eq. 162's point, and the corridor (no opening) renders the same image
+    /// (BENCHMARKS.md, issue 8, round 4).
+    pub aim: LobeAim,
+}
+
+/// Where a lobe points from a surface point x.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LobeAim {
+    /// The skeleton importance point of eq. 162 (the centre of the path prefix visible from
+    /// the node), with the automatic strength from the narrowest ball of that prefix.
+    ImportancePoint,
+    /// A variant of eq. 162 (module docs, "Aiming through the opening"): the path's
+    /// bottleneck, its node of smallest maximal ball, when x sees it (one shadow ray), the
+    /// lobe as wide as that ball looks from x; else the importance point as above.
+    Opening,
+}
+
+impl LobeAim {
+    pub fn parse(text: &str) -> Result<Self> {
+        match text.trim() {
+            "point" | "importance_point" => Ok(LobeAim::ImportancePoint),
+            "opening" => Ok(LobeAim::Opening),
+            other => Err(Error::invalid(format!(
+                "skeleton aim '{other}' must be 'point' (eq. 162) or 'opening'"
+            ))),
+        }
+    }
+}
+
+impl std::fmt::Display for LobeAim {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            LobeAim::ImportancePoint => "point",
+            LobeAim::Opening => "opening",
+        })
+    }
 }
 
 impl Default for SkeletonGuideSettings {
@@ -192,6 +254,7 @@ impl Default for SkeletonGuideSettings {
             max_importance_nodes: 32,
             max_lobes: 4,
             visibility_test: true,
+            aim: LobeAim::Opening,
         }
     }
 }
@@ -206,13 +269,15 @@ pub const OPTION_NAMES: &[&str] = &[
     "importance_nodes",
     "lobes",
     "visibility",
+    "aim",
 ];
 
 impl SkeletonGuideSettings {
     /// Sets one option by name from text (integrator specs, scene files): `c_skel`,
     /// `strength` (a number, `auto` or `auto:MAX`), `resolution` (voxels along the longest
     /// axis), `voxel_budget` (most voxels in the grid), `light_rays`,
-    /// `importance_nodes`, `lobes`, `visibility` (true/false). Validates the result.
+    /// `importance_nodes`, `lobes`, `visibility` (true/false), `aim` (`point` or `opening`).
+    /// Validates the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
             value.trim().parse().map_err(|_| {
@@ -230,6 +295,7 @@ impl SkeletonGuideSettings {
             "light_rays" => next.light_rays = number(key, value)?,
             "importance_nodes" => next.max_importance_nodes = number(key, value)?,
             "lobes" => next.max_lobes = number(key, value)?,
+            "aim" => next.aim = LobeAim::parse(value)?,
             "visibility" => {
                 next.visibility_test = match value.trim() {
                     "true" | "1" => true,
@@ -318,6 +384,13 @@ pub struct GuideLobe {
     pub importance: u32,
     /// Graph distance to that importance node.
     pub distance: f32,
+    /// The path's bottleneck (module docs, "Aiming through the opening"): position of the
+    /// node of smallest maximal ball on the shortest path to the importance node, the node
+    /// itself excluded, and the radius of the disc with the area of the opening there
+    /// (measured across the path, at least the ball's). Equal to `point` and `radius` when
+    /// the path has no node after this one.
+    pub opening: Vec3,
+    pub opening_radius: f32,
 }
 
 /// What a guide was built from, to refuse rendering another scene with it.
@@ -694,6 +767,84 @@ fn visible(scene: &Scene, a: Vec3, b: Vec3) -> bool {
     !scene.occluded(&Ray::new(a, d / len, len * (1.0 - SHADOW_EPSILON)))
 }
 
+/// Longest stretch of a shortest path searched for its bottleneck (no rays are traced: a
+/// walk along the tree).
+const MAX_BOTTLENECK_SEARCH: u32 = 256;
+
+/// A path's narrowest ball is an opening when the path has passed a ball at least this many
+/// times wider before reaching it (a room narrowing into a door), not a corridor's small
+/// variations of width. On the Veach door the gap's ball (7.6) follows the camera room's
+/// (60.1): 7.9x; in the two rooms 8x; along the corridor at most 1.3x.
+const OPENING_NARROWING: f32 = 2.0;
+
+/// The bottleneck of the shortest path from node `k` in `tree`: position and radius of the
+/// first node of smallest maximal ball after `k` (radii are whole voxels, so ties are common:
+/// the first is the way into the narrow part), and the path's direction there (from the node
+/// before it to the node after it, or to it at the path's end). None when the path has no
+/// node after `k` or does not narrow by `OPENING_NARROWING` before its smallest ball.
+fn bottleneck(graph: &Graph, tree: &ShortestPaths, k: usize) -> Option<(Vec3, f32, Vec3)> {
+    let mut best: Option<(Vec3, f32, Vec3, f32)> = None;
+    let mut previous = graph.nodes[k].position;
+    let mut widest = graph.nodes[k].radius;
+    let mut current = k as u32;
+    let mut steps = 0;
+    while tree.next[current as usize] != u32::MAX && steps < MAX_BOTTLENECK_SEARCH {
+        current = tree.next[current as usize];
+        let n = &graph.nodes[current as usize];
+        let narrower = match best {
+            Some((_, r, _, _)) => n.radius < r,
+            None => true,
+        };
+        if narrower {
+            let after = tree.next[current as usize];
+            let ahead = if after == u32::MAX {
+                n.position
+            } else {
+                graph.nodes[after as usize].position
+            };
+            let along = (ahead - previous).normalize_or_zero();
+            best = Some((n.position, n.radius, along, widest));
+        }
+        widest = widest.max(n.radius);
+        previous = n.position;
+        steps += 1;
+    }
+    best.filter(|&(_, r, _, wider)| wider >= OPENING_NARROWING * r)
+        .map(|(at, r, along, _)| (at, r, along))
+}
+
+/// Rays cast across the path at a bottleneck to measure its opening.
+const OPENING_RAYS: u32 = 16;
+
+/// The radius of the disc with the area of the opening at `centre` across the path direction
+/// `along`: `OPENING_RAYS` rays in the plane normal to `along` (each at most `cap` long) give
+/// the opening's outline, a polygon of area `sum d_j d_(j+1) sin(2 pi / N) / 2`. A maximal
+/// ball measures an opening's narrowest width; the door's gap is a slit as tall as the door
+/// and a few voxels wide, which a lobe as wide as the ball would cover only a sliver of.
+/// At least `ball` (the opening is no smaller than its inscribed ball).
+fn opening_radius(scene: &Scene, centre: Vec3, along: Vec3, ball: f32, cap: f32) -> f32 {
+    if along == Vec3::ZERO {
+        return ball;
+    }
+    let frame = Frame::from_z(along);
+    let step = 2.0 * std::f32::consts::PI / OPENING_RAYS as f32;
+    let reach: Vec<f32> = (0..OPENING_RAYS)
+        .map(|j| {
+            let (sin, cos) = (j as f32 * step).sin_cos();
+            let dir = frame.to_world(Vec3::new(cos, sin, 0.0));
+            scene
+                .intersect(&Ray::new(centre, dir, cap))
+                .map_or(cap, |hit| hit.t)
+        })
+        .collect();
+    let area: f32 = (0..reach.len())
+        .map(|j| reach[j] * reach[(j + 1) % reach.len()])
+        .sum::<f32>()
+        * 0.5
+        * step.sin();
+    (area / std::f32::consts::PI).sqrt().max(ball)
+}
+
 /// The lobes of node `k`: selection weights (eq. 164-165) and importance points (eq. 162).
 fn node_lobes(
     scene: &Scene,
@@ -737,14 +888,20 @@ fn node_lobes(
             radius = radius.min(n.radius);
         }
         let point = sum / count as f32;
+        let (opening, opening_radius) = match bottleneck(graph, tree, k) {
+            Some((at, ball, along)) => (at, opening_radius(scene, at, along, ball, 16.0 * ball)),
+            None => (point, radius),
+        };
         let probability = (weight / total) as f32;
         // Shortest paths to several importance nodes often share their visible prefix (every
         // way out of a room goes through its door): their lobes are one lobe, and keeping them
         // apart would cost one shadow ray and one lobe evaluation each per vertex for nothing.
-        if let Some(same) = lobes
-            .iter_mut()
-            .find(|l| l.point == point && l.radius == radius)
-        {
+        if let Some(same) = lobes.iter_mut().find(|l| {
+            l.point == point
+                && l.radius == radius
+                && l.opening == opening
+                && l.opening_radius == opening_radius
+        }) {
             same.probability += probability;
             continue;
         }
@@ -754,6 +911,8 @@ fn node_lobes(
             probability,
             importance: i as u32,
             distance: tree.distance[k],
+            opening,
+            opening_radius,
         });
     }
     lobes.sort_by(|a, b| b.probability.total_cmp(&a.probability));
@@ -885,24 +1044,40 @@ impl GuideQuery {
         };
         let mut rays = 0;
         let mut total = 0.0f32;
-        for lobe in guide.lobes(node) {
-            let to = lobe.point - p;
+        // Axis and distance toward `target` when it is above the surface and, with the
+        // visibility test, seen from p.
+        let mut aim = |target: Vec3| -> Option<(Vec3, f32)> {
+            let to = target - p;
             let distance = to.length();
             let axis = to / distance;
             if !(distance > 0.0 && distance.is_finite()) || axis.dot(side) <= 0.0 {
-                continue;
+                return None;
             }
             if guide.settings.visibility_test {
                 rays += 1;
                 let origin = offset_ray_origin(p, p_error, side, axis);
                 let ray = Ray::new(origin, axis, distance * (1.0 - SHADOW_EPSILON));
                 if scene.occluded(&ray) {
-                    continue;
+                    return None;
                 }
             }
+            Some((axis, distance))
+        };
+        for lobe in guide.lobes(node) {
+            let through_opening = guide.settings.aim == LobeAim::Opening
+                && (lobe.opening != lobe.point || lobe.opening_radius != lobe.radius);
+            let opening = through_opening
+                .then(|| aim(lobe.opening))
+                .flatten()
+                .map(|(axis, distance)| (axis, distance, lobe.opening_radius));
+            let Some((axis, distance, radius)) = opening
+                .or_else(|| aim(lobe.point).map(|(axis, distance)| (axis, distance, lobe.radius)))
+            else {
+                continue;
+            };
             self.lobes[self.count] = ActiveLobe {
                 frame: Frame::from_z(axis),
-                exponent: guide.settings.strength.exponent(lobe.radius, distance),
+                exponent: guide.settings.strength.exponent(radius, distance),
                 probability: lobe.probability,
             };
             total += lobe.probability;

@@ -1,0 +1,120 @@
+//! Error per sample and cost per sample of integrators at a fixed sample count, independent
+//! of the machine's load (unlike `lacuna compare`'s equal-time runs): each spec renders the
+//! scene `SEEDS` times at `SPP` samples per pixel, and the program prints the median over
+//! seeds of MAE² x spp and RMSE² x spp against a reference (lower: a better estimator per
+//! sample; both are constant in spp for an unbiased estimator whose error is the reference's
+//! error-free variance), and the process's CPU time per sample (utime + stime from
+//! /proc/self/stat, all worker threads, precomputation excluded). MAE² x CPU seconds is then
+//! the equal-time figure of merit (lower is better) a quiet machine would show.
+//!
+//! `cargo run --release --example per_sample -- SCENE REFERENCE.exr WIDTH HEIGHT SPP SEEDS SPECS [MAX_DEPTH]`
+//! with SCENE a scene file or `corridor`, SPECS a comma-separated list of integrator specs
+//! (`path,path_skeleton:aim=opening`), MAX_DEPTH 8 by default. Linux only (/proc).
+
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+use lacuna::film::{image_errors, read_exr_rgb};
+use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::render::{prepare, render, RenderSettings};
+use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder};
+
+/// CPU seconds (user + system) this process has used, all threads.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").expect("/proc/self/stat");
+    // Fields after the command name (which is in parentheses and may hold spaces).
+    let rest = &stat[stat.rfind(')').expect("stat format") + 2..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of stat(5), 12 and 13 after the name and state.
+    let ticks: f64 = fields[11].parse::<f64>().unwrap() + fields[12].parse::<f64>().unwrap();
+    // In clock ticks of 1/100 s (_SC_CLK_TCK is 100 on Linux in practice).
+    ticks / 100.0
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    if args.len() < 8 {
+        eprintln!("usage: per_sample SCENE REFERENCE.exr WIDTH HEIGHT SPP SEEDS SPECS [MAX_DEPTH]");
+        std::process::exit(2);
+    }
+    let scene = match args[1].as_str() {
+        "corridor" => corridor_builder().unwrap().build().unwrap(),
+        "two-rooms" => two_rooms_builder().unwrap().build().unwrap(),
+        path => load_scene_file(Path::new(path))
+            .unwrap()
+            .builder
+            .build()
+            .unwrap(),
+    };
+    let reference = read_exr_rgb(Path::new(&args[2])).unwrap();
+    let width: u32 = args[3].parse().unwrap();
+    let height: u32 = args[4].parse().unwrap();
+    let spp: u32 = args[5].parse().unwrap();
+    let seeds: u64 = args[6].parse().unwrap();
+    let max_depth: u32 = args.get(8).map_or(8, |s| s.parse().unwrap());
+    assert_eq!(
+        (reference.width, reference.height),
+        (width, height),
+        "reference size"
+    );
+    let camera = *scene.camera().expect("scene camera");
+    println!(
+        "{} at {width}x{height}, {spp} spp x {seeds} seeds, max depth {max_depth}; medians over seeds",
+        args[1]
+    );
+    println!("| integrator | MAE | MAE² x spp | RMSE² x spp | CPU µs / sample | MAE² x CPU s |");
+    println!("|---|---|---|---|---|---|");
+    for spec in args[7].split(',') {
+        let settings = IntegratorSettings {
+            max_depth,
+            ..Default::default()
+        };
+        let mut integrator = integrator::create(spec, settings).unwrap();
+        prepare(integrator.as_mut(), &scene, None, &|_, _| true).unwrap();
+        let (mut mae2, mut rmse2, mut mae, mut cpu) = (vec![], vec![], vec![], vec![]);
+        for seed in 0..seeds {
+            let rs = RenderSettings {
+                width,
+                height,
+                spp,
+                seed: 1000 + seed,
+                ..Default::default()
+            };
+            let t = cpu_seconds();
+            let (film, _) = render(
+                &scene,
+                &camera,
+                integrator.as_ref(),
+                &rs,
+                &|_| true,
+                &AtomicBool::new(false),
+            )
+            .unwrap();
+            cpu.push(cpu_seconds() - t);
+            let e = image_errors(&film.radiance(), &reference.pixels).unwrap();
+            mae.push(e.mae);
+            mae2.push(e.mae * e.mae * spp as f64);
+            rmse2.push(e.rmse * e.rmse * spp as f64);
+        }
+        let samples = (width * height * spp) as f64;
+        let cpu = median(cpu);
+        let mae = median(mae);
+        println!(
+            "| {spec} | {mae:.3e} | {:.2} | {:.2} | {:.2} | {:.3e} |",
+            median(mae2),
+            median(rmse2),
+            cpu / samples * 1e6,
+            mae * mae * cpu
+        );
+    }
+}
