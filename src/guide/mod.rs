@@ -13,9 +13,11 @@
 
 mod mixture;
 mod skeleton;
+mod training;
 
 pub use mixture::{sample_bsdf_or_guide, MixtureSample};
 pub use skeleton::{
     GuideLobe, GuideQuery, ImportanceNode, SkeletonGuide, SkeletonGuideSettings, SkeletonStrength,
     DEFAULT_AUTO_MAX, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH, OPTION_NAMES,
 };
+pub use training::{TrainingReport, CANDIDATES, TRAINING_C};
