@@ -36,7 +36,7 @@ pub mod thinning;
 mod thinning_oracle;
 
 pub use complex::{diagonal_contacts, Betti, Complex};
-pub use map_cache::MapPointCache;
+pub use map_cache::{may_map_to, MapPointCache};
 pub use skeleton::{
     filter_skeleton, graph_from_complex, map_point, node_map, node_map_seeds, Filtered, Graph,
     Node, Skeleton, SkeletonMaps, SkeletonSettings, UNDEFINED_NODE,

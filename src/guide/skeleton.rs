@@ -50,7 +50,7 @@ use rayon::prelude::*;
 
 use super::training::{self, TrainingReport};
 use crate::analysis::{
-    map_point, Analysis, AnalysisSettings, Graph, MapPointCache, Resolution, Skeleton,
+    map_point, may_map_to, Analysis, AnalysisSettings, Graph, MapPointCache, Resolution, Skeleton,
     SkeletonSettings, StageTime, VoxelGrid,
 };
 use crate::error::{Error, Result};
@@ -374,6 +374,9 @@ pub struct SkeletonGuide {
     training: Option<TrainingReport>,
     /// Answers most `map_point` calls without the neighbourhood searches.
     map_cache: MapPointCache,
+    /// Per voxel: a point in it may map to a node with a guiding probability above 0 (see
+    /// `analysis::may_map_to`); queries elsewhere skip the mapping. Empty: everywhere.
+    may_guide: Vec<bool>,
     importance: Vec<ImportanceNode>,
     /// Nodes with a non-zero power estimate before the `max_importance_nodes` cut.
     importance_found: usize,
@@ -505,6 +508,7 @@ impl SkeletonGuide {
             ],
             training: None,
             map_cache,
+            may_guide: Vec::new(),
             importance,
             importance_found,
             raw_nodes: raw.nodes.len(),
@@ -517,6 +521,9 @@ impl SkeletonGuide {
             let report = training::learn_guiding_probabilities(&guide, scene);
             guide.node_c = report.probabilities.clone();
             guide.training = Some(report);
+            let node_c = &guide.node_c;
+            guide.may_guide =
+                may_map_to(&guide.grid, &guide.node_map, |n| node_c[n as usize] > 0.0);
             stage("guiding probabilities (training)", t, 1.0)?;
         }
         guide.timings = timings;
@@ -597,6 +604,19 @@ impl SkeletonGuide {
         self.node_c.get(node as usize).copied().unwrap_or(0.0)
     }
 
+    /// False when a point at `p` cannot map to a node with a guiding probability above 0
+    /// (then the query need not map it at all).
+    pub fn may_guide_at(&self, p: Vec3) -> bool {
+        if self.may_guide.is_empty() {
+            return true;
+        }
+        let v = self.grid.to_grid(p).map(|x| x.floor() as i64);
+        if (0..3).any(|a| v[a] < 0 || v[a] >= self.grid.dims[a] as i64) {
+            return true;
+        }
+        self.may_guide[self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
+    }
+
     /// The training pass's findings with `c_skel=learned`.
     pub fn training(&self) -> Option<&TrainingReport> {
         self.training.as_ref()
@@ -619,6 +639,7 @@ impl SkeletonGuide {
     pub fn memory_bytes(&self) -> usize {
         self.node_map.len() * 4
             + self.map_cache.memory_bytes()
+            + self.may_guide.len()
             + self.node_c.len() * 4
             + self.node_positions.len() * 16
             + self.lobe_start.len() * 4
@@ -933,6 +954,10 @@ impl GuideQuery {
         wo: Vec3,
     ) -> u32 {
         self.count = 0;
+        self.node = None;
+        if !guide.may_guide_at(p) {
+            return 0;
+        }
         self.node = guide.map_point(p, normal, wo);
         let Some(node) = self.node else {
             return 0;
@@ -982,7 +1007,9 @@ impl GuideQuery {
         rays
     }
 
-    /// The skeleton node of the last `init` (None outside the grid or in solid voxels).
+    /// The skeleton node of the last `init` (None outside the grid or in solid voxels, and
+    /// where the point cannot map to a node with a guiding probability above 0: there the
+    /// mapping is skipped).
     pub fn node(&self) -> Option<u32> {
         self.node
     }
