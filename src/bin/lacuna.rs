@@ -124,9 +124,9 @@ struct SceneArgs {
     #[arg(long)]
     focus_distance: Option<f32>,
     /// path_skeleton: probability c_skel of sampling the skeleton lobes instead of the BSDF,
-    /// in [0, 1) [default: 0.5].
+    /// in [0, 1), or `learned` (per node, from a training pass) [default: 0.5].
     #[arg(long)]
-    c_skel: Option<f32>,
+    c_skel: Option<String>,
     /// path_skeleton: skeleton strength s (power-cosine exponent): a number >= 0, `auto`
     /// (per point, from the free-space radius and the distance to the importance point) or
     /// `auto:MAX` [default: auto:64].
@@ -468,7 +468,7 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     }
     let skel = &mut integrator.skeleton;
     let options = [
-        ("c_skel", args.c_skel.map(|v| v.to_string())),
+        ("c_skel", args.c_skel.clone()),
         ("strength", args.skel_strength.clone()),
         ("resolution", args.skel_resolution.map(|v| v.to_string())),
         (

@@ -13,6 +13,7 @@
 
 mod mixture;
 mod skeleton;
+mod training;
 
 pub use mixture::{sample_bsdf_or_guide, MixtureSample};
 pub use skeleton::{
@@ -20,3 +21,4 @@ pub use skeleton::{
     SkeletonStrength, DEFAULT_AUTO_MAX, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH,
     OPTION_NAMES,
 };
+pub use training::{TrainingReport, CANDIDATES, TRAINING_C};

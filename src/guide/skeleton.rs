@@ -72,9 +72,10 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+use super::training::{self, TrainingReport};
 use crate::analysis::{
-    map_point, Analysis, AnalysisSettings, Graph, Resolution, Skeleton, SkeletonSettings,
-    StageTime, VoxelGrid,
+    map_point, may_map_to, Analysis, AnalysisSettings, Graph, MapPointCache, Resolution, Skeleton,
+    SkeletonSettings, StageTime, VoxelGrid,
 };
 use crate::error::{Error, Result};
 use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
@@ -184,7 +185,12 @@ pub const DEFAULT_AUTO_MAX: f32 = 64.0;
 pub struct SkeletonGuideSettings {
     /// Probability `c_skel` of sampling the skeleton lobes instead of the BSDF at a guided
     /// point (eq. 168-169), in [0, 1): 1 would leave directions no lobe reaches unsampled.
+    /// Used at every guided node unless `learned_c_skel`.
     pub c_skel: f32,
+    /// `c_skel=learned`: a probability per node, learned by a training pass from the scene's
+    /// camera (`guide::training`); 0 (not guided at all) where guiding is not measurably
+    /// better than BSDF sampling.
+    pub learned_c_skel: bool,
     pub strength: SkeletonStrength,
     /// Resolution of the analysis grid. By default a budget of 2^20 voxels: the thinning's
     /// time grows with the voxel count, so a budget bounds the precomputation whatever the
@@ -246,6 +252,7 @@ impl Default for SkeletonGuideSettings {
     fn default() -> Self {
         SkeletonGuideSettings {
             c_skel: 0.5,
+            learned_c_skel: false,
             strength: SkeletonStrength::Auto {
                 max: DEFAULT_AUTO_MAX,
             },
@@ -273,7 +280,8 @@ pub const OPTION_NAMES: &[&str] = &[
 ];
 
 impl SkeletonGuideSettings {
-    /// Sets one option by name from text (integrator specs, scene files): `c_skel`,
+    /// Sets one option by name from text (integrator specs, scene files): `c_skel` (a number
+    /// or `learned`),
     /// `strength` (a number, `auto` or `auto:MAX`), `resolution` (voxels along the longest
     /// axis), `voxel_budget` (most voxels in the grid), `light_rays`,
     /// `importance_nodes`, `lobes`, `visibility` (true/false), `aim` (`point` or `opening`).
@@ -288,7 +296,11 @@ impl SkeletonGuideSettings {
         }
         let mut next = *self;
         match key {
-            "c_skel" => next.c_skel = number(key, value)?,
+            "c_skel" if value.trim() == "learned" => next.learned_c_skel = true,
+            "c_skel" => {
+                next.c_skel = number(key, value)?;
+                next.learned_c_skel = false;
+            }
             "strength" | "s" => next.strength = SkeletonStrength::parse(value)?,
             "resolution" => next.resolution = Resolution::LongestAxis(number(key, value)?),
             "voxel_budget" => next.resolution = Resolution::VoxelBudget(number(key, value)?),
@@ -429,6 +441,15 @@ pub struct SkeletonGuide {
     /// Lobes of node k: `lobes[lobe_start[k]..lobe_start[k + 1]]`, by decreasing probability.
     lobe_start: Vec<u32>,
     lobes: Vec<GuideLobe>,
+    /// Probability of sampling the lobes at each node: `c_skel`, or learned per node.
+    node_c: Vec<f32>,
+    /// What the training pass of `c_skel=learned` found (None with a fixed `c_skel`).
+    training: Option<TrainingReport>,
+    /// Answers most `map_point` calls without the neighbourhood searches.
+    map_cache: MapPointCache,
+    /// Per voxel: a point in it may map to a node with a guiding probability above 0 (see
+    /// `analysis::may_map_to`); queries elsewhere skip the mapping. Empty: everywhere.
+    may_guide: Vec<bool>,
     importance: Vec<ImportanceNode>,
     /// Nodes with a non-zero power estimate before the `max_importance_nodes` cut.
     importance_found: usize,
@@ -500,6 +521,7 @@ impl SkeletonGuide {
             ..
         } = skeleton;
         let graph = filtered.graph;
+        let map_cache = MapPointCache::new(&grid, &node_map);
         stage("skeleton (thinning, filter, node map)", t, 0.7)?;
 
         let t = Instant::now();
@@ -538,9 +560,10 @@ impl SkeletonGuide {
             lobes.extend(l);
             lobe_start.push(lobes.len() as u32);
         }
-        stage("importance points (eq. 162)", t, 1.0)?;
+        stage("importance points (eq. 162)", t, 0.9)?;
 
-        Ok(SkeletonGuide {
+        let node_count = graph.nodes.len();
+        let mut guide = SkeletonGuide {
             settings: *settings,
             grid,
             node_map,
@@ -548,13 +571,36 @@ impl SkeletonGuide {
             node_radii: graph.nodes.iter().map(|n| n.radius).collect(),
             lobe_start,
             lobes,
+            node_c: vec![
+                if settings.learned_c_skel {
+                    training::TRAINING_C
+                } else {
+                    settings.c_skel
+                };
+                node_count
+            ],
+            training: None,
+            map_cache,
+            may_guide: Vec::new(),
             importance,
             importance_found,
             raw_nodes: raw.nodes.len(),
             edges: graph.edges.len(),
-            timings,
+            timings: Vec::new(),
             fingerprint: SceneFingerprint::of(scene),
-        })
+        };
+        if settings.learned_c_skel {
+            let t = Instant::now();
+            let report = training::learn_guiding_probabilities(&guide, scene);
+            guide.node_c = report.probabilities.clone();
+            guide.training = Some(report);
+            let node_c = &guide.node_c;
+            guide.may_guide =
+                may_map_to(&guide.grid, &guide.node_map, |n| node_c[n as usize] > 0.0);
+            stage("guiding probabilities (training)", t, 1.0)?;
+        }
+        guide.timings = timings;
+        Ok(guide)
     }
 
     pub fn settings(&self) -> &SkeletonGuideSettings {
@@ -613,9 +659,40 @@ impl SkeletonGuide {
         self.lobe_start.windows(2).filter(|w| w[1] > w[0]).count()
     }
 
-    /// Node of a surface point (eq. 151-155).
+    /// Node of a surface point (eq. 151-155); the per-voxel cache answers most calls, with
+    /// the same result as [`map_point_uncached`](Self::map_point_uncached).
     pub fn map_point(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<u32> {
+        self.map_cache
+            .map_point(&self.grid, &self.node_map, p, normal, incident)
+    }
+
+    /// [`analysis::map_point`](crate::analysis::map_point) itself, without the cache.
+    pub fn map_point_uncached(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<u32> {
         map_point(&self.grid, &self.node_map, p, normal, incident)
+    }
+
+    /// Probability of sampling the lobes at `node` (0 for nodes the guide does not know):
+    /// `c_skel`, or with `c_skel=learned` the node's learned probability.
+    pub fn guiding_probability(&self, node: u32) -> f32 {
+        self.node_c.get(node as usize).copied().unwrap_or(0.0)
+    }
+
+    /// False when a point at `p` cannot map to a node with a guiding probability above 0
+    /// (then the query need not map it at all).
+    pub fn may_guide_at(&self, p: Vec3) -> bool {
+        if self.may_guide.is_empty() {
+            return true;
+        }
+        let v = self.grid.to_grid(p).map(|x| x.floor() as i64);
+        if (0..3).any(|a| v[a] < 0 || v[a] >= self.grid.dims[a] as i64) {
+            return true;
+        }
+        self.may_guide[self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
+    }
+
+    /// The training pass's findings with `c_skel=learned`.
+    pub fn training(&self) -> Option<&TrainingReport> {
+        self.training.as_ref()
     }
 
     pub fn grid(&self) -> &VoxelGrid {
@@ -634,6 +711,9 @@ impl SkeletonGuide {
     /// Bytes held (node map, nodes, lobes).
     pub fn memory_bytes(&self) -> usize {
         self.node_map.len() * 4
+            + self.map_cache.memory_bytes()
+            + self.may_guide.len()
+            + self.node_c.len() * 4
             + self.node_positions.len() * 16
             + self.lobe_start.len() * 4
             + self.lobes.len() * std::mem::size_of::<GuideLobe>()
@@ -1020,8 +1100,9 @@ impl GuideQuery {
     /// zero if unknown), geometric normal `normal` (either orientation) and incident direction
     /// `wo` (unit, pointing from p back to where the path came from), within `scene` (the
     /// scene the guide was built for; used by the visibility test). Returns the shadow rays
-    /// traced. Afterwards [`guiding_probability`](Self::guiding_probability) is `c_skel`, or 0
-    /// when no lobe applies at p.
+    /// traced. Afterwards [`guiding_probability`](Self::guiding_probability) is the node's
+    /// probability (`c_skel`, or the learned one), or 0 when no lobe applies at p (or the
+    /// node's probability is 0: then no lobe is set up and no shadow ray traced).
     pub fn init(
         &mut self,
         guide: &SkeletonGuide,
@@ -1032,11 +1113,19 @@ impl GuideQuery {
         wo: Vec3,
     ) -> u32 {
         self.count = 0;
-        self.c_skel = guide.settings.c_skel;
+        self.node = None;
+        if !guide.may_guide_at(p) {
+            return 0;
+        }
         self.node = guide.map_point(p, normal, wo);
         let Some(node) = self.node else {
             return 0;
         };
+        // A node not worth guiding (learned c = 0) costs no lobe work and no shadow ray.
+        self.c_skel = guide.guiding_probability(node);
+        if self.c_skel <= 0.0 {
+            return 0;
+        }
         let side = if normal.dot(wo) >= 0.0 {
             normal
         } else {
@@ -1093,7 +1182,9 @@ impl GuideQuery {
         rays
     }
 
-    /// The skeleton node of the last `init` (None outside the grid or in solid voxels).
+    /// The skeleton node of the last `init` (None outside the grid or in solid voxels, and
+    /// where the point cannot map to a node with a guiding probability above 0: there the
+    /// mapping is skipped).
     pub fn node(&self) -> Option<u32> {
         self.node
     }

@@ -154,6 +154,24 @@ impl Integrator for PathTracer {
             guide.node_count(),
             guide.memory_bytes() as f64 / (1024.0 * 1024.0)
         )];
+        let mut notes = notes;
+        if let Some(t) = guide.training() {
+            let guided: Vec<f32> = t
+                .probabilities
+                .iter()
+                .copied()
+                .filter(|&c| c > 0.0)
+                .collect();
+            let trained = t.samples.iter().filter(|&&n| n > 0).count();
+            notes.push(format!(
+                "learned c_skel: {} of {} nodes guided ({} reached by {} training paths), mean c {:.2}",
+                guided.len(),
+                guide.node_count(),
+                trained,
+                t.paths,
+                guided.iter().sum::<f32>() / guided.len().max(1) as f32
+            ));
+        }
         let stages = guide.timings().to_vec();
         *slot = Some(Arc::new(guide));
         Ok(Precomputation { stages, notes })
