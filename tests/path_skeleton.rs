@@ -26,7 +26,7 @@ use lacuna::guide::{
     sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonGuideSettings, SkeletonStrength,
 };
 use lacuna::integrator::{self, IntegratorSettings};
-use lacuna::math::{Frame, Rgb, Rng, Vec3};
+use lacuna::math::{Frame, Rgb, Rng, Sampler, Vec3};
 use lacuna::render::{prepare, render, RenderSettings};
 use lacuna::scene::{
     corridor_builder, load_scene_file, two_rooms_builder, Bsdf, Camera, Material, MeshDesc, Scene,
@@ -60,7 +60,7 @@ fn chi2_directions(
     name: &str,
     grid: &SphereGrid,
     seed: u64,
-    mut sample: impl FnMut(&mut Rng) -> Option<Vec3>,
+    mut sample: impl FnMut(&mut Sampler) -> Option<Vec3>,
     pdf: impl Fn(Vec3) -> f64,
 ) -> f64 {
     let probs = grid.integrate(|w| pdf(to32(w)));
@@ -70,7 +70,7 @@ fn chi2_directions(
         "{name}: pdf integrates to {integral}"
     );
     let mut observed = vec![0u64; grid.cells() + 1];
-    let mut rng = Rng::new(seed, 77);
+    let mut rng = Sampler::independent(Rng::new(seed, 77));
     for _ in 0..SAMPLES {
         match sample(&mut rng) {
             Some(w) => observed[grid.cell_of(to64(w))] += 1,
