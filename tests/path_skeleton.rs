@@ -654,10 +654,7 @@ fn compare_counts_the_precomputation_in_the_budget() {
     // A coarse grid keeps the precomputation short even on a loaded machine.
     let mut contenders: Vec<Contender> = ["path", "path_skeleton:resolution=24"]
         .iter()
-        .map(|n| Contender {
-            label: n.to_string(),
-            integrator: integrator::create(n, settings).unwrap(),
-        })
+        .map(|n| Contender::from_spec(n, settings).unwrap())
         .collect();
     let rs = RenderSettings {
         width: 16,

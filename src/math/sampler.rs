@@ -128,7 +128,7 @@ impl Sampler {
                 let keys = slot_keys(*pixel_key, *dimension);
                 *dimension += 1;
                 let index = shuffle_index(*sample_index, keys.shuffle);
-                to_unit(owen_scramble_reversed(index, keys.x))
+                to_unit(owen_scramble_reversed(index, keys.x).reverse_bits())
             }
         }
     }
