@@ -69,8 +69,8 @@ pub unsafe extern "C" fn lacuna_render_job_run_reference(
 }
 
 /// Runs each of the `integrator_count` integrators named in `integrators` (names, or specs
-/// `name:key=value:...` as `lacuna compare --integrators` takes them, `sampler=` included) for the same
-/// wall-clock time `seconds_per_run` (> 0), `runs` times (>= 1), with the job's resolution,
+/// `name:key=value:...` as `lacuna compare --integrators` takes them, `sampler=` included)
+/// for the same wall-clock time `seconds_per_run` (> 0), `runs` times (>= 1), with the job's resolution,
 /// seed, depth, MIS heuristic, threads and camera, measuring errors against `reference` (a film
 /// of the job's resolution) after every pass; then writes the report into directory `out_dir`
 /// (created if needed): curves.csv, convergence.svg, summary.md, each integrator's final image

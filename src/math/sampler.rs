@@ -68,7 +68,9 @@ enum Kind {
     Sobol {
         /// Hash of (seed, pixel): the key of every slot's shuffle and scrambles.
         pixel_key: u64,
-        sample_index: u32,
+        /// The sample index with its bits reversed, as the shuffle takes it (once per sample
+        /// rather than once per request: bit reversal is a dozen instructions on x86-64).
+        reversed_index: u32,
         dimension: u32,
     },
 }
@@ -90,7 +92,7 @@ impl Sampler {
                         mix64(seed ^ SOBOL_DOMAIN)
                             ^ pixel_index.wrapping_mul(0x9E37_79B9_7F4A_7C15),
                     ),
-                    sample_index,
+                    reversed_index: sample_index.reverse_bits(),
                     dimension: 0,
                 },
             },
@@ -122,13 +124,12 @@ impl Sampler {
             Kind::Independent(rng) => rng.uniform(),
             Kind::Sobol {
                 pixel_key,
-                sample_index,
+                reversed_index,
                 dimension,
             } => {
                 let keys = slot_keys(*pixel_key, *dimension);
                 *dimension += 1;
-                let index = shuffle_index(*sample_index, keys.shuffle);
-                to_unit(owen_scramble_reversed(index, keys.x).reverse_bits())
+                to_unit(sobol_owen_1d(*reversed_index, keys))
             }
         }
     }
@@ -141,12 +142,12 @@ impl Sampler {
             Kind::Independent(rng) => rng.uniform2(),
             Kind::Sobol {
                 pixel_key,
-                sample_index,
+                reversed_index,
                 dimension,
             } => {
                 let keys = slot_keys(*pixel_key, *dimension);
                 *dimension += 1;
-                let (x, y) = sobol_owen_pair(*sample_index, keys);
+                let (x, y) = sobol_owen_pair(*reversed_index, keys);
                 Vec2::new(to_unit(x), to_unit(y))
             }
         }
@@ -171,13 +172,12 @@ impl Sampler {
             Kind::Independent(rng) => rng.next_u32(),
             Kind::Sobol {
                 pixel_key,
-                sample_index,
+                reversed_index,
                 dimension,
             } => {
                 let keys = slot_keys(*pixel_key, *dimension);
                 *dimension += 1;
-                let index = shuffle_index(*sample_index, keys.shuffle);
-                owen_scramble_reversed(index, keys.x).reverse_bits()
+                sobol_owen_1d(*reversed_index, keys)
             }
         }
     }
@@ -197,29 +197,42 @@ fn slot_keys(pixel_key: u64, dimension: u32) -> SlotKeys {
     SlotKeys {
         shuffle: h as u32,
         x: (h >> 32) as u32,
-        y: hash32(h as u32 ^ (h >> 32) as u32 ^ 0x68E3_1DA4),
+        // The high half of another odd multiple of the well-mixed h: a third key for the
+        // price of one multiplication.
+        y: (h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as u32,
     }
 }
 
-/// Points `sample_index` of slot `keys`: the shuffled index's Sobol dimensions 0 and 1, each
-/// Owen-scrambled with its own key, as 32-bit fractions.
+/// Value of a 1-D request: Sobol dimension 0 (van der Corput) of the shuffled index,
+/// Owen-scrambled, as a 32-bit fraction. `reversed_index` is the sample index bit-reversed.
 #[inline]
-fn sobol_owen_pair(sample_index: u32, keys: SlotKeys) -> (u32, u32) {
-    let index = shuffle_index(sample_index, keys.shuffle);
-    // Dimension 0 is the van der Corput sequence: its fraction bits are the index's bits
-    // reversed, so in reversed (least significant digit first) form it is the index itself.
-    let x = owen_scramble_reversed(index, keys.x);
-    let y = owen_scramble_reversed(sobol1_reversed(index), keys.y);
-    (x.reverse_bits(), y.reverse_bits())
+fn sobol_owen_1d(reversed_index: u32, keys: SlotKeys) -> u32 {
+    let index = shuffle_reversed_index(reversed_index, keys.shuffle);
+    // Van der Corput's fraction bits are the index's bits reversed, so in reversed (least
+    // significant digit first) form the point is the index itself.
+    owen_scramble_reversed(index, keys.x).reverse_bits()
 }
 
-/// Shuffles sample indices: a nested uniform scramble of the index where each bit is flipped
-/// by a hash of the bits *above* it. The first `2^m` indices go to `2^m` indices sharing
-/// their high bits (one aligned block), so a pixel's first `2^m` samples remain a (0,m,2)-net
-/// whatever the key, while different keys give different orders (decorrelating slots).
+/// Point of a 2-D request: Sobol dimensions 0 and 1 of the shuffled index, each
+/// Owen-scrambled with its own key, as 32-bit fractions.
 #[inline]
-fn shuffle_index(index: u32, key: u32) -> u32 {
-    laine_karras(index.reverse_bits(), key).reverse_bits()
+fn sobol_owen_pair(reversed_index: u32, keys: SlotKeys) -> (u32, u32) {
+    let index = shuffle_reversed_index(reversed_index, keys.shuffle);
+    let x = owen_scramble_reversed(index, keys.x);
+    let y = owen_scramble_reversed(sobol1_reversed(index), keys.y);
+    // Both back to fraction order with one 64-bit reversal (which also swaps the halves).
+    let both = ((y as u64) | ((x as u64) << 32)).reverse_bits();
+    (both as u32, (both >> 32) as u32)
+}
+
+/// Shuffles sample indices (given bit-reversed): a nested uniform scramble of the index where
+/// each bit is flipped by a hash of the bits *above* it. The first `2^m` indices go to `2^m`
+/// indices sharing their high bits (one aligned block), so a pixel's first `2^m` samples remain
+/// a (0,m,2)-net whatever the key, while different keys give different orders (decorrelating
+/// slots).
+#[inline]
+fn shuffle_reversed_index(reversed_index: u32, key: u32) -> u32 {
+    laine_karras(reversed_index, key).reverse_bits()
 }
 
 /// Owen scrambling of a fraction given in reversed form (bit 0 = the first binary digit
@@ -264,17 +277,6 @@ fn sobol1_reversed(index: u32) -> u32 {
 #[inline]
 fn to_unit(fraction: u32) -> f32 {
     (fraction >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
-}
-
-/// A 32-bit integer hash (Wellons' lowbias32), for deriving one key from another.
-#[inline]
-fn hash32(mut x: u32) -> u32 {
-    x ^= x >> 16;
-    x = x.wrapping_mul(0x7FEB_352D);
-    x ^= x >> 15;
-    x = x.wrapping_mul(0x846C_A68B);
-    x ^= x >> 16;
-    x
 }
 
 #[cfg(test)]
@@ -323,7 +325,9 @@ mod tests {
         let mut rng = Rng::new(8, 3);
         for m in 0..12 {
             let key = rng.next_u32();
-            let mut got: Vec<u32> = (0..1u32 << m).map(|i| shuffle_index(i, key)).collect();
+            let mut got: Vec<u32> = (0..1u32 << m)
+                .map(|i| shuffle_reversed_index(i.reverse_bits(), key))
+                .collect();
             got.sort_unstable();
             let base = got[0];
             assert_eq!(base % (1 << m), 0, "m {m}");
