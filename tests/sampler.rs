@@ -198,7 +198,9 @@ fn estimates(kind: SamplerKind, n: u32, pixels: u64, f: impl Fn(&mut Sampler) ->
 
 /// Test integrands with their exact integrals: a smooth 2-D one, a discontinuous 2-D one (a
 /// quarter disk) and a 1-D one.
-fn integrands() -> Vec<(&'static str, f64, fn(&mut Sampler) -> f64)> {
+type Integrand = fn(&mut Sampler) -> f64;
+
+fn integrands() -> Vec<(&'static str, f64, Integrand)> {
     vec![
         ("x e^x y", 0.5, |s| {
             let p = s.uniform2();
