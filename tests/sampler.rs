@@ -348,7 +348,7 @@ fn command_line_records_the_sampler() {
         (status, out)
     };
     for (arg, expected) in [
-        (None, "sobol"),
+        (None, "independent"),
         (Some("independent"), "independent"),
         (Some("sobol"), "sobol"),
     ] {
@@ -365,4 +365,24 @@ fn command_line_records_the_sampler() {
     assert!(!status.status.success());
     assert!(String::from_utf8_lossy(&status.stderr).contains("halton"));
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The delta-light box of tests/bdpt.rs (point, spot and directional lights beside the area
+/// light, no delta surfaces) at its settings, with 16 seeds per sampler.
+#[test]
+fn sobol_agrees_with_independent_under_delta_lights() {
+    let (scene, camera) = box_scene(false, true, true);
+    let settings = IntegratorSettings {
+        max_depth: 6,
+        ..Default::default()
+    };
+    let means = |kind| region_means_with(&scene, &camera, "path", settings, kind, 20, 16, 16);
+    let sobol = means(SOBOL);
+    let independent = means(SamplerKind::Independent);
+    eprintln!("sobol {sobol:?}\nindependent {independent:?}");
+    assert_agree(
+        "delta lights path",
+        ("sobol", &sobol),
+        ("independent", &independent),
+    );
 }

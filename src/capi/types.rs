@@ -238,9 +238,9 @@ pub enum lacuna_mis_heuristic {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum lacuna_sampler {
     /// Owen-scrambled Sobol points, stratified over each pixel's samples (best at powers of
-    /// two samples per pixel); the default.
+    /// two samples per pixel).
     Sobol = 0,
-    /// Independent random numbers per pixel sample.
+    /// Independent random numbers per pixel sample (the default).
     Independent = 1,
 }
 
