@@ -28,9 +28,9 @@ pub enum SamplerKind {
     /// Owen-scrambled Sobol (0,2)-sequence pairs, one per dimension slot: lower error per
     /// sample (BENCHMARKS.md, issue 2, round 4).
     Sobol,
-    /// Independent PCG32 numbers per pixel sample. Still the default: with Sobol, the
-    /// delta-light agreement test of tests/bdpt.rs fails (path 5.7 sigma below bdpt in one
-    /// quadrant; see BENCHMARKS.md), which must be understood before Sobol becomes the default.
+    /// Independent PCG32 numbers per pixel sample. Still the default: with Sobol, path on
+    /// the delta-light box of tests/bdpt.rs comes out 5-7 sigma below bdpt (BENCHMARKS.md,
+    /// issue 2 round 4), which must be understood before Sobol becomes the default.
     #[default]
     Independent,
 }
