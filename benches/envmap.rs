@@ -36,7 +36,7 @@ use std::sync::Arc;
 use lacuna::integrator::{self, EnvDirect, IntegratorSettings, TraceCounters};
 use lacuna::light::environment::{describe, EnvImage, Grid};
 use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap};
-use lacuna::math::{Rgb, Rng, Vec2};
+use lacuna::math::{Rgb, Rng, Sampler, Vec2};
 use lacuna::scene::{convert_layout, load_scene_file, SurfaceInteraction};
 use rayon::prelude::*;
 
@@ -178,7 +178,7 @@ fn fig36() {
                         .par_iter()
                         .enumerate()
                         .map(|(k, h)| {
-                            let mut rng = Rng::new(seed, k as u64);
+                            let mut rng = Sampler::independent(Rng::new(seed, k as u64));
                             let mut counters = TraceCounters::default();
                             let v = shader.shade(&scene, &h.si, &mut rng, &mut counters);
                             (v, counters.rays)

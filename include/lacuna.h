@@ -240,6 +240,26 @@ typedef uint32_t lacuna_mis_heuristic;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
+// Numbers of the pixel samples (`lacuna_render_job_set_sampler`).
+enum lacuna_sampler
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    // Owen-scrambled Sobol points, stratified over each pixel's samples (best at powers of
+    // two samples per pixel).
+    LACUNA_SAMPLER_SOBOL = 0,
+    // Independent random numbers per pixel sample (the default).
+    LACUNA_SAMPLER_INDEPENDENT = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum lacuna_sampler lacuna_sampler;
+#else
+typedef uint32_t lacuna_sampler;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
 // Film channels (`lacuna_film_read`).
 enum lacuna_film_channel
 #if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
@@ -843,8 +863,8 @@ lacuna_status lacuna_render_job_run_reference(struct lacuna_render_job *job,
                                               struct lacuna_image_errors *out_noise);
 
 // Runs each of the `integrator_count` integrators named in `integrators` (names, or specs
-// `name:key=value:...` as `lacuna compare --integrators` takes them) for the same
-// wall-clock time `seconds_per_run` (> 0), `runs` times (>= 1), with the job's resolution,
+// `name:key=value:...` as `lacuna compare --integrators` takes them, `sampler=` included)
+// for the same wall-clock time `seconds_per_run` (> 0), `runs` times (>= 1), with the job's resolution,
 // seed, depth, MIS heuristic, threads and camera, measuring errors against `reference` (a film
 // of the job's resolution) after every pass; then writes the report into directory `out_dir`
 // (created if needed): curves.csv, convergence.svg, summary.md, each integrator's final image
@@ -1150,6 +1170,10 @@ lacuna_status lacuna_render_job_set_thread_count(struct lacuna_render_job *job,
 // Sets the MIS heuristic: a `lacuna_mis_heuristic` value.
 lacuna_status lacuna_render_job_set_mis_heuristic(struct lacuna_render_job *job,
                                                   uint32_t heuristic);
+
+// Sets the numbers pixel samples draw: a `lacuna_sampler` value (default
+// `LACUNA_SAMPLER_INDEPENDENT`, or the scene file's `render.sampler`).
+lacuna_status lacuna_render_job_set_sampler(struct lacuna_render_job *job, uint32_t sampler);
 
 // `path_skeleton`: probability `c_skel` of sampling the skeleton lobes instead of the BSDF at
 // a guided point, in [0, 1) (default 0.5).

@@ -1,9 +1,11 @@
 //! The progressive render loop: passes of N samples per pixel over 16x16 tiles in parallel,
 //! a sample or time budget, progress reporting and cancellation.
 //!
-//! Determinism: every pixel sample draws its random numbers from a generator seeded by
-//! (seed, pixel, sample index), and each pixel's samples are summed in sample order within a
-//! pass, so for a given seed and sample budget the image does not depend on the thread count.
+//! Determinism: every pixel sample draws its numbers from a [`Sampler`] keyed by (seed, pixel,
+//! sample index) only, and each pixel's samples are summed in sample order within a pass, so
+//! for a given seed, sampler and sample budget the image does not depend on the thread count.
+//! The camera takes dimension slots [`FILM_DIMENSION`] and [`LENS_DIMENSION`]; integrators
+//! start at [`FIRST_INTEGRATOR_DIMENSION`].
 
 use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -14,10 +16,17 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::integrator::{Integrator, Precomputation, SampleContext, TraceCounters, View};
-use crate::math::{Rgb, Rng, Vec2};
+use crate::math::{Rgb, Sampler, SamplerKind, Vec2};
 use crate::scene::{Camera, Scene};
 
 const TILE: u32 = 16;
+
+/// Dimension slot of the position in the pixel (2-D).
+pub const FILM_DIMENSION: u32 = 0;
+/// Dimension slot of the position on the lens (2-D).
+pub const LENS_DIMENSION: u32 = 1;
+/// The first slot an integrator's [`Integrator::sample`] sees.
+pub const FIRST_INTEGRATOR_DIMENSION: u32 = 2;
 
 /// What to render and for how long.
 #[derive(Clone, Debug, PartialEq)]
@@ -33,6 +42,8 @@ pub struct RenderSettings {
     pub threads: Option<usize>,
     /// Samples per pixel per pass in sample-budget renders (fixed, so results are reproducible).
     pub pass_spp: u32,
+    /// Which numbers pixel samples draw (stratified Sobol or independent).
+    pub sampler: SamplerKind,
 }
 
 impl Default for RenderSettings {
@@ -45,6 +56,7 @@ impl Default for RenderSettings {
             seed: 0,
             threads: None,
             pass_spp: 4,
+            sampler: SamplerKind::default(),
         }
     }
 }
@@ -283,12 +295,17 @@ fn render_in_pool(
                                 layers: &layers,
                             };
                             for s in first..first + count {
-                                let mut rng = Rng::for_sample(settings.seed, pixel_index, s as u64);
+                                let mut rng =
+                                    Sampler::new(settings.sampler, settings.seed, pixel_index, s);
+                                rng.set_dimension(FILM_DIMENSION);
+                                let jitter = rng.uniform2();
                                 let film_pos = Vec2::new(
-                                    (x as f32 + rng.uniform()) / w as f32,
-                                    (y as f32 + rng.uniform()) / h as f32,
+                                    (x as f32 + jitter.x) / w as f32,
+                                    (y as f32 + jitter.y) / h as f32,
                                 );
+                                rng.set_dimension(LENS_DIMENSION);
                                 let ray = view.frame.generate_ray(film_pos, rng.uniform2());
+                                rng.set_dimension(FIRST_INTEGRATOR_DIMENSION);
                                 let sample =
                                     integrator.sample(scene, ray, &mut rng, &mut counters, &ctx);
                                 tile.add_sample(tx, ty, &sample);

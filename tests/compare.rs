@@ -111,10 +111,12 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
         Contender {
             label: "path".into(),
             integrator: path(),
+            sampler: None,
         },
         Contender {
             label: "path again".into(),
             integrator: path(),
+            sampler: None,
         },
         Contender {
             label: "path dropping a bounce".into(),
@@ -126,6 +128,7 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
                 },
             )
             .unwrap(),
+            sampler: None,
         },
     ];
     let ref_pixels = reference.film.radiance();

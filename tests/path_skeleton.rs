@@ -27,7 +27,7 @@ use lacuna::guide::{
     SkeletonStrength,
 };
 use lacuna::integrator::{self, IntegratorSettings};
-use lacuna::math::{Frame, Rgb, Rng, Vec3};
+use lacuna::math::{Frame, Rgb, Rng, Sampler, Vec3};
 use lacuna::render::{prepare, render, RenderSettings};
 use lacuna::scene::{
     corridor_builder, load_scene_file, two_rooms_builder, Bsdf, Camera, Material, MeshDesc, Scene,
@@ -61,7 +61,7 @@ fn chi2_directions(
     name: &str,
     grid: &SphereGrid,
     seed: u64,
-    mut sample: impl FnMut(&mut Rng) -> Option<Vec3>,
+    mut sample: impl FnMut(&mut Sampler) -> Option<Vec3>,
     pdf: impl Fn(Vec3) -> f64,
 ) -> f64 {
     let probs = grid.integrate(|w| pdf(to32(w)));
@@ -71,7 +71,7 @@ fn chi2_directions(
         "{name}: pdf integrates to {integral}"
     );
     let mut observed = vec![0u64; grid.cells() + 1];
-    let mut rng = Rng::new(seed, 77);
+    let mut rng = Sampler::independent(Rng::new(seed, 77));
     for _ in 0..SAMPLES {
         match sample(&mut rng) {
             Some(w) => observed[grid.cell_of(to64(w))] += 1,
@@ -784,10 +784,7 @@ fn compare_counts_the_precomputation_in_the_budget() {
     // A coarse grid keeps the precomputation short even on a loaded machine.
     let mut contenders: Vec<Contender> = ["path", "path_skeleton:resolution=24"]
         .iter()
-        .map(|n| Contender {
-            label: n.to_string(),
-            integrator: integrator::create(n, settings).unwrap(),
-        })
+        .map(|n| Contender::from_spec(n, settings).unwrap())
         .collect();
     let rs = RenderSettings {
         width: 16,

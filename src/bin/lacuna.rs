@@ -13,7 +13,7 @@ use lacuna::compare::{compare, render_reference, write_report, Contender};
 use lacuna::film::{read_exr_rgb, ExrMetadata, Film, ImageErrors};
 use lacuna::integrator::{self, IntegratorSettings, MisHeuristic};
 use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
-use lacuna::math::Vec3;
+use lacuna::math::{SamplerKind, Vec3};
 use lacuna::render::{render, Progress, RenderSettings};
 use lacuna::scene::{
     auto_camera, convert_layout, corridor_builder, corridor_render_settings, load_obj,
@@ -70,6 +70,11 @@ struct SceneArgs {
     /// Seed of the random sequences; the same seed and sample count give the same image.
     #[arg(long)]
     seed: Option<u64>,
+    /// Numbers of the pixel samples: sobol (Owen-scrambled Sobol, stratified over each pixel's
+    /// samples, best at powers of two) or independent [default: independent, or the scene file's].
+    /// A compare contender option such as `path:sampler=independent` overrides it.
+    #[arg(long)]
+    sampler: Option<String>,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
@@ -222,7 +227,8 @@ struct CompareArgs {
     /// that override the command line's for that contender, as `name:key=value:...`: `max_depth`,
     /// `mis`, for path and path_skeleton `rr_depth` (bounces before Russian roulette), and for
     /// path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
-    /// `importance_nodes`, `lobes`, `visibility` (e.g. `path,path:rr_depth=5,path_skeleton`).
+    /// `importance_nodes`, `lobes`, `visibility` (e.g. `path,path:rr_depth=5,path_skeleton`);
+    /// any of them also `sampler=sobol|independent` (e.g. `path:sampler=independent,path`).
     #[arg(long, default_value = "path")]
     integrators: String,
     /// Seconds per integrator per run.
@@ -449,6 +455,9 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     render.height = args.height.or(file.height).unwrap_or(render.height);
     render.spp = file.spp.unwrap_or(render.spp);
     render.seed = args.seed.or(file.seed).unwrap_or(render.seed);
+    if let Some(name) = args.sampler.as_deref().or(file.sampler.as_deref()) {
+        render.sampler = SamplerKind::parse(name)?;
+    }
     render.threads = args.threads;
     let mut integrator = IntegratorSettings {
         mis: MisHeuristic::parse(&args.mis)?,
@@ -668,6 +677,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
     let meta = ExrMetadata::default()
         .with("spp", stats.spp)
         .with("seed", prep.render.seed)
+        .with("sampler", prep.render.sampler.name())
         .with("integrator", &name)
         .with("max_depth", prep.integrator.max_depth)
         .with("scene", &prep.label)
@@ -792,6 +802,7 @@ fn run_reference(args: &ReferenceArgs) -> Result<()> {
     let meta = ExrMetadata::default()
         .with("spp", reference.stats.spp)
         .with("seed", prep.render.seed)
+        .with("sampler", prep.render.sampler.name())
         .with("integrator", &name)
         .with("max_depth", prep.integrator.max_depth)
         .with("scene", &prep.label)
@@ -865,12 +876,7 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
         .collect();
     let mut contenders = names
         .iter()
-        .map(|n| {
-            Ok(Contender {
-                label: n.to_string(),
-                integrator: integrator::create(n, prep.integrator)?,
-            })
-        })
+        .map(|n| Contender::from_spec(n, prep.integrator))
         .collect::<Result<Vec<_>>>()?;
     let runs = args
         .runs

@@ -12,7 +12,6 @@ use super::job::lacuna_render_job;
 use super::types::*;
 use crate::compare::{compare, render_reference, write_report, Contender};
 use crate::film::ImageErrors;
-use crate::integrator;
 
 /// Renders a reference image with the job's settings (its samples per pixel, at least 2; no
 /// time budget) as two independent halves, writes the averaged film to `*out_film` and the
@@ -70,8 +69,8 @@ pub unsafe extern "C" fn lacuna_render_job_run_reference(
 }
 
 /// Runs each of the `integrator_count` integrators named in `integrators` (names, or specs
-/// `name:key=value:...` as `lacuna compare --integrators` takes them) for the same
-/// wall-clock time `seconds_per_run` (> 0), `runs` times (>= 1), with the job's resolution,
+/// `name:key=value:...` as `lacuna compare --integrators` takes them, `sampler=` included)
+/// for the same wall-clock time `seconds_per_run` (> 0), `runs` times (>= 1), with the job's resolution,
 /// seed, depth, MIS heuristic, threads and camera, measuring errors against `reference` (a film
 /// of the job's resolution) after every pass; then writes the report into directory `out_dir`
 /// (created if needed): curves.csv, convergence.svg, summary.md, each integrator's final image
@@ -124,10 +123,7 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
             .map(|(i, &n)| {
                 // SAFETY: each entry is NULL or a NUL-terminated string.
                 let name = unsafe { str_arg(n, &format!("integrators[{i}]")) }?;
-                Ok(Contender {
-                    label: name.to_string(),
-                    integrator: integrator::create(name, p.settings.integrator_settings)?,
-                })
+                Ok(Contender::from_spec(name, p.settings.integrator_settings)?)
             })
             .collect::<Result<Vec<_>, CapiError>>()?;
         let get = |k: &str| r.metadata.get(k)?.parse::<f64>().ok();

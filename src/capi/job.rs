@@ -16,6 +16,7 @@ use crate::error::Error;
 use crate::film::{ExrMetadata, Film};
 use crate::guide::SkeletonStrength;
 use crate::integrator::{self, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter};
+use crate::math::SamplerKind;
 use crate::render::{Progress, RenderSettings, RenderStats};
 use crate::scene::{auto_camera, Camera};
 
@@ -242,6 +243,7 @@ impl lacuna_render_job {
         ExrMetadata::default()
             .with("spp", stats.spp)
             .with("seed", p.settings.render.seed)
+            .with("sampler", p.settings.render.sampler.name())
             .with("integrator", &p.settings.integrator)
             .with("max_depth", p.settings.integrator_settings.max_depth)
             .with("scene", &self.scene.label)
@@ -307,6 +309,9 @@ pub unsafe extern "C" fn lacuna_render_job_new(
         }
         if let Some(seed) = file.seed {
             render.seed = seed;
+        }
+        if let Some(name) = &file.sampler {
+            render.sampler = SamplerKind::parse(name)?;
         }
         if let Some(t) = file.time {
             render.time_limit = Some(Duration::from_secs_f64(t));
@@ -517,6 +522,25 @@ pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
             {
                 lacuna_mis_heuristic::Balance => MisHeuristic::Balance,
                 lacuna_mis_heuristic::Power => MisHeuristic::Power,
+            };
+            Ok(())
+        })
+    }
+}
+
+/// Sets the numbers pixel samples draw: a `lacuna_sampler` value (default
+/// `LACUNA_SAMPLER_INDEPENDENT`, or the scene file's `render.sampler`).
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_sampler(
+    job: *mut lacuna_render_job,
+    sampler: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_sampler", job, |s| {
+            s.render.sampler = match lacuna_sampler::from_c(sampler, "sampler")? {
+                lacuna_sampler::Sobol => SamplerKind::Sobol,
+                lacuna_sampler::Independent => SamplerKind::Independent,
             };
             Ok(())
         })

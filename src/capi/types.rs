@@ -233,6 +233,17 @@ pub enum lacuna_mis_heuristic {
     Power = 1,
 }
 
+/// Numbers of the pixel samples (`lacuna_render_job_set_sampler`).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum lacuna_sampler {
+    /// Owen-scrambled Sobol points, stratified over each pixel's samples (best at powers of
+    /// two samples per pixel).
+    Sobol = 0,
+    /// Independent random numbers per pixel sample (the default).
+    Independent = 1,
+}
+
 /// Film channels (`lacuna_film_read`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -324,6 +335,7 @@ c_enum!(lacuna_material_float { Exponent, Ior });
 c_enum!(lacuna_degenerate_policy { Error, Skip });
 c_enum!(lacuna_bvh_quality { Fast, Medium, High });
 c_enum!(lacuna_mis_heuristic { Balance, Power });
+c_enum!(lacuna_sampler { Sobol, Independent });
 c_enum!(lacuna_environment_layout { LatLong, CubeCross });
 c_enum!(lacuna_environment_strategy {
     LatLong,

@@ -12,8 +12,8 @@ use std::time::{Duration, Instant};
 
 use crate::error::{Error, Result};
 use crate::film::{image_errors, Film, ImageErrors};
-use crate::integrator::Integrator;
-use crate::math::Rgb;
+use crate::integrator::{self, Integrator, IntegratorSettings};
+use crate::math::{Rgb, SamplerKind};
 use crate::render::{prepare, render, render_observed, Progress, RenderSettings, RenderStats};
 use crate::scene::{Camera, Scene};
 
@@ -101,6 +101,29 @@ pub fn render_reference(
 pub struct Contender {
     pub label: String,
     pub integrator: Box<dyn Integrator>,
+    /// The pixel sampler of this contender's renders (`None`: the comparison's settings').
+    pub sampler: Option<SamplerKind>,
+}
+
+impl Contender {
+    /// The contender `spec` labels: an integrator specification ([`integrator::parse_spec`])
+    /// that may also carry `sampler=sobol|independent` among its options, so that a
+    /// comparison can race one integrator on both samplers (`path:sampler=independent,path`).
+    pub fn from_spec(spec: &str, settings: IntegratorSettings) -> Result<Self> {
+        let mut sampler = None;
+        let mut parts = Vec::new();
+        for part in spec.split(':') {
+            match part.trim().strip_prefix("sampler=") {
+                Some(name) => sampler = Some(SamplerKind::parse(name.trim())?),
+                None => parts.push(part),
+            }
+        }
+        Ok(Contender {
+            label: spec.to_string(),
+            integrator: integrator::create(&parts.join(":"), settings)?,
+            sampler,
+        })
+    }
 }
 
 /// Errors of one run at one moment.
@@ -313,6 +336,7 @@ pub fn compare(
                 spp: u32::MAX,
                 time_limit: Some(Duration::from_secs_f64(render_seconds)),
                 seed: run_seed(settings.seed, run, c),
+                sampler: contenders[c].sampler.unwrap_or(settings.sampler),
                 ..settings.clone()
             };
             let mut run_points = Vec::new();

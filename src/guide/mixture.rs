@@ -4,7 +4,7 @@
 //! so the estimator `f |cos| / pdf` is the balance-heuristic combination of both.
 
 use super::GuideQuery;
-use crate::math::{Frame, Rgb, Rng, Vec3};
+use crate::math::{Frame, Rgb, Sampler, Vec3};
 use crate::scene::{Bsdf, BsdfSample, Transport};
 
 /// A direction sampled by [`sample_bsdf_or_guide`].
@@ -31,7 +31,7 @@ pub fn sample_bsdf_or_guide(
     wo_local: Vec3,
     frame: &Frame,
     query: &GuideQuery,
-    rng: &mut Rng,
+    rng: &mut Sampler,
 ) -> Option<MixtureSample> {
     let c = query.guiding_probability();
     if c > 0.0 && rng.uniform() < c {

@@ -36,7 +36,7 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::{offset_ray_origin, Ray};
 use crate::light::Light;
-use crate::math::{Rgb, Rng, Vec2, Vec3};
+use crate::math::{Rgb, Rng, Sampler, Vec2, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 
 /// A camera vertex about to be connected to stored light vertices.
@@ -67,7 +67,7 @@ pub trait ConnectionPolicy: Send + Sync {
         &self,
         vertex: &CameraVertex,
         light_paths: usize,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         connect: &mut dyn FnMut(usize, f32),
     );
 }
@@ -85,7 +85,7 @@ impl ConnectionPolicy for UniformPerPixel {
         &self,
         vertex: &CameraVertex,
         light_paths: usize,
-        _rng: &mut Rng,
+        _rng: &mut Sampler,
         connect: &mut dyn FnMut(usize, f32),
     ) {
         if light_paths > 0 {
@@ -108,7 +108,7 @@ impl ConnectionPolicy for AllLightPaths {
         &self,
         _vertex: &CameraVertex,
         light_paths: usize,
-        _rng: &mut Rng,
+        _rng: &mut Sampler,
         connect: &mut dyn FnMut(usize, f32),
     ) {
         let factor = 1.0 / light_paths.max(1) as f32;
@@ -430,7 +430,7 @@ impl Bdpt {
         scene: &Scene,
         view: &View,
         counts: Counts,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         vertices: &mut Vec<LightVertex>,
         out: &mut LightTracingOutput,
         obs: &mut O,
@@ -537,7 +537,7 @@ impl Bdpt {
         counts: Counts,
         v: &LightVertex,
         bsdf: &Bsdf,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> Option<(u32, Estimate, Vec3)> {
         // Pinholes draw no random number here, so their light subpaths do not depend on it.
@@ -596,7 +596,7 @@ impl Bdpt {
         bsdf: &Bsdf,
         si: &SurfaceInteraction,
         state: &mut SubpathState,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         mode: Transport,
     ) -> Option<Vec3> {
         let frame = si.shading_frame();
@@ -649,7 +649,7 @@ impl Bdpt {
         bsdf: &Bsdf,
         state: &SubpathState,
         counts: Counts,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> Option<(Estimate, Endpoint)> {
         let sampler = scene.light_sampler()?;
@@ -837,7 +837,7 @@ impl Bdpt {
         &self,
         scene: &Scene,
         mut ray: Ray,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
         ctx: &SampleContext,
         obs: &mut O,
@@ -989,8 +989,12 @@ impl Bdpt {
                 let mut ranges = Vec::new();
                 let mut out = LightTracingOutput::default();
                 for k in c * CHUNK..((c + 1) * CHUNK).min(count) {
-                    let mut rng =
-                        Rng::for_sample(seed ^ LIGHT_STREAM, k as u64, sample_index as u64);
+                    // Light subpaths belong to no pixel: independent numbers.
+                    let mut rng = Sampler::independent(Rng::for_sample(
+                        seed ^ LIGHT_STREAM,
+                        k as u64,
+                        sample_index as u64,
+                    ));
                     let start = vertices.len() as u32;
                     self.trace_light_path(
                         scene,
@@ -1070,7 +1074,7 @@ impl Integrator for Bdpt {
         &self,
         scene: &Scene,
         ray: Ray,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
         ctx: &SampleContext,
     ) -> PixelSample {

@@ -506,7 +506,7 @@ fn record(
     };
     let mut out = LightTracingOutput::default();
     for k in 0..n_light {
-        let mut rng = Rng::new(seed, k as u64);
+        let mut rng = Sampler::independent(Rng::new(seed, k as u64));
         let start = paths.vertices.len() as u32;
         let before = rec.light_paths.len();
         bdpt.trace_light_path(
@@ -524,7 +524,7 @@ fn record(
         paths.ranges.push((start, paths.vertices.len() as u32));
     }
     rec.tracing_light = false;
-    let mut rng = Rng::new(seed ^ 0x00CA_3E5A, 99);
+    let mut rng = Sampler::independent(Rng::new(seed ^ 0x00CA_3E5A, 99));
     for _ in 0..camera_paths {
         let (x, y) = (rng.below(view.width), rng.below(view.height));
         let pixel_index = (y * view.width + x) as u64;

@@ -26,7 +26,7 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::light::{EnvStrategy, EnvironmentMap, Light};
-use crate::math::{Rgb, Rng, Vec3};
+use crate::math::{Rgb, Sampler, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 
 pub struct EnvDirect {
@@ -66,7 +66,7 @@ impl EnvDirect {
         &self,
         scene: &Scene,
         si: &SurfaceInteraction,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> Rgb {
         let bsdf = scene.bsdf(si);
@@ -86,7 +86,7 @@ impl EnvDirect {
         scene: &Scene,
         si: &SurfaceInteraction,
         bsdf: &Bsdf,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> Rgb {
         let Some(sampler) = scene.light_sampler() else {
@@ -160,7 +160,7 @@ impl EnvDirect {
         env: &EnvironmentMap,
         si: &SurfaceInteraction,
         bsdf: &Bsdf,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> Rgb {
         let strategy = self.settings.env;
@@ -237,7 +237,7 @@ impl Integrator for EnvDirect {
         &self,
         scene: &Scene,
         mut ray: Ray,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
         _ctx: &SampleContext,
     ) -> PixelSample {

@@ -22,7 +22,7 @@ use crate::geometry::Ray;
 use crate::guide::SkeletonGuideSettings;
 use crate::light::EnvStrategy;
 use crate::math::Rgb;
-use crate::math::Rng;
+use crate::math::Sampler;
 use crate::scene::{CameraFrame, RenderSettingsFile, Scene};
 
 /// How one-sample MIS weights two strategies.
@@ -211,7 +211,7 @@ pub trait Integrator: Send + Sync {
         &self,
         scene: &Scene,
         ray: Ray,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
         ctx: &SampleContext,
     ) -> PixelSample;

@@ -16,8 +16,23 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide};
-use crate::math::{Frame, Rgb, Rng, Vec3};
+use crate::math::{Frame, Rgb, Sampler, Vec3};
+use crate::render::FIRST_INTEGRATOR_DIMENSION;
 use crate::scene::{Bsdf, Scene, SurfaceInteraction};
+
+/// Sampler dimension slots of one bounce, so that each slot means the same thing in every
+/// sample of a pixel (and a stratified sampler stratifies that one integral): light choice,
+/// light 2-D, roulette, then three for the direction, consumed in order: the BSDF's component
+/// choice and 2-D (unguided), or for `path_skeleton` the guide/BSDF choice followed by the
+/// chosen one's 1-D and 2-D (there the slots are padded dimensions whose meaning varies).
+const SLOTS_PER_BOUNCE: u32 = 6;
+const LIGHT_SLOT: u32 = 0;
+const ROULETTE_SLOT: u32 = 2;
+const DIRECTION_SLOT: u32 = 3;
+
+fn slot(depth: u32, k: u32) -> u32 {
+    FIRST_INTEGRATOR_DIMENSION + depth * SLOTS_PER_BOUNCE + k
+}
 
 pub struct PathTracer {
     settings: IntegratorSettings,
@@ -61,7 +76,7 @@ impl PathTracer {
         bsdf: &Bsdf,
         wo_local: Vec3,
         query: &GuideQuery,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> Rgb {
         let Some(sampler) = scene.light_sampler() else {
@@ -194,7 +209,7 @@ impl Integrator for PathTracer {
         &self,
         scene: &Scene,
         mut ray: Ray,
-        rng: &mut Rng,
+        rng: &mut Sampler,
         counters: &mut TraceCounters,
         _ctx: &SampleContext,
     ) -> PixelSample {
@@ -255,10 +270,12 @@ impl Integrator for PathTracer {
                 counters.rays += query.init(guide, scene, si.p, si.p_error, si.ng, si.wo) as u64;
             }
             if !bsdf.is_delta() {
+                rng.set_dimension(slot(depth, LIGHT_SLOT));
                 radiance += beta
                     * self.sample_light(scene, &si, &frame, &bsdf, wo_local, &query, rng, counters);
             }
 
+            rng.set_dimension(slot(depth, DIRECTION_SLOT));
             let Some(ms) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &query, rng) else {
                 break;
             };
@@ -281,6 +298,7 @@ impl Integrator for PathTracer {
             prev_point = si.p;
             prev_normal = si.facing_normal();
             ray = si.spawn_ray(wi);
+            rng.set_dimension(slot(depth, ROULETTE_SLOT));
             depth += 1;
 
             if depth >= self.settings.rr_start_depth {

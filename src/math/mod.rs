@@ -1,15 +1,17 @@
 //! Small numerical building blocks shared by every other module: colours, orthonormal
 //! frames, warps from the unit square to directions and shapes (each with its pdf), discrete
-//! distributions and the random number generator.
+//! distributions, the random number generator and the pixel samplers built on it.
 
 mod distribution;
 mod frame;
 mod rng;
+mod sampler;
 pub mod warp;
 
 pub use distribution::{AliasTable, Distribution1D, Distribution2D};
 pub use frame::Frame;
 pub use rng::{mix64, Rng};
+pub use sampler::{Sampler, SamplerKind};
 
 pub use glam::{Vec2, Vec3};
 

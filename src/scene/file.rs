@@ -34,6 +34,9 @@ pub struct RenderSettingsFile {
     /// Integrator name (e.g. "path").
     pub integrator: Option<String>,
     pub seed: Option<u64>,
+    /// Pixel sampler: "sobol" or "independent" (the default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sampler: Option<String>,
     /// Time budget in seconds (render until it runs out instead of a fixed spp).
     pub time: Option<f64>,
     /// Options of `path_skeleton`'s guide by name (`c_skel`, `strength`, `resolution`, ...:
@@ -502,6 +505,10 @@ fn check_settings(s: &RenderSettingsFile) -> std::result::Result<(), (String, St
         skeleton
             .set(&key, &value)
             .map_err(|e| (format!("render.skeleton.{key}"), e.to_string()))?;
+    }
+    if let Some(name) = &s.sampler {
+        crate::math::SamplerKind::parse(name)
+            .map_err(|e| ("render.sampler".to_string(), e.to_string()))?;
     }
     if let Some(i) = &s.integrator {
         if i.is_empty() {
@@ -975,7 +982,7 @@ mod tests {
             "lamp_mat": { "emission": 8 }
           },
           "render": { "width": 320, "height": 240, "spp": 64, "max_depth": 8, "integrator": "path",
-                      "seed": 3, "time": 1.5, "skeleton": { "c_skel": 0.25, "strength": 16 } }
+                      "seed": 3, "sampler": "independent", "time": 1.5, "skeleton": { "c_skel": 0.25, "strength": 16 } }
         }"#;
         let path = dir.write("scene.json", json);
         let loaded = load_scene_file(&path).unwrap();
@@ -988,6 +995,7 @@ mod tests {
                 max_depth: Some(8),
                 integrator: Some("path".into()),
                 seed: Some(3),
+                sampler: Some("independent".into()),
                 time: Some(1.5),
                 skeleton: Some(
                     [
@@ -1191,6 +1199,7 @@ mod tests {
             ),
             (r#"{"render": {"width": 0}}"#, "render.width"),
             (r#"{"render": {"time": -1}}"#, "render.time"),
+            (r#"{"render": {"sampler": "halton"}}"#, "render.sampler"),
             (
                 r#"{"render": {"skeleton": {"c_skel": 1.5}}}"#,
                 "render.skeleton.c_skel",

@@ -610,6 +610,8 @@ static void test_render(lacuna_context *ctx) {
     EXPECT(lacuna_render_job_set_thread_count(job, LACUNA_MAX_THREADS + 1), LACUNA_STATUS_OUT_OF_RANGE,
            "thread_count");
     EXPECT(lacuna_render_job_set_mis_heuristic(job, 2), LACUNA_STATUS_INVALID_ARGUMENT, "heuristic");
+    EXPECT(lacuna_render_job_set_sampler(job, 2), LACUNA_STATUS_INVALID_ARGUMENT, "sampler");
+    EXPECT(lacuna_render_job_set_sampler(NULL, LACUNA_SAMPLER_SOBOL), LACUNA_STATUS_NULL_POINTER, "job");
     EXPECT(lacuna_render_job_set_camera(job, v3(0, 0, 0), v3(0, 0, -1), v3(0, NAN, 0), 40),
            LACUNA_STATUS_INVALID_ARGUMENT, "up");
     EXPECT(lacuna_render_job_set_seed(NULL, 1), LACUNA_STATUS_NULL_POINTER, "job");
@@ -621,6 +623,8 @@ static void test_render(lacuna_context *ctx) {
     OK(lacuna_render_job_set_resolution(job, 10, 7));
     OK(lacuna_render_job_set_thread_count(job, 2));
     OK(lacuna_render_job_set_mis_heuristic(job, LACUNA_MIS_HEURISTIC_BALANCE));
+    OK(lacuna_render_job_set_sampler(job, LACUNA_SAMPLER_INDEPENDENT));
+    OK(lacuna_render_job_set_sampler(job, LACUNA_SAMPLER_SOBOL));
     OK(lacuna_render_job_set_camera(job, v3(0, 0, 0.9f), v3(0, 0, -1), v3(0, 1, 0), 70));
     progress_log log = {0, 0.0, 0, 2.0};
     OK(lacuna_render_job_set_progress_callback(job, on_progress, &log));

@@ -7,7 +7,7 @@ use std::sync::atomic::AtomicBool;
 use lacuna::film::Film;
 use lacuna::integrator::{self, Integrator, IntegratorSettings};
 use lacuna::light::LightDesc;
-use lacuna::math::{Rgb, Vec3};
+use lacuna::math::{Rgb, SamplerKind, Vec3};
 use lacuna::render::{render, RenderSettings};
 use lacuna::scene::{Camera, Material, MeshDesc, Scene, SceneBuilder};
 
@@ -31,12 +31,40 @@ pub fn render_image(
 }
 
 /// Means of the whole image and of its four quadrants, with standard errors over seeds, of the
-/// integrator `name` (a spec: `name[:key=value]...`), prepared for the scene first.
+/// integrator `name` (a spec: `name[:key=value]...`), prepared for the scene first; with the
+/// default pixel sampler.
 pub fn region_means(
     scene: &Scene,
     camera: &Camera,
     name: &str,
     settings: IntegratorSettings,
+    size: u32,
+    spp: u32,
+    seeds: u64,
+) -> Vec<(f64, f64)> {
+    region_means_with(
+        scene,
+        camera,
+        name,
+        settings,
+        SamplerKind::default(),
+        size,
+        spp,
+        seeds,
+    )
+}
+
+/// [`region_means`] with the pixel sampler `sampler`. The standard errors come from the spread
+/// of the per-seed means (each seed is an independent render: new random numbers, or new
+/// scrambles and shuffles of the Sobol points), never from the spread of samples within a
+/// pixel, which stratified samples do not have independently.
+#[allow(clippy::too_many_arguments)]
+pub fn region_means_with(
+    scene: &Scene,
+    camera: &Camera,
+    name: &str,
+    settings: IntegratorSettings,
+    sampler: SamplerKind,
     size: u32,
     spp: u32,
     seeds: u64,
@@ -50,6 +78,7 @@ pub fn region_means(
                 height: size,
                 spp,
                 seed: seed * 7919 + 1,
+                sampler,
                 ..Default::default()
             };
             let film = render_image(scene, camera, integrator.as_ref(), &rs);
