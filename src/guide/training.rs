@@ -67,7 +67,7 @@ use rayon::prelude::*;
 
 use super::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide};
 use crate::light::EnvStrategy;
-use crate::math::{luminance, Rgb, Rng};
+use crate::math::{luminance, Rgb, Rng, Sampler};
 use crate::scene::{Scene, SurfaceInteraction};
 
 /// Guiding probability of the training pass (c0 above): both strategies get half the samples,
@@ -161,7 +161,7 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
     let per_chunk: Vec<Vec<Sample>> = (0..chunks)
         .into_par_iter()
         .map(|c| {
-            let mut rng = Rng::new(TRAINING_SEED, c as u64);
+            let mut rng = Sampler::independent(Rng::new(TRAINING_SEED, c as u64));
             let mut query = GuideQuery::new();
             let mut out = Vec::new();
             for _ in 0..CHUNK.min(TRAINING_PATHS - c * CHUNK) {
@@ -302,7 +302,7 @@ fn train_path(
     scene: &Scene,
     mut si: SurfaceInteraction,
     query: &mut GuideQuery,
-    rng: &mut Rng,
+    rng: &mut Sampler,
     out: &mut Vec<Sample>,
 ) {
     let mut beta = Rgb::ONE;
@@ -393,7 +393,7 @@ fn train_path(
 
 /// One light sample at `si`, reflected toward `si.wo`, without MIS (an unbiased estimate of
 /// the direct light there); zero at delta BSDFs.
-fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Rng) -> Rgb {
+fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Sampler) -> Rgb {
     let bsdf = scene.bsdf(si);
     let Some(sampler) = scene.light_sampler() else {
         return Rgb::ZERO;
