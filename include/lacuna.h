@@ -1172,7 +1172,7 @@ lacuna_status lacuna_render_job_set_mis_heuristic(struct lacuna_render_job *job,
                                                   uint32_t heuristic);
 
 // Sets the numbers pixel samples draw: a `lacuna_sampler` value (default
-// `LACUNA_SAMPLER_INDEPENDENT`, or the scene file's `render.sampler`).
+// `LACUNA_SAMPLER_SOBOL`, or the scene file's `render.sampler`).
 lacuna_status lacuna_render_job_set_sampler(struct lacuna_render_job *job, uint32_t sampler);
 
 // `path_skeleton`: probability `c_skel` of sampling the skeleton lobes instead of the BSDF at

@@ -163,17 +163,21 @@ fn bdpt_agrees_with_path_on_glossy_mirror_and_glass_under_an_area_light() {
 #[test]
 fn bdpt_agrees_with_path_under_delta_lights() {
     let (scene, camera) = box_scene(false, true, true);
-    compare(
-        "delta lights",
-        &scene,
-        &camera,
-        IntegratorSettings {
-            max_depth: 6,
-            ..Default::default()
-        },
-        20,
-        16,
-    );
+    let settings = IntegratorSettings {
+        max_depth: 6,
+        ..Default::default()
+    };
+    // The point light seen by way of the exponent-1e4 wall (diffuse -> sharp glossy -> point
+    // light, found only when a BSDF direction happens to hit the highlight's spot) makes path's
+    // estimate heavy-tailed: at 16 spp most seeds miss the tail, their means sit low and their
+    // spread understates the error (with stratified samples even more: the bulk varies less
+    // while the tail stays), so path gets enough samples here to sample the tail; bdpt finds
+    // those paths by light tracing. At 256 spp x 32 seeds path agreed with bdpt on every
+    // region with either sampler (BENCHMARKS.md, issue 2, round 4).
+    let path = region_means(&scene, &camera, "path", settings, 20, 256, 16);
+    let bdpt = region_means(&scene, &camera, "bdpt", settings, 20, 16, 8);
+    assert!(path[0].0 > 0.0, "delta lights: black image");
+    assert_agree("delta lights", ("path", &path), ("bdpt", &bdpt));
 }
 
 /// Delta lights seen through delta surfaces (light -> glass/mirror -> diffuse -> camera)

@@ -348,7 +348,7 @@ fn command_line_records_the_sampler() {
         (status, out)
     };
     for (arg, expected) in [
-        (None, "independent"),
+        (None, "sobol"),
         (Some("independent"), "independent"),
         (Some("sobol"), "sobol"),
     ] {

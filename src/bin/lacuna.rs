@@ -71,7 +71,7 @@ struct SceneArgs {
     #[arg(long)]
     seed: Option<u64>,
     /// Numbers of the pixel samples: sobol (Owen-scrambled Sobol, stratified over each pixel's
-    /// samples, best at powers of two) or independent [default: independent, or the scene file's].
+    /// samples, best at powers of two) or independent [default: sobol, or the scene file's].
     /// A compare contender option such as `path:sampler=independent` overrides it.
     #[arg(long)]
     sampler: Option<String>,

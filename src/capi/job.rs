@@ -529,7 +529,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
 }
 
 /// Sets the numbers pixel samples draw: a `lacuna_sampler` value (default
-/// `LACUNA_SAMPLER_INDEPENDENT`, or the scene file's `render.sampler`).
+/// `LACUNA_SAMPLER_SOBOL`, or the scene file's `render.sampler`).
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_set_sampler(
     job: *mut lacuna_render_job,

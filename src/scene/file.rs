@@ -34,7 +34,7 @@ pub struct RenderSettingsFile {
     /// Integrator name (e.g. "path").
     pub integrator: Option<String>,
     pub seed: Option<u64>,
-    /// Pixel sampler: "sobol" or "independent" (the default).
+    /// Pixel sampler: "sobol" (the default) or "independent".
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sampler: Option<String>,
     /// Time budget in seconds (render until it runs out instead of a fixed spp).
