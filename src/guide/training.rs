@@ -395,29 +395,25 @@ fn train_path(
 /// the direct light there); zero at delta BSDFs.
 fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Sampler) -> Rgb {
     let bsdf = scene.bsdf(si);
-    let Some(sampler) = scene.light_sampler() else {
-        return Rgb::ZERO;
-    };
     if bsdf.is_delta() {
         return Rgb::ZERO;
     }
-    let (index, pmf) = sampler.sample(rng.uniform());
-    let light = &scene.lights()[index];
-    let Some(ls) = light.sample_at(
-        si.p,
-        si.facing_normal(),
+    let frame = si.shading_frame();
+    let (u_choice, u) = (rng.uniform(), rng.uniform2());
+    let wo_local = frame.to_local(si.wo);
+    let Some(t) = scene.sample_light_toward(
+        si,
+        &frame,
+        &bsdf,
+        wo_local,
         EnvStrategy::default(),
-        rng.uniform2(),
+        u_choice,
+        u,
     ) else {
         return Rgb::ZERO;
     };
-    if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 || !(ls.pdf > 0.0) {
-        return Rgb::ZERO;
-    }
-    let frame = si.shading_frame();
-    let wi_local = frame.to_local(ls.wi);
-    let f = bsdf.eval(frame.to_local(si.wo), wi_local) * wi_local.z.abs();
-    if f == Rgb::ZERO || !scene.unoccluded(si, &ls) {
+    let (ls, pmf, f) = (t.sample, t.pmf, t.f_cos);
+    if !(ls.pdf > 0.0) || !scene.unoccluded(si, &ls) {
         return Rgb::ZERO;
     }
     f * ls.radiance / (pmf * ls.pdf)

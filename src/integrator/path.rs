@@ -79,25 +79,13 @@ impl PathTracer {
         rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> Rgb {
-        let Some(sampler) = scene.light_sampler() else {
-            return Rgb::ZERO;
-        };
-        let (index, pmf) = sampler.sample(rng.uniform());
-        let light = &scene.lights()[index];
-        let Some(ls) = light.sample_at(si.p, si.facing_normal(), self.settings.env, rng.uniform2())
+        let (u_choice, u) = (rng.uniform(), rng.uniform2());
+        let Some(toward) =
+            scene.sample_light_toward(si, frame, bsdf, wo_local, self.settings.env, u_choice, u)
         else {
             return Rgb::ZERO;
         };
-        // Reflection must stay on the side of the geometric surface that wo is on, or
-        // shading normals would let light through walls.
-        if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
-            return Rgb::ZERO;
-        }
-        let wi_local = frame.to_local(ls.wi);
-        let f = bsdf.eval(wo_local, wi_local) * wi_local.z.abs();
-        if f == Rgb::ZERO {
-            return Rgb::ZERO;
-        }
+        let (ls, pmf, wi_local, f) = (toward.sample, toward.pmf, toward.wi_local, toward.f_cos);
         counters.rays += 1;
         if !scene.unoccluded(si, &ls) {
             return Rgb::ZERO;

@@ -31,8 +31,8 @@ pub use texture::{srgb_to_linear, Texture};
 use std::sync::Arc;
 
 use crate::geometry::{barycentric_point_error, Bounds3, Bvh, Hit, Ray};
-use crate::light::{EnvironmentMap, Light, LightSample, LightSampler};
-use crate::math::{Rgb, Vec2, Vec3};
+use crate::light::{EnvStrategy, EnvironmentMap, Light, LightSample, LightSampler};
+use crate::math::{Frame, Rgb, Vec2, Vec3};
 
 /// A triangle mesh as stored in the scene.
 #[derive(Clone, Debug, Default)]
@@ -312,6 +312,39 @@ impl Scene {
         }
     }
 
+    /// The unshadowed part of one next-event sample at `si` (shading `frame`, `bsdf`, `wo_local`
+    /// = `si.wo` in that frame): a light picked by power with `u_choice`, a point or direction
+    /// on it from `u`, and the BSDF term f |cos| toward it. None when it cannot contribute (no
+    /// lights, no sample, the light on the other side of the geometric surface from wo, which
+    /// shading normals would otherwise let through walls, or a zero BSDF term). The caller
+    /// traces the shadow ray ([`unoccluded`](Self::unoccluded)) and weights the result.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub fn sample_light_toward(
+        &self,
+        si: &SurfaceInteraction,
+        frame: &Frame,
+        bsdf: &Bsdf,
+        wo_local: Vec3,
+        env: EnvStrategy,
+        u_choice: f32,
+        u: Vec2,
+    ) -> Option<LightTowardSample> {
+        let (index, pmf) = self.light_sampler()?.sample(u_choice);
+        let sample = self.lights[index].sample_at(si.p, si.facing_normal(), env, u)?;
+        if sample.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
+            return None;
+        }
+        let wi_local = frame.to_local(sample.wi);
+        let f_cos = bsdf.eval(wo_local, wi_local) * wi_local.z.abs();
+        (f_cos != Rgb::ZERO).then_some(LightTowardSample {
+            sample,
+            pmf,
+            wi_local,
+            f_cos,
+        })
+    }
+
     /// Whether nothing blocks the segment from a surface point to a sampled light point.
     pub fn unoccluded(&self, si: &SurfaceInteraction, sample: &LightSample) -> bool {
         let ray = if sample.distance.is_infinite() {
@@ -321,4 +354,16 @@ impl Scene {
         };
         !self.occluded(&ray)
     }
+}
+
+/// One next-event sample before its shadow ray ([`Scene::sample_light_toward`]).
+#[derive(Clone, Copy, Debug)]
+pub struct LightTowardSample {
+    pub sample: LightSample,
+    /// Probability of having picked this light.
+    pub pmf: f32,
+    /// The light direction in the shading frame.
+    pub wi_local: Vec3,
+    /// f(wo, wi) |cos(wi)|.
+    pub f_cos: Rgb,
 }
