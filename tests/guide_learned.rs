@@ -1,8 +1,7 @@
-//! `path_skeleton:c_skel=learned` and the cached node mapping (issue 8, round 4):
+//! `path_skeleton:c_skel=learned` (issue 8, round 4) and `strength=learned` (round 5):
 //!
-//! - the per-voxel cache of `map_point` gives the uncached function's node on random surface
-//!   points and on random points, normals and directions, in real scenes;
-//! - the training pass is deterministic: the same learned probabilities for 1, 2 and 3 threads;
+//! - the training pass is deterministic: the same learned probabilities (and strengths, with
+//!   `strength=learned`) for 1, 2 and 3 threads; the learned strength reaches the queries;
 //! - a node whose learned probability is 0 sets up no lobe and traces no guide shadow ray;
 //! - the learned probabilities guide some nodes of the corridor (where guiding wins) and not all;
 //! - unbiasedness with the learned probabilities: the same image and region means as `path`
@@ -11,7 +10,9 @@
 mod common;
 
 use common::agreement::{assert_agree, box_scene, region_means};
-use lacuna::guide::{GuideQuery, SkeletonGuide, SkeletonGuideSettings, CANDIDATES};
+use lacuna::guide::{
+    GuideQuery, SkeletonGuide, SkeletonGuideSettings, CANDIDATES, STRENGTH_CANDIDATES,
+};
 use lacuna::integrator::IntegratorSettings;
 use lacuna::math::{warp, Rng, Vec3};
 use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder, Camera, Scene};
@@ -32,6 +33,13 @@ fn corridor() -> Scene {
 fn learned() -> SkeletonGuideSettings {
     let mut s = SkeletonGuideSettings::default();
     s.set("c_skel", "learned").unwrap();
+    s
+}
+
+/// Probability and strength learned together (round 5).
+fn learned_both() -> SkeletonGuideSettings {
+    let mut s = learned();
+    s.set("strength", "learned").unwrap();
     s
 }
 
@@ -60,57 +68,65 @@ fn surface_points(scene: &Scene, count: usize, seed: u64) -> Vec<(Vec3, Vec3, Ve
 }
 
 #[test]
-fn cached_map_point_is_the_uncached_one() {
-    for (label, scene) in [("door", door()), ("corridor", corridor())] {
-        let guide = build(&scene, &SkeletonGuideSettings::default(), 2);
-        let mut rng = Rng::new(11, 5);
-        let mut mapped = 0;
-        // Surface points with their own normal, the other side's, and random ones.
-        for (p, _, ng, wo) in surface_points(&scene, 40_000, 3) {
-            let random = warp::uniform_sphere(rng.uniform2());
-            for (n, w) in [(ng, wo), (ng, -wo), (random, wo)] {
-                let want = guide.map_point_uncached(p, n, w);
-                assert_eq!(guide.map_point(p, n, w), want, "{label}: p {p} n {n} w {w}");
-                mapped += want.is_some() as u32;
+fn training_is_the_same_for_any_thread_count() {
+    let scene = door();
+    for settings in [learned(), learned_both()] {
+        let one = build(&scene, &settings, 1);
+        let t1 = one.training().expect("trained").clone();
+        for threads in [2, 3] {
+            let other = build(&scene, &settings, threads);
+            assert_eq!(other.training(), Some(&t1), "{threads} threads");
+        }
+        assert!(t1.paths > 0);
+        assert!(t1.samples.iter().sum::<u32>() > 10_000);
+        for (k, &c) in t1.probabilities.iter().enumerate() {
+            assert!(CANDIDATES.contains(&c), "node {k}: c {c}");
+            assert_eq!(one.guiding_probability(k as u32), c);
+            let s = t1.strengths[k];
+            if settings.learned_strength {
+                assert!(STRENGTH_CANDIDATES.contains(&s), "node {k}: strength {s}");
+                assert_eq!(one.strength(k as u32), s);
+            } else {
+                assert_eq!(one.strength(k as u32), settings.strength);
             }
         }
-        // Points anywhere in (and a little beyond) the bounds.
-        let b = scene.bounds();
-        let lo = b.min - (b.max - b.min) * 0.05;
-        let hi = b.max + (b.max - b.min) * 0.05;
-        for _ in 0..100_000 {
-            let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
-            let p = lo + (hi - lo) * u;
-            let n = warp::uniform_sphere(rng.uniform2());
-            let w = warp::uniform_sphere(rng.uniform2());
-            assert_eq!(
-                guide.map_point(p, n, w),
-                guide.map_point_uncached(p, n, w),
-                "{label}: p {p} n {n} w {w}"
-            );
-        }
-        assert!(
-            mapped > 100_000,
-            "{label}: only {mapped} surface points mapped"
-        );
     }
 }
 
+/// With the strength learned, a guided node's lobes carry its learned exponent (a fixed
+/// strength gives every lobe that exponent) and the query's pdf is the one
+/// `pdf_with_strength` gives for the node's strength.
 #[test]
-fn training_is_the_same_for_any_thread_count() {
-    let scene = door();
-    let one = build(&scene, &learned(), 1);
-    let t1 = one.training().expect("trained").clone();
-    for threads in [2, 3] {
-        let other = build(&scene, &learned(), threads);
-        assert_eq!(other.training(), Some(&t1), "{threads} threads");
+fn learned_strength_reaches_the_queries() {
+    let scene = corridor();
+    let guide = build(&scene, &learned_both(), 2);
+    let t = guide.training().unwrap();
+    assert!(t.guided_nodes() > 0);
+    let mut rng = Rng::new(4, 4);
+    let mut checked = 0;
+    let mut query = GuideQuery::new();
+    for (p, err, ng, wo) in surface_points(&scene, 20_000, 21) {
+        query.init(&guide, &scene, p, err, ng, wo);
+        let Some(node) = query.node() else { continue };
+        if query.lobe_count() == 0 {
+            continue;
+        }
+        let strength = guide.strength(node);
+        assert_eq!(strength, t.strengths[node as usize]);
+        if let lacuna::guide::SkeletonStrength::Fixed(s) = strength {
+            for i in 0..query.lobe_count() {
+                assert_eq!(query.lobe(i).unwrap().1, s, "node {node}");
+            }
+        }
+        let w = warp::uniform_sphere(rng.uniform2());
+        let (a, b) = (query.pdf(w), query.pdf_with_strength(w, strength));
+        assert!(
+            (a - b).abs() <= 1e-5 * a.max(b),
+            "node {node}: {a} against {b}"
+        );
+        checked += 1;
     }
-    assert!(t1.paths > 0);
-    assert!(t1.samples.iter().sum::<u32>() > 10_000);
-    for (k, &c) in t1.probabilities.iter().enumerate() {
-        assert!(CANDIDATES.contains(&c), "node {k}: c {c}");
-        assert_eq!(one.guiding_probability(k as u32), c);
-    }
+    assert!(checked > 1000, "{checked}");
 }
 
 /// Nodes with c = 0 set up no lobe and trace no shadow ray, where the fixed-c guide of the same
@@ -169,12 +185,16 @@ fn training_guides_some_corridor_nodes() {
             assert!(!guide.lobes(k as u32).is_empty());
         }
     }
-    // Without a camera there is nothing to learn from: no node is guided.
+    // Without a camera there is nothing to learn from: the fixed c_skel and strength.
     let (no_camera, _) = box_scene(false, true, false);
     assert!(no_camera.camera().is_none());
-    let g = build(&no_camera, &learned(), 2);
-    assert_eq!(g.training().unwrap().guided_nodes(), 0);
+    let settings = learned_both();
+    let g = build(&no_camera, &settings, 2);
     assert_eq!(g.training().unwrap().paths, 0);
+    for k in 0..g.node_count() as u32 {
+        assert_eq!(g.guiding_probability(k), settings.c_skel);
+        assert_eq!(g.strength(k), settings.strength);
+    }
 }
 
 fn agree(label: &str, scene: &Scene, camera: &Camera, max_depth: u32, size: u32, spp: u32) {
@@ -187,6 +207,7 @@ fn agree(label: &str, scene: &Scene, camera: &Camera, max_depth: u32, size: u32,
     for spec in [
         "path_skeleton:c_skel=learned",
         "path_skeleton:c_skel=learned:strength=64",
+        "path_skeleton:c_skel=learned:strength=learned",
     ] {
         let skel = region_means(scene, camera, spec, settings, size, spp, 8);
         assert_agree(label, ("path", &path), (spec, &skel));

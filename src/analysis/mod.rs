@@ -28,7 +28,7 @@ pub use report::{summary_json, write_analysis};
 
 // Curvilinear skeleton of the empty space (issue 6).
 pub mod complex;
-pub mod map_cache;
+pub mod reach;
 pub mod skeleton;
 mod skeleton_report;
 pub mod thinning;
@@ -36,7 +36,7 @@ pub mod thinning;
 mod thinning_oracle;
 
 pub use complex::{diagonal_contacts, Betti, Complex};
-pub use map_cache::{may_map_to, MapPointCache};
+pub use reach::may_map_to;
 pub use skeleton::{
     filter_skeleton, graph_from_complex, map_point, node_map, node_map_seeds, Filtered, Graph,
     Node, Skeleton, SkeletonMaps, SkeletonSettings, UNDEFINED_NODE,

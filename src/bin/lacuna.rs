@@ -134,7 +134,8 @@ struct SceneArgs {
     c_skel: Option<String>,
     /// path_skeleton: skeleton strength s (power-cosine exponent): a number >= 0, `auto`
     /// (per point, from the free-space radius and the distance to the importance point) or
-    /// `auto:MAX` [default: auto:64].
+    /// `auto:MAX`, or `learned` (per node, from a training pass whose proposal is auto:64)
+    /// [default: auto:64].
     #[arg(long)]
     skel_strength: Option<String>,
     /// path_skeleton: analysis voxels along the longest axis of the scene [default: a budget
@@ -227,7 +228,8 @@ struct CompareArgs {
     /// that override the command line's for that contender, as `name:key=value:...`: `max_depth`,
     /// `mis`, for path and path_skeleton `rr_depth` (bounces before Russian roulette), and for
     /// path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
-    /// `importance_nodes`, `lobes`, `visibility` (e.g. `path,path:rr_depth=5,path_skeleton`);
+    /// `importance_nodes`, `lobes`, `visibility`, `aim`, `training_depth`, `training_cost`,
+    /// `training_significance` (e.g. `path,path:rr_depth=5,path_skeleton`);
     /// any of them also `sampler=sobol|independent` (e.g. `path:sampler=independent,path`).
     #[arg(long, default_value = "path")]
     integrators: String,

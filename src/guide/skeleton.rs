@@ -74,7 +74,7 @@ use rayon::prelude::*;
 
 use super::training::{self, TrainingReport};
 use crate::analysis::{
-    map_point, may_map_to, Analysis, AnalysisSettings, Graph, MapPointCache, Resolution, Skeleton,
+    map_point, may_map_to, Analysis, AnalysisSettings, Graph, Resolution, Skeleton,
     SkeletonSettings, StageTime, VoxelGrid,
 };
 use crate::error::{Error, Result};
@@ -191,7 +191,20 @@ pub struct SkeletonGuideSettings {
     /// camera (`guide::training`); 0 (not guided at all) where guiding is not measurably
     /// better than BSDF sampling.
     pub learned_c_skel: bool,
+    /// Strength of eq. 163 at every guided node unless `learned_strength`; with it, the
+    /// training pass's proposal strength.
     pub strength: SkeletonStrength,
+    /// `strength=learned`: a strength per node from [`STRENGTH_CANDIDATES`], chosen by the
+    /// training pass together with the probability (`guide::training`). Without a camera the
+    /// guide keeps `strength` (and `c_skel`) everywhere.
+    pub learned_strength: bool,
+    /// Vertices per training path (`training_depth`).
+    pub training_depth: u32,
+    /// How the training pass weighs the guide's overhead (`training_cost`).
+    pub training_cost: TrainingCost,
+    /// Standard errors by which guiding must beat not guiding for `c_skel=learned` to guide
+    /// a node (`training_significance`).
+    pub training_significance: f32,
     /// Resolution of the analysis grid. By default a budget of 2^20 voxels: the thinning's
     /// time grows with the voxel count, so a budget bounds the precomputation whatever the
     /// scene's shape (0.3-0.8 s on two quiet cores for the test scenes, about 1 % of a 60 s
@@ -214,6 +227,48 @@ pub struct SkeletonGuideSettings {
     /// (BENCHMARKS.md, issue 8, round 4).
     pub aim: LobeAim,
 }
+
+/// What the training pass compares the guide's overhead at a vertex with (`guide::training`,
+/// "Cost").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrainingCost {
+    /// One unguided vertex (round 4): each vertex judged as if it were the whole sample.
+    Vertex,
+    /// The vertices the vertex's estimate is made of: itself and the rest of its path.
+    Path,
+}
+
+impl TrainingCost {
+    pub fn parse(text: &str) -> Result<Self> {
+        match text.trim() {
+            "vertex" => Ok(TrainingCost::Vertex),
+            "path" => Ok(TrainingCost::Path),
+            other => Err(Error::invalid(format!(
+                "skeleton training_cost '{other}' must be 'vertex' or 'path'"
+            ))),
+        }
+    }
+}
+
+/// The strengths `strength=learned` chooses from (with `auto` the training proposal's
+/// default, so the unlearned choice is among them).
+pub const STRENGTH_CANDIDATES: [SkeletonStrength; 7] = [
+    SkeletonStrength::Fixed(1.0),
+    SkeletonStrength::Fixed(2.0),
+    SkeletonStrength::Fixed(4.0),
+    SkeletonStrength::Fixed(8.0),
+    SkeletonStrength::Fixed(16.0),
+    SkeletonStrength::Auto { max: 16.0 },
+    SkeletonStrength::Auto {
+        max: DEFAULT_AUTO_MAX,
+    },
+];
+
+/// Default of `training_significance`.
+pub const DEFAULT_TRAINING_SIGNIFICANCE: f32 = 2.0;
+
+/// Default vertices per training path: the integrators' default maximum depth.
+pub const DEFAULT_TRAINING_DEPTH: u32 = 8;
 
 /// Where a lobe points from a surface point x.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -256,6 +311,10 @@ impl Default for SkeletonGuideSettings {
             strength: SkeletonStrength::Auto {
                 max: DEFAULT_AUTO_MAX,
             },
+            learned_strength: false,
+            training_depth: DEFAULT_TRAINING_DEPTH,
+            training_cost: TrainingCost::Path,
+            training_significance: DEFAULT_TRAINING_SIGNIFICANCE,
             resolution: Resolution::VoxelBudget(DEFAULT_VOXEL_BUDGET),
             light_rays: 1 << 14,
             max_importance_nodes: 32,
@@ -277,6 +336,9 @@ pub const OPTION_NAMES: &[&str] = &[
     "lobes",
     "visibility",
     "aim",
+    "training_depth",
+    "training_cost",
+    "training_significance",
 ];
 
 impl SkeletonGuideSettings {
@@ -301,7 +363,14 @@ impl SkeletonGuideSettings {
                 next.c_skel = number(key, value)?;
                 next.learned_c_skel = false;
             }
-            "strength" | "s" => next.strength = SkeletonStrength::parse(value)?,
+            "strength" | "s" if value.trim() == "learned" => next.learned_strength = true,
+            "strength" | "s" => {
+                next.strength = SkeletonStrength::parse(value)?;
+                next.learned_strength = false;
+            }
+            "training_depth" => next.training_depth = number(key, value)?,
+            "training_cost" => next.training_cost = TrainingCost::parse(value)?,
+            "training_significance" => next.training_significance = number(key, value)?,
             "resolution" => next.resolution = Resolution::LongestAxis(number(key, value)?),
             "voxel_budget" => next.resolution = Resolution::VoxelBudget(number(key, value)?),
             "light_rays" => next.light_rays = number(key, value)?,
@@ -339,6 +408,18 @@ impl SkeletonGuideSettings {
             )));
         }
         self.strength.validate()?;
+        if !(1..=64).contains(&self.training_depth) {
+            return Err(Error::invalid(format!(
+                "skeleton training_depth {} must be within 1..=64",
+                self.training_depth
+            )));
+        }
+        if !(self.training_significance.is_finite() && self.training_significance >= 0.0) {
+            return Err(Error::invalid(format!(
+                "skeleton training_significance {} must be a number >= 0",
+                self.training_significance
+            )));
+        }
         match self.resolution {
             Resolution::LongestAxis(n) if !(4..=4096).contains(&n) => {
                 return Err(Error::invalid(format!(
@@ -443,10 +524,10 @@ pub struct SkeletonGuide {
     lobes: Vec<GuideLobe>,
     /// Probability of sampling the lobes at each node: `c_skel`, or learned per node.
     node_c: Vec<f32>,
+    /// Strength at each node with `strength=learned`; empty: `settings.strength` everywhere.
+    node_strength: Vec<SkeletonStrength>,
     /// What the training pass of `c_skel=learned` found (None with a fixed `c_skel`).
     training: Option<TrainingReport>,
-    /// Answers most `map_point` calls without the neighbourhood searches.
-    map_cache: MapPointCache,
     /// Per voxel: a point in it may map to a node with a guiding probability above 0 (see
     /// `analysis::may_map_to`); queries elsewhere skip the mapping. Empty: everywhere.
     may_guide: Vec<bool>,
@@ -521,7 +602,6 @@ impl SkeletonGuide {
             ..
         } = skeleton;
         let graph = filtered.graph;
-        let map_cache = MapPointCache::new(&grid, &node_map);
         stage("skeleton (thinning, filter, node map)", t, 0.7)?;
 
         let t = Instant::now();
@@ -572,15 +652,15 @@ impl SkeletonGuide {
             lobe_start,
             lobes,
             node_c: vec![
-                if settings.learned_c_skel {
+                if settings.learned_c_skel || settings.learned_strength {
                     training::TRAINING_C
                 } else {
                     settings.c_skel
                 };
                 node_count
             ],
+            node_strength: Vec::new(),
             training: None,
-            map_cache,
             may_guide: Vec::new(),
             importance,
             importance_found,
@@ -589,14 +669,24 @@ impl SkeletonGuide {
             timings: Vec::new(),
             fingerprint: SceneFingerprint::of(scene),
         };
-        if settings.learned_c_skel {
+        if settings.learned_c_skel || settings.learned_strength {
             let t = Instant::now();
             let report = training::learn_guiding_probabilities(&guide, scene);
-            guide.node_c = report.probabilities.clone();
+            if report.paths == 0 {
+                // No camera to train from: the documented fixed default.
+                guide.node_c = vec![settings.c_skel; node_count];
+            } else {
+                guide.node_c = report.probabilities.clone();
+                if settings.learned_strength {
+                    guide.node_strength = report.strengths.clone();
+                }
+            }
             guide.training = Some(report);
-            let node_c = &guide.node_c;
-            guide.may_guide =
-                may_map_to(&guide.grid, &guide.node_map, |n| node_c[n as usize] > 0.0);
+            if settings.learned_c_skel {
+                let node_c = &guide.node_c;
+                guide.may_guide =
+                    may_map_to(&guide.grid, &guide.node_map, |n| node_c[n as usize] > 0.0);
+            }
             stage("guiding probabilities (training)", t, 1.0)?;
         }
         guide.timings = timings;
@@ -659,15 +749,8 @@ impl SkeletonGuide {
         self.lobe_start.windows(2).filter(|w| w[1] > w[0]).count()
     }
 
-    /// Node of a surface point (eq. 151-155); the per-voxel cache answers most calls, with
-    /// the same result as [`map_point_uncached`](Self::map_point_uncached).
+    /// Node of a surface point (eq. 151-155).
     pub fn map_point(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<u32> {
-        self.map_cache
-            .map_point(&self.grid, &self.node_map, p, normal, incident)
-    }
-
-    /// [`analysis::map_point`](crate::analysis::map_point) itself, without the cache.
-    pub fn map_point_uncached(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<u32> {
         map_point(&self.grid, &self.node_map, p, normal, incident)
     }
 
@@ -675,6 +758,15 @@ impl SkeletonGuide {
     /// `c_skel`, or with `c_skel=learned` the node's learned probability.
     pub fn guiding_probability(&self, node: u32) -> f32 {
         self.node_c.get(node as usize).copied().unwrap_or(0.0)
+    }
+
+    /// Strength of eq. 163 at `node`: the learned one with `strength=learned`, else the
+    /// settings'.
+    pub fn strength(&self, node: u32) -> SkeletonStrength {
+        self.node_strength
+            .get(node as usize)
+            .copied()
+            .unwrap_or(self.settings.strength)
     }
 
     /// False when a point at `p` cannot map to a node with a guiding probability above 0
@@ -711,7 +803,6 @@ impl SkeletonGuide {
     /// Bytes held (node map, nodes, lobes).
     pub fn memory_bytes(&self) -> usize {
         self.node_map.len() * 4
-            + self.map_cache.memory_bytes()
             + self.may_guide.len()
             + self.node_c.len() * 4
             + self.node_positions.len() * 16
@@ -1005,6 +1096,10 @@ struct ActiveLobe {
     frame: Frame,
     exponent: f32,
     probability: f32,
+    /// Free-space radius and distance the automatic strength was taken from (the lobe's
+    /// exponent under any other strength, for the training pass).
+    radius: f32,
+    distance: f32,
 }
 
 const NO_LOBE: ActiveLobe = ActiveLobe {
@@ -1015,6 +1110,8 @@ const NO_LOBE: ActiveLobe = ActiveLobe {
     },
     exponent: 0.0,
     probability: 0.0,
+    radius: 0.0,
+    distance: 0.0,
 };
 
 /// The skeleton sampling distribution at one surface point (eq. 163-167): a mixture of
@@ -1084,6 +1181,8 @@ impl GuideQuery {
                 frame: Frame::from_z(unit),
                 exponent,
                 probability: weight / total,
+                radius: 0.0,
+                distance: 0.0,
             };
         }
         if !(total > 0.0 && total.is_finite()) {
@@ -1131,6 +1230,7 @@ impl GuideQuery {
         } else {
             -normal
         };
+        let strength = guide.strength(node);
         let mut rays = 0;
         let mut total = 0.0f32;
         // Axis and distance toward `target` when it is above the surface and, with the
@@ -1166,8 +1266,10 @@ impl GuideQuery {
             };
             self.lobes[self.count] = ActiveLobe {
                 frame: Frame::from_z(axis),
-                exponent: guide.settings.strength.exponent(radius, distance),
+                exponent: strength.exponent(radius, distance),
                 probability: lobe.probability,
+                radius,
+                distance,
             };
             total += lobe.probability;
             self.count += 1;
@@ -1240,6 +1342,20 @@ impl GuideQuery {
         self.lobes[..self.count]
             .iter()
             .map(|l| l.probability * warp::power_cosine_pdf(l.frame.to_local(w), l.exponent))
+            .sum()
+    }
+
+    /// [`pdf`](Self::pdf) as it would be with every lobe's exponent from `strength` instead
+    /// (same lobes, axes and probabilities: which lobes apply at a point does not depend on
+    /// the strength). Lobes of [`with_lobes`](Self::with_lobes) have no radius: an automatic
+    /// strength gives them its bound.
+    pub fn pdf_with_strength(&self, w: Vec3, strength: SkeletonStrength) -> f32 {
+        self.lobes[..self.count]
+            .iter()
+            .map(|l| {
+                let exponent = strength.exponent(l.radius, l.distance);
+                l.probability * warp::power_cosine_pdf(l.frame.to_local(w), exponent)
+            })
             .sum()
     }
 

@@ -1,14 +1,16 @@
-//! `c_skel=learned`: the probability of sampling the skeleton lobes, chosen per node from a
-//! training pass (issue 8: "learned per node from accumulated contributions").
+//! `c_skel=learned` and `strength=learned`: the probability of sampling the skeleton lobes
+//! and the lobes' strength (eq. 163), chosen per node from a training pass (issue 8: "learned
+//! per node from accumulated contributions").
 //!
 //! # Training pass
 //!
 //! `TRAINING_PATHS` camera paths from the scene's camera (film and lens positions uniform over
-//! a 2:1 image),
-//! each at most `TRAINING_DEPTH` vertices deep, sample every guided vertex x (a non-delta BSDF
-//! whose node has lobes there) from the one-sample mixture at the training probability
-//! `c0 = TRAINING_C`, density `q_c0 = c0 p_skel + (1 - c0) p_bsdf`, like `path_skeleton`
-//! does. Each such vertex records for its node one sample of the contribution proxy
+//! a 2:1 image), each at most `training_depth` vertices deep (default 8, the integrators'
+//! default maximum depth), sample every guided vertex x (a non-delta BSDF whose node has
+//! lobes there) from the one-sample mixture at the training probability `c0 = TRAINING_C`
+//! and the settings' strength s0 (the proposal), density
+//! `q_0 = c0 p_skel,s0 + (1 - c0) p_bsdf`, like `path_skeleton` does. Each such vertex
+//! records for its node one sample of the contribution proxy
 //!
 //!   f = lum( beta (x) f_s(x, wo, wi) |cos| (x) L(wi) ),
 //!   L(wi) = L_e(x') + R(x'),  R(x_j) = NEE(x_j) + f_s |cos| / q (x_j) R(x_j+1),
@@ -17,55 +19,87 @@
 //! toward x estimated by unweighted next-event estimation at each later vertex (the corridor's
 //! light arrives after several bounces: a one-bounce proxy sees nothing there), and beta the
 //! path throughput up to x (a vertex reached with a large throughput weighs more in the
-//! pixel's variance), together with the two
-//! densities p_bsdf(wi) and p_skel(wi). The work is cut into fixed chunks with their own
-//! random streams and the samples are concatenated in chunk order, so the result is the same
-//! for any thread count.
+//! pixel's variance), together with p_bsdf(wi), p_skel,s0(wi) and p_skel,s(wi) for every
+//! candidate strength s (the same lobes with other exponents: which lobes apply at x, and
+//! where they point, does not depend on s, so every p_skel,s is exact). The work is cut into
+//! fixed chunks with their own random streams and the samples are concatenated in chunk
+//! order, so the result is the same for any thread count.
 //!
 //! # Estimator (derivation)
 //!
 //! At a node, the one-sample MIS estimator of the integral I = ∫ f dw with guiding
-//! probability c is F_c = f(w) / q_c(w), w ~ q_c, q_c = c p_skel + (1 - c) p_bsdf. Its second
-//! moment is
+//! probability c and strength s is F_c,s = f(w) / q_c,s(w), w ~ q_c,s,
+//! q_c,s = c p_skel,s + (1 - c) p_bsdf. Its second moment is
 //!
-//!   M(c) = E_{q_c}[f² / q_c²] = ∫ f² / q_c dw = E_{q_c0}[ f² / (q_c q_c0) ]
+//!   M(c, s) = E_{q_c,s}[f² / q_c,s²] = ∫ f² / q_c,s dw = E_{q_0}[ f² / (q_c,s q_0) ]
 //!
 //! (importance reweighting: the last expectation is over the training samples, drawn from
-//! q_c0), so every candidate c is evaluated from the same samples, unbiasedly, by the mean of
-//! f_i² / (q_c(w_i) q_c0(w_i)). The mean I is the same for all c, estimated by the mean of
-//! f_i / q_c0(w_i), and the variance is V(c) = M(c) - I². The efficiency to maximise is
-//! 1 / (V(c) cost(c)); cost is in units of one unguided path vertex (a continuation ray, a
-//! shadow ray, shading): cost(0) = 1 and cost(c > 0) = 1 + `COST_GUIDED` + `COST_SHADOW_RAY`
-//! x (the guide's shadow rays per query at this node, counted in training). The constants
-//! come from the round-3 profile of the door (callgrind: ~5,500 instructions per `path`
-//! vertex, ~1,400 per guide shadow ray, ~600 for the lobe set-up per query plus the lobe
-//! densities in the MIS weights); the node mapping is paid at c = 0 too (the node must be
-//! known to know its c), so it is not part of the difference. A c with f² / q_c infinite
-//! (p_bsdf = 0 where f > 0 makes BSDF sampling alone miss contributions) has M = inf.
+//! q_0), so every candidate (c, s) is evaluated from the same samples, unbiasedly, by the mean
+//! of f_i² / (q_c,s(w_i) q_0(w_i)) ([`reweighted_second_moment`]).
 //!
-//! The node gets c* = argmin over c > 0 of V(c) cost(c) only if guiding is *measurably*
-//! better than not guiding: with d_i = f_i² / (q_c0 q_c*) cost(c*) - f_i² / (q_c0 p_bsdf),
-//! the efficiency difference is V(c*) cost(c*) - V(0) = mean(d) - I² (cost(c*) - 1), and
-//! it must be below zero by two standard errors of mean(d); and the node must have had at
-//! least `MIN_SAMPLES` training samples, `MIN_NONZERO` of them non-zero. Otherwise c = 0:
-//! the node is not guided at all (no lobes, no shadow rays). The floor is there because M is
-//! a mean of squares, dominated by rare large samples: with a few dozen non-zero samples the
-//! standard error itself is not to be trusted, and a wrong "guide" costs 1.2-2x per vertex
-//! while a wrong "do not guide" only forgoes a gain. Nodes no training path reaches are not
-//! guided for the same reason. Whatever the chosen c, the render stays unbiased: c is a
+//! **The coverage condition.** The middle equality moves the integral from q_c,s to q_0; it
+//! holds exactly when q_0 > 0 wherever f² / q_c,s > 0, i.e. wherever f > 0: the training
+//! proposal must be able to draw every direction that carries a contribution. Since
+//! q_0 >= (1 - c0) p_bsdf with c0 = 1/2 < 1, this holds wherever the BSDF's sampling density is
+//! positive where f_s |cos| > 0 (all non-delta BSDFs here; delta vertices are never guided).
+//! Where p_bsdf = 0 but f > 0 (a BSDF whose sampling misses part of its support), q_0 still
+//! covers that direction if p_skel,s0 > 0 there, and p_skel,s has the same support (the
+//! union of the lobes' hemispheres, cos > 0) for every finite s, so such directions are
+//! covered for every candidate strength as soon as they are for s0; the sample then makes
+//! M(0, ·) infinite (BSDF sampling alone cannot reach it), which the choice below respects.
+//! The reweighted estimator's own variance, ∫ f⁴ / (q_c,s² q_0), is finite because
+//! q_0 >= p_bsdf / 2 and q_c,s >= (1 - c) p_bsdf with c <= 0.9: the weights q_0 / q_c,s stay
+//! bounded wherever the BSDF samples, whatever s. The mean I is the same for all candidates,
+//! estimated by the mean of f_i / q_0(w_i), and the variance is V(c, s) = M(c, s) - I².
+//!
+//! # Cost
+//!
+//! The efficiency to maximise is 1 / (V cost). Cost is counted in unguided path vertices (a
+//! continuation ray, a shadow ray, shading): guiding adds `COST_GUIDED` + `COST_SHADOW_RAY` x
+//! (the guide's shadow rays per query at this node, counted in training); the strength costs
+//! nothing. The constants come from the round-3 profile of the door (callgrind: ~5,500
+//! instructions per `path` vertex, ~1,400 per guide shadow ray, ~600 for the lobe set-up per
+//! query plus the lobe densities in the MIS weights); the node mapping is paid at c = 0 too
+//! (the node must be known to know its c), so it is not part of the difference. What the
+//! overhead is compared with is `training_cost`:
+//! - `path` (default): the vertices the sample's estimate is made of, this vertex and the
+//!   rest of its training path (mean over the node's samples): F's variance is that of the
+//!   whole estimate from x on, and producing one costs all of those vertices, not one;
+//! - `vertex` (round 4): one vertex, as if each vertex were the whole sample. It overstates
+//!   the guide's relative cost by the path's length: on the corridor (light 3-6 bounces
+//!   away) it turned off nodes whose estimate guiding improves 2-5x, the reason the learned c
+//!   lost a quarter of the fixed c's speedup there (BENCHMARKS.md, issue 8, round 5).
+//!
+//! # Choice
+//!
+//! The node gets (c*, s*) = argmin over the candidates (c > 0) of V(c, s) cost(c). With
+//! `c_skel=learned` it is kept only if guiding is *measurably* better than not guiding: with
+//! d_i = f_i² / q_0 (cost(c*) / q_c*,s* - cost(0) / p_bsdf), the efficiency difference is
+//! V(c*, s*) cost(c*) - V(0) cost(0) = mean(d) - I² (cost(c*) - cost(0)), and it must be below
+//! zero by `training_significance` standard errors of mean(d) (default 2); and the node must
+//! have had at least `MIN_SAMPLES` training samples, `MIN_NONZERO` of them non-zero. Otherwise
+//! c = 0: the node is not guided at all (no lobes, no shadow rays). The floor is there because
+//! M is a mean of squares, dominated by rare large samples: with a few dozen non-zero samples
+//! the standard error itself is not to be trusted. (The test compares the best of several
+//! candidates, chosen on the same samples, with c = 0: it is optimistic by the usual winner's
+//! margin; the candidates are few and strongly correlated.) With a fixed `c_skel` and
+//! `strength=learned` only s is chosen, at c = `c_skel`, without the test (there is no "off"
+//! to fall back to); nodes with too few samples keep the settings' strength. Nodes no
+//! training path reaches are not guided with a learned c. Without a camera nothing is
+//! learned: the guide keeps the fixed `c_skel` and strength everywhere (the C API's guide for
+//! a host without a camera). Whatever the choice, the render stays unbiased: (c, s) is a
 //! deterministic function of the scene, and every density `path_skeleton` uses is the
-//! mixture's at that c.
+//! mixture's at that node's (c, s).
 //!
-//! Heuristic parts, stated: the proxy stops after `TRAINING_DEPTH` vertices (light arriving
+//! Heuristic parts, stated: the proxy stops after `training_depth` vertices (light arriving
 //! after more bounces does not inform the choice), R carries the training path's own noise
-//! (it adds to M(c) equally for every c, a common floor, not a bias between candidates), and
-//! each vertex is judged as if it were the whole
-//! sample (a vertex's guiding overhead is a smaller share of a long path's cost, but so is
-//! its variance of the pixel's).
+//! (next-event estimation only, unlike the render's MIS), and each node is judged with the
+//! rest of the path guided at c0 (the choice at one node changes the paths the others see).
 
 use rayon::prelude::*;
 
-use super::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide};
+use super::STRENGTH_CANDIDATES;
+use super::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonStrength, TrainingCost};
 use crate::light::EnvStrategy;
 use crate::math::{luminance, Rgb, Rng, Sampler};
 use crate::scene::{Scene, SurfaceInteraction};
@@ -75,12 +109,12 @@ use crate::scene::{Scene, SurfaceInteraction};
 pub const TRAINING_C: f32 = 0.5;
 /// The candidate probabilities (c = 0 is "not guided").
 pub const CANDIDATES: [f32; 11] = [0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9];
+/// Most strengths a training pass compares.
+const MAX_STRENGTHS: usize = STRENGTH_CANDIDATES.len();
 /// Camera paths of the training pass (a fixed budget: about 0.1-0.3 s on two cores).
 const TRAINING_PATHS: u32 = 1 << 15;
 /// Camera paths per chunk (the fixed work partition).
 const CHUNK: u32 = 1024;
-/// Vertices per training path.
-const TRAINING_DEPTH: u32 = 5;
 /// Training samples a node needs before it may be guided, and how many must be non-zero.
 const MIN_SAMPLES: u32 = 256;
 const MIN_NONZERO: u32 = 32;
@@ -88,8 +122,6 @@ const MIN_NONZERO: u32 = 32;
 /// guide shadow ray (module docs).
 const COST_GUIDED: f64 = 0.15;
 const COST_SHADOW_RAY: f64 = 0.25;
-/// Standard errors by which guiding must beat not guiding.
-const SIGNIFICANCE: f64 = 2.0;
 /// Width / height of the training pass's image.
 const TRAINING_ASPECT: f32 = 2.0;
 const TRAINING_SEED: u64 = 0x7ea1_c5e1;
@@ -97,15 +129,26 @@ const TRAINING_SEED: u64 = 0x7ea1_c5e1;
 /// What the training pass found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrainingReport {
-    /// The learned guiding probability of each node (one of [`CANDIDATES`]).
+    /// The guiding probability of each node: one of [`CANDIDATES`] with `c_skel=learned`,
+    /// else the fixed `c_skel`.
     pub probabilities: Vec<f32>,
-    /// Training samples recorded per node.
+    /// The strength of each node: one of [`STRENGTH_CANDIDATES`] with `strength=learned`
+    /// (the settings' strength at nodes with too few samples), else the settings' strength.
+    pub strengths: Vec<SkeletonStrength>,
+    /// Training samples recorded per node, and how many of them were non-zero.
     pub samples: Vec<u32>,
-    /// Per node, the estimated variance x cost of the chosen c relative to not guiding
+    pub nonzero: Vec<u32>,
+    /// Per node, the estimated variance x cost of the chosen (c, s) relative to not guiding
     /// (below 1: guiding is better; 1 for nodes not guided, also where that ratio would
     /// have been below 1 without being significant).
     pub relative_cost: Vec<f32>,
-    /// Camera paths traced (0 when the scene has no camera: then no node is guided).
+    /// The same ratio for the best candidate before the significance rule (1 where the node
+    /// had too few samples; with a fixed `c_skel`, the best strength's ratio).
+    pub best_ratio: Vec<f32>,
+    /// Mean vertices per sample's estimate (the vertex and the rest of its training path).
+    pub mean_remaining: Vec<f32>,
+    /// Camera paths traced (0 when the scene has no camera: then the guide keeps its fixed
+    /// `c_skel` and strength).
     pub paths: u32,
 }
 
@@ -123,34 +166,84 @@ struct Sample {
     /// The contribution proxy f (module docs); 0 for directions that carry nothing.
     f: f32,
     p_bsdf: f32,
+    /// The skeleton mixture's density under the training proposal's strength.
     p_skel: f32,
+    /// The same under each candidate strength (the first `strengths` entries).
+    p_strength: [f32; MAX_STRENGTHS],
     /// Shadow rays the guide traced for this vertex's query.
     rays: u32,
+    /// Vertices of the training path from this one to its end (module docs, "Cost").
+    remaining: u32,
 }
 
 /// Per-node sums over the training samples.
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Default)]
 struct NodeSums {
     n: u32,
     nonzero: u32,
     rays: u64,
+    remaining: u64,
     /// Sum of f / q_c0.
     mean: f64,
-    /// Per candidate: sum of f² / (q_c q_c0).
-    second: [f64; CANDIDATES.len()],
+    /// Per candidate (c index, s index), row-major over c: sum of f² / (q_c,s q_c0).
+    second: Vec<f64>,
     /// Samples with f > 0 and p_bsdf = 0 (M(0) infinite).
     bsdf_misses: u32,
 }
 
-/// Runs the training pass for `guide` (whose node probabilities must all be [`TRAINING_C`])
-/// and chooses every node's probability (module docs).
+/// The candidates of one training pass.
+struct Grid {
+    /// Guiding probabilities above 0 to choose from (c = 0 is the baseline, not in here).
+    c: Vec<f32>,
+    strengths: Vec<SkeletonStrength>,
+    /// Whether c = 0 competes (`c_skel=learned`); else the fixed c is kept whatever it costs.
+    may_turn_off: bool,
+}
+
+impl Grid {
+    fn of(guide: &SkeletonGuide) -> Grid {
+        let settings = guide.settings();
+        Grid {
+            c: if settings.learned_c_skel {
+                CANDIDATES[1..].to_vec()
+            } else {
+                vec![settings.c_skel]
+            },
+            strengths: if settings.learned_strength {
+                STRENGTH_CANDIDATES.to_vec()
+            } else {
+                vec![settings.strength]
+            },
+            may_turn_off: settings.learned_c_skel,
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.c.len() * self.strengths.len()
+    }
+
+    /// (c, s index) of candidate `j`.
+    fn at(&self, j: usize) -> (f32, usize) {
+        (self.c[j / self.strengths.len()], j % self.strengths.len())
+    }
+}
+
+/// Runs the training pass for `guide` (whose node probabilities must all be [`TRAINING_C`]
+/// and whose strength is the settings' everywhere) and chooses every node's probability and
+/// strength (module docs).
 pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) -> TrainingReport {
     let nodes = guide.node_count();
+    let settings = guide.settings();
+    let grid = Grid::of(guide);
     let Some(camera) = scene.camera() else {
         return TrainingReport {
-            probabilities: vec![0.0; nodes],
+            probabilities: vec![settings.c_skel; nodes],
+            strengths: vec![settings.strength; nodes],
             samples: vec![0; nodes],
+            nonzero: vec![0; nodes],
             relative_cost: vec![1.0; nodes],
+            best_ratio: vec![1.0; nodes],
+            mean_remaining: vec![0.0; nodes],
             paths: 0,
         };
     };
@@ -167,7 +260,15 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
             for _ in 0..CHUNK.min(TRAINING_PATHS - c * CHUNK) {
                 let ray = camera.generate_ray(rng.uniform2(), rng.uniform2());
                 if let Some(si) = scene.intersect(&ray) {
-                    train_path(guide, scene, si, &mut query, &mut rng, &mut out);
+                    train_path(
+                        guide,
+                        scene,
+                        &grid.strengths,
+                        si,
+                        &mut query,
+                        &mut rng,
+                        &mut out,
+                    );
                 }
             }
             out
@@ -175,42 +276,59 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         .collect();
 
     let c0 = TRAINING_C as f64;
-    let mut sums = vec![NodeSums::default(); nodes];
+    let mut sums = vec![
+        NodeSums {
+            second: vec![0.0; grid.len()],
+            ..Default::default()
+        };
+        nodes
+    ];
     for s in per_chunk.iter().flatten() {
         let acc = &mut sums[s.node as usize];
         acc.n += 1;
         acc.rays += s.rays as u64;
+        acc.remaining += s.remaining as u64;
         if s.f <= 0.0 {
             continue;
         }
-        let (f, pb, ps) = (s.f as f64, s.p_bsdf as f64, s.p_skel as f64);
-        let q0 = c0 * ps + (1.0 - c0) * pb;
+        let (f, pb) = (s.f as f64, s.p_bsdf as f64);
+        let q0 = c0 * s.p_skel as f64 + (1.0 - c0) * pb;
         acc.nonzero += 1;
         acc.mean += f / q0;
         if pb <= 0.0 {
             acc.bsdf_misses += 1;
         }
-        for (m, &c) in acc.second.iter_mut().zip(&CANDIDATES) {
-            let q = c as f64 * ps + (1.0 - c as f64) * pb;
-            *m += if q > 0.0 {
-                f * f / (q * q0)
-            } else {
-                f64::INFINITY
-            };
+        for (j, m) in acc.second.iter_mut().enumerate() {
+            let (c, k) = grid.at(j);
+            *m += reweighted_second_moment(s.f, s.p_bsdf, s.p_skel, s.p_strength[k], c);
         }
     }
 
-    // The significance test needs the spread of d_i for the chosen c: a second pass over the
-    // samples of the nodes that got one (the sums above fix c* first).
+    // Cost of a sample at a node, unguided (c = 0) or guided, in unguided vertices.
     let cost = |acc: &NodeSums, c: f32| -> f64 {
+        let n = acc.n.max(1) as f64;
+        let base = match settings.training_cost {
+            TrainingCost::Vertex => 1.0,
+            TrainingCost::Path => (acc.remaining as f64 / n).max(1.0),
+        };
         if c <= 0.0 {
-            1.0
+            base
         } else {
-            let rays = acc.rays as f64 / acc.n.max(1) as f64;
-            1.0 + COST_GUIDED + COST_SHADOW_RAY * rays
+            base + COST_GUIDED + COST_SHADOW_RAY * acc.rays as f64 / n
         }
     };
-    let mut chosen = vec![0usize; nodes];
+    // M(0) = E[f² / (q_c0 p_bsdf)]: its own sum (c = 0 is not in the grid).
+    let mut unguided_second = vec![0.0f64; nodes];
+    for s in per_chunk.iter().flatten() {
+        if s.f > 0.0 {
+            unguided_second[s.node as usize] +=
+                reweighted_second_moment(s.f, s.p_bsdf, s.p_skel, 0.0, 0.0);
+        }
+    }
+    // The significance test needs the spread of d_i for the chosen candidate: a second pass
+    // over the samples of the nodes that got one (the sums above fix it first).
+    let mut chosen: Vec<Option<usize>> = vec![None; nodes];
+    let mut best_ratio = vec![1.0f32; nodes];
     let mut efficiency = vec![(0.0f64, 0.0f64); nodes];
     for (k, acc) in sums.iter().enumerate() {
         if acc.n < MIN_SAMPLES || acc.nonzero < MIN_NONZERO {
@@ -218,50 +336,63 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         }
         let n = acc.n as f64;
         let mean2 = (acc.mean / n).powi(2);
-        let product = |j: usize| (acc.second[j] / n - mean2).max(0.0) * cost(acc, CANDIDATES[j]);
-        let best = (1..CANDIDATES.len())
+        let product = |j: usize| (acc.second[j] / n - mean2).max(0.0) * cost(acc, grid.at(j).0);
+        let best = (0..grid.len())
             .min_by(|&a, &b| product(a).total_cmp(&product(b)))
-            .expect("candidates beyond 0");
-        chosen[k] = best;
-        efficiency[k] = (product(best), product(0));
+            .expect("at least one candidate");
+        let unguided = (unguided_second[k] / n - mean2).max(0.0) * cost(acc, 0.0);
+        chosen[k] = Some(best);
+        efficiency[k] = (product(best), unguided);
+        best_ratio[k] = if unguided > 0.0 && unguided.is_finite() {
+            (product(best) / unguided) as f32
+        } else {
+            0.0
+        };
     }
-    // d_i = f² / (q_c0 q_c*) cost(c*) - f² / (q_c0 p_bsdf): sum and sum of squares.
+    // d_i = f² / q_c0 (cost(c*) / q_c*,s* - cost(0) / p_bsdf): sum and sum of squares.
     let mut d_sums = vec![(0.0f64, 0.0f64); nodes];
     for s in per_chunk.iter().flatten() {
         let k = s.node as usize;
-        let j = chosen[k];
-        if j == 0 || s.f <= 0.0 || sums[k].bsdf_misses > 0 {
+        let Some(j) = chosen[k] else { continue };
+        if s.f <= 0.0 || sums[k].bsdf_misses > 0 {
             continue;
         }
-        let (f, pb, ps) = (s.f as f64, s.p_bsdf as f64, s.p_skel as f64);
-        let q0 = c0 * ps + (1.0 - c0) * pb;
-        let c = CANDIDATES[j] as f64;
-        let q = c * ps + (1.0 - c) * pb;
-        let d = f * f / q0 * (cost(&sums[k], CANDIDATES[j]) / q - 1.0 / pb);
+        let (f, pb) = (s.f as f64, s.p_bsdf as f64);
+        let q0 = c0 * s.p_skel as f64 + (1.0 - c0) * pb;
+        let (c, ks) = grid.at(j);
+        let q = c as f64 * s.p_strength[ks] as f64 + (1.0 - c as f64) * pb;
+        let d = f * f / q0 * (cost(&sums[k], c) / q - cost(&sums[k], 0.0) / pb);
         d_sums[k].0 += d;
         d_sums[k].1 += d * d;
     }
 
-    let mut probabilities = vec![0.0f32; nodes];
+    let mut probabilities = vec![
+        if grid.may_turn_off {
+            0.0
+        } else {
+            settings.c_skel
+        };
+        nodes
+    ];
+    let mut strengths = vec![settings.strength; nodes];
     let mut relative_cost = vec![1.0f32; nodes];
     for k in 0..nodes {
-        let j = chosen[k];
-        if j == 0 {
-            continue;
-        }
+        let Some(j) = chosen[k] else { continue };
         let acc = &sums[k];
-        let guide_it = if acc.bsdf_misses > 0 {
+        let (c, ks) = grid.at(j);
+        let guide_it = if !grid.may_turn_off || acc.bsdf_misses > 0 {
             true
         } else {
             let n = acc.n as f64;
             let mean_d = d_sums[k].0 / n;
             let var_d = (d_sums[k].1 / n - mean_d * mean_d).max(0.0);
             let mean2 = (acc.mean / n).powi(2);
-            let difference = mean_d - mean2 * (cost(acc, CANDIDATES[j]) - 1.0);
-            difference + SIGNIFICANCE * (var_d / n).sqrt() < 0.0
+            let difference = mean_d - mean2 * (cost(acc, c) - cost(acc, 0.0));
+            difference + settings.training_significance as f64 * (var_d / n).sqrt() < 0.0
         };
         if guide_it {
-            probabilities[k] = CANDIDATES[j];
+            probabilities[k] = c;
+            strengths[k] = grid.strengths[ks];
             let (guided, unguided) = efficiency[k];
             relative_cost[k] = if unguided > 0.0 && unguided.is_finite() {
                 (guided / unguided) as f32
@@ -272,9 +403,41 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
     }
     TrainingReport {
         probabilities,
+        strengths,
         samples: sums.iter().map(|s| s.n).collect(),
+        nonzero: sums.iter().map(|s| s.nonzero).collect(),
         relative_cost,
+        best_ratio,
+        mean_remaining: sums
+            .iter()
+            .map(|s| s.remaining as f32 / s.n.max(1) as f32)
+            .collect(),
         paths: TRAINING_PATHS,
+    }
+}
+
+/// One training sample's term of the reweighted second moment M(c, s) (module docs):
+/// f² / (q_c,s q_c0), with q_c0 = c0 p_skel,s0 + (1 - c0) p_bsdf the density the sample was
+/// drawn from (`p_proposal` = p_skel,s0) and q_c,s = c p_skel,s + (1 - c) p_bsdf the candidate's
+/// (`p_candidate` = p_skel,s). Infinite where the candidate cannot sample a direction that
+/// carries f > 0.
+pub(crate) fn reweighted_second_moment(
+    f: f32,
+    p_bsdf: f32,
+    p_proposal: f32,
+    p_candidate: f32,
+    c: f32,
+) -> f64 {
+    let (f, pb, c, c0) = (f as f64, p_bsdf as f64, c as f64, TRAINING_C as f64);
+    if f <= 0.0 {
+        return 0.0;
+    }
+    let q0 = c0 * p_proposal as f64 + (1.0 - c0) * pb;
+    let q = c * p_candidate as f64 + (1.0 - c) * pb;
+    if q > 0.0 {
+        f * f / (q * q0)
+    } else {
+        f64::INFINITY
     }
 }
 
@@ -300,14 +463,16 @@ struct TrainingVertex {
 fn train_path(
     guide: &SkeletonGuide,
     scene: &Scene,
+    strengths: &[SkeletonStrength],
     mut si: SurfaceInteraction,
     query: &mut GuideQuery,
     rng: &mut Sampler,
     out: &mut Vec<Sample>,
 ) {
     let mut beta = Rgb::ONE;
-    let mut path: Vec<TrainingVertex> = Vec::with_capacity(TRAINING_DEPTH as usize);
-    for _ in 0..TRAINING_DEPTH {
+    let depth = guide.settings().training_depth;
+    let mut path: Vec<TrainingVertex> = Vec::with_capacity(depth as usize);
+    for _ in 0..depth {
         let bsdf = scene.bsdf(&si);
         let frame = si.shading_frame();
         let wo_local = frame.to_local(si.wo);
@@ -322,7 +487,9 @@ fn train_path(
             f: 0.0,
             p_bsdf: 0.0,
             p_skel: 0.0,
+            p_strength: [0.0; MAX_STRENGTHS],
             rays,
+            remaining: 1,
         };
         let Some(ms) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, query, rng) else {
             if guided {
@@ -356,10 +523,17 @@ fn train_path(
             ),
         };
         path.push(TrainingVertex {
-            sample: guided.then(|| Sample {
-                p_bsdf: bsdf.pdf(wo_local, bs.wi),
-                p_skel: query.pdf(wi),
-                ..zero
+            sample: guided.then(|| {
+                let mut p_strength = [0.0; MAX_STRENGTHS];
+                for (p, &s) in p_strength.iter_mut().zip(strengths) {
+                    *p = query.pdf_with_strength(wi, s);
+                }
+                Sample {
+                    p_bsdf: bsdf.pdf(wo_local, bs.wi),
+                    p_skel: query.pdf(wi),
+                    p_strength,
+                    ..zero
+                }
             }),
             beta,
             f_cos,
@@ -377,11 +551,13 @@ fn train_path(
     // Backwards. At vertex i: R(x_i+1) = NEE(x_i+1) + tail, tail = f_s |cos| / q (x_i+1)
     // R(x_i+2) (zero beyond the last vertex sampled), and L = L_e(x_i+1) + R(x_i+1).
     let mut tail = Rgb::ZERO;
-    for v in path.iter().rev() {
+    let len = path.len() as u32;
+    for (i, v) in path.iter().enumerate().rev() {
         let reflected = v.direct + tail;
         if let Some(mut sample) = v.sample {
             let f = luminance(v.beta * v.f_cos * (v.emitted + reflected));
             sample.f = if f.is_finite() { f.max(0.0) } else { 0.0 };
+            sample.remaining = len - i as u32;
             out.push(sample);
         }
         tail = v.weight * reflected;
@@ -417,4 +593,89 @@ fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Sampler) -> Rg
         return Rgb::ZERO;
     }
     f * ls.radiance / (pmf * ls.pdf)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::{warp, Frame, Vec3};
+
+    /// The reweighted estimate of M(c, s) from samples of the training proposal (c0, s0)
+    /// agrees with a brute-force estimate from samples of (c, s) itself, on a toy integrand
+    /// over the sphere: a cosine "BSDF" around z, one power-cosine lobe around a tilted axis,
+    /// and f peaked off both axes (so neither strategy matches it).
+    #[test]
+    fn reweighted_second_moment_matches_brute_force() {
+        let axis = Vec3::new(0.5, 0.2, 0.8).normalize();
+        let peak = Vec3::new(0.7, -0.1, 0.6).normalize();
+        let lobe = Frame::from_z(axis);
+        let f = |w: Vec3| -> f32 {
+            let cos = w.z.max(0.0);
+            cos * (0.2 + 30.0 * w.dot(peak).max(0.0).powi(20))
+        };
+        let p_bsdf = |w: Vec3| warp::cosine_hemisphere_pdf(w);
+        let p_skel = |w: Vec3, s: f32| warp::power_cosine_pdf(lobe.to_local(w), s);
+        let draw = |rng: &mut Rng, c: f32, s: f32| -> Vec3 {
+            if rng.uniform() < c {
+                lobe.to_world(warp::power_cosine(rng.uniform2(), s))
+            } else {
+                warp::cosine_hemisphere(rng.uniform2())
+            }
+        };
+        let s0 = 4.0;
+        let n = 400_000;
+        let mut rng = Rng::new(5, 1);
+        let proposal: Vec<Vec3> = (0..n).map(|_| draw(&mut rng, TRAINING_C, s0)).collect();
+        for &(c, s) in &[
+            (0.0, 1.0),
+            (0.2, 1.0),
+            (0.5, 4.0),
+            (0.7, 16.0),
+            (0.9, 2.0),
+            (0.3, 64.0),
+        ] {
+            let terms: Vec<f64> = proposal
+                .iter()
+                .map(|&w| reweighted_second_moment(f(w), p_bsdf(w), p_skel(w, s0), p_skel(w, s), c))
+                .collect();
+            let brute: Vec<f64> = (0..n)
+                .map(|_| {
+                    let w = draw(&mut rng, c, s);
+                    let q = c as f64 * p_skel(w, s) as f64 + (1.0 - c as f64) * p_bsdf(w) as f64;
+                    if f(w) > 0.0 {
+                        (f(w) as f64 / q).powi(2)
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            let stats = |v: &[f64]| {
+                let m = v.iter().sum::<f64>() / v.len() as f64;
+                let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64;
+                (m, var / v.len() as f64)
+            };
+            let ((a, va), (b, vb)) = (stats(&terms), stats(&brute));
+            let z = (a - b) / (va + vb).sqrt();
+            assert!(a.is_finite() && b > 0.0, "c {c} s {s}: {a} {b}");
+            assert!(
+                z.abs() < 4.0,
+                "c {c} s {s}: reweighted {a}, brute force {b}, z {z}"
+            );
+        }
+    }
+
+    #[test]
+    fn second_moment_is_infinite_where_the_candidate_misses() {
+        // f > 0 where the BSDF has no density: only c > 0 with lobe density reaches it.
+        assert_eq!(
+            reweighted_second_moment(1.0, 0.0, 1.0, 0.0, 0.5),
+            f64::INFINITY
+        );
+        assert_eq!(
+            reweighted_second_moment(1.0, 0.0, 1.0, 1.0, 0.0),
+            f64::INFINITY
+        );
+        assert!(reweighted_second_moment(1.0, 0.0, 1.0, 2.0, 0.5).is_finite());
+        assert_eq!(reweighted_second_moment(0.0, 0.0, 0.0, 0.0, 0.5), 0.0);
+    }
 }

@@ -167,13 +167,30 @@ impl Integrator for PathTracer {
                 .collect();
             let trained = t.samples.iter().filter(|&&n| n > 0).count();
             notes.push(format!(
-                "learned c_skel: {} of {} nodes guided ({} reached by {} training paths), mean c {:.2}",
+                "trained c_skel / strength: {} of {} nodes guided ({} reached by {} training paths), mean c {:.2}",
                 guided.len(),
                 guide.node_count(),
                 trained,
                 t.paths,
                 guided.iter().sum::<f32>() / guided.len().max(1) as f32
             ));
+            if guide.settings().learned_strength {
+                let mut counts: Vec<(String, usize)> = Vec::new();
+                for (s, &c) in t.strengths.iter().zip(&t.probabilities) {
+                    if c > 0.0 {
+                        let name = s.to_string();
+                        match counts.iter_mut().find(|(n, _)| *n == name) {
+                            Some(entry) => entry.1 += 1,
+                            None => counts.push((name, 1)),
+                        }
+                    }
+                }
+                let list: Vec<String> = counts.iter().map(|(n, k)| format!("{n}: {k}")).collect();
+                notes.push(format!(
+                    "learned strengths of the guided nodes: {}",
+                    list.join(", ")
+                ));
+            }
         }
         let stages = guide.timings().to_vec();
         *slot = Some(Arc::new(guide));
