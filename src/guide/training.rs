@@ -66,9 +66,9 @@
 //!   rest of its training path (mean over the node's samples): F's variance is that of the
 //!   whole estimate from x on, and producing one costs all of those vertices, not one;
 //! - `vertex` (round 4): one vertex, as if each vertex were the whole sample. It overstates
-//!   the guide's relative cost by the path's length: on the corridor (light 3-6 bounces
-//!   away) it turned off nodes whose estimate guiding improves 2-5x, the reason the learned c
-//!   lost a quarter of the fixed c's speedup there (BENCHMARKS.md, issue 8, round 5).
+//!   the guide's relative cost by the path's length (3-6 vertices per estimate on the
+//!   corridor), and with round 4's 5-vertex paths most corridor nodes had only 30-450
+//!   non-zero samples: 5 of 17 nodes were guided, now 9 (BENCHMARKS.md, issue 8, round 5).
 //!
 //! # Choice
 //!
@@ -95,6 +95,9 @@
 //! after more bounces does not inform the choice), R carries the training path's own noise
 //! (next-event estimation only, unlike the render's MIS), and each node is judged with the
 //! rest of the path guided at c0 (the choice at one node changes the paths the others see).
+//! The objective is the variance (the image's MSE), not the MAE `lacuna compare` ranks by: on
+//! the corridor the learned choice matches the fixed c = 0.5 in MSE per sample but is 1.2x
+//! behind it in MAE² per sample (round 5), a heavy-tailed estimator's two errors disagreeing.
 
 use rayon::prelude::*;
 
