@@ -344,10 +344,12 @@ pub const OPTION_NAMES: &[&str] = &[
 impl SkeletonGuideSettings {
     /// Sets one option by name from text (integrator specs, scene files): `c_skel` (a number
     /// or `learned`),
-    /// `strength` (a number, `auto` or `auto:MAX`), `resolution` (voxels along the longest
+    /// `strength` (a number, `auto`, `auto:MAX` or `learned`; `learned` keeps the strength set
+    /// before as the training proposal), `resolution` (voxels along the longest
     /// axis), `voxel_budget` (most voxels in the grid), `light_rays`,
-    /// `importance_nodes`, `lobes`, `visibility` (true/false), `aim` (`point` or `opening`).
-    /// Validates the result.
+    /// `importance_nodes`, `lobes`, `visibility` (true/false), `aim` (`point` or `opening`),
+    /// and for the training pass `training_depth` (1..=64), `training_cost` (`path` or
+    /// `vertex`) and `training_significance` (>= 0). Validates the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
             value.trim().parse().map_err(|_| {
@@ -1398,6 +1400,37 @@ mod tests {
         for bad in ["-1", "nan", "inf", "auto:0.5", "auto:x", "x", "1e9"] {
             assert!(SkeletonStrength::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn learned_strength_and_training_options_parse() {
+        let mut s = SkeletonGuideSettings::default();
+        s.set("strength", "16").unwrap();
+        s.set("strength", "learned").unwrap();
+        // The strength set before stays the training proposal.
+        assert!(s.learned_strength);
+        assert_eq!(s.strength, SkeletonStrength::Fixed(16.0));
+        s.set("strength", "auto").unwrap();
+        assert!(!s.learned_strength);
+        s.set("training_depth", "5").unwrap();
+        s.set("training_cost", "vertex").unwrap();
+        s.set("training_significance", "0").unwrap();
+        assert_eq!(
+            (s.training_depth, s.training_cost, s.training_significance),
+            (5, TrainingCost::Vertex, 0.0)
+        );
+        for (key, bad) in [
+            ("training_depth", "0"),
+            ("training_depth", "65"),
+            ("training_cost", "pixel"),
+            ("training_significance", "-1"),
+            ("training_significance", "nan"),
+        ] {
+            let before = s;
+            assert!(s.set(key, bad).is_err(), "{key}={bad}");
+            assert_eq!(s, before, "a failed set leaves the settings alone");
+        }
+        assert!(OPTION_NAMES.contains(&"training_cost"));
     }
 
     #[test]
