@@ -2,7 +2,7 @@
 //! guide skip [`map_point`](super::map_point) (eq. 151-155) where no node it cares about is within reach.
 //!
 //! (Round 4 also kept a per-voxel shortcut cache of `map_point` here, `MapPointCache`; it saved
-//! 0.2 % of a guided sample's instructions on the door, because most surface points'
+//! 0.2-0.4 % of a guided sample's instructions on the door, because most surface points'
 //! neighbourhoods map to several nodes and the full search ran anyway, at 8 bytes per voxel.
 //! Removed in round 5; the mask is what pays: no mapping at all where nothing is guided.)
 
