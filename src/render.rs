@@ -1,9 +1,10 @@
 //! The progressive render loop: passes of N samples per pixel over 16x16 tiles in parallel,
 //! a sample or time budget, progress reporting and cancellation.
 //!
-//! Determinism: every pixel sample draws its numbers from a [`Sampler`](crate::math::Sampler) keyed by (seed, pixel,
-//! sample index) only, and each pixel's samples are summed in sample order within a pass, so
-//! for a given seed, sampler and sample budget the image does not depend on the thread count.
+//! Determinism: every pixel sample draws its numbers from a [`Sampler`](crate::math::Sampler)
+//! keyed by (seed, pixel, sample index) only, and each pixel's samples are summed in sample
+//! order within a pass, so for a given seed, sampler and sample budget the image does not
+//! depend on the thread count.
 //! The camera takes dimension slots [`FILM_DIMENSION`] and [`LENS_DIMENSION`]; integrators
 //! start at [`FIRST_INTEGRATOR_DIMENSION`].
 
