@@ -1,9 +1,10 @@
 //! The progressive render loop: passes of N samples per pixel over 16x16 tiles in parallel,
 //! a sample or time budget, progress reporting and cancellation.
 //!
-//! Determinism: every pixel sample draws its numbers from a [`Sampler`] keyed by (seed, pixel,
-//! sample index) only, and each pixel's samples are summed in sample order within a pass, so
-//! for a given seed, sampler and sample budget the image does not depend on the thread count.
+//! Determinism: every pixel sample draws its numbers from a [`Sampler`](crate::math::Sampler)
+//! keyed by (seed, pixel, sample index) only, and each pixel's samples are summed in sample
+//! order within a pass, so for a given seed, sampler and sample budget the image does not
+//! depend on the thread count.
 //! The camera takes dimension slots [`FILM_DIMENSION`] and [`LENS_DIMENSION`]; integrators
 //! start at [`FIRST_INTEGRATOR_DIMENSION`].
 
@@ -16,7 +17,7 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::integrator::{Integrator, Precomputation, SampleContext, TraceCounters, View};
-use crate::math::{Rgb, Sampler, SamplerKind, Vec2};
+use crate::math::{PixelSampler, Rgb, SamplerKind, Vec2};
 use crate::scene::{Camera, Scene};
 
 const TILE: u32 = 16;
@@ -294,9 +295,10 @@ fn render_in_pool(
                                 iteration: data,
                                 layers: &layers,
                             };
+                            let pixel_sampler =
+                                PixelSampler::new(settings.sampler, settings.seed, pixel_index);
                             for s in first..first + count {
-                                let mut rng =
-                                    Sampler::new(settings.sampler, settings.seed, pixel_index, s);
+                                let mut rng = pixel_sampler.sample(s);
                                 rng.set_dimension(FILM_DIMENSION);
                                 let jitter = rng.uniform2();
                                 let film_pos = Vec2::new(
@@ -304,7 +306,14 @@ fn render_in_pool(
                                     (y as f32 + jitter.y) / h as f32,
                                 );
                                 rng.set_dimension(LENS_DIMENSION);
-                                let ray = view.frame.generate_ray(film_pos, rng.uniform2());
+                                // A pinhole camera ignores the lens position: not computed.
+                                let lens = if view.frame.has_lens() {
+                                    rng.uniform2()
+                                } else {
+                                    rng.skip_uniform2();
+                                    Vec2::ZERO
+                                };
+                                let ray = view.frame.generate_ray(film_pos, lens);
                                 rng.set_dimension(FIRST_INTEGRATOR_DIMENSION);
                                 let sample =
                                     integrator.sample(scene, ray, &mut rng, &mut counters, &ctx);

@@ -828,3 +828,48 @@ fn pdf_is_positive_wherever_f_is() {
         }
     }
 }
+
+/// `Bsdf::sample_from` draws only the numbers a BSDF reads and skips the others' requests: its
+/// result, and every request after it, must be those of `sample` fed by the sampler's next 1-D
+/// and 2-D numbers, for both pixel samplers and both transport modes.
+#[test]
+fn sample_from_draws_what_sample_would() {
+    use lacuna::math::{Sampler, SamplerKind};
+    let bsdfs = [
+        ("lambert", lambert(0.7)),
+        ("phong", phong(0.4, 0.5, 30.0)),
+        ("mirror", Material::mirror(Rgb::splat(0.9)).bsdf(Rgb::ZERO)),
+        ("dielectric", Material::dielectric(1.5).bsdf(Rgb::ZERO)),
+    ];
+    let mut rng = Rng::new(11, 3);
+    for kind in [SamplerKind::Sobol, SamplerKind::Independent] {
+        for (name, bsdf) in &bsdfs {
+            for k in 0..500u32 {
+                let wo = warp::uniform_sphere(rng.uniform2());
+                let mode = if k % 2 == 0 {
+                    Transport::Radiance
+                } else {
+                    Transport::Importance
+                };
+                let mut skipping = Sampler::new(kind, 5, k as u64, k);
+                let mut drawing = Sampler::new(kind, 5, k as u64, k);
+                let got = bsdf.sample_from(wo, &mut skipping, mode);
+                let uc = drawing.uniform();
+                let want = bsdf.sample(wo, uc, drawing.uniform2(), mode);
+                match (got, want) {
+                    (None, None) => {}
+                    (Some(a), Some(b)) => {
+                        assert_eq!(
+                            (a.wi, a.f, a.pdf, a.delta),
+                            (b.wi, b.f, b.pdf, b.delta),
+                            "{name} {kind:?} wo {wo}"
+                        );
+                    }
+                    (a, b) => panic!("{name} {kind:?} wo {wo}: {a:?} against {b:?}"),
+                }
+                assert_eq!(skipping.uniform2(), drawing.uniform2(), "{name} {kind:?}");
+                assert_eq!(skipping.uniform(), drawing.uniform(), "{name} {kind:?}");
+            }
+        }
+    }
+}

@@ -53,8 +53,7 @@ pub fn sample_bsdf_or_guide(
             bsdf_pdf: if bsdf_pdf > 0.0 { bsdf_pdf } else { pdf },
         });
     }
-    let uc = rng.uniform();
-    let mut bs = bsdf.sample(wo_local, uc, rng.uniform2(), Transport::Radiance)?;
+    let mut bs = bsdf.sample_from(wo_local, rng, Transport::Radiance)?;
     let bsdf_pdf = bs.pdf;
     if c > 0.0 && !bs.delta {
         bs.pdf = query.mixture_pdf(frame.to_world(bs.wi), bs.pdf);

@@ -1135,13 +1135,20 @@ impl Default for GuideQuery {
 
 impl GuideQuery {
     /// An unguided query (guiding probability 0) until `init` finds lobes.
-    pub fn new() -> Self {
+    pub const fn new() -> Self {
         GuideQuery {
             lobes: [NO_LOBE; MAX_LOBES],
             count: 0,
             c_skel: 0.0,
             node: None,
         }
+    }
+
+    /// A shared unguided query, for integrators without a guide: reading it costs nothing,
+    /// while making a query writes its whole lobe array (about 400 bytes, per path).
+    pub fn unguided() -> &'static GuideQuery {
+        static UNGUIDED: GuideQuery = GuideQuery::new();
+        &UNGUIDED
     }
 
     /// Makes the query unguided (guiding probability 0), as at a point no lobe reaches.

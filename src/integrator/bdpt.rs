@@ -601,8 +601,7 @@ impl Bdpt {
     ) -> Option<Vec3> {
         let frame = si.shading_frame();
         let wo_l = frame.to_local(si.wo);
-        let uc = rng.uniform();
-        let bs = bsdf.sample(wo_l, uc, rng.uniform2(), mode)?;
+        let bs = bsdf.sample_from(wo_l, rng, mode)?;
         let wi = frame.to_world(bs.wi);
         let reflected = bs.wi.z * wo_l.z > 0.0;
         let same_side = wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0;

@@ -213,8 +213,7 @@ impl EnvDirect {
         let frame = si.shading_frame();
         let wo_l = frame.to_local(si.wo);
         for _ in 0..n_bsdf {
-            let uc = rng.uniform();
-            let Some(bs) = bsdf.sample(wo_l, uc, rng.uniform2(), Transport::Radiance) else {
+            let Some(bs) = bsdf.sample_from(wo_l, rng, Transport::Radiance) else {
                 continue;
             };
             if bs.delta {
@@ -275,8 +274,7 @@ impl Integrator for EnvDirect {
             }
             let frame = si.shading_frame();
             let wo_local = frame.to_local(si.wo);
-            let uc = rng.uniform();
-            let Some(bs) = bsdf.sample(wo_local, uc, rng.uniform2(), Transport::Radiance) else {
+            let Some(bs) = bsdf.sample_from(wo_local, rng, Transport::Radiance) else {
                 break;
             };
             let wi = frame.to_world(bs.wi);

@@ -231,7 +231,8 @@ impl Integrator for PathTracer {
         let mut prev_normal = Vec3::ZERO;
         let mut depth = 0u32;
         let guide = self.guide();
-        let mut query = GuideQuery::new();
+        // Only the guided integrator fills a query of its own.
+        let mut guided_query = guide.map(|_| GuideQuery::new());
         loop {
             counters.rays += 1;
             let Some(si) = scene.intersect(&ray) else {
@@ -269,19 +270,26 @@ impl Integrator for PathTracer {
             }
             let frame = si.shading_frame();
             let wo_local = frame.to_local(si.wo);
-            // No guiding at delta BSDFs: no mixture with a Dirac lobe has a density.
-            query.clear();
-            if let (Some(guide), false) = (guide, bsdf.is_delta()) {
-                counters.rays += query.init(guide, scene, si.p, si.p_error, si.ng, si.wo) as u64;
-            }
+            let query: &GuideQuery = match (guide, guided_query.as_mut()) {
+                (Some(guide), Some(query)) => {
+                    query.clear();
+                    // No guiding at delta BSDFs: no mixture with a Dirac lobe has a density.
+                    if !bsdf.is_delta() {
+                        counters.rays +=
+                            query.init(guide, scene, si.p, si.p_error, si.ng, si.wo) as u64;
+                    }
+                    query
+                }
+                _ => GuideQuery::unguided(),
+            };
             if !bsdf.is_delta() {
                 rng.set_dimension(slot(depth, LIGHT_SLOT));
                 radiance += beta
-                    * self.sample_light(scene, &si, &frame, &bsdf, wo_local, &query, rng, counters);
+                    * self.sample_light(scene, &si, &frame, &bsdf, wo_local, query, rng, counters);
             }
 
             rng.set_dimension(slot(depth, DIRECTION_SLOT));
-            let Some(ms) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &query, rng) else {
+            let Some(ms) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, query, rng) else {
                 break;
             };
             let bs = ms.sample;

@@ -79,25 +79,60 @@ enum Kind {
 /// Domain separator of the Sobol sampler's pixel keys (so they differ from PCG streams).
 const SOBOL_DOMAIN: u64 = 0x5B0B_A11E_D5EE_D000;
 
-impl Sampler {
-    /// The numbers of sample `sample_index` of pixel `pixel_index` (row-major) for `seed`.
-    /// `Independent` gives exactly the numbers of [`Rng::for_sample`].
-    pub fn new(kind: SamplerKind, seed: u64, pixel_index: u64, sample_index: u32) -> Self {
-        match kind {
-            SamplerKind::Independent => {
-                Sampler::independent(Rng::for_sample(seed, pixel_index, sample_index as u64))
+/// What the samples of one pixel share: the render loop makes one per pixel and asks it for
+/// each sample's [`Sampler`], so the pixel's hash is computed once rather than per sample.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelSampler {
+    kind: SamplerKind,
+    seed: u64,
+    pixel_index: u64,
+    /// Sobol: hash of (seed, pixel), the key of every slot's shuffle and scrambles.
+    pixel_key: u64,
+}
+
+impl PixelSampler {
+    /// The samples of pixel `pixel_index` (row-major) for `seed`.
+    #[inline]
+    pub fn new(kind: SamplerKind, seed: u64, pixel_index: u64) -> Self {
+        let pixel_key = match kind {
+            SamplerKind::Independent => 0,
+            SamplerKind::Sobol => {
+                mix64(mix64(seed ^ SOBOL_DOMAIN) ^ pixel_index.wrapping_mul(0x9E37_79B9_7F4A_7C15))
             }
+        };
+        PixelSampler {
+            kind,
+            seed,
+            pixel_index,
+            pixel_key,
+        }
+    }
+
+    /// The numbers of sample `sample_index` of this pixel (those of [`Sampler::new`]).
+    #[inline]
+    pub fn sample(&self, sample_index: u32) -> Sampler {
+        match self.kind {
+            SamplerKind::Independent => Sampler::independent(Rng::for_sample(
+                self.seed,
+                self.pixel_index,
+                sample_index as u64,
+            )),
             SamplerKind::Sobol => Sampler {
                 kind: Kind::Sobol {
-                    pixel_key: mix64(
-                        mix64(seed ^ SOBOL_DOMAIN)
-                            ^ pixel_index.wrapping_mul(0x9E37_79B9_7F4A_7C15),
-                    ),
+                    pixel_key: self.pixel_key,
                     reversed_index: sample_index.reverse_bits(),
                     dimension: 0,
                 },
             },
         }
+    }
+}
+
+impl Sampler {
+    /// The numbers of sample `sample_index` of pixel `pixel_index` (row-major) for `seed`.
+    /// `Independent` gives exactly the numbers of [`Rng::for_sample`].
+    pub fn new(kind: SamplerKind, seed: u64, pixel_index: u64, sample_index: u32) -> Self {
+        PixelSampler::new(kind, seed, pixel_index).sample(sample_index)
     }
 
     /// Independent numbers from `rng` (for paths not tied to a pixel sample, such as light
@@ -115,6 +150,32 @@ impl Sampler {
     pub fn set_dimension(&mut self, dimension: u32) {
         if let Kind::Sobol { dimension: d, .. } = &mut self.kind {
             *d = dimension;
+        }
+    }
+
+    /// Passes over the request [`Sampler::uniform`] would answer, without computing it: for
+    /// numbers a caller does not need (a Lambertian BSDF's component choice, a pinhole
+    /// camera's lens position). Every later request gets what it would have got had the
+    /// number been drawn, so skipping changes no image.
+    #[inline]
+    pub fn skip_uniform(&mut self) {
+        match &mut self.kind {
+            Kind::Independent(rng) => {
+                rng.next_u32();
+            }
+            Kind::Sobol { dimension, .. } => *dimension += 1,
+        }
+    }
+
+    /// Passes over the request [`Sampler::uniform2`] would answer (see [`Sampler::skip_uniform`]).
+    #[inline]
+    pub fn skip_uniform2(&mut self) {
+        match &mut self.kind {
+            Kind::Independent(rng) => {
+                rng.next_u32();
+                rng.next_u32();
+            }
+            Kind::Sobol { dimension, .. } => *dimension += 1,
         }
     }
 
@@ -355,6 +416,39 @@ mod tests {
         for d in (0..6).rev() {
             b.set_dimension(d);
             assert_eq!(b.uniform(), seq[d as usize]);
+        }
+    }
+
+    #[test]
+    fn skipping_a_request_leaves_the_later_ones_alone() {
+        for kind in [SamplerKind::Sobol, SamplerKind::Independent] {
+            let mut drawn = Sampler::new(kind, 6, 41, 5);
+            let mut skipped = Sampler::new(kind, 6, 41, 5);
+            for round in 0..4 {
+                if round % 2 == 0 {
+                    drawn.uniform();
+                    skipped.skip_uniform();
+                } else {
+                    drawn.uniform2();
+                    skipped.skip_uniform2();
+                }
+                assert_eq!(drawn.uniform2(), skipped.uniform2(), "{kind:?}");
+                assert_eq!(drawn.uniform(), skipped.uniform(), "{kind:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn pixel_samplers_give_the_numbers_of_sampler_new() {
+        for kind in [SamplerKind::Sobol, SamplerKind::Independent] {
+            let pixel = PixelSampler::new(kind, 9, 1234);
+            for index in [0, 1, 7, 1000] {
+                let (mut a, mut b) = (pixel.sample(index), Sampler::new(kind, 9, 1234, index));
+                for _ in 0..5 {
+                    assert_eq!(a.uniform2(), b.uniform2());
+                    assert_eq!(a.uniform(), b.uniform());
+                }
+            }
         }
     }
 

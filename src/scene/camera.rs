@@ -172,12 +172,18 @@ impl CameraFrame {
         0.5 * height as f32 / self.up.length()
     }
 
+    /// True for a thin lens, whose rays need a lens position; a pinhole camera ignores it.
+    #[inline]
+    pub fn has_lens(&self) -> bool {
+        self.lens_radius > 0.0
+    }
+
     /// The ray through film position `film` in [0, 1)^2 (x to the right, y downwards), with
     /// `lens` in [0, 1)^2 choosing the point on the lens.
     pub fn generate_ray(&self, film: Vec2, lens: Vec2) -> Ray {
         let ndc = Vec2::new(2.0 * film.x - 1.0, 1.0 - 2.0 * film.y);
         let dir = (self.forward + self.right * ndc.x + self.up * ndc.y).normalize();
-        if self.lens_radius <= 0.0 {
+        if !self.has_lens() {
             return Ray::new(self.eye, dir, f32::INFINITY);
         }
         let focus_point = self.eye + dir * (self.focus_distance / dir.dot(self.forward));

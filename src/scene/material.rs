@@ -5,7 +5,7 @@
 //! solid-angle pdf. Opaque BSDFs are two-sided: they reflect on whichever side `wo` is.
 
 use crate::error::{Error, Result};
-use crate::math::{luminance, warp, Rgb, Vec2, Vec3, INV_2PI, INV_PI};
+use crate::math::{luminance, warp, Rgb, Sampler, Vec2, Vec3, INV_2PI, INV_PI};
 
 /// Index of a texture in the scene.
 pub type TextureId = u32;
@@ -334,6 +334,34 @@ impl Bsdf {
 
     /// Samples an incident direction with `uc` choosing the lobe and `u` the direction.
     /// Returns `None` when the sample carries no energy (below the surface, total absorption).
+    /// [`Bsdf::sample`] with its numbers from `rng`: the component choice (one 1-D request),
+    /// then the direction (one 2-D request), as `sample(wo, rng.uniform(), rng.uniform2(),
+    /// mode)` would draw them, but computing only the ones this BSDF reads (a Lambertian reads
+    /// no component choice, a mirror neither number, a dielectric no direction) and skipping
+    /// the others' requests, so every request keeps its meaning and the result is the same.
+    #[inline]
+    pub fn sample_from(&self, wo: Vec3, rng: &mut Sampler, mode: Transport) -> Option<BsdfSample> {
+        let (reads_choice, reads_direction) = match self {
+            Bsdf::Lambert { .. } => (false, true),
+            Bsdf::Phong { .. } => (true, true),
+            Bsdf::Mirror { .. } => (false, false),
+            Bsdf::Dielectric { .. } => (true, false),
+        };
+        let uc = if reads_choice {
+            rng.uniform()
+        } else {
+            rng.skip_uniform();
+            0.0
+        };
+        let u = if reads_direction {
+            rng.uniform2()
+        } else {
+            rng.skip_uniform2();
+            Vec2::ZERO
+        };
+        self.sample(wo, uc, u, mode)
+    }
+
     pub fn sample(&self, wo: Vec3, uc: f32, u: Vec2, mode: Transport) -> Option<BsdfSample> {
         match *self {
             Bsdf::Lambert { albedo } => {
