@@ -713,9 +713,9 @@ impl<'a> Thinning<'a> {
     /// The real bricks of `list` shifted by each of `offsets`, without duplicates, in
     /// increasing order (memory order for the passes, and the slabs of [`Split::PerThread`]).
     /// Long lists are marked in a bitset over the bricks (a few kB, in cache) and read back
-    /// word by word, which sorts them for free; short ones (the sub-steps' pair lists in the
-    /// tail of the collapse) are sorted directly, so that a few bricks far apart do not cost
-    /// a scan of the bitset between them.
+    /// word by word, which sorts them for free; short ones (the few changed bricks of an
+    /// iteration late in the collapse) are sorted directly, so that a few bricks far apart do
+    /// not cost a scan of the bitset between them.
     fn dilate(&mut self, list: &[u32], offsets: &[isize]) -> Vec<u32> {
         let is_real = |real: &[u64], c: usize| real[c >> 6] >> (c & 63) & 1 != 0;
         if list.len() * offsets.len() <= 256 {
