@@ -437,6 +437,22 @@ enum Work {
 /// iterations (thousands of bricks per pass) still split. Measured on the door and Sponza.
 const MIN_PARALLEL_WORK: usize = 2048;
 
+/// How the per-brick passes of a collapse are split over the rayon pool.
+#[derive(Clone, Copy, Debug)]
+enum Split {
+    /// On the calling thread.
+    Sequential,
+    /// One contiguous part of the list per pool thread, if the pass holds at least
+    /// `min_parallel_work`: one task per thread keeps the fork/join cost per pass to one
+    /// `join` per thread, and a part of a brick list sorted by index is a slab of the grid,
+    /// so each thread mostly reads the bricks it wrote in the previous pass (its cache)
+    /// instead of pulling cache lines from the other core.
+    PerThread,
+    /// Fixed chunks of this many bricks, however little work the pass holds (tests: splits
+    /// every list on small grids).
+    Chunks(usize),
+}
+
 /// A born edge waiting for the iteration at which the constraint catches it.
 #[derive(Clone, Copy, Debug)]
 struct Waiting {
@@ -461,10 +477,10 @@ pub struct Thinning<'a> {
     masks: Planes,
     /// Bricks whose cells changed since the last iteration started.
     changed: Vec<u32>,
-    /// Per brick: the last `mark` that listed it (deduplicates brick lists); `u32::MAX` for
-    /// padding bricks, which are never listed (one test per neighbour in [`Thinning::dilate`]).
-    stamp: Vec<u32>,
-    mark: u32,
+    /// Scratch bitset over the bricks for [`Thinning::dilate`] (all zero between calls), and
+    /// the bitset of the real (non-padding) bricks.
+    listed: Vec<u64>,
+    real: Vec<u64>,
     /// Per brick: the `epoch` that last listed it in `changed`.
     changed_in: Vec<u32>,
     /// Number of times `changed` was taken (by an iteration) plus one.
@@ -476,8 +492,8 @@ pub struct Thinning<'a> {
     /// vertex, by span), if recorded (complex layout).
     birth: Option<Vec<u32>>,
     death: Option<Vec<u32>>,
-    /// Bricks per parallel task (0 = sequential).
-    chunk: usize,
+    /// How the per-brick passes are split over the pool.
+    split: Split,
     /// Work (brick visits weighted by [`Work`]) below which a pass runs on the calling
     /// thread.
     min_parallel_work: usize,
@@ -598,10 +614,14 @@ impl<'a> Thinning<'a> {
             border: Planes::new(n),
             masks: Planes::new(n),
             changed: Vec::new(),
-            stamp: (0..n)
-                .map(|b| if layout.real(b) { 0 } else { u32::MAX })
-                .collect(),
-            mark: 0,
+            listed: vec![0; n.div_ceil(64)],
+            real: {
+                let mut real = vec![0u64; n.div_ceil(64)];
+                for b in (0..n).filter(|&b| layout.real(b)) {
+                    real[b >> 6] |= 1 << (b & 63);
+                }
+                real
+            },
             changed_in: vec![0; n],
             epoch: 1,
             iteration: 0,
@@ -609,10 +629,10 @@ impl<'a> Thinning<'a> {
             birth: record_dates.then(|| vec![NEVER; 3 * vertices]),
             death: record_dates.then(|| vec![NEVER; 8 * vertices]),
             // One worker: the sequential path (no task overhead).
-            chunk: if parallel && rayon::current_num_threads() > 1 {
-                64
+            split: if parallel && rayon::current_num_threads() > 1 {
+                Split::PerThread
             } else {
-                0
+                Split::Sequential
             },
             min_parallel_work: MIN_PARALLEL_WORK,
             stats: ThinningStats::default(),
@@ -634,20 +654,44 @@ impl<'a> Thinning<'a> {
     /// however little work it holds (tests use small chunks to exercise the parallel path on
     /// small grids); 0 = sequential.
     pub fn set_chunk_size(&mut self, chunk: usize) {
-        self.chunk = chunk;
+        self.split = if chunk == 0 {
+            Split::Sequential
+        } else {
+            Split::Chunks(chunk)
+        };
+        self.min_parallel_work = 0;
+    }
+
+    /// Splits every pass of more than one brick into one part per pool thread (tests: the
+    /// default split without its work threshold).
+    #[cfg(test)]
+    fn split_every_pass_per_thread(&mut self) {
+        self.split = Split::PerThread;
         self.min_parallel_work = 0;
     }
 
     /// Whether a pass of `work` over `len` bricks is split into parallel tasks.
     #[inline]
     fn split(&self, len: usize, work: Work) -> bool {
-        self.chunk > 0 && len > self.chunk && len * work as usize >= self.min_parallel_work
+        match self.split {
+            Split::Sequential => false,
+            Split::PerThread => len > 1 && len * work as usize >= self.min_parallel_work,
+            Split::Chunks(c) => len > c,
+        }
+    }
+
+    /// Bricks per task of a split pass over `len` bricks.
+    fn chunk_for(&self, len: usize) -> usize {
+        match self.split {
+            Split::Chunks(c) => c,
+            _ => len.div_ceil(rayon::current_num_threads()),
+        }
     }
 
     /// Runs `f` on every brick of the list, in parallel chunks if enabled and worth it.
     fn for_each(&self, list: &[u32], work: Work, f: impl Fn(usize) + Sync) {
         if self.split(list.len(), work) {
-            list.par_chunks(self.chunk)
+            list.par_chunks(self.chunk_for(list.len()))
                 .for_each(|c| c.iter().for_each(|&b| f(b as usize)));
         } else {
             list.iter().for_each(|&b| f(b as usize));
@@ -657,7 +701,7 @@ impl<'a> Thinning<'a> {
     /// The bricks of the list for which `keep` holds, in list order.
     fn filter(&self, list: &[u32], work: Work, keep: impl Fn(usize) -> bool + Sync) -> Vec<u32> {
         if self.split(list.len(), work) {
-            list.par_chunks(self.chunk)
+            list.par_chunks(self.chunk_for(list.len()))
                 .map(|c| c.iter().copied().filter(|&b| keep(b as usize)).collect())
                 .collect::<Vec<Vec<u32>>>()
                 .concat()
@@ -666,32 +710,72 @@ impl<'a> Thinning<'a> {
         }
     }
 
-    /// The real bricks of `list` shifted by each of `offsets`, without duplicates (sorted, for
-    /// memory locality, if `sorted`).
-    fn dilate(&mut self, list: &[u32], offsets: &[isize], sorted: bool) -> Vec<u32> {
-        if self.mark == u32::MAX - 1 {
-            // Marks wrapped (some 10^9 lists): forget them.
-            self.stamp
-                .iter_mut()
-                .filter(|s| **s != u32::MAX)
-                .for_each(|s| *s = 0);
-            self.mark = 0;
+    /// The real bricks of `list` shifted by each of `offsets`, without duplicates, in
+    /// increasing order (memory order for the passes, and the slabs of [`Split::PerThread`]).
+    /// Long lists are marked in a bitset over the bricks (a few kB, in cache) and read back
+    /// word by word, which sorts them for free; short ones (the few changed bricks of an
+    /// iteration late in the collapse) are sorted directly, so that a few bricks far apart do
+    /// not cost a scan of the bitset between them.
+    fn dilate(&mut self, list: &[u32], offsets: &[isize]) -> Vec<u32> {
+        let is_real = |real: &[u64], c: usize| real[c >> 6] >> (c & 63) & 1 != 0;
+        if list.len() * offsets.len() <= 256 {
+            let mut out: Vec<u32> = list
+                .iter()
+                .flat_map(|&b| offsets.iter().map(move |&o| (b as isize + o) as u32))
+                .filter(|&c| is_real(&self.real, c as usize))
+                .collect();
+            out.sort_unstable();
+            out.dedup();
+            return out;
         }
-        self.mark += 1;
-        let mark = self.mark;
-        let mut out = Vec::with_capacity(list.len() * 2);
+        let listed = &mut self.listed;
+        let (mut lo, mut hi) = (usize::MAX, 0);
         for &b in list {
             for &o in offsets {
                 let c = (b as isize + o) as usize;
-                // Earlier marks are smaller; padding (u32::MAX) is never taken.
-                if self.stamp[c] < mark {
-                    self.stamp[c] = mark;
-                    out.push(c as u32);
-                }
+                listed[c >> 6] |= 1 << (c & 63);
             }
+            lo = lo.min(b as usize);
+            hi = hi.max(b as usize);
         }
-        if sorted {
-            out.sort_unstable();
+        let (min_o, max_o) = (offsets.iter().min().unwrap(), offsets.iter().max().unwrap());
+        let (lo, hi) = (
+            (lo as isize + min_o) as usize,
+            (hi as isize + max_o) as usize,
+        );
+        let mut out = Vec::with_capacity(list.len() * 2);
+        for w in lo >> 6..=hi >> 6 {
+            let word = listed[w] & self.real[w];
+            listed[w] = 0;
+            out.extend(bits(word).map(|bit| (64 * w) as u32 + bit));
+        }
+        out
+    }
+
+    /// The real bricks of `list` and of `list` shifted by `o`, without duplicates, in
+    /// increasing order; `list` must be increasing (all brick lists are: see
+    /// [`Thinning::dilate`]). A merge of the two sorted sequences: linear, and no scan of
+    /// the brick bitset (the sub-steps' lists are often a few bricks spread over the grid).
+    fn with_shifted(&self, list: &[u32], o: isize) -> Vec<u32> {
+        debug_assert!(list.windows(2).all(|w| w[0] < w[1]));
+        let is_real = |c: u32| self.real[c as usize >> 6] >> (c & 63) & 1 != 0;
+        let shifted = |i: usize| (list[i] as isize + o) as u32;
+        let mut out = Vec::with_capacity(2 * list.len());
+        let (mut i, mut j) = (0, 0);
+        while i < list.len() || j < list.len() {
+            let next = if j == list.len() || (i < list.len() && list[i] < shifted(j)) {
+                i += 1;
+                list[i - 1]
+            } else {
+                if i < list.len() && list[i] == shifted(j) {
+                    i += 1;
+                }
+                j += 1;
+                shifted(j - 1)
+            };
+            if is_real(next) {
+                out.push(next);
+            }
         }
         out
     }
@@ -841,7 +925,7 @@ impl<'a> Thinning<'a> {
                 out
             };
             if self.split(list.len(), Work::Heavy) {
-                list.par_chunks(self.chunk)
+                list.par_chunks(self.chunk_for(list.len()))
                     .map(scan)
                     .collect::<Vec<_>>()
                     .concat()
@@ -904,7 +988,7 @@ impl<'a> Thinning<'a> {
         // A: the bricks holding faces of cells removed since the last iteration began.
         let changed = std::mem::take(&mut self.changed);
         self.epoch += 1;
-        let active = self.dilate(&changed, &[0, sx, sy, sz], true);
+        let active = self.dilate(&changed, &[0, sx, sy, sz]);
         self.births(&active, l - 1, l);
         self.apply_constraints(l);
 
@@ -930,7 +1014,7 @@ impl<'a> Thinning<'a> {
         }
         // Cofaces of free pairs (C = A and one brick back), then their closure L (one brick
         // forward along each axis).
-        let with_cofaces = self.dilate(&any_free, &[0, -sx, -sy, -sz], false);
+        let with_cofaces = self.dilate(&any_free, &[0, -sx, -sy, -sz]);
         let (cells, free, border) = (&self.cells, &self.free, &self.border);
         self.for_each(&with_cofaces, Work::Heavy, |b| {
             macro_rules! spans {
@@ -959,13 +1043,10 @@ impl<'a> Thinning<'a> {
         };
         let closure = match top_dim {
             3 => {
-                let mut c = with_cofaces;
-                for o in [sx, sy, sz] {
-                    c = self.dilate(&c, &[0, o], false);
-                }
-                c
+                let offsets = [0, sx, sy, sz, sx + sy, sx + sz, sy + sz, sx + sy + sz];
+                self.dilate(&with_cofaces, &offsets)
             }
-            2 => self.dilate(&with_cofaces, &[0, sx, sy, sz], false),
+            2 => self.dilate(&with_cofaces, &[0, sx, sy, sz]),
             _ => with_cofaces,
         };
         let border = &self.border;
@@ -986,7 +1067,7 @@ impl<'a> Thinning<'a> {
                 }
             });
         }
-        // Per coface span: the bricks holding present cells of that span in L.
+        // Per span (edges to cubes): the bricks holding present cells of that span in L.
         let cells = &self.cells;
         let bucket = |c: &[u32]| {
             let mut lists: [Vec<u32>; 8] = Default::default();
@@ -1000,19 +1081,22 @@ impl<'a> Thinning<'a> {
             lists
         };
         let parts: Vec<[Vec<u32>; 8]> = if self.split(closure.len(), Work::Light) {
-            closure.par_chunks(self.chunk).map(bucket).collect()
+            closure
+                .par_chunks(self.chunk_for(closure.len()))
+                .map(bucket)
+                .collect()
         } else {
             vec![bucket(&closure)]
         };
-        let mut by_coface: [Vec<u32>; 8] = Default::default();
-        for (f, list) in by_coface.iter_mut().enumerate() {
+        let mut in_l: [Vec<u32>; 8] = Default::default();
+        for (f, list) in in_l.iter_mut().enumerate() {
             for p in &parts {
                 list.extend_from_slice(&p[f]);
             }
         }
 
         for s in 0..KINDS.0.len() {
-            let removed = self.sub_step(s, l, &by_coface);
+            let removed = self.sub_step(s, l, &in_l);
             if let Some(obs) = observer.as_mut() {
                 obs(
                     &self.complex(),
@@ -1044,17 +1128,18 @@ impl<'a> Thinning<'a> {
     }
 
     /// Sub-step `s` of iteration l: for each pair kind, finds the pairs from the current planes
-    /// on the bricks where L holds a coface of the kind (`by_coface`), then removes them. The
+    /// on the bricks where L holds cells of the kind's spans (`in_l`, per span, listed at the
+    /// start of the iteration), then removes them. The
     /// kinds of one sub-step are independent (a dim-2 sub-step along t removes squares
     /// containing t with one edge, and never touches the cells the other kind's test reads), so
     /// taking them one after the other equals taking them at once. Returns the number of pairs.
-    fn sub_step(&mut self, s: usize, l: u32, by_coface: &[Vec<u32>; 8]) -> usize {
+    fn sub_step(&mut self, s: usize, l: u32, in_l: &[Vec<u32>; 8]) -> usize {
         macro_rules! dispatch {
             ($($s:literal)*) => {
                 match s {
                     $($s => {
-                        let first = self.remove_kind::<$s, 0>(l, by_coface);
-                        first + self.remove_kind::<$s, 1>(l, by_coface)
+                        let first = self.remove_kind::<$s, 0>(l, in_l);
+                        first + self.remove_kind::<$s, 1>(l, in_l)
                     })*
                     _ => unreachable!("18 sub-steps"),
                 }
@@ -1070,7 +1155,7 @@ impl<'a> Thinning<'a> {
     fn remove_kind<const S: usize, const K: usize>(
         &mut self,
         l: u32,
-        by_coface: &[Vec<u32>; 8],
+        in_l: &[Vec<u32>; 8],
     ) -> usize {
         if K >= KINDS.1[S] {
             return 0;
@@ -1079,18 +1164,25 @@ impl<'a> Thinning<'a> {
         let step = self.layout.step;
         let o = step[axis] as isize;
         let mut removed = 0;
-        if by_coface[kind.f].is_empty() {
+        if in_l[kind.f].is_empty() {
             return 0;
         }
-        // g lies at f's vertex, or one step forward.
-        let candidates = if positive {
-            self.dilate(&by_coface[kind.f], &[0, o], false)
+        // The bricks that may hold a pair's g: g ∈ L (a face of f ∈ L), so for squares and
+        // edges the bricks where L holds present cells of g's span; L's points are not
+        // computed, so for points the bricks of f and, for the positive orientation, one step
+        // forward (g lies at f's vertex or one step forward).
+        let dilated;
+        let candidates: &[u32] = if kind.g != 0 {
+            &in_l[kind.g]
+        } else if positive {
+            dilated = self.with_shifted(&in_l[kind.f], o);
+            &dilated
         } else {
-            by_coface[kind.f].clone()
+            &in_l[kind.f]
         };
         let (cells, inhibit, border, masks) =
             (&self.cells, &self.inhibit, &self.border, &self.masks);
-        let with_pairs = self.filter(&candidates, Work::Light, |b| {
+        let with_pairs = self.filter(candidates, Work::Light, |b| {
             // Constants here, not captured: the closure body then folds the kind's spans.
             let (kind, axis, positive) = const { (KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
             let mut m = cells.get(b, kind.g) & !inhibit.get(b, kind.g);
@@ -1111,12 +1203,16 @@ impl<'a> Thinning<'a> {
                     back(cells, b, up, at, &step)
                 };
             }
-            masks.set(b, 0, m);
+            // Only bricks with pairs get a mask (and have it cleared below): every other
+            // brick's mask stays 0.
+            if m != 0 {
+                masks.set(b, 0, m);
+            }
             m != 0
         });
         // Bricks with an f to clear: f lies at g's vertex or one step back.
         let touched = if positive {
-            self.dilate(&with_pairs, &[0, -o], false)
+            self.with_shifted(&with_pairs, -o)
         } else {
             with_pairs.clone()
         };
@@ -1142,7 +1238,7 @@ impl<'a> Thinning<'a> {
                 }
             }
         }
-        for &b in &candidates {
+        for &b in &with_pairs {
             self.masks.set(b as usize, 0, 0);
         }
         self.note_changed(&touched);
@@ -1201,16 +1297,26 @@ impl<'a> Thinning<'a> {
     /// 6): read from the brick planes, so a pierce round costs O(bricks + squares) rather than
     /// a pass over every lattice vertex.
     fn squares(&self) -> Vec<(u32, u8)> {
-        let mut squares = Vec::new();
-        for b in 0..self.layout.bricks() {
-            for span in [3u8, 5, 6] {
-                for bit in bits(self.cells.get(b, span as usize)) {
-                    squares.push((self.vertex_index(b, bit) as u32, span));
-                }
-            }
+        let of_brick = |b: usize| {
+            [3u8, 5, 6].into_iter().flat_map(move |span| {
+                bits(self.cells.get(b, span as usize))
+                    .map(move |bit| (self.vertex_index(b, bit) as u32, span))
+            })
+        };
+        let bricks = self.layout.bricks();
+        if !matches!(self.split, Split::Sequential) {
+            let mut squares: Vec<(u32, u8)> = (0..bricks)
+                .into_par_iter()
+                .with_min_len(bricks.div_ceil(rayon::current_num_threads()))
+                .flat_map_iter(of_brick)
+                .collect();
+            squares.par_sort_unstable();
+            squares
+        } else {
+            let mut squares: Vec<(u32, u8)> = (0..bricks).flat_map(of_brick).collect();
+            squares.sort_unstable();
+            squares
         }
-        squares.sort_unstable();
-        squares
     }
 
     /// Pierces every surface part once (see the module docs). `priority` is a per-voxel map
@@ -1218,7 +1324,12 @@ impl<'a> Thinning<'a> {
     /// of squares removed (0 when no square is left).
     pub fn pierce(&mut self, priority: Option<&[u32]>) -> usize {
         let squares = self.squares();
-        let Some((chosen, forced)) = choose_pierced_squares(self.dims, &squares, priority) else {
+        let Some((chosen, forced)) = choose_pierced_squares(
+            self.dims,
+            &squares,
+            priority,
+            !matches!(self.split, Split::Sequential),
+        ) else {
             return 0;
         };
         self.stats.pierce_rounds += 1;
@@ -1261,12 +1372,68 @@ fn choose_pierced_squares(
     dims: [usize; 3],
     squares: &[(u32, u8)],
     priority: Option<&[u32]>,
+    parallel: bool,
 ) -> Option<(Vec<(u32, u8)>, u64)> {
-    use super::complex::UnionFind;
     if squares.is_empty() {
         return None;
     }
     let size = dims.map(|d| d + 2);
+    // The surface parts and the complement's components are independent: with `parallel`
+    // they are computed on two threads (the rest of the choice is a sequential union-find
+    // whose outcome depends on the order of the parts).
+    let parts = || surface_parts(size, squares);
+    let sides = || {
+        let (runs, sides) = ComplementRuns::new(size, squares);
+        (square_sides(dims, &runs, squares, priority), sides)
+    };
+    let (by_part, (info, mut sides)) = if parallel {
+        rayon::join(parts, sides)
+    } else {
+        (parts(), sides())
+    };
+    let mut chosen = Vec::new();
+    let mut forced = 0;
+    for part in by_part.chunk_by(|a, b| a.0 == b.0) {
+        let mut best: Option<usize> = None;
+        for &(_, k) in part {
+            let (r1, r2, p) = info[k as usize];
+            let better = match best {
+                None => true,
+                Some(b) => p > info[b].2,
+            };
+            if sides.find(r1 as usize) != sides.find(r2 as usize) && better {
+                best = Some(k as usize);
+            }
+        }
+        let k = match best {
+            Some(k) => {
+                let (r1, r2, _) = info[k];
+                sides.union(r1 as usize, r2 as usize);
+                k
+            }
+            None => {
+                forced += 1;
+                let mut b = part[0].1 as usize;
+                for &(_, k) in part {
+                    if info[k as usize].2 > info[b].2 {
+                        b = k as usize;
+                    }
+                }
+                b
+            }
+        };
+        chosen.push(squares[k]);
+    }
+    chosen.sort_unstable();
+    Some((chosen, forced))
+}
+
+/// The surface parts of a complex without cubes (squares joined through shared edges) as
+/// (part, square index) sorted by part: parts in order of their smallest square, squares in
+/// list order within a part. `squares` as in [`choose_pierced_squares`], `size` the internal
+/// vertices per axis.
+fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
+    use super::complex::UnionFind;
     let len = size[0] * size[1] * size[2];
     // The square bits per vertex, and the first index of each vertex's squares plus one (0 =
     // none). Zeroed allocations: only the pages around the squares are ever touched.
@@ -1286,7 +1453,6 @@ fn choose_pierced_squares(
         first[v] as usize - 1 + below
     };
     let s = [1, size[0], size[0] * size[1]];
-    // Surface parts: squares joined through shared edges.
     let mut parts = UnionFind::new(squares.len());
     for (k, &(v, span)) in squares.iter().enumerate() {
         for a in 0..3 {
@@ -1304,8 +1470,24 @@ fn choose_pierced_squares(
             }
         }
     }
-    drop((bits, first));
-    let (runs, mut sides) = ComplementRuns::new(size, squares);
+    let mut by_part: Vec<(u32, u32)> = (0..squares.len())
+        .map(|k| (parts.find(k) as u32, k as u32))
+        .collect();
+    by_part.sort_unstable();
+    by_part
+}
+
+/// Per square: the complement runs on its two sides (the cube positions at the square's own
+/// vertex and one step back along its normal) and its priority (the larger of the two cube
+/// positions' voxel priorities; 0 outside the grid or without a map).
+fn square_sides(
+    dims: [usize; 3],
+    runs: &ComplementRuns,
+    squares: &[(u32, u8)],
+    priority: Option<&[u32]>,
+) -> Vec<(u32, u32, u32)> {
+    let size = dims.map(|d| d + 2);
+    let s = [1, size[0], size[0] * size[1]];
     // Priority of a cube position (internal vertex v is the cube of voxel v - 1).
     let prio = |cube: usize| -> u32 {
         let Some(p) = priority else { return 0 };
@@ -1320,58 +1502,18 @@ fn choose_pierced_squares(
             0
         }
     };
-    // Per square: its two cube positions (the square's own vertex and one step back along its
-    // normal) and priority.
-    let info: Vec<(usize, usize, u32)> = squares
+    squares
         .iter()
         .map(|&(v, span)| {
             let normal = (0..3).find(|a| span & (1 << a) == 0).unwrap();
             let (c1, c2) = (v as usize, v as usize - s[normal]);
-            (c1, c2, prio(c1).max(prio(c2)))
+            (
+                runs.run_of(c1) as u32,
+                runs.run_of(c2) as u32,
+                prio(c1).max(prio(c2)),
+            )
         })
-        .collect();
-    // Squares grouped by part (parts in order of their smallest square, as before).
-    let mut by_part: Vec<(u32, u32)> = (0..squares.len())
-        .map(|k| (parts.find(k) as u32, k as u32))
-        .collect();
-    by_part.sort_unstable();
-    let mut chosen = Vec::new();
-    let mut forced = 0;
-    for part in by_part.chunk_by(|a, b| a.0 == b.0) {
-        let part: Vec<usize> = part.iter().map(|&(_, k)| k as usize).collect();
-        let mut best: Option<usize> = None;
-        for &k in &part {
-            let (c1, c2, p) = info[k];
-            let (l1, l2) = (runs.run_of(c1), runs.run_of(c2));
-            let better = match best {
-                None => true,
-                Some(b) => p > info[b].2,
-            };
-            if sides.find(l1) != sides.find(l2) && better {
-                best = Some(k);
-            }
-        }
-        let k = match best {
-            Some(k) => {
-                let (c1, c2, _) = info[k];
-                sides.union(runs.run_of(c1), runs.run_of(c2));
-                k
-            }
-            None => {
-                forced += 1;
-                let mut b = part[0];
-                for &k in &part {
-                    if info[k].2 > info[b].2 {
-                        b = k;
-                    }
-                }
-                b
-            }
-        };
-        chosen.push(squares[k]);
-    }
-    chosen.sort_unstable();
-    Some((chosen, forced))
+        .collect()
 }
 
 /// The connected components of the complement of a complex that has no cube (what a collapse
@@ -1574,6 +1716,22 @@ mod tests {
                 .unwrap()
                 .install(|| {
                     par.run(Some(&mut |c, _| {
+                        assert_eq!(c.bytes(), &steps_seq[k][..]);
+                        k += 1;
+                    }))
+                });
+            assert_eq!(k, steps_seq.len());
+            // One part per thread, every pass split (the default split, without its
+            // work threshold).
+            let mut per_thread = Thinning::new(cx.clone(), constraint, true, false);
+            per_thread.split_every_pass_per_thread();
+            let mut k = 0;
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(2)
+                .build()
+                .unwrap()
+                .install(|| {
+                    per_thread.run(Some(&mut |c, _| {
                         assert_eq!(c.bytes(), &steps_seq[k][..]);
                         k += 1;
                     }))
