@@ -264,38 +264,49 @@ fn sweep_l1(line: &mut [u32], edge: u32) {
 
 /// Squared Euclidean along one line (Felzenszwalb and Huttenlocher 2012): the lower envelope of
 /// the parabolas (x − q)² + f(q) over the sites q with a finite value, plus the virtual sites
-/// at −1 and n when the outside is solid. Intersections are computed in f64: the inputs are
-/// integers below 2^22, so every value and numerator is exact, and a computed intersection can
-/// only be off where two parabolas are equal at an integer, which leaves the minimum unchanged.
-fn envelope_sq(line: &mut [u32], solid: bool, sites: &mut Vec<(f64, f64)>, starts: &mut Vec<f64>) {
+/// at −1 and n when the outside is solid. Exact integer arithmetic without division: the
+/// parabolas of sites p < q meet at s = (h(q) − h(p)) / (2 (q − p)) with h = f + q² and a
+/// positive denominator, and such fractions are compared by cross-multiplication (for lines
+/// shorter than 2^16 voxels, numerators stay below 2^34 and denominators below 2^18, so the
+/// products fit an i64).
+fn envelope_sq(line: &mut [u32], solid: bool, sites: &mut Vec<Parabola>) {
     let n = line.len();
     sites.clear();
-    starts.clear();
-    let mut push = |q: f64, fq: f64| {
-        while let Some(&(p, fp)) = sites.last() {
-            let s = ((fq + q * q) - (fp + p * p)) / (2.0 * (q - p));
-            if s <= *starts.last().unwrap() {
+    let mut push = |q: i64, f: i64| {
+        let h = f + q * q;
+        while let Some(last) = sites.last() {
+            let (num, den) = (h - last.h, 2 * (q - last.q));
+            // The new parabola starts at num / den; the last one is dropped when that is not
+            // after its own start (the first parabola starts at −∞ and is never dropped).
+            if sites.len() > 1 && num * last.start_den <= last.start_num * den {
                 sites.pop();
-                starts.pop();
             } else {
-                sites.push((q, fq));
-                starts.push(s);
+                sites.push(Parabola {
+                    q,
+                    h,
+                    start_num: num,
+                    start_den: den,
+                });
                 return;
             }
         }
-        sites.push((q, fq));
-        starts.push(f64::NEG_INFINITY);
+        sites.push(Parabola {
+            q,
+            h,
+            start_num: 0,
+            start_den: 0,
+        });
     };
     if solid {
-        push(-1.0, 0.0);
+        push(-1, 0);
     }
     for (q, &v) in line.iter().enumerate() {
         if v < FAR {
-            push(q as f64, v as f64);
+            push(q as i64, v as i64);
         }
     }
     if solid {
-        push(n as f64, 0.0);
+        push(n as i64, 0);
     }
     if sites.is_empty() {
         line.fill(FAR);
@@ -303,13 +314,25 @@ fn envelope_sq(line: &mut [u32], solid: bool, sites: &mut Vec<(f64, f64)>, start
     }
     let mut k = 0;
     for (x, v) in line.iter_mut().enumerate() {
-        let xf = x as f64;
-        while k + 1 < sites.len() && starts[k + 1] < xf {
+        let x = x as i64;
+        // On to the next parabola while it starts before x (start_num / start_den < x).
+        while k + 1 < sites.len() && sites[k + 1].start_num < x * sites[k + 1].start_den {
             k += 1;
         }
-        let (q, fq) = sites[k];
-        *v = ((xf - q) * (xf - q) + fq) as u32;
+        // (x − q)² + f(q) = x² − 2xq + h(q).
+        let p = sites[k];
+        *v = (x * (x - 2 * p.q) + p.h) as u32;
     }
+}
+
+/// One parabola of [`envelope_sq`]'s lower envelope: its site q, h = f(q) + q², and the
+/// fraction at which it starts to be the lowest (unused for the first parabola).
+#[derive(Clone, Copy)]
+struct Parabola {
+    q: i64,
+    h: i64,
+    start_num: i64,
+    start_den: i64,
 }
 
 /// L1 or squared Euclidean distance values (no nearest feature), on plain u32 lines: the
@@ -341,13 +364,9 @@ fn distance_values(
     for axis in 1..3 {
         match metric {
             Metric::L1 => for_each_line(dims, axis, &mut d, || (), |_, line| sweep_l1(line, edge)),
-            _ => for_each_line(
-                dims,
-                axis,
-                &mut d,
-                || (Vec::new(), Vec::new()),
-                |(sites, starts), line| envelope_sq(line, solid, sites, starts),
-            ),
+            _ => for_each_line(dims, axis, &mut d, Vec::new, |sites, line| {
+                envelope_sq(line, solid, sites)
+            }),
         }
     }
     d.par_iter_mut().for_each(|v| {

@@ -39,7 +39,7 @@ use std::time::Instant;
 use super::complex::{diagonal_contacts, Betti, Complex, UnionFind, POINT, SPAN_BIT};
 use super::distance::{distance_map, Metric, Outside};
 use super::grid::{VoxelGrid, VoxelSet};
-use super::opening::opening_map_l1;
+use super::opening::opening_and_decenterness_l1;
 use super::pipeline::{Analysis, StageTime};
 use super::thinning::{Constraint, Thinning, ThinningStats};
 use crate::error::{Error, Result};
@@ -605,15 +605,7 @@ impl SkeletonMaps {
         distance_l1: Vec<u32>,
     ) -> SkeletonMaps {
         let ((opening_l1, decenterness_l1), sq_euclidean) = rayon::join(
-            || {
-                let o1 = opening_map_l1(dims, &distance_l1);
-                let dc = o1
-                    .iter()
-                    .zip(&distance_l1)
-                    .map(|(o, d)| o.saturating_sub(*d))
-                    .collect();
-                (o1, dc)
-            },
+            || opening_and_decenterness_l1(dims, &distance_l1),
             || distance_map(dims, occupied, Metric::SquaredEuclidean, outside, false).values,
         );
         SkeletonMaps {
