@@ -361,13 +361,14 @@ fn distance_values(
             }
         }
     });
+    if metric == Metric::L1 {
+        sweep_l1_yz(dims, &mut d, edge);
+        return d;
+    }
     for axis in 1..3 {
-        match metric {
-            Metric::L1 => for_each_line(dims, axis, &mut d, || (), |_, line| sweep_l1(line, edge)),
-            _ => for_each_line(dims, axis, &mut d, Vec::new, |sites, line| {
-                envelope_sq(line, solid, sites)
-            }),
-        }
+        for_each_line(dims, axis, &mut d, Vec::new, |sites, line| {
+            envelope_sq(line, solid, sites)
+        });
     }
     d.par_iter_mut().for_each(|v| {
         if *v >= FAR {
@@ -375,6 +376,70 @@ fn distance_values(
         }
     });
     d
+}
+
+/// The L1 passes along y and z of [`distance_values`], then `FAR` to [`INFINITE`]: the same
+/// recurrence as [`sweep_l1`], but applied to whole rows of x at a time (each row against the
+/// previous one, elementwise), so the loops run over contiguous memory and vectorize, and no
+/// line is gathered. Along y the tasks are z-slabs; along z, column blocks of the xy-plane.
+fn sweep_l1_yz(dims: [usize; 3], d: &mut [u32], edge: u32) {
+    let [nx, ny, nz] = dims;
+    let plane = nx * ny;
+    if plane == 0 || nz == 0 {
+        return;
+    }
+    d.par_chunks_mut(plane).for_each(|slab| {
+        let mut rows: Vec<&mut [u32]> = slab.chunks_mut(nx).collect();
+        sweep_l1_rows(&mut rows, edge);
+    });
+    // Column blocks of about 2048 voxels: nz rows of one block stay in cache for both sweeps.
+    let block = 2048.min(plane);
+    let blocks = plane.div_ceil(block);
+    let mut columns: Vec<Vec<&mut [u32]>> = (0..blocks).map(|_| Vec::with_capacity(nz)).collect();
+    for layer in d.chunks_mut(plane) {
+        for (b, part) in layer.chunks_mut(block).enumerate() {
+            columns[b].push(part);
+        }
+    }
+    columns.par_iter_mut().for_each(|rows| {
+        sweep_l1_rows(rows, edge);
+        for row in rows.iter_mut() {
+            for v in row.iter_mut() {
+                if *v >= FAR {
+                    *v = INFINITE;
+                }
+            }
+        }
+    });
+}
+
+/// [`sweep_l1`] across a stack of equally long rows: forward, each row becomes the min of itself
+/// and the previous row plus one (the first row: `edge` plus one), then backward.
+fn sweep_l1_rows(rows: &mut [&mut [u32]], edge: u32) {
+    let m = rows.len();
+    if m == 0 {
+        return;
+    }
+    let step = |cur: &mut [u32], prev: &[u32]| {
+        for (c, p) in cur.iter_mut().zip(prev) {
+            *c = (*c).min(*p + 1);
+        }
+    };
+    let bound = |row: &mut [u32]| {
+        for v in row.iter_mut() {
+            *v = (*v).min(edge + 1);
+        }
+    };
+    bound(rows[0]);
+    for k in 1..m {
+        let (done, rest) = rows.split_at_mut(k);
+        step(rest[0], done[k - 1]);
+    }
+    bound(rows[m - 1]);
+    for k in (0..m - 1).rev() {
+        let (head, tail) = rows.split_at_mut(k + 1);
+        step(head[k], tail[0]);
+    }
 }
 
 /// Distance between two voxels of a grid under a metric (squared for Euclidean).

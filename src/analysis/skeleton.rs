@@ -443,8 +443,16 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
             }
         }
     }
-    let mut unmapped: Vec<u32> = (0..map.len() as u32)
-        .filter(|&i| map[i as usize] == UNDEFINED_NODE)
+    let mut unmapped: Vec<u32> = map
+        .par_chunks(plane)
+        .enumerate()
+        .flat_map_iter(|(pz, slab)| {
+            let base = (pz * plane) as u32;
+            slab.iter()
+                .enumerate()
+                .filter(|&(_, &m)| m == UNDEFINED_NODE)
+                .map(move |(k, _)| base + k as u32)
+        })
         .collect();
     if !unmapped.is_empty() && !queue.is_empty() {
         let mut around: Vec<isize> = Vec::with_capacity(26);
