@@ -411,7 +411,7 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
                 }
             }
         });
-    let mut queue: Vec<u32> = Vec::with_capacity(grid.len());
+    let mut queue: Vec<u32> = Vec::new();
     for (l, seed) in node_map_seeds(grid, occupied, nodes)
         .into_iter()
         .enumerate()
@@ -430,19 +430,34 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
         plane as isize,
         -(plane as isize),
     ];
-    let mut head = 0;
-    while head < queue.len() {
-        let i = queue[head] as usize;
+    // Every voxel enters the queue at most once and each visit writes at most 6 slots past the
+    // current length.
+    queue.reserve(map.len() + 6);
+    let (mut head, mut len) = (0, queue.len());
+    let out = queue.as_mut_ptr();
+    while head < len {
+        // SAFETY: slots below `len` are written (seeds, then the visits below).
+        let i = unsafe { *out.add(head) } as usize;
         head += 1;
         let label = map[i];
         for &o in &faces {
-            let j = i.wrapping_add_signed(o);
-            if map[j] == UNDEFINED_NODE {
-                map[j] = label;
-                queue.push(j as u32);
+            // Branch-free: always write the candidate, keep it when it was unmapped (the
+            // pattern is unpredictable).
+            // SAFETY: i is a voxel of the grid inside the padding (a seed, or a voxel that was
+            // UNDEFINED_NODE; the padding is BLOCKED), so j is inside `map`; `len` counts distinct queued voxels, at most
+            // map.len(), so the slot written is below the capacity reserved above.
+            unsafe {
+                let j = i.wrapping_add_signed(o);
+                let m = map.get_unchecked_mut(j);
+                let take = *m == UNDEFINED_NODE;
+                *m = if take { label } else { *m };
+                *out.add(len) = j as u32;
+                len += take as usize;
             }
         }
     }
+    // SAFETY: the first `len` slots were written above.
+    unsafe { queue.set_len(len) };
     let mut unmapped: Vec<u32> = map
         .par_chunks(plane)
         .enumerate()
@@ -881,6 +896,118 @@ mod tests {
         let mut edges: Vec<[u32; 2]> = edges.iter().map(|&[a, b]| [a.min(b), a.max(b)]).collect();
         edges.sort_unstable();
         Graph { nodes, edges }
+    }
+
+    /// Algorithm 5 written literally, on the unpadded grid with bounds tests: a FIFO queue from
+    /// the seeds in node order, face neighbours in the order +x, −x, +y, −y, +z, −z, then the
+    /// 26-neighbour layers of [`node_map`]'s doc comment.
+    fn node_map_reference(grid: &VoxelGrid, occ: &VoxelSet, nodes: &[Node]) -> Vec<u32> {
+        let d = grid.dims;
+        let mut map = vec![UNDEFINED_NODE; grid.len()];
+        let mut queue = std::collections::VecDeque::new();
+        for (l, seed) in node_map_seeds(grid, occ, nodes).into_iter().enumerate() {
+            if let Some(k) = seed {
+                map[k as usize] = l as u32;
+                queue.push_back(k as usize);
+            }
+        }
+        let at = |c: [usize; 3], o: [i64; 3]| -> Option<usize> {
+            let n: Vec<i64> = (0..3).map(|a| c[a] as i64 + o[a]).collect();
+            (0..3)
+                .all(|a| n[a] >= 0 && n[a] < d[a] as i64)
+                .then(|| grid.index(n[0] as usize, n[1] as usize, n[2] as usize))
+        };
+        let faces = [
+            [1, 0, 0],
+            [-1, 0, 0],
+            [0, 1, 0],
+            [0, -1, 0],
+            [0, 0, 1],
+            [0, 0, -1],
+        ];
+        let mut seen_any = !queue.is_empty();
+        while let Some(i) = queue.pop_front() {
+            for o in faces {
+                if let Some(j) = at(grid.coords(i), o) {
+                    if !occ.get(j) && map[j] == UNDEFINED_NODE {
+                        map[j] = map[i];
+                        queue.push_back(j);
+                    }
+                }
+            }
+        }
+        let mut around = Vec::new();
+        for order in 1..=3 {
+            for dz in -1i64..=1 {
+                for dy in -1i64..=1 {
+                    for dx in -1i64..=1 {
+                        if dx.abs() + dy.abs() + dz.abs() == order {
+                            around.push([dx, dy, dz]);
+                        }
+                    }
+                }
+            }
+        }
+        while seen_any {
+            let layer: Vec<(usize, u32)> = (0..grid.len())
+                .filter(|&i| !occ.get(i) && map[i] == UNDEFINED_NODE)
+                .filter_map(|i| {
+                    around.iter().find_map(|&o| {
+                        let j = at(grid.coords(i), o)?;
+                        (!occ.get(j) && map[j] != UNDEFINED_NODE).then(|| (i, map[j]))
+                    })
+                })
+                .collect();
+            seen_any = !layer.is_empty();
+            for (i, m) in layer {
+                map[i] = m;
+            }
+        }
+        map
+    }
+
+    #[test]
+    fn node_map_equals_the_literal_bfs() {
+        let mut rng = crate::math::Rng::new(61, 3);
+        for (t, dims) in [[9, 7, 6], [16, 5, 11], [4, 13, 8], [20, 20, 3]]
+            .into_iter()
+            .enumerate()
+        {
+            for density in [0.1f32, 0.35, 0.55] {
+                let grid = VoxelGrid {
+                    dims,
+                    origin: [0.0; 3],
+                    voxel_size: 1.0,
+                };
+                let mut occ = VoxelSet::new(grid.len());
+                for i in 0..grid.len() {
+                    if rng.uniform() < density {
+                        occ.set(i);
+                    }
+                }
+                let empty: Vec<usize> = (0..grid.len()).filter(|&i| !occ.get(i)).collect();
+                // Some nodes share a voxel, so that seeds also come from the lattice corners.
+                let nodes: Vec<Node> = (0..3 + 2 * t)
+                    .map(|k| {
+                        let v = empty[(rng.uniform() * empty.len() as f32) as usize % empty.len()];
+                        let v = if k % 3 == 2 { empty[0] } else { v };
+                        let c = grid.coords(v);
+                        Node {
+                            lattice: c.map(|x| x as u32 + (k % 2) as u32),
+                            position: Vec3::new(0.0, 0.0, 0.0),
+                            voxel: v as u32,
+                            radius_voxels: 1.0,
+                            radius: 1.0,
+                        }
+                    })
+                    .collect();
+                assert_eq!(
+                    node_map(&grid, &occ, &nodes),
+                    node_map_reference(&grid, &occ, &nodes),
+                    "{dims:?} {density}"
+                );
+            }
+        }
     }
 
     #[test]
