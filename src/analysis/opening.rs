@@ -299,24 +299,16 @@ fn flood<W: Word>(
             }
         }
         while !frontier.is_empty() {
-            for &i in &frontier {
-                let o = &mut opening[i as usize];
-                if *o == W::ZERO {
-                    *o = level;
-                }
-            }
-            if budget == 0 {
-                break;
-            }
-            let (below, mark) = (W::of(budget - 1), W::of(budget));
             next.clear();
-            // Every voxel enters `next` at most once per layer (its state becomes `mark`), and
-            // each expansion writes at most 6 slots past the current length.
-            next.reserve(state.len().min(6 * frontier.len()) + 6);
-            let out = next.as_mut_ptr();
-            let mut len = 0usize;
+            let (below, mark) = (W::of(budget.wrapping_sub(1)), W::of(budget));
             for &i in &frontier {
                 let i = i as usize;
+                if opening[i] == W::ZERO {
+                    opening[i] = level;
+                }
+                if budget == 0 {
+                    continue;
+                }
                 for j in [
                     i - steps[0],
                     i + steps[0],
@@ -325,24 +317,15 @@ fn flood<W: Word>(
                     i - steps[2],
                     i + steps[2],
                 ] {
-                    // Branch-free: always write the candidate, keep it when its state was at
-                    // most `below` (the taken / not taken pattern is unpredictable).
-                    // SAFETY: i is an empty voxel of the padded grid (the padding is solid and
-                    // never enters a frontier), so j is inside `state`; `len` counts distinct
-                    // voxels taken in this layer, at most min(state.len(), 6 * frontier.len()),
-                    // so len + 5 is below the capacity reserved above; only the first `len`
-                    // slots are kept by `set_len`.
-                    unsafe {
-                        let s = state.get_unchecked_mut(j);
-                        let take = *s <= below;
-                        *s = if take { mark } else { *s };
-                        *out.add(len) = j as u32;
-                        len += take as usize;
+                    if state[j] <= below {
+                        state[j] = mark;
+                        next.push(j as u32);
                     }
                 }
             }
-            // SAFETY: the first `len` slots were written above.
-            unsafe { next.set_len(len) };
+            if budget == 0 {
+                break;
+            }
             budget -= 1;
             std::mem::swap(&mut frontier, &mut next);
         }

@@ -411,7 +411,7 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
                 }
             }
         });
-    let mut queue: Vec<u32> = Vec::new();
+    let mut queue: Vec<u32> = Vec::with_capacity(grid.len());
     for (l, seed) in node_map_seeds(grid, occupied, nodes)
         .into_iter()
         .enumerate()
@@ -430,34 +430,19 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
         plane as isize,
         -(plane as isize),
     ];
-    // Every voxel enters the queue at most once and each visit writes at most 6 slots past the
-    // current length.
-    queue.reserve(map.len() + 6);
-    let (mut head, mut len) = (0, queue.len());
-    let out = queue.as_mut_ptr();
-    while head < len {
-        // SAFETY: slots below `len` are written (seeds, then the visits below).
-        let i = unsafe { *out.add(head) } as usize;
+    let mut head = 0;
+    while head < queue.len() {
+        let i = queue[head] as usize;
         head += 1;
         let label = map[i];
         for &o in &faces {
-            // Branch-free: always write the candidate, keep it when it was unmapped (the
-            // pattern is unpredictable).
-            // SAFETY: i is a voxel of the grid inside the padding (a seed, or a voxel that was
-            // UNDEFINED_NODE; the padding is BLOCKED), so j is inside `map`; `len` counts distinct queued voxels, at most
-            // map.len(), so the slot written is below the capacity reserved above.
-            unsafe {
-                let j = i.wrapping_add_signed(o);
-                let m = map.get_unchecked_mut(j);
-                let take = *m == UNDEFINED_NODE;
-                *m = if take { label } else { *m };
-                *out.add(len) = j as u32;
-                len += take as usize;
+            let j = i.wrapping_add_signed(o);
+            if map[j] == UNDEFINED_NODE {
+                map[j] = label;
+                queue.push(j as u32);
             }
         }
     }
-    // SAFETY: the first `len` slots were written above.
-    unsafe { queue.set_len(len) };
     let mut unmapped: Vec<u32> = map
         .par_chunks(plane)
         .enumerate()
