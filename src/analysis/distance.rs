@@ -264,38 +264,49 @@ fn sweep_l1(line: &mut [u32], edge: u32) {
 
 /// Squared Euclidean along one line (Felzenszwalb and Huttenlocher 2012): the lower envelope of
 /// the parabolas (x − q)² + f(q) over the sites q with a finite value, plus the virtual sites
-/// at −1 and n when the outside is solid. Intersections are computed in f64: the inputs are
-/// integers below 2^22, so every value and numerator is exact, and a computed intersection can
-/// only be off where two parabolas are equal at an integer, which leaves the minimum unchanged.
-fn envelope_sq(line: &mut [u32], solid: bool, sites: &mut Vec<(f64, f64)>, starts: &mut Vec<f64>) {
+/// at −1 and n when the outside is solid. Exact integer arithmetic without division: the
+/// parabolas of sites p < q meet at s = (h(q) − h(p)) / (2 (q − p)) with h = f + q² and a
+/// positive denominator, and such fractions are compared by cross-multiplication (for lines
+/// shorter than 2^16 voxels, numerators stay below 2^34 and denominators below 2^18, so the
+/// products fit an i64).
+fn envelope_sq(line: &mut [u32], solid: bool, sites: &mut Vec<Parabola>) {
     let n = line.len();
     sites.clear();
-    starts.clear();
-    let mut push = |q: f64, fq: f64| {
-        while let Some(&(p, fp)) = sites.last() {
-            let s = ((fq + q * q) - (fp + p * p)) / (2.0 * (q - p));
-            if s <= *starts.last().unwrap() {
+    let mut push = |q: i64, f: i64| {
+        let h = f + q * q;
+        while let Some(last) = sites.last() {
+            let (num, den) = (h - last.h, 2 * (q - last.q));
+            // The new parabola starts at num / den; the last one is dropped when that is not
+            // after its own start (the first parabola starts at −∞ and is never dropped).
+            if sites.len() > 1 && num * last.start_den <= last.start_num * den {
                 sites.pop();
-                starts.pop();
             } else {
-                sites.push((q, fq));
-                starts.push(s);
+                sites.push(Parabola {
+                    q,
+                    h,
+                    start_num: num,
+                    start_den: den,
+                });
                 return;
             }
         }
-        sites.push((q, fq));
-        starts.push(f64::NEG_INFINITY);
+        sites.push(Parabola {
+            q,
+            h,
+            start_num: 0,
+            start_den: 0,
+        });
     };
     if solid {
-        push(-1.0, 0.0);
+        push(-1, 0);
     }
     for (q, &v) in line.iter().enumerate() {
         if v < FAR {
-            push(q as f64, v as f64);
+            push(q as i64, v as i64);
         }
     }
     if solid {
-        push(n as f64, 0.0);
+        push(n as i64, 0);
     }
     if sites.is_empty() {
         line.fill(FAR);
@@ -303,13 +314,25 @@ fn envelope_sq(line: &mut [u32], solid: bool, sites: &mut Vec<(f64, f64)>, start
     }
     let mut k = 0;
     for (x, v) in line.iter_mut().enumerate() {
-        let xf = x as f64;
-        while k + 1 < sites.len() && starts[k + 1] < xf {
+        let x = x as i64;
+        // On to the next parabola while it starts before x (start_num / start_den < x).
+        while k + 1 < sites.len() && sites[k + 1].start_num < x * sites[k + 1].start_den {
             k += 1;
         }
-        let (q, fq) = sites[k];
-        *v = ((xf - q) * (xf - q) + fq) as u32;
+        // (x − q)² + f(q) = x² − 2xq + h(q).
+        let p = sites[k];
+        *v = (x * (x - 2 * p.q) + p.h) as u32;
     }
+}
+
+/// One parabola of [`envelope_sq`]'s lower envelope: its site q, h = f(q) + q², and the
+/// fraction at which it starts to be the lowest (unused for the first parabola).
+#[derive(Clone, Copy)]
+struct Parabola {
+    q: i64,
+    h: i64,
+    start_num: i64,
+    start_den: i64,
 }
 
 /// L1 or squared Euclidean distance values (no nearest feature), on plain u32 lines: the
@@ -338,17 +361,14 @@ fn distance_values(
             }
         }
     });
+    if metric == Metric::L1 {
+        sweep_l1_yz(dims, &mut d, edge);
+        return d;
+    }
     for axis in 1..3 {
-        match metric {
-            Metric::L1 => for_each_line(dims, axis, &mut d, || (), |_, line| sweep_l1(line, edge)),
-            _ => for_each_line(
-                dims,
-                axis,
-                &mut d,
-                || (Vec::new(), Vec::new()),
-                |(sites, starts), line| envelope_sq(line, solid, sites, starts),
-            ),
-        }
+        for_each_line(dims, axis, &mut d, Vec::new, |sites, line| {
+            envelope_sq(line, solid, sites)
+        });
     }
     d.par_iter_mut().for_each(|v| {
         if *v >= FAR {
@@ -356,6 +376,70 @@ fn distance_values(
         }
     });
     d
+}
+
+/// The L1 passes along y and z of [`distance_values`], then `FAR` to [`INFINITE`]: the same
+/// recurrence as [`sweep_l1`], but applied to whole rows of x at a time (each row against the
+/// previous one, elementwise), so the loops run over contiguous memory and vectorize, and no
+/// line is gathered. Along y the tasks are z-slabs; along z, column blocks of the xy-plane.
+fn sweep_l1_yz(dims: [usize; 3], d: &mut [u32], edge: u32) {
+    let [nx, ny, nz] = dims;
+    let plane = nx * ny;
+    if plane == 0 || nz == 0 {
+        return;
+    }
+    d.par_chunks_mut(plane).for_each(|slab| {
+        let mut rows: Vec<&mut [u32]> = slab.chunks_mut(nx).collect();
+        sweep_l1_rows(&mut rows, edge);
+    });
+    // Column blocks of about 2048 voxels: nz rows of one block stay in cache for both sweeps.
+    let block = 2048.min(plane);
+    let blocks = plane.div_ceil(block);
+    let mut columns: Vec<Vec<&mut [u32]>> = (0..blocks).map(|_| Vec::with_capacity(nz)).collect();
+    for layer in d.chunks_mut(plane) {
+        for (b, part) in layer.chunks_mut(block).enumerate() {
+            columns[b].push(part);
+        }
+    }
+    columns.par_iter_mut().for_each(|rows| {
+        sweep_l1_rows(rows, edge);
+        for row in rows.iter_mut() {
+            for v in row.iter_mut() {
+                if *v >= FAR {
+                    *v = INFINITE;
+                }
+            }
+        }
+    });
+}
+
+/// [`sweep_l1`] across a stack of equally long rows: forward, each row becomes the min of itself
+/// and the previous row plus one (the first row: `edge` plus one), then backward.
+fn sweep_l1_rows(rows: &mut [&mut [u32]], edge: u32) {
+    let m = rows.len();
+    if m == 0 {
+        return;
+    }
+    let step = |cur: &mut [u32], prev: &[u32]| {
+        for (c, p) in cur.iter_mut().zip(prev) {
+            *c = (*c).min(*p + 1);
+        }
+    };
+    let bound = |row: &mut [u32]| {
+        for v in row.iter_mut() {
+            *v = (*v).min(edge + 1);
+        }
+    };
+    bound(rows[0]);
+    for k in 1..m {
+        let (done, rest) = rows.split_at_mut(k);
+        step(rest[0], done[k - 1]);
+    }
+    bound(rows[m - 1]);
+    for k in (0..m - 1).rev() {
+        let (head, tail) = rows.split_at_mut(k + 1);
+        step(head[k], tail[0]);
+    }
 }
 
 /// Distance between two voxels of a grid under a metric (squared for Euclidean).

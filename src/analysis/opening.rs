@@ -122,39 +122,78 @@ pub fn opening_map_26(dims: [usize; 3], distance: &[u32]) -> OpeningMap {
 /// least the same budget. The grid is padded with one layer of solid so that steps need no
 /// bounds test.
 pub fn opening_map_l1(dims: [usize; 3], distance_l1: &[u32]) -> Vec<u32> {
+    opening_l1(dims, distance_l1, false).0
+}
+
+/// [`opening_map_l1`] and the L1 decenterness Ω1 − D1 (000 §6.2.2) together, both written in
+/// the same pass over the flood's result.
+pub fn opening_and_decenterness_l1(dims: [usize; 3], distance_l1: &[u32]) -> (Vec<u32>, Vec<u32>) {
     opening_l1(dims, distance_l1, false)
 }
 
-/// [`opening_map_l1`], with 32-bit flood words even when 16 bits would do if `wide`.
-fn opening_l1(dims: [usize; 3], distance_l1: &[u32], wide: bool) -> Vec<u32> {
-    let [nx, ny, nz] = dims;
-    assert_eq!(distance_l1.len(), nx * ny * nz);
-    let (px, py) = (nx + 2, ny + 2);
-    let plane = px * py;
-    let padded = |x: usize, y: usize, z: usize| (x + 1) + px * (y + 1) + plane * (z + 1);
-    let mut dist = vec![0u32; plane * (nz + 2)];
-    for z in 0..nz {
-        for y in 0..ny {
-            let row = &distance_l1[nx * (y + ny * z)..nx * (y + 1 + ny * z)];
-            let start = padded(0, y, z);
-            dist[start..start + nx].copy_from_slice(row);
-        }
-    }
-    let steps = [1, px, plane];
+/// [`opening_and_decenterness_l1`], with 32-bit flood words even when 16 bits would do if
+/// `wide`.
+fn opening_l1(dims: [usize; 3], distance_l1: &[u32], wide: bool) -> (Vec<u32>, Vec<u32>) {
     let max_d = distance_l1
-        .iter()
+        .par_iter()
         .copied()
         .filter(|&d| d != u32::MAX)
         .max()
         .unwrap_or(0) as usize;
+    // 16-bit distances, state and levels halve the memory traffic of the flood when the
+    // distances fit.
+    if !wide && max_d < u16::MAX as usize - 1 {
+        opening_l1_words::<u16>(dims, distance_l1, max_d)
+    } else {
+        opening_l1_words::<u32>(dims, distance_l1, max_d)
+    }
+}
+
+/// The body of [`opening_l1`] with flood words `W` (which hold every distance up to `max_d`).
+fn opening_l1_words<W: Word>(
+    dims: [usize; 3],
+    distance_l1: &[u32],
+    max_d: usize,
+) -> (Vec<u32>, Vec<u32>) {
+    let [nx, ny, nz] = dims;
+    let n = nx * ny * nz;
+    assert_eq!(distance_l1.len(), n);
+    let (px, py) = (nx + 2, ny + 2);
+    let plane = px * py;
+    let padded = |x: usize, y: usize, z: usize| (x + 1) + px * (y + 1) + plane * (z + 1);
+    // The padded distances (solid padding; an infinite distance, which only a grid without any
+    // occupied voxel has, becomes W::SOLID and is no centre) and the flood's initial state
+    // (see `flood`), in one pass.
+    let len = plane * (nz + 2);
+    let mut dist = vec![W::ZERO; len];
+    let mut state = vec![W::SOLID; len];
+    dist.par_chunks_mut(plane)
+        .zip(state.par_chunks_mut(plane))
+        .enumerate()
+        .for_each(|(pz, (dist, state))| {
+            if pz == 0 || pz > nz {
+                return;
+            }
+            for y in 0..ny {
+                let row = &distance_l1[nx * (y + ny * (pz - 1))..][..nx];
+                let start = 1 + px * (y + 1);
+                for (x, &d) in row.iter().enumerate() {
+                    dist[start + x] = if d == u32::MAX { W::SOLID } else { W::of(d) };
+                    if d != 0 {
+                        state[start + x] = W::ZERO;
+                    }
+                }
+            }
+        });
+    let steps = [1, px, plane];
     // Maximal-ball centres by level (counting sort).
     let is_centre = |i: usize| {
         let d = dist[i];
-        d > 0
-            && d != u32::MAX
+        d != W::ZERO
+            && d != W::SOLID
             && steps
                 .iter()
-                .all(|&s| dist[i - s] != d + 1 && dist[i + s] != d + 1)
+                .all(|&s| dist[i - s].get() != d.get() + 1 && dist[i + s].get() != d.get() + 1)
     };
     let centres: Vec<u32> = (0..nz)
         .into_par_iter()
@@ -173,7 +212,7 @@ fn opening_l1(dims: [usize; 3], distance_l1: &[u32], wide: bool) -> Vec<u32> {
         .collect();
     let mut first = vec![0usize; max_d + 2];
     for &i in &centres {
-        first[dist[i as usize] as usize + 1] += 1;
+        first[dist[i as usize].get() as usize + 1] += 1;
     }
     for r in 0..=max_d {
         first[r + 1] += first[r];
@@ -181,25 +220,28 @@ fn opening_l1(dims: [usize; 3], distance_l1: &[u32], wide: bool) -> Vec<u32> {
     let mut by_level = vec![0u32; centres.len()];
     let mut fill = first.clone();
     for &i in &centres {
-        let r = dist[i as usize] as usize;
+        let r = dist[i as usize].get() as usize;
         by_level[fill[r]] = i;
         fill[r] += 1;
     }
-    // 16-bit state and levels halve the memory traffic of the flood when the distances fit.
-    let opening: Vec<u32> = if !wide && max_d < u16::MAX as usize - 1 {
-        flood::<u16>(&dist, &by_level, &first, max_d, steps)
-    } else {
-        flood::<u32>(&dist, &by_level, &first, max_d, steps)
-    };
-    let mut out = vec![0u32; nx * ny * nz];
+    let opening = flood::<W>(state, &by_level, &first, max_d, steps);
+    // Ω1 and Ω1 − D1 on the unpadded grid, row by row.
+    let mut out = vec![0u32; n];
+    let mut decenterness = vec![0u32; n];
     out.par_chunks_mut(nx.max(1))
+        .zip(decenterness.par_chunks_mut(nx.max(1)))
         .enumerate()
-        .for_each(|(r, row)| {
+        .for_each(|(r, (row, dc))| {
             let (y, z) = (r % ny, r / ny);
-            let start = padded(0, y, z);
-            row.copy_from_slice(&opening[start..start + nx]);
+            let flooded = &opening[padded(0, y, z)..][..nx];
+            let d = &distance_l1[r * nx..][..nx];
+            for x in 0..nx {
+                let o = flooded[x].get();
+                row[x] = o;
+                dc[x] = o.saturating_sub(d[x]);
+            }
         });
-    out
+    (out, decenterness)
 }
 
 /// A level or budget word of the L1 flood (u16 when the distances fit, u32 otherwise).
@@ -232,21 +274,17 @@ impl Word for u32 {
     }
 }
 
-/// The level-by-level flood of [`opening_map_l1`] on the padded grid; returns the padded
-/// opening map.
+/// The level-by-level flood of [`opening_map_l1`] on the padded grid, from the initial state
+/// (per voxel: the largest remaining budget it was expanded with, plus one; 0 = never; solid
+/// voxels count as expanded with an unbounded budget, so one test rejects both); returns the
+/// padded opening map.
 fn flood<W: Word>(
-    dist: &[u32],
+    mut state: Vec<W>,
     by_level: &[u32],
     first: &[usize],
     max_d: usize,
     steps: [usize; 3],
-) -> Vec<u32> {
-    // Per voxel: the largest remaining budget it was expanded with, plus one (0 = never;
-    // solid voxels count as expanded with an unbounded budget, so one test rejects both).
-    let mut state: Vec<W> = dist
-        .par_iter()
-        .map(|&d| if d == 0 { W::SOLID } else { W::ZERO })
-        .collect();
+) -> Vec<W> {
     let mut opening: Vec<W> = vec![W::ZERO; state.len()];
     let mut frontier: Vec<u32> = Vec::new();
     let mut next: Vec<u32> = Vec::new();
@@ -292,7 +330,7 @@ fn flood<W: Word>(
             std::mem::swap(&mut frontier, &mut next);
         }
     }
-    opening.par_iter().map(|w| w.get()).collect()
+    opening
 }
 
 #[cfg(test)]
@@ -363,7 +401,15 @@ mod tests {
                     let d1 = distance_map(dims, &occ, Metric::L1, outside, false).values;
                     let want = brute_opening(dims, &d1, Metric::L1);
                     assert_eq!(opening_map_l1(dims, &d1), want, "L1 {dims:?}");
-                    assert_eq!(opening_l1(dims, &d1, true), want, "L1 wide {dims:?}");
+                    let (wide, dc) = opening_l1(dims, &d1, true);
+                    assert_eq!(wide, want, "L1 wide {dims:?}");
+                    let want_dc: Vec<u32> = want
+                        .iter()
+                        .zip(&d1)
+                        .map(|(o, d)| o.saturating_sub(*d))
+                        .collect();
+                    assert_eq!(dc, want_dc, "decenterness {dims:?}");
+                    assert_eq!(opening_and_decenterness_l1(dims, &d1).1, want_dc);
                 }
             }
         }

@@ -39,7 +39,7 @@ use std::time::Instant;
 use super::complex::{diagonal_contacts, Betti, Complex, UnionFind, POINT, SPAN_BIT};
 use super::distance::{distance_map, Metric, Outside};
 use super::grid::{VoxelGrid, VoxelSet};
-use super::opening::opening_map_l1;
+use super::opening::opening_and_decenterness_l1;
 use super::pipeline::{Analysis, StageTime};
 use super::thinning::{Constraint, Thinning, ThinningStats};
 use crate::error::{Error, Result};
@@ -443,8 +443,16 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
             }
         }
     }
-    let mut unmapped: Vec<u32> = (0..map.len() as u32)
-        .filter(|&i| map[i as usize] == UNDEFINED_NODE)
+    let mut unmapped: Vec<u32> = map
+        .par_chunks(plane)
+        .enumerate()
+        .flat_map_iter(|(pz, slab)| {
+            let base = (pz * plane) as u32;
+            slab.iter()
+                .enumerate()
+                .filter(|&(_, &m)| m == UNDEFINED_NODE)
+                .map(move |(k, _)| base + k as u32)
+        })
         .collect();
     if !unmapped.is_empty() && !queue.is_empty() {
         let mut around: Vec<isize> = Vec::with_capacity(26);
@@ -605,15 +613,7 @@ impl SkeletonMaps {
         distance_l1: Vec<u32>,
     ) -> SkeletonMaps {
         let ((opening_l1, decenterness_l1), sq_euclidean) = rayon::join(
-            || {
-                let o1 = opening_map_l1(dims, &distance_l1);
-                let dc = o1
-                    .iter()
-                    .zip(&distance_l1)
-                    .map(|(o, d)| o.saturating_sub(*d))
-                    .collect();
-                (o1, dc)
-            },
+            || opening_and_decenterness_l1(dims, &distance_l1),
             || distance_map(dims, occupied, Metric::SquaredEuclidean, outside, false).values,
         );
         SkeletonMaps {
@@ -881,6 +881,118 @@ mod tests {
         let mut edges: Vec<[u32; 2]> = edges.iter().map(|&[a, b]| [a.min(b), a.max(b)]).collect();
         edges.sort_unstable();
         Graph { nodes, edges }
+    }
+
+    /// Algorithm 5 written literally, on the unpadded grid with bounds tests: a FIFO queue from
+    /// the seeds in node order, face neighbours in the order +x, −x, +y, −y, +z, −z, then the
+    /// 26-neighbour layers of [`node_map`]'s doc comment.
+    fn node_map_reference(grid: &VoxelGrid, occ: &VoxelSet, nodes: &[Node]) -> Vec<u32> {
+        let d = grid.dims;
+        let mut map = vec![UNDEFINED_NODE; grid.len()];
+        let mut queue = std::collections::VecDeque::new();
+        for (l, seed) in node_map_seeds(grid, occ, nodes).into_iter().enumerate() {
+            if let Some(k) = seed {
+                map[k as usize] = l as u32;
+                queue.push_back(k as usize);
+            }
+        }
+        let at = |c: [usize; 3], o: [i64; 3]| -> Option<usize> {
+            let n: Vec<i64> = (0..3).map(|a| c[a] as i64 + o[a]).collect();
+            (0..3)
+                .all(|a| n[a] >= 0 && n[a] < d[a] as i64)
+                .then(|| grid.index(n[0] as usize, n[1] as usize, n[2] as usize))
+        };
+        let faces = [
+            [1, 0, 0],
+            [-1, 0, 0],
+            [0, 1, 0],
+            [0, -1, 0],
+            [0, 0, 1],
+            [0, 0, -1],
+        ];
+        let mut seen_any = !queue.is_empty();
+        while let Some(i) = queue.pop_front() {
+            for o in faces {
+                if let Some(j) = at(grid.coords(i), o) {
+                    if !occ.get(j) && map[j] == UNDEFINED_NODE {
+                        map[j] = map[i];
+                        queue.push_back(j);
+                    }
+                }
+            }
+        }
+        let mut around = Vec::new();
+        for order in 1..=3 {
+            for dz in -1i64..=1 {
+                for dy in -1i64..=1 {
+                    for dx in -1i64..=1 {
+                        if dx.abs() + dy.abs() + dz.abs() == order {
+                            around.push([dx, dy, dz]);
+                        }
+                    }
+                }
+            }
+        }
+        while seen_any {
+            let layer: Vec<(usize, u32)> = (0..grid.len())
+                .filter(|&i| !occ.get(i) && map[i] == UNDEFINED_NODE)
+                .filter_map(|i| {
+                    around.iter().find_map(|&o| {
+                        let j = at(grid.coords(i), o)?;
+                        (!occ.get(j) && map[j] != UNDEFINED_NODE).then(|| (i, map[j]))
+                    })
+                })
+                .collect();
+            seen_any = !layer.is_empty();
+            for (i, m) in layer {
+                map[i] = m;
+            }
+        }
+        map
+    }
+
+    #[test]
+    fn node_map_equals_the_literal_bfs() {
+        let mut rng = crate::math::Rng::new(61, 3);
+        for (t, dims) in [[9, 7, 6], [16, 5, 11], [4, 13, 8], [20, 20, 3]]
+            .into_iter()
+            .enumerate()
+        {
+            for density in [0.1f32, 0.35, 0.55] {
+                let grid = VoxelGrid {
+                    dims,
+                    origin: [0.0; 3],
+                    voxel_size: 1.0,
+                };
+                let mut occ = VoxelSet::new(grid.len());
+                for i in 0..grid.len() {
+                    if rng.uniform() < density {
+                        occ.set(i);
+                    }
+                }
+                let empty: Vec<usize> = (0..grid.len()).filter(|&i| !occ.get(i)).collect();
+                // Some nodes share a voxel, so that seeds also come from the lattice corners.
+                let nodes: Vec<Node> = (0..3 + 2 * t)
+                    .map(|k| {
+                        let v = empty[(rng.uniform() * empty.len() as f32) as usize % empty.len()];
+                        let v = if k % 3 == 2 { empty[0] } else { v };
+                        let c = grid.coords(v);
+                        Node {
+                            lattice: c.map(|x| x as u32 + (k % 2) as u32),
+                            position: Vec3::new(0.0, 0.0, 0.0),
+                            voxel: v as u32,
+                            radius_voxels: 1.0,
+                            radius: 1.0,
+                        }
+                    })
+                    .collect();
+                assert_eq!(
+                    node_map(&grid, &occ, &nodes),
+                    node_map_reference(&grid, &occ, &nodes),
+                    "{dims:?} {density}"
+                );
+            }
+        }
     }
 
     #[test]
