@@ -268,8 +268,8 @@ impl Light {
                 area,
                 radiance,
                 ..
-            } => match triangle::spherical_solid_angle(p, normal, receiver) {
-                Some(solid_angle) if triangles == TriangleSampling::SolidAngle => {
+            } => match triangles.solid_angle(p, normal, receiver) {
+                Some(solid_angle) => {
                     let b = triangle::sample_spherical_triangle(p, receiver, solid_angle, u)?;
                     area_light_sample(p, normal, radiance, receiver, b, |_| 1.0 / solid_angle)
                 }
@@ -363,11 +363,9 @@ impl Light {
                 else {
                     return 0.0;
                 };
-                let pdf = match triangle::spherical_solid_angle(p, normal, receiver) {
-                    Some(solid_angle) if triangles == TriangleSampling::SolidAngle => {
-                        1.0 / solid_angle
-                    }
-                    _ => d2_over_cos / area,
+                let pdf = match triangles.solid_angle(p, normal, receiver) {
+                    Some(solid_angle) => 1.0 / solid_angle,
+                    None => d2_over_cos / area,
                 };
                 if pdf.is_finite() {
                     pdf
@@ -416,6 +414,17 @@ impl TriangleSampling {
             other => Err(Error::invalid(format!(
                 "unknown triangle-light sampling '{other}' (expected solid_angle or area)"
             ))),
+        }
+    }
+
+    /// The solid angle of triangle `p` seen from `receiver` when it is sampled by solid angle,
+    /// `None` when by area: the one choice rule of `Light::sample_with` and `Light::pdf_with`
+    /// (the solid angle is only computed when this strategy may use it).
+    #[inline]
+    fn solid_angle(self, p: &[Vec3; 3], normal: Vec3, receiver: Vec3) -> Option<f32> {
+        match self {
+            TriangleSampling::SolidAngle => triangle::spherical_solid_angle(p, normal, receiver),
+            TriangleSampling::Area => None,
         }
     }
 
