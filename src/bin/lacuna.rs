@@ -169,7 +169,8 @@ struct RenderArgs {
     scene: SceneArgs,
     /// Integrator (available: path, path_skeleton, bdpt, env_direct), with options as
     /// NAME:KEY=VALUE... (max_depth, mis, env=STRATEGY; path and path_skeleton also rr_depth=D,
-    /// the bounces before Russian roulette; env_direct also samples=N, bsdf=N; path_skeleton
+    /// the bounces before Russian roulette, and triangles=area|solid_angle, how next-event
+    /// estimation samples emissive triangles; env_direct also samples=N, bsdf=N; path_skeleton
     /// its guide options, see `compare --integrators`) [default: path, or the
     /// scene file's].
     #[arg(long)]
@@ -226,7 +227,8 @@ struct CompareArgs {
     scene: SceneArgs,
     /// Comma-separated integrator names; the first is the baseline. A name may carry options
     /// that override the command line's for that contender, as `name:key=value:...`: `max_depth`,
-    /// `mis`, for path and path_skeleton `rr_depth` (bounces before Russian roulette), and for
+    /// `mis`, for path and path_skeleton `rr_depth` (bounces before Russian roulette) and
+    /// `triangles=area|solid_angle` (next-event estimation of emissive triangles), and for
     /// path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
     /// `importance_nodes`, `lobes`, `visibility`, `aim`, `training_depth`, `training_cost`,
     /// `training_significance` (e.g. `path,path:rr_depth=5,path_skeleton`);

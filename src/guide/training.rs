@@ -103,7 +103,7 @@ use rayon::prelude::*;
 
 use super::STRENGTH_CANDIDATES;
 use super::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonStrength, TrainingCost};
-use crate::light::EnvStrategy;
+use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::{luminance, Rgb, Rng, Sampler};
 use crate::scene::{Scene, SurfaceInteraction};
 
@@ -578,7 +578,7 @@ fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Sampler) -> Rg
         return Rgb::ZERO;
     }
     let frame = si.shading_frame();
-    let (u_choice, u) = (rng.uniform(), rng.uniform2());
+    let u = rng.uniform2();
     let wo_local = frame.to_local(si.wo);
     let Some(t) = scene.sample_light_toward(
         si,
@@ -586,7 +586,7 @@ fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Sampler) -> Rg
         &bsdf,
         wo_local,
         EnvStrategy::default(),
-        u_choice,
+        TriangleSampling::default(),
         u,
     ) else {
         return Rgb::ZERO;

@@ -35,7 +35,7 @@ use super::{
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::{offset_ray_origin, Ray};
-use crate::light::Light;
+use crate::light::{Light, TriangleSampling};
 use crate::math::{Rgb, Rng, Sampler, Vec2, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 
@@ -654,7 +654,14 @@ impl Bdpt {
         let sampler = scene.light_sampler()?;
         let (index, pick) = sampler.sample(rng.uniform());
         let light = &scene.lights()[index];
-        let ls = light.sample_at(si.p, si.facing_normal(), self.settings.env, rng.uniform2())?;
+        // By area: the weights below take this vertex's density as `direct_pdf_area`.
+        let ls = light.sample_with(
+            si.p,
+            si.facing_normal(),
+            self.settings.env,
+            TriangleSampling::Area,
+            rng.uniform2(),
+        )?;
         if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
             return None;
         }

@@ -20,7 +20,7 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::SkeletonGuideSettings;
-use crate::light::EnvStrategy;
+use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::Rgb;
 use crate::math::Sampler;
 use crate::scene::{CameraFrame, RenderSettingsFile, Scene};
@@ -70,6 +70,10 @@ pub struct IntegratorSettings {
     pub light_paths: Option<u32>,
     /// How light sampling picks environment-map directions.
     pub env: EnvStrategy,
+    /// How next-event estimation of `path` and `path_skeleton` samples emissive triangles: by
+    /// area (default) or by solid angle (`bdpt` always samples them by area: its MIS weights
+    /// assume that density).
+    pub triangles: TriangleSampling,
     /// `env_direct`: environment light samples per shading point (N_L, split between cube
     /// faces by the strategy) and BSDF samples (N_B).
     pub env_samples: u32,
@@ -86,6 +90,7 @@ impl Default for IntegratorSettings {
             rr_start_depth: 3,
             light_paths: None,
             env: EnvStrategy::default(),
+            triangles: TriangleSampling::default(),
             env_samples: 30,
             env_bsdf_samples: 30,
             skeleton: SkeletonGuideSettings::default(),
@@ -224,7 +229,8 @@ pub const NAMES: &[&str] = &["path", "path_skeleton", "bdpt", "env_direct"];
 /// its options change, so one comparison can race variants of an integrator:
 /// - any integrator: `max_depth=D`, `mis=power|balance`, `env=STRATEGY` (environment
 ///   sampling: latlong, cube-uniform, cube-power, cube-dynamic, bsdf);
-/// - `path` and `path_skeleton`: `rr_depth=D` (bounces before Russian roulette starts);
+/// - `path` and `path_skeleton`: `rr_depth=D` (bounces before Russian roulette starts),
+///   `triangles=area|solid_angle` (how next-event estimation samples emissive triangles);
 /// - `env_direct`: `samples=N` (light samples per shading point) and `bsdf=N` (BSDF samples);
 /// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
 ///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`.
@@ -261,6 +267,9 @@ pub fn parse_spec(
             "max_depth" => settings.max_depth = count()?,
             "rr_depth" if name == "path" || name == "path_skeleton" => {
                 settings.rr_start_depth = count()?
+            }
+            "triangles" if name == "path" || name == "path_skeleton" => {
+                settings.triangles = TriangleSampling::parse(value)?
             }
             "mis" => settings.mis = MisHeuristic::parse(value)?,
             "env" => settings.env = EnvStrategy::parse(value)?,

@@ -21,14 +21,16 @@ use crate::render::FIRST_INTEGRATOR_DIMENSION;
 use crate::scene::{Bsdf, Scene, SurfaceInteraction};
 
 /// Sampler dimension slots of one bounce, so that each slot means the same thing in every
-/// sample of a pixel (and a stratified sampler stratifies that one integral): light choice,
-/// light 2-D, roulette, then three for the direction, consumed in order: the BSDF's component
-/// choice and 2-D (unguided), or for `path_skeleton` the guide/BSDF choice followed by the
-/// chosen one's 1-D and 2-D (there the slots are padded dimensions whose meaning varies).
-const SLOTS_PER_BOUNCE: u32 = 6;
+/// sample of a pixel (and a stratified sampler stratifies that one integral): the light 2-D
+/// (whose first coordinate also picks the light, rescaled, so the pair stays a stratified set
+/// over each light: [`Scene::sample_light_toward`]), roulette, then three for the direction,
+/// consumed in order: the BSDF's component choice and 2-D (unguided), or for `path_skeleton`
+/// the guide/BSDF choice followed by the chosen one's 1-D and 2-D (there the slots are padded
+/// dimensions whose meaning varies).
+const SLOTS_PER_BOUNCE: u32 = 5;
 const LIGHT_SLOT: u32 = 0;
-const ROULETTE_SLOT: u32 = 2;
-const DIRECTION_SLOT: u32 = 3;
+const ROULETTE_SLOT: u32 = 1;
+const DIRECTION_SLOT: u32 = 2;
 
 fn slot(depth: u32, k: u32) -> u32 {
     FIRST_INTEGRATOR_DIMENSION + depth * SLOTS_PER_BOUNCE + k
@@ -79,10 +81,16 @@ impl PathTracer {
         rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> Rgb {
-        let (u_choice, u) = (rng.uniform(), rng.uniform2());
-        let Some(toward) =
-            scene.sample_light_toward(si, frame, bsdf, wo_local, self.settings.env, u_choice, u)
-        else {
+        let u = rng.uniform2();
+        let Some(toward) = scene.sample_light_toward(
+            si,
+            frame,
+            bsdf,
+            wo_local,
+            self.settings.env,
+            self.settings.triangles,
+            u,
+        ) else {
             return Rgb::ZERO;
         };
         let (ls, pmf, wi_local, f) = (toward.sample, toward.pmf, toward.wi_local, toward.f_cos);
@@ -255,7 +263,8 @@ impl Integrator for PathTracer {
                         .triangle_light(si.triangle)
                         .expect("emitting triangle is a light");
                     let pmf = scene.light_sampler().map_or(0.0, |s| s.pmf(light));
-                    let light_pdf = pmf * scene.lights()[light].pdf(prev_point, si.p);
+                    let light_pdf = pmf
+                        * scene.lights()[light].pdf_with(prev_point, si.p, self.settings.triangles);
                     self.settings.mis.weight(prev_pdf, light_pdf)
                 };
                 radiance += beta * le * weight;

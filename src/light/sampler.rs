@@ -30,6 +30,17 @@ impl LightSampler {
         (i, self.table.pmf(i))
     }
 
+    /// Index of the chosen light, its probability, and `u` rescaled to [0, 1) within the
+    /// numbers that chose it ([`AliasTable::sample_reuse`]): the same choice and pmf as
+    /// [`sample`](Self::sample), and next-event estimation passes the rescaled number on as
+    /// one coordinate of the light's 2-D sample, so a stratified pair stays stratified over
+    /// each light instead of only over the choice.
+    #[inline]
+    pub fn sample_reuse(&self, u: f32) -> (usize, f32, f32) {
+        let (i, rescaled) = self.table.sample_reuse(u);
+        (i, self.table.pmf(i), rescaled)
+    }
+
     #[inline]
     pub fn pmf(&self, light: usize) -> f32 {
         self.table.pmf(light)

@@ -3,6 +3,9 @@
 
 use glam::Vec2;
 
+/// The largest f32 below 1.
+const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
+
 /// Walker/Vose alias table: O(1) sampling of a discrete distribution, used for picking a light
 /// proportionally to its power.
 #[derive(Clone, Debug, Default)]
@@ -67,6 +70,30 @@ impl AliasTable {
         } else {
             alias as usize
         }
+    }
+
+    /// Like [`sample`](Self::sample), and also returns `u` rescaled to a uniform number in
+    /// [0, 1) within the part of [0, 1) that chose the index (the bin's kept or aliased
+    /// fraction), so one coordinate of a stratified 2-D point can pick the index and then
+    /// still serve, stretched, as that coordinate of the chosen item's 2-D sample (Mitsuba's
+    /// `sample_reuse`). Same choices and pmf as `sample`; the rescaled number has
+    /// log2(len) fewer significant bits than `u`.
+    #[inline]
+    pub fn sample_reuse(&self, u: f32) -> (usize, f32) {
+        let n = self.bins.len();
+        let x = u * n as f32;
+        let i = (x as usize).min(n - 1);
+        let frac = x - i as f32;
+        let (keep, alias) = self.bins[i];
+        // A bin kept whole (keep 1) is its own alias; testing it here avoids 0 / 0 when
+        // rounding gives frac = 1.
+        let (index, rescaled) = if frac < keep || keep >= 1.0 {
+            (i, frac / keep)
+        } else {
+            (alias as usize, (frac - keep) / (1.0 - keep))
+        };
+        // Rounding may land exactly on 1 (or, with u in [1 - 2^-24, 1), just above).
+        (index, rescaled.clamp(0.0, ONE_MINUS_EPSILON))
     }
 
     #[inline]

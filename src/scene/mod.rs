@@ -31,7 +31,9 @@ pub use texture::{srgb_to_linear, Texture};
 use std::sync::Arc;
 
 use crate::geometry::{barycentric_point_error, Bounds3, Bvh, Hit, Ray};
-use crate::light::{EnvStrategy, EnvironmentMap, Light, LightSample, LightSampler};
+use crate::light::{
+    EnvStrategy, EnvironmentMap, Light, LightSample, LightSampler, TriangleSampling,
+};
 use crate::math::{Frame, Rgb, Vec2, Vec3};
 
 /// A triangle mesh as stored in the scene.
@@ -313,8 +315,11 @@ impl Scene {
     }
 
     /// The unshadowed part of one next-event sample at `si` (shading `frame`, `bsdf`, `wo_local`
-    /// = `si.wo` in that frame): a light picked by power with `u_choice`, a point or direction
-    /// on it from `u`, and the BSDF term f |cos| toward it. None when it cannot contribute (no
+    /// = `si.wo` in that frame): a light picked by power with `u.x`, a point or direction on
+    /// it from `u` with `u.x` rescaled within the chosen light's share
+    /// ([`LightSampler::sample_reuse`], so a stratified `u` stays stratified over each light),
+    /// and the BSDF term f |cos| toward it. `env` and `triangles` say how environment maps and
+    /// emissive triangles are sampled ([`Light::sample_with`]). None when it cannot contribute (no
     /// lights, no sample, the light on the other side of the geometric surface from wo, which
     /// shading normals would otherwise let through walls, or a zero BSDF term). The caller
     /// traces the shadow ray ([`unoccluded`](Self::unoccluded)) and weights the result.
@@ -327,11 +332,12 @@ impl Scene {
         bsdf: &Bsdf,
         wo_local: Vec3,
         env: EnvStrategy,
-        u_choice: f32,
+        triangles: TriangleSampling,
         u: Vec2,
     ) -> Option<LightTowardSample> {
-        let (index, pmf) = self.light_sampler()?.sample(u_choice);
-        let sample = self.lights[index].sample_at(si.p, si.facing_normal(), env, u)?;
+        let (index, pmf, u_light) = self.light_sampler()?.sample_reuse(u.x);
+        let u = Vec2::new(u_light, u.y);
+        let sample = self.lights[index].sample_with(si.p, si.facing_normal(), env, triangles, u)?;
         if sample.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
             return None;
         }
