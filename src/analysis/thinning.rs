@@ -1463,17 +1463,37 @@ fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
             for owner in [v as usize, v as usize + s[a]] {
                 for &(sq, at) in cofaces(e) {
                     let w = if at == 3 { owner } else { owner - s[at] };
+                    // Adjacency is symmetric and a set's root is its smallest square
+                    // (`UnionFind::union`), so joining each pair once, from its later square,
+                    // gives the same parts and roots as joining it from both (and skips k
+                    // itself, a coface of its own edges).
                     if bits[w] & SPAN_BIT[sq] != 0 {
-                        parts.union(k, index(w, sq as u8));
+                        let j = index(w, sq as u8);
+                        if j < k {
+                            parts.union(k, j);
+                        }
                     }
                 }
             }
         }
     }
-    let mut by_part: Vec<(u32, u32)> = (0..squares.len())
-        .map(|k| (parts.find(k) as u32, k as u32))
-        .collect();
-    by_part.sort_unstable();
+    // Sorted by (root, square): a counting sort by root (squares taken in increasing order
+    // stay in list order within a part), linear instead of a comparison sort.
+    let n = squares.len();
+    let roots: Vec<u32> = (0..n).map(|k| parts.find(k) as u32).collect();
+    let mut start = vec![0u32; n + 1];
+    for &r in &roots {
+        start[r as usize + 1] += 1;
+    }
+    for i in 0..n {
+        start[i + 1] += start[i];
+    }
+    let mut by_part = vec![(0u32, 0u32); n];
+    for (k, &r) in roots.iter().enumerate() {
+        let at = &mut start[r as usize];
+        by_part[*at as usize] = (r, k as u32);
+        *at += 1;
+    }
     by_part
 }
 
@@ -1907,5 +1927,63 @@ mod tests {
             }
         }
         assert!(cavities > 5, "the cases should hold cavities ({cavities})");
+    }
+
+    /// `surface_parts` equals a direct definition: squares sharing an edge are in one part
+    /// (edges listed per square, every pair of squares on an edge joined), parts ordered by
+    /// their smallest square, squares in list order within a part.
+    #[test]
+    fn surface_parts_equal_squares_joined_through_edges() {
+        let mut rng = Rng::new(47, 3);
+        let mut multi_part_cases = 0;
+        for case in 0..30 {
+            let dims = [5 + case % 7, 4 + (case * 5) % 6, 4 + (case * 3) % 5];
+            let occ = random_occupied(dims, [0.15f32, 0.3, 0.45][case % 3], &mut rng);
+            let (d1, dc) = maps(dims, &occ);
+            let mut t = Thinning::from_occupied(
+                dims,
+                &occ,
+                Constraint::Lifespan {
+                    distance: &d1,
+                    decenterness: &dc,
+                },
+                false,
+                false,
+            );
+            t.run(None);
+            let squares = t.squares();
+            let size = dims.map(|d| d + 2);
+            let s = [1, size[0], size[0] * size[1]];
+            // Edge (vertex, axis) -> the squares on it.
+            let mut on_edge: std::collections::HashMap<(usize, usize), Vec<usize>> =
+                Default::default();
+            for (k, &(v, span)) in squares.iter().enumerate() {
+                let axes: Vec<usize> = (0..3).filter(|a| span & (1 << a) != 0).collect();
+                for (a, b) in [(axes[0], axes[1]), (axes[1], axes[0])] {
+                    for at in [v as usize, v as usize + s[b]] {
+                        on_edge.entry((at, a)).or_default().push(k);
+                    }
+                }
+            }
+            let mut uf = super::super::complex::UnionFind::new(squares.len());
+            for list in on_edge.values() {
+                for &k in &list[1..] {
+                    uf.union(list[0], k);
+                }
+            }
+            let mut expected: Vec<(u32, u32)> = (0..squares.len())
+                .map(|k| (uf.find(k) as u32, k as u32))
+                .collect();
+            expected.sort_unstable();
+            let got = surface_parts(size, &squares);
+            assert_eq!(got, expected, "case {case}");
+            if got.chunk_by(|a, b| a.0 == b.0).count() > 1 {
+                multi_part_cases += 1;
+            }
+        }
+        assert!(
+            multi_part_cases > 2,
+            "the cases should hold several parts ({multi_part_cases})"
+        );
     }
 }
