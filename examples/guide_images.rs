@@ -24,7 +24,7 @@ use std::path::Path;
 
 use lacuna::guide::{GuideQuery, SkeletonGuide, SkeletonGuideSettings};
 use lacuna::math::{Rgb, Rng, Vec2};
-use lacuna::scene::{load_scene_file, Scene, SurfaceInteraction, Transport};
+use lacuna::scene::{load_scene_arg, Scene, SurfaceInteraction, Transport};
 
 fn hash_colour(n: u32) -> [u8; 3] {
     let mut h = n.wrapping_mul(0x9e37_79b9) ^ 0x5bd1_e995;
@@ -104,14 +104,12 @@ fn main() {
             settings.set(k, v).unwrap();
         }
     }
-    let scene = match args[1].as_str() {
-        "corridor" => lacuna::scene::corridor_builder().unwrap().build().unwrap(),
-        path => load_scene_file(Path::new(path))
-            .unwrap()
-            .builder
-            .build()
-            .unwrap(),
-    };
+    let scene = load_scene_arg(Path::new(&args[1]))
+        .unwrap()
+        .0
+        .builder
+        .build()
+        .unwrap();
     let camera = scene
         .camera()
         .expect("scene camera")

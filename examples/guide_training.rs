@@ -10,7 +10,7 @@
 use std::path::Path;
 
 use lacuna::guide::{SkeletonGuide, SkeletonGuideSettings};
-use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder};
+use lacuna::scene::load_scene_arg;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -18,15 +18,12 @@ fn main() {
         eprintln!("usage: guide_training SCENE [OPTION=VALUE ...]");
         std::process::exit(2);
     }
-    let scene = match args[1].as_str() {
-        "corridor" => corridor_builder().unwrap().build().unwrap(),
-        "two-rooms" => two_rooms_builder().unwrap().build().unwrap(),
-        path => load_scene_file(Path::new(path))
-            .unwrap()
-            .builder
-            .build()
-            .unwrap(),
-    };
+    let scene = load_scene_arg(Path::new(&args[1]))
+        .unwrap()
+        .0
+        .builder
+        .build()
+        .unwrap();
     let mut settings = SkeletonGuideSettings::default();
     let options: Vec<&String> = args[2..].iter().collect();
     let defaults = ["c_skel=learned".to_string(), "strength=learned".to_string()];

@@ -17,7 +17,7 @@ use std::sync::atomic::AtomicBool;
 use lacuna::film::{image_errors, read_exr_rgb};
 use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::render::{prepare, render, RenderSettings};
-use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder};
+use lacuna::scene::load_scene_arg;
 
 /// CPU seconds (user + system) this process has used, all threads.
 fn cpu_seconds() -> f64 {
@@ -47,15 +47,12 @@ fn main() {
         eprintln!("usage: per_sample SCENE REFERENCE.exr WIDTH HEIGHT SPP SEEDS SPECS [MAX_DEPTH]");
         std::process::exit(2);
     }
-    let scene = match args[1].as_str() {
-        "corridor" => corridor_builder().unwrap().build().unwrap(),
-        "two-rooms" => two_rooms_builder().unwrap().build().unwrap(),
-        path => load_scene_file(Path::new(path))
-            .unwrap()
-            .builder
-            .build()
-            .unwrap(),
-    };
+    let scene = load_scene_arg(Path::new(&args[1]))
+        .unwrap()
+        .0
+        .builder
+        .build()
+        .unwrap();
     let reference = read_exr_rgb(Path::new(&args[2])).unwrap();
     let width: u32 = args[3].parse().unwrap();
     let height: u32 = args[4].parse().unwrap();

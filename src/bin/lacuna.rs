@@ -16,8 +16,8 @@ use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
 use lacuna::math::{SamplerKind, Vec3};
 use lacuna::render::{render, Progress, RenderSettings};
 use lacuna::scene::{
-    auto_camera, convert_layout, corridor_builder, corridor_render_settings, load_obj,
-    load_scene_file, two_rooms_builder, Camera, RenderSettingsFile, Scene, SceneBuilder,
+    auto_camera, convert_layout, load_scene_arg, two_rooms_builder, Camera, RenderSettingsFile,
+    Scene, SceneBuilder,
 };
 use lacuna::{Error, Result};
 
@@ -328,46 +328,11 @@ struct Prepared {
 }
 
 fn load_builder(path: &Path) -> Result<(SceneBuilder, RenderSettingsFile, String)> {
-    let label = path.display().to_string();
-    if !path.exists() {
-        match path.to_str() {
-            Some("two-rooms") => {
-                return Ok((
-                    two_rooms_builder()?,
-                    RenderSettingsFile::default(),
-                    "two-rooms".into(),
-                ))
-            }
-            Some("corridor") => {
-                return Ok((
-                    corridor_builder()?,
-                    corridor_render_settings(),
-                    "corridor".into(),
-                ))
-            }
-            _ => {}
-        }
+    let (loaded, label) = load_scene_arg(path)?;
+    for w in &loaded.warnings {
+        eprintln!("lacuna: warning: {w}");
     }
-    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
-        Some("obj") => {
-            let mut builder = SceneBuilder::new();
-            let report = load_obj(path, &mut builder, None)?;
-            for w in &report.warnings {
-                eprintln!("lacuna: warning: {w}");
-            }
-            Ok((builder, RenderSettingsFile::default(), label))
-        }
-        Some("json") => {
-            let loaded = load_scene_file(path)?;
-            for w in &loaded.warnings {
-                eprintln!("lacuna: warning: {w}");
-            }
-            Ok((loaded.builder, loaded.settings, label))
-        }
-        _ => Err(Error::invalid(format!(
-            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor)"
-        ))),
-    }
+    Ok((loaded.builder, loaded.settings, label))
 }
 
 /// Loads `--env` or adjusts the scene file's environment map with the `--env-*` options,

@@ -325,6 +325,57 @@ enum ShapeSpec {
 // ---------------------------------------------------------------------------------------------
 // Loading.
 
+/// A scene as a command line names it: a built-in scene (`two-rooms`, `corridor`) unless a
+/// file of that name exists, an `.obj` file (no camera, no settings), or a `.json` scene file.
+/// Returns the loaded scene and a label for messages; one place for the `lacuna` command and
+/// the examples.
+pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
+    let builtin = |builder, settings| LoadedScene {
+        builder,
+        settings,
+        warnings: Vec::new(),
+        objects: Vec::new(),
+    };
+    if !path.exists() {
+        match path.to_str() {
+            Some("two-rooms") => {
+                let scene = builtin(super::two_rooms_builder()?, RenderSettingsFile::default());
+                return Ok((scene, "two-rooms".into()));
+            }
+            Some("corridor") => {
+                let scene = builtin(
+                    super::corridor_builder()?,
+                    super::corridor_render_settings(),
+                );
+                return Ok((scene, "corridor".into()));
+            }
+            _ => {}
+        }
+    }
+    let label = path.display().to_string();
+    let extension = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match extension.as_deref() {
+        Some("obj") => {
+            let mut builder = SceneBuilder::new();
+            let report = load_obj(path, &mut builder, None)?;
+            let scene = LoadedScene {
+                builder,
+                settings: RenderSettingsFile::default(),
+                warnings: report.warnings.clone(),
+                objects: vec![report],
+            };
+            Ok((scene, label))
+        }
+        Some("json") => Ok((load_scene_file(path)?, label)),
+        _ => Err(Error::invalid(format!(
+            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor)"
+        ))),
+    }
+}
+
 /// Loads a JSON scene file into a builder. Syntax and schema errors give [`Error::Parse`] with
 /// `line L column C` and serde's message (which names the field); invalid values give
 /// [`Error::Parse`] with the field path as location (e.g. `lights[1]`); OBJ problems come from
@@ -897,6 +948,28 @@ mod tests {
     use super::*;
     use crate::light::Light;
     use std::fs;
+
+    /// A command-line scene argument: built-in names, .obj and .json files, and a clear
+    /// error for anything else.
+    #[test]
+    fn scene_argument_resolves_builtins_and_files() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        for name in ["two-rooms", "corridor"] {
+            let (loaded, label) = load_scene_arg(Path::new(name)).unwrap();
+            assert_eq!(label, name);
+            assert!(loaded.builder.build().is_ok());
+        }
+        let obj = root.join("scenes/cornell-box/CornellBox-Original.obj");
+        let (loaded, _) = load_scene_arg(&obj).unwrap();
+        assert_eq!(loaded.objects.len(), 1);
+        let json = root.join("scenes/cornell-box/cornell-box.json");
+        let (loaded, _) = load_scene_arg(&json).unwrap();
+        assert_eq!(loaded.settings.width, Some(512));
+        let err = load_scene_arg(Path::new("no-such-scene.txt"))
+            .err()
+            .unwrap();
+        assert!(err.to_string().contains("no-such-scene.txt"), "{err}");
+    }
 
     struct TempDir(PathBuf);
 

@@ -20,7 +20,9 @@ pub use builder::{DegeneratePolicy, MeshDesc, SceneBuilder};
 pub use builtin::two_rooms_builder;
 pub use camera::{Camera, CameraFrame};
 pub use corridor::{corridor_builder, corridor_render_settings};
-pub use file::{auto_camera, convert_layout, load_scene_file, LoadedScene, RenderSettingsFile};
+pub use file::{
+    auto_camera, convert_layout, load_scene_arg, load_scene_file, LoadedScene, RenderSettingsFile,
+};
 pub use interaction::SurfaceInteraction;
 pub use material::{
     fresnel_dielectric, Bsdf, BsdfSample, Material, MaterialKind, TextureId, Transport,
