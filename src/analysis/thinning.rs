@@ -1295,27 +1295,75 @@ impl<'a> Thinning<'a> {
 
     /// The present squares as (internal vertex, span), sorted by vertex and then span (3, 5,
     /// 6): read from the brick planes, so a pierce round costs O(bricks + squares) rather than
-    /// a pass over every lattice vertex.
+    /// a pass over every lattice vertex. The bricks are read in vertex order (per layer of
+    /// bricks along z: each vertex row, z then y, across the bricks along x, four bits each),
+    /// so the list comes out sorted without a sort; rows of bricks without a square are
+    /// skipped whole.
     fn squares(&self) -> Vec<(u32, u8)> {
-        let of_brick = |b: usize| {
-            [3u8, 5, 6].into_iter().flat_map(move |span| {
-                bits(self.cells.get(b, span as usize))
-                    .map(move |bit| (self.vertex_index(b, bit) as u32, span))
-            })
-        };
-        let bricks = self.layout.bricks();
-        if !matches!(self.split, Split::Sequential) {
-            let mut squares: Vec<(u32, u8)> = (0..bricks)
-                .into_par_iter()
-                .with_min_len(bricks.div_ceil(rayon::current_num_threads()))
-                .flat_map_iter(of_brick)
+        const SPANS: [u8; 3] = [3, 5, 6];
+        let nb = self.layout.nb;
+        let step = self.layout.step;
+        let size = self.layout.size;
+        let planes = |b: usize| SPANS.map(|span| self.cells.get(b, span as usize));
+        // The squares of one layer of bricks (brick z = bz), in vertex order.
+        let layer = |bz: usize| {
+            let row = |by: usize, bx: usize| by * step[1] + bz * step[2] + bx;
+            // Per row of bricks along x: the union of its square bits.
+            let row_bits: Vec<u64> = (0..nb[1])
+                .map(|by| {
+                    if by == 0 || by + 1 == nb[1] {
+                        return 0;
+                    }
+                    (1..nb[0] - 1)
+                        .map(|bx| planes(row(by, bx)).iter().fold(0, |a, &w| a | w))
+                        .fold(0, |a, w| a | w)
+                })
                 .collect();
-            squares.par_sort_unstable();
-            squares
+            let mut out = Vec::new();
+            for zo in 0..4 {
+                let z = (bz - 1) * 4 + zo;
+                for by in 1..nb[1] - 1 {
+                    // The 16 bits of vertex layer zo in this row of bricks.
+                    let layer_bits = row_bits[by] >> (16 * zo) & 0xFFFF;
+                    if layer_bits == 0 {
+                        continue;
+                    }
+                    for yo in 0..4 {
+                        if layer_bits >> (4 * yo) & 0xF == 0 {
+                            continue;
+                        }
+                        let y = (by - 1) * 4 + yo;
+                        let shift = 4 * yo + 16 * zo;
+                        for bx in 1..nb[0] - 1 {
+                            let words = planes(row(by, bx)).map(|w| (w >> shift) & 0xF);
+                            if words.iter().all(|&w| w == 0) {
+                                continue;
+                            }
+                            for xo in 0..4 {
+                                for (k, &span) in SPANS.iter().enumerate() {
+                                    if words[k] >> xo & 1 != 0 {
+                                        let x = (bx - 1) * 4 + xo;
+                                        let v = x + size[0] * (y + size[1] * z);
+                                        out.push((v as u32, span));
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            out
+        };
+        let layers = 1..nb[2] - 1;
+        if !matches!(self.split, Split::Sequential) {
+            let len = layers.len().div_ceil(rayon::current_num_threads());
+            layers
+                .into_par_iter()
+                .with_min_len(len)
+                .flat_map_iter(layer)
+                .collect()
         } else {
-            let mut squares: Vec<(u32, u8)> = (0..bricks).flat_map(of_brick).collect();
-            squares.sort_unstable();
-            squares
+            layers.flat_map(layer).collect()
         }
     }
 
@@ -1434,48 +1482,78 @@ fn choose_pierced_squares(
 /// vertices per axis.
 fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
     use super::complex::UnionFind;
-    let len = size[0] * size[1] * size[2];
-    // The square bits per vertex, and the first index of each vertex's squares plus one (0 =
-    // none). Zeroed allocations: only the pages around the squares are ever touched.
-    let mut bits = vec![0u8; len];
-    let mut first = vec![0u32; len];
-    for (k, &(v, span)) in squares.iter().enumerate().rev() {
-        bits[v as usize] |= SPAN_BIT[span as usize];
-        first[v as usize] = k as u32 + 1;
-    }
-    // Index of a present square: the first index of its vertex plus its rank there (the list
-    // is sorted by vertex, then span 3, 5, 6).
-    let index = |v: usize, span: u8| -> usize {
-        let below = [3u8, 5, 6]
-            .iter()
-            .filter(|&&t| t < span && bits[v] & SPAN_BIT[t as usize] != 0)
-            .count();
-        first[v] as usize - 1 + below
-    };
-    let s = [1, size[0], size[0] * size[1]];
+    let plane = size[0] * size[1];
+    let s = [1, size[0], plane];
+    // Each pair of edge-adjacent squares is joined once, from its later square k: the other
+    // one, j < k, lies at a vertex w <= v (the list is sorted by vertex), so in k's z layer
+    // of vertices or the one before. So the index needs only two layers of vertices (by
+    // parity of z; some 100 kB, in cache) instead of the whole lattice: per vertex the
+    // square bits, and the first index of its squares plus one (0 = none).
+    let mut bits = vec![0u8; 2 * plane];
+    let mut first = vec![0u32; 2 * plane];
+    let slot = |w: usize| (w / plane & 1) * plane + w % plane;
+    // The squares of the layers held: (z, range of square indices), older first.
+    let mut held: [Option<(usize, std::ops::Range<usize>)>; 2] = [None, None];
     let mut parts = UnionFind::new(squares.len());
-    for (k, &(v, span)) in squares.iter().enumerate() {
-        for a in 0..3 {
-            if span & (1 << a) == 0 {
-                continue;
+    let mut k = 0;
+    while k < squares.len() {
+        // The squares of the next layer z: [k, end).
+        let z = squares[k].0 as usize / plane;
+        let end = k + squares[k..].partition_point(|&(v, _)| v as usize / plane == z);
+        // Keep layer z - 1 if held; forget (clear) the others.
+        let keep =
+            |h: &Option<(usize, std::ops::Range<usize>)>| matches!(h, Some((hz, _)) if hz + 1 == z);
+        let mut kept = None;
+        for h in held.iter_mut() {
+            if keep(h) {
+                kept = h.take();
+            } else if let Some((_, range)) = h.take() {
+                for &(v, _) in &squares[range] {
+                    bits[slot(v as usize)] = 0;
+                }
             }
-            let e = (span & !(1 << a)) as usize;
-            for owner in [v as usize, v as usize + s[a]] {
-                for &(sq, at) in cofaces(e) {
-                    let w = if at == 3 { owner } else { owner - s[at] };
-                    // Adjacency is symmetric and a set's root is its smallest square
-                    // (`UnionFind::union`), so joining each pair once, from its later square,
-                    // gives the same parts and roots as joining it from both (and skips k
-                    // itself, a coface of its own edges).
-                    if bits[w] & SPAN_BIT[sq] != 0 {
-                        let j = index(w, sq as u8);
-                        if j < k {
-                            parts.union(k, j);
+        }
+        held = [kept, Some((z, k..end))];
+        for (i, &(v, span)) in squares[k..end].iter().enumerate().rev() {
+            let at = slot(v as usize);
+            bits[at] |= SPAN_BIT[span as usize];
+            first[at] = (k + i) as u32 + 1;
+        }
+        // Index of a present square: the first index of its vertex plus its rank there (the
+        // list is sorted by vertex, then span 3, 5, 6).
+        let index = |w: usize, span: u8| -> usize {
+            let at = slot(w);
+            let below = [3u8, 5, 6]
+                .iter()
+                .filter(|&&t| t < span && bits[at] & SPAN_BIT[t as usize] != 0)
+                .count();
+            first[at] as usize - 1 + below
+        };
+        for (k, &(v, span)) in squares.iter().enumerate().take(end).skip(k) {
+            let v = v as usize;
+            for a in 0..3 {
+                if span & (1 << a) == 0 {
+                    continue;
+                }
+                let e = (span & !(1 << a)) as usize;
+                for owner in [v, v + s[a]] {
+                    for &(sq, at) in cofaces(e) {
+                        let w = if at == 3 { owner } else { owner - s[at] };
+                        // Only the earlier squares (which skips k itself, a coface of its
+                        // own edges); adjacency is symmetric and a set's root is its
+                        // smallest square (`UnionFind::union`), so joining each pair once
+                        // gives the same parts and roots as joining it from both squares.
+                        if w > v || (w == v && sq >= span as usize) {
+                            continue;
+                        }
+                        if bits[slot(w)] & SPAN_BIT[sq] != 0 {
+                            parts.union(k, index(w, sq as u8));
                         }
                     }
                 }
             }
         }
+        k = end;
     }
     // Sorted by (root, square): a counting sort by root (squares taken in increasing order
     // stay in list order within a part), linear instead of a comparison sort.
@@ -1927,6 +2005,46 @@ mod tests {
             }
         }
         assert!(cavities > 5, "the cases should hold cavities ({cavities})");
+    }
+
+    /// The squares gathered from the brick planes in vertex order equal those of the byte
+    /// complex, sorted by vertex and then span, sequentially and split over the pool, on
+    /// grids whose sizes are not multiples of the brick size.
+    #[test]
+    fn squares_are_listed_in_vertex_order() {
+        let mut rng = Rng::new(53, 5);
+        for case in 0..12 {
+            let dims = [5 + case % 7, 4 + (case * 5) % 9, 3 + (case * 3) % 6];
+            let occ = random_occupied(dims, [0.2f32, 0.35][case % 2], &mut rng);
+            let (d1, dc) = maps(dims, &occ);
+            let constraint = Constraint::Lifespan {
+                distance: &d1,
+                decenterness: &dc,
+            };
+            let mut t = Thinning::from_occupied(dims, &occ, constraint, false, false);
+            // Before the collapse (every square of the empty space) and after it.
+            for run in [false, true] {
+                if run {
+                    t.run(None);
+                }
+                let mut expected = Vec::new();
+                for (v, &byte) in t.complex().bytes().iter().enumerate() {
+                    for span in [3u8, 5, 6] {
+                        if byte & SPAN_BIT[span as usize] != 0 {
+                            expected.push((v as u32, span));
+                        }
+                    }
+                }
+                assert_eq!(t.squares(), expected, "case {case}");
+                t.split_every_pass_per_thread();
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(3)
+                    .build()
+                    .unwrap();
+                assert_eq!(pool.install(|| t.squares()), expected, "case {case}, split");
+                t.split = Split::Sequential;
+            }
+        }
     }
 
     /// `surface_parts` equals a direct definition: squares sharing an edge are in one part
