@@ -1009,7 +1009,7 @@ impl<'a> Thinning<'a> {
             any != 0
         });
         if any_free.is_empty() {
-            self.finish_scratch(&active, &[]);
+            // No free face was written: nothing to clear.
             return false;
         }
         // Cofaces of free pairs (C = A and one brick back), then their closure L (one brick
@@ -1110,16 +1110,17 @@ impl<'a> Thinning<'a> {
                 );
             }
         }
-        self.finish_scratch(&active, &closure);
+        self.finish_scratch(&any_free, &closure);
         self.iteration = l;
         self.stats.iterations = l;
         true
     }
 
-    /// Clears the scratch planes of an iteration.
-    fn finish_scratch(&self, active: &[u32], closure: &[u32]) {
+    /// Clears the scratch planes of an iteration: the free faces of the bricks that have
+    /// some (only those are written, a third of A or less), L on the closure's bricks.
+    fn finish_scratch(&self, with_free: &[u32], closure: &[u32]) {
         let (free, border) = (&self.free, &self.border);
-        self.for_each(active, Work::Light, |b| {
+        self.for_each(with_free, Work::Light, |b| {
             (0..7).for_each(|s| free.set(b, s, 0))
         });
         self.for_each(closure, Work::Light, |b| {
