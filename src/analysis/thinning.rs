@@ -1325,12 +1325,12 @@ impl<'a> Thinning<'a> {
                 let z = (bz - 1) * 4 + zo;
                 for by in 1..nb[1] - 1 {
                     // The 16 bits of vertex layer zo in this row of bricks.
-                    let layer_bits = row_bits[by] >> (16 * zo) & 0xFFFF;
+                    let layer_bits = (row_bits[by] >> (16 * zo)) & 0xFFFF;
                     if layer_bits == 0 {
                         continue;
                     }
                     for yo in 0..4 {
-                        if layer_bits >> (4 * yo) & 0xF == 0 {
+                        if (layer_bits >> (4 * yo)) & 0xF == 0 {
                             continue;
                         }
                         let y = (by - 1) * 4 + yo;
@@ -1342,7 +1342,7 @@ impl<'a> Thinning<'a> {
                             }
                             for xo in 0..4 {
                                 for (k, &span) in SPANS.iter().enumerate() {
-                                    if words[k] >> xo & 1 != 0 {
+                                    if (words[k] >> xo) & 1 != 0 {
                                         let x = (bx - 1) * 4 + xo;
                                         let v = x + size[0] * (y + size[1] * z);
                                         out.push((v as u32, span));
@@ -1492,7 +1492,7 @@ fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
     // square bits, and the first index of its squares plus one (0 = none).
     let mut bits = vec![0u8; 2 * plane];
     let mut first = vec![0u32; 2 * plane];
-    let slot = |w: usize| (w / plane & 1) * plane + w % plane;
+    let slot = |w: usize| ((w / plane) & 1) * plane + w % plane;
     // The squares of the layers held: (z, range of square indices), older first.
     let mut held: [Option<(usize, std::ops::Range<usize>)>; 2] = [None, None];
     let mut parts = UnionFind::new(squares.len());
