@@ -1625,6 +1625,17 @@ mod tests {
     }
 
     #[test]
+    fn aims_parse_and_print() {
+        for aim in [LobeAim::ImportancePoint, LobeAim::Opening, LobeAim::Portal] {
+            assert_eq!(LobeAim::parse(&aim.to_string()).unwrap(), aim);
+        }
+        let mut s = SkeletonGuideSettings::default();
+        s.set("aim", "portal").unwrap();
+        assert_eq!(s.aim, LobeAim::Portal);
+        assert!(s.set("aim", "rectangle").is_err());
+    }
+
+    #[test]
     fn automatic_strength_narrows_with_distance() {
         let auto = SkeletonStrength::Auto { max: 1000.0 };
         // Half maximum at the angle subtended by the radius: cos^s(atan(r / D)) = 1/2.
