@@ -50,6 +50,25 @@
 //! decided per point before any sampling, from x alone, so sampling and the pdf see the same
 //! mixture and the estimator stays unbiased whatever the aim.
 //!
+//! # Sampling the opening itself (`aim=portal`)
+//!
+//! A round lobe fits a slit badly: the Veach door's gap is 15 units wide and as tall as the
+//! door (its maximal ball has radius 7.6, the disc of its area 60.7), so a lobe either
+//! wastes most samples beside it or misses most of it. With `aim=portal` the precomputation
+//! also fits each bottleneck's cross-section as a planar rectangle (`opening_rectangle`):
+//! its plane is the one of least cross-section area among normals within 75° of the path's
+//! direction (paths often cross a slit obliquely, and a plane normal to the path would cut
+//! it lengthwise), its axes the principal axes of the outline in that plane, its extents
+//! one ray each way along them. At a point x that sees the bottleneck (the shadow ray of
+//! `aim=opening`) the lobe becomes directions uniform in the rectangle's solid angle (the
+//! spherical rectangle of Ureña, Fajardo and King 2013, `math::warp::SphericalRectangle`),
+//! whose density at any direction is exact (1 / solid angle where the ray from x crosses
+//! the rectangle, else 0). Where the rectangle covers wall as well as gap, the estimator
+//! stays unbiased: BSDF sampling covers every direction, and the mixture density is exact.
+//! Elsewhere (x does not see the bottleneck, lies in the rectangle's plane, or the path has
+//! no opening) the lobe is the one of `aim=opening`. The strength does not apply to a
+//! rectangle (`c_skel=learned` learns the probability alone).
+//!
 //! # Query ([`GuideQuery`])
 //!
 //! At a surface point x with geometric normal n and incident direction wo, x is mapped to its
@@ -280,6 +299,10 @@ pub enum LobeAim {
     /// bottleneck, its node of smallest maximal ball, when x sees it (one shadow ray), the
     /// lobe as wide as that ball looks from x; else the importance point as above.
     Opening,
+    /// Like `Opening`, but where x sees the bottleneck it samples directions uniformly in
+    /// the solid angle of the opening's cross-section fitted as a rectangle (module docs,
+    /// "Sampling the opening itself"), not a round lobe around it.
+    Portal,
 }
 
 impl LobeAim {
@@ -287,8 +310,9 @@ impl LobeAim {
         match text.trim() {
             "point" | "importance_point" => Ok(LobeAim::ImportancePoint),
             "opening" => Ok(LobeAim::Opening),
+            "portal" => Ok(LobeAim::Portal),
             other => Err(Error::invalid(format!(
-                "skeleton aim '{other}' must be 'point' (eq. 162) or 'opening'"
+                "skeleton aim '{other}' must be 'point' (eq. 162), 'opening' or 'portal'"
             ))),
         }
     }
@@ -299,6 +323,7 @@ impl std::fmt::Display for LobeAim {
         f.write_str(match self {
             LobeAim::ImportancePoint => "point",
             LobeAim::Opening => "opening",
+            LobeAim::Portal => "portal",
         })
     }
 }
@@ -347,7 +372,7 @@ impl SkeletonGuideSettings {
     /// `strength` (a number, `auto`, `auto:MAX` or `learned`; `learned` keeps the strength set
     /// before as the training proposal), `resolution` (voxels along the longest
     /// axis), `voxel_budget` (most voxels in the grid), `light_rays`,
-    /// `importance_nodes`, `lobes`, `visibility` (true/false), `aim` (`point` or `opening`),
+    /// `importance_nodes`, `lobes`, `visibility` (true/false), `aim` (`point`, `opening` or `portal`),
     /// and for the training pass `training_depth` (1..=64), `training_cost` (`path` or
     /// `vertex`) and `training_significance` (>= 0). Validates the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
@@ -486,6 +511,19 @@ pub struct GuideLobe {
     /// the path has no node after this one.
     pub opening: Vec3,
     pub opening_radius: f32,
+    /// With `aim=portal`: the opening's cross-section at the bottleneck as a rectangle.
+    pub portal: Option<Portal>,
+}
+
+/// A planar rectangle across a path at its bottleneck: `centre ± half.x u ± half.y v`, with
+/// `u`, `v` orthonormal (the principal axes of the opening's outline) and normal `u × v`
+/// along the path.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Portal {
+    pub centre: Vec3,
+    pub u: Vec3,
+    pub v: Vec3,
+    pub half: Vec2,
 }
 
 /// What a guide was built from, to refuse rendering another scene with it.
@@ -1018,6 +1056,97 @@ fn opening_radius(scene: &Scene, centre: Vec3, along: Vec3, ball: f32, cap: f32)
     (area / std::f32::consts::PI).sqrt().max(ball)
 }
 
+/// Rays cast across the path at a bottleneck to find the principal axes of its opening.
+const PORTAL_RAYS: u32 = 64;
+/// Plane normals tried for a portal (module docs: the path's direction at the bottleneck is
+/// a poor normal where the path crosses a slit obliquely), with cosines down to
+/// `PORTAL_TILT_COS` to the path's direction (75°).
+const PORTAL_NORMALS: u32 = 96;
+const PORTAL_TILT_COS: f32 = 0.25;
+/// Rays per tried normal to measure the cross-section's area.
+const PORTAL_AREA_RAYS: u32 = 32;
+
+/// Distance from `centre` along `dir` to the first surface, at most `cap`.
+fn reach(scene: &Scene, centre: Vec3, dir: Vec3, cap: f32) -> f32 {
+    scene
+        .intersect(&Ray::new(centre, dir, cap))
+        .map_or(cap, |hit| hit.t)
+}
+
+/// Area of the opening's outline in the plane through `centre` normal to `normal`, from
+/// `rays` rays (the polygon of `opening_radius`).
+fn cross_section_area(scene: &Scene, centre: Vec3, normal: Vec3, rays: u32, cap: f32) -> f32 {
+    let frame = Frame::from_z(normal);
+    let step = 2.0 * std::f32::consts::PI / rays as f32;
+    let d: Vec<f32> = (0..rays)
+        .map(|j| {
+            let (sin, cos) = (j as f32 * step).sin_cos();
+            reach(scene, centre, frame.to_world(Vec3::new(cos, sin, 0.0)), cap)
+        })
+        .collect();
+    (0..d.len())
+        .map(|j| d[j] * d[(j + 1) % d.len()])
+        .sum::<f32>()
+        * 0.5
+        * step.sin()
+}
+
+/// The opening's cross-section at `centre` fitted as a rectangle. Its plane is the one of
+/// least cross-section area among `PORTAL_NORMALS` normals around the path direction `along`
+/// (a slit crossed obliquely is cut square, not along its length); in it `PORTAL_RAYS` rays
+/// (each at most `cap` long) outline the opening, the outline's second moments about `centre`
+/// give its principal axes, and one ray each way along both axes its extents (a slit's length
+/// measured along the slit, not by the ray that happens to come closest to its axis). None
+/// when `along` is zero.
+fn opening_rectangle(scene: &Scene, centre: Vec3, along: Vec3, cap: f32) -> Option<Portal> {
+    if along == Vec3::ZERO {
+        return None;
+    }
+    let around = Frame::from_z(along);
+    let golden = std::f32::consts::PI * (3.0 - 5.0f32.sqrt());
+    let mut normal = along;
+    let mut least = cross_section_area(scene, centre, along, PORTAL_AREA_RAYS, cap);
+    for i in 0..PORTAL_NORMALS {
+        // A Fibonacci spiral over the cap of normals within the tilt bound.
+        let cos = 1.0 - (1.0 - PORTAL_TILT_COS) * (i as f32 + 0.5) / PORTAL_NORMALS as f32;
+        let sin = (1.0 - cos * cos).max(0.0).sqrt();
+        let phi = golden * i as f32;
+        let n = around.to_world(Vec3::new(sin * phi.cos(), sin * phi.sin(), cos));
+        let area = cross_section_area(scene, centre, n, PORTAL_AREA_RAYS, cap);
+        if area < least {
+            least = area;
+            normal = n;
+        }
+    }
+    let frame = Frame::from_z(normal);
+    let step = 2.0 * std::f64::consts::PI / PORTAL_RAYS as f64;
+    let (mut sxx, mut sxy, mut syy) = (0.0f64, 0.0f64, 0.0f64);
+    for j in 0..PORTAL_RAYS {
+        let (sin, cos) = (j as f64 * step).sin_cos();
+        let dir = frame.to_world(Vec3::new(cos as f32, sin as f32, 0.0));
+        let d = reach(scene, centre, dir, cap) as f64;
+        let (qx, qy) = (d * cos, d * sin);
+        sxx += qx * qx;
+        sxy += qx * qy;
+        syy += qy * qy;
+    }
+    let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    let (sin, cos) = (theta.sin() as f32, theta.cos() as f32);
+    let u = frame.to_world(Vec3::new(cos, sin, 0.0)).normalize();
+    let v = normal.cross(u).normalize();
+    let [u_plus, u_minus, v_plus, v_minus] = [u, -u, v, -v].map(|d| reach(scene, centre, d, cap));
+    Some(Portal {
+        centre: centre + 0.5 * (u_plus - u_minus) * u + 0.5 * (v_plus - v_minus) * v,
+        u,
+        v,
+        half: 0.5 * Vec2::new(u_plus + u_minus, v_plus + v_minus),
+    })
+}
+
+/// Longest side of a portal, in maximal-ball radii of its bottleneck (an opening into open
+/// space has no measurable extent; a larger rectangle only wastes samples on walls).
+const PORTAL_CAP: f32 = 64.0;
+
 /// The lobes of node `k`: selection weights (eq. 164-165) and importance points (eq. 162).
 fn node_lobes(
     scene: &Scene,
@@ -1061,9 +1190,15 @@ fn node_lobes(
             radius = radius.min(n.radius);
         }
         let point = sum / count as f32;
-        let (opening, opening_radius) = match bottleneck(graph, tree, k) {
-            Some((at, ball, along)) => (at, opening_radius(scene, at, along, ball, 16.0 * ball)),
-            None => (point, radius),
+        let (opening, opening_radius, portal) = match bottleneck(graph, tree, k) {
+            Some((at, ball, along)) => (
+                at,
+                opening_radius(scene, at, along, ball, 16.0 * ball),
+                (settings.aim == LobeAim::Portal)
+                    .then(|| opening_rectangle(scene, at, along, PORTAL_CAP * ball))
+                    .flatten(),
+            ),
+            None => (point, radius, None),
         };
         let probability = (weight / total) as f32;
         // Shortest paths to several importance nodes often share their visible prefix (every
@@ -1074,6 +1209,7 @@ fn node_lobes(
                 && l.radius == radius
                 && l.opening == opening
                 && l.opening_radius == opening_radius
+                && l.portal == portal
         }) {
             same.probability += probability;
             continue;
@@ -1086,6 +1222,7 @@ fn node_lobes(
             distance: tree.distance[k],
             opening,
             opening_radius,
+            portal,
         });
     }
     lobes.sort_by(|a, b| b.probability.total_cmp(&a.probability));
@@ -1102,6 +1239,19 @@ struct ActiveLobe {
     /// exponent under any other strength, for the training pass).
     radius: f32,
     distance: f32,
+    /// With `aim=portal` where the point sees the bottleneck: directions uniform toward the
+    /// opening's rectangle instead of the power-cosine lobe.
+    portal: Option<warp::SphericalRectangle>,
+}
+
+impl ActiveLobe {
+    #[inline]
+    fn pdf(&self, w: Vec3, exponent: f32) -> f32 {
+        match &self.portal {
+            Some(rect) => rect.pdf(w),
+            None => warp::power_cosine_pdf(self.frame.to_local(w), exponent),
+        }
+    }
 }
 
 const NO_LOBE: ActiveLobe = ActiveLobe {
@@ -1114,6 +1264,7 @@ const NO_LOBE: ActiveLobe = ActiveLobe {
     probability: 0.0,
     radius: 0.0,
     distance: 0.0,
+    portal: None,
 };
 
 /// The skeleton sampling distribution at one surface point (eq. 163-167): a mixture of
@@ -1192,6 +1343,7 @@ impl GuideQuery {
                 probability: weight / total,
                 radius: 0.0,
                 distance: 0.0,
+                portal: None,
             };
         }
         if !(total > 0.0 && total.is_finite()) {
@@ -1262,13 +1414,40 @@ impl GuideQuery {
             Some((axis, distance))
         };
         for lobe in guide.lobes(node) {
-            let through_opening = guide.settings.aim == LobeAim::Opening
-                && (lobe.opening != lobe.point || lobe.opening_radius != lobe.radius);
-            let opening = through_opening
-                .then(|| aim(lobe.opening))
-                .flatten()
-                .map(|(axis, distance)| (axis, distance, lobe.opening_radius));
+            let has_opening = lobe.opening != lobe.point || lobe.opening_radius != lobe.radius;
+            let through_opening = has_opening && guide.settings.aim != LobeAim::ImportancePoint;
+            // One shadow ray toward the bottleneck decides whether p aims through it.
+            let opening = through_opening.then(|| aim(lobe.opening)).flatten();
+            // aim=portal: uniform toward the opening's rectangle where p sees the bottleneck
+            // (and is not in the rectangle's plane); else the round lobe of aim=opening.
+            let portal = opening
+                .and(lobe.portal)
+                .filter(|_| guide.settings.aim == LobeAim::Portal)
+                .and_then(|portal| {
+                    warp::SphericalRectangle::new(
+                        p,
+                        portal.centre - portal.half.x * portal.u - portal.half.y * portal.v,
+                        portal.u,
+                        portal.v,
+                        2.0 * portal.half.x,
+                        2.0 * portal.half.y,
+                    )
+                });
+            if let (Some(rect), Some((axis, distance))) = (portal, opening) {
+                self.lobes[self.count] = ActiveLobe {
+                    frame: Frame::from_z(axis),
+                    exponent: 0.0,
+                    probability: lobe.probability,
+                    radius: lobe.opening_radius,
+                    distance,
+                    portal: Some(rect),
+                };
+                total += lobe.probability;
+                self.count += 1;
+                continue;
+            }
             let Some((axis, distance, radius)) = opening
+                .map(|(axis, distance)| (axis, distance, lobe.opening_radius))
                 .or_else(|| aim(lobe.point).map(|(axis, distance)| (axis, distance, lobe.radius)))
             else {
                 continue;
@@ -1279,6 +1458,7 @@ impl GuideQuery {
                 probability: lobe.probability,
                 radius,
                 distance,
+                portal: None,
             };
             total += lobe.probability;
             self.count += 1;
@@ -1340,7 +1520,10 @@ impl GuideQuery {
             }
         }
         let l = &self.lobes[chosen];
-        let w = l.frame.to_world(warp::power_cosine(u, l.exponent));
+        let w = match &l.portal {
+            Some(rect) => rect.sample(u),
+            None => l.frame.to_world(warp::power_cosine(u, l.exponent)),
+        };
         let pdf = self.pdf(w);
         (pdf > 0.0 && pdf.is_finite()).then_some((w, pdf))
     }
@@ -1350,20 +1533,21 @@ impl GuideQuery {
     pub fn pdf(&self, w: Vec3) -> f32 {
         self.lobes[..self.count]
             .iter()
-            .map(|l| l.probability * warp::power_cosine_pdf(l.frame.to_local(w), l.exponent))
+            .map(|l| l.probability * l.pdf(w, l.exponent))
             .sum()
     }
 
     /// [`pdf`](Self::pdf) as it would be with every lobe's exponent from `strength` instead
     /// (same lobes, axes and probabilities: which lobes apply at a point does not depend on
     /// the strength). Lobes of [`with_lobes`](Self::with_lobes) have no radius: an automatic
-    /// strength gives them its bound.
+    /// strength gives them its bound. A portal lobe (`aim=portal`) has no strength: its
+    /// density is the same under any.
     pub fn pdf_with_strength(&self, w: Vec3, strength: SkeletonStrength) -> f32 {
         self.lobes[..self.count]
             .iter()
             .map(|l| {
                 let exponent = strength.exponent(l.radius, l.distance);
-                l.probability * warp::power_cosine_pdf(l.frame.to_local(w), exponent)
+                l.probability * l.pdf(w, exponent)
             })
             .sum()
     }
@@ -1438,6 +1622,17 @@ mod tests {
             assert_eq!(s, before, "a failed set leaves the settings alone");
         }
         assert!(OPTION_NAMES.contains(&"training_cost"));
+    }
+
+    #[test]
+    fn aims_parse_and_print() {
+        for aim in [LobeAim::ImportancePoint, LobeAim::Opening, LobeAim::Portal] {
+            assert_eq!(LobeAim::parse(&aim.to_string()).unwrap(), aim);
+        }
+        let mut s = SkeletonGuideSettings::default();
+        s.set("aim", "portal").unwrap();
+        assert_eq!(s.aim, LobeAim::Portal);
+        assert!(s.set("aim", "rectangle").is_err());
     }
 
     #[test]
