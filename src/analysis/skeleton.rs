@@ -409,7 +409,7 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
 
 /// Frontiers at least this long are searched in parallel (shorter ones do not pay for the
 /// second pass over the discovered voxels).
-const PARALLEL_FRONTIER: usize = 8 * 1024;
+const PARALLEL_FRONTIER: usize = 16 * 1024;
 
 /// Padded node-map words that are not node indices.
 const BLOCKED: u32 = UNDEFINED_NODE - 1;
