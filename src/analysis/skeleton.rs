@@ -34,7 +34,6 @@
 use std::collections::{HashMap, VecDeque};
 
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
 use std::time::Instant;
 
 use super::complex::{diagonal_contacts, Betti, Complex, UnionFind, POINT, SPAN_BIT};
@@ -389,75 +388,40 @@ pub fn node_map_seeds(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> 
 /// already mapped voxel among their 26 neighbours (face neighbours first, then edge, then
 /// corner): the map is total on every component of the empty space that holds a node.
 /// Occupied voxels and components without a node get [`UNDEFINED_NODE`].
-///
-/// The search runs frontier by frontier (see [`bfs_level_parallel`]): large frontiers are
-/// split over the rayon pool with the same result as the sequential FIFO queue.
 pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u32> {
-    let threads = rayon::current_num_threads();
-    node_map_split(
-        grid,
-        occupied,
-        nodes,
-        if threads > 1 {
-            PARALLEL_FRONTIER
-        } else {
-            usize::MAX
-        },
-        threads,
-    )
-}
-
-/// Frontiers at least this long are searched in parallel (shorter ones do not pay for the
-/// second pass over the discovered voxels).
-const PARALLEL_FRONTIER: usize = 16 * 1024;
-
-/// Padded node-map words that are not node indices.
-const BLOCKED: u32 = UNDEFINED_NODE - 1;
-
-/// [`node_map`], searching frontiers of at least `min_parallel` voxels in `pieces` pieces.
-fn node_map_split(
-    grid: &VoxelGrid,
-    occupied: &VoxelSet,
-    nodes: &[Node],
-    min_parallel: usize,
-    pieces: usize,
-) -> Vec<u32> {
+    const BLOCKED: u32 = UNDEFINED_NODE - 1;
     let [nx, ny, nz] = grid.dims;
     // One layer of padding (blocked), so that steps need no bounds test.
     let (px, py) = (nx + 2, ny + 2);
     let plane = px * py;
     let padded = |k: usize| (k % nx + 1) + px * ((k / nx) % ny + 1) + plane * (k / (nx * ny) + 1);
-    let len = plane * (nz + 2);
-    // Relaxed atomics: plain loads and stores, shared by the pieces of a parallel frontier.
-    let map: Vec<AtomicU32> = (0..len)
-        .into_par_iter()
-        .map(|_| AtomicU32::new(BLOCKED))
-        .collect();
-    map.par_chunks(plane).enumerate().for_each(|(pz, slab)| {
-        if pz == 0 || pz > nz {
-            return;
-        }
-        for y in 0..ny {
-            let row = nx * (y + ny * (pz - 1));
-            for x in 0..nx {
-                if !occupied.get(row + x) {
-                    slab[(x + 1) + px * (y + 1)].store(UNDEFINED_NODE, Relaxed);
+    let mut map = vec![BLOCKED; plane * (nz + 2)];
+    map.par_chunks_mut(plane)
+        .enumerate()
+        .for_each(|(pz, slab)| {
+            if pz == 0 || pz > nz {
+                return;
+            }
+            for y in 0..ny {
+                let row = nx * (y + ny * (pz - 1));
+                for x in 0..nx {
+                    if !occupied.get(row + x) {
+                        slab[(x + 1) + px * (y + 1)] = UNDEFINED_NODE;
+                    }
                 }
             }
-        }
-    });
-    let mut frontier: Vec<u32> = Vec::new();
+        });
+    let mut queue: Vec<u32> = Vec::with_capacity(grid.len());
     for (l, seed) in node_map_seeds(grid, occupied, nodes)
         .into_iter()
         .enumerate()
     {
         if let Some(k) = seed {
             let p = padded(k as usize);
-            map[p].store(l as u32, Relaxed);
-            frontier.push(p as u32);
+            map[p] = l as u32;
+            queue.push(p as u32);
         }
     }
-    let any_seed = !frontier.is_empty();
     let faces = [
         1isize,
         -1,
@@ -466,34 +430,18 @@ fn node_map_split(
         plane as isize,
         -(plane as isize),
     ];
-    // Claim words of a parallel frontier lie above the node indices and below BLOCKED.
-    let claims_fit = (nodes.len() as u64 + 6 * len as u64) < BLOCKED as u64;
-    let mut next: Vec<u32> = Vec::new();
-    while !frontier.is_empty() {
-        next.clear();
-        if frontier.len() >= min_parallel && claims_fit {
-            bfs_level_parallel(
-                &map,
-                &frontier,
-                &mut next,
-                &faces,
-                nodes.len() as u32,
-                pieces,
-            );
-        } else {
-            for &i in &frontier {
-                let i = i as usize;
-                let label = map[i].load(Relaxed);
-                for &o in &faces {
-                    let j = i.wrapping_add_signed(o);
-                    if map[j].load(Relaxed) == UNDEFINED_NODE {
-                        map[j].store(label, Relaxed);
-                        next.push(j as u32);
-                    }
-                }
+    let mut head = 0;
+    while head < queue.len() {
+        let i = queue[head] as usize;
+        head += 1;
+        let label = map[i];
+        for &o in &faces {
+            let j = i.wrapping_add_signed(o);
+            if map[j] == UNDEFINED_NODE {
+                map[j] = label;
+                queue.push(j as u32);
             }
         }
-        std::mem::swap(&mut frontier, &mut next);
     }
     let mut unmapped: Vec<u32> = map
         .par_chunks(plane)
@@ -502,11 +450,11 @@ fn node_map_split(
             let base = (pz * plane) as u32;
             slab.iter()
                 .enumerate()
-                .filter(|&(_, m)| m.load(Relaxed) == UNDEFINED_NODE)
+                .filter(|&(_, &m)| m == UNDEFINED_NODE)
                 .map(move |(k, _)| base + k as u32)
         })
         .collect();
-    if !unmapped.is_empty() && any_seed {
+    if !unmapped.is_empty() && !queue.is_empty() {
         let mut around: Vec<isize> = Vec::with_capacity(26);
         for order in 1..=3 {
             for dz in -1isize..=1 {
@@ -524,7 +472,7 @@ fn node_map_split(
                 .iter()
                 .filter_map(|&i| {
                     around.iter().find_map(|&o| {
-                        let m = map[(i as usize).wrapping_add_signed(o)].load(Relaxed);
+                        let m = map[(i as usize).wrapping_add_signed(o)];
                         (m < BLOCKED).then_some((i, m))
                     })
                 })
@@ -533,9 +481,9 @@ fn node_map_split(
                 break;
             }
             for &(i, m) in &layer {
-                map[i as usize].store(m, Relaxed);
+                map[i as usize] = m;
             }
-            unmapped.retain(|&i| map[i as usize].load(Relaxed) == UNDEFINED_NODE);
+            unmapped.retain(|&i| map[i as usize] == UNDEFINED_NODE);
         }
     }
     let mut out = vec![UNDEFINED_NODE; grid.len()];
@@ -544,74 +492,11 @@ fn node_map_split(
         .for_each(|(r, row)| {
             let start = padded(r * nx);
             for (x, v) in row.iter_mut().enumerate() {
-                let m = map[start + x].load(Relaxed);
+                let m = map[start + x];
                 *v = if m < BLOCKED { m } else { UNDEFINED_NODE };
             }
         });
     out
-}
-
-/// One breadth-first level over `pieces` contiguous pieces of the frontier, equal to the
-/// sequential FIFO step: there, a voxel of the next level takes the node of the first
-/// frontier voxel (in frontier order) that reaches it, with faces in `faces` order, and the
-/// next level is listed in the order of those first (frontier position, face) pairs.
-///
-/// First pass (pieces in parallel): each undiscovered voxel gets the smallest claim
-/// `claim_base + 6 * position + face` offered (an atomic minimum; the plain load before it
-/// skips the voxels already mapped or already claimed by an earlier pair, almost all of them),
-/// and each piece lists the voxels its claims improved, in its own pair order. Second pass
-/// (pieces in parallel): a piece keeps the listed voxels whose final claim is its own (each
-/// voxel has one winner), and writes their node, read from the claiming frontier voxel. The
-/// kept lists, concatenated piece by piece, are the next level in pair order.
-fn bfs_level_parallel(
-    map: &[AtomicU32],
-    frontier: &[u32],
-    next: &mut Vec<u32>,
-    faces: &[isize; 6],
-    claim_base: u32,
-    pieces: usize,
-) {
-    let piece_len = frontier.len().div_ceil(pieces.max(1)).max(1);
-    let found: Vec<Vec<u32>> = frontier
-        .par_chunks(piece_len)
-        .enumerate()
-        .map(|(c, piece)| {
-            let mut found = Vec::with_capacity(piece.len() * 3 / 2);
-            let mut claim = claim_base + (6 * c * piece_len) as u32;
-            for &i in piece {
-                for &o in faces {
-                    let j = (i as usize).wrapping_add_signed(o);
-                    let m = map[j].load(Relaxed);
-                    if m > claim && m != BLOCKED && map[j].fetch_min(claim, Relaxed) > claim {
-                        found.push(j as u32);
-                    }
-                    claim += 1;
-                }
-            }
-            found
-        })
-        .collect();
-    let kept: Vec<Vec<u32>> = found
-        .into_par_iter()
-        .enumerate()
-        .map(|(c, mut found)| {
-            let lo = claim_base + (6 * c * piece_len) as u32;
-            let hi = lo + (6 * piece_len) as u32;
-            found.retain(|&j| {
-                let m = map[j as usize].load(Relaxed);
-                let mine = (lo..hi).contains(&m);
-                if mine {
-                    let from = frontier[((m - claim_base) / 6) as usize];
-                    map[j as usize].store(map[from as usize].load(Relaxed), Relaxed);
-                }
-                mine
-            });
-            found
-        })
-        .collect();
-    for piece in kept {
-        next.extend_from_slice(&piece);
-    }
 }
 
 /// Eq. 151-155: the node of a surface point `p` with normal `normal`, seen from incident
@@ -1101,16 +986,11 @@ mod tests {
                         }
                     })
                     .collect();
-                let want = node_map_reference(&grid, &occ, &nodes);
-                assert_eq!(node_map(&grid, &occ, &nodes), want, "{dims:?} {density}");
-                // Every frontier split in pieces (the parallel level), down to one voxel each.
-                for pieces in [1, 2, 3, 7, usize::MAX] {
-                    assert_eq!(
-                        node_map_split(&grid, &occ, &nodes, 1, pieces),
-                        want,
-                        "{dims:?} {density} in {pieces} pieces"
-                    );
-                }
+                assert_eq!(
+                    node_map(&grid, &occ, &nodes),
+                    node_map_reference(&grid, &occ, &nodes),
+                    "{dims:?} {density}"
+                );
             }
         }
     }
