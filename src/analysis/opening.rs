@@ -200,12 +200,8 @@ fn opening_l1_words<W: Word>(
         .flat_map_iter(|z| {
             let mut out = Vec::new();
             for y in 0..ny {
-                for x in 0..nx {
-                    let i = padded(x, y, z);
-                    if is_centre(i) {
-                        out.push(i as u32);
-                    }
-                }
+                let row = padded(0, y, z);
+                out.extend((row..row + nx).filter(|&i| is_centre(i)).map(|i| i as u32));
             }
             out
         })
@@ -309,21 +305,35 @@ fn flood<W: Word>(
                 if budget == 0 {
                     continue;
                 }
-                for j in [
+                let around = [
                     i - steps[0],
                     i + steps[0],
                     i - steps[1],
                     i + steps[1],
                     i - steps[2],
                     i + steps[2],
-                ] {
+                ];
+                if budget == 1 {
+                    // The last step: a neighbour reached with budget 0 only takes the level,
+                    // so it is marked here instead of being listed for one more round.
+                    for j in around {
+                        if state[j] == W::ZERO {
+                            state[j] = mark;
+                            if opening[j] == W::ZERO {
+                                opening[j] = level;
+                            }
+                        }
+                    }
+                    continue;
+                }
+                for j in around {
                     if state[j] <= below {
                         state[j] = mark;
                         next.push(j as u32);
                     }
                 }
             }
-            if budget == 0 {
+            if budget <= 1 {
                 break;
             }
             budget -= 1;
