@@ -236,7 +236,7 @@ mod tests {
             voxel_size: 1.0,
         };
         // Rooms along x, separated by solid slabs 1..5 voxels thick; room i is node i.
-        let mut node_of_x = vec![UNDEFINED_NODE; 40];
+        let mut node_of_x = [UNDEFINED_NODE; 40];
         let (mut x, mut node, mut thickness) = (0usize, 0u32, 1usize);
         while x < 40 {
             for cell in node_of_x.iter_mut().skip(x).take(4) {
