@@ -7,15 +7,17 @@
 //! /proc/self/stat, all worker threads, precomputation excluded). MAE² x CPU seconds is then
 //! the equal-time figure of merit (lower is better) a quiet machine would show.
 //!
-//! `cargo run --release --example per_sample -- SCENE REFERENCE.exr WIDTH HEIGHT SPP SEEDS SPECS [MAX_DEPTH]`
+//! `cargo run --release --example per_sample -- SCENE REFERENCE.exr WIDTH HEIGHT SPP SEEDS SPECS [MAX_DEPTH [SAMPLER]]`
 //! with SCENE a scene file or `corridor`, SPECS a comma-separated list of integrator specs
-//! (`path,path_skeleton:aim=opening`), MAX_DEPTH 8 by default. Linux only (/proc).
+//! (`path,path_skeleton:aim=opening`), MAX_DEPTH 8 by default, SAMPLER `sobol` (default) or
+//! `independent`. Linux only (/proc).
 
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
 use lacuna::film::{image_errors, read_exr_rgb};
 use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::math::SamplerKind;
 use lacuna::render::{prepare, render, RenderSettings};
 use lacuna::scene::load_scene_arg;
 
@@ -44,7 +46,9 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     if args.len() < 8 {
-        eprintln!("usage: per_sample SCENE REFERENCE.exr WIDTH HEIGHT SPP SEEDS SPECS [MAX_DEPTH]");
+        eprintln!(
+            "usage: per_sample SCENE REFERENCE.exr WIDTH HEIGHT SPP SEEDS SPECS [MAX_DEPTH [SAMPLER]]"
+        );
         std::process::exit(2);
     }
     let scene = load_scene_arg(Path::new(&args[1]))
@@ -59,6 +63,9 @@ fn main() {
     let spp: u32 = args[5].parse().unwrap();
     let seeds: u64 = args[6].parse().unwrap();
     let max_depth: u32 = args.get(8).map_or(8, |s| s.parse().unwrap());
+    let sampler = args
+        .get(9)
+        .map_or(SamplerKind::default(), |s| SamplerKind::parse(s).unwrap());
     assert_eq!(
         (reference.width, reference.height),
         (width, height),
@@ -66,8 +73,9 @@ fn main() {
     );
     let camera = *scene.camera().expect("scene camera");
     println!(
-        "{} at {width}x{height}, {spp} spp x {seeds} seeds, max depth {max_depth}; medians over seeds",
-        args[1]
+        "{} at {width}x{height}, {spp} spp x {seeds} seeds, max depth {max_depth}, sampler {}; medians over seeds",
+        args[1],
+        sampler.name()
     );
     println!("| integrator | MAE | MAE² x spp | RMSE² x spp | CPU µs / sample | MAE² x CPU s |");
     println!("|---|---|---|---|---|---|");
@@ -85,6 +93,7 @@ fn main() {
                 height,
                 spp,
                 seed: 1000 + seed,
+                sampler,
                 ..Default::default()
             };
             let t = cpu_seconds();

@@ -10,19 +10,46 @@ use rayon::prelude::*;
 
 use super::{VoxelGrid, UNDEFINED_NODE};
 
-/// Voxels from which [`map_point`](super::map_point) may return a node for which `wanted` holds: every voxel
-/// within 4 voxels (per axis) of a mapped voxel whose node is wanted. `map_point` from a point
-/// in voxel v_x only reads the neighbourhoods of v_x and of floor(g + s n⁺) for s <= 3, and
-/// floor(x + d) - floor(x) lies in [-3, 3] for |d| <= 3: all within 3 + 1 voxels of v_x. So
-/// where this is false, the point maps to no wanted node (or to none), without searching.
-/// (A box dilation, separable, one pass per axis.)
+/// Voxels from which [`map_point`](super::map_point) may return a node for which `wanted`
+/// holds, by the neighbourhoods eq. 151-155 (as `map_point` implements them) can read from
+/// a point p in voxel v_x with any normal and incident direction:
+/// - the first search and the last resort read the 26-neighbourhood of v_x: wanted if a
+///   wanted node is mapped within one voxel of v_x (`near`);
+/// - the searches along n⁺ (steps s = 1, 2, 3, centre floor(g + s n⁺)) run only when the
+///   first found no mapped neighbour o of v_x with o·n⁺ > 0, i.e. n⁺ lies in the cone
+///   {n : o·n <= 0 for every mapped o}; where v_x has mapped neighbours on every side (open
+///   space) that cone is {0} and they never run. Otherwise the centre's offset d from v_x
+///   satisfies s n⁺ in (d - 1, d + 1) per axis (g lies in [v_x, v_x + 1)), so d is possible
+///   only if that box (clipped by the sign constraints of the mapped face neighbours) meets
+///   the sphere of radius s and no mapped neighbour's half-space o·x <= 0 misses it; then
+///   v_x is wanted if `near` holds at the centre.
+///
+/// A superset of the exact set (the cone is tested per constraint, not jointly; tolerances
+/// cover f32 rounding): where this is false, the point maps to no wanted node (or to none),
+/// without searching. Round 5's mask was every voxel within 4 voxels of a wanted one; this
+/// one drops the voxels of open space more than one voxel from a
+/// wanted node and wall voxels whose searches along n⁺ lead away from it (and, to stay a
+/// superset under rounding, allows centres 4 voxels away inside thick walls, which the box
+/// did not).
 pub fn may_map_to(grid: &VoxelGrid, map: &[u32], wanted: impl Fn(u32) -> bool + Sync) -> Vec<bool> {
-    const REACH: usize = 4;
-    let dims = grid.dims;
-    let mut flags: Vec<bool> = map
+    let wanted_voxel: Vec<bool> = map
         .par_iter()
         .map(|&m| m != UNDEFINED_NODE && wanted(m))
         .collect();
+    let near = dilate(grid, &wanted_voxel, 1);
+    // A search's centre lies within 3 voxels of v_x (4 with a unit normal rounded above 1),
+    // so `far` bounds where the cone test can succeed and skips it far from every wanted node.
+    let far = dilate(grid, &near, 4);
+    (0..map.len())
+        .into_par_iter()
+        .map(|k| near[k] || (far[k] && searches_along_normal_reach(grid, map, &near, k)))
+        .collect()
+}
+
+/// Box dilation by `radius` voxels per axis (separable, one pass per axis).
+fn dilate(grid: &VoxelGrid, flags: &[bool], radius: usize) -> Vec<bool> {
+    let dims = grid.dims;
+    let mut flags = flags.to_vec();
     for axis in 0..3 {
         let stride = [1, dims[0], dims[0] * dims[1]][axis];
         let len = dims[axis];
@@ -32,13 +59,122 @@ pub fn may_map_to(grid: &VoxelGrid, map: &[u32], wanted: impl Fn(u32) -> bool + 
                 return;
             }
             let c = grid.coords(k)[axis];
-            let lo = c.saturating_sub(REACH);
-            let hi = (c + REACH).min(len - 1);
+            let lo = c.saturating_sub(radius);
+            let hi = (c + radius).min(len - 1);
             let base = k - c * stride;
             *out = (lo..=hi).any(|i| input[base + i * stride]);
         });
     }
     flags
+}
+
+/// Slack of the geometric tests (grid units): `map_point` works in f32 / f64 with a unit
+/// normal rounded to f32, so the boundaries are widened rather than trusted.
+const SLACK: f64 = 1e-3;
+
+/// Whether one of `map_point`'s searches along n⁺ (steps 1-3) from a point in voxel `k` may
+/// be centred on a voxel where `near` holds (see [`may_map_to`]).
+fn searches_along_normal_reach(grid: &VoxelGrid, map: &[u32], near: &[bool], k: usize) -> bool {
+    let dims = grid.dims.map(|d| d as i64);
+    let v = grid.coords(k).map(|c| c as i64);
+    let inside = |p: [i64; 3]| (0..3).all(|a| p[a] >= 0 && p[a] < dims[a]);
+    // The mapped neighbours of v_x (out-of-grid voxels are never mapped).
+    let mut mapped: Vec<[i64; 3]> = Vec::with_capacity(26);
+    for dz in -1..=1i64 {
+        for dy in -1..=1i64 {
+            for dx in -1..=1i64 {
+                let o = [dx, dy, dz];
+                let w = [v[0] + dx, v[1] + dy, v[2] + dz];
+                if o != [0, 0, 0]
+                    && inside(w)
+                    && map[grid.index(w[0] as usize, w[1] as usize, w[2] as usize)]
+                        != UNDEFINED_NODE
+                {
+                    mapped.push(o);
+                }
+            }
+        }
+    }
+    // Per axis, the range of x = s n⁺ the face neighbours allow: a mapped +e_a means
+    // n⁺_a <= 0 (else it would have been found facing; its score is n⁺_a, exact in f32),
+    // a mapped -e_a means n⁺_a >= 0. Then floor(g_a + s n⁺_a) <= v_a exactly.
+    let mut limit = [[-3.0 - SLACK, 3.0 + SLACK]; 3];
+    for o in &mapped {
+        if o.iter().filter(|&&c| c != 0).count() == 1 {
+            let a = (0..3).find(|&a| o[a] != 0).expect("a face offset");
+            if o[a] > 0 {
+                limit[a][1] = limit[a][1].min(0.0);
+            } else {
+                limit[a][0] = limit[a][0].max(0.0);
+            }
+        }
+    }
+    if (0..3).any(|a| limit[a][0] > limit[a][1]) {
+        return false;
+    }
+    let d_range = |a: usize| -> (i64, i64) {
+        // d - 1 < x < d + 1 for some x in limit[a].
+        (
+            (limit[a][0] - 1.0).floor() as i64 + 1,
+            (limit[a][1] + 1.0).ceil() as i64 - 1,
+        )
+    };
+    let ranges = [d_range(0), d_range(1), d_range(2)];
+    for dz in ranges[2].0..=ranges[2].1 {
+        for dy in ranges[1].0..=ranges[1].1 {
+            for dx in ranges[0].0..=ranges[0].1 {
+                let d = [dx, dy, dz];
+                // The centre's neighbourhood within the grid is within that of the centre
+                // clamped to the grid.
+                let c = [0, 1, 2].map(|a| (v[a] + d[a]).clamp(0, dims[a] - 1) as usize);
+                if !near[grid.index(c[0], c[1], c[2])] {
+                    continue;
+                }
+                let mut lo = [0.0f64; 3];
+                let mut hi = [0.0f64; 3];
+                let mut empty = false;
+                for a in 0..3 {
+                    lo[a] = (d[a] as f64 - 1.0 - SLACK).max(limit[a][0]);
+                    hi[a] = (d[a] as f64 + 1.0 + SLACK).min(limit[a][1]);
+                    empty |= lo[a] > hi[a];
+                }
+                if empty {
+                    continue;
+                }
+                // Every mapped neighbour's half-space o·x <= 0 must meet the box.
+                let misses = mapped.iter().any(|o| {
+                    (0..3)
+                        .map(|a| (o[a] as f64 * lo[a]).min(o[a] as f64 * hi[a]))
+                        .sum::<f64>()
+                        > SLACK
+                });
+                if misses {
+                    continue;
+                }
+                // Squared distances from 0 to the box's nearest and farthest points.
+                let nearest: f64 = (0..3)
+                    .map(|a| {
+                        if lo[a] > 0.0 {
+                            lo[a] * lo[a]
+                        } else if hi[a] < 0.0 {
+                            hi[a] * hi[a]
+                        } else {
+                            0.0
+                        }
+                    })
+                    .sum();
+                let farthest: f64 = (0..3).map(|a| (lo[a] * lo[a]).max(hi[a] * hi[a])).sum();
+                let on_a_sphere = (1..=3).any(|s| {
+                    let s = s as f64;
+                    nearest <= (s + SLACK).powi(2) && farthest >= (s - SLACK).powi(2)
+                });
+                if on_a_sphere {
+                    return true;
+                }
+            }
+        }
+    }
+    false
 }
 
 #[cfg(test)]
@@ -86,5 +222,87 @@ mod tests {
             }
         }
         assert!(hits > 100, "{hits}");
+    }
+
+    /// Walls of one to five voxels between rooms of different nodes: the searches along n⁺
+    /// reach through the thin walls, not the thick ones; every point that maps to the
+    /// wanted node is inside the mask, and the mask holds fewer empty voxels than the 5-voxel
+    /// box that bounds it.
+    #[test]
+    fn may_map_to_covers_points_next_to_walls_and_is_tighter_than_a_box() {
+        let grid = VoxelGrid {
+            dims: [40, 12, 10],
+            origin: [0.0, 0.0, 0.0],
+            voxel_size: 1.0,
+        };
+        // Rooms along x, separated by solid slabs 1..5 voxels thick; room i is node i.
+        let mut node_of_x = [UNDEFINED_NODE; 40];
+        let (mut x, mut node, mut thickness) = (0usize, 0u32, 1usize);
+        while x < 40 {
+            for cell in node_of_x.iter_mut().skip(x).take(4) {
+                *cell = node;
+            }
+            x += 4 + thickness;
+            node += 1;
+            thickness = thickness % 5 + 1;
+        }
+        let map: Vec<u32> = (0..grid.len())
+            .map(|k| {
+                let [x, y, z] = grid.coords(k);
+                // A solid floor, and a pillar in room 2.
+                if z == 0 || (node_of_x[x] == 2 && (5..7).contains(&y) && z < 6) {
+                    UNDEFINED_NODE
+                } else {
+                    node_of_x[x]
+                }
+            })
+            .collect();
+        let (mut tight_total, mut loose_total) = (0, 0);
+        for wanted in 0..node {
+            let reach = may_map_to(&grid, &map, |n| n == wanted);
+            // Within 5 voxels at most (a centre 4 voxels away only with |n| rounded above 1,
+            // which round 5's 4-voxel box ignored), and tighter than that box in the empty
+            // space, where it also marked the neighbouring rooms' voxels.
+            let flags: Vec<bool> = map.iter().map(|&m| m == wanted).collect();
+            let boxed = dilate(&grid, &flags, 5);
+            assert!(reach.iter().zip(&boxed).all(|(&r, &b)| !r || b));
+            let open = |flags: &[bool]| {
+                (0..grid.len())
+                    .filter(|&k| flags[k] && map[k] != UNDEFINED_NODE)
+                    .count()
+            };
+            let (tight, loose) = (open(&reach), open(&boxed));
+            assert!(tight <= loose, "node {wanted}: {tight} of {loose}");
+            tight_total += tight;
+            loose_total += loose;
+            let mut rng = Rng::new(11, wanted as u64);
+            let mut hits = 0;
+            for _ in 0..100_000 {
+                let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
+                let p = Vec3::new(40.0, 12.0, 10.0) * u;
+                // Normals near the axes too: the searches along n⁺ run into walls.
+                let normal = if rng.uniform() < 0.5 {
+                    let axis = [Vec3::X, Vec3::Y, Vec3::Z][(rng.uniform() * 3.0) as usize % 3];
+                    (axis + 0.2 * crate::math::warp::uniform_sphere(rng.uniform2())).normalize()
+                } else {
+                    crate::math::warp::uniform_sphere(rng.uniform2())
+                };
+                let incident = crate::math::warp::uniform_sphere(rng.uniform2());
+                if map_point(&grid, &map, p, normal, incident) == Some(wanted) {
+                    let v = grid.to_grid(p).map(|x| x.floor() as usize);
+                    let k = grid.index(v[0].min(39), v[1].min(11), v[2].min(9));
+                    assert!(
+                        reach[k],
+                        "node {wanted}: point {p} maps to it outside the mask"
+                    );
+                    hits += 1;
+                }
+            }
+            assert!(hits > 100, "node {wanted}: {hits}");
+        }
+        assert!(
+            tight_total < loose_total,
+            "{tight_total} of {loose_total} empty voxels"
+        );
     }
 }

@@ -219,6 +219,8 @@ pub struct SkeletonGuideSettings {
     pub learned_strength: bool,
     /// Vertices per training path (`training_depth`).
     pub training_depth: u32,
+    /// Camera paths of the training pass (`training_paths`).
+    pub training_paths: u32,
     /// How the training pass weighs the guide's overhead (`training_cost`).
     pub training_cost: TrainingCost,
     /// Standard errors by which guiding must beat not guiding for `c_skel=learned` to guide
@@ -283,8 +285,13 @@ pub const STRENGTH_CANDIDATES: [SkeletonStrength; 7] = [
     },
 ];
 
-/// Default of `training_significance`.
-pub const DEFAULT_TRAINING_SIGNIFICANCE: f32 = 2.0;
+/// Default of `training_significance` (2 until round 6: it left corridor nodes whose
+/// training said guiding was 2-4x better unguided, `guide::training` module docs).
+pub const DEFAULT_TRAINING_SIGNIFICANCE: f32 = 1.0;
+
+/// Default camera paths of the training pass (2^15 until round 6: too few for the
+/// corridor's choices to be stable, `guide::training` module docs).
+pub const DEFAULT_TRAINING_PATHS: u32 = 1 << 17;
 
 /// Default vertices per training path: the integrators' default maximum depth.
 pub const DEFAULT_TRAINING_DEPTH: u32 = 8;
@@ -338,6 +345,7 @@ impl Default for SkeletonGuideSettings {
             },
             learned_strength: false,
             training_depth: DEFAULT_TRAINING_DEPTH,
+            training_paths: DEFAULT_TRAINING_PATHS,
             training_cost: TrainingCost::Path,
             training_significance: DEFAULT_TRAINING_SIGNIFICANCE,
             resolution: Resolution::VoxelBudget(DEFAULT_VOXEL_BUDGET),
@@ -362,6 +370,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "visibility",
     "aim",
     "training_depth",
+    "training_paths",
     "training_cost",
     "training_significance",
 ];
@@ -373,7 +382,8 @@ impl SkeletonGuideSettings {
     /// before as the training proposal), `resolution` (voxels along the longest
     /// axis), `voxel_budget` (most voxels in the grid), `light_rays`,
     /// `importance_nodes`, `lobes`, `visibility` (true/false), `aim` (`point`, `opening` or `portal`),
-    /// and for the training pass `training_depth` (1..=64), `training_cost` (`path` or
+    /// and for the training pass `training_depth` (1..=64), `training_paths`
+    /// (1024..=2^24), `training_cost` (`path` or
     /// `vertex`) and `training_significance` (>= 0). Validates the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
@@ -396,6 +406,7 @@ impl SkeletonGuideSettings {
                 next.learned_strength = false;
             }
             "training_depth" => next.training_depth = number(key, value)?,
+            "training_paths" => next.training_paths = number(key, value)?,
             "training_cost" => next.training_cost = TrainingCost::parse(value)?,
             "training_significance" => next.training_significance = number(key, value)?,
             "resolution" => next.resolution = Resolution::LongestAxis(number(key, value)?),
@@ -439,6 +450,12 @@ impl SkeletonGuideSettings {
             return Err(Error::invalid(format!(
                 "skeleton training_depth {} must be within 1..=64",
                 self.training_depth
+            )));
+        }
+        if !(1024..=1 << 24).contains(&self.training_paths) {
+            return Err(Error::invalid(format!(
+                "skeleton training_paths {} must be within 1024..=2^24",
+                self.training_paths
             )));
         }
         if !(self.training_significance.is_finite() && self.training_significance >= 0.0) {
