@@ -285,8 +285,8 @@ pub const STRENGTH_CANDIDATES: [SkeletonStrength; 7] = [
     },
 ];
 
-/// Default of `training_significance` (2 until round 6: it left corridor nodes whose
-/// training said guiding was 2-4x better unguided, `guide::training` module docs).
+/// Default of `training_significance` (2 until round 6: it left unguided corridor nodes
+/// whose training estimated guiding 1.7-2.1x better, `guide::training` module docs).
 pub const DEFAULT_TRAINING_SIGNIFICANCE: f32 = 1.0;
 
 /// Default camera paths of the training pass (2^15 until round 6: too few for the
@@ -1502,12 +1502,19 @@ impl GuideQuery {
         self.count
     }
 
-    /// Axis, exponent and probability of active lobe `i`.
+    /// Axis, exponent and probability of active lobe `i`. A portal lobe (`aim=portal`,
+    /// [`lobe_is_portal`](Self::lobe_is_portal)) samples a rectangle, not a power-cosine
+    /// lobe: its exponent is meaningless (0).
     pub fn lobe(&self, i: usize) -> Option<(Vec3, f32, f32)> {
         (i < self.count).then(|| {
             let l = &self.lobes[i];
             (l.frame.n, l.exponent, l.probability)
         })
+    }
+
+    /// Whether active lobe `i` samples the opening's rectangle (`aim=portal`) at this point.
+    pub fn lobe_is_portal(&self, i: usize) -> bool {
+        i < self.count && self.lobes[i].portal.is_some()
     }
 
     /// Probability of sampling the skeleton rather than the BSDF here: `c_skel` where lobes
@@ -1621,6 +1628,8 @@ mod tests {
         s.set("strength", "auto").unwrap();
         assert!(!s.learned_strength);
         s.set("training_depth", "5").unwrap();
+        s.set("training_paths", "1024").unwrap();
+        assert_eq!(s.training_paths, 1024);
         s.set("training_cost", "vertex").unwrap();
         s.set("training_significance", "0").unwrap();
         assert_eq!(
@@ -1630,6 +1639,8 @@ mod tests {
         for (key, bad) in [
             ("training_depth", "0"),
             ("training_depth", "65"),
+            ("training_paths", "1023"),
+            ("training_paths", "16777217"),
             ("training_cost", "pixel"),
             ("training_significance", "-1"),
             ("training_significance", "nan"),

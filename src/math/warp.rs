@@ -144,6 +144,10 @@ impl SphericalRectangle {
         ex_len: f32,
         ey_len: f32,
     ) -> Option<SphericalRectangle> {
+        debug_assert!(
+            ex.dot(ey).abs() <= 1e-4 * ex.length() * ey.length(),
+            "rectangle edges must be orthogonal"
+        );
         let (ex_len, ey_len) = (ex_len as f64, ey_len as f64);
         if !(ex_len > 0.0 && ey_len > 0.0 && ex_len.is_finite() && ey_len.is_finite()) {
             return None;
@@ -216,6 +220,8 @@ impl SphericalRectangle {
         let hv2 = hv * hv;
         let yv = if hv2 < 1.0 - 1e-12 {
             (hv * d / (1.0 - hv2).sqrt()).clamp(self.y0, self.y1)
+        } else if hv < 0.0 {
+            self.y0
         } else {
             self.y1
         };
