@@ -686,9 +686,10 @@ impl SkeletonGuide {
         stage("shortest paths (Dijkstra)", t, 0.85)?;
 
         let t = Instant::now();
+        let openings = OpeningFits::default();
         let per_node: Vec<Vec<GuideLobe>> = (0..graph.nodes.len())
             .into_par_iter()
-            .map(|k| node_lobes(scene, &graph, k, &importance, &trees, settings))
+            .map(|k| node_lobes(scene, &graph, k, &importance, &trees, settings, &openings))
             .collect();
         let mut lobe_start = Vec::with_capacity(per_node.len() + 1);
         let mut lobes = Vec::new();
@@ -1164,6 +1165,63 @@ fn opening_rectangle(scene: &Scene, centre: Vec3, along: Vec3, cap: f32) -> Opti
 /// space has no measurable extent; a larger rectangle only wastes samples on walls).
 const PORTAL_CAP: f32 = 64.0;
 
+/// The measured openings of the bottlenecks, shared by the nodes' lobes: every node upstream
+/// of a door reaches it along the same path segment, so the door's opening (its radius, and
+/// with `aim=portal` its rectangle, about 3,200 rays) would otherwise be measured again for
+/// every such node and lobe. The measurements are pure functions of the key (bottleneck
+/// position, path direction, ball radius, bit for bit), so which thread fills an entry first
+/// changes nothing: the guide stays identical across thread counts.
+#[derive(Default)]
+struct OpeningFits {
+    fits: std::sync::Mutex<std::collections::HashMap<OpeningKey, OpeningFit>>,
+}
+
+/// Bits of a bottleneck's position, path direction and ball radius.
+type OpeningKey = [u32; 7];
+/// The opening's area-equivalent radius and, with `aim=portal`, its rectangle.
+type OpeningFit = (f32, Option<Portal>);
+
+impl OpeningFits {
+    /// The opening's radius ([`opening_radius`]) and, with `aim=portal`, its rectangle
+    /// ([`opening_rectangle`]) at bottleneck `at` crossed along `along`, of maximal ball `ball`.
+    fn get(
+        &self,
+        scene: &Scene,
+        settings: &SkeletonGuideSettings,
+        at: Vec3,
+        along: Vec3,
+        ball: f32,
+    ) -> OpeningFit {
+        let key: OpeningKey = [
+            at.x.to_bits(),
+            at.y.to_bits(),
+            at.z.to_bits(),
+            along.x.to_bits(),
+            along.y.to_bits(),
+            along.z.to_bits(),
+            ball.to_bits(),
+        ];
+        let lock = || {
+            self.fits
+                .lock()
+                .unwrap_or_else(|poisoned| poisoned.into_inner())
+        };
+        if let Some(&fit) = lock().get(&key) {
+            return fit;
+        }
+        // Measured outside the lock (the other thread may measure the same key meanwhile:
+        // same result).
+        let fit = (
+            opening_radius(scene, at, along, ball, 16.0 * ball),
+            (settings.aim == LobeAim::Portal)
+                .then(|| opening_rectangle(scene, at, along, PORTAL_CAP * ball))
+                .flatten(),
+        );
+        lock().insert(key, fit);
+        fit
+    }
+}
+
 /// The lobes of node `k`: selection weights (eq. 164-165) and importance points (eq. 162).
 fn node_lobes(
     scene: &Scene,
@@ -1172,6 +1230,7 @@ fn node_lobes(
     importance: &[ImportanceNode],
     trees: &[ShortestPaths],
     settings: &SkeletonGuideSettings,
+    openings: &OpeningFits,
 ) -> Vec<GuideLobe> {
     let node = &graph.nodes[k];
     let mut candidates: Vec<(f64, usize)> = importance
@@ -1208,13 +1267,10 @@ fn node_lobes(
         }
         let point = sum / count as f32;
         let (opening, opening_radius, portal) = match bottleneck(graph, tree, k) {
-            Some((at, ball, along)) => (
-                at,
-                opening_radius(scene, at, along, ball, 16.0 * ball),
-                (settings.aim == LobeAim::Portal)
-                    .then(|| opening_rectangle(scene, at, along, PORTAL_CAP * ball))
-                    .flatten(),
-            ),
+            Some((at, ball, along)) => {
+                let (radius, portal) = openings.get(scene, settings, at, along, ball);
+                (at, radius, portal)
+            }
             None => (point, radius, None),
         };
         let probability = (weight / total) as f32;
