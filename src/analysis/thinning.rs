@@ -1754,6 +1754,28 @@ mod tests {
         (d1, dc)
     }
 
+    /// Runs `check(case, dims, thinning)` on 30 random grids (sizes not multiples of the
+    /// brick size, three densities) after the constrained collapse: the set-up shared by the
+    /// tests of the piercing's pieces. The thinning borrows the maps made here, hence the
+    /// closure rather than a returned value.
+    fn collapsed_random_complexes(
+        mut rng: Rng,
+        mut check: impl FnMut(usize, [usize; 3], &mut Thinning<'_>),
+    ) {
+        for case in 0..30 {
+            let dims = [5 + case % 7, 4 + (case * 5) % 6, 4 + (case * 3) % 5];
+            let occ = random_occupied(dims, [0.15f32, 0.3, 0.45][case % 3], &mut rng);
+            let (d1, dc) = maps(dims, &occ);
+            let constraint = Constraint::Lifespan {
+                distance: &d1,
+                decenterness: &dc,
+            };
+            let mut t = Thinning::from_occupied(dims, &occ, constraint, false, false);
+            t.run(None);
+            check(case, dims, &mut t);
+        }
+    }
+
     #[test]
     fn cube_death_is_l1_distance() {
         let mut rng = Rng::new(3, 3);
@@ -1969,23 +1991,8 @@ mod tests {
     /// position, on collapsed random complexes (no cubes, surfaces around cavities).
     #[test]
     fn complement_runs_equal_complement_labels() {
-        let mut rng = Rng::new(31, 7);
         let mut cavities = 0;
-        for case in 0..30 {
-            let dims = [5 + case % 7, 4 + (case * 5) % 6, 4 + (case * 3) % 5];
-            let occ = random_occupied(dims, [0.15f32, 0.3, 0.45][case % 3], &mut rng);
-            let (d1, dc) = maps(dims, &occ);
-            let mut t = Thinning::from_occupied(
-                dims,
-                &occ,
-                Constraint::Lifespan {
-                    distance: &d1,
-                    decenterness: &dc,
-                },
-                false,
-                false,
-            );
-            t.run(None);
+        collapsed_random_complexes(Rng::new(31, 7), |case, dims, t| {
             let c = t.complex();
             assert_eq!(c.counts()[3], 0);
             let squares: Vec<(u32, u8)> = (0..c.len())
@@ -2004,7 +2011,7 @@ mod tests {
                 root_of[l] = r;
                 assert_eq!(*label_of.entry(r).or_insert(l), l, "case {case}");
             }
-        }
+        });
         assert!(cavities > 5, "the cases should hold cavities ({cavities})");
     }
 
@@ -2053,23 +2060,8 @@ mod tests {
     /// their smallest square, squares in list order within a part.
     #[test]
     fn surface_parts_equal_squares_joined_through_edges() {
-        let mut rng = Rng::new(47, 3);
         let mut multi_part_cases = 0;
-        for case in 0..30 {
-            let dims = [5 + case % 7, 4 + (case * 5) % 6, 4 + (case * 3) % 5];
-            let occ = random_occupied(dims, [0.15f32, 0.3, 0.45][case % 3], &mut rng);
-            let (d1, dc) = maps(dims, &occ);
-            let mut t = Thinning::from_occupied(
-                dims,
-                &occ,
-                Constraint::Lifespan {
-                    distance: &d1,
-                    decenterness: &dc,
-                },
-                false,
-                false,
-            );
-            t.run(None);
+        collapsed_random_complexes(Rng::new(47, 3), |case, dims, t| {
             let squares = t.squares();
             let size = dims.map(|d| d + 2);
             let s = [1, size[0], size[0] * size[1]];
@@ -2099,7 +2091,7 @@ mod tests {
             if got.chunk_by(|a, b| a.0 == b.0).count() > 1 {
                 multi_part_cases += 1;
             }
-        }
+        });
         assert!(
             multi_part_cases > 2,
             "the cases should hold several parts ({multi_part_cases})"

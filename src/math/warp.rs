@@ -115,7 +115,6 @@ pub fn uniform_triangle(u: Vec2) -> (f32, f32) {
 /// for small or distant rectangles.
 #[derive(Clone, Copy, Debug)]
 pub struct SphericalRectangle {
-    origin: Vec3,
     /// The rectangle's frame: unit edge directions x, y and z = x × y flipped so that the
     /// rectangle's plane lies at local z = z0 < 0 from the origin.
     x: glam::DVec3,
@@ -183,7 +182,6 @@ impl SphericalRectangle {
             return None;
         }
         Some(SphericalRectangle {
-            origin,
             x,
             y,
             z,
@@ -244,11 +242,6 @@ impl SphericalRectangle {
         } else {
             0.0
         }
-    }
-
-    /// The origin the rectangle is seen from.
-    pub fn origin(&self) -> Vec3 {
-        self.origin
     }
 }
 
