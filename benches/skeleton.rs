@@ -1,6 +1,7 @@
 //! Skeleton build time per stage (issue 6): the stages the skeleton needs, the definition of the
-//! BENCHMARKS.md table (voxelize, L1 distance, then the L1 opening and decenterness with the
-//! squared Euclidean distance alongside, then the thinning pipeline of `Skeleton::from_maps`),
+//! BENCHMARKS.md table (voxelize, L1 distance, the L1 opening and decenterness, then the
+//! thinning pipeline of `Skeleton::from_maps`, which computes the squared Euclidean distance
+//! beside the thinning: the schedule of `Skeleton`'s docs),
 //! run in one process so that configurations can be compared side by side. Prints a markdown
 //! table on stdout.
 //!
@@ -61,13 +62,9 @@ fn run(triangles: &[[Vec3; 3]], grid: VoxelGrid) -> Row {
     row.stages.push(("voxelize".into(), w, c));
     let (d1, w, c) = timed(|| distance_map(dims, &occ, Metric::L1, Outside::Solid, false).values);
     row.stages.push(("distance L1".into(), w, c));
-    let (maps, w, c) = timed(|| SkeletonMaps::from_l1(dims, &occ, Outside::Solid, d1));
-    row.stages.push((
-        "opening L1 + decenterness || distance Euclidean".into(),
-        w,
-        c,
-    ));
-    let (d1, dc, sq) = (maps.distance_l1, maps.decenterness_l1, maps.sq_euclidean);
+    let (maps, w, c) = timed(|| SkeletonMaps::from_l1(dims, d1));
+    row.stages.push(("opening L1 + decenterness".into(), w, c));
+    let (d1, dc) = (maps.distance_l1, maps.decenterness_l1);
     let settings = SkeletonSettings {
         parallel: true,
         topology: false,
@@ -79,7 +76,7 @@ fn run(triangles: &[[Vec3; 3]], grid: VoxelGrid) -> Row {
         true
     };
     let (s, w, c) = timed(|| {
-        Skeleton::from_maps(grid, &occ, &d1, &dc, &sq, &settings, &progress, Vec::new())
+        Skeleton::from_maps(grid, &occ, &d1, &dc, None, &settings, &progress, Vec::new())
             .expect("skeleton")
     });
     let marks = marks.into_inner().unwrap();
