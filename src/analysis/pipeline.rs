@@ -8,7 +8,7 @@ use super::opening::{opening_map_26, OpeningMap};
 use super::regions::{
     find_portals, label_regions, sample_portal, Labeling, Portal, Region, NO_REGION,
 };
-use super::skeleton::SkeletonMaps;
+use super::skeleton::{SkeletonMaps, EUCLIDEAN_BESIDE_THINNING};
 use super::voxelize::{fill_interiors, voxelize};
 use crate::error::{Error, Result};
 use crate::math::{Vec2, Vec3};
@@ -34,7 +34,7 @@ pub struct AnalysisSettings {
     /// With `all_maps`, compute the squared Euclidean distance here too. A caller that builds
     /// the skeleton from the analysis turns this off: the skeleton then computes it beside its
     /// thinning (the schedule of [`super::skeleton::Skeleton`]), and the analysis holds only
-    /// the L1 maps.
+    /// the L1 maps (unless the schedule computes the distance beside the L1 opening).
     pub euclidean: bool,
     /// Compute the 26-distance, the 26-opening and its forest, the region labels and the
     /// portals. The skeleton uses none of them, so a caller that only wants the skeleton
@@ -165,7 +165,7 @@ impl Analysis {
             + if settings.fill_interiors { 1.0 } else { 0.0 }
             + if settings.regions { 4.0 } else { 0.0 }
             + if settings.all_maps { 2.0 } else { 0.0 }
-            + if settings.all_maps && settings.euclidean {
+            + if settings.all_maps && settings.euclidean && EUCLIDEAN_BESIDE_THINNING {
                 1.0
             } else {
                 0.0
@@ -237,12 +237,21 @@ impl Analysis {
             let d1 = distance_map(dims, &occupied, Metric::L1, settings.outside, false).values;
             stage("distance L1", &mut timings, t)?;
             let t = Instant::now();
-            let maps = SkeletonMaps::from_l1(dims, d1);
-            stage("opening L1 + decenterness", &mut timings, t)?;
+            let maps = SkeletonMaps::from_l1(dims, &occupied, settings.outside, d1);
+            if maps.sq_euclidean.is_some() {
+                stage(
+                    "opening L1 + decenterness || distance Euclidean",
+                    &mut timings,
+                    t,
+                )?;
+            } else {
+                stage("opening L1 + decenterness", &mut timings, t)?;
+            }
             distance_l1 = Some(maps.distance_l1);
             opening_l1 = Some(maps.opening_l1);
             decenterness_l1 = Some(maps.decenterness_l1);
-            if settings.euclidean {
+            distance_sq_euclidean = maps.sq_euclidean;
+            if settings.euclidean && distance_sq_euclidean.is_none() {
                 let t = Instant::now();
                 distance_sq_euclidean = Some(
                     distance_map(

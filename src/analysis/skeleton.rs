@@ -587,32 +587,55 @@ pub fn map_point(
     search(vx, false)
 }
 
-/// The L1 maps the skeleton's thinning needs (000 §6.2.2), measured with the same `Outside`:
-/// the L1 distance D1 and opening Ω1 (the collapse's clock and the constraint of Algorithm 3)
-/// and the decenterness Ω1 − D1. The squared Euclidean distance (maximal-ball radii, piercing
-/// priority) is not among them: the piercing is the first stage that reads it, so
-/// [`Skeleton::from_maps`] computes it beside the thinning (see [`Skeleton#schedule`]).
+/// Where the skeleton's schedule ([`Skeleton#schedule`]) computes the squared Euclidean
+/// distance: beside the thinning (true), or beside the L1 opening in [`SkeletonMaps::from_l1`]
+/// (false, the order before round 7). The one switch of the schedule; the analysis pipeline
+/// and [`Skeleton::from_maps`] follow it.
+pub(super) const EUCLIDEAN_BESIDE_THINNING: bool = true;
+
+/// The voxel maps the skeleton needs (000 §6.2.2), all measured with the same `Outside`: the
+/// L1 distance D1 and opening Ω1 (the collapse's clock and the constraint of Algorithm 3), the
+/// decenterness Ω1 − D1, and the squared Euclidean distance (maximal-ball radii, piercing
+/// priority) unless the schedule computes that beside the thinning
+/// ([`EUCLIDEAN_BESIDE_THINNING`]): the piercing is the first stage that reads it.
 pub struct SkeletonMaps {
     pub distance_l1: Vec<u32>,
     pub opening_l1: Vec<u32>,
     pub decenterness_l1: Vec<u32>,
+    /// `None` when [`Skeleton::from_maps`] computes it beside the thinning.
+    pub sq_euclidean: Option<Vec<u32>>,
 }
 
 impl SkeletonMaps {
-    /// The L1 maps of the empty space of `occupied`.
+    /// The maps of the empty space of `occupied` (see [`SkeletonMaps::from_l1`]).
     pub fn new(dims: [usize; 3], occupied: &VoxelSet, outside: Outside) -> SkeletonMaps {
         let d1 = distance_map(dims, occupied, Metric::L1, outside, false).values;
-        Self::from_l1(dims, d1)
+        Self::from_l1(dims, occupied, outside, d1)
     }
 
-    /// The L1 opening and decenterness from an L1 distance map (the flood split over the rayon
-    /// pool, see [`super::opening`]).
-    pub fn from_l1(dims: [usize; 3], distance_l1: Vec<u32>) -> SkeletonMaps {
-        let (opening_l1, decenterness_l1) = opening_and_decenterness_l1(dims, &distance_l1);
+    /// The maps from an L1 distance map: the L1 opening and decenterness (the flood split over
+    /// the rayon pool, see [`super::opening`]), and, unless the schedule computes it beside the
+    /// thinning, the squared Euclidean distance alongside them (`rayon::join`).
+    pub fn from_l1(
+        dims: [usize; 3],
+        occupied: &VoxelSet,
+        outside: Outside,
+        distance_l1: Vec<u32>,
+    ) -> SkeletonMaps {
+        let opening = || opening_and_decenterness_l1(dims, &distance_l1);
+        let ((opening_l1, decenterness_l1), sq_euclidean) = if EUCLIDEAN_BESIDE_THINNING {
+            (opening(), None)
+        } else {
+            let (o, sq) = rayon::join(opening, || {
+                distance_map(dims, occupied, Metric::SquaredEuclidean, outside, false).values
+            });
+            (o, Some(sq))
+        };
         SkeletonMaps {
             distance_l1,
             opening_l1,
             decenterness_l1,
+            sq_euclidean,
         }
     }
 }
@@ -640,15 +663,16 @@ impl Default for SkeletonSettings {
 /// # Schedule
 ///
 /// The order of the stages on the rayon pool, and what runs beside what (the one place to
-/// change it; [`super::pipeline::Analysis`] with `all_maps` and without `euclidean` stops after
-/// step 2, and [`Skeleton::build`] goes on from there):
+/// change it is [`EUCLIDEAN_BESIDE_THINNING`]; [`super::pipeline::Analysis`] with `all_maps`
+/// runs steps 1-2, and [`Skeleton::build`] goes on from there):
 /// 1. voxelize, then the L1 distance (parallel passes);
 /// 2. the L1 opening and decenterness ([`SkeletonMaps::from_l1`]: the flood split into slabs,
 ///    one per thread);
 /// 3. the thinning's complex, then the thinning (Algorithms 2-3) **beside the squared
 ///    Euclidean distance** (`rayon::join`), which only the piercing and the graph read (the
 ///    thinning's own split passes, with `parallel`, find the other threads busy with the
-///    distance until it is done, then share the passes);
+///    distance until it is done, then share the passes). With
+///    [`EUCLIDEAN_BESIDE_THINNING`] off, the distance runs beside step 2 instead;
 /// 4. piercing + re-thinning, graph, filter (Algorithm 4), node map (Algorithm 5).
 pub struct Skeleton {
     pub grid: VoxelGrid,
@@ -699,7 +723,8 @@ impl Skeleton {
             m.as_deref()
                 .filter(|m| measured_with_solid_outside(dims, m))
         };
-        let sq = solid(&analysis.distance_sq_euclidean);
+        let computed_sq: Vec<u32>;
+        let mut sq: Option<&[u32]> = solid(&analysis.distance_sq_euclidean);
         let (d1, dc): (Cow<'a, [u32]>, Cow<'a, [u32]>) = match (
             solid(&analysis.distance_l1),
             analysis.decenterness_l1.as_deref(),
@@ -708,9 +733,13 @@ impl Skeleton {
             _ => {
                 let maps = SkeletonMaps::new(dims, occ, Outside::Solid);
                 timings.push(StageTime {
-                    stage: "skeleton maps (L1)",
+                    stage: "skeleton maps",
                     seconds: t.elapsed().as_secs_f64(),
                 });
+                if let (None, Some(m)) = (sq, maps.sq_euclidean) {
+                    computed_sq = m;
+                    sq = Some(&computed_sq);
+                }
                 (maps.distance_l1.into(), maps.decenterness_l1.into())
             }
         };
