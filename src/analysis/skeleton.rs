@@ -591,7 +591,7 @@ pub fn map_point(
 /// distance: beside the thinning (true), or beside the L1 opening in [`SkeletonMaps::from_l1`]
 /// (false, the order before round 7). The one switch of the schedule; the analysis pipeline
 /// and [`Skeleton::from_maps`] follow it.
-pub(super) const EUCLIDEAN_BESIDE_THINNING: bool = true;
+pub const EUCLIDEAN_BESIDE_THINNING: bool = true;
 
 /// The voxel maps the skeleton needs (000 §6.2.2), all measured with the same `Outside`: the
 /// L1 distance D1 and opening Ω1 (the collapse's clock and the constraint of Algorithm 3), the
