@@ -122,38 +122,96 @@ pub fn opening_map_26(dims: [usize; 3], distance: &[u32]) -> OpeningMap {
 /// least the same budget. The grid is padded with one layer of solid so that steps need no
 /// bounds test.
 pub fn opening_map_l1(dims: [usize; 3], distance_l1: &[u32]) -> Vec<u32> {
-    opening_l1(dims, distance_l1, false).0
+    opening_l1(dims, distance_l1, false, None).0
 }
 
 /// [`opening_map_l1`] and the L1 decenterness Ω1 − D1 (000 §6.2.2) together, both written in
 /// the same pass over the flood's result.
 pub fn opening_and_decenterness_l1(dims: [usize; 3], distance_l1: &[u32]) -> (Vec<u32>, Vec<u32>) {
-    opening_l1(dims, distance_l1, false)
+    opening_l1(dims, distance_l1, false, None)
 }
 
 /// [`opening_and_decenterness_l1`], with 32-bit flood words even when 16 bits would do if
-/// `wide`.
-fn opening_l1(dims: [usize; 3], distance_l1: &[u32], wide: bool) -> (Vec<u32>, Vec<u32>) {
-    let max_d = distance_l1
+/// `wide`, and the flood split into `pieces` (by default [`flood_pieces`]); the result does not
+/// depend on either.
+fn opening_l1(
+    dims: [usize; 3],
+    distance_l1: &[u32],
+    wide: bool,
+    pieces: Option<usize>,
+) -> (Vec<u32>, Vec<u32>) {
+    let max_d = max_distance(distance_l1);
+    let pieces = pieces
+        .unwrap_or_else(|| flood_pieces(dims, max_d, wide))
+        .clamp(1, dims.into_iter().max().unwrap_or(1).max(1));
+    // 16-bit distances, state and levels halve the memory traffic of the flood when the
+    // distances fit.
+    if !wide && max_d < u16::MAX as usize - 1 {
+        opening_l1_words::<u16>(dims, distance_l1, max_d, pieces)
+    } else {
+        opening_l1_words::<u32>(dims, distance_l1, max_d, pieces)
+    }
+}
+
+/// The largest finite distance of a map (0 if none).
+fn max_distance(distance_l1: &[u32]) -> usize {
+    distance_l1
         .par_iter()
         .copied()
         .filter(|&d| d != u32::MAX)
         .max()
-        .unwrap_or(0) as usize;
-    // 16-bit distances, state and levels halve the memory traffic of the flood when the
-    // distances fit.
-    if !wide && max_d < u16::MAX as usize - 1 {
-        opening_l1_words::<u16>(dims, distance_l1, max_d)
+        .unwrap_or(0) as usize
+}
+
+/// Grids with fewer voxels than this are flooded in one piece (splitting costs a pass over the
+/// grid per piece).
+const MIN_VOXELS_PER_FLOOD_PIECE: usize = 1 << 16;
+
+/// How many pieces the L1 flood is split into on the current rayon pool: one per thread, but
+/// at most 4 (each piece holds two flood words per voxel of the whole grid; 2 with 32-bit
+/// words), with slabs along the longest axis at least twice the largest distance thick (the
+/// margin a piece also floods on each side, see [`opening_l1_pieces`]), and not below
+/// [`MIN_VOXELS_PER_FLOOD_PIECE`] voxels each.
+fn flood_pieces(dims: [usize; 3], max_d: usize, wide: bool) -> usize {
+    let n = dims[0] * dims[1] * dims[2];
+    let extent = dims.into_iter().max().unwrap_or(0);
+    let cap = if wide || max_d >= u16::MAX as usize - 1 {
+        2
     } else {
-        opening_l1_words::<u32>(dims, distance_l1, max_d)
-    }
+        4
+    };
+    rayon::current_num_threads()
+        .min(cap)
+        .min(extent / (2 * max_d).max(1))
+        .min(n / MIN_VOXELS_PER_FLOOD_PIECE)
+        .max(1)
+}
+
+/// One piece of a split flood: the voxels it answers for, `[lo, hi)` along the split axis, and
+/// the padded opening it flooded (exact on those voxels).
+struct Piece<W> {
+    lo: usize,
+    hi: usize,
+    opening: Vec<W>,
 }
 
 /// The body of [`opening_l1`] with flood words `W` (which hold every distance up to `max_d`).
+///
+/// With more than one piece the grid is cut along its longest axis into slabs of about equal
+/// flood work (weighed by the sum of D1 per slice: a voxel is expanded about as many times as
+/// it is far from the solid), and each slab is flooded on its own, concurrently, with its own
+/// state and levels: from every maximal-ball centre whose ball reaches the slab, through the
+/// slab and a margin of `max_d − 1` slices on each side (voxels beyond the margin count as
+/// solid). This is exact on the slab: a ball reaching it has its centre within the margin, and
+/// a ball (all empty) and an axis slab both contain the monotone lattice paths between their
+/// points, so the restricted flood still reaches ball ∩ (slab + margin) in d1 steps, and the
+/// pruning argument of [`opening_map_l1`] holds inside it. The opening is a maximum over balls,
+/// so which piece floods which ball does not matter: the result equals the single flood's.
 fn opening_l1_words<W: Word>(
     dims: [usize; 3],
     distance_l1: &[u32],
     max_d: usize,
+    pieces: usize,
 ) -> (Vec<u32>, Vec<u32>) {
     let [nx, ny, nz] = dims;
     let n = nx * ny * nz;
@@ -161,16 +219,13 @@ fn opening_l1_words<W: Word>(
     let (px, py) = (nx + 2, ny + 2);
     let plane = px * py;
     let padded = |x: usize, y: usize, z: usize| (x + 1) + px * (y + 1) + plane * (z + 1);
-    // The padded distances (solid padding; an infinite distance, which only a grid without any
-    // occupied voxel has, becomes W::SOLID and is no centre) and the flood's initial state
-    // (see `flood`), in one pass.
     let len = plane * (nz + 2);
+    // The padded distances (solid padding; an infinite distance, which only a grid without any
+    // occupied voxel has, becomes W::SOLID and is no centre).
     let mut dist = vec![W::ZERO; len];
-    let mut state = vec![W::SOLID; len];
     dist.par_chunks_mut(plane)
-        .zip(state.par_chunks_mut(plane))
         .enumerate()
-        .for_each(|(pz, (dist, state))| {
+        .for_each(|(pz, dist)| {
             if pz == 0 || pz > nz {
                 return;
             }
@@ -179,9 +234,6 @@ fn opening_l1_words<W: Word>(
                 let start = 1 + px * (y + 1);
                 for (x, &d) in row.iter().enumerate() {
                     dist[start + x] = if d == u32::MAX { W::SOLID } else { W::of(d) };
-                    if d != 0 {
-                        state[start + x] = W::ZERO;
-                    }
                 }
             }
         });
@@ -220,8 +272,62 @@ fn opening_l1_words<W: Word>(
         by_level[fill[r]] = i;
         fill[r] += 1;
     }
-    let opening = flood::<W>(state, &by_level, &first, max_d, steps);
-    // Ω1 and Ω1 − D1 on the unpadded grid, row by row.
+    drop(dist);
+    let axis = (0..3).max_by_key(|&a| (dims[a], a)).unwrap_or(0);
+    // Coordinate along the split axis of a padded index.
+    let coord = |i: usize| match axis {
+        0 => i % px - 1,
+        1 => (i / px) % py - 1,
+        _ => i / plane - 1,
+    };
+    let bounds = slab_bounds(dims, axis, distance_l1, pieces);
+    let margin = max_d.saturating_sub(1);
+    let flood_slab = |k: usize| -> Piece<W> {
+        let (lo, hi) = (bounds[k], bounds[k + 1]);
+        let region = (lo.saturating_sub(margin), (hi + margin).min(dims[axis]));
+        // The flood's initial state (see `flood`): solid voxels, the padding and the voxels
+        // outside the region count as expanded with an unbounded budget.
+        let mut state = vec![W::SOLID; len];
+        state
+            .par_chunks_mut(plane)
+            .enumerate()
+            .for_each(|(pz, state)| {
+                if pz == 0 || pz > nz || (axis == 2 && !(region.0..region.1).contains(&(pz - 1))) {
+                    return;
+                }
+                for y in 0..ny {
+                    if axis == 1 && !(region.0..region.1).contains(&y) {
+                        continue;
+                    }
+                    let row = &distance_l1[nx * (y + ny * (pz - 1))..][..nx];
+                    let start = 1 + px * (y + 1);
+                    let (x0, x1) = if axis == 0 { region } else { (0, nx) };
+                    for x in x0..x1 {
+                        if row[x] != 0 {
+                            state[start + x] = W::ZERO;
+                        }
+                    }
+                }
+            });
+        // The centres whose ball (radius r: voxels closer than r) reaches the slab, by level.
+        let opening = if pieces == 1 {
+            flood::<W>(state, &by_level, &first, max_d, steps)
+        } else {
+            let mut mine = Vec::new();
+            let mut mine_first = vec![0usize; max_d + 2];
+            for r in 1..=max_d {
+                mine.extend(by_level[first[r]..first[r + 1]].iter().filter(|&&i| {
+                    let c = coord(i as usize);
+                    c + r > lo && c < hi + r - 1
+                }));
+                mine_first[r + 1] = mine.len();
+            }
+            flood::<W>(state, &mine, &mine_first, max_d, steps)
+        };
+        Piece { lo, hi, opening }
+    };
+    let floods: Vec<Piece<W>> = (0..pieces).into_par_iter().map(flood_slab).collect();
+    // Ω1 and Ω1 − D1 on the unpadded grid, row by row, each voxel from the piece of its slab.
     let mut out = vec![0u32; n];
     let mut decenterness = vec![0u32; n];
     out.par_chunks_mut(nx.max(1))
@@ -229,15 +335,70 @@ fn opening_l1_words<W: Word>(
         .enumerate()
         .for_each(|(r, (row, dc))| {
             let (y, z) = (r % ny, r / ny);
-            let flooded = &opening[padded(0, y, z)..][..nx];
             let d = &distance_l1[r * nx..][..nx];
-            for x in 0..nx {
-                let o = flooded[x].get();
-                row[x] = o;
-                dc[x] = o.saturating_sub(d[x]);
+            for piece in &floods {
+                let (x0, x1) = match axis {
+                    0 => (piece.lo, piece.hi),
+                    1 if (piece.lo..piece.hi).contains(&y) => (0, nx),
+                    2 if (piece.lo..piece.hi).contains(&z) => (0, nx),
+                    _ => continue,
+                };
+                let flooded = &piece.opening[padded(0, y, z)..][..nx];
+                for x in x0..x1 {
+                    let o = flooded[x].get();
+                    row[x] = o;
+                    dc[x] = o.saturating_sub(d[x]);
+                }
             }
         });
     (out, decenterness)
+}
+
+/// Slab bounds along `axis` (`pieces + 1` increasing values from 0 to the grid's extent) that
+/// cut the sum of the distances into about equal parts.
+fn slab_bounds(dims: [usize; 3], axis: usize, distance_l1: &[u32], pieces: usize) -> Vec<usize> {
+    let extent = dims[axis];
+    assert!(pieces >= 1 && pieces <= extent.max(1));
+    let [nx, ny, _] = dims;
+    let mut weight = vec![0u64; extent];
+    if pieces > 1 {
+        weight = distance_l1
+            .par_chunks(nx.max(1))
+            .enumerate()
+            .fold(
+                || vec![0u64; extent],
+                |mut w, (r, row)| {
+                    let add = |d: u32| if d == u32::MAX { 0 } else { d as u64 };
+                    match axis {
+                        0 => w.iter_mut().zip(row).for_each(|(w, &d)| *w += add(d)),
+                        1 => w[r % ny] += row.iter().map(|&d| add(d)).sum::<u64>(),
+                        _ => w[r / ny] += row.iter().map(|&d| add(d)).sum::<u64>(),
+                    }
+                    w
+                },
+            )
+            .reduce(
+                || vec![0u64; extent],
+                |mut a, b| {
+                    a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
+                    a
+                },
+            );
+    }
+    let total: u64 = weight.iter().sum();
+    let mut bounds = vec![0usize];
+    let mut sum = 0u64;
+    for c in 1..extent {
+        sum += weight[c - 1];
+        let k = bounds.len();
+        // Cut before slice c once the slices before it hold k/pieces of the weight, or when
+        // exactly one slice is left for each slab still to come.
+        if k < pieces && (sum * pieces as u64 >= k as u64 * total || extent - c == pieces - k) {
+            bounds.push(c);
+        }
+    }
+    bounds.push(extent);
+    bounds
 }
 
 /// A level or budget word of the L1 flood (u16 when the distances fit, u32 otherwise).
@@ -411,7 +572,7 @@ mod tests {
                     let d1 = distance_map(dims, &occ, Metric::L1, outside, false).values;
                     let want = brute_opening(dims, &d1, Metric::L1);
                     assert_eq!(opening_map_l1(dims, &d1), want, "L1 {dims:?}");
-                    let (wide, dc) = opening_l1(dims, &d1, true);
+                    let (wide, dc) = opening_l1(dims, &d1, true, None);
                     assert_eq!(wide, want, "L1 wide {dims:?}");
                     let want_dc: Vec<u32> = want
                         .iter()
@@ -420,8 +581,62 @@ mod tests {
                         .collect();
                     assert_eq!(dc, want_dc, "decenterness {dims:?}");
                     assert_eq!(opening_and_decenterness_l1(dims, &d1).1, want_dc);
+                    // The flood split into slabs (along the longest axis) gives the same maps.
+                    for pieces in [2, 3, 4, 7] {
+                        for wide in [false, true] {
+                            let (split, dc) = opening_l1(dims, &d1, wide, Some(pieces));
+                            assert_eq!(split, want, "L1 {dims:?} {pieces} pieces");
+                            assert_eq!(dc, want_dc, "decenterness {dims:?} {pieces} pieces");
+                        }
+                    }
                 }
             }
         }
+    }
+
+    /// The split flood on grids large enough to be split on 2 and 3 threads, with empty space
+    /// along the cuts and balls across them, equals the single flood, whatever the thread count
+    /// and the axis of the cut.
+    #[test]
+    fn split_flood_equals_single_flood_on_1_2_3_threads() {
+        let mut rng = Rng::new(9, 2);
+        for dims in [[130, 40, 41], [41, 130, 40], [40, 41, 130]] {
+            for density in [0.004f32, 0.02] {
+                let occ = random_set(dims, density, &mut rng);
+                let d1 = distance_map(dims, &occ, Metric::L1, Outside::Solid, false).values;
+                let max_d = max_distance(&d1);
+                let single = opening_l1(dims, &d1, false, Some(1));
+                for threads in [1, 2, 3] {
+                    let pool = rayon::ThreadPoolBuilder::new()
+                        .num_threads(threads)
+                        .build()
+                        .unwrap();
+                    let pieces = pool.install(|| flood_pieces(dims, max_d, false));
+                    assert_eq!(pieces, threads, "{dims:?} {density} max_d {max_d}");
+                    let got = pool.install(|| opening_and_decenterness_l1(dims, &d1));
+                    assert!(got == single, "{dims:?} {density} {threads} threads");
+                }
+            }
+        }
+    }
+
+    /// Slab bounds are increasing, cover the axis, and follow the weight.
+    #[test]
+    fn slab_bounds_cover_the_axis() {
+        let dims = [5, 12, 3];
+        let mut d = vec![0u32; 5 * 12 * 3];
+        // All the weight in slices y = 9 and 10.
+        for z in 0..3 {
+            for x in 0..5 {
+                d[x + 5 * (9 + 12 * z)] = 4;
+                d[x + 5 * (10 + 12 * z)] = 4;
+            }
+        }
+        assert_eq!(slab_bounds(dims, 1, &d, 1), vec![0, 12]);
+        assert_eq!(slab_bounds(dims, 1, &d, 2), vec![0, 10, 12]);
+        let b = slab_bounds(dims, 1, &d, 4);
+        assert_eq!(b, vec![0, 9, 10, 11, 12]);
+        let b = slab_bounds(dims, 0, &vec![0; d.len()], 5);
+        assert_eq!(b, vec![0, 1, 2, 3, 4, 5]);
     }
 }

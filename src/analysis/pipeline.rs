@@ -8,7 +8,7 @@ use super::opening::{opening_map_26, OpeningMap};
 use super::regions::{
     find_portals, label_regions, sample_portal, Labeling, Portal, Region, NO_REGION,
 };
-use super::skeleton::SkeletonMaps;
+use super::skeleton::{SkeletonMaps, EUCLIDEAN_BESIDE_THINNING};
 use super::voxelize::{fill_interiors, voxelize};
 use crate::error::{Error, Result};
 use crate::math::{Vec2, Vec3};
@@ -31,6 +31,11 @@ pub struct AnalysisSettings {
     /// Also compute the L1 and squared Euclidean distance maps, the L1 opening and the
     /// decenterness map (the skeleton needs them; the labeling does not).
     pub all_maps: bool,
+    /// With `all_maps`, compute the squared Euclidean distance here too. A caller that builds
+    /// the skeleton from the analysis turns this off: the skeleton then computes it beside its
+    /// thinning (the schedule of [`super::skeleton::Skeleton`]), and the analysis holds only
+    /// the L1 maps (unless the schedule computes the distance beside the L1 opening).
+    pub euclidean: bool,
     /// Compute the 26-distance, the 26-opening and its forest, the region labels and the
     /// portals. The skeleton uses none of them, so a caller that only wants the skeleton
     /// (the skeleton guide) turns this off and keeps `all_maps`: the analysis then holds the
@@ -47,6 +52,7 @@ impl Default for AnalysisSettings {
             outside: Outside::Solid,
             memory_budget: 4 << 30,
             all_maps: false,
+            euclidean: true,
             regions: true,
         }
     }
@@ -88,7 +94,8 @@ pub struct Analysis {
     pub labels: Vec<u32>,
     pub regions: Vec<Region>,
     pub portals: Vec<Portal>,
-    /// With `all_maps`: L1 distance, squared Euclidean distance, L1 opening, decenterness.
+    /// With `all_maps`: L1 distance, squared Euclidean distance (only with `euclidean`), L1
+    /// opening, decenterness.
     pub distance_l1: Option<Vec<u32>>,
     pub distance_sq_euclidean: Option<Vec<u32>>,
     pub opening_l1: Option<Vec<u32>>,
@@ -157,7 +164,12 @@ impl Analysis {
         let stages = 1.0
             + if settings.fill_interiors { 1.0 } else { 0.0 }
             + if settings.regions { 4.0 } else { 0.0 }
-            + if settings.all_maps { 2.0 } else { 0.0 };
+            + if settings.all_maps { 2.0 } else { 0.0 }
+            + if settings.all_maps && settings.euclidean && EUCLIDEAN_BESIDE_THINNING {
+                1.0
+            } else {
+                0.0
+            };
         let mut done = 0.0;
         let mut stage =
             |name: &'static str, timings: &mut Vec<StageTime>, start: Instant| -> Result<()> {
@@ -226,15 +238,33 @@ impl Analysis {
             stage("distance L1", &mut timings, t)?;
             let t = Instant::now();
             let maps = SkeletonMaps::from_l1(dims, &occupied, settings.outside, d1);
-            stage(
-                "opening L1 + decenterness || distance Euclidean",
-                &mut timings,
-                t,
-            )?;
+            if maps.sq_euclidean.is_some() {
+                stage(
+                    "opening L1 + decenterness || distance Euclidean",
+                    &mut timings,
+                    t,
+                )?;
+            } else {
+                stage("opening L1 + decenterness", &mut timings, t)?;
+            }
             distance_l1 = Some(maps.distance_l1);
             opening_l1 = Some(maps.opening_l1);
             decenterness_l1 = Some(maps.decenterness_l1);
-            distance_sq_euclidean = Some(maps.sq_euclidean);
+            distance_sq_euclidean = maps.sq_euclidean;
+            if settings.euclidean && distance_sq_euclidean.is_none() {
+                let t = Instant::now();
+                distance_sq_euclidean = Some(
+                    distance_map(
+                        dims,
+                        &occupied,
+                        Metric::SquaredEuclidean,
+                        settings.outside,
+                        false,
+                    )
+                    .values,
+                );
+                stage("distance Euclidean", &mut timings, t)?;
+            }
         }
         Ok(Analysis {
             grid,

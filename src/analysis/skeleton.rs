@@ -31,6 +31,7 @@
 //! The filtered graph has exactly the b0 and b1 of the raw skeleton (tested); a small cycle
 //! inside a ball is kept as a ring of a few representatives instead of one node.
 
+use std::borrow::Cow;
 use std::collections::{HashMap, VecDeque};
 
 use rayon::prelude::*;
@@ -586,36 +587,50 @@ pub fn map_point(
     search(vx, false)
 }
 
+/// Where the skeleton's schedule ([`Skeleton#schedule`]) computes the squared Euclidean
+/// distance: beside the thinning (true), or beside the L1 opening in [`SkeletonMaps::from_l1`]
+/// (false, the order before round 7). The one switch of the schedule; the analysis pipeline
+/// and [`Skeleton::from_maps`] follow it.
+pub const EUCLIDEAN_BESIDE_THINNING: bool = true;
+
 /// The voxel maps the skeleton needs (000 §6.2.2), all measured with the same `Outside`: the
 /// L1 distance D1 and opening Ω1 (the collapse's clock and the constraint of Algorithm 3), the
 /// decenterness Ω1 − D1, and the squared Euclidean distance (maximal-ball radii, piercing
-/// priority).
+/// priority) unless the schedule computes that beside the thinning
+/// ([`EUCLIDEAN_BESIDE_THINNING`]): the piercing is the first stage that reads it.
 pub struct SkeletonMaps {
     pub distance_l1: Vec<u32>,
     pub opening_l1: Vec<u32>,
     pub decenterness_l1: Vec<u32>,
-    pub sq_euclidean: Vec<u32>,
+    /// `None` when [`Skeleton::from_maps`] computes it beside the thinning.
+    pub sq_euclidean: Option<Vec<u32>>,
 }
 
 impl SkeletonMaps {
-    /// All the maps of the empty space of `occupied`.
+    /// The maps of the empty space of `occupied` (see [`SkeletonMaps::from_l1`]).
     pub fn new(dims: [usize; 3], occupied: &VoxelSet, outside: Outside) -> SkeletonMaps {
         let d1 = distance_map(dims, occupied, Metric::L1, outside, false).values;
         Self::from_l1(dims, occupied, outside, d1)
     }
 
-    /// The maps from an L1 distance map: the L1 opening (a sequential flood) and the Euclidean
-    /// distance (parallel passes) run concurrently on the rayon pool.
+    /// The maps from an L1 distance map: the L1 opening and decenterness (the flood split over
+    /// the rayon pool, see [`super::opening`]), and, unless the schedule computes it beside the
+    /// thinning, the squared Euclidean distance alongside them (`rayon::join`).
     pub fn from_l1(
         dims: [usize; 3],
         occupied: &VoxelSet,
         outside: Outside,
         distance_l1: Vec<u32>,
     ) -> SkeletonMaps {
-        let ((opening_l1, decenterness_l1), sq_euclidean) = rayon::join(
-            || opening_and_decenterness_l1(dims, &distance_l1),
-            || distance_map(dims, occupied, Metric::SquaredEuclidean, outside, false).values,
-        );
+        let opening = || opening_and_decenterness_l1(dims, &distance_l1);
+        let ((opening_l1, decenterness_l1), sq_euclidean) = if EUCLIDEAN_BESIDE_THINNING {
+            (opening(), None)
+        } else {
+            let (o, sq) = rayon::join(opening, || {
+                distance_map(dims, occupied, Metric::SquaredEuclidean, outside, false).values
+            });
+            (o, Some(sq))
+        };
         SkeletonMaps {
             distance_l1,
             opening_l1,
@@ -644,6 +659,21 @@ impl Default for SkeletonSettings {
 }
 
 /// The skeleton of the empty space of an analysed scene.
+///
+/// # Schedule
+///
+/// The order of the stages on the rayon pool, and what runs beside what (the one place to
+/// change it is [`EUCLIDEAN_BESIDE_THINNING`]; [`super::pipeline::Analysis`] with `all_maps`
+/// runs steps 1-2, and [`Skeleton::build`] goes on from there):
+/// 1. voxelize, then the L1 distance (parallel passes);
+/// 2. the L1 opening and decenterness ([`SkeletonMaps::from_l1`]: the flood split into slabs,
+///    one per thread);
+/// 3. the thinning's complex, then the thinning (Algorithms 2-3) **beside the squared
+///    Euclidean distance** (`rayon::join`), which only the piercing and the graph read (the
+///    thinning's own split passes, with `parallel`, find the other threads busy with the
+///    distance until it is done, then share the passes). With
+///    [`EUCLIDEAN_BESIDE_THINNING`] off, the distance runs beside step 2 instead;
+/// 4. piercing + re-thinning, graph, filter (Algorithm 4), node map (Algorithm 5).
 pub struct Skeleton {
     pub grid: VoxelGrid,
     /// The curvilinear skeleton (one node per point of the thinned complex).
@@ -677,9 +707,9 @@ fn measured_with_solid_outside(dims: [usize; 3], map: &[u32]) -> bool {
 }
 
 impl Skeleton {
-    /// The skeleton of an analysis. Uses its L1 distance, L1 decenterness and squared
-    /// Euclidean maps when present (`all_maps`) and measured with a solid outside; computes
-    /// them otherwise.
+    /// The skeleton of an analysis. Uses its L1 distance and L1 decenterness maps when present
+    /// (`all_maps`) and measured with a solid outside, computes them otherwise; likewise its
+    /// squared Euclidean distance, which is otherwise computed beside the thinning.
     pub fn build<'a>(
         analysis: &'a Analysis,
         settings: &SkeletonSettings,
@@ -689,31 +719,28 @@ impl Skeleton {
         let mut timings = Vec::new();
         let t = Instant::now();
         let occ = &analysis.occupied;
-        let ok = |m: &'a Option<Vec<u32>>| -> Option<std::borrow::Cow<'a, [u32]>> {
+        let solid = |m: &'a Option<Vec<u32>>| -> Option<&'a [u32]> {
             m.as_deref()
                 .filter(|m| measured_with_solid_outside(dims, m))
-                .map(std::borrow::Cow::Borrowed)
         };
-        let (d1, dc, sq) = match (
-            ok(&analysis.distance_l1),
-            analysis
-                .decenterness_l1
-                .as_deref()
-                .map(std::borrow::Cow::Borrowed),
-            ok(&analysis.distance_sq_euclidean),
+        let computed_sq: Vec<u32>;
+        let mut sq: Option<&[u32]> = solid(&analysis.distance_sq_euclidean);
+        let (d1, dc): (Cow<'a, [u32]>, Cow<'a, [u32]>) = match (
+            solid(&analysis.distance_l1),
+            analysis.decenterness_l1.as_deref(),
         ) {
-            (Some(d1), Some(dc), Some(sq)) => (d1, dc, sq),
+            (Some(d1), Some(dc)) => (d1.into(), dc.into()),
             _ => {
                 let maps = SkeletonMaps::new(dims, occ, Outside::Solid);
                 timings.push(StageTime {
-                    stage: "skeleton maps (L1, Euclidean)",
+                    stage: "skeleton maps",
                     seconds: t.elapsed().as_secs_f64(),
                 });
-                (
-                    maps.distance_l1.into(),
-                    maps.decenterness_l1.into(),
-                    maps.sq_euclidean.into(),
-                )
+                if let (None, Some(m)) = (sq, maps.sq_euclidean) {
+                    computed_sq = m;
+                    sq = Some(&computed_sq);
+                }
+                (maps.distance_l1.into(), maps.decenterness_l1.into())
             }
         };
         Self::from_maps(
@@ -721,7 +748,7 @@ impl Skeleton {
             occ,
             &d1,
             &dc,
-            &sq,
+            sq,
             settings,
             progress,
             timings,
@@ -729,14 +756,15 @@ impl Skeleton {
     }
 
     /// The skeleton from the occupied voxels and per-voxel maps measured with a solid outside:
-    /// L1 distance, L1 decenterness (Ω1 − D1) and squared Euclidean distance.
+    /// L1 distance, L1 decenterness (Ω1 − D1) and, if given, the squared Euclidean distance
+    /// (computed beside the thinning otherwise, see [`Skeleton#schedule`]).
     #[allow(clippy::too_many_arguments)]
     pub fn from_maps(
         grid: VoxelGrid,
         occupied: &VoxelSet,
         distance_l1: &[u32],
         decenterness_l1: &[u32],
-        sq_distance: &[u32],
+        sq_distance: Option<&[u32]>,
         settings: &SkeletonSettings,
         progress: &dyn Fn(&str, f64) -> bool,
         mut timings: Vec<StageTime>,
@@ -782,8 +810,32 @@ impl Skeleton {
         stage("complex", &mut timings, t)?;
 
         let t = Instant::now();
-        thinning.run(None);
-        stage("thinning (Alg. 2-3)", &mut timings, t)?;
+        let computed: Vec<u32>;
+        let sq_distance = match sq_distance {
+            Some(sq) => {
+                thinning.run(None);
+                stage("thinning (Alg. 2-3)", &mut timings, t)?;
+                sq
+            }
+            None => {
+                computed = rayon::join(
+                    || thinning.run(None),
+                    || {
+                        distance_map(
+                            dims,
+                            occupied,
+                            Metric::SquaredEuclidean,
+                            Outside::Solid,
+                            false,
+                        )
+                        .values
+                    },
+                )
+                .1;
+                stage("thinning (Alg. 2-3) || distance Euclidean", &mut timings, t)?;
+                &computed
+            }
+        };
 
         let t = Instant::now();
         while thinning.pierce(Some(sq_distance)) > 0 {

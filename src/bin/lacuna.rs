@@ -909,6 +909,8 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
         },
         memory_budget: args.memory_budget_mib.saturating_mul(1 << 20),
         all_maps: args.all_maps || args.skeleton,
+        // Without --all-maps the skeleton computes the Euclidean distance beside its thinning.
+        euclidean: args.all_maps,
         ..Default::default()
     };
     let pool = rayon::ThreadPoolBuilder::new()

@@ -638,6 +638,8 @@ impl SkeletonGuide {
         let analysis_settings = AnalysisSettings {
             resolution: settings.resolution,
             all_maps: true,
+            // Computed by the skeleton beside its thinning.
+            euclidean: false,
             regions: false,
             ..Default::default()
         };
