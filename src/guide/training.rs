@@ -118,8 +118,9 @@ use rayon::prelude::*;
 
 use super::STRENGTH_CANDIDATES;
 use super::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonStrength, TrainingCost};
+use crate::integrator::MisHeuristic;
 use crate::light::{EnvStrategy, TriangleSampling};
-use crate::math::{luminance, Rgb, Rng, Sampler};
+use crate::math::{luminance, Rgb, Rng, Sampler, Vec3};
 use crate::scene::{Scene, SurfaceInteraction};
 
 /// Guiding probability of the training pass (c0 above): both strategies get half the samples,
@@ -175,38 +176,137 @@ impl TrainingReport {
     }
 }
 
-/// One training sample at a guided vertex.
-#[derive(Clone, Copy, Debug)]
+/// One training sample at a guided vertex: the direction it sampled and its own light sample,
+/// each with the densities every candidate's MIS weights need (module docs, "What is
+/// measured").
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Sample {
     node: u32,
-    /// The contribution proxy f (module docs); 0 for directions that carry nothing.
-    f: f32,
+    /// Luminance of beta f_s |cos| L_e along the sampled direction (the emission found at the
+    /// next vertex or the environment's), unweighted; 0 where it found none.
+    f_emitted: f32,
+    /// Luminance of beta f_s |cos| R, the radiance the rest of the path reflects toward x.
+    f_reflected: f32,
     p_bsdf: f32,
     /// The skeleton mixture's density under the training proposal's strength.
     p_skel: f32,
     /// The same under each candidate strength (the first `strengths` entries).
     p_strength: [f32; MAX_STRENGTHS],
+    /// Light sampling's density (pmf x pdf) of the emitter the direction hit; 0 if none.
+    p_light: f32,
+    /// Next-event estimation at this vertex.
+    nee: NeeTerms,
     /// Shadow rays the guide traced for this vertex's query.
     rays: u32,
     /// Vertices of the training path from this one to its end (module docs, "Cost").
     remaining: u32,
 }
 
-/// Per-node sums over the training samples.
-#[derive(Clone, Default)]
-struct NodeSums {
-    n: u32,
-    nonzero: u32,
-    rays: u64,
-    remaining: u64,
-    /// Sum of f / q_c0.
-    mean: f64,
-    /// Per candidate (c index, s index), row-major over c: sum of f² / (q_c,s q_c0).
-    second: Vec<f64>,
-    /// Samples with f > 0 and p_bsdf = 0 (M(0) infinite).
-    bsdf_misses: u32,
+/// A vertex's light sample, as the candidates see it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct NeeTerms {
+    /// Luminance of beta f_s |cos| L / p_light, unweighted (0 if occluded or no light).
+    value: f32,
+    /// Its light density (infinite for delta lights: MIS weight 1).
+    p_light: f32,
+    /// The direction densities of its direction (BSDF, skeleton at s0, per candidate strength).
+    p_bsdf: f32,
+    p_skel: f32,
+    p_strength: [f32; MAX_STRENGTHS],
 }
 
+/// One sample's share of the moments of the vertex's estimate under one candidate.
+#[derive(Clone, Copy, Debug, Default)]
+struct Terms {
+    /// (D_c,s)² q_c,s / q_c0 + (N_c,s)²: its terms of the two second moments (module docs).
+    second: f64,
+    /// D_c,s q_c,s / q_c0 and N_c,s: its terms of the two means.
+    mean_direction: f64,
+    mean_nee: f64,
+}
+
+impl Sample {
+    /// Whether the sampled direction carried anything.
+    fn carries(&self) -> bool {
+        self.f_emitted > 0.0 || self.f_reflected > 0.0
+    }
+
+    /// This sample's terms under candidate (c, strength index k) (module docs): the direction
+    /// part reweighted from the training proposal, with the emission it found MIS-weighted as
+    /// the render weighs it, and the light sample with its MIS weight against q_c,s.
+    fn terms(&self, c: f32, k: usize) -> Terms {
+        let mut t = Terms::default();
+        let q0 = mixture(TRAINING_C, self.p_skel, self.p_bsdf);
+        if self.carries() && q0 > 0.0 {
+            let q = mixture(c, self.p_strength[k], self.p_bsdf);
+            let w = if self.p_light > 0.0 {
+                MisHeuristic::Power.weight(q as f32, self.p_light) as f64
+            } else {
+                1.0
+            };
+            let f = w * self.f_emitted as f64 + self.f_reflected as f64;
+            if f > 0.0 {
+                t.mean_direction = f / q0;
+                t.second = reweighted_second_moment(
+                    f as f32,
+                    self.p_bsdf,
+                    self.p_skel,
+                    self.p_strength[k],
+                    c,
+                );
+            }
+        }
+        if self.nee.value > 0.0 {
+            let q = mixture(c, self.nee.p_strength[k], self.nee.p_bsdf);
+            let w = MisHeuristic::Power.weight(self.nee.p_light, q as f32) as f64;
+            t.mean_nee = self.nee.value as f64 * w;
+            t.second += t.mean_nee * t.mean_nee;
+        }
+        t
+    }
+}
+
+/// c p_skel + (1 - c) p_bsdf (p_bsdf alone at c = 0, whatever p_skel is).
+fn mixture(c: f32, p_skel: f32, p_bsdf: f32) -> f64 {
+    let (c, ps, pb) = (c as f64, p_skel as f64, p_bsdf as f64);
+    if c > 0.0 {
+        c * ps + (1.0 - c) * pb
+    } else {
+        pb
+    }
+}
+
+/// Sums of [`Terms`] over a node's samples.
+#[derive(Clone, Copy, Debug, Default)]
+struct Moments {
+    second: f64,
+    mean_direction: f64,
+    mean_nee: f64,
+}
+
+impl Moments {
+    fn add(&mut self, t: Terms) {
+        self.second += t.second;
+        self.mean_direction += t.mean_direction;
+        self.mean_nee += t.mean_nee;
+    }
+
+    /// Var(N + D) = M_N + M_D - E[N]² - E[D]² (N and D are independent samples), from n
+    /// samples.
+    fn variance(&self, n: f64) -> f64 {
+        let (d, l) = (self.mean_direction / n, self.mean_nee / n);
+        (self.second / n - d * d - l * l).max(0.0)
+    }
+}
+
+/// What the training chose at one node.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct NodeChoice {
+    /// (c, strength index) if the node is guided (or the fixed c's best strength).
+    guided: Option<(f32, usize)>,
+    relative_cost: f32,
+    best_ratio: f32,
+}
 /// The candidates of one training pass.
 struct Grid {
     /// Guiding probabilities above 0 to choose from (c = 0 is the baseline, not in here).
@@ -292,96 +392,25 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         })
         .collect();
 
-    let c0 = TRAINING_C as f64;
-    let mut sums = vec![
-        NodeSums {
-            second: vec![0.0; grid.len()],
-            ..Default::default()
-        };
-        nodes
-    ];
-    for s in per_chunk.iter().flatten() {
-        let acc = &mut sums[s.node as usize];
-        acc.n += 1;
-        acc.rays += s.rays as u64;
-        acc.remaining += s.remaining as u64;
-        if s.f <= 0.0 {
-            continue;
-        }
-        let (f, pb) = (s.f as f64, s.p_bsdf as f64);
-        let q0 = c0 * s.p_skel as f64 + (1.0 - c0) * pb;
-        acc.nonzero += 1;
-        acc.mean += f / q0;
-        if pb <= 0.0 {
-            acc.bsdf_misses += 1;
-        }
-        for (j, m) in acc.second.iter_mut().enumerate() {
-            let (c, k) = grid.at(j);
-            *m += reweighted_second_moment(s.f, s.p_bsdf, s.p_skel, s.p_strength[k], c);
-        }
+    // The samples in chunk order, then by node (a stable sort: the same order for any thread
+    // count), so that every node's samples are one slice.
+    let mut all: Vec<Sample> = per_chunk.into_iter().flatten().collect();
+    all.sort_by_key(|s| s.node);
+    let mut by_node: Vec<&[Sample]> = vec![&[]; nodes];
+    for group in all.chunk_by(|a, b| a.node == b.node) {
+        by_node[group[0].node as usize] = group;
     }
-
-    // Cost of a sample at a node, unguided (c = 0) or guided, in unguided vertices.
-    let cost = |acc: &NodeSums, c: f32| -> f64 {
-        let n = acc.n.max(1) as f64;
-        let base = match settings.training_cost {
-            TrainingCost::Vertex => 1.0,
-            TrainingCost::Path => (acc.remaining as f64 / n).max(1.0),
-        };
-        if c <= 0.0 {
-            base
-        } else {
-            base + COST_GUIDED + COST_SHADOW_RAY * acc.rays as f64 / n
-        }
-    };
-    // M(0) = E[f² / (q_c0 p_bsdf)]: its own sum (c = 0 is not in the grid).
-    let mut unguided_second = vec![0.0f64; nodes];
-    for s in per_chunk.iter().flatten() {
-        if s.f > 0.0 {
-            unguided_second[s.node as usize] +=
-                reweighted_second_moment(s.f, s.p_bsdf, s.p_skel, 0.0, 0.0);
-        }
-    }
-    // The significance test needs the spread of d_i for the chosen candidate: a second pass
-    // over the samples of the nodes that got one (the sums above fix it first).
-    let mut chosen: Vec<Option<usize>> = vec![None; nodes];
-    let mut best_ratio = vec![1.0f32; nodes];
-    let mut efficiency = vec![(0.0f64, 0.0f64); nodes];
-    for (k, acc) in sums.iter().enumerate() {
-        if acc.n < MIN_SAMPLES || acc.nonzero < MIN_NONZERO {
-            continue;
-        }
-        let n = acc.n as f64;
-        let mean2 = (acc.mean / n).powi(2);
-        let product = |j: usize| (acc.second[j] / n - mean2).max(0.0) * cost(acc, grid.at(j).0);
-        let best = (0..grid.len())
-            .min_by(|&a, &b| product(a).total_cmp(&product(b)))
-            .expect("at least one candidate");
-        let unguided = (unguided_second[k] / n - mean2).max(0.0) * cost(acc, 0.0);
-        chosen[k] = Some(best);
-        efficiency[k] = (product(best), unguided);
-        best_ratio[k] = if unguided > 0.0 && unguided.is_finite() {
-            (product(best) / unguided) as f32
-        } else {
-            0.0
-        };
-    }
-    // d_i = f² / q_c0 (cost(c*) / q_c*,s* - cost(0) / p_bsdf): sum and sum of squares.
-    let mut d_sums = vec![(0.0f64, 0.0f64); nodes];
-    for s in per_chunk.iter().flatten() {
-        let k = s.node as usize;
-        let Some(j) = chosen[k] else { continue };
-        if s.f <= 0.0 || sums[k].bsdf_misses > 0 {
-            continue;
-        }
-        let (f, pb) = (s.f as f64, s.p_bsdf as f64);
-        let q0 = c0 * s.p_skel as f64 + (1.0 - c0) * pb;
-        let (c, ks) = grid.at(j);
-        let q = c as f64 * s.p_strength[ks] as f64 + (1.0 - c as f64) * pb;
-        let d = f * f / q0 * (cost(&sums[k], c) / q - cost(&sums[k], 0.0) / pb);
-        d_sums[k].0 += d;
-        d_sums[k].1 += d * d;
-    }
+    let choices: Vec<NodeChoice> = by_node
+        .par_iter()
+        .map(|samples| {
+            choose_node(
+                samples,
+                &grid,
+                settings.training_cost,
+                settings.training_significance as f64,
+            )
+        })
+        .collect();
 
     let mut probabilities = vec![
         if grid.may_turn_off {
@@ -392,44 +421,111 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         nodes
     ];
     let mut strengths = vec![settings.strength; nodes];
-    let mut relative_cost = vec![1.0f32; nodes];
-    for k in 0..nodes {
-        let Some(j) = chosen[k] else { continue };
-        let acc = &sums[k];
-        let (c, ks) = grid.at(j);
-        let guide_it = if !grid.may_turn_off || acc.bsdf_misses > 0 {
-            true
-        } else {
-            let n = acc.n as f64;
-            let mean_d = d_sums[k].0 / n;
-            let var_d = (d_sums[k].1 / n - mean_d * mean_d).max(0.0);
-            let mean2 = (acc.mean / n).powi(2);
-            let difference = mean_d - mean2 * (cost(acc, c) - cost(acc, 0.0));
-            difference + settings.training_significance as f64 * (var_d / n).sqrt() < 0.0
-        };
-        if guide_it {
+    for (k, choice) in choices.iter().enumerate() {
+        if let Some((c, ks)) = choice.guided {
             probabilities[k] = c;
             strengths[k] = grid.strengths[ks];
-            let (guided, unguided) = efficiency[k];
-            relative_cost[k] = if unguided > 0.0 && unguided.is_finite() {
-                (guided / unguided) as f32
-            } else {
-                0.0
-            };
         }
     }
     TrainingReport {
         probabilities,
         strengths,
-        samples: sums.iter().map(|s| s.n).collect(),
-        nonzero: sums.iter().map(|s| s.nonzero).collect(),
-        relative_cost,
-        best_ratio,
-        mean_remaining: sums
+        samples: by_node.iter().map(|s| s.len() as u32).collect(),
+        nonzero: by_node
             .iter()
-            .map(|s| s.remaining as f32 / s.n.max(1) as f32)
+            .map(|s| s.iter().filter(|s| s.carries()).count() as u32)
+            .collect(),
+        relative_cost: choices.iter().map(|c| c.relative_cost).collect(),
+        best_ratio: choices.iter().map(|c| c.best_ratio).collect(),
+        mean_remaining: by_node
+            .iter()
+            .map(|s| s.iter().map(|s| s.remaining as f32).sum::<f32>() / s.len().max(1) as f32)
             .collect(),
         paths,
+    }
+}
+
+/// The choice at one node from its training samples (module docs, "Choice"): the candidate of
+/// least variance x cost, kept with `c_skel=learned` only if it beats c = 0 by
+/// `significance` standard errors and the node had enough samples.
+fn choose_node(
+    samples: &[Sample],
+    grid: &Grid,
+    training_cost: TrainingCost,
+    significance: f64,
+) -> NodeChoice {
+    let not_guided = NodeChoice {
+        guided: None,
+        relative_cost: 1.0,
+        best_ratio: 1.0,
+    };
+    let carrying = samples.iter().filter(|s| s.carries()).count() as u32;
+    if (samples.len() as u32) < MIN_SAMPLES || carrying < MIN_NONZERO {
+        return not_guided;
+    }
+    let n = samples.len() as f64;
+    let rays = samples.iter().map(|s| s.rays as f64).sum::<f64>() / n;
+    let base = match training_cost {
+        TrainingCost::Vertex => 1.0,
+        TrainingCost::Path => {
+            (samples.iter().map(|s| s.remaining as f64).sum::<f64>() / n).max(1.0)
+        }
+    };
+    // Cost of a sample at the node, in unguided vertices.
+    let cost = |c: f32| {
+        if c <= 0.0 {
+            base
+        } else {
+            base + COST_GUIDED + COST_SHADOW_RAY * rays
+        }
+    };
+    // Candidate 0 is c = 0 (not guided); candidate j >= 1 is the grid's j - 1.
+    let candidate = |j: usize| if j == 0 { (0.0, 0) } else { grid.at(j - 1) };
+    let mut moments = vec![Moments::default(); grid.len() + 1];
+    for s in samples {
+        for (j, m) in moments.iter_mut().enumerate() {
+            let (c, k) = candidate(j);
+            m.add(s.terms(c, k));
+        }
+    }
+    let product = |j: usize| moments[j].variance(n) * cost(candidate(j).0);
+    let best = (1..=grid.len())
+        .min_by(|&a, &b| product(a).total_cmp(&product(b)))
+        .expect("at least one candidate");
+    let (guided, unguided) = (product(best), product(0));
+    let ratio = if unguided > 0.0 && unguided.is_finite() {
+        (guided / unguided) as f32
+    } else {
+        0.0
+    };
+    let guide_it = if !grid.may_turn_off || !unguided.is_finite() {
+        true
+    } else {
+        // The spread of d_i = cost(c*) m_i(c*) - cost(0) m_i(0), m_i a sample's
+        // second-moment term: the difference's dominant noise (the squared means are
+        // estimated far more precisely).
+        let (c, k) = candidate(best);
+        let (cost_c, cost_0) = (cost(c), cost(0.0));
+        let (mut sum, mut sum2) = (0.0f64, 0.0f64);
+        for s in samples {
+            let d = cost_c * s.terms(c, k).second - cost_0 * s.terms(0.0, 0).second;
+            sum += d;
+            sum2 += d * d;
+        }
+        let mean = sum / n;
+        let spread = ((sum2 / n - mean * mean).max(0.0) / n).sqrt();
+        guided - unguided + significance * spread < 0.0
+    };
+    if !guide_it {
+        return NodeChoice {
+            best_ratio: ratio,
+            ..not_guided
+        };
+    }
+    NodeChoice {
+        guided: Some(candidate(best)),
+        relative_cost: ratio,
+        best_ratio: ratio,
     }
 }
 
@@ -460,15 +556,13 @@ pub(crate) fn reweighted_second_moment(
 
 /// One vertex of a training path, kept until the radiance arriving there is known.
 struct TrainingVertex {
-    /// The sample, `f` still to be filled in; None at vertices that are not guided.
+    /// The sample, `f_reflected` still to be filled in; None at vertices that are not guided.
     sample: Option<Sample>,
     /// Path throughput up to this vertex, and f_s |cos| / q of its sampled direction.
     beta: Rgb,
     f_cos: Rgb,
     weight: Rgb,
-    /// Emitted radiance arriving along the sampled direction (L_e at the next vertex, or the
-    /// environment's), and one light sample reflected at the next vertex toward this one.
-    emitted: Rgb,
+    /// One light sample reflected at the next vertex toward this one (unweighted).
     direct: Rgb,
 }
 
@@ -476,7 +570,8 @@ struct TrainingVertex {
 /// guided vertices to `out`. The radiance arriving along a vertex's sampled direction is
 /// L_e(x') + R(x'), with R the reflected radiance the rest of the path estimates by next-event
 /// estimation alone: R(x_i) = NEE(x_i) + f_s |cos| / q (x_i) R(x_i+1) (no emission beyond the
-/// first, which NEE accounts for), computed backwards once the path ends.
+/// first, which NEE accounts for), computed backwards once the path ends. Each vertex's own
+/// light sample is also recorded with its sample (the same draw the previous vertex's R uses).
 fn train_path(
     guide: &SkeletonGuide,
     scene: &Scene,
@@ -489,6 +584,7 @@ fn train_path(
     let mut beta = Rgb::ONE;
     let depth = guide.settings().training_depth;
     let mut path: Vec<TrainingVertex> = Vec::with_capacity(depth as usize);
+    let mut own_light = light_sample(scene, &si, rng);
     for _ in 0..depth {
         let bsdf = scene.bsdf(&si);
         let frame = si.shading_frame();
@@ -499,12 +595,28 @@ fn train_path(
             rays = query.init(guide, scene, si.p, si.p_error, si.ng, si.wo);
         }
         let guided = query.guiding_probability() > 0.0;
+        let mut nee = NeeTerms::default();
+        if let (true, Some(l)) = (guided, &own_light) {
+            let value = luminance(beta * l.value);
+            if value.is_finite() && value > 0.0 {
+                nee = NeeTerms {
+                    value,
+                    p_light: l.p_light,
+                    p_bsdf: bsdf.pdf(wo_local, l.wi_local),
+                    p_skel: query.pdf(l.wi),
+                    p_strength: strength_pdfs(query, l.wi, strengths),
+                };
+            }
+        }
         let zero = Sample {
             node: query.node().unwrap_or(0),
-            f: 0.0,
+            f_emitted: 0.0,
+            f_reflected: 0.0,
             p_bsdf: 0.0,
             p_skel: 0.0,
             p_strength: [0.0; MAX_STRENGTHS],
+            p_light: 0.0,
+            nee,
             rays,
             remaining: 1,
         };
@@ -530,32 +642,28 @@ fn train_path(
         let f_cos = bs.f * bs.wi.z.abs();
         let weight = f_cos / bs.pdf;
         let next = scene.intersect(&si.spawn_ray(wi));
-        let (emitted, direct) = match &next {
-            Some(n) => (scene.emitted(n), direct_light(scene, n, rng)),
-            None => (
-                scene
-                    .environment()
-                    .map_or(Rgb::ZERO, |(_, env)| env.radiance(wi)),
-                Rgb::ZERO,
-            ),
-        };
+        let (emitted, p_light) = arriving_emission(scene, &si, wi, next.as_ref());
+        let next_light = next.as_ref().and_then(|n| light_sample(scene, n, rng));
+        let direct = next_light.as_ref().map_or(Rgb::ZERO, |l| l.value);
         path.push(TrainingVertex {
             sample: guided.then(|| {
-                let mut p_strength = [0.0; MAX_STRENGTHS];
-                for (p, &s) in p_strength.iter_mut().zip(strengths) {
-                    *p = query.pdf_with_strength(wi, s);
-                }
+                let f_emitted = luminance(beta * f_cos * emitted);
                 Sample {
+                    f_emitted: if f_emitted.is_finite() {
+                        f_emitted.max(0.0)
+                    } else {
+                        0.0
+                    },
                     p_bsdf: bsdf.pdf(wo_local, bs.wi),
                     p_skel: query.pdf(wi),
-                    p_strength,
+                    p_strength: strength_pdfs(query, wi, strengths),
+                    p_light,
                     ..zero
                 }
             }),
             beta,
             f_cos,
             weight,
-            emitted,
             direct,
         });
         beta *= weight;
@@ -564,16 +672,17 @@ fn train_path(
             break;
         }
         si = n;
+        own_light = next_light;
     }
     // Backwards. At vertex i: R(x_i+1) = NEE(x_i+1) + tail, tail = f_s |cos| / q (x_i+1)
-    // R(x_i+2) (zero beyond the last vertex sampled), and L = L_e(x_i+1) + R(x_i+1).
+    // R(x_i+2) (zero beyond the last vertex sampled).
     let mut tail = Rgb::ZERO;
     let len = path.len() as u32;
     for (i, v) in path.iter().enumerate().rev() {
         let reflected = v.direct + tail;
         if let Some(mut sample) = v.sample {
-            let f = luminance(v.beta * v.f_cos * (v.emitted + reflected));
-            sample.f = if f.is_finite() { f.max(0.0) } else { 0.0 };
+            let f = luminance(v.beta * v.f_cos * reflected);
+            sample.f_reflected = if f.is_finite() { f.max(0.0) } else { 0.0 };
             sample.remaining = len - i as u32;
             out.push(sample);
         }
@@ -584,17 +693,75 @@ fn train_path(
     }
 }
 
-/// One light sample at `si`, reflected toward `si.wo`, without MIS (an unbiased estimate of
-/// the direct light there); zero at delta BSDFs.
-fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Sampler) -> Rgb {
+/// The guide's density at `wi` under each candidate strength.
+fn strength_pdfs(
+    query: &GuideQuery,
+    wi: Vec3,
+    strengths: &[SkeletonStrength],
+) -> [f32; MAX_STRENGTHS] {
+    let mut p = [0.0; MAX_STRENGTHS];
+    for (p, &s) in p.iter_mut().zip(strengths) {
+        *p = query.pdf_with_strength(wi, s);
+    }
+    p
+}
+
+/// Emitted radiance arriving at `si` along `wi` (L_e of the next vertex `next`, or the
+/// environment's), and the density with which the render's light sampling at `si` draws
+/// that direction (pmf x pdf, as `path` weighs a BSDF-sampled hit; 0 if it is no light).
+fn arriving_emission(
+    scene: &Scene,
+    si: &SurfaceInteraction,
+    wi: Vec3,
+    next: Option<&SurfaceInteraction>,
+) -> (Rgb, f32) {
+    let pmf = |light: usize| scene.light_sampler().map_or(0.0, |s| s.pmf(light));
+    match next {
+        Some(n) => {
+            let le = scene.emitted(n);
+            if le == Rgb::ZERO {
+                return (le, 0.0);
+            }
+            let p_light = scene.triangle_light(n.triangle).map_or(0.0, |light| {
+                pmf(light) * scene.lights()[light].pdf_with(si.p, n.p, TriangleSampling::default())
+            });
+            (le, p_light)
+        }
+        None => match scene.environment() {
+            Some((index, env)) => {
+                let le = env.radiance(wi);
+                let pdf = env.pdf(EnvStrategy::default(), si.facing_normal(), wi);
+                (le, pmf(index) * pdf)
+            }
+            None => (Rgb::ZERO, 0.0),
+        },
+    }
+}
+
+/// One light sample at a vertex: its unweighted estimate of the reflected direct light
+/// (f_s |cos| L / p_light toward `si.wo`), its direction and its light density.
+struct LightSampleAt {
+    value: Rgb,
+    wi: Vec3,
+    wi_local: Vec3,
+    /// pmf x pdf; infinite for a delta light (MIS weight 1 against any direction density).
+    p_light: f32,
+}
+
+/// One light sample at `si` (None where it carries nothing: a delta BSDF, no light, occluded).
+fn light_sample(
+    scene: &Scene,
+    si: &SurfaceInteraction,
+    rng: &mut Sampler,
+) -> Option<LightSampleAt> {
     let bsdf = scene.bsdf(si);
     if bsdf.is_delta() {
-        return Rgb::ZERO;
+        return None;
     }
     let frame = si.shading_frame();
     let u = rng.uniform2();
     let wo_local = frame.to_local(si.wo);
-    let Some(t) = scene.sample_light_toward(
+    let t = scene.sample_light_toward(
         si,
         &frame,
         &bsdf,
@@ -602,16 +769,19 @@ fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Sampler) -> Rg
         EnvStrategy::default(),
         TriangleSampling::default(),
         u,
-    ) else {
-        return Rgb::ZERO;
-    };
+    )?;
     let (ls, pmf, f) = (t.sample, t.pmf, t.f_cos);
     if !(ls.pdf > 0.0) || !scene.unoccluded(si, &ls) {
-        return Rgb::ZERO;
+        return None;
     }
-    f * ls.radiance / (pmf * ls.pdf)
+    let p_light = pmf * ls.pdf;
+    Some(LightSampleAt {
+        value: f * ls.radiance / p_light,
+        wi: ls.wi,
+        wi_local: t.wi_local,
+        p_light: if ls.delta { f32::INFINITY } else { p_light },
+    })
 }
-
 #[cfg(test)]
 mod tests {
     use super::*;
