@@ -21,7 +21,11 @@
 //! path throughput up to x (a vertex reached with a large throughput weighs more in the
 //! pixel's variance), together with p_bsdf(wi), p_skel,s0(wi) and p_skel,s(wi) for every
 //! candidate strength s (the same lobes with other exponents: which lobes apply at x, and
-//! where they point, does not depend on s, so every p_skel,s is exact). The work is cut into
+//! where they point, does not depend on s, so every p_skel,s is exact). f is kept in its two
+//! parts, the emission L_e(x') (with the density p_light(wi) at which the render's light
+//! sampling at x draws that emitter point, 0 if it is none) and the reflected R(x'), and the
+//! vertex also records its own light sample (value, light density, and its direction's
+//! p_bsdf, p_skel,s0 and p_skel,s): see "What is measured". The work is cut into
 //! fixed chunks with their own random streams and the samples are concatenated in chunk
 //! order, so the result is the same for any thread count.
 //!
@@ -49,8 +53,38 @@
 //! M(0, ·) infinite (BSDF sampling alone cannot reach it), which the choice below respects.
 //! The reweighted estimator's own variance, ∫ f⁴ / (q_c,s² q_0), is finite because
 //! q_0 >= p_bsdf / 2 and q_c,s >= (1 - c) p_bsdf with c <= 0.9: the weights q_0 / q_c,s stay
-//! bounded wherever the BSDF samples, whatever s. The mean I is the same for all candidates,
-//! estimated by the mean of f_i / q_0(w_i), and the variance is V(c, s) = M(c, s) - I².
+//! bounded wherever the BSDF samples, whatever s.
+//!
+//! # What is measured: the render's estimator at the vertex (round 7)
+//!
+//! `path_skeleton` does not estimate ∫ f dw with the direction sample alone: at every vertex
+//! it also draws one light sample, and both are MIS-weighted (power heuristic) against each
+//! other. Until round 7 the training judged F = f / q with f's emission unweighted, as if a
+//! hit on a lamp were the only way to see it. At nodes that see a lamp (the door's and the
+//! ajar's lit room, Sponza's sunlit courtyard) that variance is dominated by lamp hits that
+//! next-event estimation already makes cheap, and guiding toward the lamp looked like a
+//! large gain that the render never sees (there those hits get MIS weights near 0); in the
+//! render the guided lobes only cost samples and shadow rays, and move density from the
+//! directions that do carry the indirect light. The per-sample losses against `path` and
+//! against a fixed c = 0.1 on the ajar (BENCHMARKS.md, issue 8, round 7) were this. Now each
+//! candidate (c, s) is judged by the estimate the render makes at x under it,
+//!
+//!   E_c,s = N_c,s + D_c,s,   N_c,s = w_l(c, s) n,   D_c,s = (w_e(c, s) e + r) / q_c,s(w),
+//!
+//! with n = lum(beta f_s |cos| L) / p_light of the light sample (direction w_l),
+//! w_l = power(p_light, q_c,s(w_l)) (1 for delta lights), e and r the emitted and reflected
+//! parts of f above, w_e = power(q_c,s(w), p_light(w)) (1 where the direction found no light
+//! the render samples). N and D are independent draws, so
+//!
+//!   V(c, s) = E[N²] - E[N]² + E[D²] - E[D]²,
+//!
+//! E[N²] and E[N] are means over the recorded light samples (their distribution does not
+//! depend on (c, s), only their weight does), and E[D²] = E_q0[(w_e e + r)² / (q_c,s q_0)],
+//! E[D] = E_q0[(w_e e + r) / q_0] reweighted as above ([`Sample::terms`]). The light sample
+//! at x is the one the previous vertex's R uses (one draw, two uses: correlated estimates,
+//! none biased). This is exact for the vertex's own MIS pair; what follows x is still the
+//! proxy R (next-event estimation only). The heuristic is the render's default (power); a
+//! render with `mis=balance` is judged with power weights (a different objective, no bias).
 //!
 //! # Cost
 //!
@@ -73,10 +107,11 @@
 //! # Choice
 //!
 //! The node gets (c*, s*) = argmin over the candidates (c > 0) of V(c, s) cost(c). With
-//! `c_skel=learned` it is kept only if guiding is *measurably* better than not guiding: with
-//! d_i = f_i² / q_0 (cost(c*) / q_c*,s* - cost(0) / p_bsdf), the efficiency difference is
-//! V(c*, s*) cost(c*) - V(0) cost(0) = mean(d) - I² (cost(c*) - cost(0)), and it must be below
-//! zero by `training_significance` standard errors of mean(d) (default 1); and the node must
+//! `c_skel=learned` it is kept only if guiding is *measurably* better than not guiding: the
+//! efficiency difference V(c*, s*) cost(c*) - V(0) cost(0) must be below zero by
+//! `training_significance` standard errors (default 1) of mean(d), d_i = cost(c*) m_i(c*, s*)
+//! - cost(0) m_i(0), m_i a sample's term of the second moment E[N²] + E[D²] (the squared
+//! means are far less noisy and are left out of the error) ([`choose_node`]); and the node must
 //! have had at least `MIN_SAMPLES` training samples, `MIN_NONZERO` of them non-zero. Otherwise
 //! c = 0: the node is not guided at all (no lobes, no shadow rays). The floor is there because
 //! M is a mean of squares, dominated by rare large samples: with a few dozen non-zero samples
