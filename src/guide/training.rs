@@ -109,8 +109,8 @@
 //! The node gets (c*, s*) = argmin over the candidates (c > 0) of V(c, s) cost(c). With
 //! `c_skel=learned` it is kept only if guiding is *measurably* better than not guiding: the
 //! efficiency difference V(c*, s*) cost(c*) - V(0) cost(0) must be below zero by
-//! `training_significance` standard errors (default 1) of mean(d), d_i = cost(c*) m_i(c*, s*)
-//! - cost(0) m_i(0), m_i a sample's term of the second moment E[N²] + E[D²] (the squared
+//! `training_significance` standard errors (default 1) of mean(d), with
+//! d_i = cost(c*) m_i(c*, s*) - cost(0) m_i(0) and m_i a sample's term of the second moment E[N²] + E[D²] (the squared
 //! means are far less noisy and are left out of the error) ([`choose_node`]); and the node must
 //! have had at least `MIN_SAMPLES` training samples, `MIN_NONZERO` of them non-zero. Otherwise
 //! c = 0: the node is not guided at all (no lobes, no shadow rays). The floor is there because
