@@ -5,7 +5,8 @@
 //! sample; both are constant in spp for an unbiased estimator whose error is the reference's
 //! error-free variance), and the process's CPU time per sample (utime + stime from
 //! /proc/self/stat, all worker threads, precomputation excluded). MAE² x CPU seconds is then
-//! the equal-time figure of merit (lower is better) a quiet machine would show.
+//! the equal-time figure of merit (lower is better) a quiet machine would show. The two error
+//! columns give the median and, in parentheses, the range over the seeds.
 //!
 //! `cargo run --release --example per_sample -- SCENE REFERENCE.exr WIDTH HEIGHT SPP SEEDS SPECS [MAX_DEPTH [SAMPLER]]`
 //! with SCENE a scene file or `corridor`, SPECS a comma-separated list of integrator specs
@@ -116,11 +117,32 @@ fn main() {
         let cpu = median(cpu);
         let mae = median(mae);
         println!(
-            "| {spec} | {mae:.3e} | {:.2} | {:.2} | {:.2} | {:.3e} |",
-            median(mae2),
-            median(rmse2),
+            "| {spec} | {mae:.3e} | {} | {} | {:.2} | {:.3e} |",
+            spread(&mae2),
+            spread(&rmse2),
             cpu / samples * 1e6,
             mae * mae * cpu
         );
     }
+}
+
+/// Two decimals where that leaves three significant digits, else scientific notation (the
+/// errors of dim scenes such as Sponza are far below 1).
+fn figure(x: f64) -> String {
+    if x.abs() >= 1.0 || x == 0.0 {
+        format!("{x:.2}")
+    } else {
+        format!("{x:.3e}")
+    }
+}
+
+/// The median and, over several seeds, the range: "median (min-max)".
+fn spread(v: &[f64]) -> String {
+    let m = figure(median(v.to_vec()));
+    if v.len() < 2 {
+        return m;
+    }
+    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    format!("{m} ({}-{})", figure(lo), figure(hi))
 }

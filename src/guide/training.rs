@@ -21,7 +21,11 @@
 //! path throughput up to x (a vertex reached with a large throughput weighs more in the
 //! pixel's variance), together with p_bsdf(wi), p_skel,s0(wi) and p_skel,s(wi) for every
 //! candidate strength s (the same lobes with other exponents: which lobes apply at x, and
-//! where they point, does not depend on s, so every p_skel,s is exact). The work is cut into
+//! where they point, does not depend on s, so every p_skel,s is exact). f is kept in its two
+//! parts, the emission L_e(x') (with the density p_light(wi) at which the render's light
+//! sampling at x draws that emitter point, 0 if it is none) and the reflected R(x'), and the
+//! vertex also records its own light sample (value, light density, and its direction's
+//! p_bsdf, p_skel,s0 and p_skel,s): see "What is measured". The work is cut into
 //! fixed chunks with their own random streams and the samples are concatenated in chunk
 //! order, so the result is the same for any thread count.
 //!
@@ -49,8 +53,38 @@
 //! M(0, ·) infinite (BSDF sampling alone cannot reach it), which the choice below respects.
 //! The reweighted estimator's own variance, ∫ f⁴ / (q_c,s² q_0), is finite because
 //! q_0 >= p_bsdf / 2 and q_c,s >= (1 - c) p_bsdf with c <= 0.9: the weights q_0 / q_c,s stay
-//! bounded wherever the BSDF samples, whatever s. The mean I is the same for all candidates,
-//! estimated by the mean of f_i / q_0(w_i), and the variance is V(c, s) = M(c, s) - I².
+//! bounded wherever the BSDF samples, whatever s.
+//!
+//! # What is measured: the render's estimator at the vertex (round 7)
+//!
+//! `path_skeleton` does not estimate ∫ f dw with the direction sample alone: at every vertex
+//! it also draws one light sample, and both are MIS-weighted (power heuristic) against each
+//! other. Until round 7 the training judged F = f / q with f's emission unweighted, as if a
+//! hit on a lamp were the only way to see it. At nodes that see a lamp (the door's and the
+//! ajar's lit room, Sponza's sunlit courtyard) that variance is dominated by lamp hits that
+//! next-event estimation already makes cheap, and guiding toward the lamp looked like a
+//! large gain that the render never sees (there those hits get MIS weights near 0); in the
+//! render the guided lobes only cost samples and shadow rays, and move density from the
+//! directions that do carry the indirect light. The per-sample losses against `path` and
+//! against a fixed c = 0.1 on the ajar (BENCHMARKS.md, issue 8, round 7) were this. Now each
+//! candidate (c, s) is judged by the estimate the render makes at x under it,
+//!
+//!   E_c,s = N_c,s + D_c,s,   N_c,s = w_l(c, s) n,   D_c,s = (w_e(c, s) e + r) / q_c,s(w),
+//!
+//! with n = lum(beta f_s |cos| L) / p_light of the light sample (direction w_l),
+//! w_l = power(p_light, q_c,s(w_l)) (1 for delta lights), e and r the emitted and reflected
+//! parts of f above, w_e = power(q_c,s(w), p_light(w)) (1 where the direction found no light
+//! the render samples). N and D are independent draws, so
+//!
+//!   V(c, s) = E[N²] - E[N]² + E[D²] - E[D]²,
+//!
+//! E[N²] and E[N] are means over the recorded light samples (their distribution does not
+//! depend on (c, s), only their weight does), and E[D²] = E_q0[(w_e e + r)² / (q_c,s q_0)],
+//! E[D] = E_q0[(w_e e + r) / q_0] reweighted as above ([`Sample::terms`]). The light sample
+//! at x is the one the previous vertex's R uses (one draw, two uses: correlated estimates,
+//! none biased). This is exact for the vertex's own MIS pair; what follows x is still the
+//! proxy R (next-event estimation only). The heuristic is the render's default (power); a
+//! render with `mis=balance` is judged with power weights (a different objective, no bias).
 //!
 //! # Cost
 //!
@@ -73,10 +107,11 @@
 //! # Choice
 //!
 //! The node gets (c*, s*) = argmin over the candidates (c > 0) of V(c, s) cost(c). With
-//! `c_skel=learned` it is kept only if guiding is *measurably* better than not guiding: with
-//! d_i = f_i² / q_0 (cost(c*) / q_c*,s* - cost(0) / p_bsdf), the efficiency difference is
-//! V(c*, s*) cost(c*) - V(0) cost(0) = mean(d) - I² (cost(c*) - cost(0)), and it must be below
-//! zero by `training_significance` standard errors of mean(d) (default 1); and the node must
+//! `c_skel=learned` it is kept only if guiding is *measurably* better than not guiding: the
+//! efficiency difference V(c*, s*) cost(c*) - V(0) cost(0) must be below zero by
+//! `training_significance` standard errors (default 1) of mean(d), with
+//! d_i = cost(c*) m_i(c*, s*) - cost(0) m_i(0) and m_i a sample's term of the second moment E[N²] + E[D²] (the squared
+//! means are far less noisy and are left out of the error) ([`choose_node`]); and the node must
 //! have had at least `MIN_SAMPLES` training samples, `MIN_NONZERO` of them non-zero. Otherwise
 //! c = 0: the node is not guided at all (no lobes, no shadow rays). The floor is there because
 //! M is a mean of squares, dominated by rare large samples: with a few dozen non-zero samples
@@ -118,8 +153,9 @@ use rayon::prelude::*;
 
 use super::STRENGTH_CANDIDATES;
 use super::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonStrength, TrainingCost};
+use crate::integrator::MisHeuristic;
 use crate::light::{EnvStrategy, TriangleSampling};
-use crate::math::{luminance, Rgb, Rng, Sampler};
+use crate::math::{luminance, Rgb, Rng, Sampler, Vec3};
 use crate::scene::{Scene, SurfaceInteraction};
 
 /// Guiding probability of the training pass (c0 above): both strategies get half the samples,
@@ -175,38 +211,137 @@ impl TrainingReport {
     }
 }
 
-/// One training sample at a guided vertex.
-#[derive(Clone, Copy, Debug)]
+/// One training sample at a guided vertex: the direction it sampled and its own light sample,
+/// each with the densities every candidate's MIS weights need (module docs, "What is
+/// measured").
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Sample {
     node: u32,
-    /// The contribution proxy f (module docs); 0 for directions that carry nothing.
-    f: f32,
+    /// Luminance of beta f_s |cos| L_e along the sampled direction (the emission found at the
+    /// next vertex or the environment's), unweighted; 0 where it found none.
+    f_emitted: f32,
+    /// Luminance of beta f_s |cos| R, the radiance the rest of the path reflects toward x.
+    f_reflected: f32,
     p_bsdf: f32,
     /// The skeleton mixture's density under the training proposal's strength.
     p_skel: f32,
     /// The same under each candidate strength (the first `strengths` entries).
     p_strength: [f32; MAX_STRENGTHS],
+    /// Light sampling's density (pmf x pdf) of the emitter the direction hit; 0 if none.
+    p_light: f32,
+    /// Next-event estimation at this vertex.
+    nee: NeeTerms,
     /// Shadow rays the guide traced for this vertex's query.
     rays: u32,
     /// Vertices of the training path from this one to its end (module docs, "Cost").
     remaining: u32,
 }
 
-/// Per-node sums over the training samples.
-#[derive(Clone, Default)]
-struct NodeSums {
-    n: u32,
-    nonzero: u32,
-    rays: u64,
-    remaining: u64,
-    /// Sum of f / q_c0.
-    mean: f64,
-    /// Per candidate (c index, s index), row-major over c: sum of f² / (q_c,s q_c0).
-    second: Vec<f64>,
-    /// Samples with f > 0 and p_bsdf = 0 (M(0) infinite).
-    bsdf_misses: u32,
+/// A vertex's light sample, as the candidates see it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct NeeTerms {
+    /// Luminance of beta f_s |cos| L / p_light, unweighted (0 if occluded or no light).
+    value: f32,
+    /// Its light density (infinite for delta lights: MIS weight 1).
+    p_light: f32,
+    /// The direction densities of its direction (BSDF, skeleton at s0, per candidate strength).
+    p_bsdf: f32,
+    p_skel: f32,
+    p_strength: [f32; MAX_STRENGTHS],
 }
 
+/// One sample's share of the moments of the vertex's estimate under one candidate.
+#[derive(Clone, Copy, Debug, Default)]
+struct Terms {
+    /// (D_c,s)² q_c,s / q_c0 + (N_c,s)²: its terms of the two second moments (module docs).
+    second: f64,
+    /// D_c,s q_c,s / q_c0 and N_c,s: its terms of the two means.
+    mean_direction: f64,
+    mean_nee: f64,
+}
+
+impl Sample {
+    /// Whether the sampled direction carried anything.
+    fn carries(&self) -> bool {
+        self.f_emitted > 0.0 || self.f_reflected > 0.0
+    }
+
+    /// This sample's terms under candidate (c, strength index k) (module docs): the direction
+    /// part reweighted from the training proposal, with the emission it found MIS-weighted as
+    /// the render weighs it, and the light sample with its MIS weight against q_c,s.
+    fn terms(&self, c: f32, k: usize) -> Terms {
+        let mut t = Terms::default();
+        let q0 = mixture(TRAINING_C, self.p_skel, self.p_bsdf);
+        if self.carries() && q0 > 0.0 {
+            let q = mixture(c, self.p_strength[k], self.p_bsdf);
+            let w = if self.p_light > 0.0 {
+                MisHeuristic::Power.weight(q as f32, self.p_light) as f64
+            } else {
+                1.0
+            };
+            let f = w * self.f_emitted as f64 + self.f_reflected as f64;
+            if f > 0.0 {
+                t.mean_direction = f / q0;
+                t.second = reweighted_second_moment(
+                    f as f32,
+                    self.p_bsdf,
+                    self.p_skel,
+                    self.p_strength[k],
+                    c,
+                );
+            }
+        }
+        if self.nee.value > 0.0 {
+            let q = mixture(c, self.nee.p_strength[k], self.nee.p_bsdf);
+            let w = MisHeuristic::Power.weight(self.nee.p_light, q as f32) as f64;
+            t.mean_nee = self.nee.value as f64 * w;
+            t.second += t.mean_nee * t.mean_nee;
+        }
+        t
+    }
+}
+
+/// c p_skel + (1 - c) p_bsdf (p_bsdf alone at c = 0, whatever p_skel is).
+fn mixture(c: f32, p_skel: f32, p_bsdf: f32) -> f64 {
+    let (c, ps, pb) = (c as f64, p_skel as f64, p_bsdf as f64);
+    if c > 0.0 {
+        c * ps + (1.0 - c) * pb
+    } else {
+        pb
+    }
+}
+
+/// Sums of [`Terms`] over a node's samples.
+#[derive(Clone, Copy, Debug, Default)]
+struct Moments {
+    second: f64,
+    mean_direction: f64,
+    mean_nee: f64,
+}
+
+impl Moments {
+    fn add(&mut self, t: Terms) {
+        self.second += t.second;
+        self.mean_direction += t.mean_direction;
+        self.mean_nee += t.mean_nee;
+    }
+
+    /// Var(N + D) = M_N + M_D - E[N]² - E[D]² (N and D are independent samples), from n
+    /// samples.
+    fn variance(&self, n: f64) -> f64 {
+        let (d, l) = (self.mean_direction / n, self.mean_nee / n);
+        (self.second / n - d * d - l * l).max(0.0)
+    }
+}
+
+/// What the training chose at one node.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct NodeChoice {
+    /// (c, strength index) if the node is guided (or the fixed c's best strength).
+    guided: Option<(f32, usize)>,
+    relative_cost: f32,
+    best_ratio: f32,
+}
 /// The candidates of one training pass.
 struct Grid {
     /// Guiding probabilities above 0 to choose from (c = 0 is the baseline, not in here).
@@ -292,96 +427,25 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         })
         .collect();
 
-    let c0 = TRAINING_C as f64;
-    let mut sums = vec![
-        NodeSums {
-            second: vec![0.0; grid.len()],
-            ..Default::default()
-        };
-        nodes
-    ];
-    for s in per_chunk.iter().flatten() {
-        let acc = &mut sums[s.node as usize];
-        acc.n += 1;
-        acc.rays += s.rays as u64;
-        acc.remaining += s.remaining as u64;
-        if s.f <= 0.0 {
-            continue;
-        }
-        let (f, pb) = (s.f as f64, s.p_bsdf as f64);
-        let q0 = c0 * s.p_skel as f64 + (1.0 - c0) * pb;
-        acc.nonzero += 1;
-        acc.mean += f / q0;
-        if pb <= 0.0 {
-            acc.bsdf_misses += 1;
-        }
-        for (j, m) in acc.second.iter_mut().enumerate() {
-            let (c, k) = grid.at(j);
-            *m += reweighted_second_moment(s.f, s.p_bsdf, s.p_skel, s.p_strength[k], c);
-        }
+    // The samples in chunk order, then by node (a stable sort: the same order for any thread
+    // count), so that every node's samples are one slice.
+    let mut all: Vec<Sample> = per_chunk.into_iter().flatten().collect();
+    all.sort_by_key(|s| s.node);
+    let mut by_node: Vec<&[Sample]> = vec![&[]; nodes];
+    for group in all.chunk_by(|a, b| a.node == b.node) {
+        by_node[group[0].node as usize] = group;
     }
-
-    // Cost of a sample at a node, unguided (c = 0) or guided, in unguided vertices.
-    let cost = |acc: &NodeSums, c: f32| -> f64 {
-        let n = acc.n.max(1) as f64;
-        let base = match settings.training_cost {
-            TrainingCost::Vertex => 1.0,
-            TrainingCost::Path => (acc.remaining as f64 / n).max(1.0),
-        };
-        if c <= 0.0 {
-            base
-        } else {
-            base + COST_GUIDED + COST_SHADOW_RAY * acc.rays as f64 / n
-        }
-    };
-    // M(0) = E[f² / (q_c0 p_bsdf)]: its own sum (c = 0 is not in the grid).
-    let mut unguided_second = vec![0.0f64; nodes];
-    for s in per_chunk.iter().flatten() {
-        if s.f > 0.0 {
-            unguided_second[s.node as usize] +=
-                reweighted_second_moment(s.f, s.p_bsdf, s.p_skel, 0.0, 0.0);
-        }
-    }
-    // The significance test needs the spread of d_i for the chosen candidate: a second pass
-    // over the samples of the nodes that got one (the sums above fix it first).
-    let mut chosen: Vec<Option<usize>> = vec![None; nodes];
-    let mut best_ratio = vec![1.0f32; nodes];
-    let mut efficiency = vec![(0.0f64, 0.0f64); nodes];
-    for (k, acc) in sums.iter().enumerate() {
-        if acc.n < MIN_SAMPLES || acc.nonzero < MIN_NONZERO {
-            continue;
-        }
-        let n = acc.n as f64;
-        let mean2 = (acc.mean / n).powi(2);
-        let product = |j: usize| (acc.second[j] / n - mean2).max(0.0) * cost(acc, grid.at(j).0);
-        let best = (0..grid.len())
-            .min_by(|&a, &b| product(a).total_cmp(&product(b)))
-            .expect("at least one candidate");
-        let unguided = (unguided_second[k] / n - mean2).max(0.0) * cost(acc, 0.0);
-        chosen[k] = Some(best);
-        efficiency[k] = (product(best), unguided);
-        best_ratio[k] = if unguided > 0.0 && unguided.is_finite() {
-            (product(best) / unguided) as f32
-        } else {
-            0.0
-        };
-    }
-    // d_i = f² / q_c0 (cost(c*) / q_c*,s* - cost(0) / p_bsdf): sum and sum of squares.
-    let mut d_sums = vec![(0.0f64, 0.0f64); nodes];
-    for s in per_chunk.iter().flatten() {
-        let k = s.node as usize;
-        let Some(j) = chosen[k] else { continue };
-        if s.f <= 0.0 || sums[k].bsdf_misses > 0 {
-            continue;
-        }
-        let (f, pb) = (s.f as f64, s.p_bsdf as f64);
-        let q0 = c0 * s.p_skel as f64 + (1.0 - c0) * pb;
-        let (c, ks) = grid.at(j);
-        let q = c as f64 * s.p_strength[ks] as f64 + (1.0 - c as f64) * pb;
-        let d = f * f / q0 * (cost(&sums[k], c) / q - cost(&sums[k], 0.0) / pb);
-        d_sums[k].0 += d;
-        d_sums[k].1 += d * d;
-    }
+    let choices: Vec<NodeChoice> = by_node
+        .par_iter()
+        .map(|samples| {
+            choose_node(
+                samples,
+                &grid,
+                settings.training_cost,
+                settings.training_significance as f64,
+            )
+        })
+        .collect();
 
     let mut probabilities = vec![
         if grid.may_turn_off {
@@ -392,44 +456,111 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         nodes
     ];
     let mut strengths = vec![settings.strength; nodes];
-    let mut relative_cost = vec![1.0f32; nodes];
-    for k in 0..nodes {
-        let Some(j) = chosen[k] else { continue };
-        let acc = &sums[k];
-        let (c, ks) = grid.at(j);
-        let guide_it = if !grid.may_turn_off || acc.bsdf_misses > 0 {
-            true
-        } else {
-            let n = acc.n as f64;
-            let mean_d = d_sums[k].0 / n;
-            let var_d = (d_sums[k].1 / n - mean_d * mean_d).max(0.0);
-            let mean2 = (acc.mean / n).powi(2);
-            let difference = mean_d - mean2 * (cost(acc, c) - cost(acc, 0.0));
-            difference + settings.training_significance as f64 * (var_d / n).sqrt() < 0.0
-        };
-        if guide_it {
+    for (k, choice) in choices.iter().enumerate() {
+        if let Some((c, ks)) = choice.guided {
             probabilities[k] = c;
             strengths[k] = grid.strengths[ks];
-            let (guided, unguided) = efficiency[k];
-            relative_cost[k] = if unguided > 0.0 && unguided.is_finite() {
-                (guided / unguided) as f32
-            } else {
-                0.0
-            };
         }
     }
     TrainingReport {
         probabilities,
         strengths,
-        samples: sums.iter().map(|s| s.n).collect(),
-        nonzero: sums.iter().map(|s| s.nonzero).collect(),
-        relative_cost,
-        best_ratio,
-        mean_remaining: sums
+        samples: by_node.iter().map(|s| s.len() as u32).collect(),
+        nonzero: by_node
             .iter()
-            .map(|s| s.remaining as f32 / s.n.max(1) as f32)
+            .map(|s| s.iter().filter(|s| s.carries()).count() as u32)
+            .collect(),
+        relative_cost: choices.iter().map(|c| c.relative_cost).collect(),
+        best_ratio: choices.iter().map(|c| c.best_ratio).collect(),
+        mean_remaining: by_node
+            .iter()
+            .map(|s| s.iter().map(|s| s.remaining as f32).sum::<f32>() / s.len().max(1) as f32)
             .collect(),
         paths,
+    }
+}
+
+/// The choice at one node from its training samples (module docs, "Choice"): the candidate of
+/// least variance x cost, kept with `c_skel=learned` only if it beats c = 0 by
+/// `significance` standard errors and the node had enough samples.
+fn choose_node(
+    samples: &[Sample],
+    grid: &Grid,
+    training_cost: TrainingCost,
+    significance: f64,
+) -> NodeChoice {
+    let not_guided = NodeChoice {
+        guided: None,
+        relative_cost: 1.0,
+        best_ratio: 1.0,
+    };
+    let carrying = samples.iter().filter(|s| s.carries()).count() as u32;
+    if (samples.len() as u32) < MIN_SAMPLES || carrying < MIN_NONZERO {
+        return not_guided;
+    }
+    let n = samples.len() as f64;
+    let rays = samples.iter().map(|s| s.rays as f64).sum::<f64>() / n;
+    let base = match training_cost {
+        TrainingCost::Vertex => 1.0,
+        TrainingCost::Path => {
+            (samples.iter().map(|s| s.remaining as f64).sum::<f64>() / n).max(1.0)
+        }
+    };
+    // Cost of a sample at the node, in unguided vertices.
+    let cost = |c: f32| {
+        if c <= 0.0 {
+            base
+        } else {
+            base + COST_GUIDED + COST_SHADOW_RAY * rays
+        }
+    };
+    // Candidate 0 is c = 0 (not guided); candidate j >= 1 is the grid's j - 1.
+    let candidate = |j: usize| if j == 0 { (0.0, 0) } else { grid.at(j - 1) };
+    let mut moments = vec![Moments::default(); grid.len() + 1];
+    for s in samples {
+        for (j, m) in moments.iter_mut().enumerate() {
+            let (c, k) = candidate(j);
+            m.add(s.terms(c, k));
+        }
+    }
+    let product = |j: usize| moments[j].variance(n) * cost(candidate(j).0);
+    let best = (1..=grid.len())
+        .min_by(|&a, &b| product(a).total_cmp(&product(b)))
+        .expect("at least one candidate");
+    let (guided, unguided) = (product(best), product(0));
+    let ratio = if unguided > 0.0 && unguided.is_finite() {
+        (guided / unguided) as f32
+    } else {
+        0.0
+    };
+    let guide_it = if !grid.may_turn_off || !unguided.is_finite() {
+        true
+    } else {
+        // The spread of d_i = cost(c*) m_i(c*) - cost(0) m_i(0), m_i a sample's
+        // second-moment term: the difference's dominant noise (the squared means are
+        // estimated far more precisely).
+        let (c, k) = candidate(best);
+        let (cost_c, cost_0) = (cost(c), cost(0.0));
+        let (mut sum, mut sum2) = (0.0f64, 0.0f64);
+        for s in samples {
+            let d = cost_c * s.terms(c, k).second - cost_0 * s.terms(0.0, 0).second;
+            sum += d;
+            sum2 += d * d;
+        }
+        let mean = sum / n;
+        let spread = ((sum2 / n - mean * mean).max(0.0) / n).sqrt();
+        guided - unguided + significance * spread < 0.0
+    };
+    if !guide_it {
+        return NodeChoice {
+            best_ratio: ratio,
+            ..not_guided
+        };
+    }
+    NodeChoice {
+        guided: Some(candidate(best)),
+        relative_cost: ratio,
+        best_ratio: ratio,
     }
 }
 
@@ -460,15 +591,13 @@ pub(crate) fn reweighted_second_moment(
 
 /// One vertex of a training path, kept until the radiance arriving there is known.
 struct TrainingVertex {
-    /// The sample, `f` still to be filled in; None at vertices that are not guided.
+    /// The sample, `f_reflected` still to be filled in; None at vertices that are not guided.
     sample: Option<Sample>,
     /// Path throughput up to this vertex, and f_s |cos| / q of its sampled direction.
     beta: Rgb,
     f_cos: Rgb,
     weight: Rgb,
-    /// Emitted radiance arriving along the sampled direction (L_e at the next vertex, or the
-    /// environment's), and one light sample reflected at the next vertex toward this one.
-    emitted: Rgb,
+    /// One light sample reflected at the next vertex toward this one (unweighted).
     direct: Rgb,
 }
 
@@ -476,7 +605,8 @@ struct TrainingVertex {
 /// guided vertices to `out`. The radiance arriving along a vertex's sampled direction is
 /// L_e(x') + R(x'), with R the reflected radiance the rest of the path estimates by next-event
 /// estimation alone: R(x_i) = NEE(x_i) + f_s |cos| / q (x_i) R(x_i+1) (no emission beyond the
-/// first, which NEE accounts for), computed backwards once the path ends.
+/// first, which NEE accounts for), computed backwards once the path ends. Each vertex's own
+/// light sample is also recorded with its sample (the same draw the previous vertex's R uses).
 fn train_path(
     guide: &SkeletonGuide,
     scene: &Scene,
@@ -489,6 +619,7 @@ fn train_path(
     let mut beta = Rgb::ONE;
     let depth = guide.settings().training_depth;
     let mut path: Vec<TrainingVertex> = Vec::with_capacity(depth as usize);
+    let mut own_light = light_sample(scene, &si, rng);
     for _ in 0..depth {
         let bsdf = scene.bsdf(&si);
         let frame = si.shading_frame();
@@ -499,12 +630,28 @@ fn train_path(
             rays = query.init(guide, scene, si.p, si.p_error, si.ng, si.wo);
         }
         let guided = query.guiding_probability() > 0.0;
+        let mut nee = NeeTerms::default();
+        if let (true, Some(l)) = (guided, &own_light) {
+            let value = luminance(beta * l.value);
+            if value.is_finite() && value > 0.0 {
+                nee = NeeTerms {
+                    value,
+                    p_light: l.p_light,
+                    p_bsdf: bsdf.pdf(wo_local, l.wi_local),
+                    p_skel: query.pdf(l.wi),
+                    p_strength: strength_pdfs(query, l.wi, strengths),
+                };
+            }
+        }
         let zero = Sample {
             node: query.node().unwrap_or(0),
-            f: 0.0,
+            f_emitted: 0.0,
+            f_reflected: 0.0,
             p_bsdf: 0.0,
             p_skel: 0.0,
             p_strength: [0.0; MAX_STRENGTHS],
+            p_light: 0.0,
+            nee,
             rays,
             remaining: 1,
         };
@@ -530,32 +677,28 @@ fn train_path(
         let f_cos = bs.f * bs.wi.z.abs();
         let weight = f_cos / bs.pdf;
         let next = scene.intersect(&si.spawn_ray(wi));
-        let (emitted, direct) = match &next {
-            Some(n) => (scene.emitted(n), direct_light(scene, n, rng)),
-            None => (
-                scene
-                    .environment()
-                    .map_or(Rgb::ZERO, |(_, env)| env.radiance(wi)),
-                Rgb::ZERO,
-            ),
-        };
+        let (emitted, p_light) = arriving_emission(scene, &si, wi, next.as_ref());
+        let next_light = next.as_ref().and_then(|n| light_sample(scene, n, rng));
+        let direct = next_light.as_ref().map_or(Rgb::ZERO, |l| l.value);
         path.push(TrainingVertex {
             sample: guided.then(|| {
-                let mut p_strength = [0.0; MAX_STRENGTHS];
-                for (p, &s) in p_strength.iter_mut().zip(strengths) {
-                    *p = query.pdf_with_strength(wi, s);
-                }
+                let f_emitted = luminance(beta * f_cos * emitted);
                 Sample {
+                    f_emitted: if f_emitted.is_finite() {
+                        f_emitted.max(0.0)
+                    } else {
+                        0.0
+                    },
                     p_bsdf: bsdf.pdf(wo_local, bs.wi),
                     p_skel: query.pdf(wi),
-                    p_strength,
+                    p_strength: strength_pdfs(query, wi, strengths),
+                    p_light,
                     ..zero
                 }
             }),
             beta,
             f_cos,
             weight,
-            emitted,
             direct,
         });
         beta *= weight;
@@ -564,16 +707,17 @@ fn train_path(
             break;
         }
         si = n;
+        own_light = next_light;
     }
     // Backwards. At vertex i: R(x_i+1) = NEE(x_i+1) + tail, tail = f_s |cos| / q (x_i+1)
-    // R(x_i+2) (zero beyond the last vertex sampled), and L = L_e(x_i+1) + R(x_i+1).
+    // R(x_i+2) (zero beyond the last vertex sampled).
     let mut tail = Rgb::ZERO;
     let len = path.len() as u32;
     for (i, v) in path.iter().enumerate().rev() {
         let reflected = v.direct + tail;
         if let Some(mut sample) = v.sample {
-            let f = luminance(v.beta * v.f_cos * (v.emitted + reflected));
-            sample.f = if f.is_finite() { f.max(0.0) } else { 0.0 };
+            let f = luminance(v.beta * v.f_cos * reflected);
+            sample.f_reflected = if f.is_finite() { f.max(0.0) } else { 0.0 };
             sample.remaining = len - i as u32;
             out.push(sample);
         }
@@ -584,17 +728,75 @@ fn train_path(
     }
 }
 
-/// One light sample at `si`, reflected toward `si.wo`, without MIS (an unbiased estimate of
-/// the direct light there); zero at delta BSDFs.
-fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Sampler) -> Rgb {
+/// The guide's density at `wi` under each candidate strength.
+fn strength_pdfs(
+    query: &GuideQuery,
+    wi: Vec3,
+    strengths: &[SkeletonStrength],
+) -> [f32; MAX_STRENGTHS] {
+    let mut p = [0.0; MAX_STRENGTHS];
+    for (p, &s) in p.iter_mut().zip(strengths) {
+        *p = query.pdf_with_strength(wi, s);
+    }
+    p
+}
+
+/// Emitted radiance arriving at `si` along `wi` (L_e of the next vertex `next`, or the
+/// environment's), and the density with which the render's light sampling at `si` draws
+/// that direction (pmf x pdf, as `path` weighs a BSDF-sampled hit; 0 if it is no light).
+fn arriving_emission(
+    scene: &Scene,
+    si: &SurfaceInteraction,
+    wi: Vec3,
+    next: Option<&SurfaceInteraction>,
+) -> (Rgb, f32) {
+    let pmf = |light: usize| scene.light_sampler().map_or(0.0, |s| s.pmf(light));
+    match next {
+        Some(n) => {
+            let le = scene.emitted(n);
+            if le == Rgb::ZERO {
+                return (le, 0.0);
+            }
+            let p_light = scene.triangle_light(n.triangle).map_or(0.0, |light| {
+                pmf(light) * scene.lights()[light].pdf_with(si.p, n.p, TriangleSampling::default())
+            });
+            (le, p_light)
+        }
+        None => match scene.environment() {
+            Some((index, env)) => {
+                let le = env.radiance(wi);
+                let pdf = env.pdf(EnvStrategy::default(), si.facing_normal(), wi);
+                (le, pmf(index) * pdf)
+            }
+            None => (Rgb::ZERO, 0.0),
+        },
+    }
+}
+
+/// One light sample at a vertex: its unweighted estimate of the reflected direct light
+/// (f_s |cos| L / p_light toward `si.wo`), its direction and its light density.
+struct LightSampleAt {
+    value: Rgb,
+    wi: Vec3,
+    wi_local: Vec3,
+    /// pmf x pdf; infinite for a delta light (MIS weight 1 against any direction density).
+    p_light: f32,
+}
+
+/// One light sample at `si` (None where it carries nothing: a delta BSDF, no light, occluded).
+fn light_sample(
+    scene: &Scene,
+    si: &SurfaceInteraction,
+    rng: &mut Sampler,
+) -> Option<LightSampleAt> {
     let bsdf = scene.bsdf(si);
     if bsdf.is_delta() {
-        return Rgb::ZERO;
+        return None;
     }
     let frame = si.shading_frame();
     let u = rng.uniform2();
     let wo_local = frame.to_local(si.wo);
-    let Some(t) = scene.sample_light_toward(
+    let t = scene.sample_light_toward(
         si,
         &frame,
         &bsdf,
@@ -602,16 +804,19 @@ fn direct_light(scene: &Scene, si: &SurfaceInteraction, rng: &mut Sampler) -> Rg
         EnvStrategy::default(),
         TriangleSampling::default(),
         u,
-    ) else {
-        return Rgb::ZERO;
-    };
+    )?;
     let (ls, pmf, f) = (t.sample, t.pmf, t.f_cos);
     if !(ls.pdf > 0.0) || !scene.unoccluded(si, &ls) {
-        return Rgb::ZERO;
+        return None;
     }
-    f * ls.radiance / (pmf * ls.pdf)
+    let p_light = pmf * ls.pdf;
+    Some(LightSampleAt {
+        value: f * ls.radiance / p_light,
+        wi: ls.wi,
+        wi_local: t.wi_local,
+        p_light: if ls.delta { f32::INFINITY } else { p_light },
+    })
 }
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -694,5 +899,115 @@ mod tests {
         );
         assert!(reweighted_second_moment(1.0, 0.0, 1.0, 2.0, 0.5).is_finite());
         assert_eq!(reweighted_second_moment(0.0, 0.0, 0.0, 0.0, 0.5), 0.0);
+    }
+
+    /// Synthetic training samples at one node: a cosine "BSDF" (albedo 1) around z, one
+    /// power-cosine lobe (strength 64) aimed at a small cone of directions (cos >= 0.99) from
+    /// which radiance 10 arrives, drawn from the training proposal q_c0. `light` says whether
+    /// that radiance is an emitter the render's light sampling draws uniformly in the cone
+    /// (with one light sample per vertex recorded), or light reflected there (R).
+    fn cone_node(light: bool, n: usize) -> Vec<Sample> {
+        let axis = Vec3::new(0.3, 0.0, 0.95).normalize();
+        let lobe = Frame::from_z(axis);
+        let (s0, cos_max, radiance) = (64.0, 0.99f32, 10.0f32);
+        let p_cone = warp::uniform_cone_pdf(Vec3::new(0.0, 0.0, 1.0), cos_max);
+        let p_skel = |w: Vec3| warp::power_cosine_pdf(lobe.to_local(w), s0);
+        let in_cone = |w: Vec3| w.dot(axis) >= cos_max;
+        let mut rng = Rng::new(11, 3);
+        (0..n)
+            .map(|_| {
+                let w = if rng.uniform() < TRAINING_C {
+                    lobe.to_world(warp::power_cosine(rng.uniform2(), s0))
+                } else {
+                    warp::cosine_hemisphere(rng.uniform2())
+                };
+                let f = if in_cone(w) && w.z > 0.0 {
+                    w.z / std::f32::consts::PI * radiance
+                } else {
+                    0.0
+                };
+                let nee = if light {
+                    let wl = lobe.to_world(warp::uniform_cone(rng.uniform2(), cos_max));
+                    NeeTerms {
+                        value: wl.z.max(0.0) / std::f32::consts::PI * radiance / p_cone,
+                        p_light: p_cone,
+                        p_bsdf: warp::cosine_hemisphere_pdf(wl),
+                        p_skel: p_skel(wl),
+                        p_strength: [p_skel(wl); MAX_STRENGTHS],
+                    }
+                } else {
+                    NeeTerms::default()
+                };
+                Sample {
+                    node: 0,
+                    f_emitted: if light { f } else { 0.0 },
+                    f_reflected: if light { 0.0 } else { f },
+                    p_bsdf: warp::cosine_hemisphere_pdf(w),
+                    p_skel: p_skel(w),
+                    p_strength: [p_skel(w); MAX_STRENGTHS],
+                    p_light: if light && f > 0.0 { p_cone } else { 0.0 },
+                    nee,
+                    rays: 1,
+                    remaining: 1,
+                }
+            })
+            .collect()
+    }
+
+    /// The choice judges the render's estimator: guiding toward light that next-event
+    /// estimation already samples well (MIS-weighted hits, the vertex's own light sample)
+    /// does not pay and is turned off; the same radiance arriving as reflected light, which
+    /// only direction sampling finds, is guided. Judged by the unweighted emission alone (the
+    /// proxy before round 7: no light density, no light sample), the first node would be
+    /// guided too.
+    #[test]
+    fn choice_does_not_guide_toward_light_that_light_sampling_covers() {
+        let grid = Grid {
+            c: CANDIDATES[1..].to_vec(),
+            strengths: vec![SkeletonStrength::Fixed(64.0)],
+            may_turn_off: true,
+        };
+        let choose = |samples: &[Sample]| choose_node(samples, &grid, TrainingCost::Path, 1.0);
+        let lit = cone_node(true, 20_000);
+        let covered = choose(&lit);
+        assert_eq!(covered.guided, None, "{covered:?}");
+        assert!(covered.best_ratio > 1.0, "{covered:?}");
+
+        let unweighted: Vec<Sample> = lit
+            .iter()
+            .map(|s| Sample {
+                p_light: 0.0,
+                nee: NeeTerms::default(),
+                ..*s
+            })
+            .collect();
+        let naive = choose(&unweighted);
+        assert!(matches!(naive.guided, Some((c, 0)) if c > 0.0), "{naive:?}");
+
+        let reflected = choose(&cone_node(false, 20_000));
+        assert!(
+            matches!(reflected.guided, Some((c, 0)) if c >= 0.5),
+            "{reflected:?}"
+        );
+        assert!(reflected.relative_cost < 0.2, "{reflected:?}");
+    }
+
+    /// Too few samples, or too few that carry anything: not guided, whatever they say.
+    #[test]
+    fn nodes_with_few_samples_are_not_guided() {
+        let grid = Grid {
+            c: CANDIDATES[1..].to_vec(),
+            strengths: vec![SkeletonStrength::Fixed(64.0)],
+            may_turn_off: true,
+        };
+        let few = cone_node(false, MIN_SAMPLES as usize - 1);
+        assert_eq!(
+            choose_node(&few, &grid, TrainingCost::Path, 1.0).guided,
+            None
+        );
+        let many = cone_node(false, 4 * MIN_SAMPLES as usize);
+        assert!(choose_node(&many, &grid, TrainingCost::Path, 1.0)
+            .guided
+            .is_some());
     }
 }
