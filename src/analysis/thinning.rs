@@ -44,9 +44,12 @@
 //! pairs, their closure L (which reaches the bricks one step forward), and runs the 18
 //! sub-steps on the bricks where L is not empty. Each sub-step first computes the pairs of
 //! every brick from the unchanged planes, then removes them; both passes write only the
-//! brick they process, so they run in parallel over bricks (rayon) with results identical to
-//! the sequential order (tested). Scratch planes are atomics with relaxed loads and stores:
-//! plain moves on x86-64, and no `unsafe`.
+//! brick they process, so they run in parallel over bricks with results identical to the
+//! sequential order (tested): during [`Thinning::run`] on the calling thread and one helper
+//! thread that stays for the whole run (`Duo`: a rayon fork/join per pass cost more than it
+//! saved, the sleeping worker's wake-up), elsewhere over the rayon pool. Scratch planes are
+//! atomics with relaxed loads and stores: plain moves on x86-64, and no `unsafe` in the
+//! passes (the only `unsafe` is the hand-over of a pass to the helper, see `Duo`).
 //!
 //! # Dates and the constraint (Definitions 6.1-6.3, Algorithm 3)
 //!
@@ -441,9 +444,11 @@ enum Work {
 /// iterations (thousands of bricks per pass) still split. Measured on the door and Sponza.
 const MIN_PARALLEL_WORK: usize = 2048;
 
-/// The same threshold for a pass shared with the helper of a run ([`Duo`]), which costs a
-/// few hundred nanoseconds (two cache lines crossing between the cores) rather than a wake-up.
-const MIN_SHARED_WORK: usize = 256;
+/// The same threshold for a pass shared with the helper of a run ([`Duo`]), which costs
+/// some hundreds of nanoseconds (cache lines crossing between the cores) rather than a
+/// wake-up. 256, 1024 and 2048 were tried on the door at 234 (round 7, loaded machine): 1024
+/// was as fast as 256 and no slower than 2048.
+const MIN_SHARED_WORK: usize = 1024;
 
 /// How the per-brick passes of a collapse are split over the rayon pool.
 #[derive(Clone, Copy, Debug)]
@@ -503,15 +508,42 @@ struct Duo {
 // job with a successful CAS POSTED -> IDLE, after which the helper cannot take it).
 unsafe impl Sync for Duo {}
 
-/// Polls with a short spin, then by yielding the core (a spin-wait on a loaded machine must
-/// not keep another thread, possibly the one it waits for, off the core).
-#[inline]
-fn back_off(spins: &mut u32) {
-    if *spins < 256 {
-        *spins += 1;
+/// Polls: spins for up to [`SPIN`], then yields the core at each poll. The sequential list
+/// work between two passes takes up to some tens of microseconds, so the helper normally
+/// spins through it; yielding at once instead would, on a loaded machine, hand the core to
+/// another task for a whole time slice. After the spin, a wait (say, for a helper that was
+/// preempted mid-chunk) yields so as not to keep the thread it waits for off the core.
+struct BackOff {
+    start: Option<std::time::Instant>,
+    polls: u32,
+    yielding: bool,
+}
+
+/// How long [`BackOff`] spins before it yields.
+const SPIN: std::time::Duration = std::time::Duration::from_micros(100);
+
+impl BackOff {
+    fn new() -> BackOff {
+        BackOff {
+            start: None,
+            polls: 0,
+            yielding: false,
+        }
+    }
+
+    #[inline]
+    fn wait(&mut self) {
+        if self.yielding {
+            std::thread::yield_now();
+            return;
+        }
+        // The clock is read every 64 polls (a read costs some 20 ns).
+        if self.polls % 64 == 0 {
+            let now = std::time::Instant::now();
+            self.yielding = now - *self.start.get_or_insert(now) > SPIN;
+        }
+        self.polls = self.polls.wrapping_add(1);
         std::hint::spin_loop();
-    } else {
-        std::thread::yield_now();
     }
 }
 
@@ -529,7 +561,7 @@ impl Duo {
         if *self.owner.lock().unwrap() == Some(std::thread::current().id()) {
             return;
         }
-        let mut spins = 0;
+        let mut back_off = BackOff::new();
         loop {
             match self.state.load(Acquire) {
                 POSTED => {
@@ -544,11 +576,11 @@ impl Duo {
                         let done = catch_unwind(AssertUnwindSafe(job)).is_ok();
                         self.state
                             .store(if done { DONE } else { PANICKED }, Release);
-                        spins = 0;
+                        back_off = BackOff::new();
                     }
                 }
                 SHUT_DOWN => return,
-                _ => back_off(&mut spins),
+                _ => back_off.wait(),
             }
         }
     }
@@ -577,7 +609,7 @@ impl Duo {
             .is_err()
         {
             // Taken: the helper is running its last chunks (or found none left).
-            let mut spins = 0;
+            let mut back_off = BackOff::new();
             loop {
                 match self.state.load(Acquire) {
                     DONE => break,
@@ -585,7 +617,7 @@ impl Duo {
                         helper_panicked = true;
                         break;
                     }
-                    _ => back_off(&mut spins),
+                    _ => back_off.wait(),
                 }
             }
             self.state.store(IDLE, Relaxed);
