@@ -508,10 +508,11 @@ struct Duo {
 // job with a successful CAS POSTED -> IDLE, after which the helper cannot take it).
 unsafe impl Sync for Duo {}
 
-/// Polls: spins for up to [`SPIN`], then yields the core at each poll. The sequential list
-/// work between two passes takes up to some tens of microseconds, so the helper normally
-/// spins through it; yielding at once instead would, on a loaded machine, hand the core to
-/// another task for a whole time slice. After the spin, a wait (say, for a helper that was
+/// Polls: spins for up to [`SPIN`], then yields the core at each poll. Between two shared
+/// passes lie the sequential list work (some tens of microseconds) and, late in a collapse,
+/// runs of passes too small to share (hundreds of microseconds), so the helper normally spins
+/// through them; a helper that yields hands its core to another task for a whole time slice on
+/// a loaded machine, and misses the next passes (100 µs was tried: slower at 234). After the spin, a wait (say, for a helper that was
 /// preempted mid-chunk) yields so as not to keep the thread it waits for off the core.
 struct BackOff {
     start: Option<std::time::Instant>,
@@ -520,7 +521,7 @@ struct BackOff {
 }
 
 /// How long [`BackOff`] spins before it yields.
-const SPIN: std::time::Duration = std::time::Duration::from_micros(100);
+const SPIN: std::time::Duration = std::time::Duration::from_micros(1000);
 
 impl BackOff {
     fn new() -> BackOff {
