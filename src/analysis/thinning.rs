@@ -44,9 +44,12 @@
 //! pairs, their closure L (which reaches the bricks one step forward), and runs the 18
 //! sub-steps on the bricks where L is not empty. Each sub-step first computes the pairs of
 //! every brick from the unchanged planes, then removes them; both passes write only the
-//! brick they process, so they run in parallel over bricks (rayon) with results identical to
-//! the sequential order (tested). Scratch planes are atomics with relaxed loads and stores:
-//! plain moves on x86-64, and no `unsafe`.
+//! brick they process, so they run in parallel over bricks with results identical to the
+//! sequential order (tested): during [`Thinning::run`] on the calling thread and one helper
+//! thread that stays for the whole run (`Duo`: a rayon fork/join per pass cost more than it
+//! saved, the sleeping worker's wake-up), elsewhere over the rayon pool. Scratch planes are
+//! atomics with relaxed loads and stores: plain moves on x86-64, and no `unsafe` in the
+//! passes (the only `unsafe` is the hand-over of a pass to the helper, see `Duo`).
 //!
 //! # Dates and the constraint (Definitions 6.1-6.3, Algorithm 3)
 //!
@@ -86,7 +89,11 @@
 //! as Bing's house) is pierced anyway; that raises b1 and is counted in
 //! [`ThinningStats::forced_pierces`].
 
-use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::cell::UnsafeCell;
+use std::panic::{catch_unwind, resume_unwind, AssertUnwindSafe};
+use std::sync::atomic::Ordering::Release;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering::Acquire, Ordering::Relaxed};
+use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
@@ -437,6 +444,12 @@ enum Work {
 /// iterations (thousands of bricks per pass) still split. Measured on the door and Sponza.
 const MIN_PARALLEL_WORK: usize = 2048;
 
+/// The same threshold for a pass shared with the helper of a run ([`Duo`]), which costs
+/// some hundreds of nanoseconds (cache lines crossing between the cores) rather than a
+/// wake-up. 256, 1024 and 2048 were tried on the door at 234 (round 7, loaded machine): 1024
+/// was as fast as 256 and no slower than 2048.
+const MIN_SHARED_WORK: usize = 1024;
+
 /// How the per-brick passes of a collapse are split over the rayon pool.
 #[derive(Clone, Copy, Debug)]
 enum Split {
@@ -451,6 +464,211 @@ enum Split {
     /// Fixed chunks of this many bricks, however little work the pass holds (tests: splits
     /// every list on small grids).
     Chunks(usize),
+}
+
+/// States of [`Duo::state`].
+const IDLE: u32 = 0;
+const POSTED: u32 = 1;
+const TAKEN: u32 = 2;
+const DONE: u32 = 3;
+const PANICKED: u32 = 4;
+const SHUT_DOWN: u32 = 5;
+
+/// The helper thread of a [`Thinning::run`]: one pool thread that stays with the collapse for
+/// the whole run and takes part in every split pass, instead of a rayon fork/join per pass.
+/// A pass follows some microseconds of sequential list work, after which a rayon worker has
+/// gone to sleep: waking it (an inter-processor interrupt on this KVM guest) cost about 10 µs
+/// per pass at the door's 234, more than half of a typical pass (BENCHMARKS.md, round 7). The
+/// helper instead polls (spin, then yield) between passes.
+///
+/// Never a hang: the calling thread never waits for work the helper has not taken. A pass is
+/// split into chunks that the caller claims from the front and the helper from the back of the
+/// list ([`claim`]); the caller, once the list is exhausted, withdraws the job if the helper has
+/// not taken it (then the caller did everything) and otherwise waits only for the chunks the
+/// helper is running, whose panics are caught and passed on to the caller. The helper returns
+/// when the run ends (also on a panic of the caller: [`ShutDownOnDrop`]); with one pool thread
+/// there is no helper.
+struct Duo {
+    /// IDLE (no job), POSTED (a job for the helper), TAKEN (the helper runs it), DONE or
+    /// PANICKED (it finished), SHUT_DOWN (the run is over).
+    state: AtomicU32,
+    /// The posted job, with its lifetime erased; read by the helper only between taking it
+    /// (POSTED -> TAKEN) and DONE/PANICKED, written by the caller only when IDLE.
+    job: UnsafeCell<Option<&'static (dyn Fn() + Sync)>>,
+    /// The thread that runs the collapse: if the pool ever hands the helper's task to it
+    /// (while it waits inside some rayon call), the task returns at once instead of serving
+    /// itself forever.
+    owner: Mutex<Option<std::thread::ThreadId>>,
+}
+
+// SAFETY: `job` is accessed under the protocol of `state` (see the field's comment): the
+// caller writes it only in IDLE, before the Release store of POSTED; the helper reads it only
+// after its Acquire CAS POSTED -> TAKEN and before its Release store of DONE/PANICKED, and the
+// caller does not write it again before reading DONE/PANICKED with Acquire (or withdrawing the
+// job with a successful CAS POSTED -> IDLE, after which the helper cannot take it).
+unsafe impl Sync for Duo {}
+
+/// Polls: spins for up to [`SPIN`], then yields the core at each poll. Between two shared
+/// passes lie the sequential list work (some tens of microseconds) and, late in a collapse,
+/// runs of passes too small to share (hundreds of microseconds), so the helper normally spins
+/// through them; a helper that yields hands its core to another task for a whole time slice on
+/// a loaded machine, and misses the next passes (100 µs was tried: slower at 234). After the spin, a wait (say, for a helper that was
+/// preempted mid-chunk) yields so as not to keep the thread it waits for off the core.
+struct BackOff {
+    start: Option<std::time::Instant>,
+    polls: u32,
+    yielding: bool,
+}
+
+/// How long [`BackOff`] spins before it yields.
+const SPIN: std::time::Duration = std::time::Duration::from_micros(1000);
+
+impl BackOff {
+    fn new() -> BackOff {
+        BackOff {
+            start: None,
+            polls: 0,
+            yielding: false,
+        }
+    }
+
+    #[inline]
+    fn wait(&mut self) {
+        if self.yielding {
+            std::thread::yield_now();
+            return;
+        }
+        // The clock is read every 64 polls (a read costs some 20 ns).
+        if self.polls % 64 == 0 {
+            let now = std::time::Instant::now();
+            self.yielding = now - *self.start.get_or_insert(now) > SPIN;
+        }
+        self.polls = self.polls.wrapping_add(1);
+        std::hint::spin_loop();
+    }
+}
+
+impl Duo {
+    fn new() -> Duo {
+        Duo {
+            state: AtomicU32::new(IDLE),
+            job: UnsafeCell::new(None),
+            owner: Mutex::new(None),
+        }
+    }
+
+    /// The helper's loop: runs posted jobs until the run shuts it down.
+    fn serve(&self) {
+        if *self.owner.lock().unwrap() == Some(std::thread::current().id()) {
+            return;
+        }
+        let mut back_off = BackOff::new();
+        loop {
+            match self.state.load(Acquire) {
+                POSTED => {
+                    if self
+                        .state
+                        .compare_exchange(POSTED, TAKEN, Acquire, Relaxed)
+                        .is_ok()
+                    {
+                        // SAFETY: TAKEN, so the caller keeps the job alive and does not
+                        // write `job` until it reads DONE or PANICKED (see `Sync for Duo`).
+                        let job = unsafe { (*self.job.get()).expect("posted job") };
+                        let done = catch_unwind(AssertUnwindSafe(job)).is_ok();
+                        self.state
+                            .store(if done { DONE } else { PANICKED }, Release);
+                        back_off = BackOff::new();
+                    }
+                }
+                SHUT_DOWN => return,
+                _ => back_off.wait(),
+            }
+        }
+    }
+
+    /// Runs `mine` on the calling thread while the helper (if it is serving) runs `helper`;
+    /// returns when both are done. `mine` must itself finish the work the helper does not
+    /// take (both claim from one list, see [`claim`]).
+    fn run_pair(&self, helper: &(dyn Fn() + Sync), mine: impl FnOnce()) {
+        debug_assert_eq!(self.state.load(Relaxed), IDLE);
+        // SAFETY: only the lifetime is erased. The state is IDLE, so the helper does not read
+        // `job`; it may read it from the POSTED store below until this function has seen
+        // DONE/PANICKED or withdrawn the job, and this function returns (or unwinds, the
+        // caller's panic being caught below) only after that, while `helper` is alive.
+        unsafe {
+            *self.job.get() = Some(std::mem::transmute::<
+                &(dyn Fn() + Sync),
+                &'static (dyn Fn() + Sync),
+            >(helper));
+        }
+        self.state.store(POSTED, Release);
+        let mine = catch_unwind(AssertUnwindSafe(mine));
+        let mut helper_panicked = false;
+        if self
+            .state
+            .compare_exchange(POSTED, IDLE, Relaxed, Relaxed)
+            .is_err()
+        {
+            // Taken: the helper is running its last chunks (or found none left).
+            let mut back_off = BackOff::new();
+            loop {
+                match self.state.load(Acquire) {
+                    DONE => break,
+                    PANICKED => {
+                        helper_panicked = true;
+                        break;
+                    }
+                    _ => back_off.wait(),
+                }
+            }
+            self.state.store(IDLE, Relaxed);
+        }
+        if let Err(panic) = mine {
+            resume_unwind(panic);
+        }
+        assert!(
+            !helper_panicked,
+            "a thinning pass panicked on the helper thread"
+        );
+    }
+}
+
+/// Shuts the helper down when the run ends, also when the caller unwinds.
+struct ShutDownOnDrop<'d>(&'d Duo);
+
+impl Drop for ShutDownOnDrop<'_> {
+    fn drop(&mut self) {
+        self.0.state.store(SHUT_DOWN, Release);
+    }
+}
+
+/// Claims the next chunk of a pass from the front (the caller) or the back (the helper) of the
+/// unclaimed range `lo..hi` packed as lo | hi << 32: a quarter of what is left, at least
+/// `min`. Each thread so works on a contiguous part of the (sorted) brick list, a slab of the
+/// grid, and the two meet wherever the work balances.
+fn claim(range: &AtomicU64, min: u32, front: bool) -> Option<(usize, usize)> {
+    let mut current = range.load(Relaxed);
+    loop {
+        let (lo, hi) = (current as u32, (current >> 32) as u32);
+        if lo >= hi {
+            return None;
+        }
+        let take = ((hi - lo) / 4).max(min).min(hi - lo);
+        let (a, b) = if front {
+            (lo, lo + take)
+        } else {
+            (hi - take, hi)
+        };
+        let next = if front {
+            (lo + take) as u64 | (hi as u64) << 32
+        } else {
+            lo as u64 | ((hi - take) as u64) << 32
+        };
+        match range.compare_exchange_weak(current, next, Relaxed, Relaxed) {
+            Ok(_) => return Some((a as usize, b as usize)),
+            Err(now) => current = now,
+        }
+    }
 }
 
 /// A born edge waiting for the iteration at which the constraint catches it.
@@ -497,6 +715,15 @@ pub struct Thinning<'a> {
     /// Work (brick visits weighted by [`Work`]) below which a pass runs on the calling
     /// thread.
     min_parallel_work: usize,
+    /// The helper of [`Thinning::run`] (with [`Split::PerThread`]), whether it is serving
+    /// (during a run), and the work below which a pass is not shared with it.
+    duo: Arc<Duo>,
+    serving: bool,
+    min_shared_work: usize,
+    /// Smallest chunk a thread claims in a shared pass (0: by the pass's [`Work`]).
+    min_claim: u32,
+    /// Chunks the helper ran (tests: the helper did take part).
+    helper_chunks: AtomicU64,
     pub stats: ThinningStats,
 }
 
@@ -635,6 +862,11 @@ impl<'a> Thinning<'a> {
                 Split::Sequential
             },
             min_parallel_work: MIN_PARALLEL_WORK,
+            duo: Arc::new(Duo::new()),
+            serving: false,
+            min_shared_work: MIN_SHARED_WORK,
+            min_claim: 0,
+            helper_chunks: AtomicU64::new(0),
             stats: ThinningStats::default(),
         }
     }
@@ -668,6 +900,8 @@ impl<'a> Thinning<'a> {
     fn split_every_pass_per_thread(&mut self) {
         self.split = Split::PerThread;
         self.min_parallel_work = 0;
+        self.min_shared_work = 0;
+        self.min_claim = 1;
     }
 
     /// Whether a pass of `work` over `len` bricks is split into parallel tasks.
@@ -688,26 +922,88 @@ impl<'a> Thinning<'a> {
         }
     }
 
-    /// Runs `f` on every brick of the list, in parallel chunks if enabled and worth it.
-    fn for_each(&self, list: &[u32], work: Work, f: impl Fn(usize) + Sync) {
-        if self.split(list.len(), work) {
-            list.par_chunks(self.chunk_for(list.len()))
-                .for_each(|c| c.iter().for_each(|&b| f(b as usize)));
-        } else {
-            list.iter().for_each(|&b| f(b as usize));
+    /// Runs `f` on chunks of the list (each call appends the outputs of its bricks, in list
+    /// order) and returns all outputs in list order: shared with the helper during a run (if
+    /// worth it), split over the pool outside a run (if enabled and worth it), or on the
+    /// calling thread.
+    fn chunked<T: Send>(
+        &self,
+        list: &[u32],
+        work: Work,
+        f: impl Fn(&[u32], &mut Vec<T>) + Sync,
+    ) -> Vec<T> {
+        if self.serving {
+            if list.len() > 1 && list.len() * work as usize >= self.min_shared_work {
+                return self.shared_with_helper(list, work, &f);
+            }
+        } else if self.split(list.len(), work) {
+            return list
+                .par_chunks(self.chunk_for(list.len()))
+                .map(|c| {
+                    let mut out = Vec::new();
+                    f(c, &mut out);
+                    out
+                })
+                .collect::<Vec<Vec<T>>>()
+                .into_iter()
+                .flatten()
+                .collect();
         }
+        let mut out = Vec::new();
+        f(list, &mut out);
+        out
+    }
+
+    /// [`Thinning::chunked`] on the calling thread and the helper: the caller claims chunks
+    /// from the front of the list, the helper from the back ([`claim`]).
+    fn shared_with_helper<T: Send>(
+        &self,
+        list: &[u32],
+        work: Work,
+        f: &(impl Fn(&[u32], &mut Vec<T>) + Sync),
+    ) -> Vec<T> {
+        let min = match (self.min_claim, work) {
+            (0, Work::Light) => 32,
+            (0, Work::Heavy) => 8,
+            (min, _) => min,
+        };
+        let range = AtomicU64::new((list.len() as u64) << 32);
+        // The helper's outputs and where each of its chunks starts in them.
+        let theirs: Mutex<(Vec<T>, Vec<usize>)> = Mutex::new((Vec::new(), Vec::new()));
+        let helper = || {
+            let (mut out, mut starts) = (Vec::new(), Vec::new());
+            while let Some((a, b)) = claim(&range, min, false) {
+                starts.push(out.len());
+                f(&list[a..b], &mut out);
+                self.helper_chunks.fetch_add(1, Relaxed);
+            }
+            *theirs.lock().unwrap() = (out, starts);
+        };
+        let mut mine = Vec::new();
+        self.duo.run_pair(&helper, || {
+            while let Some((a, b)) = claim(&range, min, true) {
+                f(&list[a..b], &mut mine);
+            }
+        });
+        // The helper claimed its chunks from the back: append them last claimed first.
+        let (mut out, starts) = theirs.into_inner().unwrap();
+        mine.reserve(out.len());
+        for &start in starts.iter().rev() {
+            mine.extend(out.drain(start..));
+        }
+        mine
+    }
+
+    /// Runs `f` on every brick of the list (see [`Thinning::chunked`]).
+    fn for_each(&self, list: &[u32], work: Work, f: impl Fn(usize) + Sync) {
+        self.chunked::<()>(list, work, |c, _| c.iter().for_each(|&b| f(b as usize)));
     }
 
     /// The bricks of the list for which `keep` holds, in list order.
     fn filter(&self, list: &[u32], work: Work, keep: impl Fn(usize) -> bool + Sync) -> Vec<u32> {
-        if self.split(list.len(), work) {
-            list.par_chunks(self.chunk_for(list.len()))
-                .map(|c| c.iter().copied().filter(|&b| keep(b as usize)).collect())
-                .collect::<Vec<Vec<u32>>>()
-                .concat()
-        } else {
-            list.iter().copied().filter(|&b| keep(b as usize)).collect()
-        }
+        self.chunked(list, work, |c, out| {
+            out.extend(c.iter().copied().filter(|&b| keep(b as usize)))
+        })
     }
 
     /// The real bricks of `list` shifted by each of `offsets`, without duplicates, in
@@ -902,8 +1198,7 @@ impl<'a> Thinning<'a> {
     fn births(&mut self, list: &[u32], date: u32, now: u32) {
         let (cells, born, step) = (&self.cells, &self.born, self.layout.step);
         let found: Vec<(u32, u8, u64)> = {
-            let scan = |c: &[u32]| {
-                let mut out = Vec::new();
+            let scan = |c: &[u32], out: &mut Vec<(u32, u8, u64)>| {
                 for &b in c {
                     let b = b as usize;
                     for axis in 0..3 {
@@ -922,16 +1217,8 @@ impl<'a> Thinning<'a> {
                         }
                     }
                 }
-                out
             };
-            if self.split(list.len(), Work::Heavy) {
-                list.par_chunks(self.chunk_for(list.len()))
-                    .map(scan)
-                    .collect::<Vec<_>>()
-                    .concat()
-            } else {
-                scan(list)
-            }
+            self.chunked(list, Work::Heavy, scan)
         };
         for (b, axis, new) in found {
             let (b, axis) = (b as usize, axis as usize);
@@ -1069,29 +1356,23 @@ impl<'a> Thinning<'a> {
         }
         // Per span (edges to cubes): the bricks holding present cells of that span in L.
         let cells = &self.cells;
-        let bucket = |c: &[u32]| {
-            let mut lists: [Vec<u32>; 8] = Default::default();
+        let spans_in_l = self.chunked(&closure, Work::Light, |c, out: &mut Vec<(u32, u8)>| {
             for &b in c {
+                let mut spans = 0u8;
                 for f in 1..8 {
                     if border.get(b as usize, f) & cells.get(b as usize, f) != 0 {
-                        lists[f].push(b);
+                        spans |= 1 << f;
                     }
                 }
+                if spans != 0 {
+                    out.push((b, spans));
+                }
             }
-            lists
-        };
-        let parts: Vec<[Vec<u32>; 8]> = if self.split(closure.len(), Work::Light) {
-            closure
-                .par_chunks(self.chunk_for(closure.len()))
-                .map(bucket)
-                .collect()
-        } else {
-            vec![bucket(&closure)]
-        };
+        });
         let mut in_l: [Vec<u32>; 8] = Default::default();
-        for (f, list) in in_l.iter_mut().enumerate() {
-            for p in &parts {
-                list.extend_from_slice(&p[f]);
+        for &(b, spans) in &spans_in_l {
+            for f in bits(spans as u64) {
+                in_l[f as usize].push(b);
             }
         }
 
@@ -1279,9 +1560,27 @@ impl<'a> Thinning<'a> {
     }
 
     /// Runs Algorithm 2 until no unconstrained free pair is left. Returns the iterations run.
+    ///
+    /// With [`Split::PerThread`] the run keeps one helper thread of the pool ([`Duo`]) for
+    /// its passes; the helper may start late or never (a busy pool) without changing the
+    /// result or blocking the run.
     pub fn run(&mut self, mut observer: Observer<'_, '_>) -> u32 {
         let start = self.iteration;
-        while self.iterate(observer.as_deref_mut()) {}
+        if matches!(self.split, Split::PerThread) && !self.serving {
+            let duo = Arc::clone(&self.duo);
+            duo.state.store(IDLE, Relaxed);
+            *duo.owner.lock().unwrap() = Some(std::thread::current().id());
+            rayon::in_place_scope(|scope| {
+                let helper = Arc::clone(&duo);
+                scope.spawn(move |_| helper.serve());
+                let _shut_down = ShutDownOnDrop(&duo);
+                self.serving = true;
+                while self.iterate(observer.as_deref_mut()) {}
+                self.serving = false;
+            });
+        } else {
+            while self.iterate(observer.as_deref_mut()) {}
+        }
         self.iteration - start
     }
 
@@ -1877,6 +2176,66 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The runs' helper thread ([`Duo`]) with every pass shared and one-brick claims gives the
+    /// sequential collapse after every sub-step, through the piercing, with the same dates,
+    /// W and statistics, in pools of 1, 2 and 3 threads (with 1, the helper's task only runs
+    /// after the run, on the same thread, and returns at once).
+    #[test]
+    fn shared_passes_equal_sequential() {
+        let mut rng = Rng::new(17, 3);
+        let mut helped = 0;
+        for case in 0..12 {
+            let dims = [10 + case % 7, 9 + (case * 5) % 6, 8 + (case * 3) % 5];
+            let occ = random_occupied(dims, [0.2f32, 0.35][case % 2], &mut rng);
+            let cx = Complex::from_occupied(dims, &occ);
+            let (d1, dc) = maps(dims, &occ);
+            let priority: Vec<u32> = (0..d1.len() as u32)
+                .map(|i| i.wrapping_mul(2_654_435_761))
+                .collect();
+            let constraint = Constraint::Lifespan {
+                distance: &d1,
+                decenterness: &dc,
+            };
+            let mut seq = Thinning::new(cx.clone(), constraint, false, true);
+            let mut steps = Vec::new();
+            seq.curvilinear(
+                Some(&priority),
+                Some(&mut |c, s| steps.push((c.bytes().to_vec(), s))),
+            );
+            for threads in 1..=3 {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let mut shared = Thinning::new(cx.clone(), constraint, true, true);
+                shared.split_every_pass_per_thread();
+                let mut k = 0;
+                pool.install(|| {
+                    shared.curvilinear(
+                        Some(&priority),
+                        Some(&mut |c, s| {
+                            assert_eq!(
+                                (c.bytes(), s),
+                                (&steps[k].0[..], steps[k].1),
+                                "case {case}, {threads} threads, step {k}"
+                            );
+                            k += 1;
+                        }),
+                    )
+                });
+                assert_eq!(k, steps.len());
+                assert_eq!(shared.stats, seq.stats);
+                assert_eq!(shared.inhibited(), seq.inhibited());
+                assert_eq!(shared.birth, seq.birth);
+                assert_eq!(shared.death, seq.death);
+                if threads > 1 {
+                    helped += shared.helper_chunks.load(Relaxed);
+                }
+            }
+        }
+        assert!(helped > 0, "the helper never took part");
     }
 
     #[test]
