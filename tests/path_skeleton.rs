@@ -342,6 +342,80 @@ fn queries_drop_lobes_below_the_surface_and_hidden_importance_points() {
     }
 }
 
+/// `visibility=voxel`: the cached answers of a voxel are the direct ones (shadow rays from the
+/// centre of the empty voxel the point maps to), an answer is traced once, and the query
+/// keeps exactly the lobes whose target is above the surface and, by those answers, seen
+/// (the opening first, else the importance point, as without the cache).
+#[test]
+fn voxel_visibility_cache_gives_the_direct_answers() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let settings = SkeletonGuideSettings {
+        voxel_visibility: true,
+        aim: LobeAim::Opening,
+        ..Default::default()
+    };
+    let guide = guide_of(&scene, settings);
+    let (mut guided, mut hidden) = (0, 0);
+    let mut q = GuideQuery::new();
+    for (p, p_error, ng, wo) in surface_points(&scene, 3000, 17) {
+        q.init(&guide, &scene, p, p_error, ng, wo);
+        let Some((node, voxel)) = guide.map_point_voxel(p, ng, wo) else {
+            assert_eq!((q.node(), q.guiding_probability()), (None, 0.0));
+            continue;
+        };
+        assert_eq!(q.node(), Some(node));
+        assert_eq!(guide.map_point(p, ng, wo), Some(node));
+        // The direct answers, from the voxel's centre.
+        let centre = guide.grid().voxel_center(voxel);
+        let sees = |target: Vec3| {
+            let d = target - centre;
+            d.length() == 0.0
+                || !scene.occluded(&lacuna::geometry::Ray::new(
+                    centre,
+                    d.normalize(),
+                    d.length() * (1.0 - lacuna::geometry::SHADOW_EPSILON),
+                ))
+        };
+        let side = if ng.dot(wo) >= 0.0 { ng } else { -ng };
+        let above = |target: Vec3| (target - p).normalize().dot(side) > 0.0;
+        let mut expected = Vec::new();
+        for (j, lobe) in guide.lobes(node).iter().enumerate() {
+            for (t, target) in [(2 * j as u32, lobe.opening), (2 * j as u32 + 1, lobe.point)] {
+                assert_eq!(guide.voxel_sees_direct(&scene, voxel, t), sees(target));
+                // Cached by now, or traced (once) here.
+                let (cached, _) = guide.voxel_sees(&scene, voxel, t);
+                assert_eq!(cached, sees(target), "lobe {j}");
+                assert_eq!(guide.voxel_sees(&scene, voxel, t), (cached, 0));
+            }
+            let target = if lobe.has_opening() && above(lobe.opening) && sees(lobe.opening) {
+                lobe.opening
+            } else if above(lobe.point) && sees(lobe.point) {
+                lobe.point
+            } else {
+                hidden += 1;
+                continue;
+            };
+            let axis = (target - p).normalize();
+            if !expected.iter().any(|a: &Vec3| (*a - axis).length() < 1e-6) {
+                expected.push(axis);
+            }
+        }
+        // Lobes toward the same target are merged into one.
+        let found: Vec<Vec3> = (0..q.lobe_count()).map(|i| q.lobe(i).unwrap().0).collect();
+        for axis in &found {
+            assert!(
+                expected.iter().any(|a| (*a - *axis).length() < 1e-5),
+                "at {p}: lobe {axis} not expected in {expected:?}"
+            );
+        }
+        for axis in &expected {
+            assert!(found.iter().any(|a| (*a - *axis).length() < 1e-5), "at {p}");
+        }
+        guided += (!found.is_empty()) as u32;
+    }
+    assert!(guided > 100 && hidden > 0, "{guided} {hidden}");
+}
+
 /// With `aim=opening` each lobe aims at its path's opening where the point sees it (above the
 /// surface, unoccluded), else at its importance point where the point sees that, else is
 /// dropped: the per-point rule, decided before sampling, on the Veach door.
@@ -674,6 +748,7 @@ fn path_skeleton_agrees_with_path_on_the_veach_door() {
             "path_skeleton",
             "path_skeleton:strength=auto:16:visibility=false",
             "path_skeleton:aim=portal:c_skel=0.9",
+            "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel",
         ],
     );
 }
