@@ -611,6 +611,18 @@ const NEIGHBOUR_OFFSETS: [[i64; 3]; 27] = {
     offsets
 };
 
+/// [`NEIGHBOUR_OFFSETS`] in f32.
+const NEIGHBOUR_OFFSETS_F32: [Vec3; 27] = {
+    let mut offsets = [Vec3::ZERO; 27];
+    let mut bit = 0;
+    while bit < 27 {
+        let d = NEIGHBOUR_OFFSETS[bit];
+        offsets[bit] = Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32);
+        bit += 1;
+    }
+    offsets
+};
+
 /// The voxel of [`map_point`], visiting a neighbourhood through its mask where `masks` has
 /// one (centre inside the grid), else testing each neighbour.
 fn map_point_with(
@@ -634,13 +646,15 @@ fn map_point_with(
     let inside = |v: [i64; 3]| (0..3).all(|a| v[a] >= 0 && v[a] < dims[a] as i64);
     // Best mapped voxel of the 26-neighbourhood of `centre`, scored by the cosine from v_x.
     let search = |centre: [i64; 3], facing_only: bool| -> Option<usize> {
-        let mut best: Option<(f32, f32, [i64; 3])> = None;
-        let mut consider = |v: [i64; 3]| {
-            let off = Vec3::new(
-                (v[0] - vx[0]) as f32,
-                (v[1] - vx[1]) as f32,
-                (v[2] - vx[2]) as f32,
-            );
+        let mut best: Option<(f32, f32, usize)> = None;
+        // v − v_x = (centre − v_x) + d: small integers, exact in f32 either way.
+        let base = Vec3::new(
+            (centre[0] - vx[0]) as f32,
+            (centre[1] - vx[1]) as f32,
+            (centre[2] - vx[2]) as f32,
+        );
+        let mut consider = |bit: usize| {
+            let off = base + NEIGHBOUR_OFFSETS_F32[bit];
             // The sign of the score without the division (len > 0 where it is not 0).
             if facing_only && off.dot(n) <= 0.0 {
                 return;
@@ -659,7 +673,7 @@ fn map_point_with(
                 Some((s, t, _)) => score > s + 1e-4 || (score > s - 1e-4 && towards > t + 1e-4),
             };
             if better {
-                best = Some((score, towards, v));
+                best = Some((score, towards, bit));
             }
         };
         match masks {
@@ -667,30 +681,28 @@ fn map_point_with(
                 let mut mask =
                     masks[grid.index(centre[0] as usize, centre[1] as usize, centre[2] as usize)];
                 while mask != 0 {
-                    let d = NEIGHBOUR_OFFSETS[mask.trailing_zeros() as usize];
+                    let bit = mask.trailing_zeros() as usize;
                     mask &= mask - 1;
-                    consider([centre[0] + d[0], centre[1] + d[1], centre[2] + d[2]]);
+                    consider(bit);
                 }
             }
             _ => {
-                for dz in -1..=1i64 {
-                    for dy in -1..=1i64 {
-                        for dx in -1..=1i64 {
-                            let v = [centre[0] + dx, centre[1] + dy, centre[2] + dz];
-                            if !inside(v) {
-                                continue;
-                            }
-                            let k = grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
-                            if map[k] == UNDEFINED_NODE {
-                                continue;
-                            }
-                            consider(v);
-                        }
+                for (bit, d) in NEIGHBOUR_OFFSETS.iter().enumerate() {
+                    let v = [centre[0] + d[0], centre[1] + d[1], centre[2] + d[2]];
+                    if inside(v)
+                        && map[grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
+                            != UNDEFINED_NODE
+                    {
+                        consider(bit);
                     }
                 }
             }
         }
-        best.map(|(_, _, v)| grid.index(v[0] as usize, v[1] as usize, v[2] as usize))
+        best.map(|(_, _, bit)| {
+            let d = NEIGHBOUR_OFFSETS[bit];
+            let v = [centre[0] + d[0], centre[1] + d[1], centre[2] + d[2]];
+            grid.index(v[0] as usize, v[1] as usize, v[2] as usize)
+        })
     };
     // Eq. 154 restricted to the side n⁺ faces; a wall thicker than one voxel (corners, the
     // conservative voxelization) may hide that side, so then look further along n⁺, and only
