@@ -421,6 +421,9 @@ fn voxel_visibility_cache_gives_the_direct_answers() {
 /// where p sees it (the portal's rectangle with `aim=portal`, a round lobe as wide as the
 /// opening otherwise), else the importance point where p sees it, else no lobe; one shadow
 /// ray from p per lobe and target, probabilities renormalised over the lobes kept.
+/// A lobe's solid-angle density, written out.
+type LobeDensity = Box<dyn Fn(Vec3) -> f32>;
+
 #[test]
 fn merged_query_lobes_are_the_mixture_written_out() {
     let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
@@ -457,7 +460,7 @@ fn merged_query_lobes_are_the_mixture_written_out() {
                 (!scene.occluded(&ray)).then_some((axis, distance))
             };
             // (probability, density) of each lobe kept.
-            let mut lobes: Vec<(f32, Box<dyn Fn(Vec3) -> f32>)> = Vec::new();
+            let mut lobes: Vec<(f32, LobeDensity)> = Vec::new();
             for lobe in guide.lobes(node) {
                 let opening = lobe.has_opening().then(|| seen(lobe.opening)).flatten();
                 let rect = opening.and(lobe.portal).and_then(|r| {
