@@ -1869,6 +1869,12 @@ mod tests {
         s.set("aim", "portal").unwrap();
         assert_eq!(s.aim, LobeAim::Portal);
         assert!(s.set("aim", "rectangle").is_err());
+        s.set("visibility", "voxel").unwrap();
+        assert!(s.visibility_test && s.voxel_visibility);
+        s.set("visibility", "false").unwrap();
+        assert!(!s.visibility_test && !s.voxel_visibility);
+        s.set("visibility", "true").unwrap();
+        assert!(s.visibility_test && !s.voxel_visibility);
     }
 
     #[test]
