@@ -342,6 +342,183 @@ fn queries_drop_lobes_below_the_surface_and_hidden_importance_points() {
     }
 }
 
+/// `visibility=voxel`: the cached answers of a voxel are the direct ones (shadow rays from the
+/// centre of the empty voxel the point maps to), an answer is traced once, and the query
+/// keeps exactly the lobes whose target is above the surface and, by those answers, seen
+/// (the opening first, else the importance point, as without the cache).
+#[test]
+fn voxel_visibility_cache_gives_the_direct_answers() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let settings = SkeletonGuideSettings {
+        voxel_visibility: true,
+        aim: LobeAim::Opening,
+        ..Default::default()
+    };
+    let guide = guide_of(&scene, settings);
+    let (mut guided, mut hidden) = (0, 0);
+    let mut q = GuideQuery::new();
+    for (p, p_error, ng, wo) in surface_points(&scene, 3000, 17) {
+        q.init(&guide, &scene, p, p_error, ng, wo);
+        let Some((node, voxel)) = guide.map_point_voxel(p, ng, wo) else {
+            assert_eq!((q.node(), q.guiding_probability()), (None, 0.0));
+            continue;
+        };
+        assert_eq!(q.node(), Some(node));
+        assert_eq!(guide.map_point(p, ng, wo), Some(node));
+        // The direct answers, from the voxel's centre.
+        let centre = guide.grid().voxel_center(voxel);
+        let sees = |target: Vec3| {
+            let d = target - centre;
+            d.length() == 0.0
+                || !scene.occluded(&lacuna::geometry::Ray::new(
+                    centre,
+                    d.normalize(),
+                    d.length() * (1.0 - lacuna::geometry::SHADOW_EPSILON),
+                ))
+        };
+        let side = if ng.dot(wo) >= 0.0 { ng } else { -ng };
+        let above = |target: Vec3| (target - p).normalize().dot(side) > 0.0;
+        let mut expected = Vec::new();
+        for (j, lobe) in guide.lobes(node).iter().enumerate() {
+            for (t, target) in [(2 * j as u32, lobe.opening), (2 * j as u32 + 1, lobe.point)] {
+                assert_eq!(guide.voxel_sees_direct(&scene, voxel, t), sees(target));
+                // Cached by now, or traced (once) here.
+                let (cached, _) = guide.voxel_sees(&scene, voxel, t);
+                assert_eq!(cached, sees(target), "lobe {j}");
+                assert_eq!(guide.voxel_sees(&scene, voxel, t), (cached, 0));
+            }
+            let target = if lobe.has_opening() && above(lobe.opening) && sees(lobe.opening) {
+                lobe.opening
+            } else if above(lobe.point) && sees(lobe.point) {
+                lobe.point
+            } else {
+                hidden += 1;
+                continue;
+            };
+            let axis = (target - p).normalize();
+            if !expected.iter().any(|a: &Vec3| (*a - axis).length() < 1e-6) {
+                expected.push(axis);
+            }
+        }
+        // Lobes toward the same target are merged into one.
+        let found: Vec<Vec3> = (0..q.lobe_count()).map(|i| q.lobe(i).unwrap().0).collect();
+        for axis in &found {
+            assert!(
+                expected.iter().any(|a| (*a - *axis).length() < 1e-5),
+                "at {p}: lobe {axis} not expected in {expected:?}"
+            );
+        }
+        for axis in &expected {
+            assert!(found.iter().any(|a| (*a - *axis).length() < 1e-5), "at {p}");
+        }
+        guided += (!found.is_empty()) as u32;
+    }
+    assert!(guided > 100 && hidden > 0, "{guided} {hidden}");
+}
+
+/// The query's mixture, with its shared shadow rays and merged lobes, is the mixture written
+/// out lobe by lobe from the guide's lobes (module docs of `guide::skeleton`): the opening
+/// where p sees it (the portal's rectangle with `aim=portal`, a round lobe as wide as the
+/// opening otherwise), else the importance point where p sees it, else no lobe; one shadow
+/// ray from p per lobe and target, probabilities renormalised over the lobes kept.
+/// A lobe's solid-angle density, written out.
+type LobeDensity = Box<dyn Fn(Vec3) -> f32>;
+
+#[test]
+fn merged_query_lobes_are_the_mixture_written_out() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    for aim in [LobeAim::Portal, LobeAim::Opening] {
+        let guide = guide_of(
+            &scene,
+            SkeletonGuideSettings {
+                aim,
+                ..Default::default()
+            },
+        );
+        let strength = guide.settings().strength;
+        let mut q = GuideQuery::new();
+        let mut rng = Rng::new(5, 9);
+        let (mut compared, mut merged) = (0u32, 0u32);
+        for (p, p_error, ng, wo) in surface_points(&scene, 1500, 31) {
+            q.init(&guide, &scene, p, p_error, ng, wo);
+            let Some(node) = q.node() else {
+                continue;
+            };
+            let side = if ng.dot(wo) >= 0.0 { ng } else { -ng };
+            let seen = |target: Vec3| -> Option<(Vec3, f32)> {
+                let to = target - p;
+                let (distance, axis) = (to.length(), to / to.length());
+                if !(distance > 0.0) || axis.dot(side) <= 0.0 {
+                    return None;
+                }
+                let origin = lacuna::geometry::offset_ray_origin(p, p_error, side, axis);
+                let ray = lacuna::geometry::Ray::new(
+                    origin,
+                    axis,
+                    distance * (1.0 - lacuna::geometry::SHADOW_EPSILON),
+                );
+                (!scene.occluded(&ray)).then_some((axis, distance))
+            };
+            // (probability, density) of each lobe kept.
+            let mut lobes: Vec<(f32, LobeDensity)> = Vec::new();
+            for lobe in guide.lobes(node) {
+                let opening = lobe.has_opening().then(|| seen(lobe.opening)).flatten();
+                let rect = opening.and(lobe.portal).and_then(|r| {
+                    SphericalRectangle::new(
+                        p,
+                        r.centre - r.half.x * r.u - r.half.y * r.v,
+                        r.u,
+                        r.v,
+                        2.0 * r.half.x,
+                        2.0 * r.half.y,
+                    )
+                });
+                if let Some(rect) = rect.filter(|_| aim == LobeAim::Portal) {
+                    lobes.push((lobe.probability, Box::new(move |w| rect.pdf(w))));
+                    continue;
+                }
+                let Some((axis, distance, radius)) = opening
+                    .map(|(a, d)| (a, d, lobe.opening_radius))
+                    .or_else(|| seen(lobe.point).map(|(a, d)| (a, d, lobe.radius)))
+                else {
+                    continue;
+                };
+                let (frame, s) = (Frame::from_z(axis), strength.exponent(radius, distance));
+                lobes.push((
+                    lobe.probability,
+                    Box::new(move |w| lacuna::math::warp::power_cosine_pdf(frame.to_local(w), s)),
+                ));
+            }
+            assert_eq!(lobes.is_empty(), q.lobe_count() == 0, "at {p}");
+            if lobes.is_empty() {
+                continue;
+            }
+            merged += (q.lobe_count() < lobes.len()) as u32;
+            let total: f32 = lobes.iter().map(|l| l.0).sum();
+            let direct = |w: Vec3| lobes.iter().map(|(pr, f)| pr / total * f(w)).sum::<f32>();
+            for k in 0..40 {
+                // Directions from the query (where its density is) and uniform ones.
+                let w = if k % 2 == 0 {
+                    match q.sample(rng.uniform(), rng.uniform2()) {
+                        Some((w, _)) => w,
+                        None => continue,
+                    }
+                } else {
+                    lacuna::math::warp::uniform_sphere(rng.uniform2())
+                };
+                let (a, b) = (q.pdf(w), direct(w));
+                assert!(
+                    (a - b).abs() <= 1e-4 * a.max(b) + 1e-6,
+                    "{aim}: at {p} toward {w}: query {a}, written out {b}"
+                );
+                compared += 1;
+            }
+        }
+        assert!(compared > 10_000, "{aim}: {compared}");
+        eprintln!("{aim}: {compared} directions, {merged} points with merged lobes");
+    }
+}
+
 /// With `aim=opening` each lobe aims at its path's opening where the point sees it (above the
 /// surface, unoccluded), else at its importance point where the point sees that, else is
 /// dropped: the per-point rule, decided before sampling, on the Veach door.
@@ -674,6 +851,7 @@ fn path_skeleton_agrees_with_path_on_the_veach_door() {
             "path_skeleton",
             "path_skeleton:strength=auto:16:visibility=false",
             "path_skeleton:aim=portal:c_skel=0.9",
+            "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel",
         ],
     );
 }

@@ -523,6 +523,117 @@ pub fn map_point(
     normal: Vec3,
     incident: Vec3,
 ) -> Option<u32> {
+    map_point_with(grid, map, None, p, normal, incident).map(|k| map[k])
+}
+
+/// Per voxel of a grid, which voxels of its 3x3x3 neighbourhood (itself included) are inside
+/// the grid and mapped to a node: bit `(dz + 1) 9 + (dy + 1) 3 + (dx + 1)`, the order
+/// [`map_point`] visits them in. With it, [`NeighbourMasks::map_point`] visits only the
+/// mapped neighbours (next to a surface, about half of them are solid) and skips the bounds
+/// tests and node-map reads of the rest, with the same result: a guided vertex maps its
+/// point once per bounce, about 2,400 instructions without the masks.
+#[derive(Clone, Debug, Default)]
+pub struct NeighbourMasks {
+    masks: Vec<u32>,
+}
+
+impl NeighbourMasks {
+    /// The masks of every voxel of `grid` for node map `map` (in parallel over z-slices).
+    pub fn new(grid: &VoxelGrid, map: &[u32]) -> NeighbourMasks {
+        let [nx, ny, _] = grid.dims;
+        let mut masks = vec![0u32; grid.len()];
+        masks
+            .par_chunks_mut((nx * ny).max(1))
+            .enumerate()
+            .for_each(|(z, slice)| {
+                for y in 0..ny {
+                    for x in 0..nx {
+                        let mut mask = 0u32;
+                        for (bit, d) in NEIGHBOUR_OFFSETS.iter().enumerate() {
+                            let v = [x as i64 + d[0], y as i64 + d[1], z as i64 + d[2]];
+                            let inside = (0..3).all(|a| v[a] >= 0 && v[a] < grid.dims[a] as i64);
+                            if inside
+                                && map[grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
+                                    != UNDEFINED_NODE
+                            {
+                                mask |= 1 << bit;
+                            }
+                        }
+                        slice[x + nx * y] = mask;
+                    }
+                }
+            });
+        NeighbourMasks { masks }
+    }
+
+    /// [`map_point`] with the masks (built for this `grid` and `map`): the same node.
+    pub fn map_point(
+        &self,
+        grid: &VoxelGrid,
+        map: &[u32],
+        p: Vec3,
+        normal: Vec3,
+        incident: Vec3,
+    ) -> Option<u32> {
+        self.map_point_voxel(grid, map, p, normal, incident)
+            .map(|k| map[k])
+    }
+
+    /// The mapped voxel [`map_point`] takes the node of (its index in `grid`).
+    pub fn map_point_voxel(
+        &self,
+        grid: &VoxelGrid,
+        map: &[u32],
+        p: Vec3,
+        normal: Vec3,
+        incident: Vec3,
+    ) -> Option<usize> {
+        debug_assert_eq!(self.masks.len(), grid.len());
+        map_point_with(grid, map, Some(&self.masks), p, normal, incident)
+    }
+
+    pub fn memory_bytes(&self) -> usize {
+        self.masks.len() * 4
+    }
+}
+
+/// The offsets of a voxel's 3x3x3 neighbourhood by bit of [`NeighbourMasks`].
+const NEIGHBOUR_OFFSETS: [[i64; 3]; 27] = {
+    let mut offsets = [[0i64; 3]; 27];
+    let mut bit = 0;
+    while bit < 27 {
+        offsets[bit] = [
+            (bit % 3) as i64 - 1,
+            ((bit / 3) % 3) as i64 - 1,
+            (bit / 9) as i64 - 1,
+        ];
+        bit += 1;
+    }
+    offsets
+};
+
+/// [`NEIGHBOUR_OFFSETS`] in f32.
+const NEIGHBOUR_OFFSETS_F32: [Vec3; 27] = {
+    let mut offsets = [Vec3::ZERO; 27];
+    let mut bit = 0;
+    while bit < 27 {
+        let d = NEIGHBOUR_OFFSETS[bit];
+        offsets[bit] = Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32);
+        bit += 1;
+    }
+    offsets
+};
+
+/// The voxel of [`map_point`], visiting a neighbourhood through its mask where `masks` has
+/// one (centre inside the grid), else testing each neighbour.
+fn map_point_with(
+    grid: &VoxelGrid,
+    map: &[u32],
+    masks: Option<&[u32]>,
+    p: Vec3,
+    normal: Vec3,
+    incident: Vec3,
+) -> Option<usize> {
     let n = if normal.dot(incident) >= 0.0 {
         normal
     } else {
@@ -533,55 +644,74 @@ pub fn map_point(
     let g = grid.to_grid(p);
     let dims = grid.dims;
     let vx = g.map(|x| x.floor() as i64);
+    let inside = |v: [i64; 3]| (0..3).all(|a| v[a] >= 0 && v[a] < dims[a] as i64);
     // Best mapped voxel of the 26-neighbourhood of `centre`, scored by the cosine from v_x.
-    let search = |centre: [i64; 3], facing_only: bool| -> Option<u32> {
-        let mut best: Option<(f32, f32, u32)> = None;
-        for dz in -1..=1i64 {
-            for dy in -1..=1i64 {
-                for dx in -1..=1i64 {
-                    let v = [centre[0] + dx, centre[1] + dy, centre[2] + dz];
-                    if (0..3).any(|a| v[a] < 0 || v[a] >= dims[a] as i64) {
-                        continue;
-                    }
-                    let k = grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
-                    if map[k] == UNDEFINED_NODE {
-                        continue;
-                    }
-                    let off = Vec3::new(
-                        (v[0] - vx[0]) as f32,
-                        (v[1] - vx[1]) as f32,
-                        (v[2] - vx[2]) as f32,
-                    );
-                    let len = off.length();
-                    let (score, towards) = if len > 0.0 {
-                        (off.dot(n) / len, off.dot(w) / len)
-                    } else {
-                        (0.0, 0.0)
-                    };
-                    if facing_only && score <= 0.0 {
-                        continue;
-                    }
-                    let better = match best {
-                        None => true,
-                        Some((s, t, _)) => {
-                            score > s + 1e-4 || (score > s - 1e-4 && towards > t + 1e-4)
-                        }
-                    };
-                    if better {
-                        best = Some((score, towards, map[k]));
+    let search = |centre: [i64; 3], facing_only: bool| -> Option<usize> {
+        let mut best: Option<(f32, f32, usize)> = None;
+        // v − v_x = (centre − v_x) + d: small integers, exact in f32 either way.
+        let base = Vec3::new(
+            (centre[0] - vx[0]) as f32,
+            (centre[1] - vx[1]) as f32,
+            (centre[2] - vx[2]) as f32,
+        );
+        let mut consider = |bit: usize| {
+            let off = base + NEIGHBOUR_OFFSETS_F32[bit];
+            // The sign of the score without the division (len > 0 where it is not 0).
+            if facing_only && off.dot(n) <= 0.0 {
+                return;
+            }
+            let len = off.length();
+            let (score, towards) = if len > 0.0 {
+                (off.dot(n) / len, off.dot(w) / len)
+            } else {
+                (0.0, 0.0)
+            };
+            if facing_only && score <= 0.0 {
+                return;
+            }
+            let better = match best {
+                None => true,
+                Some((s, t, _)) => score > s + 1e-4 || (score > s - 1e-4 && towards > t + 1e-4),
+            };
+            if better {
+                best = Some((score, towards, bit));
+            }
+        };
+        match masks {
+            Some(masks) if inside(centre) => {
+                let mut mask =
+                    masks[grid.index(centre[0] as usize, centre[1] as usize, centre[2] as usize)];
+                while mask != 0 {
+                    let bit = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    consider(bit);
+                }
+            }
+            _ => {
+                for (bit, d) in NEIGHBOUR_OFFSETS.iter().enumerate() {
+                    let v = [centre[0] + d[0], centre[1] + d[1], centre[2] + d[2]];
+                    if inside(v)
+                        && map[grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
+                            != UNDEFINED_NODE
+                    {
+                        consider(bit);
                     }
                 }
             }
         }
-        best.map(|b| b.2)
+        best.map(|(_, _, bit)| {
+            let d = NEIGHBOUR_OFFSETS[bit];
+            let v = [centre[0] + d[0], centre[1] + d[1], centre[2] + d[2]];
+            grid.index(v[0] as usize, v[1] as usize, v[2] as usize)
+        })
     };
     // Eq. 154 restricted to the side n⁺ faces; a wall thicker than one voxel (corners, the
     // conservative voxelization) may hide that side, so then look further along n⁺, and only
     // as a last resort take any mapped neighbour (which may lie behind the surface).
     for step in 0..=3i64 {
         let centre = [0, 1, 2].map(|a| (g[a] + step as f64 * n[a] as f64).floor() as i64);
-        if let Some(node) = search(if step == 0 { vx } else { centre }, true) {
-            return Some(node);
+        if let Some(voxel) = search(if step == 0 { vx } else { centre }, true) {
+            return Some(voxel);
         }
     }
     search(vx, false)
@@ -1001,6 +1131,58 @@ mod tests {
             }
         }
         map
+    }
+
+    /// The masked mapping finds the node the direct one finds, for points inside, on the
+    /// border of and outside random grids (solid fractions from sparse to mostly solid),
+    /// axis-aligned and random normals, both sides.
+    #[test]
+    fn neighbour_masks_map_points_as_the_direct_mapping() {
+        let mut rng = crate::math::Rng::new(83, 1);
+        let mut compared = [0usize; 2];
+        for dims in [[9, 7, 6], [16, 5, 11], [3, 3, 3], [20, 20, 3]] {
+            for solid in [0.1f32, 0.5, 0.9] {
+                let grid = VoxelGrid {
+                    dims,
+                    origin: [-1.5, 0.25, 2.0],
+                    voxel_size: 0.5,
+                };
+                let map: Vec<u32> = (0..grid.len())
+                    .map(|i| {
+                        if rng.uniform() < solid {
+                            UNDEFINED_NODE
+                        } else {
+                            (i % 7) as u32
+                        }
+                    })
+                    .collect();
+                let masks = NeighbourMasks::new(&grid, &map);
+                for i in 0..4000 {
+                    // A little beyond the grid on every side.
+                    let g = [0, 1, 2].map(|a| (rng.uniform() as f64 * 1.4 - 0.2) * dims[a] as f64);
+                    let p = grid.to_world(g);
+                    let axis = |u: f32| {
+                        let mut v = [0.0f32; 3];
+                        v[(u * 3.0) as usize % 3] = if u < 0.5 { 1.0 } else { -1.0 };
+                        Vec3::from_array(v)
+                    };
+                    let normal = if i % 2 == 0 {
+                        axis(rng.uniform())
+                    } else {
+                        crate::math::warp::uniform_sphere(rng.uniform2())
+                    };
+                    let incident = crate::math::warp::uniform_sphere(rng.uniform2());
+                    let direct = map_point(&grid, &map, p, normal, incident);
+                    assert_eq!(
+                        masks.map_point(&grid, &map, p, normal, incident),
+                        direct,
+                        "dims {dims:?}, solid {solid}, p {p}, n {normal}, w {incident}"
+                    );
+                    compared[direct.is_some() as usize] += 1;
+                }
+            }
+        }
+        assert!(compared[0] > 1000 && compared[1] > 10_000, "{compared:?}");
     }
 
     #[test]
