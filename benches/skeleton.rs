@@ -24,7 +24,7 @@ use std::time::Instant;
 
 use lacuna::analysis::{
     distance_map, voxelize, Metric, Outside, Resolution, Skeleton, SkeletonMaps, SkeletonSettings,
-    VoxelGrid,
+    VoxelGrid, EUCLIDEAN_BESIDE_THINNING,
 };
 use lacuna::math::Vec3;
 use lacuna::scene::{load_obj, SceneBuilder};
@@ -102,11 +102,11 @@ fn run(triangles: &[[Vec3; 3]], grid: VoxelGrid, euclidean_beside_opening: bool)
     // would compute it beside the thinning.
     let (maps, w, c, b) = timed(|| {
         let maps = || SkeletonMaps::from_l1(dims, &occ, Outside::Solid, d1);
-        if euclidean_beside_opening {
+        if euclidean_beside_opening && EUCLIDEAN_BESIDE_THINNING {
             let (mut maps, sq) = rayon::join(maps, || {
                 distance_map(dims, &occ, Metric::SquaredEuclidean, Outside::Solid, false).values
             });
-            maps.sq_euclidean.get_or_insert(sq);
+            maps.sq_euclidean = Some(sq);
             maps
         } else {
             maps()

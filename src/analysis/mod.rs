@@ -39,7 +39,8 @@ pub use complex::{diagonal_contacts, Betti, Complex};
 pub use reach::may_map_to;
 pub use skeleton::{
     filter_skeleton, graph_from_complex, map_point, node_map, node_map_seeds, Filtered, Graph,
-    NeighbourMasks, Node, Skeleton, SkeletonMaps, SkeletonSettings, UNDEFINED_NODE,
+    NeighbourMasks, Node, Skeleton, SkeletonMaps, SkeletonSettings, EUCLIDEAN_BESIDE_THINNING,
+    UNDEFINED_NODE,
 };
 pub use skeleton_report::{skeleton_obj, skeleton_ply, write_skeleton, write_skeleton_images};
 pub use thinning::{Constraint, SubStep, Thinning, ThinningStats};

@@ -455,11 +455,13 @@ const MIN_SHARED_WORK: usize = 1024;
 enum Split {
     /// On the calling thread.
     Sequential,
-    /// One contiguous part of the list per pool thread, if the pass holds at least
-    /// `min_parallel_work`: one task per thread keeps the fork/join cost per pass to one
-    /// `join` per thread, and a part of a brick list sorted by index is a slab of the grid,
-    /// so each thread mostly reads the bricks it wrote in the previous pass (its cache)
-    /// instead of pulling cache lines from the other core.
+    /// Inside [`Thinning::run`]: passes of at least `min_shared_work` shared with the run's
+    /// helper thread ([`Duo`]), each thread claiming chunks from one end of the list. Outside
+    /// a run (single iterations, the piercing's own passes): one contiguous part of the list
+    /// per pool thread, if the pass holds at least `min_parallel_work`. Either way a part of
+    /// a brick list sorted by index is a slab of the grid, so each thread mostly reads the
+    /// bricks it wrote in the previous pass (its cache) instead of pulling cache lines from
+    /// the other core.
     PerThread,
     /// Fixed chunks of this many bricks, however little work the pass holds (tests: splits
     /// every list on small grids).
@@ -501,19 +503,22 @@ struct Duo {
     owner: Mutex<Option<std::thread::ThreadId>>,
 }
 
-// SAFETY: `job` is accessed under the protocol of `state` (see the field's comment): the
-// caller writes it only in IDLE, before the Release store of POSTED; the helper reads it only
-// after its Acquire CAS POSTED -> TAKEN and before its Release store of DONE/PANICKED, and the
-// caller does not write it again before reading DONE/PANICKED with Acquire (or withdrawing the
-// job with a successful CAS POSTED -> IDLE, after which the helper cannot take it).
+// SAFETY: `job` is accessed under the protocol of `state` (see the field's comment), with
+// one writer: only the thread running the collapse calls `run_pair`, one pass at a time
+// (checked there). The caller writes it only in IDLE, before the Release store of POSTED;
+// the helper reads it only after its Acquire CAS POSTED -> TAKEN and before its Release store
+// of DONE/PANICKED, and the caller does not write it again before reading DONE/PANICKED with
+// Acquire (or withdrawing the job with a successful CAS POSTED -> IDLE, after which the
+// helper cannot take it).
 unsafe impl Sync for Duo {}
 
 /// Polls: spins for up to [`SPIN`], then yields the core at each poll. Between two shared
 /// passes lie the sequential list work (some tens of microseconds) and, late in a collapse,
 /// runs of passes too small to share (hundreds of microseconds), so the helper normally spins
-/// through them; a helper that yields hands its core to another task for a whole time slice on
-/// a loaded machine, and misses the next passes (100 µs was tried: slower at 234). After the spin, a wait (say, for a helper that was
-/// preempted mid-chunk) yields so as not to keep the thread it waits for off the core.
+/// through them; a helper that yields hands its core to another task for a whole time slice
+/// on a loaded machine, and misses the next passes (100 µs was tried: slower at 234). After
+/// the spin, a wait (say, for a helper that was preempted mid-chunk) yields so as not to keep
+/// the thread it waits for off the core.
 struct BackOff {
     start: Option<std::time::Instant>,
     polls: u32,
@@ -558,8 +563,12 @@ impl Duo {
     }
 
     /// The helper's loop: runs posted jobs until the run shuts it down.
+    ///
+    /// Panics only inside the caught job: it runs as a detached rayon task, whose panic would
+    /// abort the process.
     fn serve(&self) {
-        if *self.owner.lock().unwrap() == Some(std::thread::current().id()) {
+        let owner = *self.owner.lock().unwrap_or_else(|e| e.into_inner());
+        if owner == Some(std::thread::current().id()) {
             return;
         }
         let mut back_off = BackOff::new();
@@ -573,7 +582,11 @@ impl Duo {
                     {
                         // SAFETY: TAKEN, so the caller keeps the job alive and does not
                         // write `job` until it reads DONE or PANICKED (see `Sync for Duo`).
-                        let job = unsafe { (*self.job.get()).expect("posted job") };
+                        let Some(job) = (unsafe { *self.job.get() }) else {
+                            // Unreachable: a job is written before every POSTED store.
+                            self.state.store(PANICKED, Release);
+                            continue;
+                        };
                         let done = catch_unwind(AssertUnwindSafe(job)).is_ok();
                         self.state
                             .store(if done { DONE } else { PANICKED }, Release);
@@ -589,8 +602,16 @@ impl Duo {
     /// Runs `mine` on the calling thread while the helper (if it is serving) runs `helper`;
     /// returns when both are done. `mine` must itself finish the work the helper does not
     /// take (both claim from one list, see [`claim`]).
+    ///
+    /// Only the thread running the collapse calls it, one pass at a time (a pass's closure
+    /// does not start another pass): the `Sync` argument rests on that single writer of
+    /// `job`, so it is checked in release builds too (one load per pass).
     fn run_pair(&self, helper: &(dyn Fn() + Sync), mine: impl FnOnce()) {
-        debug_assert_eq!(self.state.load(Relaxed), IDLE);
+        assert_eq!(
+            self.state.load(Relaxed),
+            IDLE,
+            "a thinning pass started inside another pass"
+        );
         // SAFETY: only the lifetime is erased. The state is IDLE, so the helper does not read
         // `job`; it may read it from the POSTED store below until this function has seen
         // DONE/PANICKED or withdrawn the job, and this function returns (or unwinds, the
@@ -622,6 +643,11 @@ impl Duo {
                 }
             }
             self.state.store(IDLE, Relaxed);
+        }
+        // SAFETY: IDLE again (withdrawn, or DONE/PANICKED seen), so the helper does not read
+        // `job`; clearing it leaves no dangling reference to `helper` behind.
+        unsafe {
+            *self.job.get() = None;
         }
         if let Err(panic) = mine {
             resume_unwind(panic);
@@ -975,8 +1001,8 @@ impl<'a> Thinning<'a> {
             while let Some((a, b)) = claim(&range, min, false) {
                 starts.push(out.len());
                 f(&list[a..b], &mut out);
-                self.helper_chunks.fetch_add(1, Relaxed);
             }
+            self.helper_chunks.fetch_add(starts.len() as u64, Relaxed);
             *theirs.lock().unwrap() = (out, starts);
         };
         let mut mine = Vec::new();
@@ -1562,22 +1588,25 @@ impl<'a> Thinning<'a> {
     /// Runs Algorithm 2 until no unconstrained free pair is left. Returns the iterations run.
     ///
     /// With [`Split::PerThread`] the run keeps one helper thread of the pool ([`Duo`]) for
-    /// its passes; the helper may start late or never (a busy pool) without changing the
-    /// result or blocking the run.
+    /// its passes; the helper may start late or never (a busy pool, a pool of one thread)
+    /// without changing the result or blocking the run: its task is detached, and the run
+    /// waits neither for it to start nor for it to return.
     pub fn run(&mut self, mut observer: Observer<'_, '_>) -> u32 {
         let start = self.iteration;
         if matches!(self.split, Split::PerThread) && !self.serving {
-            let duo = Arc::clone(&self.duo);
-            duo.state.store(IDLE, Relaxed);
-            *duo.owner.lock().unwrap() = Some(std::thread::current().id());
-            rayon::in_place_scope(|scope| {
-                let helper = Arc::clone(&duo);
-                scope.spawn(move |_| helper.serve());
-                let _shut_down = ShutDownOnDrop(&duo);
-                self.serving = true;
-                while self.iterate(observer.as_deref_mut()) {}
-                self.serving = false;
-            });
+            // A fresh pair per run, and a detached task: the run never waits for the helper
+            // to start (a busy pool, or a caller outside the pool), and a helper that starts
+            // after the run finds its own pair shut down and returns.
+            let duo = Arc::new(Duo::new());
+            *duo.owner.lock().unwrap_or_else(|e| e.into_inner()) =
+                Some(std::thread::current().id());
+            let helper = Arc::clone(&duo);
+            rayon::spawn(move || helper.serve());
+            self.duo = Arc::clone(&duo);
+            let _shut_down = ShutDownOnDrop(&duo);
+            self.serving = true;
+            while self.iterate(observer.as_deref_mut()) {}
+            self.serving = false;
         } else {
             while self.iterate(observer.as_deref_mut()) {}
         }
