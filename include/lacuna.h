@@ -1208,7 +1208,9 @@ lacuna_status lacuna_render_job_set_skeleton_importance(struct lacuna_render_job
                                                         uint32_t lobes_per_node);
 
 // `path_skeleton`: whether a lobe whose importance point is hidden from the shading point is
-// dropped there (one shadow ray per lobe and point; default true).
+// dropped there (one shadow ray per lobe and point; default true). `true` keeps the mode the
+// integrator spec or the scene file chose: per point, or once per voxel with
+// `path_skeleton:visibility=voxel`; `false` turns the test off in either mode.
 lacuna_status lacuna_render_job_set_skeleton_visibility_test(struct lacuna_render_job *job,
                                                              bool enabled);
 

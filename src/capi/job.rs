@@ -649,7 +649,9 @@ pub unsafe extern "C" fn lacuna_render_job_set_skeleton_importance(
 }
 
 /// `path_skeleton`: whether a lobe whose importance point is hidden from the shading point is
-/// dropped there (one shadow ray per lobe and point; default true).
+/// dropped there (one shadow ray per lobe and point; default true). `true` keeps the mode the
+/// integrator spec or the scene file chose: per point, or once per voxel with
+/// `path_skeleton:visibility=voxel`; `false` turns the test off in either mode.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_set_skeleton_visibility_test(
     job: *mut lacuna_render_job,

@@ -109,6 +109,8 @@ use crate::analysis::{
 };
 use crate::error::{Error, Result};
 use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
+use crate::integrator::MisHeuristic;
+use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::{luminance, warp, Frame, Rng, Vec2, Vec3};
 use crate::scene::Scene;
 
@@ -265,6 +267,19 @@ pub struct SkeletonGuideSettings {
     /// eq. 162's point, and the corridor (no opening) renders the same image
     /// (BENCHMARKS.md, issue 8, round 4).
     pub aim: LobeAim,
+    /// How the render using this guide samples lights and weighs its MIS pair, so that the
+    /// training scores candidates with the render's own weights. `path_skeleton` sets it from
+    /// its own settings; a host's guide keeps the defaults (power heuristic, area-sampled
+    /// triangles, the default environment strategy). Not an option key.
+    pub render_estimator: RenderEstimator,
+}
+
+/// The render's light sampling and MIS heuristic, as the training must reproduce them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RenderEstimator {
+    pub mis: MisHeuristic,
+    pub triangles: TriangleSampling,
+    pub env: EnvStrategy,
 }
 
 /// What the training pass compares the guide's overhead at a vertex with (`guide::training`,
@@ -373,6 +388,7 @@ impl Default for SkeletonGuideSettings {
             visibility_test: true,
             voxel_visibility: false,
             aim: LobeAim::Opening,
+            render_estimator: RenderEstimator::default(),
         }
     }
 }
@@ -569,6 +585,16 @@ pub struct Portal {
     pub u: Vec3,
     pub v: Vec3,
     pub half: Vec2,
+}
+
+impl Portal {
+    /// The rectangle as seen from `p`, for sampling uniformly in solid angle (None where p is
+    /// in its plane).
+    pub fn seen_from(&self, p: Vec3) -> Option<warp::SphericalRectangle> {
+        let corner = self.centre - self.half.x * self.u - self.half.y * self.v;
+        let size = 2.0 * self.half;
+        warp::SphericalRectangle::new(p, corner, self.u, self.v, size.x, size.y)
+    }
 }
 
 /// A placeholder for fixed-size arrays of portals.
@@ -875,18 +901,25 @@ impl SkeletonGuide {
     /// Each answer is traced at the first query that needs it and kept (two bits per target:
     /// known, seen); it is a pure function of the voxel and target, so whichever thread
     /// stores it first, the lobes at a point do not depend on the order of the queries.
+    /// The ray is counted only by the query that stores the answer, so the count per node does
+    /// not depend on thread timing either (two threads may both trace a cold entry; the
+    /// training's cost model must not see that race). False and no ray for a target beyond
+    /// the `2 MAX_LOBES` a cell holds.
     pub fn voxel_sees(&self, scene: &Scene, voxel: usize, target: u32) -> (bool, u32) {
         let Some(cell) = self.voxel_sees.get(voxel) else {
             return (false, 0);
         };
+        if target as usize >= 2 * MAX_LOBES {
+            return (false, 0);
+        }
         let (known, seen) = (1u32 << (2 * target), 1u32 << (2 * target + 1));
         let bits = cell.load(AtomicOrdering::Relaxed);
         if bits & known != 0 {
             return (bits & seen != 0, 0);
         }
         let sees = self.voxel_sees_direct(scene, voxel, target);
-        cell.fetch_or(known | if sees { seen } else { 0 }, AtomicOrdering::Relaxed);
-        (sees, 1)
+        let before = cell.fetch_or(known | if sees { seen } else { 0 }, AtomicOrdering::Relaxed);
+        (sees, u32::from(before & known == 0))
     }
 
     /// [`Self::voxel_sees`] without the cache: one shadow ray from the voxel's centre (empty
@@ -1632,16 +1665,7 @@ impl GuideQuery {
                 total += lobe.probability;
                 continue;
             }
-            let portal = wanted.and_then(|portal| {
-                warp::SphericalRectangle::new(
-                    p,
-                    portal.centre - portal.half.x * portal.u - portal.half.y * portal.v,
-                    portal.u,
-                    portal.v,
-                    2.0 * portal.half.x,
-                    2.0 * portal.half.y,
-                )
-            });
+            let portal = wanted.and_then(|portal| portal.seen_from(p));
             if let (Some(rect), Some((axis, distance))) = (portal, opening) {
                 if let Some(portal) = wanted {
                     portals[portal_count] = (portal, self.count);

@@ -83,15 +83,18 @@
 //! E[D] = E_q0[(w_e e + r) / q_0] reweighted as above ([`Sample::terms`]). The light sample
 //! at x is the one the previous vertex's R uses (one draw, two uses: correlated estimates,
 //! none biased). This is exact for the vertex's own MIS pair; what follows x is still the
-//! proxy R (next-event estimation only). The heuristic is the render's default (power); a
-//! render with `mis=balance` is judged with power weights (a different objective, no bias).
+//! proxy R (next-event estimation only). The heuristic, the triangle sampling and the
+//! environment strategy are the render's (`SkeletonGuideSettings::render_estimator`, set by
+//! `path_skeleton` from its own settings).
 //!
 //! # Cost
 //!
 //! The efficiency to maximise is 1 / (V cost). Cost is counted in unguided path vertices (a
 //! continuation ray, a shadow ray, shading): guiding adds `COST_GUIDED` + `COST_SHADOW_RAY` x
 //! (the guide's shadow rays per query at this node, counted in training); the strength costs
-//! nothing. The constants come from the round-3 profile of the door (callgrind: ~5,500
+//! nothing. With `visibility=voxel` the count is of the cache's first fills during training
+//! (each (voxel, target) counted once, whatever the thread timing): it overstates the warm
+//! cache of a long render, which traces almost none. The constants come from the round-3 profile of the door (callgrind: ~5,500
 //! instructions per `path` vertex, ~1,400 per guide shadow ray, ~600 for the lobe set-up per
 //! query plus the lobe densities in the MIS weights); the node mapping is paid at c = 0 too
 //! (the node must be known to know its c), so it is not part of the difference. What the
@@ -152,9 +155,11 @@
 use rayon::prelude::*;
 
 use super::STRENGTH_CANDIDATES;
-use super::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonStrength, TrainingCost};
+use super::{
+    sample_bsdf_or_guide, GuideQuery, RenderEstimator, SkeletonGuide, SkeletonStrength,
+    TrainingCost,
+};
 use crate::integrator::MisHeuristic;
-use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::{luminance, Rgb, Rng, Sampler, Vec3};
 use crate::scene::{Scene, SurfaceInteraction};
 
@@ -269,13 +274,13 @@ impl Sample {
     /// This sample's terms under candidate (c, strength index k) (module docs): the direction
     /// part reweighted from the training proposal, with the emission it found MIS-weighted as
     /// the render weighs it, and the light sample with its MIS weight against q_c,s.
-    fn terms(&self, c: f32, k: usize) -> Terms {
+    fn terms(&self, c: f32, k: usize, mis: MisHeuristic) -> Terms {
         let mut t = Terms::default();
         let q0 = mixture(TRAINING_C, self.p_skel, self.p_bsdf);
         if self.carries() && q0 > 0.0 {
             let q = mixture(c, self.p_strength[k], self.p_bsdf);
             let w = if self.p_light > 0.0 {
-                MisHeuristic::Power.weight(q as f32, self.p_light) as f64
+                mis.weight(q as f32, self.p_light) as f64
             } else {
                 1.0
             };
@@ -293,7 +298,7 @@ impl Sample {
         }
         if self.nee.value > 0.0 {
             let q = mixture(c, self.nee.p_strength[k], self.nee.p_bsdf);
-            let w = MisHeuristic::Power.weight(self.nee.p_light, q as f32) as f64;
+            let w = mis.weight(self.nee.p_light, q as f32) as f64;
             t.mean_nee = self.nee.value as f64 * w;
             t.second += t.mean_nee * t.mean_nee;
         }
@@ -443,6 +448,7 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
                 &grid,
                 settings.training_cost,
                 settings.training_significance as f64,
+                settings.render_estimator.mis,
             )
         })
         .collect();
@@ -488,6 +494,7 @@ fn choose_node(
     grid: &Grid,
     training_cost: TrainingCost,
     significance: f64,
+    mis: MisHeuristic,
 ) -> NodeChoice {
     let not_guided = NodeChoice {
         guided: None,
@@ -520,7 +527,7 @@ fn choose_node(
     for s in samples {
         for (j, m) in moments.iter_mut().enumerate() {
             let (c, k) = candidate(j);
-            m.add(s.terms(c, k));
+            m.add(s.terms(c, k, mis));
         }
     }
     let product = |j: usize| moments[j].variance(n) * cost(candidate(j).0);
@@ -543,7 +550,7 @@ fn choose_node(
         let (cost_c, cost_0) = (cost(c), cost(0.0));
         let (mut sum, mut sum2) = (0.0f64, 0.0f64);
         for s in samples {
-            let d = cost_c * s.terms(c, k).second - cost_0 * s.terms(0.0, 0).second;
+            let d = cost_c * s.terms(c, k, mis).second - cost_0 * s.terms(0.0, 0, mis).second;
             sum += d;
             sum2 += d * d;
         }
@@ -618,8 +625,9 @@ fn train_path(
 ) {
     let mut beta = Rgb::ONE;
     let depth = guide.settings().training_depth;
+    let estimator = &guide.settings().render_estimator;
     let mut path: Vec<TrainingVertex> = Vec::with_capacity(depth as usize);
-    let mut own_light = light_sample(scene, &si, rng);
+    let mut own_light = light_sample(scene, &si, rng, estimator);
     for _ in 0..depth {
         let bsdf = scene.bsdf(&si);
         let frame = si.shading_frame();
@@ -677,8 +685,10 @@ fn train_path(
         let f_cos = bs.f * bs.wi.z.abs();
         let weight = f_cos / bs.pdf;
         let next = scene.intersect(&si.spawn_ray(wi));
-        let (emitted, p_light) = arriving_emission(scene, &si, wi, next.as_ref());
-        let next_light = next.as_ref().and_then(|n| light_sample(scene, n, rng));
+        let (emitted, p_light) = arriving_emission(scene, &si, wi, next.as_ref(), estimator);
+        let next_light = next
+            .as_ref()
+            .and_then(|n| light_sample(scene, n, rng, estimator));
         let direct = next_light.as_ref().map_or(Rgb::ZERO, |l| l.value);
         path.push(TrainingVertex {
             sample: guided.then(|| {
@@ -749,6 +759,7 @@ fn arriving_emission(
     si: &SurfaceInteraction,
     wi: Vec3,
     next: Option<&SurfaceInteraction>,
+    estimator: &RenderEstimator,
 ) -> (Rgb, f32) {
     let pmf = |light: usize| scene.light_sampler().map_or(0.0, |s| s.pmf(light));
     match next {
@@ -758,14 +769,14 @@ fn arriving_emission(
                 return (le, 0.0);
             }
             let p_light = scene.triangle_light(n.triangle).map_or(0.0, |light| {
-                pmf(light) * scene.lights()[light].pdf_with(si.p, n.p, TriangleSampling::default())
+                pmf(light) * scene.lights()[light].pdf_with(si.p, n.p, estimator.triangles)
             });
             (le, p_light)
         }
         None => match scene.environment() {
             Some((index, env)) => {
                 let le = env.radiance(wi);
-                let pdf = env.pdf(EnvStrategy::default(), si.facing_normal(), wi);
+                let pdf = env.pdf(estimator.env, si.facing_normal(), wi);
                 (le, pmf(index) * pdf)
             }
             None => (Rgb::ZERO, 0.0),
@@ -788,6 +799,7 @@ fn light_sample(
     scene: &Scene,
     si: &SurfaceInteraction,
     rng: &mut Sampler,
+    estimator: &RenderEstimator,
 ) -> Option<LightSampleAt> {
     let bsdf = scene.bsdf(si);
     if bsdf.is_delta() {
@@ -801,8 +813,8 @@ fn light_sample(
         &frame,
         &bsdf,
         wo_local,
-        EnvStrategy::default(),
-        TriangleSampling::default(),
+        estimator.env,
+        estimator.triangles,
         u,
     )?;
     let (ls, pmf, f) = (t.sample, t.pmf, t.f_cos);
@@ -967,7 +979,9 @@ mod tests {
             strengths: vec![SkeletonStrength::Fixed(64.0)],
             may_turn_off: true,
         };
-        let choose = |samples: &[Sample]| choose_node(samples, &grid, TrainingCost::Path, 1.0);
+        let choose = |samples: &[Sample]| {
+            choose_node(samples, &grid, TrainingCost::Path, 1.0, MisHeuristic::Power)
+        };
         let lit = cone_node(true, 20_000);
         let covered = choose(&lit);
         assert_eq!(covered.guided, None, "{covered:?}");
@@ -1002,12 +1016,14 @@ mod tests {
         };
         let few = cone_node(false, MIN_SAMPLES as usize - 1);
         assert_eq!(
-            choose_node(&few, &grid, TrainingCost::Path, 1.0).guided,
+            choose_node(&few, &grid, TrainingCost::Path, 1.0, MisHeuristic::Power).guided,
             None
         );
         let many = cone_node(false, 4 * MIN_SAMPLES as usize);
-        assert!(choose_node(&many, &grid, TrainingCost::Path, 1.0)
-            .guided
-            .is_some());
+        assert!(
+            choose_node(&many, &grid, TrainingCost::Path, 1.0, MisHeuristic::Power)
+                .guided
+                .is_some()
+        );
     }
 }

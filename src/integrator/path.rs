@@ -15,7 +15,7 @@ use super::{Integrator, IntegratorSettings, Precomputation, SampleContext, Trace
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide};
+use crate::guide::{sample_bsdf_or_guide, GuideQuery, RenderEstimator, SkeletonGuide};
 use crate::math::{Frame, Rgb, Sampler, Vec3};
 use crate::render::FIRST_INTEGRATOR_DIMENSION;
 use crate::scene::{Bsdf, Scene, SurfaceInteraction};
@@ -154,7 +154,14 @@ impl Integrator for PathTracer {
             return Ok(Precomputation::default());
         };
         *slot = None;
-        let guide = SkeletonGuide::build(scene, &self.settings.skeleton, progress)?;
+        // The training scores its candidates with this render's light sampling and MIS.
+        let mut skeleton = self.settings.skeleton;
+        skeleton.render_estimator = RenderEstimator {
+            mis: self.settings.mis,
+            triangles: self.settings.triangles,
+            env: self.settings.env,
+        };
+        let guide = SkeletonGuide::build(scene, &skeleton, progress)?;
         let notes = vec![format!(
             "skeleton guide: {} nodes ({} raw), {} importance nodes ({} found), {} of {} nodes guided, {:.1} MiB",
             guide.node_count(),
