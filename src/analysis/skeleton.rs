@@ -548,18 +548,8 @@ impl NeighbourMasks {
             .for_each(|(z, slice)| {
                 for y in 0..ny {
                     for x in 0..nx {
-                        let mut mask = 0u32;
-                        for (bit, d) in NEIGHBOUR_OFFSETS.iter().enumerate() {
-                            let v = [x as i64 + d[0], y as i64 + d[1], z as i64 + d[2]];
-                            let inside = (0..3).all(|a| v[a] >= 0 && v[a] < grid.dims[a] as i64);
-                            if inside
-                                && map[grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
-                                    != UNDEFINED_NODE
-                            {
-                                mask |= 1 << bit;
-                            }
-                        }
-                        slice[x + nx * y] = mask;
+                        slice[x + nx * y] =
+                            neighbour_mask(grid, map, [x as i64, y as i64, z as i64]);
                     }
                 }
             });
@@ -595,6 +585,21 @@ impl NeighbourMasks {
     pub fn memory_bytes(&self) -> usize {
         self.masks.len() * 4
     }
+}
+
+/// The mapped voxels of the 3x3x3 neighbourhood of `centre` (which may lie outside the
+/// grid), one bit per [`NEIGHBOUR_OFFSETS`] entry.
+fn neighbour_mask(grid: &VoxelGrid, map: &[u32], centre: [i64; 3]) -> u32 {
+    let mut mask = 0u32;
+    for (bit, d) in NEIGHBOUR_OFFSETS.iter().enumerate() {
+        let v = [centre[0] + d[0], centre[1] + d[1], centre[2] + d[2]];
+        let inside = (0..3).all(|a| v[a] >= 0 && v[a] < grid.dims[a] as i64);
+        if inside && map[grid.index(v[0] as usize, v[1] as usize, v[2] as usize)] != UNDEFINED_NODE
+        {
+            mask |= 1 << bit;
+        }
+    }
+    mask
 }
 
 /// The offsets of a voxel's 3x3x3 neighbourhood by bit of [`NeighbourMasks`].
@@ -666,9 +671,6 @@ fn map_point_with(
             } else {
                 (0.0, 0.0)
             };
-            if facing_only && score <= 0.0 {
-                return;
-            }
             let better = match best {
                 None => true,
                 Some((s, t, _)) => score > s + 1e-4 || (score > s - 1e-4 && towards > t + 1e-4),
@@ -677,27 +679,16 @@ fn map_point_with(
                 best = Some((score, towards, bit));
             }
         };
-        match masks {
+        let mut mask = match masks {
             Some(masks) if inside(centre) => {
-                let mut mask =
-                    masks[grid.index(centre[0] as usize, centre[1] as usize, centre[2] as usize)];
-                while mask != 0 {
-                    let bit = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    consider(bit);
-                }
+                masks[grid.index(centre[0] as usize, centre[1] as usize, centre[2] as usize)]
             }
-            _ => {
-                for (bit, d) in NEIGHBOUR_OFFSETS.iter().enumerate() {
-                    let v = [centre[0] + d[0], centre[1] + d[1], centre[2] + d[2]];
-                    if inside(v)
-                        && map[grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
-                            != UNDEFINED_NODE
-                    {
-                        consider(bit);
-                    }
-                }
-            }
+            _ => neighbour_mask(grid, map, centre),
+        };
+        while mask != 0 {
+            let bit = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            consider(bit);
         }
         best.map(|(_, _, bit)| {
             let d = NEIGHBOUR_OFFSETS[bit];

@@ -966,6 +966,15 @@ mod tests {
             .collect()
     }
 
+    /// Every candidate c > 0 at one fixed strength, with c = 0 allowed to win.
+    fn one_strength_grid() -> Grid {
+        Grid {
+            c: CANDIDATES[1..].to_vec(),
+            strengths: vec![SkeletonStrength::Fixed(64.0)],
+            may_turn_off: true,
+        }
+    }
+
     /// The choice judges the render's estimator: guiding toward light that next-event
     /// estimation already samples well (MIS-weighted hits, the vertex's own light sample)
     /// does not pay and is turned off; the same radiance arriving as reflected light, which
@@ -974,11 +983,7 @@ mod tests {
     /// guided too.
     #[test]
     fn choice_does_not_guide_toward_light_that_light_sampling_covers() {
-        let grid = Grid {
-            c: CANDIDATES[1..].to_vec(),
-            strengths: vec![SkeletonStrength::Fixed(64.0)],
-            may_turn_off: true,
-        };
+        let grid = one_strength_grid();
         let choose = |samples: &[Sample]| {
             choose_node(samples, &grid, TrainingCost::Path, 1.0, MisHeuristic::Power)
         };
@@ -1009,11 +1014,7 @@ mod tests {
     /// Too few samples, or too few that carry anything: not guided, whatever they say.
     #[test]
     fn nodes_with_few_samples_are_not_guided() {
-        let grid = Grid {
-            c: CANDIDATES[1..].to_vec(),
-            strengths: vec![SkeletonStrength::Fixed(64.0)],
-            may_turn_off: true,
-        };
+        let grid = one_strength_grid();
         let few = cone_node(false, MIN_SAMPLES as usize - 1);
         assert_eq!(
             choose_node(&few, &grid, TrainingCost::Path, 1.0, MisHeuristic::Power).guided,
