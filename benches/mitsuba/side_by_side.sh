@@ -25,7 +25,7 @@ echo "load before: $(cut -d' ' -f1-3 /proc/loadavg)"
     --pass-spp "${MTS_PASS_SPP:-16}" | tee "$OUT/mitsuba.log"
 MTS_SECONDS=$(sed 's/.* path in \([0-9.]*\) s:.*/\1/' "$OUT/mitsuba.log")
 "$LACUNA" render "$SCENE" --time "$T" --threads "$THREADS" --seed "$SEED" --quiet --out "$OUT/lacuna.exr"
-"$LACUNA" compare "$SCENE" --integrators path --time "$(echo "$T * $FACTOR" | bc)" --runs 1 \
+"$LACUNA" compare "$SCENE" --integrators path --time "$(awk "BEGIN { print $T * $FACTOR }")" --runs 1 \
     --threads "$THREADS" --seed "$SEED" --reference "$REF" --out "$OUT/compare" --quiet > "$OUT/compare.log"
 echo "load after: $(cut -d' ' -f1-3 /proc/loadavg)"
 "$PY" "$DIR/mae.py" "$REF" "$OUT/mitsuba.exr" "$OUT/lacuna.exr" | tee "$OUT/mae.txt"
