@@ -86,8 +86,11 @@
 //! target shared by several lobes (their bottleneck, or their importance point) gets one
 //! shadow ray; lobes that end up the same density at x (through the same portal rectangle,
 //! or toward the same target with the same radius) are one active lobe with their summed
-//! probability, so one rectangle set-up and one density per evaluated direction. None of
-//! this changes the mixture. With `visibility=voxel` the visibility of each target is decided
+//! probability, so one rectangle set-up and one density per evaluated direction. Round 8:
+//! where the neighbour that best faces the normal is mapped and clearly ahead of the others,
+//! the mapping takes it without the search (`analysis::map_point`, the same node), and a
+//! portal rectangle computes its four angles only for a sample or a direction that hits it.
+//! None of this changes the mixture. With `visibility=voxel` the visibility of each target is decided
 //! once per mapped voxel, from its centre, and cached: that changes which lobes apply near
 //! silhouettes (still a function of the point, so unbiased), not their shapes. A point
 //! with no lobe left (no path to any importance node, all directions below the surface or
@@ -1429,7 +1432,7 @@ fn node_lobes(
 }
 
 /// One lobe of an initialised query.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 struct ActiveLobe {
     frame: Frame,
     exponent: f32,

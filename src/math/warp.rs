@@ -112,8 +112,11 @@ pub fn uniform_triangle(u: Vec2) -> (f32, f32) {
 /// that hit the rectangle and 0 elsewhere, so it is exact for any direction (a ray-rectangle
 /// intersection), and unlike sampling by area it has no t² / |cos| peak at grazing angles.
 /// Set up in f64: the solid angle is a sum of four angles minus 2 pi, which cancels in f32
-/// for small or distant rectangles.
-#[derive(Clone, Copy, Debug)]
+/// for small or distant rectangles. Those four angles (four `acos`, most of the set-up's
+/// cost) are computed at the first sample or density evaluation that needs them: a guided
+/// vertex sets up its portal's rectangle for every direction it weighs, and most of those
+/// (the BSDF's samples, the light's) miss it (issue 8, round 8).
+#[derive(Clone, Debug)]
 pub struct SphericalRectangle {
     /// The rectangle's frame: unit edge directions x, y and z = x × y flipped so that the
     /// rectangle's plane lies at local z = z0 < 0 from the origin.
@@ -125,11 +128,23 @@ pub struct SphericalRectangle {
     y0: f64,
     y1: f64,
     z0: f64,
+    angles: std::sync::OnceLock<RectangleAngles>,
+}
+
+/// What sampling a [`SphericalRectangle`] needs beyond its frame (the paper's b0, b1, k and
+/// the solid angle).
+#[derive(Clone, Copy, Debug)]
+struct RectangleAngles {
     b0: f64,
     b1: f64,
     k: f64,
     solid_angle: f64,
 }
+
+/// Below this lower bound on its solid angle (sr) a rectangle's angles are computed at once,
+/// to refuse it if they do not give a positive finite solid angle; above it they always do
+/// (the set-up is accurate to 1e-3 relative at 1e-8 sr, `far` in the tests), so they can wait.
+const DEFERRED_SOLID_ANGLE: f64 = 1e-6;
 
 impl SphericalRectangle {
     /// The rectangle `corner + a ex + b ey` for a in [0, ex_len], b in [0, ey_len] (`ex`, `ey`
@@ -166,22 +181,7 @@ impl SphericalRectangle {
             return None;
         }
         let (x1, y1) = (x0 + ex_len, y0 + ey_len);
-        let v00 = glam::DVec3::new(x0, y0, z0);
-        let v01 = glam::DVec3::new(x0, y1, z0);
-        let v10 = glam::DVec3::new(x1, y0, z0);
-        let v11 = glam::DVec3::new(x1, y1, z0);
-        let n0 = v00.cross(v10).normalize();
-        let n1 = v10.cross(v11).normalize();
-        let n2 = v11.cross(v01).normalize();
-        let n3 = v01.cross(v00).normalize();
-        let angle = |a: glam::DVec3, b: glam::DVec3| (-a.dot(b)).clamp(-1.0, 1.0).acos();
-        let (g0, g1, g2, g3) = (angle(n0, n1), angle(n1, n2), angle(n2, n3), angle(n3, n0));
-        let k = 2.0 * std::f64::consts::PI - g2 - g3;
-        let solid_angle = g0 + g1 - k;
-        if !(solid_angle > 0.0 && solid_angle.is_finite()) {
-            return None;
-        }
-        Some(SphericalRectangle {
+        let rect = SphericalRectangle {
             x,
             y,
             z,
@@ -190,16 +190,52 @@ impl SphericalRectangle {
             y0,
             y1,
             z0,
-            b0: n0.z,
-            b1: n2.z,
-            k,
-            solid_angle,
+            angles: std::sync::OnceLock::new(),
+        };
+        // Solid angle >= area |z0| / r³ with r the farthest corner's distance (cos / r² over
+        // the rectangle, cos = |z0| / r at distance r).
+        let far2 = [x0, x1]
+            .into_iter()
+            .flat_map(|u| [y0, y1].map(|v| u * u + v * v))
+            .fold(0.0, f64::max)
+            + z0 * z0;
+        let lower_bound = ex_len * ey_len * -z0 / (far2 * far2.sqrt());
+        if !(lower_bound >= DEFERRED_SOLID_ANGLE) {
+            let solid_angle = rect.angles().solid_angle;
+            if !(solid_angle > 0.0 && solid_angle.is_finite()) {
+                return None;
+            }
+        }
+        Some(rect)
+    }
+
+    /// The four angles between the great circles of the edges (computed once).
+    fn angles(&self) -> &RectangleAngles {
+        self.angles.get_or_init(|| {
+            let (x0, x1, y0, y1, z0) = (self.x0, self.x1, self.y0, self.y1, self.z0);
+            let v00 = glam::DVec3::new(x0, y0, z0);
+            let v01 = glam::DVec3::new(x0, y1, z0);
+            let v10 = glam::DVec3::new(x1, y0, z0);
+            let v11 = glam::DVec3::new(x1, y1, z0);
+            let n0 = v00.cross(v10).normalize();
+            let n1 = v10.cross(v11).normalize();
+            let n2 = v11.cross(v01).normalize();
+            let n3 = v01.cross(v00).normalize();
+            let angle = |a: glam::DVec3, b: glam::DVec3| (-a.dot(b)).clamp(-1.0, 1.0).acos();
+            let (g0, g1, g2, g3) = (angle(n0, n1), angle(n1, n2), angle(n2, n3), angle(n3, n0));
+            let k = 2.0 * std::f64::consts::PI - g2 - g3;
+            RectangleAngles {
+                b0: n0.z,
+                b1: n2.z,
+                k,
+                solid_angle: g0 + g1 - k,
+            }
         })
     }
 
     /// Solid angle of the rectangle seen from the origin (sr).
     pub fn solid_angle(&self) -> f32 {
-        self.solid_angle as f32
+        self.angles().solid_angle as f32
     }
 
     /// A unit direction from the origin toward the rectangle, uniform in solid angle (the
@@ -207,9 +243,15 @@ impl SphericalRectangle {
     /// coordinate by the cosine of the elevation within that column).
     pub fn sample(&self, u: Vec2) -> Vec3 {
         let (uu, uv) = (u.x as f64, u.y as f64);
-        let au = uu * self.solid_angle + self.k;
-        let fu = (au.cos() * self.b0 - self.b1) / au.sin();
-        let cu = (1.0f64.copysign(fu) / (fu * fu + self.b0 * self.b0).sqrt()).clamp(-1.0, 1.0);
+        let &RectangleAngles {
+            b0,
+            b1,
+            k,
+            solid_angle,
+        } = self.angles();
+        let au = uu * solid_angle + k;
+        let fu = (au.cos() * b0 - b1) / au.sin();
+        let cu = (1.0f64.copysign(fu) / (fu * fu + b0 * b0).sqrt()).clamp(-1.0, 1.0);
         let xu = (-(cu * self.z0) / (1.0 - cu * cu).max(1e-300).sqrt()).clamp(self.x0, self.x1);
         let d = (xu * xu + self.z0 * self.z0).sqrt();
         let h0 = self.y0 / (d * d + self.y0 * self.y0).sqrt();
@@ -238,7 +280,7 @@ impl SphericalRectangle {
         let t = self.z0 / wz;
         let (hx, hy) = (t * w.dot(self.x), t * w.dot(self.y));
         if (self.x0..=self.x1).contains(&hx) && (self.y0..=self.y1).contains(&hy) {
-            (1.0 / self.solid_angle) as f32
+            (1.0 / self.angles().solid_angle) as f32
         } else {
             0.0
         }
@@ -403,6 +445,28 @@ mod tests {
             "{}",
             far.solid_angle()
         );
+    }
+
+    /// Rectangles whose angles wait for their first use (a lower bound on the solid angle
+    /// above `DEFERRED_SOLID_ANGLE`) and those set up at once, on either side of that bound:
+    /// the solid angle is positive, finite and the closed form's whichever way it was made.
+    #[test]
+    fn spherical_rectangle_solid_angle_is_right_deferred_or_not() {
+        let (a, b) = (1.0f32, 4.0f32);
+        for d in [1e-3f32, 1.0, 10.0, 100.0, 1e3, 1.9e3, 2.1e3, 1e4] {
+            let rect =
+                SphericalRectangle::new(Vec3::ZERO, Vec3::new(0.0, 0.0, d), Vec3::X, Vec3::Y, a, b)
+                    .unwrap();
+            let (a, b, d) = (a as f64, b as f64, d as f64);
+            let exact = (a * b / (d * (a * a + b * b + d * d).sqrt())).atan();
+            let deferred = rect.angles.get().is_none();
+            let got = rect.solid_angle() as f64;
+            assert!(
+                got > 0.0 && (got / exact - 1.0).abs() < 1e-3,
+                "d {d} (deferred {deferred}): {got} against {exact}"
+            );
+            assert_eq!(deferred, d < 2000.0, "d {d}");
+        }
     }
 
     #[test]
