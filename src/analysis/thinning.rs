@@ -450,14 +450,15 @@ const MIN_PARALLEL_WORK: usize = 2048;
 /// was as fast as 256 and no slower than 2048.
 const MIN_SHARED_WORK: usize = 1024;
 
-/// Bricks to examine at the start of a [`Thinning::run`] below which the run keeps its passes
-/// on the calling thread instead of sharing them with a helper ([`Duo`]). Measured on the door
-/// (BENCHMARKS.md, round 8): the re-thinning after a pierce (a run that starts with the one or
-/// two bricks of the pierced squares, then some hundred bricks per pass for hundreds of
-/// iterations) was 10-20 % faster on 2 threads without the helper at 118 and 234; the main
-/// thinning at 118 (at most 5.8k bricks) took 0.0123 s on 2 threads with the helper against
-/// 0.0099 s on one thread, while at 234 (37k bricks) the helper saved some 10 % when it had the
-/// second core.
+/// Bricks to examine at the start of a [`Thinning::run`] that resumes a collapse below which
+/// the run keeps its passes on the calling thread instead of sharing them with a helper
+/// ([`Duo`]). Measured on the door (BENCHMARKS.md, round 8): the re-thinning after a pierce (a
+/// run that starts with the one or two bricks of the pierced squares, then some hundred bricks
+/// per pass for hundreds of iterations) was 10-20 % faster on 2 threads without the helper at
+/// 118 and 234. A first run keeps the helper whatever its size: at 118 (at most 5.8k bricks)
+/// the thinning beside the Euclidean distance was slower without it (0.0153 against 0.0122 s,
+/// medians of five), at 234 (37k bricks) the helper saved some 10 % when it had the second
+/// core.
 const MIN_HELPER_BRICKS: usize = 16384;
 
 /// How the per-brick passes of a collapse are split over the rayon pool.
@@ -1686,10 +1687,11 @@ impl<'a> Thinning<'a> {
         let start = self.iteration;
         if matches!(self.split, Split::PerThread)
             && !self.serving
+            && self.iteration > 0
             && self.changed.len() < self.min_helper_bricks
         {
-            // A run that starts small (the re-thinning after a pierce, small grids): its
-            // passes stay on the calling thread ([`MIN_HELPER_BRICKS`]).
+            // A run that resumes a collapse with few bricks to examine (the re-thinning after
+            // a pierce): its passes stay on the calling thread ([`MIN_HELPER_BRICKS`]).
             self.split = Split::Sequential;
             while self.iterate(observer.as_deref_mut()) {}
             self.split = Split::PerThread;
@@ -2356,19 +2358,24 @@ mod tests {
                 assert_eq!(shared.death, seq.death);
                 if threads > 1 {
                     helped += shared.helper_chunks.load(Relaxed);
-                    // Runs that start below `MIN_HELPER_BRICKS` (all of these) have no helper
-                    // even when every pass could be shared, with the same result.
+                    // The re-thinning runs, which start below `MIN_HELPER_BRICKS` (all of
+                    // these), have no helper even when every pass could be shared, with the
+                    // same result.
                     let mut alone = Thinning::new(cx.clone(), constraint, true, true);
                     (alone.min_shared_work, alone.min_claim) = (0, 1);
-                    pool.install(|| alone.curvilinear(Some(&priority), None));
+                    pool.install(|| {
+                        alone.run(None);
+                        let first = alone.helper_chunks.load(Relaxed);
+                        alone.curvilinear(Some(&priority), None);
+                        alone_helped += alone.helper_chunks.load(Relaxed) - first;
+                    });
                     assert_eq!(alone.stats, seq.stats);
                     assert_eq!(alone.death, seq.death);
-                    alone_helped += alone.helper_chunks.load(Relaxed);
                 }
             }
         }
         assert!(helped > 0, "the helper never took part");
-        assert_eq!(alone_helped, 0, "a small run had a helper");
+        assert_eq!(alone_helped, 0, "a re-thinning run had a helper");
     }
 
     #[test]
