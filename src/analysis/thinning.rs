@@ -92,7 +92,7 @@
 use std::cell::UnsafeCell;
 use std::panic::{catch_unwind, resume_unwind, AssertUnwindSafe};
 use std::sync::atomic::Ordering::Release;
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering::Acquire, Ordering::Relaxed};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Acquire, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
@@ -450,6 +450,17 @@ const MIN_PARALLEL_WORK: usize = 2048;
 /// was as fast as 256 and no slower than 2048.
 const MIN_SHARED_WORK: usize = 1024;
 
+/// Bricks to examine at the start of a [`Thinning::run`] that resumes a collapse below which
+/// the run keeps its passes on the calling thread instead of sharing them with a helper
+/// ([`Duo`]). Measured on the door (BENCHMARKS.md, round 8): the re-thinning after a pierce (a
+/// run that starts with the one or two bricks of the pierced squares, then some hundred bricks
+/// per pass for hundreds of iterations) was 10-20 % faster on 2 threads without the helper at
+/// 118 and 234. A first run keeps the helper whatever its size: at 118 (at most 5.8k bricks)
+/// the thinning beside the Euclidean distance was slower without it (0.0153 against 0.0122 s,
+/// medians of five), at 234 (37k bricks) the helper saved some 10 % when it had the second
+/// core.
+const MIN_HELPER_BRICKS: usize = 16384;
+
 /// How the per-brick passes of a collapse are split over the rayon pool.
 #[derive(Clone, Copy, Debug)]
 enum Split {
@@ -501,6 +512,8 @@ struct Duo {
     /// (while it waits inside some rayon call), the task returns at once instead of serving
     /// itself forever.
     owner: Mutex<Option<std::thread::ThreadId>>,
+    /// Whether the helper's task was spawned ([`Duo::start`]).
+    started: AtomicBool,
 }
 
 // SAFETY: `job` is accessed under the protocol of `state` (see the field's comment), with
@@ -559,6 +572,15 @@ impl Duo {
             state: AtomicU32::new(IDLE),
             job: UnsafeCell::new(None),
             owner: Mutex::new(None),
+            started: AtomicBool::new(false),
+        }
+    }
+
+    /// Spawns the helper's task (detached, see [`Thinning::run`]) unless it already was.
+    fn start(self: &Arc<Self>) {
+        if !self.started.swap(true, Relaxed) {
+            let helper = Arc::clone(self);
+            rayon::spawn(move || helper.serve());
         }
     }
 
@@ -746,6 +768,9 @@ pub struct Thinning<'a> {
     duo: Arc<Duo>,
     serving: bool,
     min_shared_work: usize,
+    /// Bricks to examine at the start of a run below which the run has no helper
+    /// ([`MIN_HELPER_BRICKS`]).
+    min_helper_bricks: usize,
     /// Smallest chunk a thread claims in a shared pass (0: by the pass's [`Work`]).
     min_claim: u32,
     /// Chunks the helper ran (tests: the helper did take part).
@@ -891,6 +916,7 @@ impl<'a> Thinning<'a> {
             duo: Arc::new(Duo::new()),
             serving: false,
             min_shared_work: MIN_SHARED_WORK,
+            min_helper_bricks: MIN_HELPER_BRICKS,
             min_claim: 0,
             helper_chunks: AtomicU64::new(0),
             stats: ThinningStats::default(),
@@ -927,6 +953,7 @@ impl<'a> Thinning<'a> {
         self.split = Split::PerThread;
         self.min_parallel_work = 0;
         self.min_shared_work = 0;
+        self.min_helper_bricks = 0;
         self.min_claim = 1;
     }
 
@@ -1006,6 +1033,7 @@ impl<'a> Thinning<'a> {
             *theirs.lock().unwrap() = (out, starts);
         };
         let mut mine = Vec::new();
+        self.duo.start();
         self.duo.run_pair(&helper, || {
             while let Some((a, b)) = claim(&range, min, true) {
                 f(&list[a..b], &mut mine);
@@ -1034,10 +1062,11 @@ impl<'a> Thinning<'a> {
 
     /// The real bricks of `list` shifted by each of `offsets`, without duplicates, in
     /// increasing order (memory order for the passes, and the slabs of [`Split::PerThread`]).
-    /// Long lists are marked in a bitset over the bricks (a few kB, in cache) and read back
-    /// word by word, which sorts them for free; short ones (the few changed bricks of an
-    /// iteration late in the collapse) are sorted directly, so that a few bricks far apart do
-    /// not cost a scan of the bitset between them.
+    /// Long lists go through a bitset over the bricks (a few kB, in cache), read back word by
+    /// word, which sorts them for free ([`Thinning::dilate_dense`] when they are dense, else
+    /// each shifted brick marked); short ones (the few changed bricks of an iteration late in
+    /// the collapse) are sorted directly, so that a few bricks far apart do not cost a scan of
+    /// the bitset between them.
     fn dilate(&mut self, list: &[u32], offsets: &[isize]) -> Vec<u32> {
         let is_real = |real: &[u64], c: usize| real[c >> 6] >> (c & 63) & 1 != 0;
         if list.len() * offsets.len() <= 256 {
@@ -1048,6 +1077,9 @@ impl<'a> Thinning<'a> {
                 .collect();
             out.sort_unstable();
             out.dedup();
+            return out;
+        }
+        if let Some(out) = self.dilate_dense(list, offsets) {
             return out;
         }
         let listed = &mut self.listed;
@@ -1074,12 +1106,72 @@ impl<'a> Thinning<'a> {
         out
     }
 
+    /// [`Thinning::dilate`] of a dense list (at least two bricks per bitset word of its range,
+    /// as in the first iterations, where A is most of the grid; `None` otherwise): the list's
+    /// own bits are marked once, and each output word is the union of the words of that
+    /// bitset shifted by the offsets (one shift per word and offset), instead of a
+    /// read-modify-write of the bitset per brick and offset, whose chains on one word stall
+    /// on store forwarding. The list need not be sorted. At most 8 offsets.
+    fn dilate_dense(&mut self, list: &[u32], offsets: &[isize]) -> Option<Vec<u32>> {
+        if list.is_empty() {
+            return None;
+        }
+        let (lo, hi) = list
+            .iter()
+            .fold((u32::MAX, 0), |(lo, hi), &b| (lo.min(b), hi.max(b)));
+        let (lo_w, hi_w) = (lo as usize >> 6, hi as usize >> 6);
+        if list.len() < 2 * (hi_w - lo_w + 1) {
+            return None;
+        }
+        let listed = &mut self.listed;
+        for &b in list {
+            listed[b as usize >> 6] |= 1 << (b & 63);
+        }
+        // Output bit c is list bit c - o: for word w, bits 64 w - o + j (j < 64), i.e. bit
+        // r + j of list word w + q with -o = 64 q + r.
+        let mut shifts = [(0isize, 0u32); 8];
+        for (s, &o) in shifts.iter_mut().zip(offsets) {
+            *s = ((-o).div_euclid(64), (-o).rem_euclid(64) as u32);
+        }
+        let shifts = &shifts[..offsets.len()];
+        let listed = &*listed;
+        let word = |q: isize| {
+            if q >= lo_w as isize && q <= hi_w as isize {
+                listed[q as usize]
+            } else {
+                0
+            }
+        };
+        let (min_o, max_o) = (offsets.iter().min().unwrap(), offsets.iter().max().unwrap());
+        let out_lo = (lo as isize + min_o) as usize >> 6;
+        let out_hi = (hi as isize + max_o) as usize >> 6;
+        let mut out = Vec::with_capacity(list.len() * 2);
+        for w in out_lo..=out_hi {
+            let mut acc = 0u64;
+            for &(q, r) in shifts {
+                let q = w as isize + q;
+                acc |= if r == 0 {
+                    word(q)
+                } else {
+                    (word(q) >> r) | (word(q + 1) << (64 - r))
+                };
+            }
+            out.extend(bits(acc & self.real[w]).map(|bit| (64 * w) as u32 + bit));
+        }
+        self.listed[lo_w..=hi_w].fill(0);
+        Some(out)
+    }
+
     /// The real bricks of `list` and of `list` shifted by `o`, without duplicates, in
     /// increasing order; `list` must be increasing (all brick lists are: see
     /// [`Thinning::dilate`]). A merge of the two sorted sequences: linear, and no scan of
-    /// the brick bitset (the sub-steps' lists are often a few bricks spread over the grid).
-    fn with_shifted(&self, list: &[u32], o: isize) -> Vec<u32> {
+    /// the brick bitset (the sub-steps' lists are often a few bricks spread over the grid);
+    /// a dense list goes through [`Thinning::dilate_dense`].
+    fn with_shifted(&mut self, list: &[u32], o: isize) -> Vec<u32> {
         debug_assert!(list.windows(2).all(|w| w[0] < w[1]));
+        if let Some(out) = self.dilate_dense(list, &[0, o]) {
+            return out;
+        }
         let is_real = |c: u32| self.real[c as usize >> 6] >> (c & 63) & 1 != 0;
         let shifted = |i: usize| (list[i] as isize + o) as u32;
         let mut out = Vec::with_capacity(2 * list.len());
@@ -1249,16 +1341,15 @@ impl<'a> Thinning<'a> {
         for (b, axis, new) in found {
             let (b, axis) = (b as usize, axis as usize);
             self.born.or(b, EDGE[axis], new);
+            // The brick's coordinates once (three divisions), each bit's by its offset.
+            let base = self.layout.coords(b, 0);
             for bit in bits(new) {
+                let v = [bit & 3, (bit >> 2) & 3, bit >> 4].map(|o| o as usize);
+                let v = [0, 1, 2].map(|a| base[a] + v[a]);
                 if let Some(birth) = &mut self.birth {
-                    let i = {
-                        let v = self.layout.coords(b, bit);
-                        let s = self.layout.size;
-                        v[0] + s[0] * (v[1] + s[1] * v[2])
-                    };
-                    birth[3 * i + axis] = date;
+                    let s = self.layout.size;
+                    birth[3 * (v[0] + s[0] * (v[1] + s[1] * v[2])) + axis] = date;
                 }
-                let v = self.layout.coords(b, bit);
                 if let Some(when) = self.constraint_date(v, axis, date) {
                     if when <= now {
                         self.inhibit_edge(b, bit, axis);
@@ -1588,20 +1679,31 @@ impl<'a> Thinning<'a> {
     /// Runs Algorithm 2 until no unconstrained free pair is left. Returns the iterations run.
     ///
     /// With [`Split::PerThread`] the run keeps one helper thread of the pool ([`Duo`]) for
-    /// its passes; the helper may start late or never (a busy pool, a pool of one thread)
+    /// its passes, unless it starts with fewer than [`MIN_HELPER_BRICKS`] bricks to examine
+    /// (then its passes stay on the calling thread); the helper may start late or never (a busy pool, a pool of one thread)
     /// without changing the result or blocking the run: its task is detached, and the run
     /// waits neither for it to start nor for it to return.
     pub fn run(&mut self, mut observer: Observer<'_, '_>) -> u32 {
         let start = self.iteration;
-        if matches!(self.split, Split::PerThread) && !self.serving {
-            // A fresh pair per run, and a detached task: the run never waits for the helper
-            // to start (a busy pool, or a caller outside the pool), and a helper that starts
-            // after the run finds its own pair shut down and returns.
+        if matches!(self.split, Split::PerThread)
+            && !self.serving
+            && self.iteration > 0
+            && self.changed.len() < self.min_helper_bricks
+        {
+            // A run that resumes a collapse with few bricks to examine (the re-thinning after
+            // a pierce): its passes stay on the calling thread ([`MIN_HELPER_BRICKS`]).
+            self.split = Split::Sequential;
+            while self.iterate(observer.as_deref_mut()) {}
+            self.split = Split::PerThread;
+        } else if matches!(self.split, Split::PerThread) && !self.serving {
+            // A fresh pair per run, its helper a detached task started by the first pass worth
+            // sharing ([`Duo::start`]): the run never waits for the helper to start (a busy
+            // pool, or a caller outside the pool), a helper that starts after the run finds
+            // its own pair shut down and returns, and a run without such a pass wakes no
+            // worker and keeps no core spinning.
             let duo = Arc::new(Duo::new());
             *duo.owner.lock().unwrap_or_else(|e| e.into_inner()) =
                 Some(std::thread::current().id());
-            let helper = Arc::clone(&duo);
-            rayon::spawn(move || helper.serve());
             self.duo = Arc::clone(&duo);
             let _shut_down = ShutDownOnDrop(&duo);
             self.serving = true;
@@ -1820,7 +1922,10 @@ fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
     // square bits, and the first index of its squares plus one (0 = none).
     let mut bits = vec![0u8; 2 * plane];
     let mut first = vec![0u32; 2 * plane];
-    let slot = |w: usize| ((w / plane) & 1) * plane + w % plane;
+    // The slot of vertex w in z layer wz: the layers are known from the squares' order and
+    // the steps taken, so no division per lookup (a 64-bit division costs some tens of cycles,
+    // and there are 16 lookups per square).
+    let slot = |w: usize, wz: usize| (wz & 1) * plane + (w - wz * plane);
     // The squares of the layers held: (z, range of square indices), older first.
     let mut held: [Option<(usize, std::ops::Range<usize>)>; 2] = [None, None];
     let mut parts = UnionFind::new(squares.len());
@@ -1836,22 +1941,21 @@ fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
         for h in held.iter_mut() {
             if keep(h) {
                 kept = h.take();
-            } else if let Some((_, range)) = h.take() {
+            } else if let Some((hz, range)) = h.take() {
                 for &(v, _) in &squares[range] {
-                    bits[slot(v as usize)] = 0;
+                    bits[slot(v as usize, hz)] = 0;
                 }
             }
         }
         held = [kept, Some((z, k..end))];
         for (i, &(v, span)) in squares[k..end].iter().enumerate().rev() {
-            let at = slot(v as usize);
+            let at = slot(v as usize, z);
             bits[at] |= SPAN_BIT[span as usize];
             first[at] = (k + i) as u32 + 1;
         }
-        // Index of a present square: the first index of its vertex plus its rank there (the
-        // list is sorted by vertex, then span 3, 5, 6).
-        let index = |w: usize, span: u8| -> usize {
-            let at = slot(w);
+        // Index of a present square from its vertex's slot: the first index of its vertex
+        // plus its rank there (the list is sorted by vertex, then span 3, 5, 6).
+        let index = |at: usize, span: u8| -> usize {
             let below = [3u8, 5, 6]
                 .iter()
                 .filter(|&&t| t < span && bits[at] & SPAN_BIT[t as usize] != 0)
@@ -1865,9 +1969,13 @@ fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
                     continue;
                 }
                 let e = (span & !(1 << a)) as usize;
-                for owner in [v, v + s[a]] {
+                for (owner, oz) in [(v, z), (v + s[a], z + usize::from(a == 2))] {
                     for &(sq, at) in cofaces(e) {
-                        let w = if at == 3 { owner } else { owner - s[at] };
+                        let (w, wz) = if at == 3 {
+                            (owner, oz)
+                        } else {
+                            (owner - s[at], oz - usize::from(at == 2))
+                        };
                         // Only the earlier squares (which skips k itself, a coface of its
                         // own edges); adjacency is symmetric and a set's root is its
                         // smallest square (`UnionFind::union`), so joining each pair once
@@ -1875,8 +1983,9 @@ fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
                         if w > v || (w == v && sq >= span as usize) {
                             continue;
                         }
-                        if bits[slot(w)] & SPAN_BIT[sq] != 0 {
-                            parts.union(k, index(w, sq as u8));
+                        let at = slot(w, wz);
+                        if bits[at] & SPAN_BIT[sq] != 0 {
+                            parts.union(k, index(at, sq as u8));
                         }
                     }
                 }
@@ -1914,15 +2023,10 @@ fn square_sides(
     priority: Option<&[u32]>,
 ) -> Vec<(u32, u32, u32)> {
     let size = dims.map(|d| d + 2);
-    let s = [1, size[0], size[0] * size[1]];
-    // Priority of a cube position (internal vertex v is the cube of voxel v - 1).
-    let prio = |cube: usize| -> u32 {
+    // Priority of a cube position given by its internal vertex coordinates (internal vertex v
+    // is the cube of voxel v - 1).
+    let prio = |c: [usize; 3]| -> u32 {
         let Some(p) = priority else { return 0 };
-        let c = [
-            cube % size[0],
-            (cube / size[0]) % size[1],
-            cube / (size[0] * size[1]),
-        ];
         if (0..3).all(|a| c[a] >= 1 && c[a] <= dims[a]) {
             p[(c[0] - 1) + dims[0] * ((c[1] - 1) + dims[1] * (c[2] - 1))]
         } else {
@@ -1933,12 +2037,13 @@ fn square_sides(
         .iter()
         .map(|&(v, span)| {
             let normal = (0..3).find(|a| span & (1 << a) == 0).unwrap();
-            let (c1, c2) = (v as usize, v as usize - s[normal]);
-            (
-                runs.run_of(c1) as u32,
-                runs.run_of(c2) as u32,
-                prio(c1).max(prio(c2)),
-            )
+            // The coordinates once per square (two divisions), the other cube by a step.
+            let (row, x) = (v as usize / size[0], v as usize % size[0]);
+            let c1 = [x, row % size[1], row / size[1]];
+            let mut c2 = c1;
+            c2[normal] -= 1;
+            let run = |c: [usize; 3]| runs.run_at(c[1] + size[1] * c[2], c[0]) as u32;
+            (run(c1), run(c2), prio(c1).max(prio(c2)))
         })
         .collect()
 }
@@ -1953,7 +2058,6 @@ fn square_sides(
 /// XZ (rows along y) or XY (rows along z) square. Work: O(rows + squares), against a
 /// union-find over every cube position.
 struct ComplementRuns {
-    size: [usize; 3],
     /// Per row (y + size_y z): the x of its YZ squares (sorted), as CSR offsets into `cuts`.
     cut_start: Vec<u32>,
     cuts: Vec<u32>,
@@ -2034,19 +2138,12 @@ impl ComplementRuns {
                 }
             }
         }
-        (
-            ComplementRuns {
-                size,
-                cut_start,
-                cuts,
-            },
-            components,
-        )
+        (ComplementRuns { cut_start, cuts }, components)
     }
 
-    /// The run holding a cube position (internal vertex index).
-    fn run_of(&self, cube: usize) -> usize {
-        let (w, x) = (cube / self.size[0], (cube % self.size[0]) as u32);
+    /// The run holding the cube position at x in row w (y + size_y z).
+    fn run_at(&self, w: usize, x: usize) -> usize {
+        let x = x as u32;
         let c = &self.cuts[self.cut_start[w] as usize..self.cut_start[w + 1] as usize];
         self.cut_start[w] as usize + w + c.partition_point(|&cut| cut <= x)
     }
@@ -2214,7 +2311,7 @@ mod tests {
     #[test]
     fn shared_passes_equal_sequential() {
         let mut rng = Rng::new(17, 3);
-        let mut helped = 0;
+        let (mut helped, mut alone_helped) = (0, 0);
         for case in 0..12 {
             let dims = [10 + case % 7, 9 + (case * 5) % 6, 8 + (case * 3) % 5];
             let occ = random_occupied(dims, [0.2f32, 0.35][case % 2], &mut rng);
@@ -2261,10 +2358,24 @@ mod tests {
                 assert_eq!(shared.death, seq.death);
                 if threads > 1 {
                     helped += shared.helper_chunks.load(Relaxed);
+                    // The re-thinning runs, which start below `MIN_HELPER_BRICKS` (all of
+                    // these), have no helper even when every pass could be shared, with the
+                    // same result.
+                    let mut alone = Thinning::new(cx.clone(), constraint, true, true);
+                    (alone.min_shared_work, alone.min_claim) = (0, 1);
+                    pool.install(|| {
+                        alone.run(None);
+                        let first = alone.helper_chunks.load(Relaxed);
+                        alone.curvilinear(Some(&priority), None);
+                        alone_helped += alone.helper_chunks.load(Relaxed) - first;
+                    });
+                    assert_eq!(alone.stats, seq.stats);
+                    assert_eq!(alone.death, seq.death);
                 }
             }
         }
         assert!(helped > 0, "the helper never took part");
+        assert_eq!(alone_helped, 0, "a re-thinning run had a helper");
     }
 
     #[test]
@@ -2394,7 +2505,8 @@ mod tests {
             let mut root_of = vec![usize::MAX; count];
             let mut label_of = std::collections::HashMap::new();
             for i in 0..c.len() {
-                let (l, r) = (labels[i] as usize, uf.find(runs.run_of(i)));
+                let run = runs.run_at(i / (dims[0] + 2), i % (dims[0] + 2));
+                let (l, r) = (labels[i] as usize, uf.find(run));
                 assert!(root_of[l] == usize::MAX || root_of[l] == r, "case {case}");
                 root_of[l] = r;
                 assert_eq!(*label_of.entry(r).or_insert(l), l, "case {case}");
@@ -2441,6 +2553,56 @@ mod tests {
                 t.split = Split::Sequential;
             }
         }
+    }
+
+    /// The brick-list dilations (dense shift-or, per-brick marking, sorting, the merge) equal
+    /// the set of shifted real bricks, on dense and sparse random lists, unsorted for
+    /// `dilate`, with the offsets of the collapse.
+    #[test]
+    fn brick_dilations_equal_shifted_sets() {
+        let mut rng = Rng::new(61, 9);
+        let mut t = Thinning::empty([21, 30, 13], Constraint::None, false, false);
+        let n = t.layout.bricks();
+        let step = t.layout.step.map(|s| s as isize);
+        let (sx, sy, sz) = (step[0], step[1], step[2]);
+        let offset_sets: [&[isize]; 4] = [
+            &[0, sx, sy, sz],
+            &[0, -sx, -sy, -sz],
+            &[0, sx, sy, sz, sx + sy, sx + sz, sy + sz, sx + sy + sz],
+            &[0, -sy],
+        ];
+        let (mut dense, mut sparse) = (0, 0);
+        for case in 0..40 {
+            let density = [0.9f32, 0.5, 0.05, 0.005][case % 4];
+            let list: Vec<u32> = (0..n as u32)
+                .filter(|&b| t.layout.real(b as usize) && rng.uniform() < density)
+                .collect();
+            let mut shuffled = list.clone();
+            shuffled.reverse();
+            for offsets in offset_sets {
+                let mut expected: Vec<u32> = list
+                    .iter()
+                    .flat_map(|&b| offsets.iter().map(move |&o| (b as isize + o) as usize))
+                    .filter(|&c| t.layout.real(c))
+                    .map(|c| c as u32)
+                    .collect();
+                expected.sort_unstable();
+                expected.dedup();
+                match t.dilate_dense(&shuffled, offsets) {
+                    Some(out) => {
+                        dense += 1;
+                        assert_eq!(out, expected, "case {case}, dense");
+                    }
+                    None => sparse += 1,
+                }
+                assert_eq!(t.dilate(&shuffled, offsets), expected, "case {case}");
+                if offsets.len() == 2 {
+                    assert_eq!(t.with_shifted(&list, offsets[1]), expected, "case {case}");
+                }
+                assert!(t.listed.iter().all(|&w| w == 0), "scratch left dirty");
+            }
+        }
+        assert!(dense > 20 && sparse > 20, "{dense} dense, {sparse} sparse");
     }
 
     /// `surface_parts` equals a direct definition: squares sharing an edge are in one part
