@@ -238,22 +238,34 @@ fn opening_l1_words<W: Word>(
             }
         });
     let steps = [1, px, plane];
-    // Maximal-ball centres by level (counting sort).
-    let is_centre = |i: usize| {
-        let d = dist[i];
-        d != W::ZERO
-            && d != W::SOLID
-            && steps
-                .iter()
-                .all(|&s| dist[i - s].get() != d.get() + 1 && dist[i + s].get() != d.get() + 1)
+    // Maximal-ball centres by level (counting sort). A row's centres: no 6-neighbour one farther from the solid. The six
+    // neighbour rows are slices as long as the row, so the loop needs no bounds tests.
+    let row_centres = |row: usize, out: &mut Vec<u32>| {
+        let at = |o: usize| &dist[o..o + nx];
+        let (c, x0, x1) = (at(row), at(row - 1), at(row + 1));
+        let (y0, y1, z0, z1) = (at(row - px), at(row + px), at(row - plane), at(row + plane));
+        for x in 0..nx {
+            let d = c[x];
+            let up = d.get() + 1;
+            if d != W::ZERO
+                && d != W::SOLID
+                && x0[x].get() != up
+                && x1[x].get() != up
+                && y0[x].get() != up
+                && y1[x].get() != up
+                && z0[x].get() != up
+                && z1[x].get() != up
+            {
+                out.push((row + x) as u32);
+            }
+        }
     };
     let centres: Vec<u32> = (0..nz)
         .into_par_iter()
         .flat_map_iter(|z| {
             let mut out = Vec::new();
             for y in 0..ny {
-                let row = padded(0, y, z);
-                out.extend((row..row + nx).filter(|&i| is_centre(i)).map(|i| i as u32));
+                row_centres(padded(0, y, z), &mut out);
             }
             out
         })
@@ -435,6 +447,12 @@ impl Word for u32 {
 /// (per voxel: the largest remaining budget it was expanded with, plus one; 0 = never; solid
 /// voxels count as expanded with an unbounded budget, so one test rejects both); returns the
 /// padded opening map.
+///
+/// The inner loops index `state` and `opening` without bounds checks (a quarter of the
+/// flood's instructions were bounds tests). Sound because every listed voxel lies inside the one-voxel
+/// padding, so its six neighbours lie in the grid: a voxel is listed or marked only when its
+/// state is at most the budget, which the padding's state, `W::SOLID` (larger than every
+/// budget, as `max_d < W::SOLID − 1`), never is; the padding is set solid here.
 fn flood<W: Word>(
     mut state: Vec<W>,
     by_level: &[u32],
@@ -442,9 +460,28 @@ fn flood<W: Word>(
     max_d: usize,
     steps: [usize; 3],
 ) -> Vec<W> {
-    let mut opening: Vec<W> = vec![W::ZERO; state.len()];
-    let mut frontier: Vec<u32> = Vec::new();
-    let mut next: Vec<u32> = Vec::new();
+    let len = state.len();
+    if max_d == 0 {
+        return vec![W::ZERO; len];
+    }
+    let (px, plane) = (steps[1], steps[2]);
+    assert!(steps[0] == 1 && px >= 3 && plane % px == 0 && plane / px >= 3);
+    assert!(len % plane == 0 && len / plane >= 3 && max_d < W::SOLID.get() as usize - 1);
+    state[..plane].fill(W::SOLID);
+    state[len - plane..].fill(W::SOLID);
+    for slab in state.chunks_exact_mut(plane) {
+        slab[..px].fill(W::SOLID);
+        slab[plane - px..].fill(W::SOLID);
+        for row in slab.chunks_exact_mut(px) {
+            row[0] = W::SOLID;
+            row[px - 1] = W::SOLID;
+        }
+    }
+    let mut opening: Vec<W> = vec![W::ZERO; len];
+    // A round lists a voxel at most once (it is marked first), so `len` entries hold any
+    // round; the rounds write the spare capacity (no growth or length updates per voxel).
+    let mut frontier: Vec<u32> = Vec::with_capacity(len);
+    let mut next: Vec<u32> = Vec::with_capacity(len);
     for r in (1..=max_d).rev() {
         frontier.clear();
         let level = W::of(r as u32);
@@ -457,11 +494,15 @@ fn flood<W: Word>(
         }
         while !frontier.is_empty() {
             next.clear();
+            let spare = next.spare_capacity_mut();
+            let mut listed = 0;
             let (below, mark) = (W::of(budget.wrapping_sub(1)), W::of(budget));
             for &i in &frontier {
                 let i = i as usize;
-                if opening[i] == W::ZERO {
-                    opening[i] = level;
+                // SAFETY: `i` is a listed voxel, inside the padding (see above).
+                let o = unsafe { opening.get_unchecked_mut(i) };
+                if *o == W::ZERO {
+                    *o = level;
                 }
                 if budget == 0 {
                     continue;
@@ -478,22 +519,31 @@ fn flood<W: Word>(
                     // The last step: a neighbour reached with budget 0 only takes the level,
                     // so it is marked here instead of being listed for one more round.
                     for j in around {
-                        if state[j] == W::ZERO {
-                            state[j] = mark;
-                            if opening[j] == W::ZERO {
-                                opening[j] = level;
+                        // SAFETY: `j` is a neighbour of a listed voxel, so in the grid.
+                        let s = unsafe { state.get_unchecked_mut(j) };
+                        if *s == W::ZERO {
+                            *s = mark;
+                            // SAFETY: as above.
+                            let o = unsafe { opening.get_unchecked_mut(j) };
+                            if *o == W::ZERO {
+                                *o = level;
                             }
                         }
                     }
                     continue;
                 }
                 for j in around {
-                    if state[j] <= below {
-                        state[j] = mark;
-                        next.push(j as u32);
+                    // SAFETY: `j` is a neighbour of a listed voxel, so in the grid.
+                    let s = unsafe { state.get_unchecked_mut(j) };
+                    if *s <= below {
+                        *s = mark;
+                        spare[listed].write(j as u32);
+                        listed += 1;
                     }
                 }
             }
+            // SAFETY: the first `listed` entries of the spare capacity were written above.
+            unsafe { next.set_len(listed) };
             if budget <= 1 {
                 break;
             }

@@ -412,7 +412,10 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
                 }
             }
         });
-    let mut queue: Vec<u32> = Vec::with_capacity(grid.len());
+    // FIFO queue: a voxel is labelled before it is queued, so it is queued at most once and
+    // one entry per voxel holds the whole search.
+    let mut queue = vec![0u32; grid.len()];
+    let mut tail = 0;
     for (l, seed) in node_map_seeds(grid, occupied, nodes)
         .into_iter()
         .enumerate()
@@ -420,7 +423,8 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
         if let Some(k) = seed {
             let p = padded(k as usize);
             map[p] = l as u32;
-            queue.push(p as u32);
+            queue[tail] = p as u32;
+            tail += 1;
         }
     }
     let faces = [
@@ -432,15 +436,21 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
         -(plane as isize),
     ];
     let mut head = 0;
-    while head < queue.len() {
+    while head < tail {
         let i = queue[head] as usize;
         head += 1;
         let label = map[i];
         for &o in &faces {
             let j = i.wrapping_add_signed(o);
-            if map[j] == UNDEFINED_NODE {
-                map[j] = label;
-                queue.push(j as u32);
+            // SAFETY: `i` was queued, so it is an empty voxel inside the padding (a seed is;
+            // a neighbour is queued only when it holds UNDEFINED_NODE, which no padding voxel,
+            // BLOCKED, does) and its face neighbour `j` lies in `map`. Unchecked: one
+            // bounds test per neighbour otherwise.
+            let m = unsafe { map.get_unchecked_mut(j) };
+            if *m == UNDEFINED_NODE {
+                *m = label;
+                queue[tail] = j as u32;
+                tail += 1;
             }
         }
     }
@@ -455,7 +465,7 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
                 .map(move |(k, _)| base + k as u32)
         })
         .collect();
-    if !unmapped.is_empty() && !queue.is_empty() {
+    if !unmapped.is_empty() && tail > 0 {
         let mut around: Vec<isize> = Vec::with_capacity(26);
         for order in 1..=3 {
             for dz in -1isize..=1 {
