@@ -238,15 +238,17 @@ fn opening_l1_words<W: Word>(
             }
         });
     let steps = [1, px, plane];
-    // Maximal-ball centres by level (counting sort). A row's centres: no 6-neighbour one farther from the solid. The six
-    // neighbour rows are slices as long as the row, so the loop needs no bounds tests.
+    // Maximal-ball centres by level (counting sort). A row's centres: no 6-neighbour one farther
+    // from the solid. The six neighbour rows are slices as long as the row, so the loop needs no
+    // bounds tests.
     let row_centres = |row: usize, out: &mut Vec<u32>| {
         let at = |o: usize| &dist[o..o + nx];
         let (c, x0, x1) = (at(row), at(row - 1), at(row + 1));
         let (y0, y1, z0, z1) = (at(row - px), at(row + px), at(row - plane), at(row + plane));
         for x in 0..nx {
             let d = c[x];
-            let up = d.get() + 1;
+            // Wrapping: `d` may be the largest word (no solid anywhere); SOLID rejects it below.
+            let up = d.get().wrapping_add(1);
             if d != W::ZERO
                 && d != W::SOLID
                 && x0[x].get() != up
@@ -478,10 +480,12 @@ fn flood<W: Word>(
         }
     }
     let mut opening: Vec<W> = vec![W::ZERO; len];
-    // A round lists a voxel at most once (it is marked first), so `len` entries hold any
-    // round; the rounds write the spare capacity (no growth or length updates per voxel).
-    let mut frontier: Vec<u32> = Vec::with_capacity(len);
-    let mut next: Vec<u32> = Vec::with_capacity(len);
+    // A round lists a voxel at most once (it is marked first) and each listed voxel lists at
+    // most its six neighbours, so a round needs min(6 x frontier, len) entries, reserved before
+    // it; the rounds write the spare capacity (no growth or length updates per voxel). Reserving
+    // per round keeps the lists as large as the widest round, not the whole grid per piece.
+    let mut frontier: Vec<u32> = Vec::new();
+    let mut next: Vec<u32> = Vec::new();
     for r in (1..=max_d).rev() {
         frontier.clear();
         let level = W::of(r as u32);
@@ -494,6 +498,7 @@ fn flood<W: Word>(
         }
         while !frontier.is_empty() {
             next.clear();
+            next.reserve((6 * frontier.len()).min(len));
             let spare = next.spare_capacity_mut();
             let mut listed = 0;
             let (below, mark) = (W::of(budget.wrapping_sub(1)), W::of(budget));

@@ -421,6 +421,13 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
         .enumerate()
     {
         if let Some(k) = seed {
+            // `Node::voxel` is a public field: a seed outside the grid would be queued in the
+            // padding and break the unchecked reads below.
+            assert!(
+                (k as usize) < grid.len(),
+                "node seed {k} outside the grid of {} voxels",
+                grid.len()
+            );
             let p = padded(k as usize);
             map[p] = l as u32;
             queue[tail] = p as u32;
@@ -442,9 +449,9 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
         let label = map[i];
         for &o in &faces {
             let j = i.wrapping_add_signed(o);
-            // SAFETY: `i` was queued, so it is an empty voxel inside the padding (a seed is;
-            // a neighbour is queued only when it holds UNDEFINED_NODE, which no padding voxel,
-            // BLOCKED, does) and its face neighbour `j` lies in `map`. Unchecked: one
+            // SAFETY: `i` was queued, so it is a voxel inside the padding (a seed is, as
+            // asserted above; a neighbour is queued only when it holds UNDEFINED_NODE, which no
+            // padding voxel, BLOCKED, does) and its face neighbour `j` lies in `map`. Unchecked: one
             // bounds test per neighbour otherwise.
             let m = unsafe { map.get_unchecked_mut(j) };
             if *m == UNDEFINED_NODE {
@@ -1215,6 +1222,25 @@ mod tests {
         map
     }
 
+    /// A node map of `len` voxels, each solid (unmapped) with probability `solid`, else labelled
+    /// with one of `labels` nodes by its index.
+    fn random_node_map(
+        rng: &mut crate::math::Rng,
+        len: usize,
+        solid: f32,
+        labels: u32,
+    ) -> Vec<u32> {
+        (0..len as u32)
+            .map(|i| {
+                if rng.uniform() < solid {
+                    UNDEFINED_NODE
+                } else {
+                    i % labels
+                }
+            })
+            .collect()
+    }
+
     /// The masked mapping finds the node the direct one finds, for points inside, on the
     /// border of and outside random grids (solid fractions from sparse to mostly solid),
     /// axis-aligned and random normals, both sides.
@@ -1229,15 +1255,7 @@ mod tests {
                     origin: [-1.5, 0.25, 2.0],
                     voxel_size: 0.5,
                 };
-                let map: Vec<u32> = (0..grid.len())
-                    .map(|i| {
-                        if rng.uniform() < solid {
-                            UNDEFINED_NODE
-                        } else {
-                            (i % 7) as u32
-                        }
-                    })
-                    .collect();
+                let map = random_node_map(&mut rng, grid.len(), solid, 7);
                 let masks = NeighbourMasks::new(&grid, &map);
                 for i in 0..4000 {
                     // A little beyond the grid on every side.
@@ -1279,15 +1297,7 @@ mod tests {
                     origin: [0.75, -2.0, 0.5],
                     voxel_size: 0.25,
                 };
-                let map: Vec<u32> = (0..grid.len())
-                    .map(|i| {
-                        if rng.uniform() < solid {
-                            UNDEFINED_NODE
-                        } else {
-                            (i % 5) as u32
-                        }
-                    })
-                    .collect();
+                let map = random_node_map(&mut rng, grid.len(), solid, 5);
                 let masks = NeighbourMasks::new(&grid, &map);
                 for i in 0..4000 {
                     let g = [0, 1, 2].map(|a| (rng.uniform() as f64 * 1.4 - 0.2) * dims[a] as f64);

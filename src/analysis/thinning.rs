@@ -46,8 +46,9 @@
 //! every brick from the unchanged planes, then removes them; both passes write only the
 //! brick they process, so they run in parallel over bricks with results identical to the
 //! sequential order (tested): during [`Thinning::run`] on the calling thread and one helper
-//! thread that stays for the whole run (`Duo`: a rayon fork/join per pass cost more than it
-//! saved, the sleeping worker's wake-up), elsewhere over the rayon pool. Scratch planes are
+//! thread, started by the run's first pass worth sharing and kept to the run's end (`Duo`: a
+//! rayon fork/join per pass cost more than it saved, the sleeping worker's wake-up; a run that
+//! resumes a collapse with few changed bricks has no helper), elsewhere over the rayon pool. Scratch planes are
 //! atomics with relaxed loads and stores: plain moves on x86-64, and no `unsafe` in the
 //! passes (the only `unsafe` is the hand-over of a pass to the helper, see `Duo`).
 //!
@@ -450,8 +451,8 @@ const MIN_PARALLEL_WORK: usize = 2048;
 /// was as fast as 256 and no slower than 2048.
 const MIN_SHARED_WORK: usize = 1024;
 
-/// Bricks to examine at the start of a [`Thinning::run`] that resumes a collapse below which
-/// the run keeps its passes on the calling thread instead of sharing them with a helper
+/// Changed bricks (the bricks to examine are their dilation) at the start of a
+/// [`Thinning::run`] that resumes a collapse below which the run keeps its passes on the calling thread instead of sharing them with a helper
 /// ([`Duo`]). Measured on the door (BENCHMARKS.md, round 8): the re-thinning after a pierce (a
 /// run that starts with the one or two bricks of the pierced squares, then some hundred bricks
 /// per pass for hundreds of iterations) was 10-20 % faster on 2 threads without the helper at
@@ -487,8 +488,8 @@ const DONE: u32 = 3;
 const PANICKED: u32 = 4;
 const SHUT_DOWN: u32 = 5;
 
-/// The helper thread of a [`Thinning::run`]: one pool thread that stays with the collapse for
-/// the whole run and takes part in every split pass, instead of a rayon fork/join per pass.
+/// The helper thread of a [`Thinning::run`]: one pool thread that joins the collapse at the
+/// run's first pass worth sharing, stays to the run's end and takes part in every split pass, instead of a rayon fork/join per pass.
 /// A pass follows some microseconds of sequential list work, after which a rayon worker has
 /// gone to sleep: waking it (an inter-processor interrupt on this KVM guest) cost about 10 µs
 /// per pass at the door's 234, more than half of a typical pass (BENCHMARKS.md, round 7). The
@@ -768,8 +769,8 @@ pub struct Thinning<'a> {
     duo: Arc<Duo>,
     serving: bool,
     min_shared_work: usize,
-    /// Bricks to examine at the start of a run below which the run has no helper
-    /// ([`MIN_HELPER_BRICKS`]).
+    /// Changed bricks at the start of a resumed run below which the run has no helper
+    /// ([`MIN_HELPER_BRICKS`]; the bricks to examine are their dilation).
     min_helper_bricks: usize,
     /// Smallest chunk a thread claims in a shared pass (0: by the pass's [`Work`]).
     min_claim: u32,
@@ -1679,9 +1680,10 @@ impl<'a> Thinning<'a> {
     /// Runs Algorithm 2 until no unconstrained free pair is left. Returns the iterations run.
     ///
     /// With [`Split::PerThread`] the run keeps one helper thread of the pool ([`Duo`]) for
-    /// its passes, unless it starts with fewer than [`MIN_HELPER_BRICKS`] bricks to examine
-    /// (then its passes stay on the calling thread); the helper may start late or never (a busy pool, a pool of one thread)
-    /// without changing the result or blocking the run: its task is detached, and the run
+    /// its passes, unless it resumes a collapse (not the first run) with fewer than
+    /// [`MIN_HELPER_BRICKS`] changed bricks (then its passes stay on the calling thread). The
+    /// helper may start late or never (a busy pool, a pool of one thread) without changing
+    /// the result or blocking the run: its task is detached, and the run
     /// waits neither for it to start nor for it to return.
     pub fn run(&mut self, mut observer: Observer<'_, '_>) -> u32 {
         let start = self.iteration;
@@ -2311,7 +2313,7 @@ mod tests {
     #[test]
     fn shared_passes_equal_sequential() {
         let mut rng = Rng::new(17, 3);
-        let (mut helped, mut alone_helped) = (0, 0);
+        let (mut helped, mut alone_helped, mut resumed_runs) = (0, 0, 0);
         for case in 0..12 {
             let dims = [10 + case % 7, 9 + (case * 5) % 6, 8 + (case * 3) % 5];
             let occ = random_occupied(dims, [0.2f32, 0.35][case % 2], &mut rng);
@@ -2362,11 +2364,16 @@ mod tests {
                     // these), have no helper even when every pass could be shared, with the
                     // same result.
                     let mut alone = Thinning::new(cx.clone(), constraint, true, true);
+                    alone.split = Split::PerThread;
                     (alone.min_shared_work, alone.min_claim) = (0, 1);
                     pool.install(|| {
+                        // `curvilinear` written out, to count the re-thinning runs.
                         alone.run(None);
                         let first = alone.helper_chunks.load(Relaxed);
-                        alone.curvilinear(Some(&priority), None);
+                        while alone.pierce(Some(&priority)) > 0 {
+                            resumed_runs += 1;
+                            alone.run(None);
+                        }
                         alone_helped += alone.helper_chunks.load(Relaxed) - first;
                     });
                     assert_eq!(alone.stats, seq.stats);
@@ -2375,6 +2382,7 @@ mod tests {
             }
         }
         assert!(helped > 0, "the helper never took part");
+        assert!(resumed_runs > 0, "no case was pierced and re-thinned");
         assert_eq!(alone_helped, 0, "a re-thinning run had a helper");
     }
 

@@ -114,8 +114,8 @@ pub fn uniform_triangle(u: Vec2) -> (f32, f32) {
 /// Set up in f64: the solid angle is a sum of four angles minus 2 pi, which cancels in f32
 /// for small or distant rectangles. Those four angles (four `acos`, most of the set-up's
 /// cost) are computed at the first sample or density evaluation that needs them: a guided
-/// vertex sets up its portal's rectangle for every direction it weighs, and most of those
-/// (the BSDF's samples, the light's) miss it (issue 8, round 8).
+/// vertex sets up its portal's rectangle once and evaluates its density for every direction
+/// it weighs, and most of those (the BSDF's samples, the light's) miss it (issue 8, round 8).
 #[derive(Clone, Debug)]
 pub struct SphericalRectangle {
     /// The rectangle's frame: unit edge directions x, y and z = x × y flipped so that the
