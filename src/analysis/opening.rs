@@ -450,11 +450,11 @@ impl Word for u32 {
 /// voxels count as expanded with an unbounded budget, so one test rejects both); returns the
 /// padded opening map.
 ///
-/// The inner loops index `state` and `opening` without bounds checks (a quarter of the
-/// flood's instructions were bounds tests). Sound because every listed voxel lies inside the one-voxel
-/// padding, so its six neighbours lie in the grid: a voxel is listed or marked only when its
-/// state is at most the budget, which the padding's state, `W::SOLID` (larger than every
-/// budget, as `max_d < W::SOLID − 1`), never is; the padding is set solid here.
+/// The inner loops index `state` and `opening` without bounds checks (a quarter of the flood's
+/// instructions were bounds tests). Sound because every listed voxel lies inside the one-voxel
+/// padding, so its six neighbours lie in the grid: a voxel is listed or marked only when its state
+/// is at most the budget, which the padding's state, `W::SOLID` (larger than every budget, as
+/// `max_d < W::SOLID − 1`), never is; the padding is set solid here.
 fn flood<W: Word>(
     mut state: Vec<W>,
     by_level: &[u32],

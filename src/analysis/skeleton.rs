@@ -449,10 +449,10 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
         let label = map[i];
         for &o in &faces {
             let j = i.wrapping_add_signed(o);
-            // SAFETY: `i` was queued, so it is a voxel inside the padding (a seed is, as
-            // asserted above; a neighbour is queued only when it holds UNDEFINED_NODE, which no
-            // padding voxel, BLOCKED, does) and its face neighbour `j` lies in `map`. Unchecked: one
-            // bounds test per neighbour otherwise.
+            // SAFETY: `i` was queued, so it is a voxel inside the padding (a seed is, as asserted
+            // above; a neighbour is queued only when it holds UNDEFINED_NODE, which no padding
+            // voxel, BLOCKED, does) and its face neighbour `j` lies in `map`. Unchecked: one bounds
+            // test per neighbour otherwise.
             let m = unsafe { map.get_unchecked_mut(j) };
             if *m == UNDEFINED_NODE {
                 *m = label;

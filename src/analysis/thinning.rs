@@ -35,22 +35,22 @@
 //! border: a layer of the collapse crosses a brick in 4 iterations along any axis, where a
 //! 64-vertex row would stay busy for 64 iterations under a front moving along it.
 //!
-//! Work per iteration: only bricks near a change can hold a free face. A cell's freeness
-//! depends on its cofaces, so when cells of brick b are removed only the faces of removed
-//! cells change, and those lie in b or its +x, +y, +z neighbours (the set A). A face free at
-//! the start of an iteration is always removed or loses its coface during it (its coface is in
-//! L, so its sub-step takes it unless the coface went first), so no free face lies outside A.
-//! Each iteration therefore computes, on A only: births, the free faces, the cofaces of free
-//! pairs, their closure L (which reaches the bricks one step forward), and runs the 18
-//! sub-steps on the bricks where L is not empty. Each sub-step first computes the pairs of
-//! every brick from the unchanged planes, then removes them; both passes write only the
-//! brick they process, so they run in parallel over bricks with results identical to the
-//! sequential order (tested): during [`Thinning::run`] on the calling thread and one helper
-//! thread, started by the run's first pass worth sharing and kept to the run's end (`Duo`: a
-//! rayon fork/join per pass cost more than it saved, the sleeping worker's wake-up; a run that
-//! resumes a collapse with few changed bricks has no helper), elsewhere over the rayon pool. Scratch planes are
-//! atomics with relaxed loads and stores: plain moves on x86-64, and no `unsafe` in the
-//! passes (the only `unsafe` is the hand-over of a pass to the helper, see `Duo`).
+//! Work per iteration: only bricks near a change can hold a free face. A cell's freeness depends on
+//! its cofaces, so when cells of brick b are removed only the faces of removed cells change, and
+//! those lie in b or its +x, +y, +z neighbours (the set A). A face free at the start of an
+//! iteration is always removed or loses its coface during it (its coface is in L, so its sub-step
+//! takes it unless the coface went first), so no free face lies outside A. Each iteration therefore
+//! computes, on A only: births, the free faces, the cofaces of free pairs, their closure L (which
+//! reaches the bricks one step forward), and runs the 18 sub-steps on the bricks where L is not
+//! empty. Each sub-step first computes the pairs of every brick from the unchanged planes, then
+//! removes them; both passes write only the brick they process, so they run in parallel over bricks
+//! with results identical to the sequential order (tested): during [`Thinning::run`] on the calling
+//! thread and one helper thread, started by the run's first pass worth sharing and kept to the
+//! run's end (`Duo`: a rayon fork/join per pass cost more than it saved, the sleeping worker's
+//! wake-up; a run that resumes a collapse with few changed bricks has no helper), elsewhere over
+//! the rayon pool. Scratch planes are atomics with relaxed loads and stores: plain moves on x86-64,
+//! and no `unsafe` in the passes (the only `unsafe` is the hand-over of a pass to the helper, see
+//! `Duo`).
 //!
 //! # Dates and the constraint (Definitions 6.1-6.3, Algorithm 3)
 //!
@@ -451,15 +451,15 @@ const MIN_PARALLEL_WORK: usize = 2048;
 /// was as fast as 256 and no slower than 2048.
 const MIN_SHARED_WORK: usize = 1024;
 
-/// Changed bricks (the bricks to examine are their dilation) at the start of a
-/// [`Thinning::run`] that resumes a collapse below which the run keeps its passes on the calling thread instead of sharing them with a helper
-/// ([`Duo`]). Measured on the door (BENCHMARKS.md, round 8): the re-thinning after a pierce (a
-/// run that starts with the one or two bricks of the pierced squares, then some hundred bricks
-/// per pass for hundreds of iterations) was 10-20 % faster on 2 threads without the helper at
-/// 118 and 234. A first run keeps the helper whatever its size: at 118 (at most 5.8k bricks)
-/// the thinning beside the Euclidean distance was slower without it (0.0153 against 0.0122 s,
-/// medians of five), at 234 (37k bricks) the helper saved some 10 % when it had the second
-/// core.
+/// Changed bricks (the bricks to examine are their dilation) at the start of a [`Thinning::run`]
+/// that resumes a collapse below which the run keeps its passes on the calling thread instead of
+/// sharing them with a helper ([`Duo`]). Measured on the door (BENCHMARKS.md, round 8): the
+/// re-thinning after a pierce (a run that starts with the one or two bricks of the pierced squares,
+/// then some hundred bricks per pass for hundreds of iterations) was 10-20 % faster on 2 threads
+/// without the helper at 118 and 234. A first run keeps the helper whatever its size: at 118 (at
+/// most 5.8k bricks) the thinning beside the Euclidean distance was slower without it (0.0153
+/// against 0.0122 s, medians of five), at 234 (37k bricks) the helper saved some 10 % when it had
+/// the second core.
 const MIN_HELPER_BRICKS: usize = 16384;
 
 /// How the per-brick passes of a collapse are split over the rayon pool.
@@ -488,12 +488,12 @@ const DONE: u32 = 3;
 const PANICKED: u32 = 4;
 const SHUT_DOWN: u32 = 5;
 
-/// The helper thread of a [`Thinning::run`]: one pool thread that joins the collapse at the
-/// run's first pass worth sharing, stays to the run's end and takes part in every split pass, instead of a rayon fork/join per pass.
-/// A pass follows some microseconds of sequential list work, after which a rayon worker has
-/// gone to sleep: waking it (an inter-processor interrupt on this KVM guest) cost about 10 µs
-/// per pass at the door's 234, more than half of a typical pass (BENCHMARKS.md, round 7). The
-/// helper instead polls (spin, then yield) between passes.
+/// The helper thread of a [`Thinning::run`]: one pool thread that joins the collapse at the run's
+/// first pass worth sharing, stays to the run's end and takes part in every split pass, instead of
+/// a rayon fork/join per pass. A pass follows some microseconds of sequential list work, after
+/// which a rayon worker has gone to sleep: waking it (an inter-processor interrupt on this KVM
+/// guest) cost about 10 µs per pass at the door's 234, more than half of a typical pass
+/// (BENCHMARKS.md, round 7). The helper instead polls (spin, then yield) between passes.
 ///
 /// Never a hang: the calling thread never waits for work the helper has not taken. A pass is
 /// split into chunks that the caller claims from the front and the helper from the back of the

@@ -81,22 +81,21 @@
 //!
 //! The remaining lobes' probabilities are renormalised (eq. 165 over the lobes kept).
 //!
-//! What a query costs (issue 8, round 7): the node mapping visits only the mapped voxels of
-//! the neighbourhood (`analysis::NeighbourMasks`, the same node as eq. 151-155 directly); a
-//! target shared by several lobes (their bottleneck, or their importance point) gets one
-//! shadow ray; lobes that end up the same density at x (through the same portal rectangle,
-//! or toward the same target with the same radius) are one active lobe with their summed
-//! probability, so one rectangle set-up and one density per evaluated direction. Round 8:
-//! where the neighbour that best faces the normal is mapped and clearly ahead of the others,
-//! the mapping takes it without the search (`analysis::map_point`, the same node), and a
-//! portal rectangle computes its four angles only for a sample or a direction that hits it.
-//! None of this changes the mixture. With `visibility=voxel` the visibility of each target is decided
-//! once per mapped voxel, from its centre, and cached: that changes which lobes apply near
-//! silhouettes (still a function of the point, so unbiased), not their shapes. A point
-//! with no lobe left (no path to any importance node, all directions below the surface or
-//! hidden, a point outside the grid) is not guided: its guiding probability is 0 and the host
-//! samples the BSDF alone. Delta BSDFs are the host's business: it must not guide there (no
-//! mixture with a Dirac lobe has a density), which `path_skeleton` does.
+//! What a query costs (issue 8, round 7): the node mapping visits only the mapped voxels of the
+//! neighbourhood (`analysis::NeighbourMasks`, the same node as eq. 151-155 directly); a target
+//! shared by several lobes (their bottleneck, or their importance point) gets one shadow ray; lobes
+//! that end up the same density at x (through the same portal rectangle, or toward the same target
+//! with the same radius) are one active lobe with their summed probability, so one rectangle set-up
+//! and one density per evaluated direction. Round 8: where the neighbour that best faces the normal
+//! is mapped and clearly ahead of the others, the mapping takes it without the search
+//! (`analysis::map_point`, the same node), and a portal rectangle computes its four angles only for
+//! a sample or a direction that hits it. None of this changes the mixture. With `visibility=voxel`
+//! the visibility of each target is decided once per mapped voxel, from its centre, and cached:
+//! that changes which lobes apply near silhouettes (still a function of the point, so unbiased),
+//! not their shapes. A point with no lobe left (no path to any importance node, all directions
+//! below the surface or hidden, a point outside the grid) is not guided: its guiding probability is
+//! 0 and the host samples the BSDF alone. Delta BSDFs are the host's business: it must not guide
+//! there (no mixture with a Dirac lobe has a density), which `path_skeleton` does.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;

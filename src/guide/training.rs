@@ -90,14 +90,14 @@
 //! # Cost
 //!
 //! The efficiency to maximise is 1 / (V cost). Cost is counted in unguided path vertices (a
-//! continuation ray, a shadow ray, shading): guiding adds `COST_GUIDED` + `COST_SHADOW_RAY` x
-//! (the guide's shadow rays per query at this node, counted in training); the strength costs
-//! nothing. With `visibility=voxel` the count is of the cache's first fills during training
-//! (each (voxel, target) counted once, whatever the thread timing): it overstates the warm
-//! cache of a long render, which traces almost none. The constants come from the round-3 profile of the door (callgrind: ~5,500
-//! instructions per `path` vertex, ~1,400 per guide shadow ray, ~600 for the lobe set-up per
-//! query plus the lobe densities in the MIS weights); the node mapping is paid at c = 0 too
-//! (the node must be known to know its c), so it is not part of the difference. What the
+//! continuation ray, a shadow ray, shading): guiding adds `COST_GUIDED` + `COST_SHADOW_RAY` x (the
+//! guide's shadow rays per query at this node, counted in training); the strength costs nothing.
+//! With `visibility=voxel` the count is of the cache's first fills during training (each (voxel,
+//! target) counted once, whatever the thread timing): it overstates the warm cache of a long
+//! render, which traces almost none. The constants come from the round-3 profile of the door
+//! (callgrind: ~5,500 instructions per `path` vertex, ~1,400 per guide shadow ray, ~600 for the
+//! lobe set-up per query plus the lobe densities in the MIS weights); the node mapping is paid at c
+//! = 0 too (the node must be known to know its c), so it is not part of the difference. What the
 //! overhead is compared with is `training_cost`:
 //! - `path` (default): the vertices the sample's estimate is made of, this vertex and the
 //!   rest of its training path (mean over the node's samples): F's variance is that of the
