@@ -1,7 +1,10 @@
-//! Exact, linear-time distance maps of a voxel set, by separable passes (one axis after the
+//! Exact distance maps of a voxel set, by separable linear-time passes (one axis after the
 //! other, each line independently and in parallel): L1 (6-distance), chessboard (26-distance,
 //! Meijster, Roerdink and Hesselink 2000) and squared Euclidean (Felzenszwalb and Huttenlocher
-//! 2012). Each can also return, per voxel, the index of a nearest occupied voxel.
+//! 2012; with a solid outside and no nearest voxel, the passes after x are row windows over
+//! contiguous memory instead, [`sq_euclidean_yz_solid`], not linear but faster on scene grids).
+//! Each can also return, per voxel, the
+//! index of a nearest occupied voxel.
 
 use rayon::prelude::*;
 
@@ -398,6 +401,10 @@ const MAX_WINDOW_DIM: usize = 1 << 15;
 /// value so far) can lower it. The shorter of y and z goes first: its bound then also caps
 /// the values the second pass starts from. Along y the tasks are z-slabs; along z, column
 /// blocks of the xy-plane (as in [`sweep_l1_yz`]). With a solid outside no value is `FAR`.
+/// Cost: per voxel and pass, twice the window (at most half the axis, in practice the distance
+/// to the nearest wall) element operations, vectorized, against the envelopes' few tens of
+/// scalar operations per voxel: the door's Euclidean distance went from 81 M to 17 M
+/// instructions at 118 and from 559 M to 140 M at 234 (BENCHMARKS.md, skel9).
 fn sq_euclidean_yz_solid(dims: [usize; 3], d: &mut [u32]) {
     let [nx, ny, nz] = dims;
     let plane = nx * ny;
