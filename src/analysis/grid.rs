@@ -186,6 +186,20 @@ impl VoxelSet {
         self.words[i >> 6] |= 1 << (i & 63);
     }
 
+    /// Bits i..i + n (n < 64, i < len) as the low bits of a word: bit k is `get(i + k)`, and
+    /// bits past the set's length read 0.
+    #[inline]
+    pub fn bits(&self, i: usize, n: u32) -> u64 {
+        debug_assert!(n < 64 && i < self.len);
+        let (w, s) = (i >> 6, (i & 63) as u32);
+        let mut v = self.words[w] >> s;
+        // s > 0 here, since n < 64.
+        if s + n > 64 {
+            v |= self.words.get(w + 1).map_or(0, |&next| next << (64 - s));
+        }
+        v & ((1 << n) - 1)
+    }
+
     pub fn count(&self) -> usize {
         self.words.iter().map(|w| w.count_ones() as usize).sum()
     }
@@ -223,6 +237,27 @@ impl AtomicVoxelSet {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bit_windows_equal_single_bits() {
+        let mut rng = crate::math::Rng::new(21, 2);
+        for len in [1usize, 3, 63, 64, 65, 130, 200] {
+            let mut set = VoxelSet::new(len);
+            for i in 0..len {
+                if rng.uniform() < 0.5 {
+                    set.set(i);
+                }
+            }
+            for i in 0..len {
+                for n in [1u32, 3, 4, 17, 63] {
+                    let want = (0..n as usize)
+                        .filter(|&k| i + k < len && set.get(i + k))
+                        .fold(0u64, |w, k| w | 1 << k);
+                    assert_eq!(set.bits(i, n), want, "len {len} i {i} n {n}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn resolutions_cover_the_bounds() {
