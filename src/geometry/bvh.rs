@@ -313,23 +313,27 @@ impl Bvh {
     }
 
     /// Closest hit in (0, ray.t_max).
+    // Inlined into the caller so that a query is one call (the dispatch wrapper's own frame
+    // and the feature check's call were about 30 instructions of a query).
+    #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         if has_x86_64_v3() {
             // SAFETY: the CPU has every feature `intersect_v3` is compiled for (checked above).
             return unsafe { self.intersect_v3(ray) };
         }
-        self.intersect_impl(ray)
+        self.intersect_impl(ray, Baseline)
     }
 
     /// True when anything lies on the ray in (0, ray.t_max): stops at the first hit found.
+    #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
         #[cfg(target_arch = "x86_64")]
         if has_x86_64_v3() {
             // SAFETY: as in `intersect`.
             return unsafe { self.occluded_v3(ray) };
         }
-        self.occluded_impl(ray)
+        self.occluded_impl(ray, Baseline)
     }
 
     /// The same traversal compiled for x86-64-v3 (AVX2, BMI1/2, LZCNT, POPCNT, FMA; most x86
@@ -340,23 +344,26 @@ impl Bvh {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
     unsafe fn intersect_v3(&self, ray: &Ray) -> Option<Hit> {
-        self.intersect_impl(ray)
+        // SAFETY: this function's contract is that the CPU has AVX2.
+        self.intersect_impl(ray, unsafe { Avx2::new_unchecked() })
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
     unsafe fn occluded_v3(&self, ray: &Ray) -> bool {
-        self.occluded_impl(ray)
+        // SAFETY: as in `intersect_v3`.
+        self.occluded_impl(ray, unsafe { Avx2::new_unchecked() })
     }
 
     #[inline(always)]
-    fn intersect_impl(&self, ray: &Ray) -> Option<Hit> {
+    fn intersect_impl(&self, ray: &Ray, isa: impl NodeTest) -> Option<Hit> {
         if self.is_empty() || !(ray.t_max > 0.0) {
             return None;
         }
         let q = QueryRay::new(ray);
         let mut best: Option<Hit> = None;
         self.traverse(
+            isa,
             &q,
             ray.t_max,
             #[inline(always)]
@@ -388,13 +395,14 @@ impl Bvh {
     }
 
     #[inline(always)]
-    fn occluded_impl(&self, ray: &Ray) -> bool {
+    fn occluded_impl(&self, ray: &Ray, isa: impl NodeTest) -> bool {
         if self.is_empty() || !(ray.t_max > 0.0) {
             return false;
         }
         let q = QueryRay::new(ray);
         let mut hit = false;
         self.traverse(
+            isa,
             &q,
             ray.t_max,
             #[inline(always)]
@@ -428,6 +436,7 @@ impl Bvh {
         let q = QueryRay::new(ray);
         let (mut nodes, mut tris) = (0u32, 0u32);
         self.traverse(
+            Baseline,
             &q,
             ray.t_max,
             #[inline(always)]
@@ -458,6 +467,7 @@ impl Bvh {
     #[inline(always)]
     fn traverse(
         &self,
+        isa: impl NodeTest,
         q: &QueryRay,
         mut t_max: f32,
         mut on_node: impl FnMut(),
@@ -467,10 +477,12 @@ impl Bvh {
         // Node groups still to visit: (first child node, hit bits << 24 | the node's imask).
         // Saturates at the last entry as obvhs's stack does; the builders keep trees
         // shallower than that (`sah.rs`, and PLOC's depth on real scenes).
-        let mut stack = [UVec2::ZERO; TRAVERSAL_STACK];
+        // Not zeroed (eight 32-byte stores per query, a tenth of a short query's set-up):
+        // entries below `depth` are always written before they are read.
+        let mut stack = [std::mem::MaybeUninit::<UVec2>::uninit(); TRAVERSAL_STACK];
         let mut depth = 0usize;
         on_node();
-        let (mut group, mut triangles) = self.visit_node(&nodes[0], q, t_max);
+        let (mut group, mut triangles) = self.visit_node(isa, &nodes[0], q, t_max);
         loop {
             // `triangles.x` is a multiple of 4 (`triangle_blocks`): each nibble of the
             // triangle bits is one block.
@@ -487,17 +499,20 @@ impl Bvh {
                 let bit = 31 - hit_bits.leading_zeros();
                 group.y &= !(1 << bit);
                 if group.y & 0xff00_0000 != 0 {
-                    stack[depth] = group;
+                    stack[depth] = std::mem::MaybeUninit::new(group);
                     depth = (depth + 1).min(TRAVERSAL_STACK - 1);
                 }
                 // Child slot of the hit, and the child's rank among the node's inner children.
                 let slot = (bit - 24) ^ (q.oct_inv4 & 0xff);
                 let rank = (hit_bits & !(u32::MAX << slot)).count_ones();
                 on_node();
-                (group, triangles) = self.visit_node(&nodes[(group.x + rank) as usize], q, t_max);
+                (group, triangles) =
+                    self.visit_node(isa, &nodes[(group.x + rank) as usize], q, t_max);
             } else if depth > 0 {
                 depth -= 1;
-                group = stack[depth];
+                // SAFETY: entry `depth` (below the old depth) was written when the depth
+                // was raised past it, and is written again whenever the stack is full.
+                group = unsafe { stack[depth].assume_init() };
             } else {
                 return;
             }
@@ -507,8 +522,17 @@ impl Bvh {
     /// A node's test as traversal groups: (first child node, hit bits << 24 | the node's
     /// imask) and (first triangle, one bit per triangle to test).
     #[inline(always)]
-    fn visit_node(&self, node: &CwBvhNode, q: &QueryRay, t_max: f32) -> (UVec2, UVec2) {
-        let hits = self.intersect_node(node, &q.node, t_max, q.oct_inv4);
+    fn visit_node(
+        &self,
+        isa: impl NodeTest,
+        node: &CwBvhNode,
+        q: &QueryRay,
+        t_max: f32,
+    ) -> (UVec2, UVec2) {
+        let (boxes, hits) = isa.test(node, q, t_max);
+        if self.prefetch {
+            self.prefetch_children(node, boxes);
+        }
         (
             UVec2::new(
                 node.child_base_idx,
@@ -516,24 +540,6 @@ impl Bvh {
             ),
             UVec2::new(node.primitive_base_idx, hits & 0x00ff_ffff),
         )
-    }
-
-    /// Ray against the eight quantized child boxes of a node; returns the traversal hit mask
-    /// in obvhs's layout, and prefetches what was hit.
-    #[inline(always)]
-    fn intersect_node(&self, node: &CwBvhNode, r: &NodeRay, t_max: f32, oct_inv4: u32) -> u32 {
-        let mut hits = child_hits(node, r, t_max);
-        if self.prefetch {
-            self.prefetch_children(node, hits);
-        }
-        let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
-        let mut mask = 0u32;
-        while hits != 0 {
-            let c = hits.trailing_zeros() as usize;
-            hits &= hits - 1;
-            mask |= extract_byte64(child_bits8, c) << extract_byte64(bit_index8, c);
-        }
-        mask
     }
 
     /// Starts loading the nodes and leaf triangles of the children a node test hit. Traversal
@@ -599,23 +605,36 @@ impl Bvh {
 
 /// Whether the CPU runs x86-64-v3 code (cached after the first call).
 #[cfg(target_arch = "x86_64")]
-#[inline]
+#[inline(always)]
 fn has_x86_64_v3() -> bool {
-    use std::sync::atomic::{AtomicU8, Ordering};
-    static STATE: AtomicU8 = AtomicU8::new(0); // 0 unknown, 1 no, 2 yes
-    match STATE.load(Ordering::Relaxed) {
-        0 => {
-            let yes = std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-                && std::arch::is_x86_feature_detected!("bmi1")
-                && std::arch::is_x86_feature_detected!("bmi2")
-                && std::arch::is_x86_feature_detected!("lzcnt")
-                && std::arch::is_x86_feature_detected!("popcnt");
-            STATE.store(if yes { 2 } else { 1 }, Ordering::Relaxed);
-            yes
-        }
+    match V3_STATE.load(std::sync::atomic::Ordering::Relaxed) {
+        0 => detect_x86_64_v3(),
         v => v == 2,
     }
+}
+
+/// 0 unknown, 1 no, 2 yes.
+#[cfg(target_arch = "x86_64")]
+static V3_STATE: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
+
+/// The first call's detection, out of line so that the check above inlines as a load and a
+/// compare.
+#[cfg(target_arch = "x86_64")]
+#[cold]
+#[inline(never)]
+fn detect_x86_64_v3() -> bool {
+    use std::arch::is_x86_feature_detected as has;
+    let yes = has!("avx2")
+        && has!("fma")
+        && has!("bmi1")
+        && has!("bmi2")
+        && has!("lzcnt")
+        && has!("popcnt");
+    V3_STATE.store(
+        if yes { 2 } else { 1 },
+        std::sync::atomic::Ordering::Relaxed,
+    );
+    yes
 }
 
 /// Entries of the traversal stack (as obvhs's `traverse!`).
@@ -801,6 +820,129 @@ fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
         hits |= ((enter <= exit) as u32) << c;
     }
     hits
+}
+
+/// A node test: bit c of the first value set when the ray overlaps child box c in
+/// (0, t_max], and the traversal hit mask in obvhs's layout (`CwBvhNode::intersect_ray`):
+/// for each child hit, its triangle bits at its leaf offset (bits 0..24) or, for an inner
+/// child, one bit at 24 plus its slot in the ray's octant order.
+trait NodeTest: Copy {
+    fn test(self, node: &CwBvhNode, q: &QueryRay, t_max: f32) -> (u32, u32);
+}
+
+/// The node test of baseline x86-64 (SSE2) or of other targets (scalar).
+#[derive(Clone, Copy)]
+struct Baseline;
+
+impl NodeTest for Baseline {
+    #[inline(always)]
+    fn test(self, node: &CwBvhNode, q: &QueryRay, t_max: f32) -> (u32, u32) {
+        let boxes = child_hits(node, &q.node, t_max);
+        let (child_bits8, bit_index8) = node.get_child_and_index_bits(q.oct_inv4);
+        let (mut hits, mut mask) = (boxes, 0u32);
+        while hits != 0 {
+            let c = hits.trailing_zeros() as usize;
+            hits &= hits - 1;
+            mask |= extract_byte64(child_bits8, c) << extract_byte64(bit_index8, c);
+        }
+        (boxes, mask)
+    }
+}
+
+/// The node test with all eight children in one 256-bit register. A value of this type is a
+/// proof that the CPU has AVX2: it is only made by [`Avx2::new_unchecked`], whose callers
+/// (the `_v3` entry points) check that first.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+struct Avx2(());
+
+#[cfg(target_arch = "x86_64")]
+impl Avx2 {
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[inline(always)]
+    unsafe fn new_unchecked() -> Avx2 {
+        Avx2(())
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl NodeTest for Avx2 {
+    #[inline(always)]
+    fn test(self, node: &CwBvhNode, q: &QueryRay, t_max: f32) -> (u32, u32) {
+        // SAFETY: an `Avx2` exists only on a CPU with AVX2 (see the type).
+        unsafe { node_test_avx2(node, q, t_max) }
+    }
+}
+
+/// [`child_hits`] on all eight children at once, with the same roundings in the same order
+/// (a multiply then an add, no FMA; min and max are exact), so the same boxes are hit; and the
+/// hit mask of [`Baseline`] built in the same register instead of child by child: per child,
+/// `(meta >> 5) << index`, where the index is the leaf offset `meta & 31` or, for an inner
+/// child (`meta & 0x18 == 0x18`), `(meta ^ octant) & 31`, masked by the box test and OR-ed
+/// over the lanes (obvhs's `get_child_and_index_bits`, lane-wise).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn node_test_avx2(node: &CwBvhNode, q: &QueryRay, t_max: f32) -> (u32, u32) {
+    use std::arch::x86_64::*;
+    use std::mem::offset_of;
+    const MIN_X: usize = offset_of!(CwBvhNode, child_min_x);
+    const META: usize = offset_of!(CwBvhNode, child_meta);
+    const _: () = assert!(
+        offset_of!(CwBvhNode, child_max_x) == MIN_X + 8
+            && offset_of!(CwBvhNode, child_min_y) == MIN_X + 16
+            && offset_of!(CwBvhNode, child_max_y) == MIN_X + 24
+            && offset_of!(CwBvhNode, child_min_z) == MIN_X + 32
+            && offset_of!(CwBvhNode, child_max_z) == MIN_X + 40
+    );
+    let r = &q.node;
+    let (a, b_near, b_far) = r.node_constants(node);
+    let (a, b_near, b_far) = (a.to_array(), b_near.to_array(), b_far.to_array());
+    let base = (node as *const CwBvhNode).cast::<u8>();
+    let mut enter = _mm256_setzero_ps();
+    let mut exit = _mm256_set1_ps(t_max);
+    for axis in 0..3 {
+        // The eight near (far) planes of this axis: the min (max) bytes, or the max (min)
+        // bytes when the direction is negative.
+        let near_first = MIN_X + 16 * axis + 8 * r.is_negative(axis) as usize;
+        let far_first = MIN_X + 16 * axis + 8 - 8 * r.is_negative(axis) as usize;
+        // SAFETY: both 8-byte loads lie within child_min_x..child_max_z of `node` (layout
+        // checked above); unaligned loads are allowed.
+        let (near, far) = unsafe {
+            (
+                _mm_loadl_epi64(base.add(near_first).cast()),
+                _mm_loadl_epi64(base.add(far_first).cast()),
+            )
+        };
+        let near = _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(near));
+        let far = _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(far));
+        let av = _mm256_set1_ps(a[axis]);
+        let bn = _mm256_set1_ps(b_near[axis]);
+        let bf = _mm256_set1_ps(b_far[axis]);
+        enter = _mm256_max_ps(enter, _mm256_add_ps(_mm256_mul_ps(near, av), bn));
+        exit = _mm256_min_ps(exit, _mm256_add_ps(_mm256_mul_ps(far, av), bf));
+    }
+    let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(enter, exit);
+    let boxes = _mm256_movemask_ps(hit) as u32;
+    // SAFETY: child_meta is 8 bytes of `node`.
+    let meta = _mm256_cvtepu8_epi32(unsafe { _mm_loadl_epi64(base.add(META).cast()) });
+    let inner_bits = _mm256_set1_epi32(0x18);
+    let inner = _mm256_cmpeq_epi32(_mm256_and_si256(meta, inner_bits), inner_bits);
+    let octant = _mm256_set1_epi32((q.oct_inv4 & 7) as i32);
+    let index = _mm256_and_si256(
+        _mm256_xor_si256(meta, _mm256_and_si256(inner, octant)),
+        _mm256_set1_epi32(31),
+    );
+    let bits = _mm256_sllv_epi32(_mm256_srli_epi32::<5>(meta), index);
+    let bits = _mm256_and_si256(bits, _mm256_castps_si256(hit));
+    let bits = _mm_or_si128(
+        _mm256_castsi256_si128(bits),
+        _mm256_extracti128_si256::<1>(bits),
+    );
+    let bits = _mm_or_si128(bits, _mm_shuffle_epi32::<0b01_00_11_10>(bits));
+    let bits = _mm_or_si128(bits, _mm_shuffle_epi32::<0b10_11_00_01>(bits));
+    (boxes, _mm_cvtsi128_si32(bits) as u32)
 }
 
 #[cfg(test)]
@@ -1005,8 +1147,8 @@ mod tests {
                     assert_eq!(got.map(|h| h.triangle as usize), brute.map(|b| b.0));
                     assert_eq!(bvh.occluded(&ray), brute.is_some());
                     // The baseline code path agrees bit for bit with the dispatched one.
-                    assert_eq!(bvh.intersect_impl(&ray), got);
-                    assert_eq!(bvh.occluded_impl(&ray), brute.is_some());
+                    assert_eq!(bvh.intersect_impl(&ray, Baseline), got);
+                    assert_eq!(bvh.occluded_impl(&ray, Baseline), brute.is_some());
                 }
             }
         }
@@ -1160,6 +1302,73 @@ mod tests {
         );
         // The room is closed: no ray from inside escapes.
         assert!(rays.iter().all(|r| bvh.intersect(r).is_some()));
+    }
+
+    /// The AVX2 node test answers exactly what the baseline one answers (the same boxes and
+    /// the same traversal mask) on every node of several trees, for rays in every octant,
+    /// axis-aligned ones with signed zeros (clamped reciprocals, unbounded far planes),
+    /// nearly axis-aligned ones, rays starting inside boxes, and finite and infinite t_max.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_node_test_matches_baseline() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            eprintln!("no AVX2 on this CPU: nothing to compare");
+            return;
+        }
+        // SAFETY: AVX2 detected above.
+        let avx2 = unsafe { Avx2::new_unchecked() };
+        let mut rng = Rng::new(11, 7);
+        let mut compared = 0usize;
+        let mut hit_any = 0usize;
+        for scale in [1e-4f32, 1.0, 1e4] {
+            let tris: Vec<[Vec3; 3]> = random_triangles(3000, &mut rng)
+                .into_iter()
+                .map(|t| t.map(|p| p * scale))
+                .collect();
+            for method in [
+                BuildMethod::Ploc(BvhQuality::Fast),
+                BuildMethod::Sah { reinsertion: 0.0 },
+            ] {
+                let bvh = Bvh::build_with(&tris, method);
+                for i in 0..400 {
+                    let o = (Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 12.0
+                        - Vec3::ONE)
+                        * scale;
+                    let mut d = warp::uniform_sphere(rng.uniform2());
+                    match i % 4 {
+                        1 => {
+                            let axis = rng.below(3) as usize;
+                            d = Vec3::new(
+                                if rng.uniform() < 0.5 { 0.0 } else { -0.0 },
+                                if rng.uniform() < 0.5 { 0.0 } else { -0.0 },
+                                if rng.uniform() < 0.5 { 0.0 } else { -0.0 },
+                            );
+                            d[axis] = if rng.uniform() < 0.5 { 1.0 } else { -1.0 };
+                        }
+                        2 => {
+                            d[rng.below(3) as usize] = [1e-30, -1e-20, 3e-9][rng.below(3) as usize]
+                        }
+                        _ => {}
+                    }
+                    let t_max = if i % 3 == 0 {
+                        f32::INFINITY
+                    } else {
+                        rng.uniform() * 8.0 * scale
+                    };
+                    let q = QueryRay::new(&Ray::new(o, d, t_max));
+                    for node in &bvh.cwbvh.nodes {
+                        let base = Baseline.test(node, &q, t_max);
+                        assert_eq!(avx2.test(node, &q, t_max), base, "ray {o:?} {d:?} {t_max}");
+                        compared += 1;
+                        hit_any += (base.0 != 0) as usize;
+                    }
+                }
+            }
+        }
+        assert!(
+            compared > 100_000 && hit_any > 10_000,
+            "{compared} {hit_any}"
+        );
     }
 
     #[test]

@@ -45,8 +45,10 @@ impl RayPrecomp {
             2
         };
         // (kz + 1) % 3 and (kz + 2) % 3, swapped so that the shear keeps the winding; padded
-        // arrays masked to 0..4 as in `intersect_triangle`.
-        let (mut kx, mut ky) = [(1, 2), (2, 0), (0, 1), (1, 2)][kz & 3];
+        // arrays masked to 0..4 as in `intersect_triangle`. Written as selects, not as a
+        // lookup table: the table was built on the stack at every query.
+        let mut kx = if kz == 2 { 0 } else { kz + 1 };
+        let mut ky = if kz == 0 { 2 } else { kz - 1 };
         let dir4 = [dir.x, dir.y, dir.z, 0.0];
         if dir4[kz & 3] < 0.0 {
             std::mem::swap(&mut kx, &mut ky);
