@@ -3,7 +3,9 @@
 for every pair (a, b), mean |a - b| / sqrt(2) over pixels and RGB estimates each render's MAE
 against the truth (exact for Gaussian pixel errors, approximate for heavy tails) and
 mean (a - b)^2 / 2 its variance per value (exact for unbiased renders); printed as the mean
-over pairs with their range. For when no reference is at hand, or to check one.
+over pairs with their range. For when no reference is at hand, or to check one. With four
+images or more it also prints the mean over disjoint pairs (1st with 2nd, 3rd with 4th ...;
+independent estimates) with its standard error, the noise of the estimate itself.
 
     python3 pairs.py IMAGE_SEED1.exr IMAGE_SEED2.exr [IMAGE_SEED3.exr ...]
 """
@@ -31,6 +33,17 @@ def main():
     print(f"{len(images)} images, {len(mae)} pairs: MAE {np.mean(mae):.4e} "
           f"[{min(mae):.4e}, {max(mae):.4e}], variance {np.mean(var):.4e} "
           f"[{min(var):.4e}, {max(var):.4e}], RMSE {np.sqrt(np.mean(var)):.4e}")
+    if len(images) >= 4:
+        dm, dv = [], []
+        for a, b in zip(images[0::2], images[1::2]):
+            d = a - b
+            dm.append(np.abs(d).mean() / np.sqrt(2))
+            dv.append((d * d).mean() / 2)
+        n = len(dm)
+        sm = np.std(dm, ddof=1) / np.sqrt(n) / np.mean(dm)
+        sv = np.std(dv, ddof=1) / np.sqrt(n) / np.mean(dv)
+        print(f"{n} disjoint pairs: MAE {np.mean(dm):.4e} +- {100 * sm:.1f} %, "
+              f"variance {np.mean(dv):.4e} +- {100 * sv:.1f} % (standard errors)")
 
 
 if __name__ == "__main__":

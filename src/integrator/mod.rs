@@ -63,8 +63,10 @@ pub struct IntegratorSettings {
     pub mis: MisHeuristic,
     /// Russian roulette (`path`, `path_skeleton`): a path that has made this many bounces may
     /// be ended before the next one, surviving with probability `min(max(throughput), 0.95)`
-    /// (see `path.rs`). Lower starts make samples cheaper and noisier; 3 is the best of 3, 4
-    /// and 5 at equal time on the Cornell box (BENCHMARKS.md, issue 2 perf, round 3).
+    /// (see `path.rs`). Lower starts make samples cheaper and noisier. 3 stays the default:
+    /// by instructions x MAE^2 at 256 spp (BENCHMARKS.md, branch `samp9`), starts at 4 and 5
+    /// win on the Cornell box (1.11x, 1.18x) and Sponza (1.04x, 1.17x), tie or win on the
+    /// ajar (1.00x, 1.05x), but lose on the door (0.97x each, two standard errors).
     pub rr_start_depth: u32,
     /// Bidirectional integrators: light subpaths traced per iteration (`None` = one per pixel).
     pub light_paths: Option<u32>,
