@@ -187,7 +187,10 @@ fn main() {
             }
             if std::env::var_os("NODES").is_some() {
                 if let Some(t) = guide.training() {
-                    println!("| node | position | radius | lobes | c | samples | nonzero | ratio | best ratio | 1st hits |");
+                    println!(
+                        "| node | position | radius | lobes | c | samples | nonzero | ratio | \
+                         best ratio | 1st hits |"
+                    );
                     for k in 0..guide.node_count() {
                         if t.samples[k] == 0 && first_hits[k] == 0 {
                             continue;
