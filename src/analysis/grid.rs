@@ -286,7 +286,7 @@ mod tests {
         }
         let mut rng = crate::math::Rng::new(11, 3);
         for _ in 0..100_000 {
-            let bits = (rng.next_u32() as u64) << 32 | rng.next_u32() as u64;
+            let bits = ((rng.next_u32() as u64) << 32) | rng.next_u32() as u64;
             edge.push(f64::from_bits(bits));
             edge.push((rng.uniform() as f64 - 0.5) * 600.0);
         }
