@@ -123,6 +123,15 @@ impl VoxelGrid {
         [0, 1, 2].map(|i| (p[i] as f64 - self.origin[i]) / self.voxel_size)
     }
 
+    /// Integer voxel coordinates of a world point: `floor(to_grid(p))` per axis, exactly as
+    /// `x.floor() as i64` (which may lie outside the grid), without `floor`: this build's
+    /// target has no SSE4.1 `roundsd`, so `f64::floor` is a libm call, and the guided path
+    /// tracer asks this two or three times per vertex ([`floor_to_i64`]).
+    #[inline]
+    pub fn voxel_of(&self, p: Vec3) -> [i64; 3] {
+        self.to_grid(p).map(floor_to_i64)
+    }
+
     /// World position of a grid point.
     #[inline]
     pub fn to_world(&self, g: [f64; 3]) -> Vec3 {
@@ -234,6 +243,22 @@ impl AtomicVoxelSet {
     }
 }
 
+/// `x.floor() as i64` for every f64, bit for bit, without `f64::floor` (a libm call without
+/// SSE4.1): the saturating truncation `x as i64` is the floor wherever it is not above x;
+/// where it is (negative non-integers), the floor is one less. Saturation agrees with the
+/// floor's own cast: NaN gives 0 in both; infinities and magnitudes beyond i64 give
+/// i64::MIN / MAX (the saturating subtraction keeps MIN at MIN); from 2^53 on every f64 is an
+/// integer, so the truncation is exact.
+#[inline]
+pub fn floor_to_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -256,6 +281,57 @@ mod tests {
                     assert_eq!(set.bits(i, n), want, "len {len} i {i} n {n}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn floor_to_i64_is_the_floor_cast_bit_for_bit() {
+        let mut edge = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            -1.0 + f64::EPSILON,
+            1.0 - f64::EPSILON / 2.0,
+            -f64::MIN_POSITIVE,
+            f64::MIN_POSITIVE,
+            2f64.powi(52) + 0.5,
+            -(2f64.powi(52) + 0.5),
+            2f64.powi(53),
+            -(2f64.powi(53)) - 2.0,
+            2f64.powi(63),
+            -(2f64.powi(63)),
+            2f64.powi(63) - 1024.0,
+            -(2f64.powi(63)) - 2048.0,
+            1e300,
+            -1e300,
+            f64::MAX,
+            f64::MIN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            -f64::NAN,
+        ];
+        // Near every integer of a range, both sides, and random values of all magnitudes.
+        for i in -70i64..70 {
+            let x = i as f64;
+            edge.extend([x, x.next_up(), x.next_down(), x + 0.25, x - 0.25]);
+        }
+        let mut rng = crate::math::Rng::new(11, 3);
+        for _ in 0..100_000 {
+            let bits = ((rng.next_u32() as u64) << 32) | rng.next_u32() as u64;
+            edge.push(f64::from_bits(bits));
+            edge.push((rng.uniform() as f64 - 0.5) * 600.0);
+        }
+        for x in edge {
+            assert_eq!(
+                floor_to_i64(x),
+                x.floor() as i64,
+                "{x:e} ({:#x})",
+                x.to_bits()
+            );
         }
     }
 

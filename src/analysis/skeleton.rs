@@ -737,7 +737,7 @@ fn map_point_searched(
     let w = incident.normalize_or_zero();
     let g = grid.to_grid(p);
     let dims = grid.dims;
-    let vx = g.map(|x| x.floor() as i64);
+    let vx = g.map(super::grid::floor_to_i64);
     let inside = |v: [i64; 3]| (0..3).all(|a| v[a] >= 0 && v[a] < dims[a] as i64);
     if let Some(d) = clearly_facing_offset(n).filter(|_| shortcut) {
         let v = [0, 1, 2].map(|a| vx[a].saturating_add(d[a]));

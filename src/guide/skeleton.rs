@@ -959,7 +959,7 @@ impl SkeletonGuide {
         if self.may_guide.is_empty() {
             return true;
         }
-        let v = self.grid.to_grid(p).map(|x| x.floor() as i64);
+        let v = self.grid.voxel_of(p);
         if (0..3).any(|a| v[a] < 0 || v[a] >= self.grid.dims[a] as i64) {
             return true;
         }
