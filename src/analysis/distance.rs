@@ -1,10 +1,11 @@
-//! Exact distance maps of a voxel set, by separable linear-time passes (one axis after the
-//! other, each line independently and in parallel): L1 (6-distance), chessboard (26-distance,
-//! Meijster, Roerdink and Hesselink 2000) and squared Euclidean (Felzenszwalb and Huttenlocher
-//! 2012; with a solid outside and no nearest voxel, the passes after x are row windows over
-//! contiguous memory instead, [`sq_euclidean_yz_solid`], not linear but faster on scene grids).
-//! Each can also return, per voxel, the
-//! index of a nearest occupied voxel.
+//! Exact distance maps of a voxel set, by separable passes (one axis after the other, each
+//! line independently and in parallel): L1 (6-distance), chessboard (26-distance, Meijster,
+//! Roerdink and Hesselink 2000) and squared Euclidean (Felzenszwalb and Huttenlocher 2012).
+//! These passes are linear in the line length, but one: with a solid outside and no nearest
+//! voxel, the squared Euclidean passes after x are row windows over contiguous memory
+//! instead (`sq_euclidean_yz_solid`): a row's window grows with its largest value, so that
+//! pass is not linear, but on scene grids it is faster. Each map can also return, per voxel,
+//! the index of a nearest occupied voxel.
 
 use rayon::prelude::*;
 
@@ -654,6 +655,43 @@ mod tests {
                 let fast = distance_map(dims, &occ, m, Outside::Solid, false).values;
                 let general = distance_map(dims, &occ, m, Outside::Solid, true).values;
                 assert_eq!(fast, general, "{dims:?} density {density}");
+            }
+        }
+    }
+
+    /// The line envelope with a solid outside (which the volume passes now reach only for axes
+    /// of `MAX_WINDOW_DIM` voxels or more) against its definition: the least (x - q)^2 + f(q)
+    /// over the finite sites and the two virtual sites at -1 and n.
+    #[test]
+    fn solid_line_envelope_equals_the_definition() {
+        let mut rng = Rng::new(13, 5);
+        let mut sites = Vec::new();
+        for n in [1usize, 2, 5, 17, 64, 100] {
+            for density in [0.0f32, 0.1, 0.5, 1.0] {
+                let line: Vec<u32> = (0..n)
+                    .map(|_| {
+                        if rng.uniform() < density {
+                            (rng.uniform() * 50.0) as u32
+                        } else {
+                            FAR
+                        }
+                    })
+                    .collect();
+                let want: Vec<u32> = (0..n as i64)
+                    .map(|x| {
+                        let edge = ((x + 1).min(n as i64 - x) as u32).pow(2);
+                        line.iter()
+                            .enumerate()
+                            .filter(|&(_, &v)| v < FAR)
+                            .map(|(q, &v)| (x - q as i64).pow(2) as u32 + v)
+                            .min()
+                            .unwrap_or(FAR)
+                            .min(edge)
+                    })
+                    .collect();
+                let mut got = line.clone();
+                envelope_sq(&mut got, true, &mut sites);
+                assert_eq!(got, want, "n {n} density {density}");
             }
         }
     }

@@ -798,7 +798,7 @@ fn map_point_searched(
     // conservative voxelization) may hide that side, so then look further along n⁺, and only
     // as a last resort take any mapped neighbour (which may lie behind the surface).
     for step in 0..=3i64 {
-        let centre = [0, 1, 2].map(|a| (g[a] + step as f64 * n[a] as f64).floor() as i64);
+        let centre = [0, 1, 2].map(|a| super::grid::floor_to_i64(g[a] + step as f64 * n[a] as f64));
         if let Some(voxel) = search(if step == 0 { vx } else { centre }, true) {
             return Some(voxel);
         }

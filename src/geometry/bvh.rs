@@ -337,9 +337,10 @@ impl Bvh {
     }
 
     /// The same traversal compiled for x86-64-v3 (AVX2, BMI1/2, LZCNT, POPCNT, FMA; most x86
-    /// CPUs since 2013-2015). Baseline x86-64 has no `popcnt`, and the traversal counts bits
-    /// for every node visited; with this copy the default build ran 1.0-1.27x faster and got
-    /// within noise of a `-C target-cpu=native` build (BENCHMARKS.md).
+    /// CPUs since 2013-2015), with the AVX2 node test (all eight children at once). Baseline
+    /// x86-64 has no `popcnt`, and the traversal counts bits for every node visited; with this
+    /// copy the default build ran 1.0-1.27x faster and got within noise of a `-C
+    /// target-cpu=native` build (BENCHMARKS.md).
     /// Results are bit-identical: Rust never contracts a * b + c into an FMA by itself.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
@@ -737,6 +738,23 @@ impl NodeRay {
     }
 }
 
+/// Byte offset of `child_min_x` in a node; the node tests read the six quantised plane arrays
+/// (min/max of x, y, z, 8 bytes each) as 48 contiguous bytes from here, which the assertion
+/// checks once for both of them.
+#[cfg(target_arch = "x86_64")]
+const PLANES_AT: usize = {
+    use std::mem::offset_of;
+    const MIN_X: usize = offset_of!(CwBvhNode, child_min_x);
+    assert!(
+        offset_of!(CwBvhNode, child_max_x) == MIN_X + 8
+            && offset_of!(CwBvhNode, child_min_y) == MIN_X + 16
+            && offset_of!(CwBvhNode, child_max_y) == MIN_X + 24
+            && offset_of!(CwBvhNode, child_min_z) == MIN_X + 32
+            && offset_of!(CwBvhNode, child_max_z) == MIN_X + 40
+    );
+    MIN_X
+};
+
 /// Bit c set when the ray overlaps child box c in (0, t_max]. Explicit SSE2 (part of the
 /// x86-64 baseline), four children per instruction. Measured as fast as the scalar loop below
 /// or a few percent faster, never slower (BENCHMARKS.md); kept so as not to depend on the
@@ -745,20 +763,12 @@ impl NodeRay {
 #[inline(always)]
 fn child_hits(node: &CwBvhNode, r: &NodeRay, t_max: f32) -> u32 {
     use std::arch::x86_64::*;
-    use std::mem::offset_of;
-    const MIN_X: usize = offset_of!(CwBvhNode, child_min_x);
-    const _: () = assert!(
-        offset_of!(CwBvhNode, child_max_x) == MIN_X + 8
-            && offset_of!(CwBvhNode, child_min_y) == MIN_X + 16
-            && offset_of!(CwBvhNode, child_max_y) == MIN_X + 24
-            && offset_of!(CwBvhNode, child_min_z) == MIN_X + 32
-            && offset_of!(CwBvhNode, child_max_z) == MIN_X + 40
-    );
     let (a, b_near, b_far) = r.node_constants(node);
     // SAFETY: SSE2 is part of x86-64. The three unaligned 16-byte loads read child_min_x
-    // through child_max_z, 48 contiguous bytes of the node (layout checked above).
+    // through child_max_z, 48 contiguous bytes of the node (`PLANES_AT`); the pointer is
+    // derived from the whole node, so it may cover all six arrays.
     unsafe {
-        let base = node.child_min_x.as_ptr();
+        let base = (node as *const CwBvhNode).cast::<u8>().add(PLANES_AT);
         let zero = _mm_setzero_si128();
         let mut enter_lo = _mm_setzero_ps();
         let mut enter_hi = _mm_setzero_ps();
@@ -887,15 +897,8 @@ impl NodeTest for Avx2 {
 unsafe fn node_test_avx2(node: &CwBvhNode, q: &QueryRay, t_max: f32) -> (u32, u32) {
     use std::arch::x86_64::*;
     use std::mem::offset_of;
-    const MIN_X: usize = offset_of!(CwBvhNode, child_min_x);
+    const MIN_X: usize = PLANES_AT;
     const META: usize = offset_of!(CwBvhNode, child_meta);
-    const _: () = assert!(
-        offset_of!(CwBvhNode, child_max_x) == MIN_X + 8
-            && offset_of!(CwBvhNode, child_min_y) == MIN_X + 16
-            && offset_of!(CwBvhNode, child_max_y) == MIN_X + 24
-            && offset_of!(CwBvhNode, child_min_z) == MIN_X + 32
-            && offset_of!(CwBvhNode, child_max_z) == MIN_X + 40
-    );
     let r = &q.node;
     let (a, b_near, b_far) = r.node_constants(node);
     let (a, b_near, b_far) = (a.to_array(), b_near.to_array(), b_far.to_array());
@@ -908,7 +911,7 @@ unsafe fn node_test_avx2(node: &CwBvhNode, q: &QueryRay, t_max: f32) -> (u32, u3
         let near_first = MIN_X + 16 * axis + 8 * r.is_negative(axis) as usize;
         let far_first = MIN_X + 16 * axis + 8 - 8 * r.is_negative(axis) as usize;
         // SAFETY: both 8-byte loads lie within child_min_x..child_max_z of `node` (layout
-        // checked above); unaligned loads are allowed.
+        // checked by `PLANES_AT`); unaligned loads are allowed.
         let (near, far) = unsafe {
             (
                 _mm_loadl_epi64(base.add(near_first).cast()),
@@ -1307,7 +1310,8 @@ mod tests {
     /// The AVX2 node test answers exactly what the baseline one answers (the same boxes and
     /// the same traversal mask) on every node of several trees, for rays in every octant,
     /// axis-aligned ones with signed zeros (clamped reciprocals, unbounded far planes),
-    /// nearly axis-aligned ones, rays starting inside boxes, and finite and infinite t_max.
+    /// ones nearly parallel to a plane (one tiny component), rays starting inside boxes, and
+    /// finite and infinite t_max.
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn avx2_node_test_matches_baseline() {

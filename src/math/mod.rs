@@ -77,7 +77,12 @@ pub fn next_float_up(v: f32) -> f32 {
     }
     let v = if v == -0.0 { 0.0 } else { v };
     let bits = v.to_bits();
-    let bits = if v >= 0.0 { bits + 1 } else { bits - 1 };
+    // Wrapping, as the SIMD form: NaN compares false, so NaN bits step too (see below).
+    let bits = if v >= 0.0 {
+        bits.wrapping_add(1)
+    } else {
+        bits.wrapping_sub(1)
+    };
     f32::from_bits(bits)
 }
 
@@ -89,7 +94,14 @@ pub fn next_float_down(v: f32) -> f32 {
     }
     let v = if v == 0.0 { -0.0 } else { v };
     let bits = v.to_bits();
-    let bits = if v > 0.0 { bits - 1 } else { bits + 1 };
+    // Wrapping: a NaN compares false and takes `+ 1`; with every bit set it wraps to +0.0
+    // (and 0x7F80_0001 stepped up above becomes +inf). The SIMD form does the same, and
+    // no ray origin is NaN, so only the bit-for-bit test meets these.
+    let bits = if v > 0.0 {
+        bits.wrapping_sub(1)
+    } else {
+        bits.wrapping_add(1)
+    };
     f32::from_bits(bits)
 }
 
