@@ -15,13 +15,9 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
 use lacuna::integrator::{self, IntegratorSettings, PathTracer};
-use lacuna::math::{Rgb, Vec2};
+use lacuna::math::{luminance, Vec2};
 use lacuna::render::{prepare, render, RenderSettings};
 use lacuna::scene::load_scene_arg;
-
-fn lum(c: Rgb) -> f64 {
-    (0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]) as f64
-}
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -121,7 +117,8 @@ fn main() {
                         if !scene.unoccluded(h, &ls.sample) {
                             return 0.0;
                         }
-                        lum(ls.sample.radiance * ls.f_cos) / (ls.sample.pdf * ls.pmf) as f64
+                        luminance(ls.sample.radiance * ls.f_cos) as f64
+                            / (ls.sample.pdf * ls.pmf) as f64
                     };
                 for i in 0..n {
                     let (x, y) = ((i as u32 % width) as f32, (i as u32 / width) as f32);
@@ -240,7 +237,7 @@ fn main() {
             )
             .unwrap();
             for (i, p) in film.radiance().iter().enumerate() {
-                let l = lum(*p);
+                let l = luminance(*p) as f64;
                 sum[i] += l;
                 sum2[i] += l * l;
             }

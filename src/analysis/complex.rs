@@ -601,14 +601,7 @@ mod tests {
     use crate::math::Rng;
 
     fn random_empty(dims: [usize; 3], density: f32, rng: &mut Rng) -> VoxelSet {
-        let n = dims[0] * dims[1] * dims[2];
-        let mut s = VoxelSet::new(n);
-        for i in 0..n {
-            if rng.uniform() < density {
-                s.set(i);
-            }
-        }
-        s
+        VoxelSet::random(dims[0] * dims[1] * dims[2], density, rng)
     }
 
     #[test]

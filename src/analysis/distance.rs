@@ -645,12 +645,7 @@ mod tests {
         ] {
             let n = dims[0] * dims[1] * dims[2];
             for density in [0.0f32, 0.001, 0.01, 0.1] {
-                let mut occ = VoxelSet::new(n);
-                for i in 0..n {
-                    if rng.uniform() < density {
-                        occ.set(i);
-                    }
-                }
+                let occ = VoxelSet::random(n, density, &mut rng);
                 let m = Metric::SquaredEuclidean;
                 let fast = distance_map(dims, &occ, m, Outside::Solid, false).values;
                 let general = distance_map(dims, &occ, m, Outside::Solid, true).values;
@@ -738,12 +733,7 @@ mod tests {
         for dims in [[1, 1, 1], [7, 1, 1], [5, 6, 7], [9, 4, 11], [16, 16, 3]] {
             let n = dims[0] * dims[1] * dims[2];
             for density in [0.0f32, 0.02, 0.2, 0.7] {
-                let mut occ = VoxelSet::new(n);
-                for i in 0..n {
-                    if rng.uniform() < density {
-                        occ.set(i);
-                    }
-                }
+                let occ = VoxelSet::random(n, density, &mut rng);
                 for metric in [Metric::L1, Metric::Chessboard, Metric::SquaredEuclidean] {
                     for outside in [Outside::Solid, Outside::Empty] {
                         let got = distance_map(dims, &occ, metric, outside, true);

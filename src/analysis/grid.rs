@@ -191,6 +191,19 @@ impl VoxelSet {
     }
 
     #[inline]
+    /// A test set of `len` voxels, each occupied with probability `density` (one draw per voxel
+    /// in index order, so a seed gives the same set everywhere).
+    #[cfg(test)]
+    pub(crate) fn random(len: usize, density: f32, rng: &mut crate::math::Rng) -> Self {
+        let mut s = VoxelSet::new(len);
+        for i in 0..len {
+            if rng.uniform() < density {
+                s.set(i);
+            }
+        }
+        s
+    }
+
     pub fn set(&mut self, i: usize) {
         // `bits` reads zeros past the length only if nothing is ever set there.
         debug_assert!(i < self.len, "bit {i} of a set of {}", self.len);
