@@ -56,6 +56,14 @@ impl Error {
     }
 }
 
+/// A worker pool that cannot start (the system refused a thread): the caller asked for more
+/// than the machine gives.
+impl From<rayon::ThreadPoolBuildError> for Error {
+    fn from(e: rayon::ThreadPoolBuildError) -> Self {
+        Error::invalid(format!("cannot start worker threads: {e}"))
+    }
+}
+
 impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {

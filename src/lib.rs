@@ -15,5 +15,6 @@ pub mod light;
 pub mod math;
 pub mod render;
 pub mod scene;
+pub mod workers;
 
 pub use error::{Error, Result};

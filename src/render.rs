@@ -19,6 +19,7 @@ use crate::film::Film;
 use crate::integrator::{Integrator, Precomputation, SampleContext, TraceCounters, View};
 use crate::math::{PixelSampler, Rgb, SamplerKind, Vec2};
 use crate::scene::{Camera, Scene};
+use crate::workers::WorkerPool;
 
 const TILE: u32 = 16;
 
@@ -133,10 +134,7 @@ pub fn render(
 ) -> Result<(Film, RenderStats)> {
     settings.validate()?;
     camera.validate()?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(settings.threads.unwrap_or(0))
-        .build()
-        .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
+    let pool = WorkerPool::new(settings.threads, None)?;
     pool.install(|| {
         render_in_pool(
             scene,
@@ -162,10 +160,7 @@ pub fn prepare(
     if threads == Some(0) {
         return Err(Error::invalid("thread count must be at least 1"));
     }
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads.unwrap_or(0))
-        .build()
-        .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
+    let pool = WorkerPool::new(threads, None)?;
     pool.install(|| integrator.prepare(scene, progress))
 }
 
@@ -192,10 +187,7 @@ pub fn render_observed(
 ) -> Result<(Film, RenderStats)> {
     settings.validate()?;
     camera.validate()?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(settings.threads.unwrap_or(0))
-        .build()
-        .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
+    let pool = WorkerPool::new(settings.threads, None)?;
     pool.install(|| {
         render_in_pool(
             scene, camera, integrator, settings, progress, cancel, on_pass,

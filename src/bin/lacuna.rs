@@ -913,10 +913,7 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
         euclidean: args.all_maps,
         ..Default::default()
     };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads.unwrap_or(0))
-        .build()
-        .map_err(|e| Error::invalid(format!("cannot start worker threads: {e}")))?;
+    let pool = lacuna::workers::WorkerPool::new(args.threads, None)?;
     let analysis = pool.install(|| Analysis::build(&scene, &settings, &|_, _| true))?;
     write_analysis(&args.out, &analysis)?;
     let skeleton = if args.skeleton {

@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use super::boundary::{self, lacuna_status, CapiError, CapiResult};
 use super::buffer::{arc_into_handle, arc_release, arc_retain, out_ptr, write_out};
+use crate::workers::WorkerPool;
 
 /// Called on the failing thread, synchronously, for every failed call on an object made from
 /// the context: `user_data` as registered, the status and the message (valid during the call
@@ -32,7 +33,7 @@ pub struct lacuna_context {
     memory_budget: AtomicU64,
     error_callback: Mutex<Option<ErrorCallback>>,
     /// Worker threads of batched ray queries, made on first use.
-    pool: Mutex<Option<Arc<rayon::ThreadPool>>>,
+    pool: Mutex<Option<Arc<WorkerPool>>>,
 }
 
 /// The default memory budget: 8 GiB.
@@ -59,21 +60,17 @@ impl lacuna_context {
     }
 
     /// The worker pool of batched queries.
-    pub(crate) fn pool(&self) -> CapiResult<Arc<rayon::ThreadPool>> {
+    pub(crate) fn pool(&self) -> CapiResult<Arc<WorkerPool>> {
         let mut slot = lock(&self.pool);
         if let Some(p) = slot.as_ref() {
             return Ok(p.clone());
         }
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(self.threads().unwrap_or(0))
-            .thread_name(|i| format!("lacuna-query-{i}"))
-            .build()
-            .map_err(|e| {
-                CapiError::new(
-                    lacuna_status::OutOfMemory,
-                    format!("cannot start worker threads: {e}"),
-                )
-            })?;
+        let pool = WorkerPool::new(self.threads(), Some("lacuna-query")).map_err(|e| {
+            CapiError::new(
+                lacuna_status::OutOfMemory,
+                format!("cannot start worker threads: {e}"),
+            )
+        })?;
         let pool = Arc::new(pool);
         *slot = Some(pool.clone());
         Ok(pool)
