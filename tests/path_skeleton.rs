@@ -23,7 +23,7 @@ use common::sphere::SphereGrid;
 use glam::DVec3;
 use lacuna::compare::{compare, Contender};
 use lacuna::guide::{
-    sample_bsdf_or_guide, GuideQuery, LobeAim, SkeletonGuide, SkeletonGuideSettings,
+    sample_bsdf_or_guide, GuideQuery, LobeAim, LobeFallback, SkeletonGuide, SkeletonGuideSettings,
     SkeletonStrength,
 };
 use lacuna::integrator::{self, IntegratorSettings};
@@ -527,13 +527,22 @@ fn merged_query_lobes_are_the_mixture_written_out() {
 /// With `aim=opening` each lobe aims at its path's opening where the point sees it (above the
 /// surface, unoccluded), else at its importance point where the point sees that, else is
 /// dropped: the per-point rule, decided before sampling, on the Veach door.
+/// With `fallback=drop` a lobe whose opening the point does not see is dropped, not aimed at
+/// its importance point; lobes without an opening still aim at theirs.
 #[test]
 fn queries_aim_at_the_opening_where_the_point_sees_it() {
     let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    for fallback in [LobeFallback::Point, LobeFallback::Drop] {
+        queries_aim_at_the_opening(&scene, fallback);
+    }
+}
+
+fn queries_aim_at_the_opening(scene: &Scene, fallback: LobeFallback) {
     let guide = guide_of(
-        &scene,
+        scene,
         SkeletonGuideSettings {
             aim: LobeAim::Opening,
+            fallback,
             ..Default::default()
         },
     );
@@ -551,10 +560,10 @@ fn queries_aim_at_the_opening_where_the_point_sees_it() {
         );
         (!scene.occluded(&ray)).then_some(axis)
     };
-    let (mut at_opening, mut at_point) = (0, 0);
+    let (mut at_opening, mut at_point, mut dropped) = (0, 0, 0);
     let mut q = GuideQuery::new();
-    for (p, p_error, ng, wo) in surface_points(&scene, 3000, 17) {
-        q.init(&guide, &scene, p, p_error, ng, wo);
+    for (p, p_error, ng, wo) in surface_points(scene, 3000, 17) {
+        q.init(&guide, scene, p, p_error, ng, wo);
         let Some(node) = q.node() else {
             continue;
         };
@@ -568,6 +577,8 @@ fn queries_aim_at_the_opening_where_the_point_sees_it() {
             {
                 expected.push(axis);
                 at_opening += 1;
+            } else if has_opening && fallback == LobeFallback::Drop {
+                dropped += 1;
             } else if let Some(axis) = sees(p, p_error, side, lobe.point) {
                 expected.push(axis);
                 at_point += 1;
@@ -582,10 +593,17 @@ fn queries_aim_at_the_opening_where_the_point_sees_it() {
             );
         }
     }
+    let at_points_wanted = match fallback {
+        LobeFallback::Point => 100,
+        LobeFallback::Drop => 0,
+    };
     assert!(
-        at_opening > 100 && at_point > 100,
-        "{at_opening} lobes at openings, {at_point} at importance points"
+        at_opening > 100 && at_point >= at_points_wanted,
+        "{fallback:?}: {at_opening} lobes at openings, {at_point} at importance points"
     );
+    if fallback == LobeFallback::Drop {
+        assert!(dropped > 100, "{dropped} lobes dropped");
+    }
 }
 
 /// Camera-room points of the two rooms (z > 0; the far room is z < -0.1) where the guide
@@ -837,7 +855,10 @@ fn path_skeleton_agrees_with_path_on_the_two_rooms() {
         6,
         20,
         16,
-        &["path_skeleton:aim=portal:c_skel=0.9"],
+        &[
+            "path_skeleton:aim=portal:c_skel=0.9",
+            "path_skeleton:aim=portal:c_skel=0.9:fallback=drop",
+        ],
     );
 }
 
@@ -857,6 +878,8 @@ fn path_skeleton_agrees_with_path_on_the_veach_door() {
             "path_skeleton:strength=auto:16:visibility=false",
             "path_skeleton:aim=portal:c_skel=0.9",
             "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel",
+            "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel:fallback=drop",
+            "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:fallback=drop:training_min_nonzero=256",
         ],
     );
 }

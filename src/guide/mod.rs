@@ -17,7 +17,7 @@ mod training;
 
 pub use mixture::{sample_bsdf_or_guide, MixtureSample};
 pub use skeleton::{
-    GuideLobe, GuideQuery, ImportanceNode, LobeAim, RenderEstimator, SkeletonGuide,
+    GuideLobe, GuideQuery, ImportanceNode, LobeAim, LobeFallback, RenderEstimator, SkeletonGuide,
     SkeletonGuideSettings, SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX,
     DEFAULT_TRAINING_DEPTH, DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH,
     OPTION_NAMES, STRENGTH_CANDIDATES,

@@ -241,6 +241,12 @@ pub struct SkeletonGuideSettings {
     /// Standard errors by which guiding must beat not guiding for `c_skel=learned` to guide
     /// a node (`training_significance`).
     pub training_significance: f32,
+    /// Non-zero training samples a node needs before `c_skel=learned` may guide it
+    /// (`training_min_nonzero`, default [`DEFAULT_TRAINING_MIN_NONZERO`]): the second moment
+    /// the choice compares is a mean of squares, and with a few hundred non-zero samples the
+    /// best of 70 candidates wins by its winner's margin (round 9: small under-table nodes of
+    /// the ajar guided at c 0.2-0.4 from 300-660 non-zero samples).
+    pub training_min_nonzero: u32,
     /// Resolution of the analysis grid. By default a budget of 2^20 voxels: the thinning's
     /// time grows with the voxel count, so a budget bounds the precomputation whatever the
     /// scene's shape (0.3-0.8 s on two quiet cores for the test scenes, about 1 % of a 60 s
@@ -269,6 +275,9 @@ pub struct SkeletonGuideSettings {
     /// eq. 162's point, and the corridor (no opening) renders the same image
     /// (BENCHMARKS.md, issue 8, round 4).
     pub aim: LobeAim,
+    /// What a lobe with an opening does where x does not see its bottleneck (see
+    /// [`LobeFallback`]); only with `aim=opening` or `aim=portal`.
+    pub fallback: LobeFallback,
     /// How the render using this guide samples lights and weighs its MIS pair, so that the
     /// training scores candidates with the render's own weights. `path_skeleton` sets it from
     /// its own settings; a host's guide keeps the defaults (power heuristic, area-sampled
@@ -324,6 +333,9 @@ pub const STRENGTH_CANDIDATES: [SkeletonStrength; 7] = [
 /// whose training estimated guiding 1.7-2.1x better, `guide::training` module docs).
 pub const DEFAULT_TRAINING_SIGNIFICANCE: f32 = 1.0;
 
+/// Default of `training_min_nonzero` (the floor since round 4).
+pub const DEFAULT_TRAINING_MIN_NONZERO: u32 = 32;
+
 /// Default camera paths of the training pass (2^15 until round 6: too few for the
 /// corridor's choices to be stable, `guide::training` module docs).
 pub const DEFAULT_TRAINING_PATHS: u32 = 1 << 17;
@@ -360,6 +372,30 @@ impl LobeAim {
     }
 }
 
+/// What a lobe whose path has an opening does at a point x that does not see the opening's
+/// bottleneck (or sees it below its surface), with `aim=opening` or `aim=portal`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LobeFallback {
+    /// Aim at the importance point of eq. 162 instead (a second shadow ray), as since round 4.
+    Point,
+    /// Drop the lobe; the lobes kept are renormalised. Round 9 found the ajar's near room
+    /// aiming most of its lobe probability at the empty space in front of the door, where
+    /// the back room's point lies and no light is.
+    Drop,
+}
+
+impl LobeFallback {
+    pub fn parse(text: &str) -> Result<Self> {
+        match text.trim() {
+            "point" => Ok(LobeFallback::Point),
+            "drop" => Ok(LobeFallback::Drop),
+            other => Err(Error::invalid(format!(
+                "skeleton fallback '{other}' must be 'point' (eq. 162) or 'drop'"
+            ))),
+        }
+    }
+}
+
 impl std::fmt::Display for LobeAim {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
@@ -383,6 +419,7 @@ impl Default for SkeletonGuideSettings {
             training_paths: DEFAULT_TRAINING_PATHS,
             training_cost: TrainingCost::Path,
             training_significance: DEFAULT_TRAINING_SIGNIFICANCE,
+            training_min_nonzero: DEFAULT_TRAINING_MIN_NONZERO,
             resolution: Resolution::VoxelBudget(DEFAULT_VOXEL_BUDGET),
             light_rays: 1 << 14,
             max_importance_nodes: 32,
@@ -390,6 +427,7 @@ impl Default for SkeletonGuideSettings {
             visibility_test: true,
             voxel_visibility: false,
             aim: LobeAim::Opening,
+            fallback: LobeFallback::Point,
             render_estimator: RenderEstimator::default(),
         }
     }
@@ -406,10 +444,12 @@ pub const OPTION_NAMES: &[&str] = &[
     "lobes",
     "visibility",
     "aim",
+    "fallback",
     "training_depth",
     "training_paths",
     "training_cost",
     "training_significance",
+    "training_min_nonzero",
 ];
 
 impl SkeletonGuideSettings {
@@ -419,9 +459,10 @@ impl SkeletonGuideSettings {
     /// before as the training proposal), `resolution` (voxels along the longest
     /// axis), `voxel_budget` (most voxels in the grid), `light_rays`,
     /// `importance_nodes`, `lobes`, `visibility` (true, voxel or false), `aim` (`point`, `opening` or `portal`),
+    /// `fallback` (`point` or `drop`),
     /// and for the training pass `training_depth` (1..=64), `training_paths`
     /// (1024..=2^24), `training_cost` (`path` or
-    /// `vertex`) and `training_significance` (>= 0). Validates the result.
+    /// `vertex`), `training_significance` (>= 0) and `training_min_nonzero`. Validates the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
             value.trim().parse().map_err(|_| {
@@ -446,12 +487,14 @@ impl SkeletonGuideSettings {
             "training_paths" => next.training_paths = number(key, value)?,
             "training_cost" => next.training_cost = TrainingCost::parse(value)?,
             "training_significance" => next.training_significance = number(key, value)?,
+            "training_min_nonzero" => next.training_min_nonzero = number(key, value)?,
             "resolution" => next.resolution = Resolution::LongestAxis(number(key, value)?),
             "voxel_budget" => next.resolution = Resolution::VoxelBudget(number(key, value)?),
             "light_rays" => next.light_rays = number(key, value)?,
             "importance_nodes" => next.max_importance_nodes = number(key, value)?,
             "lobes" => next.max_lobes = number(key, value)?,
             "aim" => next.aim = LobeAim::parse(value)?,
+            "fallback" => next.fallback = LobeFallback::parse(value)?,
             "visibility" => {
                 (next.visibility_test, next.voxel_visibility) = match value.trim() {
                     "true" | "1" => (true, false),
@@ -1685,10 +1728,15 @@ impl GuideQuery {
                 self.count += 1;
                 continue;
             }
+            // fallback=drop: a lobe whose opening p does not see applies nowhere else at p.
+            let fall_back = !through_opening || guide.settings.fallback == LobeFallback::Point;
             let Some((axis, distance, radius)) = opening
                 .map(|(axis, distance)| (axis, distance, lobe.opening_radius))
                 .or_else(|| {
-                    aim(lobe.point, 2 * j + 1).map(|(axis, distance)| (axis, distance, lobe.radius))
+                    fall_back
+                        .then(|| aim(lobe.point, 2 * j + 1))
+                        .flatten()
+                        .map(|(axis, distance)| (axis, distance, lobe.radius))
                 })
             else {
                 continue;
@@ -1868,9 +1916,15 @@ mod tests {
         assert_eq!(s.training_paths, 1024);
         s.set("training_cost", "vertex").unwrap();
         s.set("training_significance", "0").unwrap();
+        s.set("training_min_nonzero", "512").unwrap();
         assert_eq!(
-            (s.training_depth, s.training_cost, s.training_significance),
-            (5, TrainingCost::Vertex, 0.0)
+            (
+                s.training_depth,
+                s.training_cost,
+                s.training_significance,
+                s.training_min_nonzero
+            ),
+            (5, TrainingCost::Vertex, 0.0, 512)
         );
         for (key, bad) in [
             ("training_depth", "0"),
@@ -1880,6 +1934,7 @@ mod tests {
             ("training_cost", "pixel"),
             ("training_significance", "-1"),
             ("training_significance", "nan"),
+            ("training_min_nonzero", "-1"),
         ] {
             let before = s;
             assert!(s.set(key, bad).is_err(), "{key}={bad}");
@@ -1903,6 +1958,12 @@ mod tests {
         assert!(!s.visibility_test && !s.voxel_visibility);
         s.set("visibility", "true").unwrap();
         assert!(s.visibility_test && !s.voxel_visibility);
+        assert_eq!(s.fallback, LobeFallback::Point);
+        s.set("fallback", "drop").unwrap();
+        assert_eq!(s.fallback, LobeFallback::Drop);
+        assert!(s.set("fallback", "centre").is_err());
+        s.set("fallback", "point").unwrap();
+        assert_eq!(s.fallback, LobeFallback::Point);
     }
 
     #[test]

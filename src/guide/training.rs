@@ -115,7 +115,7 @@
 //! `training_significance` standard errors (default 1) of mean(d), with
 //! d_i = cost(c*) m_i(c*, s*) - cost(0) m_i(0) and m_i a sample's term of the second moment E[N²] + E[D²] (the squared
 //! means are far less noisy and are left out of the error) ([`choose_node`]); and the node must
-//! have had at least `MIN_SAMPLES` training samples, `MIN_NONZERO` of them non-zero. Otherwise
+//! have had at least `MIN_SAMPLES` training samples, `training_min_nonzero` (default 32) of them non-zero. Otherwise
 //! c = 0: the node is not guided at all (no lobes, no shadow rays). The floor is there because
 //! M is a mean of squares, dominated by rare large samples: with a few dozen non-zero samples
 //! the standard error itself is not to be trusted. (The test compares the best of several
@@ -172,9 +172,9 @@ pub const CANDIDATES: [f32; 11] = [0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7,
 const MAX_STRENGTHS: usize = STRENGTH_CANDIDATES.len();
 /// Camera paths per chunk (the fixed work partition).
 const CHUNK: u32 = 1024;
-/// Training samples a node needs before it may be guided, and how many must be non-zero.
+/// Training samples a node needs before it may be guided (how many must be non-zero is the
+/// settings' `training_min_nonzero`).
 const MIN_SAMPLES: u32 = 256;
-const MIN_NONZERO: u32 = 32;
 /// Cost of guiding at a vertex beyond an unguided vertex's (1), without shadow rays, and per
 /// guide shadow ray (module docs).
 const COST_GUIDED: f64 = 0.15;
@@ -448,6 +448,7 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
                 &grid,
                 settings.training_cost,
                 settings.training_significance as f64,
+                settings.training_min_nonzero,
                 settings.render_estimator.mis,
             )
         })
@@ -494,6 +495,7 @@ fn choose_node(
     grid: &Grid,
     training_cost: TrainingCost,
     significance: f64,
+    min_nonzero: u32,
     mis: MisHeuristic,
 ) -> NodeChoice {
     let not_guided = NodeChoice {
@@ -502,7 +504,7 @@ fn choose_node(
         best_ratio: 1.0,
     };
     let carrying = samples.iter().filter(|s| s.carries()).count() as u32;
-    if (samples.len() as u32) < MIN_SAMPLES || carrying < MIN_NONZERO {
+    if (samples.len() as u32) < MIN_SAMPLES || carrying < min_nonzero {
         return not_guided;
     }
     let n = samples.len() as f64;
@@ -832,6 +834,7 @@ fn light_sample(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::guide::skeleton::DEFAULT_TRAINING_MIN_NONZERO as FLOOR;
     use crate::math::{warp, Frame, Vec3};
 
     /// The reweighted estimate of M(c, s) from samples of the training proposal (c0, s0)
@@ -985,7 +988,14 @@ mod tests {
     fn choice_does_not_guide_toward_light_that_light_sampling_covers() {
         let grid = one_strength_grid();
         let choose = |samples: &[Sample]| {
-            choose_node(samples, &grid, TrainingCost::Path, 1.0, MisHeuristic::Power)
+            choose_node(
+                samples,
+                &grid,
+                TrainingCost::Path,
+                1.0,
+                FLOOR,
+                MisHeuristic::Power,
+            )
         };
         let lit = cone_node(true, 20_000);
         let covered = choose(&lit);
@@ -1017,14 +1027,53 @@ mod tests {
         let grid = one_strength_grid();
         let few = cone_node(false, MIN_SAMPLES as usize - 1);
         assert_eq!(
-            choose_node(&few, &grid, TrainingCost::Path, 1.0, MisHeuristic::Power).guided,
+            choose_node(
+                &few,
+                &grid,
+                TrainingCost::Path,
+                1.0,
+                FLOOR,
+                MisHeuristic::Power
+            )
+            .guided,
             None
         );
         let many = cone_node(false, 4 * MIN_SAMPLES as usize);
+        assert!(choose_node(
+            &many,
+            &grid,
+            TrainingCost::Path,
+            1.0,
+            FLOOR,
+            MisHeuristic::Power
+        )
+        .guided
+        .is_some());
+    }
+
+    /// `training_min_nonzero` counts the samples that carry anything: a node just below the
+    /// floor is not guided, the same node at the floor is.
+    #[test]
+    fn min_nonzero_floor_counts_carrying_samples() {
+        let grid = one_strength_grid();
+        let node = cone_node(false, 4 * MIN_SAMPLES as usize);
+        let carrying = node.iter().filter(|s| s.carries()).count() as u32;
         assert!(
-            choose_node(&many, &grid, TrainingCost::Path, 1.0, MisHeuristic::Power)
-                .guided
-                .is_some()
+            carrying > FLOOR && (carrying as usize) < node.len(),
+            "{carrying}"
         );
+        let choose = |floor: u32| {
+            choose_node(
+                &node,
+                &grid,
+                TrainingCost::Path,
+                1.0,
+                floor,
+                MisHeuristic::Power,
+            )
+            .guided
+        };
+        assert!(choose(carrying).is_some());
+        assert_eq!(choose(carrying + 1), None);
     }
 }
