@@ -563,6 +563,13 @@ impl SkeletonGuideSettings {
             }
             _ => {}
         }
+        if self.fallback == LobeFallback::Drop && self.aim == LobeAim::ImportancePoint {
+            // Without an opening to aim at there is nothing to fall back from: say so rather
+            // than accept a setting that does nothing.
+            return Err(Error::invalid(
+                "skeleton fallback=drop needs aim=opening or aim=portal",
+            ));
+        }
         if self.light_rays == 0 {
             return Err(Error::invalid("skeleton light rays must be at least 1"));
         }
@@ -1964,6 +1971,13 @@ mod tests {
         assert!(s.set("fallback", "centre").is_err());
         s.set("fallback", "point").unwrap();
         assert_eq!(s.fallback, LobeFallback::Point);
+        // fallback=drop means nothing without an opening to aim at.
+        s.set("aim", "point").unwrap();
+        assert!(s.set("fallback", "drop").is_err());
+        assert_eq!(s.fallback, LobeFallback::Point);
+        s.set("aim", "opening").unwrap();
+        s.set("fallback", "drop").unwrap();
+        assert!(s.set("aim", "point").is_err());
     }
 
     #[test]

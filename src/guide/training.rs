@@ -115,9 +115,9 @@
 //! `training_significance` standard errors (default 1) of mean(d), with
 //! d_i = cost(c*) m_i(c*, s*) - cost(0) m_i(0) and m_i a sample's term of the second moment E[N²] + E[D²] (the squared
 //! means are far less noisy and are left out of the error) ([`choose_node`]); and the node must
-//! have had at least `MIN_SAMPLES` training samples, `training_min_nonzero` (default 32) of them non-zero. Otherwise
-//! c = 0: the node is not guided at all (no lobes, no shadow rays). The floor is there because
-//! M is a mean of squares, dominated by rare large samples: with a few dozen non-zero samples
+//! have had at least `MIN_SAMPLES` training samples, `training_min_nonzero` (default 32) of
+//! them non-zero. Otherwise c = 0: the node is not guided at all (no lobes, no shadow rays).
+//! The floor is there because M is a mean of squares, dominated by rare large samples: with a few dozen non-zero samples
 //! the standard error itself is not to be trusted. (The test compares the best of several
 //! candidates, chosen on the same samples, with c = 0: it is optimistic by the usual winner's
 //! margin; the candidates are few and strongly correlated.) With a fixed `c_skel` and
