@@ -811,10 +811,12 @@ struct NodeRay {
     /// `1 / dir`, clamped to +-2^40 so that no product is NaN (0 * inf) when the ray starts on
     /// a plane and is parallel to it.
     inv_dir: Vec3A,
-    /// +inf on clamped axes, -inf elsewhere: a clamped reciprocal underestimates distances
-    /// (which keeps near planes conservative), and the far plane of that axis is taken as
-    /// unbounded.
-    far_floor: Vec3A,
+    /// The origin as far planes see it: `origin`, but -inf * sign(inv_dir) on clamped axes, so
+    /// that every far plane of such an axis is at +inf. A clamped reciprocal underestimates
+    /// distances, which keeps its near planes conservative but not its far ones; those are
+    /// taken as unbounded (finite plane minus an infinite origin, times a finite reciprocal of
+    /// the same sign: +inf, never NaN).
+    far_origin: Vec3A,
     /// Bit `axis` set when `inv_dir[axis] < 0` (so `dir` negative, also -0.0): swaps near and
     /// far planes.
     negative: u32,
@@ -834,13 +836,14 @@ impl NodeRay {
         // Written so that NaN takes the clamped branch.
         let in_range = recip.abs().cmple(limit);
         let inv_dir = Vec3A::select(in_range, recip, limit.copysign(recip));
+        let origin = Vec3A::from(origin);
         NodeRay {
-            origin: origin.into(),
+            origin,
             inv_dir,
-            far_floor: Vec3A::select(
+            far_origin: Vec3A::select(
                 in_range,
-                Vec3A::splat(f32::NEG_INFINITY),
-                Vec3A::splat(f32::INFINITY),
+                origin,
+                Vec3A::splat(f32::INFINITY).copysign(-inv_dir),
             ),
             negative: inv_dir.cmplt(Vec3A::ZERO).bitmask(),
         }
@@ -866,10 +869,9 @@ fn child_hits(node: &WideNode, r: &NodeRay, t_max: f32) -> u32 {
         let mut exit = t_max;
         for axis in 0..3 {
             let near = r.near_plane(axis);
-            let (o, inv, floor) = (r.origin[axis], r.inv_dir[axis], r.far_floor[axis]);
-            let tn = (node.planes[near][c] - o) * inv;
-            let tf = (node.planes[near ^ 1][c] - o) * inv;
-            let tf = if tf > floor { tf } else { floor };
+            let inv = r.inv_dir[axis];
+            let tn = (node.planes[near][c] - r.origin[axis]) * inv;
+            let tf = (node.planes[near ^ 1][c] - r.far_origin[axis]) * inv;
             enter = if tn > enter { tn } else { enter };
             exit = if tf < exit { tf } else { exit };
         }
@@ -961,11 +963,9 @@ unsafe fn node_test_avx2(node: &WideNode, q: &QueryRay, t_max: f32) -> (u32, u32
                 _mm256_load_ps(node.planes[near ^ 1].as_ptr()),
             )
         };
-        let o = _mm256_set1_ps(r.origin[axis]);
         let inv = _mm256_set1_ps(r.inv_dir[axis]);
-        let tn = _mm256_mul_ps(_mm256_sub_ps(pn, o), inv);
-        let tf = _mm256_mul_ps(_mm256_sub_ps(pf, o), inv);
-        let tf = _mm256_max_ps(tf, _mm256_set1_ps(r.far_floor[axis]));
+        let tn = _mm256_mul_ps(_mm256_sub_ps(pn, _mm256_set1_ps(r.origin[axis])), inv);
+        let tf = _mm256_mul_ps(_mm256_sub_ps(pf, _mm256_set1_ps(r.far_origin[axis])), inv);
         enter = _mm256_max_ps(tn, enter);
         exit = _mm256_min_ps(tf, exit);
     }
