@@ -799,9 +799,9 @@ fn wide_node(
 /// (rounding never changes a sign). If the ray overlaps a box in the exact sense,
 /// E = max(0, nears) <= X = min(t_max, fars), every far plane is >= 0 and the computed values
 /// are E' <= E (1 + gamma(3)) and X' >= X (1 - gamma(3)) >= 0; then
-/// fl(X' * [`EXIT_SCALE`]) >= X (1 - gamma(3)) (1 - eps) (1 + 2 gamma(5)) >= E (1 + gamma(3))
-/// >= E', because (1 + gamma(3)) / ((1 - gamma(3)) (1 - eps)) = 1 + 7 eps + O(eps^2) and the
-/// rounded factor is 1 + 10 eps. So `E' <= fl(X' * EXIT_SCALE)` never culls a box the ray
+/// fl(X' * [`EXIT_SCALE`]) >= X (1 - gamma(3)) (1 - eps) (1 + 2 gamma(5)), which is at least
+/// E (1 + gamma(3)) >= E' because (1 + gamma(3)) / ((1 - gamma(3)) (1 - eps)) is
+/// 1 + 7 eps + O(eps^2) and the rounded factor is 1 + 10 eps. So `E' <= fl(X' * EXIT_SCALE)` never culls a box the ray
 /// touches (Ize, "Robust BVH Ray Traversal", JCGT 2013, with the reciprocal's own rounding
 /// counted and the scaling's rounding covered), including rays starting inside or on a box.
 /// No FMA: `plane * inv - o * inv` would round `o * inv` on its own, an error relative to the
