@@ -1755,8 +1755,8 @@ impl<'a> Thinning<'a> {
     /// 6): read from the brick planes, so a pierce round costs O(bricks + squares) rather than
     /// a pass over every lattice vertex. The bricks are read in vertex order (per layer of
     /// bricks along z: each vertex row, z then y, across the bricks along x, four bits each),
-    /// so the list comes out sorted without a sort; rows of bricks without a square are
-    /// skipped whole.
+    /// so the list comes out sorted without a sort; each row of bricks is read once, and its
+    /// 16 vertex rows visit only its bricks holding a square.
     fn squares(&self) -> Vec<(u32, u8)> {
         const SPANS: [u8; 3] = [3, 5, 6];
         let nb = self.layout.nb;
@@ -1766,17 +1766,24 @@ impl<'a> Thinning<'a> {
         // The squares of one layer of bricks (brick z = bz), in vertex order.
         let layer = |bz: usize| {
             let row = |by: usize, bx: usize| by * step[1] + bz * step[2] + bx;
-            // Per row of bricks along x: the union of its square bits.
-            let row_bits: Vec<u64> = (0..nb[1])
-                .map(|by| {
-                    if by == 0 || by + 1 == nb[1] {
-                        return 0;
+            // Per row of bricks along x: its bricks holding a square (x index and square
+            // planes, in x order), read once, and the union of their square bits.
+            let mut with_squares: Vec<(usize, [u64; 3])> = Vec::new();
+            let mut row_start = vec![0usize; nb[1] + 1];
+            let mut row_bits = vec![0u64; nb[1]];
+            for by in 0..nb[1] {
+                if by > 0 && by + 1 < nb[1] {
+                    for bx in 1..nb[0] - 1 {
+                        let words = planes(row(by, bx));
+                        let union = words.iter().fold(0, |a, &w| a | w);
+                        if union != 0 {
+                            with_squares.push((bx, words));
+                            row_bits[by] |= union;
+                        }
                     }
-                    (1..nb[0] - 1)
-                        .map(|bx| planes(row(by, bx)).iter().fold(0, |a, &w| a | w))
-                        .fold(0, |a, w| a | w)
-                })
-                .collect();
+                }
+                row_start[by + 1] = with_squares.len();
+            }
             let mut out = Vec::new();
             for zo in 0..4 {
                 let z = (bz - 1) * 4 + zo;
@@ -1792,8 +1799,8 @@ impl<'a> Thinning<'a> {
                         }
                         let y = (by - 1) * 4 + yo;
                         let shift = 4 * yo + 16 * zo;
-                        for bx in 1..nb[0] - 1 {
-                            let words = planes(row(by, bx)).map(|w| (w >> shift) & 0xF);
+                        for &(bx, words) in &with_squares[row_start[by]..row_start[by + 1]] {
+                            let words = words.map(|w| (w >> shift) & 0xF);
                             if words.iter().all(|&w| w == 0) {
                                 continue;
                             }
