@@ -412,7 +412,7 @@ struct NodeMapGrid {
     map: Vec<u32>,
     /// Empty voxels: when the search labels that many, no voxel is left unmapped.
     empty: usize,
-    /// The search's FIFO queue, one entry per voxel and a spare one.
+    /// The search's FIFO queue, one entry per voxel.
     queue: Vec<u32>,
 }
 
@@ -449,7 +449,7 @@ impl NodeMapGrid {
             dims: grid.dims,
             map,
             empty,
-            queue: vec![0u32; grid.len() + 1],
+            queue: vec![0u32; grid.len()],
         }
     }
 }
@@ -516,16 +516,11 @@ fn node_map_on(
             // voxel, BLOCKED, does) and its face neighbour `j` lies in `map`. Unchecked: one bounds
             // test per neighbour otherwise.
             let m = unsafe { map.get_unchecked_mut(j) };
-            // Without a branch: along the search's front a neighbour is new about as often as
-            // not, so a branch on it mispredicts often (some 0.55 times per voxel at the door's
-            // 234, by callgrind's branch model). The label is blended in (an old value is
-            // written back unchanged), and `j` always goes to the queue's next slot, which
-            // only a new voxel claims (the queue has a spare slot past the last voxel).
-            let new = *m == UNDEFINED_NODE;
-            let old = u32::from(new).wrapping_sub(1);
-            *m = (*m & old) | (label & !old);
-            queue[tail] = j as u32;
-            tail += usize::from(new);
+            if *m == UNDEFINED_NODE {
+                *m = label;
+                queue[tail] = j as u32;
+                tail += 1;
+            }
         }
     }
     // Every empty voxel labelled (a seed is an empty voxel, and each voxel is labelled once):
