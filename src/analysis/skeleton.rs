@@ -390,31 +390,93 @@ pub fn node_map_seeds(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> 
 /// corner): the map is total on every component of the empty space that holds a node.
 /// Occupied voxels and components without a node get [`UNDEFINED_NODE`].
 pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u32> {
-    const BLOCKED: u32 = UNDEFINED_NODE - 1;
-    let [nx, ny, nz] = grid.dims;
-    // One layer of padding (blocked), so that steps need no bounds test.
-    let (px, py) = (nx + 2, ny + 2);
-    let plane = px * py;
-    let padded = |k: usize| (k % nx + 1) + px * ((k / nx) % ny + 1) + plane * (k / (nx * ny) + 1);
-    let mut map = vec![BLOCKED; plane * (nz + 2)];
-    map.par_chunks_mut(plane)
-        .enumerate()
-        .for_each(|(pz, slab)| {
+    node_map_on(
+        NodeMapGrid::new(grid, occupied, true),
+        grid,
+        occupied,
+        nodes,
+    )
+}
+
+/// Blocked label of the node map's padded grid (occupied voxels and the padding).
+const BLOCKED: u32 = UNDEFINED_NODE - 1;
+
+/// What the node map ([`node_map`]) sets up from the occupancy alone, before it knows the
+/// nodes: so [`Skeleton::from_maps`] builds it beside the re-thinning, whose thread leaves
+/// the second one idle.
+struct NodeMapGrid {
+    /// The grid's dimensions (the padded layout the search's unchecked steps rely on).
+    dims: [usize; 3],
+    /// Per voxel of the grid padded by one layer: `BLOCKED` (occupied, padding) or
+    /// `UNDEFINED_NODE` (empty), so that search steps need no bounds test.
+    map: Vec<u32>,
+    /// Empty voxels: when the search labels that many, no voxel is left unmapped.
+    empty: usize,
+    /// The search's FIFO queue, one entry per voxel.
+    queue: Vec<u32>,
+}
+
+impl NodeMapGrid {
+    /// The set-up of the node map of `grid`; `parallel` splits its pass over the rayon pool.
+    fn new(grid: &VoxelGrid, occupied: &VoxelSet, parallel: bool) -> NodeMapGrid {
+        let [nx, ny, nz] = grid.dims;
+        let (px, py) = (nx + 2, ny + 2);
+        let plane = px * py;
+        let mut map = vec![BLOCKED; plane * (nz + 2)];
+        // One padded z slab: its empty voxels, and how many.
+        let slab = |(pz, slab): (usize, &mut [u32])| -> usize {
             if pz == 0 || pz > nz {
-                return;
+                return 0;
             }
+            let mut empty = 0;
             for y in 0..ny {
                 let row = nx * (y + ny * (pz - 1));
                 for x in 0..nx {
                     if !occupied.get(row + x) {
                         slab[(x + 1) + px * (y + 1)] = UNDEFINED_NODE;
+                        empty += 1;
                     }
                 }
             }
-        });
+            empty
+        };
+        let empty = if parallel {
+            map.par_chunks_mut(plane).enumerate().map(slab).sum()
+        } else {
+            map.chunks_mut(plane).enumerate().map(slab).sum()
+        };
+        NodeMapGrid {
+            dims: grid.dims,
+            map,
+            empty,
+            queue: vec![0u32; grid.len()],
+        }
+    }
+}
+
+/// [`node_map`] from its set-up ([`NodeMapGrid::new`] of the same grid and occupancy).
+fn node_map_on(
+    set_up: NodeMapGrid,
+    grid: &VoxelGrid,
+    occupied: &VoxelSet,
+    nodes: &[Node],
+) -> Vec<u32> {
+    let [nx, ny, nz] = grid.dims;
+    let (px, py) = (nx + 2, ny + 2);
+    let plane = px * py;
+    assert!(
+        set_up.dims == grid.dims && set_up.map.len() == plane * (nz + 2),
+        "node map set-up of another grid"
+    );
+    let padded = |k: usize| (k % nx + 1) + px * ((k / nx) % ny + 1) + plane * (k / (nx * ny) + 1);
+    let NodeMapGrid {
+        mut map,
+        empty,
+        mut queue,
+        ..
+    } = set_up;
     // FIFO queue: a voxel is labelled before it is queued, so it is queued at most once and
     // one entry per voxel holds the whole search.
-    let mut queue = vec![0u32; grid.len()];
     let mut tail = 0;
     for (l, seed) in node_map_seeds(grid, occupied, nodes)
         .into_iter()
@@ -461,17 +523,22 @@ pub fn node_map(grid: &VoxelGrid, occupied: &VoxelSet, nodes: &[Node]) -> Vec<u3
             }
         }
     }
-    let mut unmapped: Vec<u32> = map
-        .par_chunks(plane)
-        .enumerate()
-        .flat_map_iter(|(pz, slab)| {
-            let base = (pz * plane) as u32;
-            slab.iter()
-                .enumerate()
-                .filter(|&(_, &m)| m == UNDEFINED_NODE)
-                .map(move |(k, _)| base + k as u32)
-        })
-        .collect();
+    // Every empty voxel labelled (a seed is an empty voxel, and each voxel is labelled once):
+    // nothing is left unmapped, and the scan for the unmapped ones is skipped.
+    let mut unmapped: Vec<u32> = if tail == empty {
+        Vec::new()
+    } else {
+        map.par_chunks(plane)
+            .enumerate()
+            .flat_map_iter(|(pz, slab)| {
+                let base = (pz * plane) as u32;
+                slab.iter()
+                    .enumerate()
+                    .filter(|&(_, &m)| m == UNDEFINED_NODE)
+                    .map(move |(k, _)| base + k as u32)
+            })
+            .collect()
+    };
     if !unmapped.is_empty() && tail > 0 {
         let mut around: Vec<isize> = Vec::with_capacity(26);
         for order in 1..=3 {
@@ -892,7 +959,8 @@ impl Default for SkeletonSettings {
 ///    thinning's own split passes, with `parallel`, find the other threads busy with the
 ///    distance until it is done, then share the passes). With
 ///    [`EUCLIDEAN_BESIDE_THINNING`] off, the distance runs beside step 2 instead;
-/// 4. piercing + re-thinning, graph, filter (Algorithm 4), node map (Algorithm 5).
+/// 4. piercing + re-thinning (**beside the node map's set-up**, which needs only the
+///    occupancy), graph, filter (Algorithm 4), node map (Algorithm 5).
 pub struct Skeleton {
     pub grid: VoxelGrid,
     /// The curvilinear skeleton (one node per point of the thinned complex).
@@ -1056,11 +1124,26 @@ impl Skeleton {
             }
         };
 
+        // The node map's set-up needs only the occupancy: it runs beside the first
+        // re-thinning, which keeps its passes on the calling thread (a run that starts from
+        // the bricks of the pierced squares), so the second thread takes it; without a pierce
+        // it runs with the node map.
         let t = Instant::now();
+        let mut node_grid = None;
         while thinning.pierce(Some(sq_distance)) > 0 {
-            thinning.run(None);
+            if node_grid.is_none() {
+                node_grid = Some(
+                    rayon::join(
+                        || thinning.run(None),
+                        || NodeMapGrid::new(&grid, occupied, false),
+                    )
+                    .1,
+                );
+            } else {
+                thinning.run(None);
+            }
         }
-        stage("piercing + re-thinning", &mut timings, t)?;
+        stage("piercing + re-thinning || node map set-up", &mut timings, t)?;
 
         let t = Instant::now();
         let stats = thinning.stats;
@@ -1074,7 +1157,8 @@ impl Skeleton {
         stage("filter (Alg. 4)", &mut timings, t)?;
 
         let t = Instant::now();
-        let map = node_map(&grid, occupied, &filtered.graph.nodes);
+        let node_grid = node_grid.unwrap_or_else(|| NodeMapGrid::new(&grid, occupied, true));
+        let map = node_map_on(node_grid, &grid, occupied, &filtered.graph.nodes);
         stage("node map (Alg. 5)", &mut timings, t)?;
 
         Ok(Skeleton {

@@ -1755,8 +1755,8 @@ impl<'a> Thinning<'a> {
     /// 6): read from the brick planes, so a pierce round costs O(bricks + squares) rather than
     /// a pass over every lattice vertex. The bricks are read in vertex order (per layer of
     /// bricks along z: each vertex row, z then y, across the bricks along x, four bits each),
-    /// so the list comes out sorted without a sort; rows of bricks without a square are
-    /// skipped whole.
+    /// so the list comes out sorted without a sort; each row of bricks is read once, and its
+    /// 16 vertex rows visit only its bricks holding a square.
     fn squares(&self) -> Vec<(u32, u8)> {
         const SPANS: [u8; 3] = [3, 5, 6];
         let nb = self.layout.nb;
@@ -1766,17 +1766,24 @@ impl<'a> Thinning<'a> {
         // The squares of one layer of bricks (brick z = bz), in vertex order.
         let layer = |bz: usize| {
             let row = |by: usize, bx: usize| by * step[1] + bz * step[2] + bx;
-            // Per row of bricks along x: the union of its square bits.
-            let row_bits: Vec<u64> = (0..nb[1])
-                .map(|by| {
-                    if by == 0 || by + 1 == nb[1] {
-                        return 0;
+            // Per row of bricks along x: its bricks holding a square (x index and square
+            // planes, in x order), read once, and the union of their square bits.
+            let mut with_squares: Vec<(usize, [u64; 3])> = Vec::new();
+            let mut row_start = vec![0usize; nb[1] + 1];
+            let mut row_bits = vec![0u64; nb[1]];
+            for by in 0..nb[1] {
+                if by > 0 && by + 1 < nb[1] {
+                    for bx in 1..nb[0] - 1 {
+                        let words = planes(row(by, bx));
+                        let union = words.iter().fold(0, |a, &w| a | w);
+                        if union != 0 {
+                            with_squares.push((bx, words));
+                            row_bits[by] |= union;
+                        }
                     }
-                    (1..nb[0] - 1)
-                        .map(|bx| planes(row(by, bx)).iter().fold(0, |a, &w| a | w))
-                        .fold(0, |a, w| a | w)
-                })
-                .collect();
+                }
+                row_start[by + 1] = with_squares.len();
+            }
             let mut out = Vec::new();
             for zo in 0..4 {
                 let z = (bz - 1) * 4 + zo;
@@ -1792,8 +1799,8 @@ impl<'a> Thinning<'a> {
                         }
                         let y = (by - 1) * 4 + yo;
                         let shift = 4 * yo + 16 * zo;
-                        for bx in 1..nb[0] - 1 {
-                            let words = planes(row(by, bx)).map(|w| (w >> shift) & 0xF);
+                        for &(bx, words) in &with_squares[row_start[by]..row_start[by + 1]] {
+                            let words = words.map(|w| (w >> shift) & 0xF);
                             if words.iter().all(|&w| w == 0) {
                                 continue;
                             }
@@ -1942,6 +1949,34 @@ fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
     use super::complex::UnionFind;
     let plane = size[0] * size[1];
     let s = [1, size[0], plane];
+    // The squares sharing an edge with a square of span 3, 5 or 6 at vertex v, as (vertex
+    // offset, z layers back, span), keeping only those listed before it (at a vertex w < v,
+    // or at v with a smaller span): each of the square's four edges (two along each of its
+    // axes: at v and one step along the other axis) has four cofaces, at its vertex or one
+    // step back. An offset's sign is that of its (z, y, x) steps read lexicographically (the
+    // lattice is at least 3 vertices wide), so which neighbours come earlier is the same for
+    // every square of a span: a table (6 entries per span) instead of 16 tests per square.
+    // Only the earlier squares (which skips a square itself, a coface of its own edges):
+    // adjacency is symmetric and a set's root is its smallest square (`UnionFind::union`), so
+    // joining each pair once gives the same parts and roots as joining it from both squares.
+    let span_slot = |span: u8| usize::from(span != 3) + usize::from(span == 6);
+    let mut earlier: [Vec<(isize, usize, u8)>; 3] = Default::default();
+    for span in [3u8, 5, 6] {
+        for a in (0..3).filter(|&a| span & (1 << a) != 0) {
+            let e = (span & !(1 << a)) as usize;
+            for own in [[0isize; 3], std::array::from_fn(|i| isize::from(i == a))] {
+                for &(sq, at) in cofaces(e) {
+                    let d: [isize; 3] = std::array::from_fn(|i| own[i] - isize::from(i == at));
+                    let order = [d[2], d[1], d[0]].cmp(&[0, 0, 0]);
+                    if order.is_lt() || (order.is_eq() && sq < span as usize) {
+                        let delta =
+                            d[0] * s[0] as isize + d[1] * s[1] as isize + d[2] * s[2] as isize;
+                        earlier[span_slot(span)].push((delta, (-d[2]) as usize, sq as u8));
+                    }
+                }
+            }
+        }
+    }
     // Each pair of edge-adjacent squares is joined once, from its later square k: the other
     // one, j < k, lies at a vertex w <= v (the list is sorted by vertex), so in k's z layer
     // of vertices or the one before. So the index needs only two layers of vertices (by
@@ -1951,7 +1986,7 @@ fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
     let mut first = vec![0u32; 2 * plane];
     // The slot of vertex w in z layer wz: the layers are known from the squares' order and
     // the steps taken, so no division per lookup (a 64-bit division costs some tens of cycles,
-    // and there are 16 lookups per square).
+    // and there are 6 lookups per square).
     let slot = |w: usize, wz: usize| (wz & 1) * plane + (w - wz * plane);
     // The squares of the layers held: (z, range of square indices), older first.
     let mut held: [Option<(usize, std::ops::Range<usize>)>; 2] = [None, None];
@@ -1990,31 +2025,11 @@ fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
             first[at] as usize - 1 + below
         };
         for (k, &(v, span)) in squares.iter().enumerate().take(end).skip(k) {
-            let v = v as usize;
-            for a in 0..3 {
-                if span & (1 << a) == 0 {
-                    continue;
-                }
-                let e = (span & !(1 << a)) as usize;
-                for (owner, oz) in [(v, z), (v + s[a], z + usize::from(a == 2))] {
-                    for &(sq, at) in cofaces(e) {
-                        let (w, wz) = if at == 3 {
-                            (owner, oz)
-                        } else {
-                            (owner - s[at], oz - usize::from(at == 2))
-                        };
-                        // Only the earlier squares (which skips k itself, a coface of its
-                        // own edges); adjacency is symmetric and a set's root is its
-                        // smallest square (`UnionFind::union`), so joining each pair once
-                        // gives the same parts and roots as joining it from both squares.
-                        if w > v || (w == v && sq >= span as usize) {
-                            continue;
-                        }
-                        let at = slot(w, wz);
-                        if bits[at] & SPAN_BIT[sq] != 0 {
-                            parts.union(k, index(at, sq as u8));
-                        }
-                    }
+            for &(delta, back, sq) in &earlier[span_slot(span)] {
+                let w = (v as isize + delta) as usize;
+                let at = slot(w, z - back);
+                if bits[at] & SPAN_BIT[sq as usize] != 0 {
+                    parts.union(k, index(at, sq));
                 }
             }
         }
