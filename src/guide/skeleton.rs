@@ -637,25 +637,30 @@ pub struct Portal {
     pub u: Vec3,
     pub v: Vec3,
     pub half: Vec2,
+    /// The rectangle's corner and frame, set up once for every point that sees it (a function
+    /// of the fields above).
+    frame: warp::RectangleFrame,
 }
 
 impl Portal {
+    fn new(centre: Vec3, u: Vec3, v: Vec3, half: Vec2) -> Portal {
+        let corner = centre - half.x * u - half.y * v;
+        let size = 2.0 * half;
+        Portal {
+            centre,
+            u,
+            v,
+            half,
+            frame: warp::RectangleFrame::new(corner, u, v, size.x, size.y),
+        }
+    }
+
     /// The rectangle as seen from `p`, for sampling uniformly in solid angle (None where p is
     /// in its plane).
     pub fn seen_from(&self, p: Vec3) -> Option<warp::SphericalRectangle> {
-        let corner = self.centre - self.half.x * self.u - self.half.y * self.v;
-        let size = 2.0 * self.half;
-        warp::SphericalRectangle::new(p, corner, self.u, self.v, size.x, size.y)
+        self.frame.seen_from(p)
     }
 }
-
-/// A placeholder for fixed-size arrays of portals.
-const NO_PORTAL: Portal = Portal {
-    centre: Vec3::ZERO,
-    u: Vec3::X,
-    v: Vec3::Y,
-    half: Vec2::ZERO,
-};
 
 /// What a guide was built from, to refuse rendering another scene with it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -1006,14 +1011,31 @@ impl SkeletonGuide {
     /// False when a point at `p` cannot map to a node with a guiding probability above 0
     /// (then the query need not map it at all).
     pub fn may_guide_at(&self, p: Vec3) -> bool {
+        self.may_guide_in(self.grid.voxel_of(p))
+    }
+
+    /// [`Self::may_guide_at`] for a point in voxel `v` (which may lie outside the grid).
+    fn may_guide_in(&self, v: [i64; 3]) -> bool {
         if self.may_guide.is_empty() {
             return true;
         }
-        let v = self.grid.voxel_of(p);
         if (0..3).any(|a| v[a] < 0 || v[a] >= self.grid.dims[a] as i64) {
             return true;
         }
         self.may_guide[self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
+    }
+
+    /// [`Self::map_point_voxel`] where [`Self::may_guide_at`] allows it, else None; the grid
+    /// coordinates of `p` computed once for both.
+    fn map_guided_point(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<(u32, usize)> {
+        let g = self.grid.to_grid(p);
+        let v = g.map(crate::analysis::grid::floor_to_i64);
+        if !self.may_guide_in(v) {
+            return None;
+        }
+        self.neighbours
+            .map_grid_point_voxel(&self.grid, &self.node_map, g, v, normal, incident)
+            .map(|k| (self.node_map[k], k))
     }
 
     /// The training pass's findings with `c_skel=learned`.
@@ -1331,12 +1353,12 @@ fn opening_rectangle(scene: &Scene, centre: Vec3, along: Vec3, cap: f32) -> Opti
     let u = frame.to_world(Vec3::new(cos, sin, 0.0)).normalize();
     let v = normal.cross(u).normalize();
     let [u_plus, u_minus, v_plus, v_minus] = [u, -u, v, -v].map(|d| reach(scene, centre, d, cap));
-    Some(Portal {
-        centre: centre + 0.5 * (u_plus - u_minus) * u + 0.5 * (v_plus - v_minus) * v,
+    Some(Portal::new(
+        centre + 0.5 * (u_plus - u_minus) * u + 0.5 * (v_plus - v_minus) * v,
         u,
         v,
-        half: 0.5 * Vec2::new(u_plus + u_minus, v_plus + v_minus),
-    })
+        0.5 * Vec2::new(u_plus + u_minus, v_plus + v_minus),
+    ))
 }
 
 /// Longest side of a portal, in maximal-ball radii of its bottleneck (an opening into open
@@ -1625,10 +1647,7 @@ impl GuideQuery {
     ) -> u32 {
         self.count = 0;
         self.node = None;
-        if !guide.may_guide_at(p) {
-            return 0;
-        }
-        let Some((node, voxel)) = guide.map_point_voxel(p, normal, wo) else {
+        let Some((node, voxel)) = guide.map_guided_point(p, normal, wo) else {
             return 0;
         };
         self.node = Some(node);
@@ -1692,7 +1711,7 @@ impl GuideQuery {
             found
         };
         // The portals of the active portal lobes, with their index.
-        let mut portals: [(Portal, usize); MAX_LOBES] = [(NO_PORTAL, 0); MAX_LOBES];
+        let mut portals: [(Option<&Portal>, usize); MAX_LOBES] = [(None, 0); MAX_LOBES];
         let mut portal_count = 0usize;
         for (j, lobe) in guide.lobes(node).iter().enumerate() {
             let j = j as u32;
@@ -1703,7 +1722,7 @@ impl GuideQuery {
             // aim=portal: uniform toward the opening's rectangle where p sees the bottleneck
             // (and is not in the rectangle's plane); else the round lobe of aim=opening.
             let wanted = opening
-                .and(lobe.portal)
+                .and(lobe.portal.as_ref())
                 .filter(|_| guide.settings.aim == LobeAim::Portal);
             // Lobes through the same rectangle are the same density at p (a portal lobe has
             // no strength): one active lobe with their summed probability, one rectangle
@@ -1711,7 +1730,7 @@ impl GuideQuery {
             if let Some(&(_, i)) = wanted.and_then(|portal| {
                 portals[..portal_count]
                     .iter()
-                    .find(|(seen, _)| *seen == portal)
+                    .find(|(seen, _)| *seen == Some(portal))
             }) {
                 self.lobes[i].probability += lobe.probability;
                 total += lobe.probability;
@@ -1720,7 +1739,7 @@ impl GuideQuery {
             let portal = wanted.and_then(|portal| portal.seen_from(p));
             if let (Some(rect), Some((axis, distance))) = (portal, opening) {
                 if let Some(portal) = wanted {
-                    portals[portal_count] = (portal, self.count);
+                    portals[portal_count] = (Some(portal), self.count);
                     portal_count += 1;
                 }
                 self.lobes[self.count] = ActiveLobe {
