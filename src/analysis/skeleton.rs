@@ -744,7 +744,7 @@ fn map_point_searched(
     shortcut: bool,
 ) -> Option<usize> {
     let g = grid.to_grid(p);
-    let vx = g.map(super::grid::floor_to_i64);
+    let vx = super::grid::floor3_to_i64(g);
     map_grid_point(grid, map, masks, g, vx, normal, incident, shortcut)
 }
 

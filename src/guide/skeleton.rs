@@ -638,8 +638,8 @@ pub struct Portal {
     pub v: Vec3,
     pub half: Vec2,
     /// The rectangle's corner and frame, set up once for every point that sees it (a function
-    /// of the fields above).
-    frame: warp::RectangleFrame,
+    /// of the fields above; None for a rectangle without area, which no point sees).
+    frame: Option<warp::RectangleFrame>,
 }
 
 impl Portal {
@@ -658,7 +658,7 @@ impl Portal {
     /// The rectangle as seen from `p`, for sampling uniformly in solid angle (None where p is
     /// in its plane).
     pub fn seen_from(&self, p: Vec3) -> Option<warp::SphericalRectangle> {
-        self.frame.seen_from(p)
+        self.frame.as_ref()?.seen_from(p)
     }
 }
 
@@ -1029,7 +1029,7 @@ impl SkeletonGuide {
     /// coordinates of `p` computed once for both.
     fn map_guided_point(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<(u32, usize)> {
         let g = self.grid.to_grid(p);
-        let v = g.map(crate::analysis::grid::floor_to_i64);
+        let v = crate::analysis::grid::floor3_to_i64(g);
         if !self.may_guide_in(v) {
             return None;
         }
@@ -2060,5 +2060,92 @@ mod tests {
             let m = q.mixture_pdf(w, 0.1);
             assert!((m - (0.25 * pdf + 0.75 * 0.1)).abs() < 1e-5 * m);
         }
+    }
+
+    /// A portal's rectangle seen from a point is, bit for bit, the rectangle of its corner
+    /// and sides set up from scratch there (what the query computed before portals kept their
+    /// frame), degenerate ones and points in the plane included.
+    #[test]
+    fn portals_see_points_as_rectangles_set_up_there() {
+        let mut rng = Rng::new(11, 4);
+        let (mut seen, mut unseen) = (0, 0);
+        for i in 0..2000 {
+            let u = warp::uniform_sphere(rng.uniform2());
+            let v = Frame::from_z(u).s;
+            let centre = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 8.0 - 4.0;
+            let mut half = Vec2::new(rng.uniform(), rng.uniform()) * 2.0;
+            if i % 50 == 0 {
+                half.x = 0.0;
+            }
+            let portal = Portal::new(centre, u, v, half);
+            for _ in 0..4 {
+                let mut p = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 8.0 - 4.0;
+                if rng.uniform() < 0.2 {
+                    // In the rectangle's plane.
+                    p = centre + (rng.uniform() - 0.5) * u + (rng.uniform() - 0.5) * v;
+                }
+                let corner = centre - half.x * u - half.y * v;
+                let size = 2.0 * half;
+                let fresh = warp::SphericalRectangle::new(p, corner, u, v, size.x, size.y);
+                let kept = portal.seen_from(p);
+                assert_eq!(
+                    format!("{kept:?}"),
+                    format!("{fresh:?}"),
+                    "portal {i} from {p}"
+                );
+                match (kept, fresh) {
+                    (Some(a), Some(b)) => {
+                        seen += 1;
+                        let u = rng.uniform2();
+                        let w = a.sample(u);
+                        assert_eq!(w.to_array(), b.sample(u).to_array());
+                        assert_eq!(a.pdf(w).to_bits(), b.pdf(w).to_bits());
+                    }
+                    _ => unseen += 1,
+                }
+            }
+        }
+        assert!(seen > 5000 && unseen > 400, "{seen} seen, {unseen} not");
+    }
+
+    /// The query's mapping (one grid conversion for the `may_guide` test and the node
+    /// mapping) finds the voxel and node of `may_guide_at` followed by `map_point_voxel`,
+    /// and none where `may_guide_at` rules the point out.
+    #[test]
+    fn guided_points_map_as_may_guide_and_the_node_mapping() {
+        let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
+        let mut settings = SkeletonGuideSettings::default();
+        settings.set("c_skel", "learned").unwrap();
+        settings.set("training_paths", "8192").unwrap();
+        let guide = SkeletonGuide::build(&scene, &settings, &|_, _| true).unwrap();
+        assert!(!guide.may_guide.is_empty());
+        let mut rng = Rng::new(5, 1);
+        let bounds = scene.bounds();
+        let (mut mapped, mut ruled_out) = (0, 0);
+        while mapped + ruled_out < 4000 {
+            let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
+            let o = bounds.min + (bounds.max - bounds.min) * u;
+            let d = warp::uniform_sphere(rng.uniform2());
+            let Some(si) = scene.intersect(&Ray::new(o, d, f32::INFINITY)) else {
+                continue;
+            };
+            let got = guide.map_guided_point(si.p, si.ng, si.wo);
+            if guide.may_guide_at(si.p) {
+                mapped += 1;
+                assert_eq!(
+                    got,
+                    guide.map_point_voxel(si.p, si.ng, si.wo),
+                    "at {}",
+                    si.p
+                );
+            } else {
+                ruled_out += 1;
+                assert_eq!(got, None, "at {}", si.p);
+            }
+        }
+        assert!(
+            mapped > 200 && ruled_out > 200,
+            "{mapped} mapped, {ruled_out} not"
+        );
     }
 }

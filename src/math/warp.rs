@@ -162,22 +162,32 @@ pub struct RectangleFrame {
 
 impl RectangleFrame {
     /// The rectangle `corner + a ex + b ey` for a in [0, ex_len], b in [0, ey_len] (`ex`, `ey`
-    /// orthonormal).
-    pub fn new(corner: Vec3, ex: Vec3, ey: Vec3, ex_len: f32, ey_len: f32) -> RectangleFrame {
+    /// orthonormal). None when a side is not a positive finite length (no origin sees it).
+    pub fn new(
+        corner: Vec3,
+        ex: Vec3,
+        ey: Vec3,
+        ex_len: f32,
+        ey_len: f32,
+    ) -> Option<RectangleFrame> {
         debug_assert!(
             ex.dot(ey).abs() <= 1e-4 * ex.length() * ey.length(),
             "rectangle edges must be orthogonal"
         );
+        let (ex_len, ey_len) = (ex_len as f64, ey_len as f64);
+        if !(ex_len > 0.0 && ey_len > 0.0 && ex_len.is_finite() && ey_len.is_finite()) {
+            return None;
+        }
         let x = ex.as_dvec3().normalize();
         let y = ey.as_dvec3().normalize();
-        RectangleFrame {
+        Some(RectangleFrame {
             corner,
             x,
             y,
             z: x.cross(y),
-            ex_len: ex_len as f64,
-            ey_len: ey_len as f64,
-        }
+            ex_len,
+            ey_len,
+        })
     }
 
     /// The rectangle seen from `origin` ([`SphericalRectangle::new`]).
@@ -190,9 +200,6 @@ impl RectangleFrame {
             ex_len,
             ey_len,
         } = self;
-        if !(ex_len > 0.0 && ey_len > 0.0 && ex_len.is_finite() && ey_len.is_finite()) {
-            return None;
-        }
         let d = (corner - origin).as_dvec3();
         let (x0, y0) = (d.dot(x), d.dot(y));
         let mut z0 = d.dot(z);
@@ -246,7 +253,7 @@ impl SphericalRectangle {
         ex_len: f32,
         ey_len: f32,
     ) -> Option<SphericalRectangle> {
-        RectangleFrame::new(corner, ex, ey, ex_len, ey_len).seen_from(origin)
+        RectangleFrame::new(corner, ex, ey, ex_len, ey_len)?.seen_from(origin)
     }
 
     /// The four angles between the great circles of the edges (computed once).
