@@ -253,7 +253,7 @@ impl Integrator for PathTracer {
 
 thread_local! {
     /// The guided integrator's query, one per thread and reused by every sample the thread
-    /// traces: a query is about 1.6 KB (eight lobes with their rectangles), and making and
+    /// traces: a query is about 1.7 KB (eight lobes with their rectangles), and making and
     /// dropping one per camera sample cost about 860 instructions per sample on the Bitterli
     /// ajar. Each vertex re-initialises it (`GuideQuery::clear`, `GuideQuery::init`), so what
     /// an earlier sample left in it is never read.
