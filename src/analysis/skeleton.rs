@@ -666,6 +666,21 @@ impl NeighbourMasks {
         map_point_with(grid, map, Some(&self.masks), p, normal, incident)
     }
 
+    /// [`Self::map_point_voxel`] for a point given by its grid coordinates `g =
+    /// grid.to_grid(p)` and voxel `vx = grid.voxel_of(p)`, for a caller that has them already.
+    pub fn map_grid_point_voxel(
+        &self,
+        grid: &VoxelGrid,
+        map: &[u32],
+        g: [f64; 3],
+        vx: [i64; 3],
+        normal: Vec3,
+        incident: Vec3,
+    ) -> Option<usize> {
+        debug_assert_eq!(self.masks.len(), grid.len());
+        map_grid_point(grid, map, Some(&self.masks), g, vx, normal, incident, true)
+    }
+
     pub fn memory_bytes(&self) -> usize {
         self.masks.len() * 4
     }
@@ -795,16 +810,30 @@ fn map_point_searched(
     incident: Vec3,
     shortcut: bool,
 ) -> Option<usize> {
+    let g = grid.to_grid(p);
+    let vx = super::grid::floor3_to_i64(g);
+    map_grid_point(grid, map, masks, g, vx, normal, incident, shortcut)
+}
+
+/// [`map_point_searched`] of the point at grid coordinates `g`, in voxel `vx` (its floor).
+#[allow(clippy::too_many_arguments)]
+fn map_grid_point(
+    grid: &VoxelGrid,
+    map: &[u32],
+    masks: Option<&[u32]>,
+    g: [f64; 3],
+    vx: [i64; 3],
+    normal: Vec3,
+    incident: Vec3,
+    shortcut: bool,
+) -> Option<usize> {
     let n = if normal.dot(incident) >= 0.0 {
         normal
     } else {
         -normal
     };
     let n = n.normalize_or_zero();
-    let w = incident.normalize_or_zero();
-    let g = grid.to_grid(p);
     let dims = grid.dims;
-    let vx = g.map(super::grid::floor_to_i64);
     let inside = |v: [i64; 3]| (0..3).all(|a| v[a] >= 0 && v[a] < dims[a] as i64);
     if let Some(d) = clearly_facing_offset(n).filter(|_| shortcut) {
         let v = [0, 1, 2].map(|a| vx[a].saturating_add(d[a]));
@@ -815,6 +844,7 @@ fn map_point_searched(
             }
         }
     }
+    let w = incident.normalize_or_zero();
     // Best mapped voxel of the 26-neighbourhood of `centre`, scored by the cosine from v_x.
     let search = |centre: [i64; 3], facing_only: bool| -> Option<usize> {
         let mut best: Option<(f32, f32, usize)> = None;

@@ -637,25 +637,30 @@ pub struct Portal {
     pub u: Vec3,
     pub v: Vec3,
     pub half: Vec2,
+    /// The rectangle's corner and frame, set up once for every point that sees it (a function
+    /// of the fields above; None for a rectangle without area, which no point sees).
+    frame: Option<warp::RectangleFrame>,
 }
 
 impl Portal {
+    fn new(centre: Vec3, u: Vec3, v: Vec3, half: Vec2) -> Portal {
+        let corner = centre - half.x * u - half.y * v;
+        let size = 2.0 * half;
+        Portal {
+            centre,
+            u,
+            v,
+            half,
+            frame: warp::RectangleFrame::new(corner, u, v, size.x, size.y),
+        }
+    }
+
     /// The rectangle as seen from `p`, for sampling uniformly in solid angle (None where p is
     /// in its plane).
     pub fn seen_from(&self, p: Vec3) -> Option<warp::SphericalRectangle> {
-        let corner = self.centre - self.half.x * self.u - self.half.y * self.v;
-        let size = 2.0 * self.half;
-        warp::SphericalRectangle::new(p, corner, self.u, self.v, size.x, size.y)
+        self.frame.as_ref()?.seen_from(p)
     }
 }
-
-/// A placeholder for fixed-size arrays of portals.
-const NO_PORTAL: Portal = Portal {
-    centre: Vec3::ZERO,
-    u: Vec3::X,
-    v: Vec3::Y,
-    half: Vec2::ZERO,
-};
 
 /// What a guide was built from, to refuse rendering another scene with it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -1006,14 +1011,31 @@ impl SkeletonGuide {
     /// False when a point at `p` cannot map to a node with a guiding probability above 0
     /// (then the query need not map it at all).
     pub fn may_guide_at(&self, p: Vec3) -> bool {
+        self.may_guide_in(self.grid.voxel_of(p))
+    }
+
+    /// [`Self::may_guide_at`] for a point in voxel `v` (which may lie outside the grid).
+    fn may_guide_in(&self, v: [i64; 3]) -> bool {
         if self.may_guide.is_empty() {
             return true;
         }
-        let v = self.grid.voxel_of(p);
         if (0..3).any(|a| v[a] < 0 || v[a] >= self.grid.dims[a] as i64) {
             return true;
         }
         self.may_guide[self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
+    }
+
+    /// [`Self::map_point_voxel`] where [`Self::may_guide_at`] allows it, else None; the grid
+    /// coordinates of `p` computed once for both.
+    fn map_guided_point(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<(u32, usize)> {
+        let g = self.grid.to_grid(p);
+        let v = crate::analysis::grid::floor3_to_i64(g);
+        if !self.may_guide_in(v) {
+            return None;
+        }
+        self.neighbours
+            .map_grid_point_voxel(&self.grid, &self.node_map, g, v, normal, incident)
+            .map(|k| (self.node_map[k], k))
     }
 
     /// The training pass's findings with `c_skel=learned`.
@@ -1331,12 +1353,12 @@ fn opening_rectangle(scene: &Scene, centre: Vec3, along: Vec3, cap: f32) -> Opti
     let u = frame.to_world(Vec3::new(cos, sin, 0.0)).normalize();
     let v = normal.cross(u).normalize();
     let [u_plus, u_minus, v_plus, v_minus] = [u, -u, v, -v].map(|d| reach(scene, centre, d, cap));
-    Some(Portal {
-        centre: centre + 0.5 * (u_plus - u_minus) * u + 0.5 * (v_plus - v_minus) * v,
+    Some(Portal::new(
+        centre + 0.5 * (u_plus - u_minus) * u + 0.5 * (v_plus - v_minus) * v,
         u,
         v,
-        half: 0.5 * Vec2::new(u_plus + u_minus, v_plus + v_minus),
-    })
+        0.5 * Vec2::new(u_plus + u_minus, v_plus + v_minus),
+    ))
 }
 
 /// Longest side of a portal, in maximal-ball radii of its bottleneck (an opening into open
@@ -1625,10 +1647,7 @@ impl GuideQuery {
     ) -> u32 {
         self.count = 0;
         self.node = None;
-        if !guide.may_guide_at(p) {
-            return 0;
-        }
-        let Some((node, voxel)) = guide.map_point_voxel(p, normal, wo) else {
+        let Some((node, voxel)) = guide.map_guided_point(p, normal, wo) else {
             return 0;
         };
         self.node = Some(node);
@@ -1692,7 +1711,7 @@ impl GuideQuery {
             found
         };
         // The portals of the active portal lobes, with their index.
-        let mut portals: [(Portal, usize); MAX_LOBES] = [(NO_PORTAL, 0); MAX_LOBES];
+        let mut portals: [(Option<&Portal>, usize); MAX_LOBES] = [(None, 0); MAX_LOBES];
         let mut portal_count = 0usize;
         for (j, lobe) in guide.lobes(node).iter().enumerate() {
             let j = j as u32;
@@ -1703,7 +1722,7 @@ impl GuideQuery {
             // aim=portal: uniform toward the opening's rectangle where p sees the bottleneck
             // (and is not in the rectangle's plane); else the round lobe of aim=opening.
             let wanted = opening
-                .and(lobe.portal)
+                .and(lobe.portal.as_ref())
                 .filter(|_| guide.settings.aim == LobeAim::Portal);
             // Lobes through the same rectangle are the same density at p (a portal lobe has
             // no strength): one active lobe with their summed probability, one rectangle
@@ -1711,7 +1730,7 @@ impl GuideQuery {
             if let Some(&(_, i)) = wanted.and_then(|portal| {
                 portals[..portal_count]
                     .iter()
-                    .find(|(seen, _)| *seen == portal)
+                    .find(|(seen, _)| *seen == Some(portal))
             }) {
                 self.lobes[i].probability += lobe.probability;
                 total += lobe.probability;
@@ -1720,7 +1739,7 @@ impl GuideQuery {
             let portal = wanted.and_then(|portal| portal.seen_from(p));
             if let (Some(rect), Some((axis, distance))) = (portal, opening) {
                 if let Some(portal) = wanted {
-                    portals[portal_count] = (portal, self.count);
+                    portals[portal_count] = (Some(portal), self.count);
                     portal_count += 1;
                 }
                 self.lobes[self.count] = ActiveLobe {
@@ -2041,5 +2060,92 @@ mod tests {
             let m = q.mixture_pdf(w, 0.1);
             assert!((m - (0.25 * pdf + 0.75 * 0.1)).abs() < 1e-5 * m);
         }
+    }
+
+    /// A portal's rectangle seen from a point is, bit for bit, the rectangle of its corner
+    /// and sides set up from scratch there (what the query computed before portals kept their
+    /// frame), degenerate ones and points in the plane included.
+    #[test]
+    fn portals_see_points_as_rectangles_set_up_there() {
+        let mut rng = Rng::new(11, 4);
+        let (mut seen, mut unseen) = (0, 0);
+        for i in 0..2000 {
+            let u = warp::uniform_sphere(rng.uniform2());
+            let v = Frame::from_z(u).s;
+            let centre = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 8.0 - 4.0;
+            let mut half = Vec2::new(rng.uniform(), rng.uniform()) * 2.0;
+            if i % 50 == 0 {
+                half.x = 0.0;
+            }
+            let portal = Portal::new(centre, u, v, half);
+            for _ in 0..4 {
+                let mut p = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 8.0 - 4.0;
+                if rng.uniform() < 0.2 {
+                    // In the rectangle's plane.
+                    p = centre + (rng.uniform() - 0.5) * u + (rng.uniform() - 0.5) * v;
+                }
+                let corner = centre - half.x * u - half.y * v;
+                let size = 2.0 * half;
+                let fresh = warp::SphericalRectangle::new(p, corner, u, v, size.x, size.y);
+                let kept = portal.seen_from(p);
+                assert_eq!(
+                    format!("{kept:?}"),
+                    format!("{fresh:?}"),
+                    "portal {i} from {p}"
+                );
+                match (kept, fresh) {
+                    (Some(a), Some(b)) => {
+                        seen += 1;
+                        let u = rng.uniform2();
+                        let w = a.sample(u);
+                        assert_eq!(w.to_array(), b.sample(u).to_array());
+                        assert_eq!(a.pdf(w).to_bits(), b.pdf(w).to_bits());
+                    }
+                    _ => unseen += 1,
+                }
+            }
+        }
+        assert!(seen > 5000 && unseen > 400, "{seen} seen, {unseen} not");
+    }
+
+    /// The query's mapping (one grid conversion for the `may_guide` test and the node
+    /// mapping) finds the voxel and node of `may_guide_at` followed by `map_point_voxel`,
+    /// and none where `may_guide_at` rules the point out.
+    #[test]
+    fn guided_points_map_as_may_guide_and_the_node_mapping() {
+        let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
+        let mut settings = SkeletonGuideSettings::default();
+        settings.set("c_skel", "learned").unwrap();
+        settings.set("training_paths", "8192").unwrap();
+        let guide = SkeletonGuide::build(&scene, &settings, &|_, _| true).unwrap();
+        assert!(!guide.may_guide.is_empty());
+        let mut rng = Rng::new(5, 1);
+        let bounds = scene.bounds();
+        let (mut mapped, mut ruled_out) = (0, 0);
+        while mapped + ruled_out < 4000 {
+            let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
+            let o = bounds.min + (bounds.max - bounds.min) * u;
+            let d = warp::uniform_sphere(rng.uniform2());
+            let Some(si) = scene.intersect(&Ray::new(o, d, f32::INFINITY)) else {
+                continue;
+            };
+            let got = guide.map_guided_point(si.p, si.ng, si.wo);
+            if guide.may_guide_at(si.p) {
+                mapped += 1;
+                assert_eq!(
+                    got,
+                    guide.map_point_voxel(si.p, si.ng, si.wo),
+                    "at {}",
+                    si.p
+                );
+            } else {
+                ruled_out += 1;
+                assert_eq!(got, None, "at {}", si.p);
+            }
+        }
+        assert!(
+            mapped > 200 && ruled_out > 200,
+            "{mapped} mapped, {ruled_out} not"
+        );
     }
 }

@@ -146,18 +146,30 @@ struct RectangleAngles {
 /// (the set-up is accurate to 1e-3 relative at 1e-8 sr, `far` in the tests), so they can wait.
 const DEFERRED_SOLID_ANGLE: f64 = 1e-6;
 
-impl SphericalRectangle {
+/// What [`SphericalRectangle::new`] computes of a rectangle before it looks at the origin
+/// (its corner and its frame in f64), for a rectangle seen from many origins: a guided vertex
+/// sets up its portal's rectangle anew at every point (issue 8, round 11).
+/// [`seen_from`](Self::seen_from) gives bit for bit what `SphericalRectangle::new` gives.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RectangleFrame {
+    corner: Vec3,
+    x: glam::DVec3,
+    y: glam::DVec3,
+    z: glam::DVec3,
+    ex_len: f64,
+    ey_len: f64,
+}
+
+impl RectangleFrame {
     /// The rectangle `corner + a ex + b ey` for a in [0, ex_len], b in [0, ey_len] (`ex`, `ey`
-    /// orthonormal), seen from `origin`. None when the origin is (nearly) in the rectangle's
-    /// plane or the solid angle is not a positive finite number: the caller must not sample it.
+    /// orthonormal). None when a side is not a positive finite length (no origin sees it).
     pub fn new(
-        origin: Vec3,
         corner: Vec3,
         ex: Vec3,
         ey: Vec3,
         ex_len: f32,
         ey_len: f32,
-    ) -> Option<SphericalRectangle> {
+    ) -> Option<RectangleFrame> {
         debug_assert!(
             ex.dot(ey).abs() <= 1e-4 * ex.length() * ey.length(),
             "rectangle edges must be orthogonal"
@@ -168,7 +180,26 @@ impl SphericalRectangle {
         }
         let x = ex.as_dvec3().normalize();
         let y = ey.as_dvec3().normalize();
-        let mut z = x.cross(y);
+        Some(RectangleFrame {
+            corner,
+            x,
+            y,
+            z: x.cross(y),
+            ex_len,
+            ey_len,
+        })
+    }
+
+    /// The rectangle seen from `origin` ([`SphericalRectangle::new`]).
+    pub fn seen_from(&self, origin: Vec3) -> Option<SphericalRectangle> {
+        let &RectangleFrame {
+            corner,
+            x,
+            y,
+            mut z,
+            ex_len,
+            ey_len,
+        } = self;
         let d = (corner - origin).as_dvec3();
         let (x0, y0) = (d.dot(x), d.dot(y));
         let mut z0 = d.dot(z);
@@ -207,6 +238,22 @@ impl SphericalRectangle {
             }
         }
         Some(rect)
+    }
+}
+
+impl SphericalRectangle {
+    /// The rectangle `corner + a ex + b ey` for a in [0, ex_len], b in [0, ey_len] (`ex`, `ey`
+    /// orthonormal), seen from `origin`. None when the origin is (nearly) in the rectangle's
+    /// plane or the solid angle is not a positive finite number: the caller must not sample it.
+    pub fn new(
+        origin: Vec3,
+        corner: Vec3,
+        ex: Vec3,
+        ey: Vec3,
+        ex_len: f32,
+        ey_len: f32,
+    ) -> Option<SphericalRectangle> {
+        RectangleFrame::new(corner, ex, ey, ex_len, ey_len)?.seen_from(origin)
     }
 
     /// The four angles between the great circles of the edges (computed once).
