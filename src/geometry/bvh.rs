@@ -151,16 +151,25 @@ pub(crate) const MAX_TRAVERSAL_DEPTH: usize = 31;
 /// Depth of the deepest inner node (root 0). Inner children of a node are stored
 /// contiguously from `child_base_idx`, one per bit of `imask`.
 fn cwbvh_inner_depth(cwbvh: &CwBvh) -> usize {
-    if cwbvh.nodes.is_empty() {
+    deepest_inner_node(cwbvh.nodes.len(), |i| {
+        (cwbvh.nodes[i].child_base_idx, cwbvh.nodes[i].imask)
+    })
+}
+
+/// Depth of the deepest inner node of an 8-wide tree of `len` nodes whose node `i` has the
+/// inner children `base..base + imask.count_ones()`, `(base, imask) = children(i)`: one walk
+/// for obvhs's nodes and for [`WideNode`]s, which keep the same two fields.
+fn deepest_inner_node(len: usize, children: impl Fn(usize) -> (u32, u8)) -> usize {
+    if len == 0 {
         return 0;
     }
     let mut deepest = 0;
     let mut stack = vec![(0usize, 0usize)];
     while let Some((i, depth)) = stack.pop() {
         deepest = deepest.max(depth);
-        let node = &cwbvh.nodes[i];
-        let first = node.child_base_idx as usize;
-        for c in first..first + node.imask.count_ones() as usize {
+        let (base, imask) = children(i);
+        let first = base as usize;
+        for c in first..first + imask.count_ones() as usize {
             stack.push((c, depth + 1));
         }
     }
@@ -426,17 +435,9 @@ impl Bvh {
     /// [`MAX_TRAVERSAL_DEPTH`].
     #[cfg(test)]
     fn inner_depth(&self) -> usize {
-        let mut deepest = 0;
-        let mut stack = vec![(0usize, 0usize)];
-        while let Some((i, depth)) = stack.pop() {
-            deepest = deepest.max(depth);
-            let node = &self.nodes[i];
-            let first = node.child_base_idx as usize;
-            for c in first..first + node.imask.count_ones() as usize {
-                stack.push((c, depth + 1));
-            }
-        }
-        deepest
+        deepest_inner_node(self.nodes.len(), |i| {
+            (self.nodes[i].child_base_idx, self.nodes[i].imask)
+        })
     }
 
     /// Nodes visited and triangles tested by a closest-hit query (BVH quality figures for
