@@ -471,13 +471,13 @@ impl Bvh {
         (nodes, tris)
     }
 
-    /// Stack traversal of the 8-wide BVH as for a compressed one (Ylitie et al. 2017), in obvhs's order
-    /// (`obvhs::traverse!`: children nearest-first by the ray's octant, a leaf's triangles from
-    /// its highest hit bit down), but without its general traversal state: it starts at the
-    /// root's node test, keeps its groups in registers and takes the ray's constants from
-    /// `q`. Calls `on_node` per node tested and `on_block(block, lanes, &mut t_max)` per
-    /// triangle block with triangles to test (bit `lane` of `lanes` set for each), highest
-    /// block first; it may lower `t_max` and returns true to end the traversal.
+    /// Stack traversal of the 8-wide BVH as for a compressed one (Ylitie et al. 2017), in
+    /// obvhs's order (`obvhs::traverse!`: children nearest-first by the ray's octant, a leaf's
+    /// triangles from its highest hit bit down), but without its general traversal state: it
+    /// starts at the root's node test, keeps its groups in registers and takes the ray's
+    /// constants from `q`. Calls `on_node` per node tested and `on_block(block, lanes, &mut
+    /// t_max)` per triangle block with triangles to test (bit `lane` of `lanes` set for each),
+    /// highest block first; it may lower `t_max` and returns true to end the traversal.
     #[inline(always)]
     fn traverse(
         &self,
@@ -802,9 +802,10 @@ fn wide_node(
 /// are E' <= E (1 + gamma(3)) and X' >= X (1 - gamma(3)) >= 0; then
 /// fl(X' * [`EXIT_SCALE`]) >= X (1 - gamma(3)) (1 - eps) (1 + 2 gamma(5)), which is at least
 /// E (1 + gamma(3)) >= E' because (1 + gamma(3)) / ((1 - gamma(3)) (1 - eps)) is
-/// 1 + 7 eps + O(eps^2) and the rounded factor is 1 + 10 eps. So `E' <= fl(X' * EXIT_SCALE)` never culls a box the ray
-/// touches (Ize, "Robust BVH Ray Traversal", JCGT 2013, with the reciprocal's own rounding
-/// counted and the scaling's rounding covered), including rays starting inside or on a box.
+/// 1 + 7 eps + O(eps^2) and the rounded factor is 1 + 10 eps. So `E' <= fl(X' * EXIT_SCALE)`
+/// never culls a box the ray touches (Ize, "Robust BVH Ray Traversal", JCGT 2013, with the
+/// reciprocal's own rounding counted and the scaling's rounding covered), including rays
+/// starting inside or on a box.
 /// No FMA: `plane * inv - o * inv` would round `o * inv` on its own, an error relative to the
 /// origin's distance instead of the plane's.
 struct NodeRay {
@@ -1352,6 +1353,24 @@ mod tests {
         assert!(rays.iter().all(|r| bvh.intersect(r).is_some()));
     }
 
+    /// A direction for the node tests: `kind` 1 axis-aligned with signed zeros on the other
+    /// axes (clamped reciprocals, unbounded far planes), 2 nearly parallel to a plane (one
+    /// tiny component), else uniform on the sphere.
+    fn node_test_direction(rng: &mut Rng, kind: usize) -> Vec3 {
+        let mut d = warp::uniform_sphere(rng.uniform2());
+        match kind {
+            1 => {
+                let axis = rng.below(3) as usize;
+                let signed_zero = |rng: &mut Rng| if rng.uniform() < 0.5 { 0.0 } else { -0.0 };
+                d = Vec3::new(signed_zero(rng), signed_zero(rng), signed_zero(rng));
+                d[axis] = if rng.uniform() < 0.5 { 1.0 } else { -1.0 };
+            }
+            2 => d[rng.below(3) as usize] = [1e-30, -1e-20, 3e-9][rng.below(3) as usize],
+            _ => {}
+        }
+        d
+    }
+
     /// The triangles below child `c` of node `i`.
     fn subtree_triangles(bvh: &Bvh, i: usize, c: usize, out: &mut Vec<[Vec3; 3]>) {
         let node = &bvh.nodes[i];
@@ -1434,19 +1453,7 @@ mod tests {
                     node.planes[2 + rng.below(2) as usize][c],
                     node.planes[4 + rng.below(2) as usize][c],
                 );
-                let mut d = warp::uniform_sphere(rng.uniform2());
-                if k % 5 == 2 {
-                    d[rng.below(3) as usize] = [1e-30, -1e-20, 3e-9][rng.below(3) as usize];
-                }
-                if k % 5 == 1 {
-                    let axis = rng.below(3) as usize;
-                    d = Vec3::new(
-                        if rng.uniform() < 0.5 { 0.0 } else { -0.0 },
-                        if rng.uniform() < 0.5 { 0.0 } else { -0.0 },
-                        if rng.uniform() < 0.5 { 0.0 } else { -0.0 },
-                    );
-                    d[axis] = if rng.uniform() < 0.5 { 1.0 } else { -1.0 };
-                }
+                let d = node_test_direction(&mut rng, k % 5);
                 let o = match k % 3 {
                     0 => corner - d * ((0.5 + 2.0 * rng.uniform()) * scale),
                     1 => corner,
@@ -1526,22 +1533,7 @@ mod tests {
                     let o = (Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 12.0
                         - Vec3::ONE)
                         * scale;
-                    let mut d = warp::uniform_sphere(rng.uniform2());
-                    match i % 4 {
-                        1 => {
-                            let axis = rng.below(3) as usize;
-                            d = Vec3::new(
-                                if rng.uniform() < 0.5 { 0.0 } else { -0.0 },
-                                if rng.uniform() < 0.5 { 0.0 } else { -0.0 },
-                                if rng.uniform() < 0.5 { 0.0 } else { -0.0 },
-                            );
-                            d[axis] = if rng.uniform() < 0.5 { 1.0 } else { -1.0 };
-                        }
-                        2 => {
-                            d[rng.below(3) as usize] = [1e-30, -1e-20, 3e-9][rng.below(3) as usize]
-                        }
-                        _ => {}
-                    }
+                    let d = node_test_direction(&mut rng, i % 4);
                     let t_max = if i % 3 == 0 {
                         f32::INFINITY
                     } else {

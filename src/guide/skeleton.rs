@@ -632,11 +632,14 @@ impl GuideLobe {
 /// `u`, `v` orthonormal (the principal axes of the opening's outline) and normal `u × v`
 /// along the path.
 #[derive(Clone, Copy, Debug, PartialEq)]
+///
+/// The fields are private: `frame` is derived from the others when the portal is made, and a
+/// portal changed afterwards would sample with a stale frame.
 pub struct Portal {
-    pub centre: Vec3,
-    pub u: Vec3,
-    pub v: Vec3,
-    pub half: Vec2,
+    centre: Vec3,
+    u: Vec3,
+    v: Vec3,
+    half: Vec2,
     /// The rectangle's corner and frame, set up once for every point that sees it (a function
     /// of the fields above; None for a rectangle without area, which no point sees).
     frame: Option<warp::RectangleFrame>,
@@ -2062,9 +2065,9 @@ mod tests {
         }
     }
 
-    /// A portal's rectangle seen from a point is, bit for bit, the rectangle of its corner
-    /// and sides set up from scratch there (what the query computed before portals kept their
-    /// frame), degenerate ones and points in the plane included.
+    /// A portal's rectangle seen from a point is, bit for bit, the spherical rectangle of the
+    /// corner and sides its centre and half sizes give (so `Portal::new` keeps the frame of
+    /// its own rectangle), degenerate ones and points in the plane included.
     #[test]
     fn portals_see_points_as_rectangles_set_up_there() {
         let mut rng = Rng::new(11, 4);
