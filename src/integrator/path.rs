@@ -182,13 +182,19 @@ impl Integrator for PathTracer {
                 .filter(|&c| c > 0.0)
                 .collect();
             let trained = t.samples.iter().filter(|&&n| n > 0).count();
+            // An empty f32 sum is -0.0: say 0 when no node is guided.
+            let mean_c = if guided.is_empty() {
+                0.0
+            } else {
+                guided.iter().sum::<f32>() / guided.len() as f32
+            };
             notes.push(format!(
                 "trained c_skel / strength: {} of {} nodes guided ({} reached by {} training paths), mean c {:.2}",
                 guided.len(),
                 guide.node_count(),
                 trained,
                 t.paths,
-                guided.iter().sum::<f32>() / guided.len().max(1) as f32
+                mean_c
             ));
             if guide.settings().learned_strength {
                 let mut counts: Vec<(String, usize)> = Vec::new();
