@@ -841,8 +841,69 @@ fn map_point_searched(
 }
 
 /// [`map_point_searched`] of the point at grid coordinates `g`, in voxel `vx` (its floor).
+/// With `shortcut`, walls, floors and ceilings first ([`axis_shortcut`], inlined into the
+/// caller), then the rest out of line.
 #[allow(clippy::too_many_arguments)]
+#[inline]
 fn map_grid_point(
+    grid: &VoxelGrid,
+    map: &[u32],
+    masks: Option<&[u32]>,
+    g: [f64; 3],
+    vx: [i64; 3],
+    normal: Vec3,
+    incident: Vec3,
+    shortcut: bool,
+) -> Option<usize> {
+    if shortcut {
+        if let Some(k) = axis_shortcut(grid, map, vx, normal, incident) {
+            return Some(k);
+        }
+    }
+    map_grid_point_beyond_axes(grid, map, masks, g, vx, normal, incident, shortcut)
+}
+
+/// The mapped neighbour of `vx` that faces n⁺ where n⁺ (the normal on the incident side) lies
+/// along an axis ([`axis_facing_offset`]): the voxel the facing shortcut of [`map_point`]
+/// takes, found without normalising n. None where n is no such normal or that neighbour is
+/// outside the grid or unmapped (then the mapping goes on as if this had not been tried).
+#[inline]
+fn axis_shortcut(
+    grid: &VoxelGrid,
+    map: &[u32],
+    vx: [i64; 3],
+    normal: Vec3,
+    incident: Vec3,
+) -> Option<usize> {
+    let n = if normal.dot(incident) >= 0.0 {
+        normal
+    } else {
+        -normal
+    };
+    let d = axis_facing_offset(n)?;
+    let v = [
+        vx[0].saturating_add(d[0]),
+        vx[1].saturating_add(d[1]),
+        vx[2].saturating_add(d[2]),
+    ];
+    let [nx, ny, nz] = grid.dims;
+    if !(v[0] >= 0
+        && v[0] < nx as i64
+        && v[1] >= 0
+        && v[1] < ny as i64
+        && v[2] >= 0
+        && v[2] < nz as i64)
+    {
+        return None;
+    }
+    let k = grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
+    (map[k] != UNDEFINED_NODE).then_some(k)
+}
+
+/// [`map_grid_point`] after [`axis_shortcut`].
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn map_grid_point_beyond_axes(
     grid: &VoxelGrid,
     map: &[u32],
     masks: Option<&[u32]>,
@@ -859,16 +920,6 @@ fn map_grid_point(
     };
     let dims = grid.dims;
     let inside = |v: [i64; 3]| (0..3).all(|a| v[a] >= 0 && v[a] < dims[a] as i64);
-    // Walls, floors and ceilings: the shortcut's offset without normalising n.
-    if let Some(d) = axis_facing_offset(n).filter(|_| shortcut) {
-        let v = [0, 1, 2].map(|a| vx[a].saturating_add(d[a]));
-        if inside(v) {
-            let k = grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
-            if map[k] != UNDEFINED_NODE {
-                return Some(k);
-            }
-        }
-    }
     let n = n.normalize_or_zero();
     if let Some(d) = clearly_facing_offset(n).filter(|_| shortcut) {
         let v = [0, 1, 2].map(|a| vx[a].saturating_add(d[a]));

@@ -1052,6 +1052,21 @@ impl SkeletonGuide {
         if bits & known != 0 {
             return (bits & seen != 0, 0);
         }
+        self.voxel_sees_traced(scene, voxel, target, cell)
+    }
+
+    /// [`Self::voxel_sees`] of a target not known yet in `cell` (out of line: rare once the
+    /// cache is warm, and the common case then needs no registers saved).
+    #[cold]
+    #[inline(never)]
+    fn voxel_sees_traced(
+        &self,
+        scene: &Scene,
+        voxel: usize,
+        target: u32,
+        cell: &AtomicU32,
+    ) -> (bool, u32) {
+        let (known, seen) = (1u32 << (2 * target), 1u32 << (2 * target + 1));
         let sees = self.voxel_sees_direct(scene, voxel, target);
         let before = cell.fetch_or(known | if sees { seen } else { 0 }, AtomicOrdering::Relaxed);
         (sees, u32::from(before & known == 0))
@@ -1653,10 +1668,11 @@ struct Aims<'a> {
     voxel: usize,
     /// Shadow rays traced.
     rays: u32,
-    /// Bit per slot: aimed at (`known`), and applies (`found`, then `at[slot]` holds it).
+    /// Bit per slot: aimed at (`known`), and applies (`found`, then `at[slot]` holds it; the
+    /// query's storage, left as the last point wrote it elsewhere).
     known: u32,
     found: u32,
-    at: [(Vec3, f32); 2 * MAX_LOBES],
+    at: &'a mut [(Vec3, f32); 2 * MAX_LOBES],
 }
 
 impl Aims<'_> {
@@ -1714,6 +1730,8 @@ impl Aims<'_> {
 #[derive(Clone, Debug)]
 pub struct GuideQuery {
     lobes: [ActiveLobe; MAX_LOBES],
+    /// Scratch of `init` ([`Aims`]): kept in the query so that no vertex clears it.
+    aimed: [(Vec3, f32); 2 * MAX_LOBES],
     count: usize,
     c_skel: f32,
     node: Option<u32>,
@@ -1730,6 +1748,7 @@ impl GuideQuery {
     pub const fn new() -> Self {
         GuideQuery {
             lobes: [NO_LOBE; MAX_LOBES],
+            aimed: [(Vec3::ZERO, 0.0); 2 * MAX_LOBES],
             count: 0,
             c_skel: 0.0,
             node: None,
@@ -1845,7 +1864,7 @@ impl GuideQuery {
             rays: 0,
             known: 0,
             found: 0,
-            at: [(Vec3::ZERO, 0.0); 2 * MAX_LOBES],
+            at: &mut self.aimed,
         };
         // Per portal slot of the node, the active lobe that samples it (u8::MAX: none yet).
         let mut portal_lobe = [u8::MAX; MAX_LOBES];
