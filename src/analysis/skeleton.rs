@@ -841,8 +841,8 @@ fn map_point_searched(
 }
 
 /// [`map_point_searched`] of the point at grid coordinates `g`, in voxel `vx` (its floor).
-/// With `shortcut`, walls, floors and ceilings first ([`axis_shortcut`], inlined into the
-/// caller), then the rest out of line.
+/// With `shortcut`, walls, floors and ceilings first ([`axis_shortcut`]; this function is
+/// inlined into its callers), then the rest out of line.
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn map_grid_point(

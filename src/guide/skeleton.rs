@@ -92,10 +92,14 @@
 //! a sample or a direction that hits it. None of this changes the mixture. With `visibility=voxel`
 //! the visibility of each target is decided once per mapped voxel, from its centre, and cached:
 //! that changes which lobes apply near silhouettes (still a function of the point, so unbiased),
-//! not their shapes. A point with no lobe left (no path to any importance node, all directions
-//! below the surface or hidden, a point outside the grid) is not guided: its guiding probability is
-//! 0 and the host samples the BSDF alone. Delta BSDFs are the host's business: it must not guide
-//! there (no mixture with a Dirac lobe has a density), which `path_skeleton` does.
+//! not their shapes. Round 12: which of a node's lobes share a target or a portal is found at
+//! build (`LobePlan`), not searched per vertex; lobes keep only their axis (a frame is set up
+//! to sample one); portal rectangles are set up in the query's lobe; the mapping takes the
+//! facing neighbour of an axis-aligned normal without normalising it (all of it exact: the
+//! same lobes, bit for bit). A point with no lobe left (no path to any importance node, all
+//! directions below the surface or hidden, a point outside the grid) is not guided: its guiding
+//! probability is 0 and the host samples the BSDF alone. Delta BSDFs are the host's business: it
+//! must not guide there (no mixture with a Dirac lobe has a density), which `path_skeleton` does.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -1646,15 +1650,18 @@ impl ActiveLobe {
     }
 }
 
-const NO_LOBE: ActiveLobe = ActiveLobe {
-    axis: Vec3::Z,
-    exponent: 0.0,
-    probability: 0.0,
-    radius: 0.0,
-    distance: 0.0,
-    portal: false,
-    rect: warp::SphericalRectangle::EMPTY,
-};
+/// An unused lobe slot of a query.
+const fn no_lobe() -> ActiveLobe {
+    ActiveLobe {
+        axis: Vec3::Z,
+        exponent: 0.0,
+        probability: 0.0,
+        radius: 0.0,
+        distance: 0.0,
+        portal: false,
+        rect: warp::SphericalRectangle::empty(),
+    }
+}
 
 /// The targets a query has aimed at, at one point (see [`GuideQuery::init`]): per slot of the
 /// node's distinct targets ([`LobePlan`]), the axis and distance toward it where it applies.
@@ -1747,7 +1754,7 @@ impl GuideQuery {
     /// An unguided query (guiding probability 0) until `init` finds lobes.
     pub const fn new() -> Self {
         GuideQuery {
-            lobes: [NO_LOBE; MAX_LOBES],
+            lobes: [const { no_lobe() }; MAX_LOBES],
             aimed: [(Vec3::ZERO, 0.0); 2 * MAX_LOBES],
             count: 0,
             c_skel: 0.0,
@@ -1804,7 +1811,7 @@ impl GuideQuery {
                 radius: 0.0,
                 distance: 0.0,
                 portal: false,
-                rect: warp::SphericalRectangle::EMPTY,
+                rect: warp::SphericalRectangle::empty(),
             };
         }
         if !(total > 0.0 && total.is_finite()) {
@@ -2247,7 +2254,7 @@ mod tests {
                 if let Some(old) = &slot {
                     old.solid_angle();
                 }
-                let mut reused = slot.take().unwrap_or(warp::SphericalRectangle::EMPTY);
+                let mut reused = slot.take().unwrap_or_else(warp::SphericalRectangle::empty);
                 let set_up = portal.seen_from_into(p, &mut reused);
                 assert_eq!(set_up, kept.is_some(), "portal {i} from {p}");
                 if set_up {

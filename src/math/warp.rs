@@ -199,7 +199,7 @@ impl RectangleFrame {
 
     /// The rectangle seen from `origin` ([`SphericalRectangle::new`]).
     pub fn seen_from(&self, origin: Vec3) -> Option<SphericalRectangle> {
-        let mut rect = SphericalRectangle::EMPTY;
+        let mut rect = SphericalRectangle::empty();
         self.seen_from_into(origin, &mut rect).then_some(rect)
     }
 
@@ -260,17 +260,19 @@ impl RectangleFrame {
 impl SphericalRectangle {
     /// A placeholder that no origin sees (zero extent), for storage a rectangle is later
     /// written into ([`RectangleFrame::seen_from_into`]); not to be sampled.
-    pub const EMPTY: SphericalRectangle = SphericalRectangle {
-        x: glam::DVec3::X,
-        y: glam::DVec3::Y,
-        z: glam::DVec3::Z,
-        x0: 0.0,
-        x1: 0.0,
-        y0: 0.0,
-        y1: 0.0,
-        z0: 0.0,
-        angles: std::sync::OnceLock::new(),
-    };
+    pub const fn empty() -> SphericalRectangle {
+        SphericalRectangle {
+            x: glam::DVec3::X,
+            y: glam::DVec3::Y,
+            z: glam::DVec3::Z,
+            x0: 0.0,
+            x1: 0.0,
+            y0: 0.0,
+            y1: 0.0,
+            z0: 0.0,
+            angles: std::sync::OnceLock::new(),
+        }
+    }
 
     /// The rectangle `corner + a ex + b ey` for a in [0, ex_len], b in [0, ey_len] (`ex`, `ey`
     /// orthonormal), seen from `origin`. None when the origin is (nearly) in the rectangle's
