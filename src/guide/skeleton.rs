@@ -92,10 +92,14 @@
 //! a sample or a direction that hits it. None of this changes the mixture. With `visibility=voxel`
 //! the visibility of each target is decided once per mapped voxel, from its centre, and cached:
 //! that changes which lobes apply near silhouettes (still a function of the point, so unbiased),
-//! not their shapes. A point with no lobe left (no path to any importance node, all directions
-//! below the surface or hidden, a point outside the grid) is not guided: its guiding probability is
-//! 0 and the host samples the BSDF alone. Delta BSDFs are the host's business: it must not guide
-//! there (no mixture with a Dirac lobe has a density), which `path_skeleton` does.
+//! not their shapes. Round 12: which of a node's lobes share a target or a portal is found at
+//! build (`LobePlan`), not searched per vertex; lobes keep only their axis (a frame is set up
+//! to sample one); portal rectangles are set up in the query's lobe; the mapping takes the
+//! facing neighbour of an axis-aligned normal without normalising it (all of it exact: the
+//! same lobes, bit for bit). A point with no lobe left (no path to any importance node, all
+//! directions below the surface or hidden, a point outside the grid) is not guided: its guiding
+//! probability is 0 and the host samples the BSDF alone. Delta BSDFs are the host's business: it
+//! must not guide there (no mixture with a Dirac lobe has a density), which `path_skeleton` does.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -663,6 +667,63 @@ impl Portal {
     pub fn seen_from(&self, p: Vec3) -> Option<warp::SphericalRectangle> {
         self.frame.as_ref()?.seen_from(p)
     }
+
+    /// [`Self::seen_from`] written into `rect` (false where it gives None).
+    #[inline]
+    fn seen_from_into(&self, p: Vec3, rect: &mut warp::SphericalRectangle) -> bool {
+        self.frame
+            .as_ref()
+            .is_some_and(|frame| frame.seen_from_into(p, rect))
+    }
+}
+
+/// What [`GuideQuery::init`] needs of a node's lobe beyond the lobe itself, found once at build
+/// (issue 8, round 12): which of the node's distinct lobe targets (openings and importance
+/// points, equal as `Vec3`s) and distinct portals (equal as `Portal`s) the lobe's are. The
+/// query used to find them by a linear search over what it had aimed at so far, per lobe
+/// and vertex; the answers (the shadow ray, the rectangle) stay per point.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct LobePlan {
+    /// Whether the lobe aims through its opening ([`GuideLobe::has_opening`] and an aim other
+    /// than `point`).
+    through_opening: bool,
+    /// Slots of the lobe's opening and importance point among the node's distinct targets:
+    /// the index of the first target of the node equal to each, in the order opening, point
+    /// of lobe 0, then of lobe 1, ...
+    opening_slot: u8,
+    point_slot: u8,
+    /// With a portal: the index of the node's first lobe whose portal equals this one's.
+    portal_slot: Option<u8>,
+}
+
+/// The plans of one node's lobes ([`LobePlan`]).
+fn plan_lobes(lobes: &[GuideLobe], aim: LobeAim) -> Vec<LobePlan> {
+    debug_assert!(lobes.len() <= MAX_LOBES);
+    let mut targets: Vec<Vec3> = Vec::with_capacity(2 * lobes.len());
+    let mut slot_of = |t: Vec3| -> u8 {
+        match targets.iter().position(|&seen| seen == t) {
+            Some(i) => i as u8,
+            None => {
+                targets.push(t);
+                (targets.len() - 1) as u8
+            }
+        }
+    };
+    lobes
+        .iter()
+        .enumerate()
+        .map(|(j, lobe)| LobePlan {
+            through_opening: lobe.has_opening() && aim != LobeAim::ImportancePoint,
+            opening_slot: slot_of(lobe.opening),
+            point_slot: slot_of(lobe.point),
+            portal_slot: lobe.portal.as_ref().map(|portal| {
+                lobes[..=j]
+                    .iter()
+                    .position(|l| l.portal.as_ref() == Some(portal))
+                    .unwrap_or(j) as u8
+            }),
+        })
+        .collect()
 }
 
 /// What a guide was built from, to refuse rendering another scene with it.
@@ -696,6 +757,8 @@ pub struct SkeletonGuide {
     settings: SkeletonGuideSettings,
     grid: VoxelGrid,
     node_map: Vec<u32>,
+    /// `grid.dims` in f64, for the query's test whether a point lies inside the grid.
+    grid_extent: [f64; 3],
     /// Which neighbours of each voxel are mapped, for the query's node mapping.
     neighbours: NeighbourMasks,
     /// With `visibility=voxel`: per voxel, the lobe targets its centre sees
@@ -706,6 +769,8 @@ pub struct SkeletonGuide {
     /// Lobes of node k: `lobes[lobe_start[k]..lobe_start[k + 1]]`, by decreasing probability.
     lobe_start: Vec<u32>,
     lobes: Vec<GuideLobe>,
+    /// `plans[i]`: the query's plan of `lobes[i]` ([`LobePlan`]).
+    plans: Vec<LobePlan>,
     /// Probability of sampling the lobes at each node: `c_skel`, or learned per node.
     node_c: Vec<f32>,
     /// Strength at each node with `strength=learned`; empty: `settings.strength` everywhere.
@@ -822,8 +887,10 @@ impl SkeletonGuide {
             .collect();
         let mut lobe_start = Vec::with_capacity(per_node.len() + 1);
         let mut lobes = Vec::new();
+        let mut plans = Vec::new();
         lobe_start.push(0u32);
         for l in per_node {
+            plans.extend(plan_lobes(&l, settings.aim));
             lobes.extend(l);
             lobe_start.push(lobes.len() as u32);
         }
@@ -833,6 +900,7 @@ impl SkeletonGuide {
         let mut guide = SkeletonGuide {
             settings: *settings,
             neighbours: NeighbourMasks::new(&grid, &node_map),
+            grid_extent: grid.dims.map(|n| n as f64),
             voxel_sees: if settings.visibility_test && settings.voxel_visibility {
                 (0..grid.len()).map(|_| AtomicU32::new(0)).collect()
             } else {
@@ -844,6 +912,7 @@ impl SkeletonGuide {
             node_radii: graph.nodes.iter().map(|n| n.radius).collect(),
             lobe_start,
             lobes,
+            plans,
             node_c: vec![
                 if settings.learned_c_skel || settings.learned_strength {
                     training::TRAINING_C
@@ -937,6 +1006,16 @@ impl SkeletonGuide {
         &self.lobes[self.lobe_start[k] as usize..self.lobe_start[k + 1] as usize]
     }
 
+    /// The lobes of a node with their plans ([`LobePlan`]).
+    fn lobes_and_plans(&self, node: u32) -> (&[GuideLobe], &[LobePlan]) {
+        let k = node as usize;
+        if k + 1 >= self.lobe_start.len() {
+            return (&[], &[]);
+        }
+        let range = self.lobe_start[k] as usize..self.lobe_start[k + 1] as usize;
+        (&self.lobes[range.clone()], &self.plans[range])
+    }
+
     /// Nodes with at least one lobe.
     pub fn guided_node_count(&self) -> usize {
         self.lobe_start.windows(2).filter(|w| w[1] > w[0]).count()
@@ -977,6 +1056,21 @@ impl SkeletonGuide {
         if bits & known != 0 {
             return (bits & seen != 0, 0);
         }
+        self.voxel_sees_traced(scene, voxel, target, cell)
+    }
+
+    /// [`Self::voxel_sees`] of a target not known yet in `cell` (out of line: rare once the
+    /// cache is warm, and the common case then needs no registers saved).
+    #[cold]
+    #[inline(never)]
+    fn voxel_sees_traced(
+        &self,
+        scene: &Scene,
+        voxel: usize,
+        target: u32,
+        cell: &AtomicU32,
+    ) -> (bool, u32) {
+        let (known, seen) = (1u32 << (2 * target), 1u32 << (2 * target + 1));
         let sees = self.voxel_sees_direct(scene, voxel, target);
         let before = cell.fetch_or(known | if sees { seen } else { 0 }, AtomicOrdering::Relaxed);
         (sees, u32::from(before & known == 0))
@@ -1032,10 +1126,30 @@ impl SkeletonGuide {
     /// coordinates of `p` computed once for both.
     fn map_guided_point(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<(u32, usize)> {
         let g = self.grid.to_grid(p);
-        let v = crate::analysis::grid::floor3_to_i64(g);
-        if !self.may_guide_in(v) {
-            return None;
-        }
+        let d = &self.grid_extent;
+        let v = if g[0] >= 0.0
+            && g[0] < d[0]
+            && g[1] >= 0.0
+            && g[1] < d[1]
+            && g[2] >= 0.0
+            && g[2] < d[2]
+        {
+            // Inside the grid (false for NaN) the floor is the truncation (no saturation, no
+            // correction below zero), and the voxel needs no bounds test.
+            // (`as i64`: one instruction, where `as usize` tests for values above 2^63.)
+            let v = [g[0] as i64, g[1] as i64, g[2] as i64];
+            let k = self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
+            if !self.may_guide.is_empty() && !self.may_guide[k] {
+                return None;
+            }
+            v
+        } else {
+            let v = crate::analysis::grid::floor3_to_i64(g);
+            if !self.may_guide_in(v) {
+                return None;
+            }
+            v
+        };
         self.neighbours
             .map_grid_point_voxel(&self.grid, &self.node_map, g, v, normal, incident)
             .map(|k| (self.node_map[k], k))
@@ -1069,6 +1183,7 @@ impl SkeletonGuide {
             + self.node_positions.len() * 16
             + self.lobe_start.len() * 4
             + self.lobes.len() * std::mem::size_of::<GuideLobe>()
+            + self.plans.len() * std::mem::size_of::<LobePlan>()
             + self.importance.len() * std::mem::size_of::<ImportanceNode>()
     }
 }
@@ -1508,7 +1623,9 @@ fn node_lobes(
 /// One lobe of an initialised query.
 #[derive(Clone, Debug)]
 struct ActiveLobe {
-    frame: Frame,
+    /// The power-cosine lobe's axis (unit), toward the lobe's target; its frame is set up only
+    /// to sample it (the density needs the cosine alone).
+    axis: Vec3,
     exponent: f32,
     probability: f32,
     /// Free-space radius and distance the automatic strength was taken from (the lobe's
@@ -1516,32 +1633,103 @@ struct ActiveLobe {
     radius: f32,
     distance: f32,
     /// With `aim=portal` where the point sees the bottleneck: directions uniform toward the
-    /// opening's rectangle instead of the power-cosine lobe.
-    portal: Option<warp::SphericalRectangle>,
+    /// opening's rectangle `rect` instead of the power-cosine lobe (`rect` is meaningless
+    /// otherwise).
+    portal: bool,
+    rect: warp::SphericalRectangle,
 }
 
 impl ActiveLobe {
     #[inline]
     fn pdf(&self, w: Vec3, exponent: f32) -> f32 {
-        match &self.portal {
-            Some(rect) => rect.pdf(w),
-            None => warp::power_cosine_pdf(self.frame.to_local(w), exponent),
+        if self.portal {
+            self.rect.pdf(w)
+        } else {
+            warp::power_cosine_pdf_cos(w.dot(self.axis), exponent)
         }
     }
 }
 
-const NO_LOBE: ActiveLobe = ActiveLobe {
-    frame: Frame {
-        s: Vec3::X,
-        t: Vec3::Y,
-        n: Vec3::Z,
-    },
-    exponent: 0.0,
-    probability: 0.0,
-    radius: 0.0,
-    distance: 0.0,
-    portal: None,
-};
+/// An unused lobe slot of a query.
+const fn no_lobe() -> ActiveLobe {
+    ActiveLobe {
+        axis: Vec3::Z,
+        exponent: 0.0,
+        probability: 0.0,
+        radius: 0.0,
+        distance: 0.0,
+        portal: false,
+        rect: warp::SphericalRectangle::empty(),
+    }
+}
+
+/// The targets a query has aimed at, at one point (see [`GuideQuery::init`]): per slot of the
+/// node's distinct targets ([`LobePlan`]), the axis and distance toward it where it applies.
+struct Aims<'a> {
+    guide: &'a SkeletonGuide,
+    scene: &'a Scene,
+    p: Vec3,
+    p_error: Vec3,
+    /// The normal on the incident direction's side.
+    side: Vec3,
+    voxel: usize,
+    /// Shadow rays traced.
+    rays: u32,
+    /// Bit per slot: aimed at (`known`), and applies (`found`, then `at[slot]` holds it; the
+    /// query's storage, left as the last point wrote it elsewhere).
+    known: u32,
+    found: u32,
+    at: &'a mut [(Vec3, f32); 2 * MAX_LOBES],
+}
+
+impl Aims<'_> {
+    /// Axis and distance toward `target` (slot `slot`) when it is above the surface and, with
+    /// the visibility test, seen from p; found once per slot and point. `index` is the
+    /// target's number for the voxel's visibility cache (`2 j` the opening of lobe j, `2 j +
+    /// 1` its importance point): that of the first lobe that aims at the target at this point.
+    #[inline(always)]
+    fn aim(&mut self, slot: u8, target: Vec3, index: u32) -> Option<(Vec3, f32)> {
+        let bit = 1u32 << slot;
+        if self.known & bit != 0 {
+            return (self.found & bit != 0).then(|| self.at[slot as usize]);
+        }
+        self.known |= bit;
+        let found = self.aim_at(target, index);
+        if let Some(at) = found {
+            self.found |= bit;
+            self.at[slot as usize] = at;
+        }
+        found
+    }
+
+    /// [`Self::aim`] without the memory (out of line: the memory's test is the common case).
+    #[inline(never)]
+    fn aim_at(&mut self, target: Vec3, index: u32) -> Option<(Vec3, f32)> {
+        let to = target - self.p;
+        let distance = to.length();
+        let axis = to / distance;
+        if !(distance > 0.0 && distance.is_finite()) || axis.dot(self.side) <= 0.0 {
+            return None;
+        }
+        let settings = &self.guide.settings;
+        if settings.visibility_test && settings.voxel_visibility {
+            // visibility=voxel: what the mapped voxel's centre sees, instead of a ray from p.
+            let (sees, traced) = self.guide.voxel_sees(self.scene, self.voxel, index);
+            self.rays += traced;
+            if !sees {
+                return None;
+            }
+        } else if settings.visibility_test {
+            self.rays += 1;
+            let origin = offset_ray_origin(self.p, self.p_error, self.side, axis);
+            let ray = Ray::new(origin, axis, distance * (1.0 - SHADOW_EPSILON));
+            if self.scene.occluded(&ray) {
+                return None;
+            }
+        }
+        Some((axis, distance))
+    }
+}
 
 /// The skeleton sampling distribution at one surface point (eq. 163-167): a mixture of
 /// power-cosine lobes. Reusable: one per worker thread, `init` at each point. Holds no
@@ -1549,6 +1737,8 @@ const NO_LOBE: ActiveLobe = ActiveLobe {
 #[derive(Clone, Debug)]
 pub struct GuideQuery {
     lobes: [ActiveLobe; MAX_LOBES],
+    /// Scratch of `init` ([`Aims`]): kept in the query so that no vertex clears it.
+    aimed: [(Vec3, f32); 2 * MAX_LOBES],
     count: usize,
     c_skel: f32,
     node: Option<u32>,
@@ -1564,7 +1754,8 @@ impl GuideQuery {
     /// An unguided query (guiding probability 0) until `init` finds lobes.
     pub const fn new() -> Self {
         GuideQuery {
-            lobes: [NO_LOBE; MAX_LOBES],
+            lobes: [const { no_lobe() }; MAX_LOBES],
+            aimed: [(Vec3::ZERO, 0.0); 2 * MAX_LOBES],
             count: 0,
             c_skel: 0.0,
             node: None,
@@ -1614,12 +1805,13 @@ impl GuideQuery {
                 )));
             }
             q.lobes[i] = ActiveLobe {
-                frame: Frame::from_z(unit),
+                axis: unit,
                 exponent,
                 probability: weight / total,
                 radius: 0.0,
                 distance: 0.0,
-                portal: None,
+                portal: false,
+                rect: warp::SphericalRectangle::empty(),
             };
         }
         if !(total > 0.0 && total.is_finite()) {
@@ -1666,133 +1858,92 @@ impl GuideQuery {
         };
         let strength = guide.strength(node);
         let mut total = 0.0f32;
-        // visibility=voxel: what the mapped voxel's centre sees, instead of a ray from p.
-        let voxel_test = guide.settings.visibility_test && guide.settings.voxel_visibility;
-        let mut rays = 0;
-        // Axis and distance toward `target` when it is above the surface and, with the
-        // visibility test, seen from p.
-        // visibility=voxel: the voxel's answer for its node's target number `index`.
-        let mut aim_at = |target: Vec3, index: u32| -> Option<(Vec3, f32)> {
-            let to = target - p;
-            let distance = to.length();
-            let axis = to / distance;
-            if !(distance > 0.0 && distance.is_finite()) || axis.dot(side) <= 0.0 {
-                return None;
-            }
-            if voxel_test {
-                let (sees, traced) = guide.voxel_sees(scene, voxel, index);
-                rays += traced;
-                if !sees {
-                    return None;
-                }
-            } else if guide.settings.visibility_test {
-                rays += 1;
-                let origin = offset_ray_origin(p, p_error, side, axis);
-                let ray = Ray::new(origin, axis, distance * (1.0 - SHADOW_EPSILON));
-                if scene.occluded(&ray) {
-                    return None;
-                }
-            }
-            Some((axis, distance))
+        // A node's lobes often share their bottleneck (every way out of a room leaves through
+        // its door) or their importance point, and the answer depends on the target alone (p
+        // is fixed; with visibility=voxel the voxel too): one shadow ray per distinct target.
+        let mut aims = Aims {
+            guide,
+            scene,
+            p,
+            p_error,
+            side,
+            voxel,
+            rays: 0,
+            known: 0,
+            found: 0,
+            at: &mut self.aimed,
         };
-        // What `aim` found for each target so far: a node's lobes often share their
-        // bottleneck (every way out of a room leaves through its door) or their importance
-        // point, and the answer depends on the target alone (p is fixed; with
-        // visibility=voxel the voxel too), so one shadow ray per distinct target.
-        let mut seen: [(Vec3, Option<(Vec3, f32)>); 2 * MAX_LOBES] =
-            [(Vec3::ZERO, None); 2 * MAX_LOBES];
-        let mut seen_count = 0usize;
-        let mut aim = |target: Vec3, bit: u32| -> Option<(Vec3, f32)> {
-            if let Some(&(_, found)) = seen[..seen_count].iter().find(|(t, _)| *t == target) {
-                return found;
-            }
-            let found = aim_at(target, bit);
-            if seen_count < seen.len() {
-                seen[seen_count] = (target, found);
-                seen_count += 1;
-            }
-            found
-        };
-        // The portals of the active portal lobes, with their index.
-        let mut portals: [(Option<&Portal>, usize); MAX_LOBES] = [(None, 0); MAX_LOBES];
-        let mut portal_count = 0usize;
-        for (j, lobe) in guide.lobes(node).iter().enumerate() {
+        // Per portal slot of the node, the active lobe that samples it (u8::MAX: none yet).
+        let mut portal_lobe = [u8::MAX; MAX_LOBES];
+        let (lobes, plans) = guide.lobes_and_plans(node);
+        for (j, (lobe, plan)) in lobes.iter().zip(plans).enumerate() {
             let j = j as u32;
-            let through_opening =
-                lobe.has_opening() && guide.settings.aim != LobeAim::ImportancePoint;
             // One shadow ray toward the bottleneck decides whether p aims through it.
-            let opening = through_opening.then(|| aim(lobe.opening, 2 * j)).flatten();
+            let opening = if plan.through_opening {
+                aims.aim(plan.opening_slot, lobe.opening, 2 * j)
+            } else {
+                None
+            };
             // aim=portal: uniform toward the opening's rectangle where p sees the bottleneck
             // (and is not in the rectangle's plane); else the round lobe of aim=opening.
-            let wanted = opening
-                .and(lobe.portal.as_ref())
-                .filter(|_| guide.settings.aim == LobeAim::Portal);
-            // Lobes through the same rectangle are the same density at p (a portal lobe has
-            // no strength): one active lobe with their summed probability, one rectangle
-            // set-up and one density evaluation per direction instead of several.
-            if let Some(&(_, i)) = wanted.and_then(|portal| {
-                portals[..portal_count]
-                    .iter()
-                    .find(|(seen, _)| *seen == Some(portal))
-            }) {
-                self.lobes[i].probability += lobe.probability;
-                total += lobe.probability;
-                continue;
-            }
-            let portal = wanted.and_then(|portal| portal.seen_from(p));
-            if let (Some(rect), Some((axis, distance))) = (portal, opening) {
-                if let Some(portal) = wanted {
-                    portals[portal_count] = (Some(portal), self.count);
-                    portal_count += 1;
+            if let (Some((axis, distance)), Some(slot), Some(portal), LobeAim::Portal) =
+                (opening, plan.portal_slot, &lobe.portal, guide.settings.aim)
+            {
+                // Lobes through the same rectangle are the same density at p (a portal lobe
+                // has no strength): one active lobe with their summed probability, one
+                // rectangle set-up and one density evaluation per direction instead of several.
+                let i = portal_lobe[slot as usize];
+                if i != u8::MAX {
+                    self.lobes[i as usize].probability += lobe.probability;
+                    total += lobe.probability;
+                    continue;
                 }
-                self.lobes[self.count] = ActiveLobe {
-                    frame: Frame::from_z(axis),
-                    exponent: 0.0,
-                    probability: lobe.probability,
-                    radius: lobe.opening_radius,
-                    distance,
-                    portal: Some(rect),
-                };
-                total += lobe.probability;
-                self.count += 1;
-                continue;
+                let active = &mut self.lobes[self.count];
+                if portal.seen_from_into(p, &mut active.rect) {
+                    portal_lobe[slot as usize] = self.count as u8;
+                    active.axis = axis;
+                    active.exponent = 0.0;
+                    active.probability = lobe.probability;
+                    active.radius = lobe.opening_radius;
+                    active.distance = distance;
+                    active.portal = true;
+                    total += lobe.probability;
+                    self.count += 1;
+                    continue;
+                }
             }
             // fallback=drop: a lobe whose opening p does not see applies nowhere else at p.
-            let fall_back = !through_opening || guide.settings.fallback == LobeFallback::Point;
-            let Some((axis, distance, radius)) = opening
-                .map(|(axis, distance)| (axis, distance, lobe.opening_radius))
-                .or_else(|| {
-                    fall_back
-                        .then(|| aim(lobe.point, 2 * j + 1))
-                        .flatten()
-                        .map(|(axis, distance)| (axis, distance, lobe.radius))
-                })
-            else {
+            let fall_back = !plan.through_opening || guide.settings.fallback == LobeFallback::Point;
+            let target = match opening {
+                Some((axis, distance)) => Some((axis, distance, lobe.opening_radius)),
+                None if fall_back => aims
+                    .aim(plan.point_slot, lobe.point, 2 * j + 1)
+                    .map(|(axis, distance)| (axis, distance, lobe.radius)),
+                None => None,
+            };
+            let Some((axis, distance, radius)) = target else {
                 continue;
             };
             // A lobe toward the same target with the same radius is the same density under
             // any strength (the training pass's `pdf_with_strength` too): merged, as above.
             if let Some(same) = self.lobes[..self.count].iter_mut().find(|l| {
-                l.portal.is_none()
-                    && l.frame.n == axis
-                    && l.radius == radius
-                    && l.distance == distance
+                !l.portal && l.axis == axis && l.radius == radius && l.distance == distance
             }) {
                 same.probability += lobe.probability;
                 total += lobe.probability;
                 continue;
             }
-            self.lobes[self.count] = ActiveLobe {
-                frame: Frame::from_z(axis),
-                exponent: strength.exponent(radius, distance),
-                probability: lobe.probability,
-                radius,
-                distance,
-                portal: None,
-            };
+            let active = &mut self.lobes[self.count];
+            active.axis = axis;
+            active.exponent = strength.exponent(radius, distance);
+            active.probability = lobe.probability;
+            active.radius = radius;
+            active.distance = distance;
+            active.portal = false;
             total += lobe.probability;
             self.count += 1;
         }
+        let rays = aims.rays;
         if total > 0.0 {
             for l in &mut self.lobes[..self.count] {
                 l.probability /= total;
@@ -1821,13 +1972,13 @@ impl GuideQuery {
     pub fn lobe(&self, i: usize) -> Option<(Vec3, f32, f32)> {
         (i < self.count).then(|| {
             let l = &self.lobes[i];
-            (l.frame.n, l.exponent, l.probability)
+            (l.axis, l.exponent, l.probability)
         })
     }
 
     /// Whether active lobe `i` samples the opening's rectangle (`aim=portal`) at this point.
     pub fn lobe_is_portal(&self, i: usize) -> bool {
-        i < self.count && self.lobes[i].portal.is_some()
+        i < self.count && self.lobes[i].portal
     }
 
     /// Probability of sampling the skeleton rather than the BSDF here: `c_skel` where lobes
@@ -1857,9 +2008,10 @@ impl GuideQuery {
             }
         }
         let l = &self.lobes[chosen];
-        let w = match &l.portal {
-            Some(rect) => rect.sample(u),
-            None => l.frame.to_world(warp::power_cosine(u, l.exponent)),
+        let w = if l.portal {
+            l.rect.sample(u)
+        } else {
+            Frame::from_z(l.axis).to_world(warp::power_cosine(u, l.exponent))
         };
         let pdf = self.pdf(w);
         (pdf > 0.0 && pdf.is_finite()).then_some((w, pdf))
@@ -2072,6 +2224,7 @@ mod tests {
     fn portals_see_points_as_rectangles_set_up_there() {
         let mut rng = Rng::new(11, 4);
         let (mut seen, mut unseen) = (0, 0);
+        let mut slot: Option<warp::SphericalRectangle> = None;
         for i in 0..2000 {
             let u = warp::uniform_sphere(rng.uniform2());
             let v = Frame::from_z(u).s;
@@ -2096,6 +2249,21 @@ mod tests {
                     format!("{fresh:?}"),
                     "portal {i} from {p}"
                 );
+                // Set up in place, in a slot that held the last point's rectangle (its angles
+                // computed): the same rectangle, nothing of the last one kept.
+                if let Some(old) = &slot {
+                    old.solid_angle();
+                }
+                let mut reused = slot.take().unwrap_or_else(warp::SphericalRectangle::empty);
+                let set_up = portal.seen_from_into(p, &mut reused);
+                assert_eq!(set_up, kept.is_some(), "portal {i} from {p}");
+                if set_up {
+                    assert_eq!(
+                        format!("{:?}", Some(&reused)),
+                        format!("{:?}", kept.as_ref())
+                    );
+                    slot = Some(reused);
+                }
                 match (kept, fresh) {
                     (Some(a), Some(b)) => {
                         seen += 1;
@@ -2114,6 +2282,90 @@ mod tests {
     /// The query's mapping (one grid conversion for the `may_guide` test and the node
     /// mapping) finds the voxel and node of `may_guide_at` followed by `map_point_voxel`,
     /// and none where `may_guide_at` rules the point out.
+    #[test]
+    fn lobe_plans_group_equal_targets_and_portals() {
+        // Lobes drawn from small pools, so that targets and portals repeat within a node
+        // (openings equal to points of other lobes, signed zeros, NaN: equal as the query's
+        // `==` has them, never for NaN).
+        let mut rng = Rng::new(12, 2);
+        let targets = [
+            Vec3::new(1.0, 2.0, 3.0),
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::new(-0.0, 0.0, 1.0),
+            Vec3::new(f32::NAN, 0.0, 0.0),
+            Vec3::new(4.0, -1.0, 0.5),
+        ];
+        let portals = [
+            None,
+            Some(Portal::new(
+                Vec3::ZERO,
+                Vec3::X,
+                Vec3::Y,
+                Vec2::new(1.0, 2.0),
+            )),
+            Some(Portal::new(
+                Vec3::ONE,
+                Vec3::Y,
+                Vec3::Z,
+                Vec2::new(0.5, 0.5),
+            )),
+            Some(Portal::new(
+                Vec3::ONE,
+                Vec3::Y,
+                Vec3::Z,
+                Vec2::new(f32::NAN, 0.5),
+            )),
+        ];
+        let mut shared = [0usize; 2];
+        for _ in 0..3000 {
+            let n = 1 + (rng.uniform() * MAX_LOBES as f32) as usize;
+            let pick = |rng: &mut Rng| targets[(rng.uniform() * 5.0) as usize % 5];
+            let lobes: Vec<GuideLobe> = (0..n.min(MAX_LOBES))
+                .map(|i| GuideLobe {
+                    point: pick(&mut rng),
+                    radius: if rng.uniform() < 0.5 { 1.0 } else { 2.0 },
+                    probability: 0.1,
+                    importance: i as u32,
+                    distance: 1.0,
+                    opening: pick(&mut rng),
+                    opening_radius: 1.0,
+                    portal: portals[(rng.uniform() * 4.0) as usize % 4],
+                })
+                .collect();
+            for aim in [LobeAim::ImportancePoint, LobeAim::Opening, LobeAim::Portal] {
+                let plans = plan_lobes(&lobes, aim);
+                assert_eq!(plans.len(), lobes.len());
+                // Every target occurrence with its slot, by brute force over all pairs.
+                let occurrences: Vec<(Vec3, u8)> = lobes
+                    .iter()
+                    .zip(&plans)
+                    .flat_map(|(l, p)| [(l.opening, p.opening_slot), (l.point, p.point_slot)])
+                    .collect();
+                for (a, &(ta, sa)) in occurrences.iter().enumerate() {
+                    assert!((sa as usize) < 2 * MAX_LOBES);
+                    for &(tb, sb) in &occurrences[a + 1..] {
+                        assert_eq!(sa == sb, ta == tb, "{ta} {tb}: slots {sa} {sb}");
+                        shared[0] += usize::from(sa == sb);
+                    }
+                }
+                for (j, (l, p)) in lobes.iter().zip(&plans).enumerate() {
+                    let wanted_opening = l.has_opening() && aim != LobeAim::ImportancePoint;
+                    assert_eq!(p.through_opening, wanted_opening);
+                    assert_eq!(p.portal_slot.is_some(), l.portal.is_some());
+                    let Some(slot) = p.portal_slot else { continue };
+                    // The first lobe with an equal portal (itself when none, or NaN).
+                    let first = (0..j)
+                        .find(|&k| lobes[k].portal.is_some() && lobes[k].portal == l.portal)
+                        .unwrap_or(j);
+                    assert_eq!(slot as usize, first, "lobe {j}");
+                    shared[1] += usize::from(first < j);
+                }
+            }
+        }
+        // Both kinds of sharing happened.
+        assert!(shared[0] > 1000 && shared[1] > 1000, "{shared:?}");
+    }
+
     #[test]
     fn guided_points_map_as_may_guide_and_the_node_mapping() {
         let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();

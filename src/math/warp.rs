@@ -70,10 +70,17 @@ pub fn power_cosine(u: Vec2, exponent: f32) -> Vec3 {
 }
 
 pub fn power_cosine_pdf(w: Vec3, exponent: f32) -> f32 {
-    if w.z <= 0.0 {
+    power_cosine_pdf_cos(w.z, exponent)
+}
+
+/// [`power_cosine_pdf`] of a direction whose cosine with the axis is `cos` (the lobe's density
+/// needs no other coordinate: a caller with the axis need not build a frame).
+#[inline]
+pub fn power_cosine_pdf_cos(cos: f32, exponent: f32) -> f32 {
+    if cos <= 0.0 {
         return 0.0;
     }
-    (exponent + 1.0) * INV_2PI * w.z.powf(exponent)
+    (exponent + 1.0) * INV_2PI * cos.powf(exponent)
 }
 
 /// Uniform direction inside the cone of half-angle acos(cos_max) around +z.
@@ -192,6 +199,15 @@ impl RectangleFrame {
 
     /// The rectangle seen from `origin` ([`SphericalRectangle::new`]).
     pub fn seen_from(&self, origin: Vec3) -> Option<SphericalRectangle> {
+        let mut rect = SphericalRectangle::empty();
+        self.seen_from_into(origin, &mut rect).then_some(rect)
+    }
+
+    /// [`seen_from`](Self::seen_from) written into `rect` (false where `seen_from` gives None,
+    /// and then `rect` holds nothing to sample): a guided vertex sets up a portal's rectangle
+    /// in its query's lobe, without moving the 150-byte result there (issue 8, round 12).
+    #[inline]
+    pub fn seen_from_into(&self, origin: Vec3, rect: &mut SphericalRectangle) -> bool {
         let &RectangleFrame {
             corner,
             x,
@@ -209,10 +225,10 @@ impl RectangleFrame {
         }
         // In the plane (relative to the rectangle's size): no solid angle to speak of.
         if !(z0 < -1e-6 * ex_len.max(ey_len)) {
-            return None;
+            return false;
         }
         let (x1, y1) = (x0 + ex_len, y0 + ey_len);
-        let rect = SphericalRectangle {
+        *rect = SphericalRectangle {
             x,
             y,
             z,
@@ -234,14 +250,30 @@ impl RectangleFrame {
         if !(lower_bound >= DEFERRED_SOLID_ANGLE) {
             let solid_angle = rect.angles().solid_angle;
             if !(solid_angle > 0.0 && solid_angle.is_finite()) {
-                return None;
+                return false;
             }
         }
-        Some(rect)
+        true
     }
 }
 
 impl SphericalRectangle {
+    /// A placeholder that no origin sees (zero extent), for storage a rectangle is later
+    /// written into ([`RectangleFrame::seen_from_into`]); not to be sampled.
+    pub const fn empty() -> SphericalRectangle {
+        SphericalRectangle {
+            x: glam::DVec3::X,
+            y: glam::DVec3::Y,
+            z: glam::DVec3::Z,
+            x0: 0.0,
+            x1: 0.0,
+            y0: 0.0,
+            y1: 0.0,
+            z0: 0.0,
+            angles: std::sync::OnceLock::new(),
+        }
+    }
+
     /// The rectangle `corner + a ex + b ey` for a in [0, ex_len], b in [0, ey_len] (`ex`, `ey`
     /// orthonormal), seen from `origin`. None when the origin is (nearly) in the rectangle's
     /// plane or the solid angle is not a positive finite number: the caller must not sample it.
