@@ -348,11 +348,21 @@ impl Sample {
         let Some(weights) = weights else {
             return self.terms_with(c, self.p_strength[k], self.nee.p_strength[k], mis);
         };
-        match lobe_mixture(&self.p_lobes, self.active, weights) {
-            Some(p) => {
-                let p_nee = lobe_mixture(&self.nee.p_lobes, self.active, weights).unwrap_or(0.0);
-                self.terms_with(c, p, p_nee, mis)
-            }
+        self.terms_weighted(c, self.densities(weights), mis)
+    }
+
+    /// The skeleton densities at the sampled direction and at the light sample's under lobe
+    /// weights `weights`; None where x is not guided under them ([`lobe_mixture`]).
+    fn densities(&self, weights: &[f32; MAX_LOBES]) -> Option<(f32, f32)> {
+        let p = lobe_mixture(&self.p_lobes, self.active, weights)?;
+        let p_nee = lobe_mixture(&self.nee.p_lobes, self.active, weights).unwrap_or(0.0);
+        Some((p, p_nee))
+    }
+
+    /// [`Sample::terms`] from [`Sample::densities`].
+    fn terms_weighted(&self, c: f32, densities: Option<(f32, f32)>, mis: MisHeuristic) -> Terms {
+        match densities {
+            Some((p, p_nee)) => self.terms_with(c, p, p_nee, mis),
             None => self.terms_with(0.0, 0.0, 0.0, mis),
         }
     }
@@ -665,9 +675,19 @@ fn choose_node(
         cost(c, weights[w].1)
     };
     let mut moments = vec![Moments::default(); count + 1];
+    // Each explicit weight vector's densities once per sample, not once per candidate c.
+    let mut densities = vec![None; weights.len()];
     for s in samples {
+        for (d, (w, _)) in densities.iter_mut().zip(&weights).skip(1) {
+            *d = s.densities(w.as_ref().expect("explicit weights"));
+        }
         for (j, m) in moments.iter_mut().enumerate() {
-            m.add(terms(s, j));
+            let (c, k, w) = candidate(j);
+            m.add(if w == 0 {
+                s.terms(c, k, None, mis)
+            } else {
+                s.terms_weighted(c, densities[w], mis)
+            });
         }
     }
     let product = |j: usize| moments[j].variance(n) * cost_of(j);
