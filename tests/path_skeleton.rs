@@ -959,6 +959,7 @@ fn settings_and_specs_are_validated() {
         "path_skeleton:visibility=maybe",
         "path_skeleton:colour=red",
         "path_skeleton:lobe_weights=maybe",
+        "path_skeleton:training_guided_cost=-1",
         "path_skeleton:c_skel=learned:strength=learned:lobe_weights=learned",
         "path_skeleton:c_skel",
         "path:strength=4",
@@ -977,6 +978,7 @@ fn settings_and_specs_are_validated() {
         "path_skeleton:rr_depth=0",
         "path_skeleton:c_skel=0.3:lobe_weights=learned",
         "path_skeleton:c_skel=learned:lobe_weights=distance",
+        "path_skeleton:c_skel=learned:training_guided_cost=0.5",
     ] {
         integrator::create(good, base).unwrap_or_else(|e| panic!("{good}: {e}"));
     }
