@@ -196,14 +196,14 @@ fn main() {
                 if let Some(t) = guide.training() {
                     println!(
                         "| node | position | radius | lobes | c | samples | nonzero | ratio | \
-                         best ratio | 1st hits |"
+                         best ratio | 1st hits | lobe weights |"
                     );
                     for k in 0..guide.node_count() {
                         if t.samples[k] == 0 && first_hits[k] == 0 {
                             continue;
                         }
                         println!(
-                            "| {k} | {:?} | {:.3} | {} | {} | {} | {} | {:.3} | {:.3} | {} |",
+                            "| {k} | {:?} | {:.3} | {} | {} | {} | {} | {:.3} | {:.3} | {} | {:?} |",
                             guide.node_position(k as u32).unwrap(),
                             guide.node_radius(k as u32).unwrap(),
                             guide.lobes(k as u32).len(),
@@ -212,7 +212,8 @@ fn main() {
                             t.nonzero[k],
                             t.relative_cost[k],
                             t.best_ratio[k],
-                            first_hits[k]
+                            first_hits[k],
+                            t.lobe_weights[k]
                         );
                     }
                 }

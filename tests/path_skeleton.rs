@@ -858,6 +858,7 @@ fn path_skeleton_agrees_with_path_on_the_two_rooms() {
         &[
             "path_skeleton:aim=portal:c_skel=0.9",
             "path_skeleton:aim=portal:c_skel=0.9:fallback=drop",
+            "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:lobe_weights=learned",
         ],
     );
 }
@@ -880,6 +881,7 @@ fn path_skeleton_agrees_with_path_on_the_veach_door() {
             "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel",
             "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel:fallback=drop",
             "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:fallback=drop:training_min_nonzero=256",
+            "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:lobe_weights=learned",
         ],
     );
 }
@@ -956,6 +958,9 @@ fn settings_and_specs_are_validated() {
         "path_skeleton:importance_nodes=0",
         "path_skeleton:visibility=maybe",
         "path_skeleton:colour=red",
+        "path_skeleton:lobe_weights=maybe",
+        "path_skeleton:training_guided_cost=-1",
+        "path_skeleton:c_skel=learned:strength=learned:lobe_weights=learned",
         "path_skeleton:c_skel",
         "path:strength=4",
         "path:rr_depth=-1",
@@ -971,6 +976,9 @@ fn settings_and_specs_are_validated() {
         "path:max_depth=3:mis=balance",
         "path:rr_depth=5",
         "path_skeleton:rr_depth=0",
+        "path_skeleton:c_skel=0.3:lobe_weights=learned",
+        "path_skeleton:c_skel=learned:lobe_weights=distance",
+        "path_skeleton:c_skel=learned:training_guided_cost=0.5",
     ] {
         integrator::create(good, base).unwrap_or_else(|e| panic!("{good}: {e}"));
     }
@@ -1227,4 +1235,117 @@ fn guided_images_do_not_depend_on_the_thread_that_traced_them() {
         assert_eq!(one, image(3), "{spec}: 1 and 3 threads differ");
         assert_eq!(one, image(1), "{spec}: two renders differ");
     }
+}
+
+/// `lobe_weights=learned` on the ajar (several lobes per node, one room lit through a gap):
+/// the training replaces eq. 165's selection probabilities at some nodes, dropping lobes (weight
+/// 0), and at every point the query's mixture is the node's lobes, as a guide with eq. 165's
+/// weights sets them up there, weighted by the learned probabilities over the lobes that apply
+/// (lobes of weight 0 never active); its samples follow its pdf (chi-square).
+#[test]
+fn learned_lobe_weights_are_the_mixture_the_query_samples() {
+    let scene = load("scenes/veach-ajar-bitterli/veach-ajar-bitterli.json");
+    let mut settings = SkeletonGuideSettings::default();
+    for (k, v) in [
+        ("aim", "portal"),
+        ("c_skel", "learned"),
+        ("visibility", "voxel"),
+        ("lobe_weights", "learned"),
+        ("training_paths", "32768"),
+    ] {
+        settings.set(k, v).unwrap();
+    }
+    let learned = guide_of(&scene, settings);
+    // The same lobes with eq. 165's weights, guided everywhere.
+    let mut plain = settings;
+    plain.set("c_skel", "0.5").unwrap();
+    plain.set("lobe_weights", "distance").unwrap();
+    let plain = guide_of(&scene, plain);
+    let report = learned.training().unwrap();
+    let changed: Vec<u32> = (0..learned.node_count() as u32)
+        .filter(|&k| report.lobe_weights[k as usize].is_some())
+        .collect();
+    let dropping = changed
+        .iter()
+        .filter(|&&k| learned.lobes(k).iter().any(|l| l.probability == 0.0))
+        .count();
+    assert!(changed.len() >= 3 && dropping >= 1, "{changed:?}");
+    for &k in &changed {
+        let (a, b) = (learned.lobes(k), plain.lobes(k));
+        assert_eq!(a.len(), b.len());
+        let total: f32 = a.iter().map(|l| l.probability).sum();
+        assert!((total - 1.0).abs() < 1e-5, "node {k}: {total}");
+        for (x, y) in a.iter().zip(b) {
+            assert_eq!(
+                (x.point, x.opening, x.portal),
+                (y.point, y.opening, y.portal)
+            );
+        }
+    }
+    let (mut q, mut p) = (GuideQuery::new(), GuideQuery::new());
+    let mut rng = Rng::new(41, 3);
+    let (mut compared, mut tested) = (0u32, 0u32);
+    for (pos, p_error, ng, wo) in surface_points(&scene, 20_000, 57) {
+        q.init(&learned, &scene, pos, p_error, ng, wo);
+        let Some(node) = q.node().filter(|k| changed.contains(k)) else {
+            continue;
+        };
+        if q.guiding_probability() == 0.0 {
+            continue;
+        }
+        p.init(&plain, &scene, pos, p_error, ng, wo);
+        let weights: Vec<f32> = learned.lobes(node).iter().map(|l| l.probability).collect();
+        let direct = |w: Vec3| {
+            let dens = p.node_lobe_pdfs(w);
+            let (mut sum, mut total) = (0.0, 0.0);
+            for (j, &wj) in weights.iter().enumerate() {
+                if dens[j] >= 0.0 && wj > 0.0 {
+                    sum += wj * dens[j];
+                    total += wj;
+                }
+            }
+            sum / total
+        };
+        for k in 0..20 {
+            let w = if k % 2 == 0 {
+                match q.sample(rng.uniform(), rng.uniform2()) {
+                    Some((w, _)) => w,
+                    None => continue,
+                }
+            } else {
+                lacuna::math::warp::uniform_sphere(rng.uniform2())
+            };
+            let (a, b) = (q.pdf(w), direct(w));
+            assert!(
+                (a - b).abs() <= 1e-4 * a.max(b) + 1e-6,
+                "node {node} at {pos} toward {w}: query {a}, written out {b}"
+            );
+            compared += 1;
+        }
+        // Lobes of weight 0 never apply.
+        let dens = q.node_lobe_pdfs(Vec3::Z);
+        for (j, &wj) in weights.iter().enumerate() {
+            assert!(
+                wj > 0.0 || dens[j] < 0.0,
+                "node {node}: lobe {j} of weight 0 applies"
+            );
+        }
+        if tested < 3 && q.lobe_count() >= 1 {
+            let lobes: Vec<(Vec3, f32, f32)> =
+                (0..q.lobe_count()).filter_map(|i| q.lobe(i)).collect();
+            let integral = chi2_directions(
+                &format!("learned weights, node {node}"),
+                &grid_for(&lobes),
+                500 + tested as u64,
+                |rng| q.sample(rng.uniform(), rng.uniform2()).map(|(w, _)| w),
+                |w| q.pdf(w) as f64,
+            );
+            assert!((integral - 1.0).abs() < 2e-2, "integral {integral}");
+            tested += 1;
+        }
+    }
+    assert!(
+        compared > 2000 && tested == 3,
+        "{compared} directions, {tested} chi-square"
+    );
 }

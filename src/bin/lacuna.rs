@@ -231,7 +231,8 @@ struct CompareArgs {
     /// `triangles=area|solid_angle` (next-event estimation of emissive triangles), and for
     /// path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
     /// `importance_nodes`, `lobes`, `visibility`, `aim`, `fallback`, `training_depth`,
-    /// `training_paths`, `training_cost`, `training_significance`, `training_min_nonzero`
+    /// `training_paths`, `training_cost`, `training_significance`, `training_min_nonzero`,
+    /// `training_guided_cost`, `lobe_weights`
     /// (e.g. `path,path:rr_depth=3,path_skeleton`);
     /// any of them also `sampler=sobol|independent` (e.g. `path:sampler=independent,path`).
     #[arg(long, default_value = "path")]

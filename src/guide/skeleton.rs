@@ -236,6 +236,15 @@ pub struct SkeletonGuideSettings {
     /// training pass together with the probability (`guide::training`). Without a camera the
     /// guide keeps `strength` (and `c_skel`) everywhere.
     pub learned_strength: bool,
+    /// `lobe_weights=learned`: each node's lobe selection probabilities chosen by the training
+    /// pass (`guide::training`, "Lobe weights") among eq. 165's, each lobe alone and a
+    /// variance-minimising fit; lobes given 0 are skipped at render time. `distance` (the
+    /// default): eq. 165's inverse-square weights everywhere. Not with `strength=learned`.
+    pub learned_lobe_weights: bool,
+    /// The training's cost of guiding at a vertex beyond an unguided vertex's, shadow rays
+    /// aside, in unguided vertices (`training_guided_cost`, default
+    /// [`DEFAULT_TRAINING_GUIDED_COST`], `guide::training`, "Cost").
+    pub training_guided_cost: f32,
     /// Vertices per training path (`training_depth`).
     pub training_depth: u32,
     /// Camera paths of the training pass (`training_paths`).
@@ -337,6 +346,10 @@ pub const STRENGTH_CANDIDATES: [SkeletonStrength; 7] = [
 /// whose training estimated guiding 1.7-2.1x better, `guide::training` module docs).
 pub const DEFAULT_TRAINING_SIGNIFICANCE: f32 = 1.0;
 
+/// Default of `training_guided_cost`: the round-3 profile of the door (`guide::training`,
+/// "Cost").
+pub const DEFAULT_TRAINING_GUIDED_COST: f32 = 0.15;
+
 /// Default of `training_min_nonzero` (the floor since round 4).
 pub const DEFAULT_TRAINING_MIN_NONZERO: u32 = 32;
 
@@ -419,6 +432,8 @@ impl Default for SkeletonGuideSettings {
                 max: DEFAULT_AUTO_MAX,
             },
             learned_strength: false,
+            learned_lobe_weights: false,
+            training_guided_cost: DEFAULT_TRAINING_GUIDED_COST,
             training_depth: DEFAULT_TRAINING_DEPTH,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_cost: TrainingCost::Path,
@@ -454,9 +469,16 @@ pub const OPTION_NAMES: &[&str] = &[
     "training_cost",
     "training_significance",
     "training_min_nonzero",
+    "lobe_weights",
+    "training_guided_cost",
 ];
 
 impl SkeletonGuideSettings {
+    /// Whether the guide runs the training pass (something is learned).
+    pub fn trains(&self) -> bool {
+        self.learned_c_skel || self.learned_strength || self.learned_lobe_weights
+    }
+
     /// Sets one option by name from text (integrator specs, scene files): `c_skel` (a number
     /// or `learned`),
     /// `strength` (a number, `auto`, `auto:MAX` or `learned`; `learned` keeps the strength set
@@ -466,7 +488,9 @@ impl SkeletonGuideSettings {
     /// `fallback` (`point` or `drop`),
     /// and for the training pass `training_depth` (1..=64), `training_paths`
     /// (1024..=2^24), `training_cost` (`path` or
-    /// `vertex`), `training_significance` (>= 0) and `training_min_nonzero`. Validates the result.
+    /// `vertex`), `training_significance` (>= 0), `training_min_nonzero`,
+    /// `training_guided_cost` (>= 0) and `lobe_weights` (`distance` or `learned`). Validates
+    /// the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
             value.trim().parse().map_err(|_| {
@@ -487,11 +511,23 @@ impl SkeletonGuideSettings {
                 next.strength = SkeletonStrength::parse(value)?;
                 next.learned_strength = false;
             }
+            "lobe_weights" => {
+                next.learned_lobe_weights = match value.trim() {
+                    "learned" => true,
+                    "distance" => false,
+                    other => {
+                        return Err(Error::invalid(format!(
+                            "skeleton lobe_weights '{other}' must be 'learned' or 'distance'"
+                        )))
+                    }
+                }
+            }
             "training_depth" => next.training_depth = number(key, value)?,
             "training_paths" => next.training_paths = number(key, value)?,
             "training_cost" => next.training_cost = TrainingCost::parse(value)?,
             "training_significance" => next.training_significance = number(key, value)?,
             "training_min_nonzero" => next.training_min_nonzero = number(key, value)?,
+            "training_guided_cost" => next.training_guided_cost = number(key, value)?,
             "resolution" => next.resolution = Resolution::LongestAxis(number(key, value)?),
             "voxel_budget" => next.resolution = Resolution::VoxelBudget(number(key, value)?),
             "light_rays" => next.light_rays = number(key, value)?,
@@ -574,6 +610,18 @@ impl SkeletonGuideSettings {
                 "skeleton fallback=drop needs aim=opening or aim=portal",
             ));
         }
+        if !(self.training_guided_cost.is_finite() && self.training_guided_cost >= 0.0) {
+            return Err(Error::invalid(format!(
+                "skeleton training_guided_cost {} must be a number >= 0",
+                self.training_guided_cost
+            )));
+        }
+        if self.learned_lobe_weights && self.learned_strength {
+            // The training records each lobe's density at the proposal's strength only.
+            return Err(Error::invalid(
+                "skeleton lobe_weights=learned does not combine with strength=learned",
+            ));
+        }
         if self.light_rays == 0 {
             return Err(Error::invalid("skeleton light rays must be at least 1"));
         }
@@ -606,7 +654,8 @@ pub struct GuideLobe {
     pub point: Vec3,
     /// Smallest maximal-ball radius along the visible prefix of the path (world units).
     pub radius: f32,
-    /// Selection probability among the node's lobes (eq. 165 over the lobes kept).
+    /// Selection probability among the node's lobes (eq. 165 over the lobes kept, or the
+    /// learned one with `lobe_weights=learned`; 0: the lobe is never used).
     pub probability: f32,
     /// Index into [`SkeletonGuide::importance_nodes`]: the most probable of the importance
     /// nodes whose lobes coincide (same point and radius) and were merged into this one.
@@ -914,7 +963,7 @@ impl SkeletonGuide {
             lobes,
             plans,
             node_c: vec![
-                if settings.learned_c_skel || settings.learned_strength {
+                if settings.trains() {
                     training::TRAINING_C
                 } else {
                     settings.c_skel
@@ -931,7 +980,7 @@ impl SkeletonGuide {
             timings: Vec::new(),
             fingerprint: SceneFingerprint::of(scene),
         };
-        if settings.learned_c_skel || settings.learned_strength {
+        if settings.trains() {
             let t = Instant::now();
             let report = training::learn_guiding_probabilities(&guide, scene);
             if report.paths == 0 {
@@ -941,6 +990,18 @@ impl SkeletonGuide {
                 guide.node_c = report.probabilities.clone();
                 if settings.learned_strength {
                     guide.node_strength = report.strengths.clone();
+                }
+                // Learned selection probabilities replace eq. 165's in place: the lobes keep
+                // their indices (the voxel visibility cache the training filled is keyed by
+                // them), and a lobe given 0 is skipped by every query.
+                for (k, weights) in report.lobe_weights.iter().enumerate() {
+                    if let Some(weights) = weights {
+                        let start = guide.lobe_start[k] as usize;
+                        let end = guide.lobe_start[k + 1] as usize;
+                        for (lobe, &w) in guide.lobes[start..end].iter_mut().zip(weights) {
+                            lobe.probability = w;
+                        }
+                    }
                 }
             }
             guide.training = Some(report);
@@ -1650,6 +1711,9 @@ impl ActiveLobe {
     }
 }
 
+/// `GuideQuery::lobe_of` of a node lobe that does not apply at the point.
+const NOT_ACTIVE: u8 = u8::MAX;
+
 /// An unused lobe slot of a query.
 const fn no_lobe() -> ActiveLobe {
     ActiveLobe {
@@ -1740,6 +1804,10 @@ pub struct GuideQuery {
     /// Scratch of `init` ([`Aims`]): kept in the query so that no vertex clears it.
     aimed: [(Vec3, f32); 2 * MAX_LOBES],
     count: usize,
+    /// For each of the node's lobes (`SkeletonGuide::lobes`), the active lobe it went into
+    /// (merged lobes share one), or `NOT_ACTIVE`: what the training needs to evaluate the
+    /// mixture under other selection probabilities.
+    lobe_of: [u8; MAX_LOBES],
     c_skel: f32,
     node: Option<u32>,
 }
@@ -1757,6 +1825,7 @@ impl GuideQuery {
             lobes: [const { no_lobe() }; MAX_LOBES],
             aimed: [(Vec3::ZERO, 0.0); 2 * MAX_LOBES],
             count: 0,
+            lobe_of: [NOT_ACTIVE; MAX_LOBES],
             c_skel: 0.0,
             node: None,
         }
@@ -1842,6 +1911,7 @@ impl GuideQuery {
     ) -> u32 {
         self.count = 0;
         self.node = None;
+        self.lobe_of = [NOT_ACTIVE; MAX_LOBES];
         let Some((node, voxel)) = guide.map_guided_point(p, normal, wo) else {
             return 0;
         };
@@ -1877,6 +1947,11 @@ impl GuideQuery {
         let mut portal_lobe = [u8::MAX; MAX_LOBES];
         let (lobes, plans) = guide.lobes_and_plans(node);
         for (j, (lobe, plan)) in lobes.iter().zip(plans).enumerate() {
+            // lobe_weights=learned: a lobe the training gave 0 is never aimed (no shadow ray).
+            if lobe.probability <= 0.0 {
+                continue;
+            }
+            let slot = j;
             let j = j as u32;
             // One shadow ray toward the bottleneck decides whether p aims through it.
             let opening = if plan.through_opening {
@@ -1886,21 +1961,23 @@ impl GuideQuery {
             };
             // aim=portal: uniform toward the opening's rectangle where p sees the bottleneck
             // (and is not in the rectangle's plane); else the round lobe of aim=opening.
-            if let (Some((axis, distance)), Some(slot), Some(portal), LobeAim::Portal) =
+            if let (Some((axis, distance)), Some(portal_slot), Some(portal), LobeAim::Portal) =
                 (opening, plan.portal_slot, &lobe.portal, guide.settings.aim)
             {
                 // Lobes through the same rectangle are the same density at p (a portal lobe
                 // has no strength): one active lobe with their summed probability, one
                 // rectangle set-up and one density evaluation per direction instead of several.
-                let i = portal_lobe[slot as usize];
+                let i = portal_lobe[portal_slot as usize];
                 if i != u8::MAX {
                     self.lobes[i as usize].probability += lobe.probability;
                     total += lobe.probability;
+                    self.lobe_of[slot] = i;
                     continue;
                 }
                 let active = &mut self.lobes[self.count];
                 if portal.seen_from_into(p, &mut active.rect) {
-                    portal_lobe[slot as usize] = self.count as u8;
+                    portal_lobe[portal_slot as usize] = self.count as u8;
+                    self.lobe_of[slot] = self.count as u8;
                     active.axis = axis;
                     active.exponent = 0.0;
                     active.probability = lobe.probability;
@@ -1926,11 +2003,12 @@ impl GuideQuery {
             };
             // A lobe toward the same target with the same radius is the same density under
             // any strength (the training pass's `pdf_with_strength` too): merged, as above.
-            if let Some(same) = self.lobes[..self.count].iter_mut().find(|l| {
+            if let Some(i) = self.lobes[..self.count].iter().position(|l| {
                 !l.portal && l.axis == axis && l.radius == radius && l.distance == distance
             }) {
-                same.probability += lobe.probability;
+                self.lobes[i].probability += lobe.probability;
                 total += lobe.probability;
+                self.lobe_of[slot] = i as u8;
                 continue;
             }
             let active = &mut self.lobes[self.count];
@@ -1941,6 +2019,7 @@ impl GuideQuery {
             active.distance = distance;
             active.portal = false;
             total += lobe.probability;
+            self.lobe_of[slot] = self.count as u8;
             self.count += 1;
         }
         let rays = aims.rays;
@@ -2039,6 +2118,25 @@ impl GuideQuery {
                 l.probability * l.pdf(w, exponent)
             })
             .sum()
+    }
+
+    /// The density at unit direction `w` of each of the node's lobes (`SkeletonGuide::lobes`,
+    /// in that order) as it applies at this point, or a negative number for a lobe that does
+    /// not apply here; lobes merged into one active lobe get its density. With selection
+    /// probabilities `W`, the mixture here is `sum W_j p_j / sum W_j` over the lobes that
+    /// apply (the training's candidates, `guide::training`, "Lobe weights").
+    pub fn node_lobe_pdfs(&self, w: Vec3) -> [f32; MAX_LOBES] {
+        let mut active = [0.0f32; MAX_LOBES];
+        for (p, l) in active.iter_mut().zip(&self.lobes[..self.count]) {
+            *p = l.pdf(w, l.exponent);
+        }
+        self.lobe_of.map(|a| {
+            if (a as usize) < self.count {
+                active[a as usize]
+            } else {
+                -1.0
+            }
+        })
     }
 
     /// Density of the one-sample MIS combination with BSDF sampling (eq. 168-170), the

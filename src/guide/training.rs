@@ -29,6 +29,24 @@
 //! fixed chunks with their own random streams and the samples are concatenated in chunk
 //! order, so the result is the same for any thread count.
 //!
+//! # Lobe weights (`lobe_weights=learned`, round 12)
+//!
+//! Eq. 165 selects a node's lobes by importance-node power over squared graph distance. On the
+//! Veach ajar that gives most of the probability at near-room nodes to the back room's lobe,
+//! whose opening those points do not see (BENCHMARKS.md, round 9). With `lobe_weights=learned`
+//! each sample also records, for each of the node's lobes j, its density p_j at the sampled
+//! direction and at the light sample's (`GuideQuery::node_lobe_pdfs`) and which lobes apply at
+//! x. Under weights W the skeleton density at x is sum W_j p_j / sum W_j over the lobes that
+//! apply (the query renormalises over them; where none of positive weight applies, x is not
+//! guided), so every candidate W is evaluated from the same samples by the same reweighting as
+//! (c, s) above, exactly. The candidates, each with every c: eq. 165's weights, each lobe
+//! alone, and a fit ([`fit_lobe_weights`]: multiplicative updates toward a stationary point of
+//! the second moment, weights under `FIT_FLOOR` set to 0). The chosen W replaces the node's
+//! probabilities; a lobe of weight 0 is skipped by every query (no aim, no shadow ray). W is a
+//! deterministic function of the scene and the render's pdfs are the mixture with W, so the
+//! render stays unbiased. Not combined with `strength=learned` (the densities are recorded at
+//! the proposal's strength only).
+//!
 //! # Estimator (derivation)
 //!
 //! At a node, the one-sample MIS estimator of the integral I = ∫ f dw with guiding
@@ -90,8 +108,10 @@
 //! # Cost
 //!
 //! The efficiency to maximise is 1 / (V cost). Cost is counted in unguided path vertices (a
-//! continuation ray, a shadow ray, shading): guiding adds `COST_GUIDED` + `COST_SHADOW_RAY` x (the
-//! guide's shadow rays per query at this node, counted in training); the strength costs nothing.
+//! continuation ray, a shadow ray, shading): guiding adds `training_guided_cost` (default 0.15)
+//! and `COST_SHADOW_RAY` per guide shadow ray of a query at this node (counted in training);
+//! the strength costs nothing. With learned lobe weights the overhead is paid only at the share
+//! of the node's samples where a lobe of positive weight applies.
 //! With `visibility=voxel` the count is of the cache's first fills during training (each (voxel,
 //! target) counted once, whatever the thread timing): it overstates the warm cache of a long
 //! render, which traces almost none. The constants come from the round-3 profile of the door
@@ -154,11 +174,11 @@
 
 use rayon::prelude::*;
 
-use super::STRENGTH_CANDIDATES;
 use super::{
     sample_bsdf_or_guide, GuideQuery, RenderEstimator, SkeletonGuide, SkeletonStrength,
     TrainingCost,
 };
+use super::{MAX_LOBES, STRENGTH_CANDIDATES};
 use crate::integrator::MisHeuristic;
 use crate::math::{luminance, Rgb, Rng, Sampler, Vec3};
 use crate::scene::{Scene, SurfaceInteraction};
@@ -175,10 +195,13 @@ const CHUNK: u32 = 1024;
 /// Training samples a node needs before it may be guided (how many must be non-zero is the
 /// settings' `training_min_nonzero`).
 const MIN_SAMPLES: u32 = 256;
-/// Cost of guiding at a vertex beyond an unguided vertex's (1), without shadow rays, and per
-/// guide shadow ray (module docs).
-const COST_GUIDED: f64 = 0.15;
+/// Cost per guide shadow ray in unguided vertices (module docs; the cost of guiding beyond
+/// that is the settings' `training_guided_cost`).
 const COST_SHADOW_RAY: f64 = 0.25;
+/// Multiplicative updates of the lobe-weight fit, and the weight below which the fit drops a
+/// lobe (module docs, "Lobe weights").
+const FIT_ITERATIONS: usize = 24;
+const FIT_FLOOR: f32 = 0.03;
 /// Width / height of the training pass's image.
 const TRAINING_ASPECT: f32 = 2.0;
 const TRAINING_SEED: u64 = 0x7ea1_c5e1;
@@ -204,6 +227,10 @@ pub struct TrainingReport {
     pub best_ratio: Vec<f32>,
     /// Mean vertices per sample's estimate (the vertex and the rest of its training path).
     pub mean_remaining: Vec<f32>,
+    /// With `lobe_weights=learned`: per node, the lobe selection probabilities chosen (in
+    /// the order of `SkeletonGuide::lobes`, summing to 1, 0 for a lobe never to be used), or
+    /// None where eq. 165's are kept (also at every node not guided).
+    pub lobe_weights: Vec<Option<Vec<f32>>>,
     /// Camera paths traced (0 when the scene has no camera: then the guide keeps its fixed
     /// `c_skel` and strength).
     pub paths: u32,
@@ -236,6 +263,11 @@ struct Sample {
     p_light: f32,
     /// Next-event estimation at this vertex.
     nee: NeeTerms,
+    /// With `lobe_weights=learned`: each node lobe's density at the direction
+    /// (`GuideQuery::node_lobe_pdfs`, negative where the lobe does not apply at x), and which
+    /// lobes apply at x (bit j: lobe j).
+    p_lobes: [f32; MAX_LOBES],
+    active: u8,
     /// Shadow rays the guide traced for this vertex's query.
     rays: u32,
     /// Vertices of the training path from this one to its end (module docs, "Cost").
@@ -243,7 +275,7 @@ struct Sample {
 }
 
 /// A vertex's light sample, as the candidates see it.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct NeeTerms {
     /// Luminance of beta f_s |cos| L / p_light, unweighted (0 if occluded or no light).
     value: f32,
@@ -253,6 +285,36 @@ struct NeeTerms {
     p_bsdf: f32,
     p_skel: f32,
     p_strength: [f32; MAX_STRENGTHS],
+    /// Each node lobe's density at its direction (as `Sample::p_lobes`).
+    p_lobes: [f32; MAX_LOBES],
+}
+
+impl Default for NeeTerms {
+    fn default() -> Self {
+        NeeTerms {
+            value: 0.0,
+            p_light: 0.0,
+            p_bsdf: 0.0,
+            p_skel: 0.0,
+            p_strength: [0.0; MAX_STRENGTHS],
+            p_lobes: [0.0; MAX_LOBES],
+        }
+    }
+}
+
+/// The skeleton mixture at a point where lobes `active` apply, under selection weights
+/// `weights` (renormalised over those lobes, as `GuideQuery::init` does), at a direction where
+/// the node's lobes have densities `p_lobes`; None where no lobe of positive weight applies
+/// (the point is then not guided: BSDF sampling alone).
+fn lobe_mixture(p_lobes: &[f32; MAX_LOBES], active: u8, weights: &[f32; MAX_LOBES]) -> Option<f32> {
+    let (mut total, mut sum) = (0.0f32, 0.0f32);
+    for j in 0..MAX_LOBES {
+        if active & (1 << j) != 0 && weights[j] > 0.0 {
+            total += weights[j];
+            sum += weights[j] * p_lobes[j].max(0.0);
+        }
+    }
+    (total > 0.0).then(|| sum / total)
 }
 
 /// One sample's share of the moments of the vertex's estimate under one candidate.
@@ -273,12 +335,45 @@ impl Sample {
 
     /// This sample's terms under candidate (c, strength index k) (module docs): the direction
     /// part reweighted from the training proposal, with the emission it found MIS-weighted as
-    /// the render weighs it, and the light sample with its MIS weight against q_c,s.
-    fn terms(&self, c: f32, k: usize, mis: MisHeuristic) -> Terms {
+    /// the render weighs it, and the light sample with its MIS weight against q_c,s. With
+    /// `weights`, the lobes' selection probabilities are those instead of eq. 165's (module
+    /// docs, "Lobe weights"; strength index 0).
+    fn terms(
+        &self,
+        c: f32,
+        k: usize,
+        weights: Option<&[f32; MAX_LOBES]>,
+        mis: MisHeuristic,
+    ) -> Terms {
+        let Some(weights) = weights else {
+            return self.terms_with(c, self.p_strength[k], self.nee.p_strength[k], mis);
+        };
+        self.terms_weighted(c, self.densities(weights), mis)
+    }
+
+    /// The skeleton densities at the sampled direction and at the light sample's under lobe
+    /// weights `weights`; None where x is not guided under them ([`lobe_mixture`]).
+    fn densities(&self, weights: &[f32; MAX_LOBES]) -> Option<(f32, f32)> {
+        let p = lobe_mixture(&self.p_lobes, self.active, weights)?;
+        let p_nee = lobe_mixture(&self.nee.p_lobes, self.active, weights).unwrap_or(0.0);
+        Some((p, p_nee))
+    }
+
+    /// [`Sample::terms`] from [`Sample::densities`].
+    fn terms_weighted(&self, c: f32, densities: Option<(f32, f32)>, mis: MisHeuristic) -> Terms {
+        match densities {
+            Some((p, p_nee)) => self.terms_with(c, p, p_nee, mis),
+            None => self.terms_with(0.0, 0.0, 0.0, mis),
+        }
+    }
+
+    /// [`Sample::terms`] with the candidate's skeleton densities at the sampled direction and
+    /// at the light sample's.
+    fn terms_with(&self, c: f32, p_direction: f32, p_nee: f32, mis: MisHeuristic) -> Terms {
         let mut t = Terms::default();
         let q0 = mixture(TRAINING_C, self.p_skel, self.p_bsdf);
         if self.carries() && q0 > 0.0 {
-            let q = mixture(c, self.p_strength[k], self.p_bsdf);
+            let q = mixture(c, p_direction, self.p_bsdf);
             let w = if self.p_light > 0.0 {
                 mis.weight(q as f32, self.p_light) as f64
             } else {
@@ -287,17 +382,12 @@ impl Sample {
             let f = w * self.f_emitted as f64 + self.f_reflected as f64;
             if f > 0.0 {
                 t.mean_direction = f / q0;
-                t.second = reweighted_second_moment(
-                    f as f32,
-                    self.p_bsdf,
-                    self.p_skel,
-                    self.p_strength[k],
-                    c,
-                );
+                t.second =
+                    reweighted_second_moment(f as f32, self.p_bsdf, self.p_skel, p_direction, c);
             }
         }
         if self.nee.value > 0.0 {
-            let q = mixture(c, self.nee.p_strength[k], self.nee.p_bsdf);
+            let q = mixture(c, p_nee, self.nee.p_bsdf);
             let w = mis.weight(self.nee.p_light, q as f32) as f64;
             t.mean_nee = self.nee.value as f64 * w;
             t.second += t.mean_nee * t.mean_nee;
@@ -344,6 +434,8 @@ impl Moments {
 struct NodeChoice {
     /// (c, strength index) if the node is guided (or the fixed c's best strength).
     guided: Option<(f32, usize)>,
+    /// The lobes' selection weights chosen, where not eq. 165's.
+    weights: Option<[f32; MAX_LOBES]>,
     relative_cost: f32,
     best_ratio: f32,
 }
@@ -354,6 +446,10 @@ struct Grid {
     strengths: Vec<SkeletonStrength>,
     /// Whether c = 0 competes (`c_skel=learned`); else the fixed c is kept whatever it costs.
     may_turn_off: bool,
+    /// `lobe_weights=learned`: the lobes' selection probabilities are chosen too.
+    lobe_weights: bool,
+    /// Cost of guiding at a vertex beyond an unguided vertex's, shadow rays aside.
+    guided_cost: f64,
 }
 
 impl Grid {
@@ -371,6 +467,8 @@ impl Grid {
                 vec![settings.strength]
             },
             may_turn_off: settings.learned_c_skel,
+            lobe_weights: settings.learned_lobe_weights,
+            guided_cost: settings.training_guided_cost as f64,
         }
     }
 
@@ -400,6 +498,7 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
             relative_cost: vec![1.0; nodes],
             best_ratio: vec![1.0; nodes],
             mean_remaining: vec![0.0; nodes],
+            lobe_weights: vec![None; nodes],
             paths: 0,
         };
     };
@@ -483,6 +582,14 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
             .iter()
             .map(|s| s.iter().map(|s| s.remaining as f32).sum::<f32>() / s.len().max(1) as f32)
             .collect(),
+        lobe_weights: choices
+            .iter()
+            .enumerate()
+            .map(|(k, c)| {
+                let lobes = guide.lobes(k as u32).len().min(MAX_LOBES);
+                c.weights.map(|w| w[..lobes].to_vec())
+            })
+            .collect(),
         paths,
     }
 }
@@ -500,6 +607,7 @@ fn choose_node(
 ) -> NodeChoice {
     let not_guided = NodeChoice {
         guided: None,
+        weights: None,
         relative_cost: 1.0,
         best_ratio: 1.0,
     };
@@ -515,25 +623,75 @@ fn choose_node(
             (samples.iter().map(|s| s.remaining as f64).sum::<f64>() / n).max(1.0)
         }
     };
-    // Cost of a sample at the node, in unguided vertices.
-    let cost = |c: f32| {
+    // The selection weights to compare: eq. 165's (None) and, with `lobe_weights=learned`,
+    // each lobe alone and the fit (module docs, "Lobe weights"), each with the share of the
+    // node's samples at which some lobe of positive weight applies (guided there).
+    let mut weights: Vec<(Option<[f32; MAX_LOBES]>, f64)> = vec![(None, 1.0)];
+    if grid.lobe_weights {
+        let seen = samples.iter().fold(0u8, |m, s| m | s.active);
+        let lobes = MAX_LOBES - seen.leading_zeros() as usize;
+        if lobes >= 2 {
+            for j in 0..lobes {
+                let mut w = [0.0; MAX_LOBES];
+                w[j] = 1.0;
+                weights.push((Some(w), 0.0));
+            }
+            weights.push((Some(fit_lobe_weights(samples, lobes, mis)), 0.0));
+        }
+        for (w, share) in weights.iter_mut().skip(1) {
+            let w = w.as_ref().expect("explicit weights");
+            let guided = samples
+                .iter()
+                .filter(|s| (0..MAX_LOBES).any(|j| s.active & (1 << j) != 0 && w[j] > 0.0))
+                .count();
+            *share = guided as f64 / n;
+        }
+    }
+    // Cost of a sample at the node, in unguided vertices, where a share of the samples are
+    // guided.
+    let cost = |c: f32, share: f64| {
         if c <= 0.0 {
             base
         } else {
-            base + COST_GUIDED + COST_SHADOW_RAY * rays
+            base + share * (grid.guided_cost + COST_SHADOW_RAY * rays)
         }
     };
-    // Candidate 0 is c = 0 (not guided); candidate j >= 1 is the grid's j - 1.
-    let candidate = |j: usize| if j == 0 { (0.0, 0) } else { grid.at(j - 1) };
-    let mut moments = vec![Moments::default(); grid.len() + 1];
+    // Candidate 0 is c = 0 (not guided); then each grid entry with each weight vector.
+    let count = grid.len() * weights.len();
+    let candidate = |j: usize| -> (f32, usize, usize) {
+        if j == 0 {
+            (0.0, 0, 0)
+        } else {
+            let (c, k) = grid.at((j - 1) % grid.len());
+            (c, k, (j - 1) / grid.len())
+        }
+    };
+    let terms = |s: &Sample, j: usize| {
+        let (c, k, w) = candidate(j);
+        s.terms(c, k, weights[w].0.as_ref(), mis)
+    };
+    let cost_of = |j: usize| {
+        let (c, _, w) = candidate(j);
+        cost(c, weights[w].1)
+    };
+    let mut moments = vec![Moments::default(); count + 1];
+    // Each explicit weight vector's densities once per sample, not once per candidate c.
+    let mut densities = vec![None; weights.len()];
     for s in samples {
+        for (d, (w, _)) in densities.iter_mut().zip(&weights).skip(1) {
+            *d = s.densities(w.as_ref().expect("explicit weights"));
+        }
         for (j, m) in moments.iter_mut().enumerate() {
-            let (c, k) = candidate(j);
-            m.add(s.terms(c, k, mis));
+            let (c, k, w) = candidate(j);
+            m.add(if w == 0 {
+                s.terms(c, k, None, mis)
+            } else {
+                s.terms_weighted(c, densities[w], mis)
+            });
         }
     }
-    let product = |j: usize| moments[j].variance(n) * cost(candidate(j).0);
-    let best = (1..=grid.len())
+    let product = |j: usize| moments[j].variance(n) * cost_of(j);
+    let best = (1..=count)
         .min_by(|&a, &b| product(a).total_cmp(&product(b)))
         .expect("at least one candidate");
     let (guided, unguided) = (product(best), product(0));
@@ -548,11 +706,10 @@ fn choose_node(
         // The spread of d_i = cost(c*) m_i(c*) - cost(0) m_i(0), m_i a sample's
         // second-moment term: the difference's dominant noise (the squared means are
         // estimated far more precisely).
-        let (c, k) = candidate(best);
-        let (cost_c, cost_0) = (cost(c), cost(0.0));
+        let (cost_c, cost_0) = (cost_of(best), cost_of(0));
         let (mut sum, mut sum2) = (0.0f64, 0.0f64);
         for s in samples {
-            let d = cost_c * s.terms(c, k, mis).second - cost_0 * s.terms(0.0, 0, mis).second;
+            let d = cost_c * terms(s, best).second - cost_0 * terms(s, 0).second;
             sum += d;
             sum2 += d * d;
         }
@@ -566,11 +723,74 @@ fn choose_node(
             ..not_guided
         };
     }
+    let (c, k, w) = candidate(best);
     NodeChoice {
-        guided: Some(candidate(best)),
+        guided: Some((c, k)),
+        weights: weights[w].0,
         relative_cost: ratio,
         best_ratio: ratio,
     }
+}
+
+/// Lobe selection weights for a node's first `lobes` lobes that lower the reweighted second
+/// moment of the direction estimate at the training probability (module docs, "Lobe
+/// weights"): from equal weights, multiplicative updates
+/// w_j <- w_j mean_i[ f_i² p_j(w_i) / (T_i q_i² q0_i) ], normalised (T_i the weight of the lobes
+/// that apply at sample i), whose fixed points are the stationary points of the second moment
+/// of the unnormalised mixture; weights below `FIT_FLOOR` are then set to 0 (the lobe is
+/// dropped). A candidate like any other: the choice judges it by the exact reweighted moments.
+fn fit_lobe_weights(samples: &[Sample], lobes: usize, mis: MisHeuristic) -> [f32; MAX_LOBES] {
+    let mut w = [0.0f32; MAX_LOBES];
+    w[..lobes].fill(1.0 / lobes as f32);
+    let c = TRAINING_C as f64;
+    for _ in 0..FIT_ITERATIONS {
+        let mut acc = [0.0f64; MAX_LOBES];
+        for s in samples.iter().filter(|s| s.carries()) {
+            let total: f32 = (0..lobes)
+                .filter(|&j| s.active & (1 << j) != 0)
+                .map(|j| w[j])
+                .sum();
+            let Some(p_skel) = lobe_mixture(&s.p_lobes, s.active, &w) else {
+                continue;
+            };
+            let q0 = mixture(TRAINING_C, s.p_skel, s.p_bsdf);
+            let q = c * p_skel as f64 + (1.0 - c) * s.p_bsdf as f64;
+            if !(q > 0.0 && q0 > 0.0) {
+                continue;
+            }
+            let weight = if s.p_light > 0.0 {
+                mis.weight(q as f32, s.p_light) as f64
+            } else {
+                1.0
+            };
+            let f = weight * s.f_emitted as f64 + s.f_reflected as f64;
+            let g = f * f / (q * q * q0) / total as f64;
+            for j in 0..lobes {
+                if s.active & (1 << j) != 0 {
+                    acc[j] += w[j] as f64 * s.p_lobes[j].max(0.0) as f64 * g;
+                }
+            }
+        }
+        let sum: f64 = acc.iter().sum();
+        if !(sum > 0.0 && sum.is_finite()) {
+            break;
+        }
+        for j in 0..lobes {
+            w[j] = (acc[j] / sum) as f32;
+        }
+    }
+    for x in w.iter_mut() {
+        if *x < FIT_FLOOR {
+            *x = 0.0;
+        }
+    }
+    let sum: f32 = w.iter().sum();
+    if sum > 0.0 {
+        w.iter_mut().for_each(|x| *x /= sum);
+    } else {
+        w[..lobes].fill(1.0 / lobes as f32);
+    }
+    w
 }
 
 /// One training sample's term of the reweighted second moment M(c, s) (module docs):
@@ -628,6 +848,7 @@ fn train_path(
     let mut beta = Rgb::ONE;
     let depth = guide.settings().training_depth;
     let estimator = &guide.settings().render_estimator;
+    let lobe_weights = guide.settings().learned_lobe_weights;
     let mut path: Vec<TrainingVertex> = Vec::with_capacity(depth as usize);
     let mut own_light = light_sample(scene, &si, rng, estimator);
     for _ in 0..depth {
@@ -650,9 +871,24 @@ fn train_path(
                     p_bsdf: bsdf.pdf(wo_local, l.wi_local),
                     p_skel: query.pdf(l.wi),
                     p_strength: strength_pdfs(query, l.wi, strengths),
+                    p_lobes: if lobe_weights {
+                        query.node_lobe_pdfs(l.wi)
+                    } else {
+                        [0.0; MAX_LOBES]
+                    },
                 };
             }
         }
+        // Which of the node's lobes apply here (any direction tells: negative where not).
+        let active = if guided && lobe_weights {
+            query
+                .node_lobe_pdfs(si.wo)
+                .iter()
+                .enumerate()
+                .fold(0u8, |m, (j, &p)| if p >= 0.0 { m | (1 << j) } else { m })
+        } else {
+            0
+        };
         let zero = Sample {
             node: query.node().unwrap_or(0),
             f_emitted: 0.0,
@@ -662,6 +898,8 @@ fn train_path(
             p_strength: [0.0; MAX_STRENGTHS],
             p_light: 0.0,
             nee,
+            p_lobes: [0.0; MAX_LOBES],
+            active,
             rays,
             remaining: 1,
         };
@@ -704,6 +942,11 @@ fn train_path(
                     p_bsdf: bsdf.pdf(wo_local, bs.wi),
                     p_skel: query.pdf(wi),
                     p_strength: strength_pdfs(query, wi, strengths),
+                    p_lobes: if lobe_weights {
+                        query.node_lobe_pdfs(wi)
+                    } else {
+                        [0.0; MAX_LOBES]
+                    },
                     p_light,
                     ..zero
                 }
@@ -949,6 +1192,7 @@ mod tests {
                         p_bsdf: warp::cosine_hemisphere_pdf(wl),
                         p_skel: p_skel(wl),
                         p_strength: [p_skel(wl); MAX_STRENGTHS],
+                        p_lobes: [0.0; MAX_LOBES],
                     }
                 } else {
                     NeeTerms::default()
@@ -962,6 +1206,8 @@ mod tests {
                     p_strength: [p_skel(w); MAX_STRENGTHS],
                     p_light: if light && f > 0.0 { p_cone } else { 0.0 },
                     nee,
+                    p_lobes: [0.0; MAX_LOBES],
+                    active: 1,
                     rays: 1,
                     remaining: 1,
                 }
@@ -975,6 +1221,8 @@ mod tests {
             c: CANDIDATES[1..].to_vec(),
             strengths: vec![SkeletonStrength::Fixed(64.0)],
             may_turn_off: true,
+            lobe_weights: false,
+            guided_cost: crate::guide::skeleton::DEFAULT_TRAINING_GUIDED_COST as f64,
         }
     }
 
@@ -1075,5 +1323,137 @@ mod tests {
         };
         assert!(choose(carrying).is_some());
         assert_eq!(choose(carrying + 1), None);
+    }
+
+    /// Synthetic samples at a node with two lobes: lobe 0 (strength 64) aimed at a small cone
+    /// from which reflected radiance 10 arrives, lobe 1 (strength 8) aimed away from it, with
+    /// eq. 165-like proposal weights that favour lobe 1 (0.2, 0.8). At every fourth point
+    /// lobe 0 does not apply (its opening hidden): there the proposal is lobe 1 alone.
+    fn two_lobe_node(n: usize) -> Vec<Sample> {
+        let toward = Vec3::new(0.3, 0.0, 0.95).normalize();
+        let away = Vec3::new(-0.6, 0.5, 0.6).normalize();
+        let (frames, strengths) = ([Frame::from_z(toward), Frame::from_z(away)], [64.0, 8.0]);
+        let proposal = [0.2f32, 0.8];
+        let lobe_pdf =
+            |j: usize, w: Vec3| warp::power_cosine_pdf(frames[j].to_local(w), strengths[j]);
+        let mut rng = Rng::new(23, 7);
+        (0..n)
+            .map(|i| {
+                let active: u8 = if i % 4 == 3 { 0b10 } else { 0b11 };
+                let weights = if active == 0b11 { proposal } else { [0.0, 1.0] };
+                let p_skel = |w: Vec3| weights[0] * lobe_pdf(0, w) + weights[1] * lobe_pdf(1, w);
+                let w = if rng.uniform() < TRAINING_C {
+                    let j = if rng.uniform() < weights[0] { 0 } else { 1 };
+                    frames[j].to_world(warp::power_cosine(rng.uniform2(), strengths[j]))
+                } else {
+                    warp::cosine_hemisphere(rng.uniform2())
+                };
+                let f = if w.dot(toward) >= 0.99 && w.z > 0.0 {
+                    w.z / std::f32::consts::PI * 10.0
+                } else {
+                    0.0
+                };
+                let mut p_lobes = [-1.0; MAX_LOBES];
+                for j in 0..2 {
+                    if active & (1 << j) != 0 {
+                        p_lobes[j] = lobe_pdf(j, w);
+                    }
+                }
+                Sample {
+                    node: 0,
+                    f_emitted: 0.0,
+                    f_reflected: f,
+                    p_bsdf: warp::cosine_hemisphere_pdf(w),
+                    p_skel: p_skel(w),
+                    p_strength: [p_skel(w); MAX_STRENGTHS],
+                    p_light: 0.0,
+                    nee: NeeTerms::default(),
+                    p_lobes,
+                    active,
+                    rays: 1,
+                    remaining: 1,
+                }
+            })
+            .collect()
+    }
+
+    /// The lobe mixture under explicit weights is the mixture the samples record when the
+    /// weights are the proposal's, renormalised over the lobes that apply at each point.
+    #[test]
+    fn lobe_weights_reproduce_the_recorded_mixture() {
+        let samples = two_lobe_node(4000);
+        let proposal = {
+            let mut w = [0.0; MAX_LOBES];
+            w[..2].copy_from_slice(&[0.2, 0.8]);
+            w
+        };
+        let mut hidden = 0;
+        for s in &samples {
+            let p = lobe_mixture(&s.p_lobes, s.active, &proposal).unwrap();
+            assert!(
+                (p - s.p_skel).abs() <= 1e-5 * s.p_skel.max(1.0),
+                "{p} {}",
+                s.p_skel
+            );
+            for c in [0.1, 0.5, 0.9] {
+                let (a, b) = (
+                    s.terms(c, 0, Some(&proposal), MisHeuristic::Power),
+                    s.terms(c, 0, None, MisHeuristic::Power),
+                );
+                assert!(
+                    (a.second - b.second).abs() <= 1e-4 * b.second.max(1e-9),
+                    "{a:?} {b:?}"
+                );
+            }
+            // Lobe 0 alone: the points where it does not apply are not guided.
+            let mut only0 = [0.0; MAX_LOBES];
+            only0[0] = 1.0;
+            if s.active & 1 == 0 {
+                hidden += 1;
+                assert_eq!(lobe_mixture(&s.p_lobes, s.active, &only0), None);
+            }
+        }
+        assert_eq!(hidden, 1000);
+    }
+
+    /// With `lobe_weights=learned` the choice moves the selection probability onto the lobe
+    /// the radiance arrives through and guides the node, which with the proposal's (eq.
+    /// 165's) weights does not pay; the fit alone finds the same lobe.
+    #[test]
+    fn learned_lobe_weights_pick_the_lobe_that_carries_the_light() {
+        let samples = two_lobe_node(40_000);
+        let choose = |lobe_weights: bool| {
+            let grid = Grid {
+                lobe_weights,
+                ..one_strength_grid()
+            };
+            choose_node(
+                &samples,
+                &grid,
+                TrainingCost::Path,
+                1.0,
+                FLOOR,
+                MisHeuristic::Power,
+            )
+        };
+        let fixed = choose(false);
+        let learned = choose(true);
+        assert!(
+            fixed.guided.is_none() && fixed.best_ratio > 0.95,
+            "{fixed:?}"
+        );
+        let w = learned.weights.expect("weights learned");
+        assert!(learned.guided.is_some(), "{learned:?}");
+        assert!(w[0] > 0.9 && w[1] < 0.1, "{learned:?}");
+        assert!(
+            learned.relative_cost < 0.8 * fixed.best_ratio,
+            "{learned:?}"
+        );
+        let fit = fit_lobe_weights(&samples, 2, MisHeuristic::Power);
+        assert!(
+            fit[0] > 0.9 && (fit[0] + fit[1] - 1.0).abs() < 1e-6,
+            "{fit:?}"
+        );
+        assert!(fit[2..].iter().all(|&x| x == 0.0), "{fit:?}");
     }
 }
