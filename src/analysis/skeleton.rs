@@ -875,12 +875,27 @@ fn axis_shortcut(
     normal: Vec3,
     incident: Vec3,
 ) -> Option<usize> {
-    let n = if normal.dot(incident) >= 0.0 {
+    mapped_neighbour(
+        grid,
+        map,
+        vx,
+        axis_facing_offset(incident_side(normal, incident))?,
+    )
+}
+
+/// The normal on the incident direction's side (the side the point is seen from).
+#[inline(always)]
+fn incident_side(normal: Vec3, incident: Vec3) -> Vec3 {
+    if normal.dot(incident) >= 0.0 {
         normal
     } else {
         -normal
-    };
-    let d = axis_facing_offset(n)?;
+    }
+}
+
+/// Voxel `vx + d` when it is inside the grid and mapped: the facing step of the mapping.
+#[inline(always)]
+fn mapped_neighbour(grid: &VoxelGrid, map: &[u32], vx: [i64; 3], d: [i64; 3]) -> Option<usize> {
     let v = [
         vx[0].saturating_add(d[0]),
         vx[1].saturating_add(d[1]),
@@ -913,21 +928,12 @@ fn map_grid_point_beyond_axes(
     incident: Vec3,
     shortcut: bool,
 ) -> Option<usize> {
-    let n = if normal.dot(incident) >= 0.0 {
-        normal
-    } else {
-        -normal
-    };
     let dims = grid.dims;
     let inside = |v: [i64; 3]| (0..3).all(|a| v[a] >= 0 && v[a] < dims[a] as i64);
-    let n = n.normalize_or_zero();
+    let n = incident_side(normal, incident).normalize_or_zero();
     if let Some(d) = clearly_facing_offset(n).filter(|_| shortcut) {
-        let v = [0, 1, 2].map(|a| vx[a].saturating_add(d[a]));
-        if inside(v) {
-            let k = grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
-            if map[k] != UNDEFINED_NODE {
-                return Some(k);
-            }
+        if let Some(k) = mapped_neighbour(grid, map, vx, d) {
+            return Some(k);
         }
     }
     let w = incident.normalize_or_zero();
