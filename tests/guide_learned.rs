@@ -30,9 +30,16 @@ fn corridor() -> Scene {
     corridor_builder().unwrap().build().unwrap()
 }
 
+/// The learned probability with portal lobes and visibility tested once per voxel (`G`).
 fn learned() -> SkeletonGuideSettings {
     let mut s = SkeletonGuideSettings::default();
-    s.set("c_skel", "learned").unwrap();
+    for (key, value) in [
+        ("c_skel", "learned"),
+        ("aim", "portal"),
+        ("visibility", "voxel"),
+    ] {
+        s.set(key, value).unwrap();
+    }
     s
 }
 
@@ -130,12 +137,16 @@ fn learned_strength_reaches_the_queries() {
 }
 
 /// Nodes with c = 0 set up no lobe and trace no shadow ray, where the fixed-c guide of the same
-/// scene would; the other nodes behave as the fixed guide at their own c.
+/// scene would; the other nodes behave as the fixed guide at their own c. Both test visibility
+/// per point, so that each query's rays are its own (a voxel cache's are not).
 #[test]
 fn unguided_nodes_trace_no_guide_shadow_rays() {
     let scene = door();
-    let learned = build(&scene, &learned(), 2);
-    let fixed = build(&scene, &SkeletonGuideSettings::default(), 2);
+    let mut per_point = learned();
+    per_point.set("visibility", "true").unwrap();
+    let learned = build(&scene, &per_point, 2);
+    per_point.set("c_skel", "0.5").unwrap();
+    let fixed = build(&scene, &per_point, 2);
     let (mut q_learned, mut q_fixed) = (GuideQuery::new(), GuideQuery::new());
     let (mut skipped_rays, mut guided) = (0u32, 0u32);
     for (p, err, ng, wo) in surface_points(&scene, 20_000, 9) {

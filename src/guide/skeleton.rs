@@ -1025,6 +1025,27 @@ impl SkeletonGuide {
         self.fingerprint == SceneFingerprint::of(scene)
     }
 
+    /// With `visibility=voxel`: per node, the (voxel, target) answers the cache holds, i.e.
+    /// the shadow rays traced so far to fill it (one per answer, whichever thread stored it).
+    /// The set of answers a pass needs does not depend on the order of its queries, so this
+    /// count does not either, unlike a per-query count when some queries are not recorded.
+    /// None without the cache.
+    pub(super) fn voxel_visibility_rays(&self) -> Option<Vec<u32>> {
+        if self.voxel_sees.is_empty() {
+            return None;
+        }
+        // The "known" bit of every target: the even bits of a cell.
+        const KNOWN: u32 = 0x5555_5555;
+        let mut rays = vec![0u32; self.node_count()];
+        for (cell, &node) in self.voxel_sees.iter().zip(&self.node_map) {
+            let known = (cell.load(AtomicOrdering::Relaxed) & KNOWN).count_ones();
+            if known > 0 {
+                rays[node as usize] += known;
+            }
+        }
+        Some(rays)
+    }
+
     /// Filtered skeleton nodes.
     pub fn node_count(&self) -> usize {
         self.node_positions.len()

@@ -539,11 +539,21 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
     for group in all.chunk_by(|a, b| a.node == b.node) {
         by_node[group[0].node as usize] = group;
     }
+    // Guide shadow rays per node: the cache's fills with `visibility=voxel` (a query that
+    // fills an entry may be one whose sample is not recorded, and which query that is depends
+    // on thread timing), else each recorded query's own rays.
+    let cache_rays = guide.voxel_visibility_rays();
     let choices: Vec<NodeChoice> = by_node
         .par_iter()
-        .map(|samples| {
+        .enumerate()
+        .map(|(k, samples)| {
+            let rays = match &cache_rays {
+                Some(fills) => fills[k] as f64 / samples.len().max(1) as f64,
+                None => mean_shadow_rays(samples),
+            };
             choose_node(
                 samples,
+                rays,
                 &grid,
                 settings.training_cost,
                 settings.training_significance as f64,
@@ -594,11 +604,17 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
     }
 }
 
+/// Guide shadow rays per recorded query at a node, counted by the queries themselves.
+fn mean_shadow_rays(samples: &[Sample]) -> f64 {
+    samples.iter().map(|s| s.rays as f64).sum::<f64>() / samples.len().max(1) as f64
+}
+
 /// The choice at one node from its training samples (module docs, "Choice"): the candidate of
 /// least variance x cost, kept with `c_skel=learned` only if it beats c = 0 by
 /// `significance` standard errors and the node had enough samples.
 fn choose_node(
     samples: &[Sample],
+    shadow_rays: f64,
     grid: &Grid,
     training_cost: TrainingCost,
     significance: f64,
@@ -616,7 +632,6 @@ fn choose_node(
         return not_guided;
     }
     let n = samples.len() as f64;
-    let rays = samples.iter().map(|s| s.rays as f64).sum::<f64>() / n;
     let base = match training_cost {
         TrainingCost::Vertex => 1.0,
         TrainingCost::Path => {
@@ -653,7 +668,7 @@ fn choose_node(
         if c <= 0.0 {
             base
         } else {
-            base + share * (grid.guided_cost + COST_SHADOW_RAY * rays)
+            base + share * (grid.guided_cost + COST_SHADOW_RAY * shadow_rays)
         }
     };
     // Candidate 0 is c = 0 (not guided); then each grid entry with each weight vector.
@@ -1238,6 +1253,7 @@ mod tests {
         let choose = |samples: &[Sample]| {
             choose_node(
                 samples,
+                mean_shadow_rays(samples),
                 &grid,
                 TrainingCost::Path,
                 1.0,
@@ -1277,6 +1293,7 @@ mod tests {
         assert_eq!(
             choose_node(
                 &few,
+                mean_shadow_rays(&few),
                 &grid,
                 TrainingCost::Path,
                 1.0,
@@ -1289,6 +1306,7 @@ mod tests {
         let many = cone_node(false, 4 * MIN_SAMPLES as usize);
         assert!(choose_node(
             &many,
+            mean_shadow_rays(&many),
             &grid,
             TrainingCost::Path,
             1.0,
@@ -1313,6 +1331,7 @@ mod tests {
         let choose = |floor: u32| {
             choose_node(
                 &node,
+                mean_shadow_rays(&node),
                 &grid,
                 TrainingCost::Path,
                 1.0,
@@ -1429,6 +1448,7 @@ mod tests {
             };
             choose_node(
                 &samples,
+                mean_shadow_rays(&samples),
                 &grid,
                 TrainingCost::Path,
                 1.0,
