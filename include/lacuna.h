@@ -1175,8 +1175,10 @@ lacuna_status lacuna_render_job_set_mis_heuristic(struct lacuna_render_job *job,
 // `LACUNA_SAMPLER_SOBOL`, or the scene file's `render.sampler`).
 lacuna_status lacuna_render_job_set_sampler(struct lacuna_render_job *job, uint32_t sampler);
 
-// `path_skeleton`: probability `c_skel` of sampling the skeleton lobes instead of the BSDF at
-// a guided point, in [0, 1) (default 0.5).
+// `path_skeleton`: one fixed probability `c_skel` of sampling the skeleton lobes instead of
+// the BSDF at every guided point, in [0, 1), as in the thesis. By default the probability is
+// learned per node by a training pass from the camera (0 where guiding does not pay; 0.5
+// where the scene has no camera).
 lacuna_status lacuna_render_job_set_skeleton_probability(struct lacuna_render_job *job,
                                                          float c_skel);
 
@@ -1208,9 +1210,10 @@ lacuna_status lacuna_render_job_set_skeleton_importance(struct lacuna_render_job
                                                         uint32_t lobes_per_node);
 
 // `path_skeleton`: whether a lobe whose importance point is hidden from the shading point is
-// dropped there (one shadow ray per lobe and point; default true). `true` keeps the mode the
-// integrator spec or the scene file chose: per point, or once per voxel with
-// `path_skeleton:visibility=voxel`; `false` turns the test off in either mode.
+// dropped there (default true). `true` keeps the mode the integrator spec or the scene file
+// chose: once per empty voxel and lobe target, cached (the default), or one shadow ray per
+// lobe and point with `path_skeleton:visibility=true`; `false` turns the test off in either
+// mode.
 lacuna_status lacuna_render_job_set_skeleton_visibility_test(struct lacuna_render_job *job,
                                                              bool enabled);
 

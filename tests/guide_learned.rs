@@ -30,7 +30,8 @@ fn corridor() -> Scene {
     corridor_builder().unwrap().build().unwrap()
 }
 
-/// The learned probability with portal lobes and visibility tested once per voxel (`G`).
+/// The learned probability with portal lobes and visibility tested once per voxel (`G`, the
+/// defaults since round 13), named.
 fn learned() -> SkeletonGuideSettings {
     let mut s = SkeletonGuideSettings::default();
     for (key, value) in [

@@ -129,7 +129,8 @@ struct SceneArgs {
     #[arg(long)]
     focus_distance: Option<f32>,
     /// path_skeleton: probability c_skel of sampling the skeleton lobes instead of the BSDF,
-    /// in [0, 1), or `learned` (per node, from a training pass) [default: 0.5].
+    /// in [0, 1), or `learned` (per node, from a training pass from the camera; 0.5 where
+    /// the scene has no camera) [default: learned].
     #[arg(long)]
     c_skel: Option<String>,
     /// path_skeleton: skeleton strength s (power-cosine exponent): a number >= 0, `auto`

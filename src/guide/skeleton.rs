@@ -223,11 +223,15 @@ pub const DEFAULT_AUTO_MAX: f32 = 64.0;
 pub struct SkeletonGuideSettings {
     /// Probability `c_skel` of sampling the skeleton lobes instead of the BSDF at a guided
     /// point (eq. 168-169), in [0, 1): 1 would leave directions no lobe reaches unsampled.
-    /// Used at every guided node unless `learned_c_skel`.
+    /// Used at every guided node unless `learned_c_skel`, and with it where the scene has no
+    /// camera to train from (default 0.5, the thesis's).
     pub c_skel: f32,
-    /// `c_skel=learned`: a probability per node, learned by a training pass from the scene's
-    /// camera (`guide::training`); 0 (not guided at all) where guiding is not measurably
-    /// better than BSDF sampling.
+    /// `c_skel=learned` (the default): a probability per node, learned by a training pass
+    /// from the scene's camera (`guide::training`); 0 (not guided at all) where guiding is not
+    /// measurably better than BSDF sampling. The thesis's one global c = 0.5 guides open
+    /// rooms too, where the lobes only add variance: it is worse per sample than `path` on
+    /// both doors (BENCHMARKS.md, issue 8, round 6), where the learned c wins 1.45x on the
+    /// door at equal cost (round 12, merged).
     pub learned_c_skel: bool,
     /// Strength of eq. 163 at every guided node unless `learned_strength`; with it, the
     /// training pass's proposal strength.
@@ -276,17 +280,20 @@ pub struct SkeletonGuideSettings {
     /// Drop a lobe whose importance point is hidden from the shading point (one shadow ray
     /// per lobe per point).
     pub visibility_test: bool,
-    /// `visibility=voxel`: with the visibility test, decide it from the centre of the empty
-    /// voxel the point maps to instead of from the point itself, once per voxel and lobe target
-    /// (`SkeletonGuide` caches the answers). The lobes at a point stay a function of the point
+    /// `visibility=voxel` (the default; `visibility=true` tests per point): with the
+    /// visibility test, decide it from the centre of the empty voxel the point maps to
+    /// instead of from the point itself, once per voxel and lobe target (`SkeletonGuide`
+    /// caches the answers). The lobes at a point stay a function of the point
     /// alone (its mapped voxel, its normal side), so the estimator stays unbiased; what changes
     /// is that points near an occluder's silhouette may get a lobe the point itself does not
     /// see through (those samples are wasted), or lose one it does.
     pub voxel_visibility: bool,
-    /// Where each lobe aims (see [`LobeAim`]). By default through the opening: on the Veach
-    /// door it lowers the error per sample by a fifth and the squared RMSE by 2.7x against
-    /// eq. 162's point, and the corridor (no opening) renders the same image
-    /// (BENCHMARKS.md, issue 8, round 4).
+    /// Where each lobe aims (see [`LobeAim`]). By default at the opening's rectangle
+    /// (`aim=portal`): aiming through the opening lowers the Veach door's error per sample by
+    /// a fifth and its squared RMSE by 2.7x against eq. 162's point, while the corridor (no
+    /// opening) renders the same image (BENCHMARKS.md, issue 8, round 4); sampling the
+    /// opening's rectangle instead of a round lobe around it lowers the door's error per
+    /// sample by another 1.2x at the same c (round 6, branch `slit8`).
     pub aim: LobeAim,
     /// What a lobe with an opening does where x does not see its bottleneck (see
     /// [`LobeFallback`]); only with `aim=opening` or `aim=portal`.
@@ -427,7 +434,7 @@ impl Default for SkeletonGuideSettings {
     fn default() -> Self {
         SkeletonGuideSettings {
             c_skel: 0.5,
-            learned_c_skel: false,
+            learned_c_skel: true,
             strength: SkeletonStrength::Auto {
                 max: DEFAULT_AUTO_MAX,
             },
@@ -444,8 +451,8 @@ impl Default for SkeletonGuideSettings {
             max_importance_nodes: 32,
             max_lobes: 4,
             visibility_test: true,
-            voxel_visibility: false,
-            aim: LobeAim::Opening,
+            voxel_visibility: true,
+            aim: LobeAim::Portal,
             fallback: LobeFallback::Point,
             render_estimator: RenderEstimator::default(),
         }
