@@ -202,6 +202,16 @@ pub struct Summary {
     /// unbiased estimator whose MAE falls as t^-1/2 would need in time. Defined also when the
     /// baseline's error was never reached (a slower contender), where `speedup` is not.
     pub efficiency: Spread,
+    /// With the reference's noise known: each run's final MSE minus the reference's own
+    /// (RMSE² - noise RMSE²), an unbiased estimate of the MSE against the converged image when
+    /// the two are independent. None without the noise estimate.
+    pub mse_above_reference: Option<Spread>,
+    /// Speedup by that excess MSE: the baseline's median excess over each run's. At equal
+    /// time an unbiased estimator's MSE falls as 1/t, so this is the time ratio, free of the
+    /// floor a noisy reference puts under MAE and RMSE (which shrinks the MAE speedups toward
+    /// 1). None without the noise estimate or where an excess is not above 0 (the error is
+    /// within the reference's own).
+    pub mse_speedup: Option<Spread>,
     /// True when the final errors are within the run-to-run spread of the baseline's.
     pub indistinguishable: bool,
     /// Slope of log MAE against log time over the second half of the median run: about -0.5
@@ -384,7 +394,7 @@ pub fn compare(
         }
     }
     let labels: Vec<String> = contenders.iter().map(|c| c.label.clone()).collect();
-    let summaries = summarize(&labels, &points, &results, seconds_per_run);
+    let summaries = summarize(&labels, &points, &results, seconds_per_run, reference_noise);
     Ok(Comparison {
         labels,
         seconds_per_run,
@@ -441,6 +451,7 @@ fn summarize(
     points: &[CurvePoint],
     results: &[RunResult],
     seconds: f64,
+    reference_noise: Option<ImageErrors>,
 ) -> Vec<Summary> {
     let of = |c: usize, f: &dyn Fn(&RunResult) -> f64| {
         let v: Vec<f64> = results.iter().filter(|r| r.contender == c).map(f).collect();
@@ -459,6 +470,17 @@ fn summarize(
             .collect()
     };
     let (base_mean, base_se) = mean_and_standard_error(&maes(0));
+    let excess_mse = |c: usize| -> Option<Vec<f64>> {
+        let noise = reference_noise?;
+        Some(
+            results
+                .iter()
+                .filter(|r| r.contender == c)
+                .map(|r| r.errors.rmse.powi(2) - noise.rmse.powi(2))
+                .collect(),
+        )
+    };
+    let baseline_excess = excess_mse(0).and_then(|v| Spread::of(&v));
     (0..labels.len())
         .map(|c| {
             let mae = of(c, &|r| r.errors.mae);
@@ -510,9 +532,19 @@ fn summarize(
                 min: f64::NAN,
                 max: f64::NAN,
             });
+            let excess = excess_mse(c);
+            let mse_speedup = match (&excess, baseline_excess) {
+                (Some(runs), Some(base)) if base.median > 0.0 && runs.iter().all(|&e| e > 0.0) => {
+                    let ratios: Vec<f64> = runs.iter().map(|e| base.median / e).collect();
+                    Spread::of(&ratios)
+                }
+                _ => None,
+            };
             Summary {
                 label: labels[c].clone(),
                 mae,
+                mse_above_reference: excess.and_then(|v| Spread::of(&v)),
+                mse_speedup,
                 efficiency,
                 rmse: of(c, &|r| r.errors.rmse),
                 rel_mse: of(c, &|r| r.errors.rel_mse),
@@ -562,6 +594,57 @@ mod tests {
                 }
             }
         }
+    }
+
+    fn result(contender: usize, run: u32, rmse: f64) -> RunResult {
+        RunResult {
+            contender,
+            run,
+            precompute_seconds: 0.0,
+            stats: RenderStats::default(),
+            errors: ImageErrors {
+                mae: rmse,
+                rmse,
+                rel_mse: rmse,
+            },
+        }
+    }
+
+    /// Two estimators whose MSE against the converged image is 4e-4 and 1e-4 (a 4x speedup at
+    /// equal time), measured against a reference whose own MSE is 9e-4: MSE ratios against
+    /// the reference say 1.3x, the excess over the reference's noise says 4x.
+    #[test]
+    fn mse_speedup_removes_the_reference_noise() {
+        let noise = ImageErrors {
+            mae: 0.03,
+            rmse: 0.03,
+            rel_mse: 0.0,
+        };
+        let (slow, fast) = ((4e-4f64 + 9e-4).sqrt(), (1e-4f64 + 9e-4).sqrt());
+        let results = [
+            result(0, 0, slow),
+            result(1, 0, fast),
+            result(0, 1, slow),
+            result(1, 1, fast),
+        ];
+        let labels = ["a".to_string(), "b".to_string()];
+        let sm = summarize(&labels, &[], &results, 10.0, Some(noise));
+        let sp = sm[1].mse_speedup.unwrap();
+        assert!((sp.median - 4.0).abs() < 1e-9, "{sp:?}");
+        assert!((sm[0].mse_speedup.unwrap().median - 1.0).abs() < 1e-9);
+        assert!((sm[1].mse_above_reference.unwrap().median - 1e-4).abs() < 1e-12);
+        assert!((slow / fast).powi(2) < 1.35);
+        // Without the noise, or within it, no such speedup.
+        assert!(summarize(&labels, &[], &results, 10.0, None)[1]
+            .mse_speedup
+            .is_none());
+        let within = ImageErrors {
+            rmse: 0.04,
+            ..noise
+        };
+        assert!(summarize(&labels, &[], &results, 10.0, Some(within))[1]
+            .mse_speedup
+            .is_none());
     }
 
     #[test]

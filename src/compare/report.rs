@@ -154,12 +154,14 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
         let _ = writeln!(
             s,
             "Reference's own estimated error (from two half-sample renders): MAE {:.3e}, RMSE {:.3e}, relMSE {:.3e}. \
-             Errors near these values are limited by the reference, not by the integrator.\n",
-            n.mae, n.rmse, n.rel_mse
+             Errors near these values are limited by the reference, not by the integrator: \
+             the last column compares MSE above the reference's own (RMSE² - {:.3e}), whose ratio is the speedup \
+             at equal time without that floor.\n",
+            n.mae, n.rmse, n.rel_mse, n.rmse * n.rmse
         );
     }
-    let _ = writeln!(s, "| integrator | MAE | RMSE | relMSE | spp reached | precomputation (s) | time to baseline's MAE (s) | speedup | log-log slope |");
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "| integrator | MAE | RMSE | relMSE | spp reached | precomputation (s) | time to baseline's MAE (s) | speedup | log-log slope | MSE above the reference's (speedup) |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
     for (c, sm) in cmp.summaries.iter().enumerate() {
         let time = sm
             .time_to_baseline_error
@@ -197,9 +199,20 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
         } else {
             format!("{:.3} [{:.3}, {:.3}]", pre.median, pre.min, pre.max)
         };
+        let above = match (sm.mse_above_reference, sm.mse_speedup) {
+            (None, _) => "- (reference noise unknown)".to_string(),
+            (Some(e), Some(sp)) => format!(
+                "{} ({:.2}x [{:.2}, {:.2}])",
+                fmt_spread(&e, 3),
+                sp.median,
+                sp.min,
+                sp.max
+            ),
+            (Some(e), None) => format!("{} (within the reference's noise)", fmt_spread(&e, 3)),
+        };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {:.0} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {:.0} | {} | {} | {} | {} | {} |",
             sm.label,
             fmt_spread(&sm.mae, 3),
             fmt_spread(&sm.rmse, 3),
@@ -208,7 +221,8 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
             precompute,
             time,
             speedup,
-            slope
+            slope,
+            above
         );
     }
     let _ = writeln!(s, "\nFiles: `curves.csv` (every pass of every run), `convergence.svg` (MAE against time, log-log, the median run of each integrator), `<integrator>.exr/.png` (last run), `<integrator>_error.png` (absolute error, black = 0, white = the baseline's 99th percentile).");
