@@ -140,7 +140,7 @@ fn downsample(r: ExrImage, width: u32, height: u32) -> ExrImage {
     for y in 0..r.height {
         for x in 0..r.width {
             let p = &mut pixels[((y / k) * width + x / k) as usize];
-            *p = *p + r.pixels[(y * r.width + x) as usize] * (1.0 / (k * k) as f32);
+            *p += r.pixels[(y * r.width + x) as usize] * (1.0 / (k * k) as f32);
         }
     }
     ExrImage {
