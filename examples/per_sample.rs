@@ -11,13 +11,15 @@
 //! `cargo run --release --example per_sample -- SCENE REFERENCE.exr WIDTH HEIGHT SPP SEEDS SPECS [MAX_DEPTH [SAMPLER]]`
 //! with SCENE a scene file or `corridor`, SPECS a comma-separated list of integrator specs
 //! (`path,path_skeleton:aim=opening`), MAX_DEPTH 8 by default, SAMPLER `sobol` (default) or
-//! `independent`. Linux only (/proc).
+//! `independent`. Linux only (/proc). A reference k times the size in both axes is box-averaged
+//! down to WIDTHxHEIGHT.
 
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
-use lacuna::film::{image_errors, read_exr_rgb};
+use lacuna::film::{image_errors, read_exr_rgb, ExrImage};
 use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::math::Rgb;
 use lacuna::math::SamplerKind;
 use lacuna::render::{prepare, render, RenderSettings};
 use lacuna::scene::load_scene_arg;
@@ -58,9 +60,9 @@ fn main() {
         .builder
         .build()
         .unwrap();
-    let reference = read_exr_rgb(Path::new(&args[2])).unwrap();
     let width: u32 = args[3].parse().unwrap();
     let height: u32 = args[4].parse().unwrap();
+    let reference = downsample(read_exr_rgb(Path::new(&args[2])).unwrap(), width, height);
     let spp: u32 = args[5].parse().unwrap();
     let seeds: u64 = args[6].parse().unwrap();
     let max_depth: u32 = args.get(8).map_or(8, |s| s.parse().unwrap());
@@ -123,6 +125,29 @@ fn main() {
             cpu / samples * 1e6,
             mae * mae * cpu
         );
+    }
+}
+
+/// The reference box-averaged to WIDTHxHEIGHT when it is an integer multiple of it (k x k
+/// reference pixels per pixel): exact in expectation, since pixel samples are uniform over the
+/// pixel (a box filter), so a 128x64 reference serves 64x32 renders with 4x its samples.
+fn downsample(r: ExrImage, width: u32, height: u32) -> ExrImage {
+    let k = r.width / width;
+    if k <= 1 || r.width != k * width || r.height != k * height {
+        return r;
+    }
+    let mut pixels = vec![Rgb::ZERO; (width * height) as usize];
+    for y in 0..r.height {
+        for x in 0..r.width {
+            let p = &mut pixels[((y / k) * width + x / k) as usize];
+            *p += r.pixels[(y * r.width + x) as usize] * (1.0 / (k * k) as f32);
+        }
+    }
+    ExrImage {
+        width,
+        height,
+        pixels,
+        metadata: r.metadata,
     }
 }
 
