@@ -1357,3 +1357,36 @@ fn learned_lobe_weights_are_the_mixture_the_query_samples() {
         "{compared} directions, {tested} chi-square"
     );
 }
+
+/// `c_max` caps the learned guiding probabilities (the corridor learns c up to 0.6 without it):
+/// every node's c is at most the cap, some node reaches it, and a node the cap does not bind
+/// keeps its choice (the argmin over fewer candidates that still contain it).
+#[test]
+fn c_max_caps_the_learned_probabilities() {
+    let scene = corridor_builder().unwrap().build().unwrap();
+    let mut settings = SkeletonGuideSettings::default();
+    for (k, v) in [
+        ("aim", "portal"),
+        ("c_skel", "learned"),
+        ("visibility", "voxel"),
+        ("training_paths", "32768"),
+    ] {
+        settings.set(k, v).unwrap();
+    }
+    let free = guide_of(&scene, settings);
+    settings.set("c_max", "0.3").unwrap();
+    let capped = guide_of(&scene, settings);
+    let (a, b) = (free.training().unwrap(), capped.training().unwrap());
+    let highest = a.probabilities.iter().copied().fold(0.0f32, f32::max);
+    assert!(highest > 0.3, "the corridor learns {highest} at most");
+    assert!(b.probabilities.iter().all(|&c| c <= 0.3));
+    assert!(b.probabilities.contains(&0.3));
+    for (k, (&x, &y)) in a.probabilities.iter().zip(&b.probabilities).enumerate() {
+        if x > 0.0 && x < 0.3 {
+            assert_eq!(x, y, "node {k}");
+        }
+    }
+    for bad in ["0", "0.01", "1", "nan"] {
+        assert!(settings.set("c_max", bad).is_err(), "{bad}");
+    }
+}

@@ -233,6 +233,12 @@ pub struct SkeletonGuideSettings {
     /// both doors (BENCHMARKS.md, issue 8, round 6), where the learned c wins 1.45x on the
     /// door at equal cost (round 12, merged).
     pub learned_c_skel: bool,
+    /// `c_max`: with `c_skel=learned`, the largest guiding probability the training may choose
+    /// (default 0.9, every candidate). A BSDF-sampled direction that no lobe covers is
+    /// weighted 1 / (1 - c) times what `path` gives it, once per such vertex: a cap bounds
+    /// that factor where the training's samples missed the rare paths that make it a
+    /// firefly (BENCHMARKS.md, round 13, guide13b).
+    pub c_max: f32,
     /// Strength of eq. 163 at every guided node unless `learned_strength`; with it, the
     /// training pass's proposal strength.
     pub strength: SkeletonStrength,
@@ -435,6 +441,7 @@ impl Default for SkeletonGuideSettings {
         SkeletonGuideSettings {
             c_skel: 0.5,
             learned_c_skel: true,
+            c_max: 0.9,
             strength: SkeletonStrength::Auto {
                 max: DEFAULT_AUTO_MAX,
             },
@@ -478,6 +485,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "training_min_nonzero",
     "lobe_weights",
     "training_guided_cost",
+    "c_max",
 ];
 
 impl SkeletonGuideSettings {
@@ -496,7 +504,8 @@ impl SkeletonGuideSettings {
     /// and for the training pass `training_depth` (1..=64), `training_paths`
     /// (1024..=2^24), `training_cost` (`path` or
     /// `vertex`), `training_significance` (>= 0), `training_min_nonzero`,
-    /// `training_guided_cost` (>= 0) and `lobe_weights` (`distance` or `learned`). Validates
+    /// `training_guided_cost` (>= 0), `lobe_weights` (`distance` or `learned`) and `c_max`
+    /// (the largest learned c, in [0.05, 1)). Validates
     /// the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
@@ -535,6 +544,7 @@ impl SkeletonGuideSettings {
             "training_significance" => next.training_significance = number(key, value)?,
             "training_min_nonzero" => next.training_min_nonzero = number(key, value)?,
             "training_guided_cost" => next.training_guided_cost = number(key, value)?,
+            "c_max" => next.c_max = number(key, value)?,
             "resolution" => next.resolution = Resolution::LongestAxis(number(key, value)?),
             "voxel_budget" => next.resolution = Resolution::VoxelBudget(number(key, value)?),
             "light_rays" => next.light_rays = number(key, value)?,
@@ -621,6 +631,13 @@ impl SkeletonGuideSettings {
             return Err(Error::invalid(format!(
                 "skeleton training_guided_cost {} must be a number >= 0",
                 self.training_guided_cost
+            )));
+        }
+        if !(self.c_max >= super::training::CANDIDATES[1] && self.c_max < 1.0) {
+            return Err(Error::invalid(format!(
+                "skeleton c_max {} must be in [{}, 1)",
+                self.c_max,
+                super::training::CANDIDATES[1]
             )));
         }
         if self.learned_lobe_weights && self.learned_strength {

@@ -457,7 +457,12 @@ impl Grid {
         let settings = guide.settings();
         Grid {
             c: if settings.learned_c_skel {
-                CANDIDATES[1..].to_vec()
+                // `c_max` >= CANDIDATES[1] (validated): never empty.
+                CANDIDATES[1..]
+                    .iter()
+                    .copied()
+                    .filter(|&c| c <= settings.c_max)
+                    .collect()
             } else {
                 vec![settings.c_skel]
             },

@@ -10,6 +10,8 @@ pub use bdpt::{
     UniformPerPixel,
 };
 pub use env_direct::EnvDirect;
+#[cfg(feature = "diagnostics")]
+pub use path::diagnostics;
 pub use path::PathTracer;
 
 use std::any::Any;

@@ -257,6 +257,63 @@ impl Integrator for PathTracer {
     }
 }
 
+/// Feature `diagnostics`: per-vertex records of one traced sample (examples/firefly_map.rs),
+/// to find which node, lobe weights and densities make a large sample weight.
+#[cfg(feature = "diagnostics")]
+pub mod diagnostics {
+    use std::cell::RefCell;
+
+    use crate::guide::GuideQuery;
+    use crate::math::Rgb;
+
+    /// One vertex of a recorded path.
+    #[derive(Clone, Debug)]
+    pub struct Vertex {
+        pub depth: u32,
+        pub node: Option<u32>,
+        pub c: f32,
+        /// The active lobes' (probability, is_portal).
+        pub lobes: Vec<(f32, bool)>,
+        /// The BSDF's density of the chosen direction and the mixture's.
+        pub bsdf_pdf: f32,
+        pub pdf: f32,
+        /// Radiance accumulated before this vertex's direction (luminance).
+        pub radiance_before: f32,
+    }
+
+    thread_local! {
+        static RECORD: RefCell<Option<Vec<Vertex>>> = const { RefCell::new(None) };
+    }
+
+    /// Starts recording on this thread.
+    pub fn start() {
+        RECORD.with(|r| *r.borrow_mut() = Some(Vec::new()));
+    }
+
+    /// Stops recording and returns the vertices.
+    pub fn take() -> Vec<Vertex> {
+        RECORD.with(|r| r.borrow_mut().take().unwrap_or_default())
+    }
+
+    pub(super) fn record(query: &GuideQuery, depth: u32, bsdf_pdf: f32, pdf: f32, radiance: Rgb) {
+        RECORD.with(|r| {
+            if let Some(v) = r.borrow_mut().as_mut() {
+                v.push(Vertex {
+                    depth,
+                    node: query.node(),
+                    c: query.guiding_probability(),
+                    lobes: (0..query.lobe_count())
+                        .map(|i| (query.lobe(i).unwrap().2, query.lobe_is_portal(i)))
+                        .collect(),
+                    bsdf_pdf,
+                    pdf,
+                    radiance_before: crate::math::luminance(radiance),
+                });
+            }
+        });
+    }
+}
+
 thread_local! {
     /// The guided integrator's query, one per thread and reused by every sample the thread
     /// traces: a query is about 1.7 KB (eight lobes with their rectangles), and making and
@@ -358,6 +415,8 @@ impl PathTracer {
             if reflected != same_side {
                 break;
             }
+            #[cfg(feature = "diagnostics")]
+            diagnostics::record(query, depth, ms.bsdf_pdf, bs.pdf, radiance);
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
             rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
             if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
