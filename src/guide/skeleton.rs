@@ -234,10 +234,12 @@ pub struct SkeletonGuideSettings {
     /// door at equal cost (round 12, merged).
     pub learned_c_skel: bool,
     /// `c_max`: with `c_skel=learned`, the largest guiding probability the training may choose
-    /// (default 0.9, every candidate). A BSDF-sampled direction that no lobe covers is
-    /// weighted 1 / (1 - c) times what `path` gives it, once per such vertex: a cap bounds
-    /// that factor where the training's samples missed the rare paths that make it a
-    /// firefly (BENCHMARKS.md, round 13, guide13b).
+    /// (default [`DEFAULT_C_MAX`]). A BSDF-sampled direction that no lobe covers is weighted
+    /// 1 / (1 - c) times what `path` gives it, once per such vertex: a cap bounds that factor
+    /// (3.3 at 0.7, 10 at 0.9) where the training's samples missed the rare paths that make
+    /// it a firefly. On Sponza a node learned 0.9 and one sample through it twice held 92 % of
+    /// a run's squared error; no node of the ajar, the door or the corridor learns above 0.7
+    /// (BENCHMARKS.md, round 13, guide13b).
     pub c_max: f32,
     /// Strength of eq. 163 at every guided node unless `learned_strength`; with it, the
     /// training pass's proposal strength.
@@ -370,6 +372,9 @@ pub const DEFAULT_TRAINING_MIN_NONZERO: u32 = 32;
 /// corridor's choices to be stable, `guide::training` module docs).
 pub const DEFAULT_TRAINING_PATHS: u32 = 1 << 17;
 
+/// Default largest learned guiding probability (`c_max`).
+pub const DEFAULT_C_MAX: f32 = 0.7;
+
 /// Default vertices per training path: the integrators' default maximum depth.
 pub const DEFAULT_TRAINING_DEPTH: u32 = 8;
 
@@ -441,7 +446,7 @@ impl Default for SkeletonGuideSettings {
         SkeletonGuideSettings {
             c_skel: 0.5,
             learned_c_skel: true,
-            c_max: 0.9,
+            c_max: DEFAULT_C_MAX,
             strength: SkeletonStrength::Auto {
                 max: DEFAULT_AUTO_MAX,
             },
