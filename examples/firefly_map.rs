@@ -13,8 +13,8 @@ use lacuna::film::{image_errors, read_exr_rgb};
 use lacuna::integrator::{
     self, diagnostics, IntegratorSettings, SampleContext, TraceCounters, View,
 };
-use lacuna::math::{luminance, PixelSampler, Rgb, SamplerKind, Vec2};
-use lacuna::render::{prepare, FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION};
+use lacuna::math::{luminance, PixelSampler, Rgb, SamplerKind};
+use lacuna::render::prepare;
 use lacuna::scene::load_scene_arg;
 use rayon::prelude::*;
 
@@ -58,20 +58,7 @@ fn main() {
         let trace = |pixel: u64, s: u32, record: bool| -> Rgb {
             let (x, y) = ((pixel % width as u64) as u32, (pixel / width as u64) as u32);
             let mut rng = PixelSampler::new(SamplerKind::default(), seed, pixel).sample(s);
-            rng.set_dimension(FILM_DIMENSION);
-            let j = rng.uniform2();
-            let film = Vec2::new(
-                (x as f32 + j.x) / width as f32,
-                (y as f32 + j.y) / height as f32,
-            );
-            rng.set_dimension(LENS_DIMENSION);
-            let lens = if view.frame.has_lens() {
-                rng.uniform2()
-            } else {
-                Vec2::new(0.5, 0.5)
-            };
-            let ray = view.frame.generate_ray(film, lens);
-            rng.set_dimension(FIRST_INTEGRATOR_DIMENSION);
+            let ray = view.primary_ray(x, y, &mut rng);
             let ctx = SampleContext {
                 pixel_index: pixel,
                 view: &view,

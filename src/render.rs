@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::integrator::{Integrator, Precomputation, SampleContext, TraceCounters, View};
-use crate::math::{PixelSampler, Rgb, SamplerKind, Vec2};
+use crate::math::{PixelSampler, Rgb, SamplerKind};
 use crate::scene::{Camera, Scene};
 use crate::workers::WorkerPool;
 
@@ -291,22 +291,7 @@ fn render_in_pool(
                                 PixelSampler::new(settings.sampler, settings.seed, pixel_index);
                             for s in first..first + count {
                                 let mut rng = pixel_sampler.sample(s);
-                                rng.set_dimension(FILM_DIMENSION);
-                                let jitter = rng.uniform2();
-                                let film_pos = Vec2::new(
-                                    (x as f32 + jitter.x) / w as f32,
-                                    (y as f32 + jitter.y) / h as f32,
-                                );
-                                rng.set_dimension(LENS_DIMENSION);
-                                // A pinhole camera ignores the lens position: not computed.
-                                let lens = if view.frame.has_lens() {
-                                    rng.uniform2()
-                                } else {
-                                    rng.skip_uniform2();
-                                    Vec2::ZERO
-                                };
-                                let ray = view.frame.generate_ray(film_pos, lens);
-                                rng.set_dimension(FIRST_INTEGRATOR_DIMENSION);
+                                let ray = view.primary_ray(x, y, &mut rng);
                                 let sample =
                                     integrator.sample(scene, ray, &mut rng, &mut counters, &ctx);
                                 tile.add_sample(tx, ty, &sample);

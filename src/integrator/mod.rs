@@ -147,6 +147,34 @@ pub struct View {
     pub height: u32,
 }
 
+impl View {
+    /// The camera ray of one pixel sample: the film position jittered over pixel (x, y) and
+    /// the lens position from their fixed sampler dimensions, leaving `rng` at the
+    /// integrator's first dimension. The one place that maps a pixel sample to its ray, so
+    /// that a tool replaying a sample (examples/firefly_map.rs) traces the render's own path.
+    #[inline]
+    pub fn primary_ray(&self, x: u32, y: u32, rng: &mut Sampler) -> Ray {
+        use crate::render::{FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION};
+        rng.set_dimension(FILM_DIMENSION);
+        let jitter = rng.uniform2();
+        let film_pos = crate::math::Vec2::new(
+            (x as f32 + jitter.x) / self.width as f32,
+            (y as f32 + jitter.y) / self.height as f32,
+        );
+        rng.set_dimension(LENS_DIMENSION);
+        // A pinhole camera ignores the lens position: not computed.
+        let lens = if self.frame.has_lens() {
+            rng.uniform2()
+        } else {
+            rng.skip_uniform2();
+            crate::math::Vec2::ZERO
+        };
+        let ray = self.frame.generate_ray(film_pos, lens);
+        rng.set_dimension(FIRST_INTEGRATOR_DIMENSION);
+        ray
+    }
+}
+
 /// Work an integrator shares between all pixels of one sample index (e.g. the light subpaths
 /// of bidirectional path tracing), and what it adds to the image directly.
 #[derive(Default)]
