@@ -878,6 +878,13 @@ const LIGHT_TRACING_SEED: u64 = 0x5ce1_e70a;
 /// Rays per parallel chunk of the light-tracing pass.
 const LIGHT_CHUNK: u32 = 4096;
 
+/// The two bits of lobe target `target` in a voxel's visibility cell
+/// ([`SkeletonGuide::voxel_sees`]): (answer known, target seen).
+#[inline]
+fn voxel_sees_bits(target: u32) -> (u32, u32) {
+    (1u32 << (2 * target), 1u32 << (2 * target + 1))
+}
+
 impl SkeletonGuide {
     /// Runs the precomputation (module docs) on the current rayon pool. `progress(stage,
     /// fraction)` is called between stages and may cancel by returning false.
@@ -1063,11 +1070,10 @@ impl SkeletonGuide {
         if self.voxel_sees.is_empty() {
             return None;
         }
-        // The "known" bit of every target: the even bits of a cell.
-        const KNOWN: u32 = 0x5555_5555;
+        let all_known = (0..2 * MAX_LOBES as u32).fold(0, |m, t| m | voxel_sees_bits(t).0);
         let mut rays = vec![0u32; self.node_count()];
         for (cell, &node) in self.voxel_sees.iter().zip(&self.node_map) {
-            let known = (cell.load(AtomicOrdering::Relaxed) & KNOWN).count_ones();
+            let known = (cell.load(AtomicOrdering::Relaxed) & all_known).count_ones();
             if known > 0 {
                 rays[node as usize] += known;
             }
@@ -1162,7 +1168,7 @@ impl SkeletonGuide {
         if target as usize >= 2 * MAX_LOBES {
             return (false, 0);
         }
-        let (known, seen) = (1u32 << (2 * target), 1u32 << (2 * target + 1));
+        let (known, seen) = voxel_sees_bits(target);
         let bits = cell.load(AtomicOrdering::Relaxed);
         if bits & known != 0 {
             return (bits & seen != 0, 0);
@@ -1181,7 +1187,7 @@ impl SkeletonGuide {
         target: u32,
         cell: &AtomicU32,
     ) -> (bool, u32) {
-        let (known, seen) = (1u32 << (2 * target), 1u32 << (2 * target + 1));
+        let (known, seen) = voxel_sees_bits(target);
         let sees = self.voxel_sees_direct(scene, voxel, target);
         let before = cell.fetch_or(known | if sees { seen } else { 0 }, AtomicOrdering::Relaxed);
         (sees, u32::from(before & known == 0))
