@@ -56,4 +56,16 @@ fn main() {
         );
     }
     println!("# guided: {} of {}", t.guided_nodes(), guide.node_count());
+    let sc = &t.scene;
+    let per_path = |x: u64| x as f64 / t.paths.max(1) as f64;
+    println!(
+        "# scene-level: variance {:.4}x, cost {:.4}x, efficiency {:.4}x, switched off: {}; per training path: {:.3} vertices, {:.3} guided, {:.3} mapped",
+        sc.variance_ratio,
+        sc.cost_ratio,
+        sc.efficiency(),
+        sc.switched_off,
+        per_path(sc.vertices),
+        per_path(sc.guided_vertices),
+        per_path(sc.mapped_vertices)
+    );
 }

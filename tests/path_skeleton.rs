@@ -1390,3 +1390,51 @@ fn c_max_caps_the_learned_probabilities() {
         assert!(settings.set("c_max", bad).is_err(), "{bad}");
     }
 }
+
+/// A guide that guides no node (here every node has too few non-zero training samples; the
+/// same holds after `cost_model=measured`'s scene-level switch) makes `path_skeleton` trace
+/// `path`'s samples: the image is `path`'s, bit for bit, and the guide says it guides nothing
+/// (so the integrator skips the node mapping and the query set-up).
+#[test]
+fn a_guide_that_guides_nothing_renders_paths_image() {
+    let scene = two_rooms_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    let options = "c_skel=learned:aim=portal:visibility=voxel:training_paths=8192:training_min_nonzero=4000000000";
+    let mut settings = SkeletonGuideSettings::default();
+    for option in options.split(':') {
+        let (key, value) = option.split_once('=').unwrap();
+        settings.set(key, value).unwrap();
+    }
+    let guide = guide_of(&scene, settings);
+    assert!(guide.guides_nothing());
+    assert_eq!(guide.training().unwrap().guided_nodes(), 0);
+    // The same guide with a fixed c guides.
+    assert!(!guide_of(&scene, fixed()).guides_nothing());
+    let image = |spec: &str| {
+        let mut integrator = integrator::create(spec, IntegratorSettings::default()).unwrap();
+        prepare(integrator.as_mut(), &scene, Some(2), &|_, _| true).unwrap();
+        let rs = RenderSettings {
+            width: 24,
+            height: 16,
+            spp: 4,
+            threads: Some(2),
+            ..Default::default()
+        };
+        let (film, _) = render(
+            &scene,
+            &camera,
+            integrator.as_ref(),
+            &rs,
+            &|_| true,
+            &AtomicBool::new(false),
+        )
+        .unwrap();
+        film.radiance()
+            .iter()
+            .flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+            .collect::<Vec<u32>>()
+    };
+    let path = image("path");
+    assert!(path.iter().any(|&b| b != 0), "black image");
+    assert_eq!(path, image(&format!("path_skeleton:{options}")));
+}

@@ -17,9 +17,9 @@ mod training;
 
 pub use mixture::{sample_bsdf_or_guide, MixtureSample};
 pub use skeleton::{
-    GuideLobe, GuideQuery, ImportanceNode, LobeAim, LobeFallback, RenderEstimator, SkeletonGuide,
-    SkeletonGuideSettings, SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX,
+    CostModel, GuideLobe, GuideQuery, ImportanceNode, LobeAim, LobeFallback, RenderEstimator,
+    SkeletonGuide, SkeletonGuideSettings, SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX,
     DEFAULT_TRAINING_DEPTH, DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH,
     OPTION_NAMES, STRENGTH_CANDIDATES,
 };
-pub use training::{TrainingReport, CANDIDATES, TRAINING_C};
+pub use training::{SceneChoice, TrainingReport, CANDIDATES, TRAINING_C};

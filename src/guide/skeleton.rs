@@ -257,6 +257,9 @@ pub struct SkeletonGuideSettings {
     /// aside, in unguided vertices (`training_guided_cost`, default
     /// [`DEFAULT_TRAINING_GUIDED_COST`], `guide::training`, "Cost").
     pub training_guided_cost: f32,
+    /// What the training charges for guiding (`cost_model`, round 14; `guide::training`,
+    /// "Measured cost and the scene-level switch"): see [`CostModel`].
+    pub cost_model: CostModel,
     /// Vertices per training path (`training_depth`).
     pub training_depth: u32,
     /// Camera paths of the training pass (`training_paths`).
@@ -340,6 +343,39 @@ impl TrainingCost {
                 "skeleton training_cost '{other}' must be 'vertex' or 'path'"
             ))),
         }
+    }
+}
+
+/// What the training charges for guiding (`cost_model`; `guide::training`, "Measured cost and
+/// the scene-level switch").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CostModel {
+    /// `vertices` (the default): a guided vertex costs `training_guided_cost` unguided
+    /// vertices plus its shadow rays; no scene-level switch.
+    Vertices,
+    /// `switch`: the nodes chosen as with `vertices`, then the scene-level switch judges the
+    /// whole image with the measured costs and guides nothing unless it gains.
+    Switch,
+    /// `measured`: the nodes also chosen with the measured costs (a per-query cost and the
+    /// node mapping), then the scene-level switch.
+    Measured,
+}
+
+impl CostModel {
+    pub fn parse(text: &str) -> Result<Self> {
+        match text.trim() {
+            "vertices" => Ok(CostModel::Vertices),
+            "switch" => Ok(CostModel::Switch),
+            "measured" => Ok(CostModel::Measured),
+            other => Err(Error::invalid(format!(
+                "skeleton cost_model '{other}' must be 'vertices', 'switch' or 'measured'"
+            ))),
+        }
+    }
+
+    /// Whether the scene-level switch applies.
+    pub fn switches(self) -> bool {
+        self != CostModel::Vertices
     }
 }
 
@@ -453,6 +489,7 @@ impl Default for SkeletonGuideSettings {
             learned_strength: false,
             learned_lobe_weights: false,
             training_guided_cost: DEFAULT_TRAINING_GUIDED_COST,
+            cost_model: CostModel::Vertices,
             training_depth: DEFAULT_TRAINING_DEPTH,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_cost: TrainingCost::Path,
@@ -491,6 +528,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "lobe_weights",
     "training_guided_cost",
     "c_max",
+    "cost_model",
 ];
 
 impl SkeletonGuideSettings {
@@ -509,8 +547,8 @@ impl SkeletonGuideSettings {
     /// and for the training pass `training_depth` (1..=64), `training_paths`
     /// (1024..=2^24), `training_cost` (`path` or
     /// `vertex`), `training_significance` (>= 0), `training_min_nonzero`,
-    /// `training_guided_cost` (>= 0), `lobe_weights` (`distance` or `learned`) and `c_max`
-    /// (the largest learned c, in [0.05, 1)). Validates
+    /// `training_guided_cost` (>= 0), `cost_model` (`vertices`, `switch` or `measured`), `lobe_weights`
+    /// (`distance` or `learned`) and `c_max` (the largest learned c, in [0.05, 1)). Validates
     /// the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
@@ -550,6 +588,7 @@ impl SkeletonGuideSettings {
             "training_min_nonzero" => next.training_min_nonzero = number(key, value)?,
             "training_guided_cost" => next.training_guided_cost = number(key, value)?,
             "c_max" => next.c_max = number(key, value)?,
+            "cost_model" => next.cost_model = CostModel::parse(value)?,
             "resolution" => next.resolution = Resolution::LongestAxis(number(key, value)?),
             "voxel_budget" => next.resolution = Resolution::VoxelBudget(number(key, value)?),
             "light_rays" => next.light_rays = number(key, value)?,
@@ -858,6 +897,10 @@ pub struct SkeletonGuide {
     /// Per voxel: a point in it may map to a node with a guiding probability above 0 (see
     /// `analysis::may_map_to`); queries elsewhere skip the mapping. Empty: everywhere.
     may_guide: Vec<bool>,
+    /// No node has a guiding probability above 0 (every node learned c = 0, or the
+    /// scene-level switch of `cost_model=switch|measured`): `path_skeleton` then traces
+    /// exactly `path`'s samples.
+    guides_nothing: bool,
     importance: Vec<ImportanceNode>,
     /// Nodes with a non-zero power estimate before the `max_importance_nodes` cut.
     importance_found: usize,
@@ -1009,6 +1052,7 @@ impl SkeletonGuide {
             node_strength: Vec::new(),
             training: None,
             may_guide: Vec::new(),
+            guides_nothing: false,
             importance,
             importance_found,
             raw_nodes: raw.nodes.len(),
@@ -1048,6 +1092,7 @@ impl SkeletonGuide {
             }
             stage("guiding probabilities (training)", t, 1.0)?;
         }
+        guide.guides_nothing = guide.node_c.iter().all(|&c| c <= 0.0);
         guide.timings = timings;
         Ok(guide)
     }
@@ -1270,6 +1315,17 @@ impl SkeletonGuide {
         self.neighbours
             .map_grid_point_voxel(&self.grid, &self.node_map, g, v, normal, incident)
             .map(|k| (self.node_map[k], k))
+    }
+
+    /// True when no node is guided (every learned c is 0): no query can guide, and
+    /// `path_skeleton` skips the queries altogether (its samples are then `path`'s).
+    pub fn guides_nothing(&self) -> bool {
+        self.guides_nothing
+    }
+
+    /// The node of each voxel (the skeleton's node map), for the training's mapping count.
+    pub(super) fn node_map(&self) -> &[u32] {
+        &self.node_map
     }
 
     /// The training pass's findings with `c_skel=learned`.
@@ -2270,12 +2326,26 @@ mod tests {
             ("training_significance", "-1"),
             ("training_significance", "nan"),
             ("training_min_nonzero", "-1"),
+            ("cost_model", "seconds"),
         ] {
             let before = s;
             assert!(s.set(key, bad).is_err(), "{key}={bad}");
             assert_eq!(s, before, "a failed set leaves the settings alone");
         }
         assert!(OPTION_NAMES.contains(&"training_cost"));
+        for (text, model) in [
+            ("vertices", CostModel::Vertices),
+            ("switch", CostModel::Switch),
+            ("measured", CostModel::Measured),
+        ] {
+            s.set("cost_model", text).unwrap();
+            assert_eq!(s.cost_model, model);
+        }
+        assert_eq!(
+            SkeletonGuideSettings::default().cost_model,
+            CostModel::Vertices
+        );
+        assert!(OPTION_NAMES.contains(&"cost_model"));
     }
 
     #[test]

@@ -164,6 +164,56 @@
 //! corridor guides 14 of 17 nodes (all but 4, 13, 16) and matches the fixed default per sample; on the door
 //! 14 of 58 (BENCHMARKS.md, issue 8, round 6).
 //!
+//! # Measured cost and the scene-level switch (`cost_model=switch|measured`, round 14)
+//!
+//! With the default `cost_model=vertices` a guided vertex costs `training_guided_cost` (0.15)
+//! unguided vertices and the node mapping nothing. Callgrind of Sponza (BENCHMARKS.md, round
+//! 13, guide13a: 64x36, 16 spp, render only, per camera sample, `G` minus `path`) says
+//! otherwise: 1.65 k instructions of lobe set-up in `GuideQuery::init`, 0.82 k in
+//! `sample_bsdf_or_guide`, 2.16 k of dearer next-event shadow rays (as many, 27 % dearer each:
+//! the guided paths go elsewhere) and 0.22 k of dearer closest-hit rays, plus 1.51 k of node
+//! mapping, paid at every vertex whose voxel may map to a guided node (`may_guide`), guided
+//! or not. `path` costs 31.41 k per sample for 5.02 closest-hit rays: 6.26 k per vertex. The
+//! training of the same `G` predicts 2.63 guided and 4.96 mapped of 6.62 vertices per
+//! (unrouletted) training path, i.e. per 5.02 render vertices 2.0 guided and 3.76 mapped.
+//! Hence, in unguided vertices:
+//! - `MEASURED_QUERY_COST` = (1.65 + 0.82 + 2.16 + 0.22) k / 2.0 / 6.26 k = 0.39 per guided
+//!   query, whatever its c (the set-up is paid in full at c = 0.05);
+//! - `MEASURED_MAP_COST` = 1.51 k / 3.76 / 6.26 k = 0.064 per mapped vertex.
+//!
+//! With `cost_model=measured` a node's candidates cost
+//! `cost(c) = base + share (0.39 + 0.064 + COST_SHADOW_RAY rays)` (its own vertices' mapping
+//! charged to it); with `switch` they keep `training_guided_cost`. With either, after the
+//! node choices the whole image is judged by the measured costs ([`SceneChoice`], also
+//! reported with `vertices`): with n_k the training samples at node k (how often the camera
+//! paths take a guided-capable vertex there) and V_k its estimate's variance per sample,
+//! unguided and under the choice,
+//!
+//!   variance ratio = sum_k n_k V_k(chosen) / sum_k n_k V_k(0),
+//!   cost ratio = (vertices + sum_guided n_k overhead_k + 0.064 mapped) / vertices,
+//!
+//! with `vertices` all training vertices, overhead_k the guided query's cost (mapping aside)
+//! and `mapped` the non-delta training vertices in the voxels that `may_guide` would hold for
+//! the chosen set. Unless the predicted efficiency 1 / (variance ratio x cost ratio) exceeds
+//! 1 + `SCENE_MARGIN` (0.1: the guided code's instruction-cache misses make its wall time per
+//! sample 7-16 % above its instruction ratio, BENCHMARKS.md round 13 merged), every node gets
+//! c = 0: the guide guides nothing ([`SkeletonGuide::guides_nothing`]) and `path_skeleton`
+//! traces `path`'s samples (no mapping, no query; the image is `path`'s, bit for bit). The
+//! decision is a deterministic function of the scene and the training, so the render stays
+//! unbiased either way.
+//!
+//! The sum over nodes counts each vertex's estimate variance, which includes the rest of its
+//! path's: it overstates the image's variance (every vertex counts its followers again), so
+//! the predicted relative gain is conservative. Predicted against measured per-sample
+//! efficiency (MAE² x instructions) of `G`'s choices: Sponza 0.88 / 0.92x, ajar 0.91 /
+//! 0.95x, Sibenik 1.27 / 1.60x, door 1.56 / 1.45x, corridor 1.45 / 4.25x (the corridor's gain
+//! is in rare large samples the variance sum underweights); `switch` turns Sponza and the
+//! ajar off and keeps `G` elsewhere. `measured`'s dearer nodes guide fewer nodes on the door
+//! (11 of 58 instead of 16) and the corridor (13 of 17 instead of 15) and lose 5-10 % per
+//! sample there against `G` (BENCHMARKS.md, round 14, cost14a): the per-node constants
+//! charge the set-up in full, while at the door's and corridor's larger c the guided samples
+//! buy more than Sponza's.
+//!
 //! Heuristic parts, stated: the proxy stops after `training_depth` vertices (light arriving
 //! after more bounces does not inform the choice), R carries the training path's own noise
 //! (next-event estimation only, unlike the render's MIS), and each node is judged with the
@@ -175,7 +225,7 @@
 use rayon::prelude::*;
 
 use super::{
-    sample_bsdf_or_guide, GuideQuery, RenderEstimator, SkeletonGuide, SkeletonStrength,
+    sample_bsdf_or_guide, CostModel, GuideQuery, RenderEstimator, SkeletonGuide, SkeletonStrength,
     TrainingCost,
 };
 use super::{MAX_LOBES, STRENGTH_CANDIDATES};
@@ -204,6 +254,17 @@ const FIT_ITERATIONS: usize = 24;
 const FIT_FLOOR: f32 = 0.03;
 /// Width / height of the training pass's image.
 const TRAINING_ASPECT: f32 = 2.0;
+/// The measured costs (module docs, "Measured cost and the scene-level switch"): a guided
+/// query's cost beyond an unguided vertex's, in unguided vertices, whatever its c (the lobe
+/// set-up, the mixture's sampling and densities, the dearer rays of the paths it sends
+/// elsewhere), guide shadow rays aside.
+const MEASURED_QUERY_COST: f64 = 0.39;
+/// The node mapping, in unguided vertices, paid by every vertex in a
+/// voxel that may map to a guided node, guided or not.
+const MEASURED_MAP_COST: f64 = 0.064;
+/// `cost_model=switch|measured`: the whole image's predicted efficiency must gain this much (as a
+/// ratio above 1) for anything to be guided.
+const SCENE_MARGIN: f64 = 0.1;
 const TRAINING_SEED: u64 = 0x7ea1_c5e1;
 
 /// What the training pass found.
@@ -234,6 +295,45 @@ pub struct TrainingReport {
     /// Camera paths traced (0 when the scene has no camera: then the guide keeps its fixed
     /// `c_skel` and strength).
     pub paths: u32,
+    /// The scene-level view of the node choices (module docs, "Measured cost and the
+    /// scene-level switch"), predicted with the measured costs whatever the cost model the
+    /// nodes were chosen with; with `cost_model=switch|measured` it decides whether anything is
+    /// guided.
+    pub scene: SceneChoice,
+}
+
+/// What the node choices do to the whole image, predicted from the training paths, before the
+/// scene-level switch (module docs, "Measured cost and the scene-level switch").
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SceneChoice {
+    /// Vertices of all training paths.
+    pub vertices: u64,
+    /// Training samples at nodes the choices guide (vertices that set the lobes up).
+    pub guided_vertices: u64,
+    /// Non-delta training vertices in voxels that may map to a guided node (they pay the
+    /// node mapping).
+    pub mapped_vertices: u64,
+    /// Predicted variance of the choices relative to guiding nothing (sum over the nodes of
+    /// samples x variance), and cost (vertices plus the overhead in vertices).
+    pub variance_ratio: f64,
+    pub cost_ratio: f64,
+    /// `cost_model=switch|measured` and the predicted efficiency 1 / (variance_ratio cost_ratio)
+    /// was not above 1 + `SCENE_MARGIN`: every node was set to c = 0.
+    pub switched_off: bool,
+}
+
+impl SceneChoice {
+    /// Predicted whole-image efficiency of the node choices against guiding nothing (above 1:
+    /// the guide pays).
+    pub fn efficiency(&self) -> f64 {
+        1.0 / (self.variance_ratio * self.cost_ratio)
+    }
+
+    /// Whether the predicted efficiency is clearly above guiding nothing's (by
+    /// `SCENE_MARGIN`): `cost_model=switch|measured` guide nothing otherwise.
+    pub fn pays(&self) -> bool {
+        self.efficiency() > 1.0 + SCENE_MARGIN
+    }
 }
 
 impl TrainingReport {
@@ -438,7 +538,46 @@ struct NodeChoice {
     weights: Option<[f32; MAX_LOBES]>,
     relative_cost: f32,
     best_ratio: f32,
+    /// The estimate's variance per sample unguided and under the choice (the same where the
+    /// node is not guided), and the choice's overhead per sample in unguided vertices beyond
+    /// an unguided vertex's by the measured costs, the node mapping aside (0 where not
+    /// guided).
+    variance_unguided: f64,
+    variance_chosen: f64,
+    overhead: f64,
 }
+
+/// The scene-level prediction (module docs, "Measured cost and the scene-level switch") from
+/// the node choices, `samples[k]` training samples at node k: variance sum_k n_k V_k under the
+/// choices against guiding nothing, cost `vertices` plus the guided samples' overhead plus
+/// `map_cost` at each of `mapped_vertices`. Returns (variance ratio, cost ratio).
+fn scene_prediction(
+    choices: &[NodeChoice],
+    samples: &[u32],
+    vertices: u64,
+    mapped_vertices: u64,
+    map_cost: f64,
+) -> (f64, f64) {
+    let (mut unguided, mut chosen, mut overhead) = (0.0f64, 0.0f64, 0.0f64);
+    for (c, &n) in choices.iter().zip(samples) {
+        let n = n as f64;
+        unguided += n * c.variance_unguided;
+        chosen += n * c.variance_chosen;
+        overhead += n * c.overhead;
+    }
+    let variance_ratio = if unguided > 0.0 && unguided.is_finite() {
+        chosen / unguided
+    } else if unguided.is_infinite() && chosen.is_finite() {
+        // Only guiding can sample some contribution: guiding nothing is infinitely worse.
+        0.0
+    } else {
+        1.0
+    };
+    let base = (vertices as f64).max(1.0);
+    let cost_ratio = (base + overhead + map_cost * mapped_vertices as f64) / base;
+    (variance_ratio, cost_ratio)
+}
+
 /// The candidates of one training pass.
 struct Grid {
     /// Guiding probabilities above 0 to choose from (c = 0 is the baseline, not in here).
@@ -448,7 +587,8 @@ struct Grid {
     may_turn_off: bool,
     /// `lobe_weights=learned`: the lobes' selection probabilities are chosen too.
     lobe_weights: bool,
-    /// Cost of guiding at a vertex beyond an unguided vertex's, shadow rays aside.
+    /// Cost of guiding at a vertex beyond an unguided vertex's, shadow rays aside (with
+    /// `cost_model=measured` the node mapping included).
     guided_cost: f64,
 }
 
@@ -473,7 +613,11 @@ impl Grid {
             },
             may_turn_off: settings.learned_c_skel,
             lobe_weights: settings.learned_lobe_weights,
-            guided_cost: settings.training_guided_cost as f64,
+            guided_cost: if settings.cost_model == CostModel::Measured {
+                MEASURED_QUERY_COST + MEASURED_MAP_COST
+            } else {
+                settings.training_guided_cost as f64
+            },
         }
     }
 
@@ -505,6 +649,11 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
             mean_remaining: vec![0.0; nodes],
             lobe_weights: vec![None; nodes],
             paths: 0,
+            scene: SceneChoice {
+                variance_ratio: 1.0,
+                cost_ratio: 1.0,
+                ..SceneChoice::default()
+            },
         };
     };
     // The render's image size is not known here: a 2:1 frame covers the scene files' images
@@ -512,12 +661,13 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
     let camera = camera.frame(TRAINING_ASPECT);
     let paths = settings.training_paths;
     let chunks = paths.div_ceil(CHUNK);
-    let per_chunk: Vec<Vec<Sample>> = (0..chunks)
+    let per_chunk: Vec<(Vec<Sample>, Visits)> = (0..chunks)
         .into_par_iter()
         .map(|c| {
             let mut rng = Sampler::independent(Rng::new(TRAINING_SEED, c as u64));
             let mut query = GuideQuery::new();
             let mut out = Vec::new();
+            let mut visits = Visits::default();
             for _ in 0..CHUNK.min(paths - c * CHUNK) {
                 let ray = camera.generate_ray(rng.uniform2(), rng.uniform2());
                 if let Some(si) = scene.intersect(&ray) {
@@ -529,16 +679,23 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
                         &mut query,
                         &mut rng,
                         &mut out,
+                        &mut visits,
                     );
                 }
             }
-            out
+            (out, visits)
         })
         .collect();
 
     // The samples in chunk order, then by node (a stable sort: the same order for any thread
     // count), so that every node's samples are one slice.
-    let mut all: Vec<Sample> = per_chunk.into_iter().flatten().collect();
+    let mut visits = Visits::default();
+    let mut all: Vec<Sample> = Vec::new();
+    for (samples, v) in per_chunk {
+        all.extend(samples);
+        visits.vertices += v.vertices;
+        visits.voxels.extend(v.voxels);
+    }
     all.sort_by_key(|s| s.node);
     let mut by_node: Vec<&[Sample]> = vec![&[]; nodes];
     for group in all.chunk_by(|a, b| a.node == b.node) {
@@ -583,15 +740,62 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
             strengths[k] = grid.strengths[ks];
         }
     }
+    let samples: Vec<u32> = by_node.iter().map(|s| s.len() as u32).collect();
+    let scene_choice = {
+        // The vertices that pay the node mapping under these choices: those in voxels that
+        // may map to a guided node (the render's `may_guide`).
+        let may_guide = crate::analysis::may_map_to(guide.grid(), guide.node_map(), |n| {
+            probabilities[n as usize] > 0.0
+        });
+        let mapped_vertices = visits
+            .voxels
+            .iter()
+            .filter(|&&v| may_guide[v as usize])
+            .count() as u64;
+        let (variance_ratio, cost_ratio) = scene_prediction(
+            &choices,
+            &samples,
+            visits.vertices,
+            mapped_vertices,
+            MEASURED_MAP_COST,
+        );
+        let mut scene = SceneChoice {
+            vertices: visits.vertices,
+            guided_vertices: choices
+                .iter()
+                .zip(&samples)
+                .filter(|(c, _)| c.guided.is_some())
+                .map(|(_, &n)| n as u64)
+                .sum(),
+            mapped_vertices,
+            variance_ratio,
+            cost_ratio,
+            switched_off: false,
+        };
+        if settings.cost_model.switches()
+            && grid.may_turn_off
+            && probabilities.iter().any(|&c| c > 0.0)
+            && !scene.pays()
+        {
+            scene.switched_off = true;
+            probabilities.fill(0.0);
+            strengths.fill(settings.strength);
+        }
+        scene
+    };
+    let switched_off = scene_choice.switched_off;
     TrainingReport {
         probabilities,
         strengths,
-        samples: by_node.iter().map(|s| s.len() as u32).collect(),
+        samples,
         nonzero: by_node
             .iter()
             .map(|s| s.iter().filter(|s| s.carries()).count() as u32)
             .collect(),
-        relative_cost: choices.iter().map(|c| c.relative_cost).collect(),
+        relative_cost: choices
+            .iter()
+            .map(|c| if switched_off { 1.0 } else { c.relative_cost })
+            .collect(),
         best_ratio: choices.iter().map(|c| c.best_ratio).collect(),
         mean_remaining: by_node
             .iter()
@@ -602,10 +806,13 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
             .enumerate()
             .map(|(k, c)| {
                 let lobes = guide.lobes(k as u32).len().min(MAX_LOBES);
-                c.weights.map(|w| w[..lobes].to_vec())
+                c.weights
+                    .filter(|_| !switched_off)
+                    .map(|w| w[..lobes].to_vec())
             })
             .collect(),
         paths,
+        scene: scene_choice,
     }
 }
 
@@ -626,17 +833,31 @@ fn choose_node(
     min_nonzero: u32,
     mis: MisHeuristic,
 ) -> NodeChoice {
-    let not_guided = NodeChoice {
+    let n = samples.len() as f64;
+    let unguided_variance = |samples: &[Sample]| {
+        let mut m = Moments::default();
+        samples
+            .iter()
+            .for_each(|s| m.add(s.terms(0.0, 0, None, mis)));
+        m.variance(n)
+    };
+    let not_guided = |variance: f64| NodeChoice {
         guided: None,
         weights: None,
         relative_cost: 1.0,
         best_ratio: 1.0,
+        variance_unguided: variance,
+        variance_chosen: variance,
+        overhead: 0.0,
     };
     let carrying = samples.iter().filter(|s| s.carries()).count() as u32;
     if (samples.len() as u32) < MIN_SAMPLES || carrying < min_nonzero {
-        return not_guided;
+        return not_guided(if samples.is_empty() {
+            0.0
+        } else {
+            unguided_variance(samples)
+        });
     }
-    let n = samples.len() as f64;
     let base = match training_cost {
         TrainingCost::Vertex => 1.0,
         TrainingCost::Path => {
@@ -737,10 +958,11 @@ fn choose_node(
         let spread = ((sum2 / n - mean * mean).max(0.0) / n).sqrt();
         guided - unguided + significance * spread < 0.0
     };
+    let variance_unguided = moments[0].variance(n);
     if !guide_it {
         return NodeChoice {
             best_ratio: ratio,
-            ..not_guided
+            ..not_guided(variance_unguided)
         };
     }
     let (c, k, w) = candidate(best);
@@ -749,6 +971,11 @@ fn choose_node(
         weights: weights[w].0,
         relative_cost: ratio,
         best_ratio: ratio,
+        variance_unguided,
+        variance_chosen: moments[best].variance(n),
+        // The measured costs whatever the cost model (the scene-level prediction is of the
+        // real cost); the node mapping is counted per mapped vertex there.
+        overhead: weights[w].1 * (MEASURED_QUERY_COST + COST_SHADOW_RAY * shadow_rays),
     }
 }
 
@@ -838,6 +1065,25 @@ pub(crate) fn reweighted_second_moment(
     }
 }
 
+/// What the training paths visited, for the scene-level prediction: all their vertices, and
+/// the voxel of each non-delta one inside the grid (where the render maps points to nodes).
+#[derive(Default)]
+struct Visits {
+    vertices: u64,
+    voxels: Vec<u32>,
+}
+
+impl Visits {
+    fn add(&mut self, guide: &SkeletonGuide, p: Vec3) {
+        let grid = guide.grid();
+        let v = grid.voxel_of(p);
+        if (0..3).all(|a| v[a] >= 0 && v[a] < grid.dims[a] as i64) {
+            self.voxels
+                .push(grid.index(v[0] as usize, v[1] as usize, v[2] as usize) as u32);
+        }
+    }
+}
+
 /// One vertex of a training path, kept until the radiance arriving there is known.
 struct TrainingVertex {
     /// The sample, `f_reflected` still to be filled in; None at vertices that are not guided.
@@ -856,6 +1102,7 @@ struct TrainingVertex {
 /// estimation alone: R(x_i) = NEE(x_i) + f_s |cos| / q (x_i) R(x_i+1) (no emission beyond the
 /// first, which NEE accounts for), computed backwards once the path ends. Each vertex's own
 /// light sample is also recorded with its sample (the same draw the previous vertex's R uses).
+#[allow(clippy::too_many_arguments)]
 fn train_path(
     guide: &SkeletonGuide,
     scene: &Scene,
@@ -864,6 +1111,7 @@ fn train_path(
     query: &mut GuideQuery,
     rng: &mut Sampler,
     out: &mut Vec<Sample>,
+    visits: &mut Visits,
 ) {
     let mut beta = Rgb::ONE;
     let depth = guide.settings().training_depth;
@@ -877,8 +1125,10 @@ fn train_path(
         let wo_local = frame.to_local(si.wo);
         query.clear();
         let mut rays = 0;
+        visits.vertices += 1;
         if !bsdf.is_delta() {
             rays = query.init(guide, scene, si.p, si.p_error, si.ng, si.wo);
+            visits.add(guide, si.p);
         }
         let guided = query.guiding_probability() > 0.0;
         let mut nee = NeeTerms::default();
@@ -1233,6 +1483,54 @@ mod tests {
                 }
             })
             .collect()
+    }
+
+    /// The scene-level prediction weighs each node's variance change by its samples against
+    /// the whole variance (guided or not), and charges the guided samples' overhead and the
+    /// mapping of every mapped vertex against all vertices: a node that halves its own
+    /// variance pays where it carries the image's variance, not where an unguided node carries
+    /// most of it, nor where the mapping reaches many vertices.
+    #[test]
+    fn the_scene_level_switch_weighs_gain_against_all_overhead() {
+        let node = |v0: f64, v1: f64, overhead: f64| NodeChoice {
+            guided: (overhead > 0.0).then_some((0.5, 0)),
+            weights: None,
+            relative_cost: 1.0,
+            best_ratio: 1.0,
+            variance_unguided: v0,
+            variance_chosen: v1,
+            overhead,
+        };
+        let scene = |choices: &[NodeChoice], samples: &[u32], mapped: u64| {
+            let (variance_ratio, cost_ratio) =
+                scene_prediction(choices, samples, 1000, mapped, 0.1);
+            SceneChoice {
+                variance_ratio,
+                cost_ratio,
+                ..SceneChoice::default()
+            }
+        };
+        // Node 0 (guided) halves its variance at 0.5 vertices per sample; node 1 is not
+        // guided. 100 samples each, 1000 vertices.
+        let guided = node(1.0, 0.5, 0.5);
+        let s = scene(&[guided, node(1.0, 1.0, 0.0)], &[100, 100], 200);
+        assert!((s.variance_ratio - 150.0 / 200.0).abs() < 1e-12);
+        assert!((s.cost_ratio - (1000.0 + 50.0 + 20.0) / 1000.0).abs() < 1e-12);
+        assert!(s.pays(), "{}", s.efficiency());
+        // Where the unguided node carries 9x the variance, the same node gains 5 %: no.
+        let s = scene(&[guided, node(9.0, 9.0, 0.0)], &[100, 100], 200);
+        assert!((s.variance_ratio - 9.5 / 10.0).abs() < 1e-12);
+        assert!(!s.pays(), "{}", s.efficiency());
+        // Mapping 4000 vertex visits (0.1 vertices each: 400 in all) eats the gain.
+        let s = scene(&[guided, node(1.0, 1.0, 0.0)], &[100, 100], 4000);
+        assert!(!s.pays(), "{}", s.efficiency());
+        // Nothing guided: ratios 1, does not pay (nothing to switch off either).
+        let s = scene(&[node(1.0, 1.0, 0.0)], &[100], 0);
+        assert_eq!((s.variance_ratio, s.cost_ratio), (1.0, 1.0));
+        assert!(!s.pays());
+        // A contribution only guiding samples (infinite unguided variance) always pays.
+        let s = scene(&[node(f64::INFINITY, 1.0, 0.5)], &[100], 5000);
+        assert!(s.pays());
     }
 
     /// Every candidate c > 0 at one fixed strength, with c = 0 allowed to win.

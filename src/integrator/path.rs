@@ -196,6 +196,21 @@ impl Integrator for PathTracer {
                 t.paths,
                 mean_c
             ));
+            let sc = &t.scene;
+            notes.push(format!(
+                "scene-level (measured costs): predicted variance {:.3}x, cost {:.3}x ({:.2} guided and {:.2} mapped of {:.2} vertices per training path), efficiency {:.3}x{}",
+                sc.variance_ratio,
+                sc.cost_ratio,
+                sc.guided_vertices as f64 / t.paths.max(1) as f64,
+                sc.mapped_vertices as f64 / t.paths.max(1) as f64,
+                sc.vertices as f64 / t.paths.max(1) as f64,
+                sc.efficiency(),
+                if sc.switched_off {
+                    ": not enough, nothing guided (cost_model switch)"
+                } else {
+                    ""
+                }
+            ));
             if guide.settings().learned_strength {
                 let mut counts: Vec<(String, usize)> = Vec::new();
                 for (s, &c) in t.strengths.iter().zip(&t.probabilities) {
@@ -240,7 +255,10 @@ impl Integrator for PathTracer {
         counters: &mut TraceCounters,
         _ctx: &SampleContext,
     ) -> PixelSample {
-        let Some(guide) = self.guide() else {
+        // A guide that guides no node (every node learned c = 0, or the scene-level switch of
+        // `cost_model=switch|measured`): `path`'s sample exactly, without node mapping or
+        // query set-up.
+        let Some(guide) = self.guide().filter(|g| !g.guides_nothing()) else {
             return self.trace(scene, ray, rng, counters, None);
         };
         THREAD_QUERY.with(|cell| match cell.try_borrow_mut() {
