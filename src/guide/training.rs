@@ -222,6 +222,8 @@
 //! the corridor the learned choice matches the fixed c = 0.5 in MSE per sample but is 1.2x
 //! behind it in MAE² per sample (round 5), a heavy-tailed estimator's two errors disagreeing.
 
+use std::sync::atomic::{AtomicU32, Ordering as AtomicOrdering};
+
 use rayon::prelude::*;
 
 use super::{
@@ -661,13 +663,19 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
     let camera = camera.frame(TRAINING_ASPECT);
     let paths = settings.training_paths;
     let chunks = paths.div_ceil(CHUNK);
-    let per_chunk: Vec<(Vec<Sample>, Visits)> = (0..chunks)
+    // Non-delta training vertices per voxel (atomic adds: the counts do not depend on the
+    // order), for the scene-level prediction's mapping cost.
+    let per_voxel: Vec<AtomicU32> = (0..guide.grid().len()).map(|_| AtomicU32::new(0)).collect();
+    let per_chunk: Vec<(Vec<Sample>, u64)> = (0..chunks)
         .into_par_iter()
         .map(|c| {
             let mut rng = Sampler::independent(Rng::new(TRAINING_SEED, c as u64));
             let mut query = GuideQuery::new();
             let mut out = Vec::new();
-            let mut visits = Visits::default();
+            let mut visits = Visits {
+                vertices: 0,
+                per_voxel: &per_voxel,
+            };
             for _ in 0..CHUNK.min(paths - c * CHUNK) {
                 let ray = camera.generate_ray(rng.uniform2(), rng.uniform2());
                 if let Some(si) = scene.intersect(&ray) {
@@ -683,18 +691,17 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
                     );
                 }
             }
-            (out, visits)
+            (out, visits.vertices)
         })
         .collect();
 
     // The samples in chunk order, then by node (a stable sort: the same order for any thread
     // count), so that every node's samples are one slice.
-    let mut visits = Visits::default();
+    let mut vertices = 0u64;
     let mut all: Vec<Sample> = Vec::new();
     for (samples, v) in per_chunk {
         all.extend(samples);
-        visits.vertices += v.vertices;
-        visits.voxels.extend(v.voxels);
+        vertices += v;
     }
     all.sort_by_key(|s| s.node);
     let mut by_node: Vec<&[Sample]> = vec![&[]; nodes];
@@ -747,20 +754,21 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         let may_guide = crate::analysis::may_map_to(guide.grid(), guide.node_map(), |n| {
             probabilities[n as usize] > 0.0
         });
-        let mapped_vertices = visits
-            .voxels
+        let mapped_vertices = per_voxel
             .iter()
-            .filter(|&&v| may_guide[v as usize])
-            .count() as u64;
+            .zip(&may_guide)
+            .filter(|(_, &m)| m)
+            .map(|(n, _)| n.load(AtomicOrdering::Relaxed) as u64)
+            .sum();
         let (variance_ratio, cost_ratio) = scene_prediction(
             &choices,
             &samples,
-            visits.vertices,
+            vertices,
             mapped_vertices,
             MEASURED_MAP_COST,
         );
         let mut scene = SceneChoice {
-            vertices: visits.vertices,
+            vertices,
             guided_vertices: choices
                 .iter()
                 .zip(&samples)
@@ -1066,20 +1074,19 @@ pub(crate) fn reweighted_second_moment(
 }
 
 /// What the training paths visited, for the scene-level prediction: all their vertices, and
-/// the voxel of each non-delta one inside the grid (where the render maps points to nodes).
-#[derive(Default)]
-struct Visits {
+/// per voxel of the grid its non-delta ones (where the render maps points to nodes).
+struct Visits<'a> {
     vertices: u64,
-    voxels: Vec<u32>,
+    per_voxel: &'a [AtomicU32],
 }
 
-impl Visits {
+impl Visits<'_> {
     fn add(&mut self, guide: &SkeletonGuide, p: Vec3) {
         let grid = guide.grid();
         let v = grid.voxel_of(p);
         if (0..3).all(|a| v[a] >= 0 && v[a] < grid.dims[a] as i64) {
-            self.voxels
-                .push(grid.index(v[0] as usize, v[1] as usize, v[2] as usize) as u32);
+            let k = grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
+            self.per_voxel[k].fetch_add(1, AtomicOrdering::Relaxed);
         }
     }
 }
@@ -1111,7 +1118,7 @@ fn train_path(
     query: &mut GuideQuery,
     rng: &mut Sampler,
     out: &mut Vec<Sample>,
-    visits: &mut Visits,
+    visits: &mut Visits<'_>,
 ) {
     let mut beta = Rgb::ONE;
     let depth = guide.settings().training_depth;
