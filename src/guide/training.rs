@@ -178,6 +178,7 @@ use super::{
     sample_bsdf_or_guide, GuideQuery, RenderEstimator, SkeletonGuide, SkeletonStrength,
     TrainingCost,
 };
+use super::directional::{self, DirectionalTable};
 use super::{MAX_LOBES, STRENGTH_CANDIDATES};
 use crate::integrator::MisHeuristic;
 use crate::math::{luminance, Rgb, Rng, Sampler, Vec3};
@@ -231,6 +232,10 @@ pub struct TrainingReport {
     /// the order of `SkeletonGuide::lobes`, summing to 1, 0 for a lobe never to be used), or
     /// None where eq. 165's are kept (also at every node not guided).
     pub lobe_weights: Vec<Option<Vec<f32>>>,
+    /// With `directions=learned`: per node, the bin probabilities of its learned directional
+    /// distribution (`guide::directional`), None where it had no samples (module docs,
+    /// "Learned directions").
+    pub directions: Vec<Option<Vec<f32>>>,
     /// Camera paths traced (0 when the scene has no camera: then the guide keeps its fixed
     /// `c_skel` and strength).
     pub paths: u32,
@@ -249,6 +254,10 @@ impl TrainingReport {
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Sample {
     node: u32,
+    /// The sampled direction (world space), and the point's normal class
+    /// (`directional::normal_class`).
+    wi: Vec3,
+    class: u8,
     /// Luminance of beta f_s |cos| L_e along the sampled direction (the emission found at the
     /// next vertex or the environment's), unweighted; 0 where it found none.
     f_emitted: f32,
@@ -281,6 +290,8 @@ struct NeeTerms {
     value: f32,
     /// Its light density (infinite for delta lights: MIS weight 1).
     p_light: f32,
+    /// Its direction (world space).
+    wi: Vec3,
     /// The direction densities of its direction (BSDF, skeleton at s0, per candidate strength).
     p_bsdf: f32,
     p_skel: f32,
@@ -294,6 +305,7 @@ impl Default for NeeTerms {
         NeeTerms {
             value: 0.0,
             p_light: 0.0,
+            wi: Vec3::ZERO,
             p_bsdf: 0.0,
             p_skel: 0.0,
             p_strength: [0.0; MAX_STRENGTHS],
@@ -504,6 +516,7 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
             best_ratio: vec![1.0; nodes],
             mean_remaining: vec![0.0; nodes],
             lobe_weights: vec![None; nodes],
+            directions: vec![None; nodes],
             paths: 0,
         };
     };
@@ -540,6 +553,18 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
     // count), so that every node's samples are one slice.
     let mut all: Vec<Sample> = per_chunk.into_iter().flatten().collect();
     all.sort_by_key(|s| s.node);
+    let mut directions = vec![None; nodes];
+    if settings.learned_directions {
+        let mis = settings.render_estimator.mis;
+        let groups: Vec<&mut [Sample]> = all.chunk_by_mut(|a, b| a.node == b.node).collect();
+        let learned: Vec<(u32, Vec<f32>)> = groups
+            .into_par_iter()
+            .map(|g| (g[0].node, learn_directions(g, mis)))
+            .collect();
+        for (node, d) in learned {
+            directions[node as usize] = Some(d);
+        }
+    }
     let mut by_node: Vec<&[Sample]> = vec![&[]; nodes];
     for group in all.chunk_by(|a, b| a.node == b.node) {
         by_node[group[0].node as usize] = group;
@@ -553,6 +578,8 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         .enumerate()
         .map(|(k, samples)| {
             let rays = match &cache_rays {
+                // A learned distribution traces no shadow ray.
+                _ if settings.learned_directions => 0.0,
                 Some(fills) => fills[k] as f64 / samples.len().max(1) as f64,
                 None => mean_shadow_rays(samples),
             };
@@ -605,8 +632,54 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
                 c.weights.map(|w| w[..lobes].to_vec())
             })
             .collect(),
+        directions,
         paths,
     }
+}
+
+/// A node's learned directional distribution from its samples (module docs, "Learned
+/// directions"), returned as bin probabilities; and, for the choice, each sample's candidate
+/// skeleton densities (`p_strength[0]`, at the sampled direction and at its light sample's)
+/// replaced by those of the distribution learned from the *other* half of the node's samples
+/// (even / odd positions), so that a distribution is never judged on the samples it was fitted
+/// to.
+fn learn_directions(samples: &mut [Sample], mis: MisHeuristic) -> Vec<f32> {
+    let weight = |s: &Sample| -> f64 {
+        let q0 = mixture(TRAINING_C, s.p_skel, s.p_bsdf);
+        if !(s.carries() && q0 > 0.0) {
+            return 0.0;
+        }
+        let w = if s.p_light > 0.0 {
+            mis.weight(q0 as f32, s.p_light) as f64
+        } else {
+            1.0
+        };
+        (w * s.f_emitted as f64 + s.f_reflected as f64) / q0
+    };
+    let weighted: Vec<(usize, Vec3, f64)> = samples
+        .iter()
+        .map(|s| (s.class as usize, s.wi, weight(s)))
+        .collect();
+    let half = |parity: usize| {
+        let part: Vec<(usize, Vec3, f64)> = weighted
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % 2 == parity)
+            .map(|(_, &x)| x)
+            .collect();
+        directional::fit(&part)
+    };
+    let folds = DirectionalTable::new(&[Some(half(1)), Some(half(0))]);
+    for (i, s) in samples.iter_mut().enumerate() {
+        // Sample i is judged by the distribution of the other half: node 0 holds the odd
+        // samples', node 1 the even ones'.
+        let slot = folds
+            .slot((i % 2 == 1) as u32, s.class as usize)
+            .expect("both halves have distributions");
+        s.p_strength[0] = folds.pdf(slot, s.wi);
+        s.nee.p_strength[0] = folds.pdf(slot, s.nee.wi);
+    }
+    directional::fit(&weighted)
 }
 
 /// Guide shadow rays per recorded query at a node, counted by the queries themselves.
@@ -888,6 +961,7 @@ fn train_path(
                 nee = NeeTerms {
                     value,
                     p_light: l.p_light,
+                    wi: l.wi,
                     p_bsdf: bsdf.pdf(wo_local, l.wi_local),
                     p_skel: query.pdf(l.wi),
                     p_strength: strength_pdfs(query, l.wi, strengths),
@@ -911,6 +985,12 @@ fn train_path(
         };
         let zero = Sample {
             node: query.node().unwrap_or(0),
+            wi: Vec3::Z,
+            class: directional::normal_class(if si.ng.dot(si.wo) >= 0.0 {
+                si.ng
+            } else {
+                -si.ng
+            }) as u8,
             f_emitted: 0.0,
             f_reflected: 0.0,
             p_bsdf: 0.0,
@@ -954,6 +1034,7 @@ fn train_path(
             sample: guided.then(|| {
                 let f_emitted = luminance(beta * f_cos * emitted);
                 Sample {
+                    wi,
                     f_emitted: if f_emitted.is_finite() {
                         f_emitted.max(0.0)
                     } else {
