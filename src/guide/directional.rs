@@ -26,26 +26,33 @@ pub const PHI_BINS: usize = 24;
 pub const BINS: usize = Z_BINS * PHI_BINS;
 /// Share of the density that is uniform over the sphere.
 pub const FLOOR: f32 = 0.15;
-/// Distributions per node: one per class of the point's normal ([`normal_class`]).
-pub const CLASSES: usize = 6;
-/// Non-zero samples a class needs for its own histogram (else the node's is used).
+/// Normal classes ([`class_of`]) and, within each, quadrants of the point's position.
+pub const NORMALS: usize = 6;
+pub const QUADRANTS: usize = 4;
+/// Distributions per node: one per (normal class, quadrant) ([`class_of`]).
+pub const CLASSES: usize = NORMALS * QUADRANTS;
+/// Non-zero samples a class needs for its own histogram (else its parent's is used).
 pub const MIN_CLASS_SAMPLES: usize = 16;
-/// Share of the node's histogram in a class's distribution (the rest is the class's own).
-pub const NODE_SHARE: f64 = 0.25;
+/// Share of the parent's distribution (the node's for a normal class, the normal class's for
+/// a quadrant) mixed into a class's own.
+pub const PARENT_SHARE: f64 = 0.25;
 
-/// The class of a point whose normal, turned toward the side the path arrives from, is `n`:
-/// its dominant axis and sign. A node's region holds floors, walls and ceilings; light arrives
-/// at each from its own hemisphere, so each gets its own distribution.
+/// The class of a point at `offset` from its node's position whose normal, turned toward the
+/// side the path arrives from, is `n`: the normal's dominant axis and sign (a node's region
+/// holds floors, walls and ceilings; light arrives at each from its own hemisphere), then the
+/// quadrant of the offset along the two other axes (light from an opening arrives from other
+/// directions on either side of the node).
 #[inline]
-pub fn normal_class(n: Vec3) -> usize {
+pub fn class_of(n: Vec3, offset: Vec3) -> usize {
     let a = n.abs();
-    if a.x >= a.y && a.x >= a.z {
-        (n.x < 0.0) as usize
+    let (normal, u, v) = if a.x >= a.y && a.x >= a.z {
+        ((n.x < 0.0) as usize, offset.y, offset.z)
     } else if a.y >= a.z {
-        2 + (n.y < 0.0) as usize
+        (2 + (n.y < 0.0) as usize, offset.x, offset.z)
     } else {
-        4 + (n.z < 0.0) as usize
-    }
+        (4 + (n.z < 0.0) as usize, offset.x, offset.y)
+    };
+    normal * QUADRANTS + 2 * (u < 0.0) as usize + (v < 0.0) as usize
 }
 
 const INV_4PI: f32 = 1.0 / (4.0 * std::f32::consts::PI);
@@ -143,33 +150,39 @@ impl DirectionalTable {
     }
 }
 
-/// A node's `CLASSES` x `BINS` bin probabilities from its samples (normal class, direction,
-/// weight): per class its own [`bin_probabilities`] mixed with the node's (`NODE_SHARE`), or
-/// the node's alone where the class has fewer than `MIN_CLASS_SAMPLES` positive weights.
+/// A node's `CLASSES` x `BINS` bin probabilities from its samples (class, direction,
+/// weight), a hierarchy: the node's [`bin_probabilities`]; per normal class its own mixed with
+/// the node's (`PARENT_SHARE`); per quadrant its own mixed with its normal class's. A class
+/// with fewer than `MIN_CLASS_SAMPLES` positive weights takes its parent's.
 pub fn fit(samples: &[(usize, Vec3, f64)]) -> Vec<f32> {
     let positive = |x: f64| x > 0.0 && x.is_finite();
-    let node = bin_probabilities(samples.iter().map(|&(_, w, x)| (w, x)));
-    let mut out = Vec::with_capacity(CLASSES * BINS);
-    for class in 0..CLASSES {
+    // The distribution of the samples `keep` selects mixed with `parent`, or `parent`.
+    let refine = |parent: &[f32], keep: &dyn Fn(usize) -> bool| -> Vec<f32> {
         let own = samples
             .iter()
-            .filter(|s| s.0 == class && positive(s.2))
+            .filter(|s| keep(s.0) && positive(s.2))
             .count();
         if own < MIN_CLASS_SAMPLES {
-            out.extend_from_slice(&node);
-            continue;
+            return parent.to_vec();
         }
         let p = bin_probabilities(
             samples
                 .iter()
-                .filter(|s| s.0 == class)
+                .filter(|s| keep(s.0))
                 .map(|&(_, w, x)| (w, x)),
         );
-        out.extend(
-            p.iter()
-                .zip(&node)
-                .map(|(&a, &b)| ((1.0 - NODE_SHARE) * a as f64 + NODE_SHARE * b as f64) as f32),
-        );
+        p.iter()
+            .zip(parent)
+            .map(|(&a, &b)| ((1.0 - PARENT_SHARE) * a as f64 + PARENT_SHARE * b as f64) as f32)
+            .collect()
+    };
+    let node = bin_probabilities(samples.iter().map(|&(_, w, x)| (w, x)));
+    let mut out = Vec::with_capacity(CLASSES * BINS);
+    for normal in 0..NORMALS {
+        let by_normal = refine(&node, &|c| c / QUADRANTS == normal);
+        for class in normal * QUADRANTS..(normal + 1) * QUADRANTS {
+            out.extend(refine(&by_normal, &|c| c == class));
+        }
     }
     out
 }

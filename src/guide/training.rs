@@ -254,8 +254,7 @@ impl TrainingReport {
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Sample {
     node: u32,
-    /// The sampled direction (world space), and the point's normal class
-    /// (`directional::normal_class`).
+    /// The sampled direction (world space), and the point's class (`directional::class_of`).
     wi: Vec3,
     class: u8,
     /// Luminance of beta f_s |cos| L_e along the sampled direction (the emission found at the
@@ -986,11 +985,17 @@ fn train_path(
         let zero = Sample {
             node: query.node().unwrap_or(0),
             wi: Vec3::Z,
-            class: directional::normal_class(if si.ng.dot(si.wo) >= 0.0 {
-                si.ng
-            } else {
-                -si.ng
-            }) as u8,
+            class: directional::class_of(
+                if si.ng.dot(si.wo) >= 0.0 {
+                    si.ng
+                } else {
+                    -si.ng
+                },
+                si.p - query
+                    .node()
+                    .and_then(|n| guide.node_position(n))
+                    .unwrap_or(si.p),
+            ) as u8,
             f_emitted: 0.0,
             f_reflected: 0.0,
             p_bsdf: 0.0,
