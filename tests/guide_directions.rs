@@ -96,7 +96,11 @@ fn chi2_of_the_histogram_distribution() {
             300 + k as u64,
             |rng| {
                 let (w, pdf) = q.sample(rng.uniform(), rng.uniform2())?;
-                assert!((w.length() - 1.0).abs() < 1e-4, "{name}: |w| {}", w.length());
+                assert!(
+                    (w.length() - 1.0).abs() < 1e-4,
+                    "{name}: |w| {}",
+                    w.length()
+                );
                 let p = q.pdf(w);
                 assert!(
                     (pdf - p).abs() <= 1e-6 * p,

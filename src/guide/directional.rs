@@ -4,7 +4,9 @@
 //! The lobes aim at importance points and openings found by geometry; they cost a mapping, an
 //! aim per lobe, spherical rectangles and visibility per guided point (~3 k instructions), and
 //! they point where light *may* come from, not where the training saw it come from. Here each
-//! trained node gets a piecewise-constant density over the whole sphere in world coordinates:
+//! trained node gets, per class of point ([`class_of`]: the normal's dominant axis and sign,
+//! then the quadrant of the point's offset from the node; a class with few samples takes its
+//! parent's distribution), a piecewise-constant density over the sphere in world coordinates:
 //! an equal-area histogram of `Z_BINS` x `PHI_BINS` bins, cylindrical in (z = cos theta, phi),
 //! so every bin has the same solid angle 4 pi / `BINS`. Bin weights are the node's training
 //! estimates of the light its samples carried, sum over the samples in the bin of f_i / q0_i
@@ -257,10 +259,10 @@ mod tests {
         assert_eq!(t.len(), 2 * CLASSES);
         // The pdf is constant per bin of equal solid angle: its integral is the mean over bins.
         for slot in 0..2 * CLASSES {
-            let base = slot as usize * BINS;
-            let integral: f32 = t.pdf[base..base + BINS].iter().sum::<f32>() * 4.0
-                * std::f32::consts::PI
-                / BINS as f32;
+            let base = slot * BINS;
+            let integral: f32 =
+                t.pdf[base..base + BINS].iter().sum::<f32>() * 4.0 * std::f32::consts::PI
+                    / BINS as f32;
             assert!((integral - 1.0).abs() < 1e-4, "{integral}");
             assert!(t.pdf[base..base + BINS].iter().all(|&p| p > 0.0));
         }

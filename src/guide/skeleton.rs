@@ -2071,7 +2071,11 @@ impl GuideQuery {
             };
             let offset = p - guide.node_positions[node as usize];
             if let Some(slot) = table.slot(node, directional::class_of(side, offset)) {
-                if !self.directions.as_ref().is_some_and(|t| Arc::ptr_eq(t, table)) {
+                if !self
+                    .directions
+                    .as_ref()
+                    .is_some_and(|t| Arc::ptr_eq(t, table))
+                {
                     self.directions = Some(table.clone());
                 }
                 self.slot = slot;

@@ -47,6 +47,23 @@
 //! render stays unbiased. Not combined with `strength=learned` (the densities are recorded at
 //! the proposal's strength only).
 //!
+//! # Learned directions (`directions=learned`, round 14)
+//!
+//! Each node's lobes are replaced by distributions learned from its samples
+//! (`guide::directional`): per class of point (normal's dominant axis and sign, quadrant of the
+//! offset from the node), an equal-area histogram of the sampled directions weighted by
+//! (w_e(q_0) e + r) / q_0, the contribution with its emission MIS-weighted at the training
+//! proposal, over the proposal's density. The candidates (c, s) are then judged with that
+//! distribution's density in place of p_skel,s (the settings' strength is the only s), by the
+//! same reweighting: the samples were drawn from the lobes' q_0, which covers every direction
+//! f > 0 whatever the candidate (coverage condition above), so every candidate's moments stay
+//! exact. A distribution is not judged on the samples it was fitted to: each sample's density
+//! is that of the distribution fitted to the node's other half (even / odd positions), while
+//! the render uses the one fitted to all. No shadow ray is counted (the distribution traces
+//! none). The samples come only from points where the lobes applied during training; the
+//! render guides every point mapped to a guided node. Like the choice of c, the distribution is
+//! a deterministic function of the scene, fixed before rendering.
+//!
 //! # Estimator (derivation)
 //!
 //! At a node, the one-sample MIS estimator of the integral I = ∫ f dw with guiding
@@ -174,11 +191,11 @@
 
 use rayon::prelude::*;
 
+use super::directional::{self, DirectionalTable};
 use super::{
     sample_bsdf_or_guide, GuideQuery, RenderEstimator, SkeletonGuide, SkeletonStrength,
     TrainingCost,
 };
-use super::directional::{self, DirectionalTable};
 use super::{MAX_LOBES, STRENGTH_CANDIDATES};
 use crate::integrator::MisHeuristic;
 use crate::math::{luminance, Rgb, Rng, Sampler, Vec3};
@@ -1295,6 +1312,7 @@ mod tests {
                     NeeTerms {
                         value: wl.z.max(0.0) / std::f32::consts::PI * radiance / p_cone,
                         p_light: p_cone,
+                        wi: wl,
                         p_bsdf: warp::cosine_hemisphere_pdf(wl),
                         p_skel: p_skel(wl),
                         p_strength: [p_skel(wl); MAX_STRENGTHS],
@@ -1305,6 +1323,8 @@ mod tests {
                 };
                 Sample {
                     node: 0,
+                    wi: w,
+                    class: 0,
                     f_emitted: if light { f } else { 0.0 },
                     f_reflected: if light { 0.0 } else { f },
                     p_bsdf: warp::cosine_hemisphere_pdf(w),
@@ -1374,6 +1394,48 @@ mod tests {
             "{reflected:?}"
         );
         assert!(reflected.relative_cost < 0.2, "{reflected:?}");
+    }
+
+    /// `directions=learned` on the reflected cone: the learned distribution puts its density
+    /// in the cone (the bin of its axis far above the uniform 1 / 4 pi, a direction away from
+    /// it at the floor), each sample's candidate density is the other half's, and the choice
+    /// guides with it (the cone is 0.6 % of the sphere: the histogram's 15-degree bins and its
+    /// floor lose to the s = 64 lobe aimed at it, but still beat BSDF sampling by far).
+    #[test]
+    fn learned_directions_find_the_cone_and_are_chosen() {
+        let mut samples = cone_node(false, 20_000);
+        let bins = learn_directions(&mut samples, MisHeuristic::Power);
+        let table = DirectionalTable::new(&[Some(bins)]);
+        let axis = Vec3::new(0.3, 0.0, 0.95).normalize();
+        let uniform = 1.0 / (4.0 * std::f32::consts::PI);
+        let slot = table.slot(0, 0).unwrap();
+        assert!(
+            table.pdf(slot, axis) > 20.0 * uniform,
+            "{}",
+            table.pdf(slot, axis)
+        );
+        let away = Vec3::new(-0.9, 0.3, 0.1).normalize();
+        let floor = directional::FLOOR * uniform;
+        assert!((table.pdf(slot, away) - floor).abs() < 1e-3 * floor);
+        // The candidate densities were replaced (the lobe's s = 64 density is far larger in
+        // the cone, far smaller away from it).
+        assert!(samples
+            .iter()
+            .all(|s| s.p_strength[0] > 0.0 && s.p_strength[0] < 100.0));
+        let choice = choose_node(
+            &samples,
+            0.0,
+            &one_strength_grid(),
+            TrainingCost::Path,
+            1.0,
+            FLOOR,
+            MisHeuristic::Power,
+        );
+        assert!(
+            matches!(choice.guided, Some((c, 0)) if c >= 0.3),
+            "{choice:?}"
+        );
+        assert!(choice.relative_cost < 0.5, "{choice:?}");
     }
 
     /// Too few samples, or too few that carry anything: not guided, whatever they say.
@@ -1471,6 +1533,8 @@ mod tests {
                 }
                 Sample {
                     node: 0,
+                    wi: w,
+                    class: 0,
                     f_emitted: 0.0,
                     f_reflected: f,
                     p_bsdf: warp::cosine_hemisphere_pdf(w),
