@@ -11,10 +11,12 @@
 //! skeleton mixture, so that a path tracer can combine it with BSDF sampling by MIS
 //! (eq. 168-170, [`GuideQuery::mixture_pdf`]).
 
+pub mod directional;
 mod mixture;
 mod skeleton;
 mod training;
 
+pub use directional::DirectionalTable;
 pub use mixture::{sample_bsdf_or_guide, MixtureSample};
 pub use skeleton::{
     CostModel, GuideLobe, GuideQuery, ImportanceNode, LobeAim, LobeFallback, RenderEstimator,

@@ -104,10 +104,12 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 use std::sync::atomic::{AtomicU32, Ordering as AtomicOrdering};
+use std::sync::Arc;
 use std::time::Instant;
 
 use rayon::prelude::*;
 
+use super::directional::{self, DirectionalTable};
 use super::training::{self, TrainingReport};
 use crate::analysis::{
     map_point, may_map_to, Analysis, AnalysisSettings, Graph, NeighbourMasks, Resolution, Skeleton,
@@ -253,6 +255,10 @@ pub struct SkeletonGuideSettings {
     /// variance-minimising fit; lobes given 0 are skipped at render time. `distance` (the
     /// default): eq. 165's inverse-square weights everywhere. Not with `strength=learned`.
     pub learned_lobe_weights: bool,
+    /// `directions=learned`: each trained node samples a directional histogram learned from its
+    /// training samples instead of its lobes (`guide::directional`); `lobes` (the default):
+    /// the lobes. Not with `strength=learned` or `lobe_weights=learned`.
+    pub learned_directions: bool,
     /// The training's cost of guiding at a vertex beyond an unguided vertex's, shadow rays
     /// aside, in unguided vertices (`training_guided_cost`, default
     /// [`DEFAULT_TRAINING_GUIDED_COST`], `guide::training`, "Cost").
@@ -488,6 +494,7 @@ impl Default for SkeletonGuideSettings {
             },
             learned_strength: false,
             learned_lobe_weights: false,
+            learned_directions: false,
             training_guided_cost: DEFAULT_TRAINING_GUIDED_COST,
             cost_model: CostModel::Vertices,
             training_depth: DEFAULT_TRAINING_DEPTH,
@@ -529,12 +536,16 @@ pub const OPTION_NAMES: &[&str] = &[
     "training_guided_cost",
     "c_max",
     "cost_model",
+    "directions",
 ];
 
 impl SkeletonGuideSettings {
     /// Whether the guide runs the training pass (something is learned).
     pub fn trains(&self) -> bool {
-        self.learned_c_skel || self.learned_strength || self.learned_lobe_weights
+        self.learned_c_skel
+            || self.learned_strength
+            || self.learned_lobe_weights
+            || self.learned_directions
     }
 
     /// Sets one option by name from text (integrator specs, scene files): `c_skel` (a number
@@ -547,8 +558,9 @@ impl SkeletonGuideSettings {
     /// and for the training pass `training_depth` (1..=64), `training_paths`
     /// (1024..=2^24), `training_cost` (`path` or
     /// `vertex`), `training_significance` (>= 0), `training_min_nonzero`,
-    /// `training_guided_cost` (>= 0), `cost_model` (`vertices`, `switch` or `measured`), `lobe_weights`
-    /// (`distance` or `learned`) and `c_max` (the largest learned c, in [0.05, 1)). Validates
+    /// `training_guided_cost` (>= 0), `cost_model` (`vertices`, `switch` or `measured`),
+    /// `lobe_weights` (`distance` or `learned`), `c_max` (the largest learned c, in [0.05, 1))
+    /// and `directions` (`lobes` or `learned`). Validates
     /// the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
@@ -577,6 +589,17 @@ impl SkeletonGuideSettings {
                     other => {
                         return Err(Error::invalid(format!(
                             "skeleton lobe_weights '{other}' must be 'learned' or 'distance'"
+                        )))
+                    }
+                }
+            }
+            "directions" => {
+                next.learned_directions = match value.trim() {
+                    "learned" => true,
+                    "lobes" => false,
+                    other => {
+                        return Err(Error::invalid(format!(
+                            "skeleton directions '{other}' must be 'learned' or 'lobes'"
                         )))
                     }
                 }
@@ -688,6 +711,12 @@ impl SkeletonGuideSettings {
             // The training records each lobe's density at the proposal's strength only.
             return Err(Error::invalid(
                 "skeleton lobe_weights=learned does not combine with strength=learned",
+            ));
+        }
+        if self.learned_directions && (self.learned_lobe_weights || self.learned_strength) {
+            // The learned distribution replaces the lobes: there is nothing to weigh.
+            return Err(Error::invalid(
+                "skeleton directions=learned does not combine with lobe_weights=learned or strength=learned",
             ));
         }
         if self.light_rays == 0 {
@@ -894,6 +923,8 @@ pub struct SkeletonGuide {
     node_strength: Vec<SkeletonStrength>,
     /// What the training pass of `c_skel=learned` found (None with a fixed `c_skel`).
     training: Option<TrainingReport>,
+    /// With `directions=learned`: the nodes' learned distributions (`guide::directional`).
+    directions: Option<Arc<DirectionalTable>>,
     /// Per voxel: a point in it may map to a node with a guiding probability above 0 (see
     /// `analysis::may_map_to`); queries elsewhere skip the mapping. Empty: everywhere.
     may_guide: Vec<bool>,
@@ -1051,6 +1082,7 @@ impl SkeletonGuide {
             ],
             node_strength: Vec::new(),
             training: None,
+            directions: None,
             may_guide: Vec::new(),
             guides_nothing: false,
             importance,
@@ -1083,6 +1115,16 @@ impl SkeletonGuide {
                         }
                     }
                 }
+            }
+            if settings.learned_directions {
+                // Only nodes that are guided keep their distribution.
+                let kept: Vec<Option<Vec<f32>>> = report
+                    .directions
+                    .iter()
+                    .zip(&guide.node_c)
+                    .map(|(d, &c)| d.clone().filter(|_| c > 0.0))
+                    .collect();
+                guide.directions = Some(Arc::new(DirectionalTable::new(&kept)));
             }
             guide.training = Some(report);
             if settings.learned_c_skel {
@@ -1358,6 +1400,12 @@ impl SkeletonGuide {
             + self.lobes.len() * std::mem::size_of::<GuideLobe>()
             + self.plans.len() * std::mem::size_of::<LobePlan>()
             + self.importance.len() * std::mem::size_of::<ImportanceNode>()
+            + self.directions.as_ref().map_or(0, |d| d.memory_bytes())
+    }
+
+    /// With `directions=learned`: the nodes' learned directional distributions.
+    pub fn directions(&self) -> Option<&Arc<DirectionalTable>> {
+        self.directions.as_ref()
     }
 }
 
@@ -1922,7 +1970,14 @@ pub struct GuideQuery {
     lobe_of: [u8; MAX_LOBES],
     c_skel: f32,
     node: Option<u32>,
+    /// `directions=learned`: the guide's table and this point's slot in it (`NO_SLOT`: the
+    /// lobes, if any, apply). The table is cloned into the query once, not per point.
+    directions: Option<Arc<DirectionalTable>>,
+    slot: u32,
 }
+
+/// [`GuideQuery`]'s slot where no learned distribution applies.
+const NO_SLOT: u32 = u32::MAX;
 
 impl Default for GuideQuery {
     fn default() -> Self {
@@ -1940,6 +1995,8 @@ impl GuideQuery {
             lobe_of: [NOT_ACTIVE; MAX_LOBES],
             c_skel: 0.0,
             node: None,
+            directions: None,
+            slot: NO_SLOT,
         }
     }
 
@@ -1954,6 +2011,34 @@ impl GuideQuery {
     pub fn clear(&mut self) {
         self.count = 0;
         self.node = None;
+        self.slot = NO_SLOT;
+    }
+
+    /// A query that samples one learned directional distribution (`guide::directional`) of
+    /// bin probabilities `bins` ([`directional::BINS`] of them, >= 0, renormalised), for tests
+    /// and hosts. Fails on a wrong count, negative or non-finite entries, no positive entry
+    /// or `c_skel` outside [0, 1).
+    pub fn with_distribution(c_skel: f32, bins: &[f32]) -> Result<GuideQuery> {
+        if !(c_skel.is_finite() && (0.0..1.0).contains(&c_skel)) {
+            return Err(Error::invalid(format!("c_skel {c_skel} must be in [0, 1)")));
+        }
+        let total: f32 = bins.iter().sum();
+        if bins.len() != directional::BINS
+            || bins.iter().any(|&b| !(b.is_finite() && b >= 0.0))
+            || !(total > 0.0 && total.is_finite())
+        {
+            return Err(Error::invalid(format!(
+                "a directional distribution needs {} finite bin weights >= 0, some positive",
+                directional::BINS
+            )));
+        }
+        let p: Vec<f32> = bins.iter().map(|b| b / total).collect();
+        let p = p.repeat(directional::CLASSES);
+        let mut q = GuideQuery::new();
+        q.directions = Some(Arc::new(DirectionalTable::new(&[Some(p)])));
+        q.slot = 0;
+        q.c_skel = c_skel;
+        Ok(q)
     }
 
     /// A query with explicit lobes (axis, exponent, weight), weights renormalised; for hosts
@@ -2023,6 +2108,7 @@ impl GuideQuery {
     ) -> u32 {
         self.count = 0;
         self.node = None;
+        self.slot = NO_SLOT;
         self.lobe_of = [NOT_ACTIVE; MAX_LOBES];
         let Some((node, voxel)) = guide.map_guided_point(p, normal, wo) else {
             return 0;
@@ -2031,6 +2117,26 @@ impl GuideQuery {
         // A node not worth guiding (learned c = 0) costs no lobe work and no shadow ray.
         self.c_skel = guide.guiding_probability(node);
         if self.c_skel <= 0.0 {
+            return 0;
+        }
+        // directions=learned: the node's distribution, or nothing (no lobes either).
+        if let Some(table) = &guide.directions {
+            let side = if normal.dot(wo) >= 0.0 {
+                normal
+            } else {
+                -normal
+            };
+            let offset = p - guide.node_positions[node as usize];
+            if let Some(slot) = table.slot(node, directional::class_of(side, offset)) {
+                if !self
+                    .directions
+                    .as_ref()
+                    .is_some_and(|t| Arc::ptr_eq(t, table))
+                {
+                    self.directions = Some(table.clone());
+                }
+                self.slot = slot;
+            }
             return 0;
         }
         let side = if normal.dot(wo) >= 0.0 {
@@ -2167,6 +2273,15 @@ impl GuideQuery {
         })
     }
 
+    /// The learned distribution that applies at this point (`directions=learned`), if any.
+    #[inline]
+    fn learned(&self) -> Option<&DirectionalTable> {
+        if self.slot == NO_SLOT {
+            return None;
+        }
+        self.directions.as_deref()
+    }
+
     /// Whether active lobe `i` samples the opening's rectangle (`aim=portal`) at this point.
     pub fn lobe_is_portal(&self, i: usize) -> bool {
         i < self.count && self.lobes[i].portal
@@ -2175,7 +2290,7 @@ impl GuideQuery {
     /// Probability of sampling the skeleton rather than the BSDF here: `c_skel` where lobes
     /// apply, else 0.
     pub fn guiding_probability(&self) -> f32 {
-        if self.count > 0 {
+        if self.count > 0 || self.slot != NO_SLOT {
             self.c_skel
         } else {
             0.0
@@ -2186,6 +2301,11 @@ impl GuideQuery {
     /// `u` the direction in it. Returns the unit direction and the mixture's solid-angle pdf
     /// there (all lobes, as [`pdf`](Self::pdf)); `None` when not guided.
     pub fn sample(&self, u_select: f32, u: Vec2) -> Option<(Vec3, f32)> {
+        if let Some(table) = self.learned() {
+            let w = table.sample(self.slot, u_select, u);
+            let pdf = table.pdf(self.slot, w);
+            return (pdf > 0.0 && pdf.is_finite()).then_some((w, pdf));
+        }
         if self.count == 0 {
             return None;
         }
@@ -2211,6 +2331,9 @@ impl GuideQuery {
     /// Solid-angle pdf of the skeleton mixture (eq. 167) at unit direction `w`; 0 when not
     /// guided.
     pub fn pdf(&self, w: Vec3) -> f32 {
+        if let Some(table) = self.learned() {
+            return table.pdf(self.slot, w);
+        }
         self.lobes[..self.count]
             .iter()
             .map(|l| l.probability * l.pdf(w, l.exponent))

@@ -47,6 +47,23 @@
 //! render stays unbiased. Not combined with `strength=learned` (the densities are recorded at
 //! the proposal's strength only).
 //!
+//! # Learned directions (`directions=learned`, round 14)
+//!
+//! Each node's lobes are replaced by distributions learned from its samples
+//! (`guide::directional`): per class of point (normal's dominant axis and sign, quadrant of the
+//! offset from the node), an equal-area histogram of the sampled directions weighted by
+//! (w_e(q_0) e + r) / q_0, the contribution with its emission MIS-weighted at the training
+//! proposal, over the proposal's density. The candidates (c, s) are then judged with that
+//! distribution's density in place of p_skel,s (the settings' strength is the only s), by the
+//! same reweighting: the samples were drawn from the lobes' q_0, which covers every direction
+//! f > 0 whatever the candidate (coverage condition above), so every candidate's moments stay
+//! exact. A distribution is not judged on the samples it was fitted to: each sample's density
+//! is that of the distribution fitted to the node's other half (even / odd positions), while
+//! the render uses the one fitted to all. No shadow ray is counted (the distribution traces
+//! none). The samples come only from points where the lobes applied during training; the
+//! render guides every point mapped to a guided node. Like the choice of c, the distribution is
+//! a deterministic function of the scene, fixed before rendering.
+//!
 //! # Estimator (derivation)
 //!
 //! At a node, the one-sample MIS estimator of the integral I = ∫ f dw with guiding
@@ -226,6 +243,7 @@ use std::sync::atomic::{AtomicU32, Ordering as AtomicOrdering};
 
 use rayon::prelude::*;
 
+use super::directional::{self, DirectionalTable};
 use super::{
     sample_bsdf_or_guide, CostModel, GuideQuery, RenderEstimator, SkeletonGuide, SkeletonStrength,
     TrainingCost,
@@ -294,6 +312,10 @@ pub struct TrainingReport {
     /// the order of `SkeletonGuide::lobes`, summing to 1, 0 for a lobe never to be used), or
     /// None where eq. 165's are kept (also at every node not guided).
     pub lobe_weights: Vec<Option<Vec<f32>>>,
+    /// With `directions=learned`: per node, the bin probabilities of its learned directional
+    /// distribution (`guide::directional`), None where it had no samples (module docs,
+    /// "Learned directions").
+    pub directions: Vec<Option<Vec<f32>>>,
     /// Camera paths traced (0 when the scene has no camera: then the guide keeps its fixed
     /// `c_skel` and strength).
     pub paths: u32,
@@ -351,6 +373,9 @@ impl TrainingReport {
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Sample {
     node: u32,
+    /// The sampled direction (world space), and the point's class (`directional::class_of`).
+    wi: Vec3,
+    class: u8,
     /// Luminance of beta f_s |cos| L_e along the sampled direction (the emission found at the
     /// next vertex or the environment's), unweighted; 0 where it found none.
     f_emitted: f32,
@@ -383,6 +408,8 @@ struct NeeTerms {
     value: f32,
     /// Its light density (infinite for delta lights: MIS weight 1).
     p_light: f32,
+    /// Its direction (world space).
+    wi: Vec3,
     /// The direction densities of its direction (BSDF, skeleton at s0, per candidate strength).
     p_bsdf: f32,
     p_skel: f32,
@@ -396,6 +423,7 @@ impl Default for NeeTerms {
         NeeTerms {
             value: 0.0,
             p_light: 0.0,
+            wi: Vec3::ZERO,
             p_bsdf: 0.0,
             p_skel: 0.0,
             p_strength: [0.0; MAX_STRENGTHS],
@@ -650,6 +678,7 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
             best_ratio: vec![1.0; nodes],
             mean_remaining: vec![0.0; nodes],
             lobe_weights: vec![None; nodes],
+            directions: vec![None; nodes],
             paths: 0,
             scene: SceneChoice {
                 variance_ratio: 1.0,
@@ -704,6 +733,18 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         vertices += v;
     }
     all.sort_by_key(|s| s.node);
+    let mut directions = vec![None; nodes];
+    if settings.learned_directions {
+        let mis = settings.render_estimator.mis;
+        let groups: Vec<&mut [Sample]> = all.chunk_by_mut(|a, b| a.node == b.node).collect();
+        let learned: Vec<(u32, Vec<f32>)> = groups
+            .into_par_iter()
+            .map(|g| (g[0].node, learn_directions(g, mis)))
+            .collect();
+        for (node, d) in learned {
+            directions[node as usize] = Some(d);
+        }
+    }
     let mut by_node: Vec<&[Sample]> = vec![&[]; nodes];
     for group in all.chunk_by(|a, b| a.node == b.node) {
         by_node[group[0].node as usize] = group;
@@ -717,6 +758,8 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
         .enumerate()
         .map(|(k, samples)| {
             let rays = match &cache_rays {
+                // A learned distribution traces no shadow ray.
+                _ if settings.learned_directions => 0.0,
                 Some(fills) => fills[k] as f64 / samples.len().max(1) as f64,
                 None => mean_shadow_rays(samples),
             };
@@ -819,9 +862,55 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
                     .map(|w| w[..lobes].to_vec())
             })
             .collect(),
+        directions,
         paths,
         scene: scene_choice,
     }
+}
+
+/// A node's learned directional distribution from its samples (module docs, "Learned
+/// directions"), returned as bin probabilities; and, for the choice, each sample's candidate
+/// skeleton densities (`p_strength[0]`, at the sampled direction and at its light sample's)
+/// replaced by those of the distribution learned from the *other* half of the node's samples
+/// (even / odd positions), so that a distribution is never judged on the samples it was fitted
+/// to.
+fn learn_directions(samples: &mut [Sample], mis: MisHeuristic) -> Vec<f32> {
+    let weight = |s: &Sample| -> f64 {
+        let q0 = mixture(TRAINING_C, s.p_skel, s.p_bsdf);
+        if !(s.carries() && q0 > 0.0) {
+            return 0.0;
+        }
+        let w = if s.p_light > 0.0 {
+            mis.weight(q0 as f32, s.p_light) as f64
+        } else {
+            1.0
+        };
+        (w * s.f_emitted as f64 + s.f_reflected as f64) / q0
+    };
+    let weighted: Vec<(usize, Vec3, f64)> = samples
+        .iter()
+        .map(|s| (s.class as usize, s.wi, weight(s)))
+        .collect();
+    let half = |parity: usize| {
+        let part: Vec<(usize, Vec3, f64)> = weighted
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % 2 == parity)
+            .map(|(_, &x)| x)
+            .collect();
+        directional::fit(&part)
+    };
+    let folds = DirectionalTable::new(&[Some(half(1)), Some(half(0))]);
+    for (i, s) in samples.iter_mut().enumerate() {
+        // Sample i is judged by the distribution of the other half: node 0 holds the odd
+        // samples', node 1 the even ones'.
+        let slot = folds
+            .slot((i % 2 == 1) as u32, s.class as usize)
+            .expect("both halves have distributions");
+        s.p_strength[0] = folds.pdf(slot, s.wi);
+        s.nee.p_strength[0] = folds.pdf(slot, s.nee.wi);
+    }
+    directional::fit(&weighted)
 }
 
 /// Guide shadow rays per recorded query at a node, counted by the queries themselves.
@@ -1145,6 +1234,7 @@ fn train_path(
                 nee = NeeTerms {
                     value,
                     p_light: l.p_light,
+                    wi: l.wi,
                     p_bsdf: bsdf.pdf(wo_local, l.wi_local),
                     p_skel: query.pdf(l.wi),
                     p_strength: strength_pdfs(query, l.wi, strengths),
@@ -1168,6 +1258,18 @@ fn train_path(
         };
         let zero = Sample {
             node: query.node().unwrap_or(0),
+            wi: Vec3::Z,
+            class: directional::class_of(
+                if si.ng.dot(si.wo) >= 0.0 {
+                    si.ng
+                } else {
+                    -si.ng
+                },
+                si.p - query
+                    .node()
+                    .and_then(|n| guide.node_position(n))
+                    .unwrap_or(si.p),
+            ) as u8,
             f_emitted: 0.0,
             f_reflected: 0.0,
             p_bsdf: 0.0,
@@ -1211,6 +1313,7 @@ fn train_path(
             sample: guided.then(|| {
                 let f_emitted = luminance(beta * f_cos * emitted);
                 Sample {
+                    wi,
                     f_emitted: if f_emitted.is_finite() {
                         f_emitted.max(0.0)
                     } else {
@@ -1466,6 +1569,7 @@ mod tests {
                     NeeTerms {
                         value: wl.z.max(0.0) / std::f32::consts::PI * radiance / p_cone,
                         p_light: p_cone,
+                        wi: wl,
                         p_bsdf: warp::cosine_hemisphere_pdf(wl),
                         p_skel: p_skel(wl),
                         p_strength: [p_skel(wl); MAX_STRENGTHS],
@@ -1476,6 +1580,8 @@ mod tests {
                 };
                 Sample {
                     node: 0,
+                    wi: w,
+                    class: 0,
                     f_emitted: if light { f } else { 0.0 },
                     f_reflected: if light { 0.0 } else { f },
                     p_bsdf: warp::cosine_hemisphere_pdf(w),
@@ -1595,6 +1701,48 @@ mod tests {
         assert!(reflected.relative_cost < 0.2, "{reflected:?}");
     }
 
+    /// `directions=learned` on the reflected cone: the learned distribution puts its density
+    /// in the cone (the bin of its axis far above the uniform 1 / 4 pi, a direction away from
+    /// it at the floor), each sample's candidate density is the other half's, and the choice
+    /// guides with it (the cone is 0.6 % of the sphere: the histogram's 15-degree bins and its
+    /// floor lose to the s = 64 lobe aimed at it, but still beat BSDF sampling by far).
+    #[test]
+    fn learned_directions_find_the_cone_and_are_chosen() {
+        let mut samples = cone_node(false, 20_000);
+        let bins = learn_directions(&mut samples, MisHeuristic::Power);
+        let table = DirectionalTable::new(&[Some(bins)]);
+        let axis = Vec3::new(0.3, 0.0, 0.95).normalize();
+        let uniform = 1.0 / (4.0 * std::f32::consts::PI);
+        let slot = table.slot(0, 0).unwrap();
+        assert!(
+            table.pdf(slot, axis) > 20.0 * uniform,
+            "{}",
+            table.pdf(slot, axis)
+        );
+        let away = Vec3::new(-0.9, 0.3, 0.1).normalize();
+        let floor = directional::FLOOR * uniform;
+        assert!((table.pdf(slot, away) - floor).abs() < 1e-3 * floor);
+        // The candidate densities were replaced (the lobe's s = 64 density is far larger in
+        // the cone, far smaller away from it).
+        assert!(samples
+            .iter()
+            .all(|s| s.p_strength[0] > 0.0 && s.p_strength[0] < 100.0));
+        let choice = choose_node(
+            &samples,
+            0.0,
+            &one_strength_grid(),
+            TrainingCost::Path,
+            1.0,
+            FLOOR,
+            MisHeuristic::Power,
+        );
+        assert!(
+            matches!(choice.guided, Some((c, 0)) if c >= 0.3),
+            "{choice:?}"
+        );
+        assert!(choice.relative_cost < 0.5, "{choice:?}");
+    }
+
     /// Too few samples, or too few that carry anything: not guided, whatever they say.
     #[test]
     fn nodes_with_few_samples_are_not_guided() {
@@ -1690,6 +1838,8 @@ mod tests {
                 }
                 Sample {
                     node: 0,
+                    wi: w,
+                    class: 0,
                     f_emitted: 0.0,
                     f_reflected: f,
                     p_bsdf: warp::cosine_hemisphere_pdf(w),

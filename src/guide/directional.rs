@@ -1,0 +1,277 @@
+//! `directions=learned`: a directional distribution per skeleton node, learned from the
+//! training pass's samples (issue 8), that replaces the node's lobes.
+//!
+//! The lobes aim at importance points and openings found by geometry; they cost a mapping, an
+//! aim per lobe, spherical rectangles and visibility per guided point (~3 k instructions), and
+//! they point where light *may* come from, not where the training saw it come from. Here each
+//! trained node gets, per class of point ([`class_of`]: the normal's dominant axis and sign,
+//! then the quadrant of the point's offset from the node; a class with few samples takes its
+//! parent's distribution), a piecewise-constant density over the sphere in world coordinates:
+//! an equal-area histogram of `Z_BINS` x `PHI_BINS` bins, cylindrical in (z = cos theta, phi),
+//! so every bin has the same solid angle 4 pi / `BINS`. Bin weights are the node's training
+//! estimates of the light its samples carried, sum over the samples in the bin of f_i / q0_i
+//! (the contribution proxy with the emission MIS-weighted at the training proposal, over the
+//! proposal's density: an unbiased estimate of that bin's integral of f), blurred by a 3 x 3
+//! tent (phi wraps around) and mixed with a uniform floor `FLOOR`, so every direction keeps a
+//! positive density. Sampling picks a bin from the CDF and a uniform point in (z, phi) within
+//! it (uniform in solid angle, the map being equal-area); its density is the bin's. At render
+//! time a guided point needs its node only: no aim, no shadow ray. Directions below the surface
+//! simply get a zero BSDF (`sample_bsdf_or_guide`). The distribution is a deterministic function
+//! of the scene and the training pass, fixed before rendering, so the render stays unbiased.
+
+use crate::math::{Vec2, Vec3};
+
+/// Bins in z = cos theta and in phi.
+pub const Z_BINS: usize = 12;
+pub const PHI_BINS: usize = 24;
+/// Bins of one distribution.
+pub const BINS: usize = Z_BINS * PHI_BINS;
+/// Share of the density that is uniform over the sphere.
+pub const FLOOR: f32 = 0.15;
+/// Normal classes ([`class_of`]) and, within each, quadrants of the point's position.
+pub const NORMALS: usize = 6;
+pub const QUADRANTS: usize = 4;
+/// Distributions per node: one per (normal class, quadrant) ([`class_of`]).
+pub const CLASSES: usize = NORMALS * QUADRANTS;
+/// Non-zero samples a class needs for its own histogram (else its parent's is used).
+pub const MIN_CLASS_SAMPLES: usize = 16;
+/// Share of the parent's distribution (the node's for a normal class, the normal class's for
+/// a quadrant) mixed into a class's own.
+pub const PARENT_SHARE: f64 = 0.25;
+
+/// The class of a point at `offset` from its node's position whose normal, turned toward the
+/// side the path arrives from, is `n`: the normal's dominant axis and sign (a node's region
+/// holds floors, walls and ceilings; light arrives at each from its own hemisphere), then the
+/// quadrant of the offset along the two other axes (light from an opening arrives from other
+/// directions on either side of the node).
+#[inline]
+pub fn class_of(n: Vec3, offset: Vec3) -> usize {
+    let a = n.abs();
+    let (normal, u, v) = if a.x >= a.y && a.x >= a.z {
+        ((n.x < 0.0) as usize, offset.y, offset.z)
+    } else if a.y >= a.z {
+        (2 + (n.y < 0.0) as usize, offset.x, offset.z)
+    } else {
+        (4 + (n.z < 0.0) as usize, offset.x, offset.y)
+    };
+    normal * QUADRANTS + 2 * (u < 0.0) as usize + (v < 0.0) as usize
+}
+
+const INV_4PI: f32 = 1.0 / (4.0 * std::f32::consts::PI);
+
+/// The bin of unit direction `w`.
+#[inline]
+pub fn bin_of(w: Vec3) -> usize {
+    let z = ((w.z + 1.0) * 0.5 * Z_BINS as f32) as usize;
+    let phi = w.y.atan2(w.x); // [-pi, pi]
+    let p = ((phi * (0.5 / std::f32::consts::PI) + 0.5) * PHI_BINS as f32) as usize;
+    z.min(Z_BINS - 1) * PHI_BINS + p.min(PHI_BINS - 1)
+}
+
+/// Per node and normal class, a learned distribution; shared by every query.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DirectionalTable {
+    /// Per node: the slot of its first class in `pdf` / `cdf`, or `NONE` (not guided).
+    slot: Vec<u32>,
+    /// Per slot, `BINS` solid-angle densities.
+    pdf: Vec<f32>,
+    /// Per slot, `BINS` cumulative bin probabilities (the last is 1).
+    cdf: Vec<f32>,
+}
+
+const NONE: u32 = u32::MAX;
+
+impl DirectionalTable {
+    /// The table of `distributions`: per node, `CLASSES` x `BINS` bin probabilities (each
+    /// class's summing to 1: [`fit`]), or None.
+    pub fn new(distributions: &[Option<Vec<f32>>]) -> DirectionalTable {
+        let mut t = DirectionalTable {
+            slot: Vec::with_capacity(distributions.len()),
+            pdf: Vec::new(),
+            cdf: Vec::new(),
+        };
+        for d in distributions {
+            let Some(p) = d else {
+                t.slot.push(NONE);
+                continue;
+            };
+            assert_eq!(p.len(), CLASSES * BINS, "a node's distributions");
+            t.slot.push((t.pdf.len() / BINS) as u32);
+            for class in p.chunks_exact(BINS) {
+                let mut acc = 0.0f64;
+                for &x in class {
+                    t.pdf.push(x * BINS as f32 * INV_4PI);
+                    acc += x as f64;
+                    t.cdf.push(acc as f32);
+                }
+                // Exactly 1 at the end: the sampler's search then always finds a bin.
+                *t.cdf.last_mut().expect("BINS > 0") = 1.0;
+            }
+        }
+        t
+    }
+
+    /// The slot of `node`'s distribution for normal class `class`, if it has one.
+    #[inline]
+    pub fn slot(&self, node: u32, class: usize) -> Option<u32> {
+        self.slot
+            .get(node as usize)
+            .copied()
+            .filter(|&s| s != NONE)
+            .map(|s| s + class as u32)
+    }
+
+    /// Solid-angle density of slot `slot` at unit direction `w`.
+    #[inline]
+    pub fn pdf(&self, slot: u32, w: Vec3) -> f32 {
+        self.pdf[slot as usize * BINS + bin_of(w)]
+    }
+
+    /// A direction from slot `slot`: `u_select` picks the bin, `u` the point in it.
+    pub fn sample(&self, slot: u32, u_select: f32, u: Vec2) -> Vec3 {
+        let cdf = &self.cdf[slot as usize * BINS..(slot as usize + 1) * BINS];
+        let bin = cdf.partition_point(|&c| c <= u_select).min(BINS - 1);
+        let (iz, ip) = (bin / PHI_BINS, bin % PHI_BINS);
+        let z = (-1.0 + 2.0 * (iz as f32 + u.x) / Z_BINS as f32).clamp(-1.0, 1.0);
+        let phi = std::f32::consts::PI * (2.0 * (ip as f32 + u.y) / PHI_BINS as f32 - 1.0);
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        Vec3::new(r * phi.cos(), r * phi.sin(), z)
+    }
+
+    /// Distributions stored (`CLASSES` per node).
+    pub fn len(&self) -> usize {
+        self.pdf.len() / BINS
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pdf.is_empty()
+    }
+
+    pub fn memory_bytes(&self) -> usize {
+        self.slot.len() * 4 + self.pdf.len() * 4 + self.cdf.len() * 4
+    }
+}
+
+/// A node's `CLASSES` x `BINS` bin probabilities from its samples (class, direction,
+/// weight), a hierarchy: the node's [`bin_probabilities`]; per normal class its own mixed with
+/// the node's (`PARENT_SHARE`); per quadrant its own mixed with its normal class's. A class
+/// with fewer than `MIN_CLASS_SAMPLES` positive weights takes its parent's.
+pub fn fit(samples: &[(usize, Vec3, f64)]) -> Vec<f32> {
+    let positive = |x: f64| x > 0.0 && x.is_finite();
+    // The distribution of the samples `keep` selects mixed with `parent`, or `parent`.
+    let refine = |parent: &[f32], keep: &dyn Fn(usize) -> bool| -> Vec<f32> {
+        let own = samples
+            .iter()
+            .filter(|s| keep(s.0) && positive(s.2))
+            .count();
+        if own < MIN_CLASS_SAMPLES {
+            return parent.to_vec();
+        }
+        let p = bin_probabilities(
+            samples
+                .iter()
+                .filter(|s| keep(s.0))
+                .map(|&(_, w, x)| (w, x)),
+        );
+        p.iter()
+            .zip(parent)
+            .map(|(&a, &b)| ((1.0 - PARENT_SHARE) * a as f64 + PARENT_SHARE * b as f64) as f32)
+            .collect()
+    };
+    let node = bin_probabilities(samples.iter().map(|&(_, w, x)| (w, x)));
+    let mut out = Vec::with_capacity(CLASSES * BINS);
+    for normal in 0..NORMALS {
+        let by_normal = refine(&node, &|c| c / QUADRANTS == normal);
+        for class in normal * QUADRANTS..(normal + 1) * QUADRANTS {
+            out.extend(refine(&by_normal, &|c| c == class));
+        }
+    }
+    out
+}
+
+/// Bin probabilities (summing to 1) from weighted directions (weights >= 0, non-finite ones
+/// ignored): the weights' histogram, blurred by a 3 x 3 tent (phi wraps, z clamps), mixed with
+/// the uniform floor (module docs). Uniform where no weight is positive.
+pub fn bin_probabilities(samples: impl Iterator<Item = (Vec3, f64)>) -> Vec<f32> {
+    let mut h = vec![0.0f64; BINS];
+    for (w, x) in samples {
+        if x > 0.0 && x.is_finite() {
+            h[bin_of(w)] += x;
+        }
+    }
+    let mut blurred = vec![0.0f64; BINS];
+    for iz in 0..Z_BINS {
+        for ip in 0..PHI_BINS {
+            let mut s = 0.0;
+            for dz in -1i32..=1 {
+                let z = iz as i32 + dz;
+                if !(0..Z_BINS as i32).contains(&z) {
+                    continue;
+                }
+                for dp in -1i32..=1 {
+                    let p = (ip as i32 + dp).rem_euclid(PHI_BINS as i32) as usize;
+                    let k = (2 - dz.abs()) * (2 - dp.abs());
+                    s += k as f64 * h[z as usize * PHI_BINS + p];
+                }
+            }
+            blurred[iz * PHI_BINS + ip] = s;
+        }
+    }
+    let total: f64 = blurred.iter().sum();
+    let uniform = 1.0 / BINS as f64;
+    if !(total > 0.0 && total.is_finite()) {
+        return vec![uniform as f32; BINS];
+    }
+    let floor = FLOOR as f64;
+    blurred
+        .iter()
+        .map(|&b| ((1.0 - floor) * b / total + floor * uniform) as f32)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::{Rng, Sampler};
+
+    fn lobe_table() -> DirectionalTable {
+        let mut rng = Sampler::independent(Rng::new(3, 4));
+        let axis = Vec3::new(0.3, -0.6, 0.5).normalize();
+        let samples: Vec<(Vec3, f64)> = (0..4000)
+            .map(|_| {
+                let w = crate::math::warp::uniform_sphere(rng.uniform2());
+                (w, (w.dot(axis).max(0.0) as f64).powi(8))
+            })
+            .collect();
+        let p = bin_probabilities(samples.into_iter());
+        DirectionalTable::new(&[
+            None,
+            Some(p.repeat(CLASSES)),
+            Some(vec![1.0 / BINS as f32; CLASSES * BINS]),
+        ])
+    }
+
+    #[test]
+    fn bins_are_where_sampling_puts_them_and_pdf_integrates_to_one() {
+        let t = lobe_table();
+        assert_eq!(t.slot(0, 0), None);
+        assert_eq!(t.slot(2, 1), Some(CLASSES as u32 + 1));
+        assert_eq!(t.len(), 2 * CLASSES);
+        // The pdf is constant per bin of equal solid angle: its integral is the mean over bins.
+        for slot in 0..2 * CLASSES {
+            let base = slot * BINS;
+            let integral: f32 =
+                t.pdf[base..base + BINS].iter().sum::<f32>() * 4.0 * std::f32::consts::PI
+                    / BINS as f32;
+            assert!((integral - 1.0).abs() < 1e-4, "{integral}");
+            assert!(t.pdf[base..base + BINS].iter().all(|&p| p > 0.0));
+        }
+        // Sampled directions are unit and land in the bin their u_select picked.
+        let mut rng = Sampler::independent(Rng::new(5, 6));
+        for _ in 0..10_000 {
+            let w = t.sample(0, rng.uniform(), rng.uniform2());
+            assert!((w.length() - 1.0).abs() < 1e-4);
+            assert!(t.pdf(0, w) > 0.0);
+        }
+    }
+}

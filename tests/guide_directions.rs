@@ -1,0 +1,286 @@
+//! `path_skeleton:directions=learned` (issue 8, round 14): a learned directional histogram per
+//! skeleton node instead of its lobes (`guide::directional`).
+//!
+//! - the histogram distribution alone and in one-sample MIS with a BSDF: chi-square of sampled
+//!   directions against the pdf, the pdf integrates to 1, `sample`'s pdf is `pdf()`'s, and
+//!   f cos / pdf estimates the albedo without bias;
+//! - the training is deterministic (any thread count) and a guided query traces no shadow ray
+//!   and samples its node's distribution;
+//! - unbiasedness: the same region means as `path` within their measured error on the
+//!   corridor, the two rooms and the Veach door, with the learned and an aggressive fixed c;
+//!   no NaN (`region_means` asserts finite pixels).
+
+mod common;
+
+use common::agreement::{assert_agree, region_means};
+use common::chi2::{assert_chi2, assert_z, Stats};
+use common::sphere::SphereGrid;
+use glam::DVec3;
+use lacuna::guide::directional::{self, BINS};
+use lacuna::guide::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonGuideSettings};
+use lacuna::integrator::IntegratorSettings;
+use lacuna::math::{warp, Frame, Rgb, Rng, Sampler, Vec3};
+use lacuna::scene::{
+    corridor_builder, load_scene_file, two_rooms_builder, Bsdf, Camera, Material, Scene,
+};
+
+const SAMPLES: usize = 200_000;
+
+fn to64(v: Vec3) -> DVec3 {
+    DVec3::new(v.x as f64, v.y as f64, v.z as f64)
+}
+
+fn to32(v: DVec3) -> Vec3 {
+    Vec3::new(v.x as f32, v.y as f32, v.z as f32)
+}
+
+/// Bin weights of a peaked, uneven distribution: a histogram of a power-cosine lobe plus a
+/// second weaker one, some bins empty before the floor.
+fn peaked_bins() -> Vec<f32> {
+    let mut rng = Sampler::independent(Rng::new(11, 12));
+    let a = Vec3::new(0.3, -0.6, 0.5).normalize();
+    let b = Vec3::new(-0.8, 0.1, -0.3).normalize();
+    let samples: Vec<(Vec3, f64)> = (0..20_000)
+        .map(|_| {
+            let w = warp::uniform_sphere(rng.uniform2());
+            let x = (w.dot(a).max(0.0) as f64).powi(20) + 0.3 * (w.dot(b).max(0.0) as f64).powi(6);
+            (w, x)
+        })
+        .collect();
+    directional::bin_probabilities(samples.into_iter())
+}
+
+/// Chi-square of `sample` (None = no sample) against `pdf` over a sphere grid that does not
+/// line up with the histogram's bins, with the "no sample" cell; returns the pdf's integral.
+fn chi2_directions(
+    name: &str,
+    seed: u64,
+    mut sample: impl FnMut(&mut Sampler) -> Option<Vec3>,
+    pdf: impl Fn(Vec3) -> f64,
+) -> f64 {
+    let grid = SphereGrid::uniform(18, 37);
+    let probs = grid.integrate(|w| pdf(to32(w)));
+    let integral: f64 = probs.iter().sum();
+    assert!(
+        integral <= 1.0 + 1e-3,
+        "{name}: pdf integrates to {integral}"
+    );
+    let mut observed = vec![0u64; grid.cells() + 1];
+    let mut rng = Sampler::independent(Rng::new(seed, 78));
+    for _ in 0..SAMPLES {
+        match sample(&mut rng) {
+            Some(w) => observed[grid.cell_of(to64(w))] += 1,
+            None => observed[grid.cells()] += 1,
+        }
+    }
+    let n = SAMPLES as f64;
+    let mut expected: Vec<f64> = probs.iter().map(|p| p * n).collect();
+    expected.push((1.0 - integral).max(0.0) * n);
+    assert_chi2(name, &observed, &expected);
+    integral
+}
+
+#[test]
+fn chi2_of_the_histogram_distribution() {
+    let bins = peaked_bins();
+    assert_eq!(bins.len(), BINS);
+    assert!(GuideQuery::with_distribution(0.5, &bins[1..]).is_err());
+    assert!(GuideQuery::with_distribution(1.0, &bins).is_err());
+    assert!(GuideQuery::with_distribution(0.5, &vec![0.0; BINS]).is_err());
+    for (k, bins) in [bins, vec![1.0; BINS]].into_iter().enumerate() {
+        let q = GuideQuery::with_distribution(0.5, &bins).unwrap();
+        assert_eq!(q.guiding_probability(), 0.5);
+        let name = format!("histogram {k}");
+        let integral = chi2_directions(
+            &name,
+            300 + k as u64,
+            |rng| {
+                let (w, pdf) = q.sample(rng.uniform(), rng.uniform2())?;
+                assert!(
+                    (w.length() - 1.0).abs() < 1e-4,
+                    "{name}: |w| {}",
+                    w.length()
+                );
+                let p = q.pdf(w);
+                assert!(
+                    (pdf - p).abs() <= 1e-6 * p,
+                    "{name}: sample pdf {pdf} but pdf() {p}"
+                );
+                Some(w)
+            },
+            |w| q.pdf(w) as f64,
+        );
+        assert!(
+            (integral - 1.0).abs() < 1e-3,
+            "{name}: pdf integrates to {integral}"
+        );
+    }
+}
+
+/// The histogram in one-sample MIS with a Lambertian BSDF, as `path_skeleton` draws it:
+/// directions follow `c p_hist + (1 - c) p_bsdf` (guided directions below the surface are "no
+/// sample"), each sample carries that density, and f cos / pdf estimates the albedo.
+#[test]
+fn chi2_and_albedo_of_the_bsdf_and_histogram_mixture() {
+    // The normal along z: the horizon is a boundary of the test's cells (a cell straddling
+    // it would hold directions above it that the cell's quadrature may miss).
+    let frame = Frame::from_z(Vec3::Z);
+    let wo_local = Vec3::new(0.4, -0.2, 0.7).normalize();
+    let bsdf: Bsdf = Material::diffuse(Rgb::splat(0.8)).bsdf(Rgb::splat(0.8));
+    let q = GuideQuery::with_distribution(0.6, &peaked_bins()).unwrap();
+    let mut estimate = Stats::default();
+    let integral = chi2_directions(
+        "lambert + histogram",
+        400,
+        |rng| {
+            let Some(m) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &q, rng) else {
+                estimate.add(0.0);
+                return None;
+            };
+            let s = m.sample;
+            let w = frame.to_world(s.wi);
+            let expected = q.mixture_pdf(w, bsdf.pdf(wo_local, s.wi));
+            assert!(
+                (s.pdf - expected).abs() <= 1e-4 * expected,
+                "sample pdf {} but mixture pdf {expected}",
+                s.pdf
+            );
+            estimate.add((s.f.x * s.wi.z.abs() / s.pdf) as f64);
+            Some(w)
+        },
+        |w| {
+            let wi = frame.to_local(w);
+            let guided = if wi.z > 0.0 { q.pdf(w) } else { 0.0 };
+            (0.6 * guided + 0.4 * bsdf.pdf(wo_local, wi)) as f64
+        },
+    );
+    assert!(integral < 1.0, "part of the histogram is below the surface");
+    assert_z(
+        "lambert + histogram: albedo",
+        estimate.mean(),
+        0.8,
+        estimate.std_err(),
+    );
+}
+
+fn load(path: &str) -> Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
+    load_scene_file(&path).unwrap().builder.build().unwrap()
+}
+
+fn settings(options: &[(&str, &str)]) -> SkeletonGuideSettings {
+    let mut s = SkeletonGuideSettings::default();
+    for (key, value) in options {
+        s.set(key, value).unwrap();
+    }
+    s
+}
+
+fn build(scene: &Scene, settings: &SkeletonGuideSettings, threads: usize) -> SkeletonGuide {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(|| SkeletonGuide::build(scene, settings, &|_, _| true).unwrap())
+}
+
+#[test]
+fn options_parse_and_exclude_the_lobe_options() {
+    let s = settings(&[("directions", "learned")]);
+    assert!(s.learned_directions && s.trains());
+    assert!(!settings(&[("directions", "lobes")]).learned_directions);
+    let mut s = SkeletonGuideSettings::default();
+    assert!(s.set("directions", "histogram").is_err());
+    s.set("directions", "learned").unwrap();
+    assert!(s.set("lobe_weights", "learned").is_err());
+    assert!(s.set("strength", "learned").is_err());
+}
+
+/// The training (and so the distributions) are the same for any thread count; every guided
+/// node has its distribution and a guided query samples it without shadow rays.
+#[test]
+fn learned_directions_are_deterministic_and_reach_the_queries() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let s = settings(&[("directions", "learned")]);
+    let one = build(&scene, &s, 1);
+    let t = one.training().expect("trained").clone();
+    assert_eq!(build(&scene, &s, 2).training(), Some(&t));
+    assert!(t.guided_nodes() > 0, "no node guided");
+    let table = one.directions().expect("a table");
+    for (k, &c) in t.probabilities.iter().enumerate() {
+        let d = t.directions[k].as_ref();
+        if c > 0.0 {
+            let d = d.expect("a guided node has a distribution");
+            for class in d.chunks_exact(BINS) {
+                let sum: f32 = class.iter().sum();
+                assert!((sum - 1.0).abs() < 1e-4 && class.iter().all(|&p| p > 0.0));
+            }
+            assert!(table.slot(k as u32, 0).is_some());
+        } else {
+            assert!(table.slot(k as u32, 0).is_none());
+        }
+    }
+    let mut rng = Rng::new(5, 5);
+    let (mut guided, mut query) = (0, GuideQuery::new());
+    let b = scene.bounds();
+    for _ in 0..20_000 {
+        let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
+        let ray = lacuna::geometry::Ray::new(
+            b.min + (b.max - b.min) * u,
+            warp::uniform_sphere(rng.uniform2()),
+            f32::INFINITY,
+        );
+        let Some(si) = scene.intersect(&ray) else {
+            continue;
+        };
+        let rays = query.init(&one, &scene, si.p, si.p_error, si.ng, si.wo);
+        assert_eq!(rays, 0, "a learned distribution traces no shadow ray");
+        let Some(node) = query.node() else { continue };
+        let c = one.guiding_probability(node);
+        assert_eq!(query.guiding_probability(), c);
+        assert_eq!(query.lobe_count(), 0);
+        if c > 0.0 {
+            guided += 1;
+            let (w, pdf) = query.sample(rng.uniform(), rng.uniform2()).unwrap();
+            assert!(pdf > 0.0 && pdf == query.pdf(w));
+        }
+    }
+    assert!(guided > 100, "{guided} guided points");
+}
+
+fn agree(label: &str, scene: &Scene, camera: &Camera, max_depth: u32, size: u32, spp: u32) {
+    let settings = IntegratorSettings {
+        max_depth,
+        ..Default::default()
+    };
+    let path = region_means(scene, camera, "path", settings, size, spp, 8);
+    assert!(path[0].0 > 0.0, "{label}: black image");
+    for spec in [
+        "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned",
+        "path_skeleton:c_skel=0.9:directions=learned",
+    ] {
+        let skel = region_means(scene, camera, spec, settings, size, spp, 8);
+        assert_agree(label, ("path", &path), (spec, &skel));
+    }
+}
+
+#[test]
+fn learned_directions_agree_with_path_on_the_corridor() {
+    let scene = corridor_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    agree("corridor", &scene, &camera, 8, 16, 64);
+}
+
+#[test]
+fn learned_directions_agree_with_path_on_the_two_rooms() {
+    let scene = two_rooms_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    agree("two rooms", &scene, &camera, 6, 20, 16);
+}
+
+#[test]
+fn learned_directions_agree_with_path_on_the_veach_door() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let camera = *scene.camera().unwrap();
+    agree("veach door", &scene, &camera, 6, 16, 16);
+}
