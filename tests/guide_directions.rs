@@ -13,9 +13,9 @@
 mod common;
 
 use common::agreement::{assert_agree, region_means};
-use common::chi2::{assert_chi2, assert_z, Stats};
+use common::chi2::{assert_z, Stats};
+use common::directions::chi2_directions;
 use common::sphere::SphereGrid;
-use glam::DVec3;
 use lacuna::guide::directional::{self, BINS};
 use lacuna::guide::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonGuideSettings};
 use lacuna::integrator::IntegratorSettings;
@@ -23,16 +23,6 @@ use lacuna::math::{warp, Frame, Rgb, Rng, Sampler, Vec3};
 use lacuna::scene::{
     corridor_builder, load_scene_file, two_rooms_builder, Bsdf, Camera, Material, Scene,
 };
-
-const SAMPLES: usize = 200_000;
-
-fn to64(v: Vec3) -> DVec3 {
-    DVec3::new(v.x as f64, v.y as f64, v.z as f64)
-}
-
-fn to32(v: DVec3) -> Vec3 {
-    Vec3::new(v.x as f32, v.y as f32, v.z as f32)
-}
 
 /// Bin weights of a peaked, uneven distribution: a histogram of a power-cosine lobe plus a
 /// second weaker one, some bins empty before the floor.
@@ -50,36 +40,6 @@ fn peaked_bins() -> Vec<f32> {
     directional::bin_probabilities(samples.into_iter())
 }
 
-/// Chi-square of `sample` (None = no sample) against `pdf` over a sphere grid that does not
-/// line up with the histogram's bins, with the "no sample" cell; returns the pdf's integral.
-fn chi2_directions(
-    name: &str,
-    seed: u64,
-    mut sample: impl FnMut(&mut Sampler) -> Option<Vec3>,
-    pdf: impl Fn(Vec3) -> f64,
-) -> f64 {
-    let grid = SphereGrid::uniform(18, 37);
-    let probs = grid.integrate(|w| pdf(to32(w)));
-    let integral: f64 = probs.iter().sum();
-    assert!(
-        integral <= 1.0 + 1e-3,
-        "{name}: pdf integrates to {integral}"
-    );
-    let mut observed = vec![0u64; grid.cells() + 1];
-    let mut rng = Sampler::independent(Rng::new(seed, 78));
-    for _ in 0..SAMPLES {
-        match sample(&mut rng) {
-            Some(w) => observed[grid.cell_of(to64(w))] += 1,
-            None => observed[grid.cells()] += 1,
-        }
-    }
-    let n = SAMPLES as f64;
-    let mut expected: Vec<f64> = probs.iter().map(|p| p * n).collect();
-    expected.push((1.0 - integral).max(0.0) * n);
-    assert_chi2(name, &observed, &expected);
-    integral
-}
-
 #[test]
 fn chi2_of_the_histogram_distribution() {
     let bins = peaked_bins();
@@ -93,7 +53,8 @@ fn chi2_of_the_histogram_distribution() {
         let name = format!("histogram {k}");
         let integral = chi2_directions(
             &name,
-            300 + k as u64,
+            &SphereGrid::uniform(18, 37),
+            Sampler::independent(Rng::new(300 + k as u64, 78)),
             |rng| {
                 let (w, pdf) = q.sample(rng.uniform(), rng.uniform2())?;
                 assert!(
@@ -131,7 +92,8 @@ fn chi2_and_albedo_of_the_bsdf_and_histogram_mixture() {
     let mut estimate = Stats::default();
     let integral = chi2_directions(
         "lambert + histogram",
-        400,
+        &SphereGrid::uniform(18, 37),
+        Sampler::independent(Rng::new(400, 78)),
         |rng| {
             let Some(m) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &q, rng) else {
                 estimate.add(0.0);

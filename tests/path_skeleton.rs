@@ -19,8 +19,8 @@ use std::sync::atomic::AtomicBool;
 
 use common::agreement::{assert_agree, box_scene, region_means};
 use common::chi2::{assert_chi2, assert_z, Stats};
+use common::directions::{chi2_directions, to32, to64, SAMPLES};
 use common::sphere::SphereGrid;
-use glam::DVec3;
 use lacuna::compare::{compare, Contender};
 use lacuna::guide::{
     sample_bsdf_or_guide, GuideQuery, LobeAim, LobeFallback, SkeletonGuide, SkeletonGuideSettings,
@@ -35,16 +35,6 @@ use lacuna::scene::{
     SceneBuilder,
 };
 
-const SAMPLES: usize = 200_000;
-
-fn to64(v: Vec3) -> DVec3 {
-    DVec3::new(v.x as f64, v.y as f64, v.z as f64)
-}
-
-fn to32(v: DVec3) -> Vec3 {
-    Vec3::new(v.x as f32, v.y as f32, v.z as f32)
-}
-
 /// A sphere grid refined around every lobe axis.
 fn grid_for(lobes: &[(Vec3, f32, f32)]) -> SphereGrid {
     let mut grid = SphereGrid::uniform(20, 40);
@@ -54,36 +44,6 @@ fn grid_for(lobes: &[(Vec3, f32, f32)]) -> SphereGrid {
         }
     }
     grid
-}
-
-/// Chi-square of `sample` (None = no sample) against `pdf` over `grid`, with the "no sample"
-/// cell; returns the pdf's integral over the sphere.
-fn chi2_directions(
-    name: &str,
-    grid: &SphereGrid,
-    seed: u64,
-    mut sample: impl FnMut(&mut Sampler) -> Option<Vec3>,
-    pdf: impl Fn(Vec3) -> f64,
-) -> f64 {
-    let probs = grid.integrate(|w| pdf(to32(w)));
-    let integral: f64 = probs.iter().sum();
-    assert!(
-        integral <= 1.0 + 1e-3,
-        "{name}: pdf integrates to {integral}"
-    );
-    let mut observed = vec![0u64; grid.cells() + 1];
-    let mut rng = Sampler::independent(Rng::new(seed, 77));
-    for _ in 0..SAMPLES {
-        match sample(&mut rng) {
-            Some(w) => observed[grid.cell_of(to64(w))] += 1,
-            None => observed[grid.cells()] += 1,
-        }
-    }
-    let n = SAMPLES as f64;
-    let mut expected: Vec<f64> = probs.iter().map(|p| p * n).collect();
-    expected.push((1.0 - integral).max(0.0) * n);
-    assert_chi2(name, &observed, &expected);
-    integral
 }
 
 /// The skeleton lobe (eq. 163) and mixtures of lobes (eq. 167): chi-square, integral 1,
@@ -111,7 +71,7 @@ fn chi2_skeleton_lobes_and_their_mixture() {
         let integral = chi2_directions(
             name,
             &grid,
-            100 + k as u64,
+            Sampler::independent(Rng::new(100 + k as u64, 77)),
             |rng| {
                 let (w, pdf) = q.sample(rng.uniform(), rng.uniform2())?;
                 let p = q.pdf(w);
@@ -167,7 +127,7 @@ fn chi2_and_albedo_of_the_bsdf_and_skeleton_mixture() {
         let integral = chi2_directions(
             name,
             &grid,
-            200 + k as u64,
+            Sampler::independent(Rng::new(200 + k as u64, 77)),
             |rng| {
                 let Some(m) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &q, rng) else {
                     estimate.add(0.0);
@@ -1344,7 +1304,7 @@ fn learned_lobe_weights_are_the_mixture_the_query_samples() {
             let integral = chi2_directions(
                 &format!("learned weights, node {node}"),
                 &grid_for(&lobes),
-                500 + tested as u64,
+                Sampler::independent(Rng::new(500 + tested as u64, 77)),
                 |rng| q.sample(rng.uniform(), rng.uniform2()).map(|(w, _)| w),
                 |w| q.pdf(w) as f64,
             );

@@ -6,4 +6,5 @@
 
 pub mod agreement;
 pub mod chi2;
+pub mod directions;
 pub mod sphere;
