@@ -1162,6 +1162,36 @@ fn portal_queries_sample_their_pdf_without_nan() {
     );
 }
 
+/// The bits of a 24x16, 4 spp render's pixels on `threads` threads (for bit-for-bit
+/// comparisons of images).
+fn pixel_bits(
+    scene: &Scene,
+    camera: &Camera,
+    integrator: &dyn integrator::Integrator,
+    threads: usize,
+) -> Vec<u32> {
+    let rs = RenderSettings {
+        width: 24,
+        height: 16,
+        spp: 4,
+        threads: Some(threads),
+        ..Default::default()
+    };
+    let (film, _) = render(
+        scene,
+        camera,
+        integrator,
+        &rs,
+        &|_| true,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
+    film.radiance()
+        .iter()
+        .flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+        .collect()
+}
+
 /// Each worker thread reuses one guide query for all its samples (`path_skeleton`'s thread
 /// query): whatever an earlier sample left in it must not change a later one. The pixels are
 /// the same, bit for bit, on one thread (every sample after the first meets a used query) and
@@ -1176,28 +1206,7 @@ fn guided_images_do_not_depend_on_the_thread_that_traced_them() {
     ] {
         let mut skel = integrator::create(spec, IntegratorSettings::default()).unwrap();
         prepare(skel.as_mut(), &scene, Some(2), &|_, _| true).unwrap();
-        let image = |threads: usize| {
-            let rs = RenderSettings {
-                width: 24,
-                height: 16,
-                spp: 4,
-                threads: Some(threads),
-                ..Default::default()
-            };
-            let (film, _) = render(
-                &scene,
-                &camera,
-                skel.as_ref(),
-                &rs,
-                &|_| true,
-                &AtomicBool::new(false),
-            )
-            .unwrap();
-            film.radiance()
-                .iter()
-                .flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
-                .collect::<Vec<u32>>()
-        };
+        let image = |threads: usize| pixel_bits(&scene, &camera, skel.as_ref(), threads);
         let one = image(1);
         assert!(one.iter().any(|&b| b != 0), "{spec}: black image");
         assert_eq!(one, image(3), "{spec}: 1 and 3 threads differ");
@@ -1373,26 +1382,7 @@ fn a_guide_that_guides_nothing_renders_paths_image() {
     let image = |spec: &str| {
         let mut integrator = integrator::create(spec, IntegratorSettings::default()).unwrap();
         prepare(integrator.as_mut(), &scene, Some(2), &|_, _| true).unwrap();
-        let rs = RenderSettings {
-            width: 24,
-            height: 16,
-            spp: 4,
-            threads: Some(2),
-            ..Default::default()
-        };
-        let (film, _) = render(
-            &scene,
-            &camera,
-            integrator.as_ref(),
-            &rs,
-            &|_| true,
-            &AtomicBool::new(false),
-        )
-        .unwrap();
-        film.radiance()
-            .iter()
-            .flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
-            .collect::<Vec<u32>>()
+        pixel_bits(&scene, &camera, integrator.as_ref(), 2)
     };
     let path = image("path");
     assert!(path.iter().any(|&b| b != 0), "black image");
