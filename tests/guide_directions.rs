@@ -12,17 +12,14 @@
 
 mod common;
 
-use common::agreement::{assert_agree, region_means};
+use common::agreement::agree_with_path;
 use common::chi2::{assert_z, Stats};
 use common::directions::chi2_directions;
 use common::sphere::SphereGrid;
 use lacuna::guide::directional::{self, BINS};
 use lacuna::guide::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonGuideSettings};
-use lacuna::integrator::IntegratorSettings;
 use lacuna::math::{warp, Frame, Rgb, Rng, Sampler, Vec3};
-use lacuna::scene::{
-    corridor_builder, load_scene_file, two_rooms_builder, Bsdf, Camera, Material, Scene,
-};
+use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder, Bsdf, Material, Scene};
 
 /// Bin weights of a peaked, uneven distribution: a histogram of a power-cosine lobe plus a
 /// second weaker one, some bins empty before the floor.
@@ -210,39 +207,29 @@ fn learned_directions_are_deterministic_and_reach_the_queries() {
     assert!(guided > 100, "{guided} guided points");
 }
 
-fn agree(label: &str, scene: &Scene, camera: &Camera, max_depth: u32, size: u32, spp: u32) {
-    let settings = IntegratorSettings {
-        max_depth,
-        ..Default::default()
-    };
-    let path = region_means(scene, camera, "path", settings, size, spp, 8);
-    assert!(path[0].0 > 0.0, "{label}: black image");
-    for spec in [
-        "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned",
-        "path_skeleton:c_skel=0.9:directions=learned",
-    ] {
-        let skel = region_means(scene, camera, spec, settings, size, spp, 8);
-        assert_agree(label, ("path", &path), (spec, &skel));
-    }
-}
+/// The specs z-tested against `path`.
+const SPECS: &[&str] = &[
+    "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned",
+    "path_skeleton:c_skel=0.9:directions=learned",
+];
 
 #[test]
 fn learned_directions_agree_with_path_on_the_corridor() {
     let scene = corridor_builder().unwrap().build().unwrap();
     let camera = *scene.camera().unwrap();
-    agree("corridor", &scene, &camera, 8, 16, 64);
+    agree_with_path("corridor", &scene, &camera, 8, 16, 64, SPECS);
 }
 
 #[test]
 fn learned_directions_agree_with_path_on_the_two_rooms() {
     let scene = two_rooms_builder().unwrap().build().unwrap();
     let camera = *scene.camera().unwrap();
-    agree("two rooms", &scene, &camera, 6, 20, 16);
+    agree_with_path("two rooms", &scene, &camera, 6, 20, 16, SPECS);
 }
 
 #[test]
 fn learned_directions_agree_with_path_on_the_veach_door() {
     let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
     let camera = *scene.camera().unwrap();
-    agree("veach door", &scene, &camera, 6, 16, 16);
+    agree_with_path("veach door", &scene, &camera, 6, 16, 16, SPECS);
 }

@@ -9,13 +9,12 @@
 
 mod common;
 
-use common::agreement::{assert_agree, box_scene, region_means};
+use common::agreement::{agree_with_path, box_scene};
 use lacuna::guide::{
     GuideQuery, SkeletonGuide, SkeletonGuideSettings, CANDIDATES, STRENGTH_CANDIDATES,
 };
-use lacuna::integrator::IntegratorSettings;
 use lacuna::math::{warp, Rng, Vec3};
-use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder, Camera, Scene};
+use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder, Scene};
 
 fn load(path: &str) -> Scene {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
@@ -209,42 +208,32 @@ fn training_guides_some_corridor_nodes() {
     }
 }
 
-fn agree(label: &str, scene: &Scene, camera: &Camera, max_depth: u32, size: u32, spp: u32) {
-    let settings = IntegratorSettings {
-        max_depth,
-        ..Default::default()
-    };
-    let path = region_means(scene, camera, "path", settings, size, spp, 8);
-    assert!(path[0].0 > 0.0, "{label}: black image");
-    for spec in [
-        "path_skeleton:c_skel=learned",
-        "path_skeleton:c_skel=learned:strength=64",
-        "path_skeleton:c_skel=learned:strength=learned",
-    ] {
-        let skel = region_means(scene, camera, spec, settings, size, spp, 8);
-        assert_agree(label, ("path", &path), (spec, &skel));
-    }
-}
+/// The specs z-tested against `path`.
+const SPECS: &[&str] = &[
+    "path_skeleton:c_skel=learned",
+    "path_skeleton:c_skel=learned:strength=64",
+    "path_skeleton:c_skel=learned:strength=learned",
+];
 
 #[test]
 fn learned_agrees_with_path_on_the_corridor() {
     let scene = corridor();
     let camera = *scene.camera().unwrap();
-    agree("corridor", &scene, &camera, 8, 16, 64);
+    agree_with_path("corridor", &scene, &camera, 8, 16, 64, SPECS);
 }
 
 #[test]
 fn learned_agrees_with_path_on_the_two_rooms() {
     let scene = two_rooms_builder().unwrap().build().unwrap();
     let camera = *scene.camera().unwrap();
-    agree("two rooms", &scene, &camera, 6, 20, 16);
+    agree_with_path("two rooms", &scene, &camera, 6, 20, 16, SPECS);
 }
 
 #[test]
 fn learned_agrees_with_path_on_the_veach_door() {
     let scene = door();
     let camera = *scene.camera().unwrap();
-    agree("veach door", &scene, &camera, 6, 16, 16);
+    agree_with_path("veach door", &scene, &camera, 6, 16, 16, SPECS);
 }
 
 /// Glossy, mirror and glass surfaces: the training pass walks through delta vertices without
@@ -252,5 +241,5 @@ fn learned_agrees_with_path_on_the_veach_door() {
 #[test]
 fn learned_agrees_with_path_on_glossy_mirror_and_glass() {
     let (scene, camera) = box_scene(true, true, false);
-    agree("glossy+delta bsdfs", &scene, &camera, 6, 20, 16);
+    agree_with_path("glossy+delta bsdfs", &scene, &camera, 6, 20, 16, SPECS);
 }

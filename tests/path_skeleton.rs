@@ -17,7 +17,7 @@ mod common;
 
 use std::sync::atomic::AtomicBool;
 
-use common::agreement::{assert_agree, box_scene, region_means};
+use common::agreement::{agree_with_path, box_scene};
 use common::chi2::{assert_chi2, assert_z, Stats};
 use common::directions::{chi2_directions, to32, to64, SAMPLES};
 use common::sphere::SphereGrid;
@@ -730,29 +730,7 @@ fn nodes_without_a_path_to_an_importance_node_are_not_guided() {
     );
     assert_eq!(q.guiding_probability(), 0.5);
     let camera = Camera::look_at(v(0.0, 0.0, 0.9), v(0.0, -0.3, -1.0), Vec3::Y, 80.0).unwrap();
-    agree("two boxes", &scene, &camera, 6, 16, 16, &["path_skeleton"]);
-}
-
-/// Renders `path` and each spec over 8 seeds and z-tests their region means.
-fn agree(
-    label: &str,
-    scene: &Scene,
-    camera: &Camera,
-    max_depth: u32,
-    size: u32,
-    spp: u32,
-    specs: &[&str],
-) {
-    let settings = IntegratorSettings {
-        max_depth,
-        ..Default::default()
-    };
-    let path = region_means(scene, camera, "path", settings, size, spp, 8);
-    assert!(path[0].0 > 0.0, "{label}: black image");
-    for spec in specs {
-        let skel = region_means(scene, camera, spec, settings, size, spp, 8);
-        assert_agree(label, ("path", &path), (spec, &skel));
-    }
+    agree_with_path("two boxes", &scene, &camera, 6, 16, 16, &["path_skeleton"]);
 }
 
 /// Default (automatic strength) and an aggressive fixed setting (c_skel 0.9, s = 64).
@@ -767,7 +745,7 @@ const VARIANTS: &[&str] = &[
 fn path_skeleton_agrees_with_path_on_the_cornell_box() {
     let scene = load("scenes/cornell-box/cornell-box.json");
     let camera = *scene.camera().unwrap();
-    agree("cornell", &scene, &camera, 5, 24, 8, VARIANTS);
+    agree_with_path("cornell", &scene, &camera, 5, 24, 8, VARIANTS);
 }
 
 /// Direct lighting only in a box whose whole ceiling emits, where the lobes of the floor point
@@ -793,7 +771,7 @@ fn path_skeleton_agrees_with_path_in_direct_lighting() {
     );
     let scene = b.build().unwrap();
     let camera = Camera::look_at(v(0.0, 0.5, 0.9), v(0.0, -1.0, -0.5), Vec3::Y, 70.0).unwrap();
-    agree(
+    agree_with_path(
         "lit box, direct",
         &scene,
         &camera,
@@ -808,15 +786,15 @@ fn path_skeleton_agrees_with_path_in_direct_lighting() {
 fn path_skeleton_agrees_with_path_on_the_corridor() {
     let scene = corridor_builder().unwrap().build().unwrap();
     let camera = *scene.camera().unwrap();
-    agree("corridor", &scene, &camera, 8, 16, 64, VARIANTS);
+    agree_with_path("corridor", &scene, &camera, 8, 16, 64, VARIANTS);
 }
 
 #[test]
 fn path_skeleton_agrees_with_path_on_the_two_rooms() {
     let scene = two_rooms_builder().unwrap().build().unwrap();
     let camera = *scene.camera().unwrap();
-    agree("two rooms", &scene, &camera, 6, 20, 16, VARIANTS);
-    agree(
+    agree_with_path("two rooms", &scene, &camera, 6, 20, 16, VARIANTS);
+    agree_with_path(
         "two rooms, portal",
         &scene,
         &camera,
@@ -835,7 +813,7 @@ fn path_skeleton_agrees_with_path_on_the_two_rooms() {
 fn path_skeleton_agrees_with_path_on_the_veach_door() {
     let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
     let camera = *scene.camera().unwrap();
-    agree(
+    agree_with_path(
         "veach door",
         &scene,
         &camera,
@@ -859,7 +837,7 @@ fn path_skeleton_agrees_with_path_on_the_veach_door() {
 #[test]
 fn path_skeleton_agrees_with_path_on_glossy_mirror_and_glass() {
     let (scene, camera) = box_scene(true, true, false);
-    agree("glossy+delta bsdfs", &scene, &camera, 6, 20, 16, VARIANTS);
+    agree_with_path("glossy+delta bsdfs", &scene, &camera, 6, 20, 16, VARIANTS);
 }
 
 #[test]

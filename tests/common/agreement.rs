@@ -133,6 +133,29 @@ pub fn assert_agree(label: &str, a: (&str, &[(f64, f64)]), b: (&str, &[(f64, f64
     }
 }
 
+/// Renders `path` and each of `specs` over 8 seeds at `size` x `size`, `spp` samples and
+/// `max_depth`, and z-tests their region means ([`assert_agree`]).
+pub fn agree_with_path(
+    label: &str,
+    scene: &Scene,
+    camera: &Camera,
+    max_depth: u32,
+    size: u32,
+    spp: u32,
+    specs: &[&str],
+) {
+    let settings = IntegratorSettings {
+        max_depth,
+        ..Default::default()
+    };
+    let path = region_means(scene, camera, "path", settings, size, spp, 8);
+    assert!(path[0].0 > 0.0, "{label}: black image");
+    for spec in specs {
+        let other = region_means(scene, camera, spec, settings, size, spp, 8);
+        assert_agree(label, ("path", &path), (spec, &other));
+    }
+}
+
 /// A box open at the top with glossy (exponent 50 and 1e4), mirror and glass surfaces, a small
 /// area light, and optionally point, spot and directional lights.
 pub fn box_scene(delta_bsdfs: bool, area_light: bool, delta_lights: bool) -> (Scene, Camera) {
