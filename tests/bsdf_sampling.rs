@@ -14,22 +14,12 @@
 
 mod common;
 
-use common::chi2::{assert_chi2, assert_z, chi2_test, significance, Stats};
+use common::chi2::{assert_z, chi2_test, significance, Stats};
+use common::directions::{to32, to64, SAMPLES};
 use common::sphere::SphereGrid;
 use glam::DVec3;
 use lacuna::math::{warp, Rgb, Rng, Vec2, Vec3};
 use lacuna::scene::{fresnel_dielectric, Bsdf, Material, Transport};
-
-/// Samples per chi-square test.
-const SAMPLES: usize = 200_000;
-
-fn to32(v: DVec3) -> Vec3 {
-    Vec3::new(v.x as f32, v.y as f32, v.z as f32)
-}
-
-fn to64(v: Vec3) -> DVec3 {
-    DVec3::new(v.x as f64, v.y as f64, v.z as f64)
-}
 
 /// The f32 vector nearest to unit `v` whose length is 1 to within ~1e-10: each component is
 /// nudged by up to 3 ulps. A lobe of exponent n magnifies the length error of wo n times
@@ -125,36 +115,22 @@ struct Run {
     pdf_integral: f64,
 }
 
-/// Draws `SAMPLES` directions with `sample` (which returns `None` for "no sample"), bins them
-/// on `grid` and tests the counts against `pdf` integrated over each cell, with one more cell
-/// for "no sample".
+/// [`common::directions::chi2_directions`] with the stream of these tests and an f32 pdf.
 fn chi2_directions(
     name: &str,
     grid: &SphereGrid,
     seed: u64,
-    mut sample: impl FnMut(&mut Rng) -> Option<Vec3>,
+    sample: impl FnMut(&mut Rng) -> Option<Vec3>,
     pdf: impl Fn(Vec3) -> f32,
 ) -> Run {
-    let probs = grid.integrate(|w| pdf(to32(w)) as f64);
-    let integral: f64 = probs.iter().sum();
-    assert!(
-        integral <= 1.0 + 1e-3,
-        "{name}: the pdf integrates to {integral} > 1 over the sphere"
-    );
-    let mut observed = vec![0u64; grid.cells() + 1];
-    let mut rng = Rng::new(seed, 0x5eed);
-    for _ in 0..SAMPLES {
-        match sample(&mut rng) {
-            Some(w) => observed[grid.cell_of(to64(w))] += 1,
-            None => observed[grid.cells()] += 1,
-        }
-    }
-    let n = SAMPLES as f64;
-    let mut expected: Vec<f64> = probs.iter().map(|p| p * n).collect();
-    expected.push((1.0 - integral).max(0.0) * n);
-    assert_chi2(name, &observed, &expected);
     Run {
-        pdf_integral: integral,
+        pdf_integral: common::directions::chi2_directions(
+            name,
+            grid,
+            Rng::new(seed, 0x5eed),
+            sample,
+            |w| pdf(w) as f64,
+        ),
     }
 }
 

@@ -2,7 +2,7 @@
 //! guide's sampling tests (the skeleton lobes and the learned histograms).
 
 use glam::DVec3;
-use lacuna::math::{Sampler, Vec3};
+use lacuna::math::Vec3;
 
 use super::chi2::assert_chi2;
 use super::sphere::SphereGrid;
@@ -18,14 +18,14 @@ pub fn to32(v: DVec3) -> Vec3 {
     Vec3::new(v.x as f32, v.y as f32, v.z as f32)
 }
 
-/// Draws `SAMPLES` directions with `sample` (None: no direction, its own cell) and compares
+/// Draws `SAMPLES` directions with `sample` (from `rng`: a `Sampler` or a bare `Rng`) (None: no direction, its own cell) and compares
 /// their counts per cell of `grid` with `pdf`'s quadrature by chi-square; returns the pdf's
 /// integral over the sphere (at most 1; the rest is the chance of no direction).
-pub fn chi2_directions(
+pub fn chi2_directions<R>(
     name: &str,
     grid: &SphereGrid,
-    mut rng: Sampler,
-    mut sample: impl FnMut(&mut Sampler) -> Option<Vec3>,
+    mut rng: R,
+    mut sample: impl FnMut(&mut R) -> Option<Vec3>,
     pdf: impl Fn(Vec3) -> f64,
 ) -> f64 {
     let probs = grid.integrate(|w| pdf(to32(w)));
