@@ -236,7 +236,7 @@ fn attribute(trace: &(dyn Fn(u64, u32, bool) -> Rgb + Sync), pixels: u32, spp: u
                         guided += 1;
                         bsdf += !v.from_guide as usize;
                         if let Some(n) = v.node {
-                            if worst.is_none_or(|(w, _)| r > w) {
+                            if !worst.is_some_and(|(w, _)| r <= w) {
                                 worst = Some((r, n));
                             }
                         }
