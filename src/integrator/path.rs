@@ -407,6 +407,11 @@ impl PathTracer {
         // The throughput BSDF sampling alone would carry, for Russian roulette (see
         // `guide::MixtureSample::bsdf_pdf`); equal to `beta` when nothing is guided.
         let mut rr_beta = Rgb::ONE;
+        // The product of p_bsdf / pdf over the directions so far (`ratio_max`).
+        let mut ratio = 1.0f32;
+        let ratio_max = guided
+            .as_ref()
+            .map_or(f32::INFINITY, |(g, _)| g.settings().ratio_max);
         // State of the previous vertex, for MIS when a BSDF-sampled ray hits an emitter.
         let mut prev_delta = true;
         let mut prev_pdf = 0.0f32;
@@ -463,6 +468,10 @@ impl PathTracer {
                     if !bsdf.is_delta() {
                         counters.rays +=
                             query.init(guide, scene, si.p, si.p_error, si.ng, si.wo) as u64;
+                        if ratio_max.is_finite() {
+                            // Worst case after this vertex: ratio / (1 - c) <= ratio_max.
+                            query.cap_guiding_probability(1.0 - ratio / ratio_max);
+                        }
                     }
                     query
                 }
@@ -494,6 +503,7 @@ impl PathTracer {
             diagnostics::record(query, depth, ms.bsdf_pdf, bs.pdf, radiance, ms.from_guide);
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
             rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
+            ratio *= ms.bsdf_pdf / bs.pdf;
             if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
                 break;
             }
