@@ -248,8 +248,12 @@ pub struct SkeletonGuideSettings {
     /// (1 - c), and along a path these factors multiply (the directions the BSDF draws where
     /// the guide's density is small carry up to 1 / (1 - c) of `path`'s weight at each such
     /// vertex). With `ratio_max` the render lowers a vertex's c to 1 - rho / R, rho the
-    /// product of p_bsdf / q over the path's earlier directions (0 once rho >= R), so that no
-    /// path weighs more than R times `path`'s for the same directions. c then depends on the
+    /// product of p_bsdf / q over the path's earlier directions (0 once rho >= R), so that the
+    /// directions' densities never weigh a path more than R times `path`'s for the same
+    /// directions (the MIS weights of light samples and emitter hits aside; they stay <= 1).
+    /// The Sibenik fireflies of `directions=learned` are such products (several vertices at
+    /// c 0.6-0.7 whose directions the BSDF drew: R 10.9); the corridor's useful chains are
+    /// too (BENCHMARKS.md, round 15, fire15). c then depends on the
     /// path's prefix only, and the vertex's every density (its direction's, its light sample's
     /// MIS weight, the next emitter hit's) is the mixture at that c: unbiased. Default
     /// infinite (off).
