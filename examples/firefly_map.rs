@@ -6,6 +6,14 @@
 //! densities of the direction taken): which vertex made the weight.
 //!
 //! `cargo run --release --features diagnostics --example firefly_map -- SCENE REFERENCE.exr WIDTH HEIGHT SPP SEED SPECS [TOP]`
+//!
+//! With `ATTRIB=1` it also records every sample and splits the image's second moment (the sum
+//! over samples of the squared luminance, over the sample count: what a guide changes in the
+//! MSE, the means being equal) by the sample's largest contribution: its depth and kind (emitter
+//! hit, next-event estimation, environment), the product R of bsdf_pdf / pdf over the
+//! directions before it (the weight against `path`'s for the same path), the number of guided
+//! vertices before it and of those whose direction the BSDF drew, and the node of its largest
+//! ratio.
 
 use std::path::Path;
 
@@ -118,6 +126,9 @@ fn main() {
             sq[..5].iter().sum::<f64>() / total,
             sq[..20].iter().sum::<f64>() / total
         );
+        if std::env::var("ATTRIB").is_ok_and(|v| v == "1") {
+            attribute(&trace, width * height, spp);
+        }
         for &p in order.iter().take(top) {
             let (mean, max, s) = per_pixel[p];
             let r = trace(p as u64, s, true);
@@ -131,10 +142,11 @@ fn main() {
             );
             for v in vertices {
                 println!(
-                    "    depth {} node {:?} c {:.2} lobes {:?} bsdf_pdf {:.3e} pdf {:.3e} (ratio {:.2}) radiance before {:.3e}",
+                    "    depth {} node {:?} c {:.2} {} lobes {:?} bsdf_pdf {:.3e} pdf {:.3e} (ratio {:.2}) radiance before {:.3e}",
                     v.depth,
                     v.node,
                     v.c,
+                    if v.from_guide { "guide" } else { "bsdf" },
                     v.lobes
                         .iter()
                         .map(|(w, portal)| format!("{w:.3}{}", if *portal { "p" } else { "" }))
@@ -147,4 +159,165 @@ fn main() {
             }
         }
     }
+}
+
+/// The second-moment split of `ATTRIB=1` (module docs).
+fn attribute(trace: &(dyn Fn(u64, u32, bool) -> Rgb + Sync), pixels: u32, spp: u32) {
+    use diagnostics::Kind;
+    const R_EDGES: [f32; 6] = [0.5, 1.0 - 1e-4, 1.0 + 1e-4, 1.5, 3.0, 10.0];
+    #[derive(Default, Clone)]
+    struct Acc {
+        total: f64,
+        by_kind_depth: Vec<f64>, // 3 x 8
+        by_r: [f64; 7],
+        by_guided: [f64; 4],
+        by_bsdf_at_guided: [f64; 4],
+        nodes: std::collections::HashMap<u32, f64>,
+        squares: Vec<f32>,
+    }
+    let merge = |mut a: Acc, b: Acc| {
+        a.total += b.total;
+        for (x, y) in a.by_kind_depth.iter_mut().zip(&b.by_kind_depth) {
+            *x += y;
+        }
+        for (x, y) in a.by_r.iter_mut().zip(&b.by_r) {
+            *x += y;
+        }
+        for (x, y) in a.by_guided.iter_mut().zip(&b.by_guided) {
+            *x += y;
+        }
+        for (x, y) in a.by_bsdf_at_guided.iter_mut().zip(&b.by_bsdf_at_guided) {
+            *x += y;
+        }
+        for (k, v) in b.nodes {
+            *a.nodes.entry(k).or_default() += v;
+        }
+        a.squares.extend(b.squares);
+        a
+    };
+    let empty = || Acc {
+        by_kind_depth: vec![0.0; 24],
+        ..Acc::default()
+    };
+    let acc = (0..pixels as u64)
+        .into_par_iter()
+        .fold(empty, |mut a, p| {
+            for s in 0..spp {
+                diagnostics::start();
+                let r = trace(p, s, true);
+                let vertices = diagnostics::take();
+                let contributions = diagnostics::take_contributions();
+                let x = luminance(r) as f64;
+                if !(x.is_finite() && x > 0.0) {
+                    continue;
+                }
+                let x2 = x * x;
+                a.total += x2;
+                a.squares.push(x2 as f32);
+                let Some(top) = contributions
+                    .iter()
+                    .max_by(|a, b| a.luminance.total_cmp(&b.luminance))
+                else {
+                    continue;
+                };
+                let kind = match top.kind {
+                    Kind::Hit => 0,
+                    Kind::Nee => 1,
+                    Kind::Escaped => 2,
+                };
+                a.by_kind_depth[kind * 8 + (top.depth as usize).min(7)] += x2;
+                let before = vertices.iter().filter(|v| v.depth < top.depth);
+                let (mut ratio, mut guided, mut bsdf) = (1.0f32, 0usize, 0usize);
+                let mut worst: Option<(f32, u32)> = None;
+                for v in before {
+                    let r = v.bsdf_pdf / v.pdf;
+                    ratio *= r;
+                    if v.c > 0.0 {
+                        guided += 1;
+                        bsdf += !v.from_guide as usize;
+                        if let Some(n) = v.node {
+                            if !worst.is_some_and(|(w, _)| r <= w) {
+                                worst = Some((r, n));
+                            }
+                        }
+                    }
+                }
+                let bin = R_EDGES.iter().filter(|&&e| ratio >= e).count();
+                a.by_r[bin] += x2;
+                a.by_guided[guided.min(3)] += x2;
+                a.by_bsdf_at_guided[bsdf.min(3)] += x2;
+                if let Some((r, n)) = worst {
+                    if r > 1.0 {
+                        *a.nodes.entry(n).or_default() += x2;
+                    }
+                }
+            }
+            a
+        })
+        .reduce(empty, merge);
+    let n = pixels as f64 * spp as f64;
+    let share = |v: f64| v / acc.total;
+    println!(
+        "  second moment (sum of squared sample luminance / samples): {:.4e}",
+        acc.total / n
+    );
+    let mut squares = acc.squares.clone();
+    squares.sort_by(|a, b| b.total_cmp(a));
+    let top = |k: usize| {
+        squares[..k.min(squares.len())]
+            .iter()
+            .map(|&x| x as f64)
+            .sum::<f64>()
+    };
+    println!(
+        "  share of the largest 1e-5 / 1e-4 / 1e-3 of the samples: {:.3} / {:.3} / {:.3}",
+        share(top((n * 1e-5) as usize)),
+        share(top((n * 1e-4) as usize)),
+        share(top((n * 1e-3) as usize))
+    );
+    for (k, name) in ["hit", "nee", "escaped"].iter().enumerate() {
+        let row: Vec<String> = acc.by_kind_depth[k * 8..k * 8 + 8]
+            .iter()
+            .map(|&v| format!("{:.3}", share(v)))
+            .collect();
+        println!(
+            "  by largest contribution, {name} at depth 0..7+: {}",
+            row.join(" ")
+        );
+    }
+    println!(
+        "  by R (<0.5, 0.5-1, 1, 1-1.5, 1.5-3, 3-10, >=10): {}",
+        acc.by_r
+            .iter()
+            .map(|&v| format!("{:.3e}", v / n))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    println!(
+        "  by guided vertices before it (0, 1, 2, 3+): {}",
+        acc.by_guided
+            .iter()
+            .map(|&v| format!("{:.3e}", v / n))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    println!(
+        "  by BSDF-drawn guided vertices before it (0, 1, 2, 3+): {}",
+        acc.by_bsdf_at_guided
+            .iter()
+            .map(|&v| format!("{:.3e}", v / n))
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let mut nodes: Vec<(u32, f64)> = acc.nodes.into_iter().collect();
+    nodes.sort_by(|a, b| b.1.total_cmp(&a.1));
+    println!(
+        "  nodes of the largest ratio > 1 (share of the second moment): {}",
+        nodes
+            .iter()
+            .take(10)
+            .map(|(k, v)| format!("{k}: {:.3}", share(*v)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
 }

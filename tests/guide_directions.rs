@@ -80,19 +80,40 @@ fn chi2_of_the_histogram_distribution() {
 /// sample"), each sample carries that density, and f cos / pdf estimates the albedo.
 #[test]
 fn chi2_and_albedo_of_the_bsdf_and_histogram_mixture() {
+    let q = GuideQuery::with_distribution(0.6, &peaked_bins()).unwrap();
+    chi2_and_albedo_of_the_mixture("lambert + histogram", &q, 0.6);
+}
+
+/// `ratio_max` lowers a query's c at render time (`GuideQuery::cap_guiding_probability`):
+/// sampling and every density then use the capped c.
+#[test]
+fn chi2_and_albedo_of_the_mixture_with_a_capped_c() {
+    let mut q = GuideQuery::with_distribution(0.6, &peaked_bins()).unwrap();
+    q.cap_guiding_probability(0.25);
+    assert_eq!(q.guiding_probability(), 0.25);
+    chi2_and_albedo_of_the_mixture("lambert + histogram, c capped at 0.25", &q, 0.25);
+    // A cap above c leaves it; a negative one turns guiding off.
+    q.cap_guiding_probability(0.9);
+    assert_eq!(q.guiding_probability(), 0.25);
+    q.cap_guiding_probability(-0.5);
+    assert_eq!(q.guiding_probability(), 0.0);
+}
+
+/// Chi-square of `sample_bsdf_or_guide` with a Lambertian BSDF and the query `q` (guiding
+/// probability `c`) against c p_guide + (1 - c) p_bsdf, and its albedo estimate.
+fn chi2_and_albedo_of_the_mixture(label: &str, q: &GuideQuery, c: f32) {
     // The normal along z: the horizon is a boundary of the test's cells (a cell straddling
     // it would hold directions above it that the cell's quadrature may miss).
     let frame = Frame::from_z(Vec3::Z);
     let wo_local = Vec3::new(0.4, -0.2, 0.7).normalize();
     let bsdf: Bsdf = Material::diffuse(Rgb::splat(0.8)).bsdf(Rgb::splat(0.8));
-    let q = GuideQuery::with_distribution(0.6, &peaked_bins()).unwrap();
     let mut estimate = Stats::default();
     let integral = chi2_directions(
-        "lambert + histogram",
+        label,
         &SphereGrid::uniform(18, 37),
         Sampler::independent(Rng::new(400, 78)),
         |rng| {
-            let Some(m) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &q, rng) else {
+            let Some(m) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, q, rng) else {
                 estimate.add(0.0);
                 return None;
             };
@@ -110,12 +131,12 @@ fn chi2_and_albedo_of_the_bsdf_and_histogram_mixture() {
         |w| {
             let wi = frame.to_local(w);
             let guided = if wi.z > 0.0 { q.pdf(w) } else { 0.0 };
-            (0.6 * guided + 0.4 * bsdf.pdf(wo_local, wi)) as f64
+            (c * guided + (1.0 - c) * bsdf.pdf(wo_local, wi)) as f64
         },
     );
     assert!(integral < 1.0, "part of the histogram is below the surface");
     assert_z(
-        "lambert + histogram: albedo",
+        &format!("{label}: albedo"),
         estimate.mean(),
         0.8,
         estimate.std_err(),
@@ -153,6 +174,21 @@ fn options_parse_and_exclude_the_lobe_options() {
     s.set("directions", "learned").unwrap();
     assert!(s.set("lobe_weights", "learned").is_err());
     assert!(s.set("strength", "learned").is_err());
+}
+
+#[test]
+fn ratio_max_parses_and_validates() {
+    let s = SkeletonGuideSettings::default();
+    assert_eq!(s.ratio_max, f32::INFINITY, "off by default");
+    assert_eq!(settings(&[("ratio_max", "2.5")]).ratio_max, 2.5);
+    assert_eq!(
+        settings(&[("ratio_max", "2"), ("ratio_max", "off")]).ratio_max,
+        f32::INFINITY
+    );
+    let mut s = SkeletonGuideSettings::default();
+    for bad in ["1", "0.5", "0", "-3", "nan", "x"] {
+        assert!(s.set("ratio_max", bad).is_err(), "{bad}");
+    }
 }
 
 /// The training (and so the distributions) are the same for any thread count; every guided
@@ -211,6 +247,8 @@ fn learned_directions_are_deterministic_and_reach_the_queries() {
 const SPECS: &[&str] = &[
     "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned",
     "path_skeleton:c_skel=0.9:directions=learned",
+    // ratio_max binds at c = 0.9 (1 / (1 - 0.9) = 10 > 1.5): c varies with the path's prefix.
+    "path_skeleton:c_skel=0.9:directions=learned:ratio_max=1.5",
 ];
 
 #[test]

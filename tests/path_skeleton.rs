@@ -778,7 +778,12 @@ fn path_skeleton_agrees_with_path_in_direct_lighting() {
         1,
         16,
         32,
-        &["path_skeleton:c_skel=0.9:strength=8"],
+        &[
+            "path_skeleton:c_skel=0.9:strength=8",
+            // ratio_max=2 caps the first vertex's c at 0.5: the light sample's MIS weight and
+            // the emitter hit's must both use the capped mixture.
+            "path_skeleton:c_skel=0.9:strength=8:ratio_max=2",
+        ],
     );
 }
 
@@ -805,6 +810,8 @@ fn path_skeleton_agrees_with_path_on_the_two_rooms() {
             "path_skeleton:aim=portal:c_skel=0.9",
             "path_skeleton:aim=portal:c_skel=0.9:fallback=drop",
             "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:lobe_weights=learned",
+            // c then depends on the path's prefix (10 > 1.5 at c = 0.9: the cap binds).
+            "path_skeleton:aim=portal:c_skel=0.9:ratio_max=1.5",
         ],
     );
 }

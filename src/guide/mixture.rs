@@ -18,6 +18,8 @@ pub struct MixtureSample {
     /// where they are more likely to lead to light; a roulette on it would end guided paths
     /// because they were guided.
     pub bsdf_pdf: f32,
+    /// Whether the guide (not the BSDF) drew the direction.
+    pub from_guide: bool,
 }
 
 /// Samples an incident direction at a surface for radiance transport: from `bsdf` (local to
@@ -51,6 +53,7 @@ pub fn sample_bsdf_or_guide(
                 delta: false,
             },
             bsdf_pdf: if bsdf_pdf > 0.0 { bsdf_pdf } else { pdf },
+            from_guide: true,
         });
     }
     let mut bs = bsdf.sample_from(wo_local, rng, Transport::Radiance)?;
@@ -61,5 +64,6 @@ pub fn sample_bsdf_or_guide(
     Some(MixtureSample {
         sample: bs,
         bsdf_pdf,
+        from_guide: false,
     })
 }

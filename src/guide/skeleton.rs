@@ -243,6 +243,21 @@ pub struct SkeletonGuideSettings {
     /// a run's squared error; no node of the ajar, the door or the corridor learns above 0.7
     /// (BENCHMARKS.md, round 13, guide13b).
     pub c_max: f32,
+    /// `ratio_max=R`: a bound on how much more than `path` a guided path may weigh. At each
+    /// vertex the weight of the direction against BSDF sampling alone is p_bsdf / q <= 1 /
+    /// (1 - c), and along a path these factors multiply (the directions the BSDF draws where
+    /// the guide's density is small carry up to 1 / (1 - c) of `path`'s weight at each such
+    /// vertex). With `ratio_max` the render lowers a vertex's c to 1 - rho / R, rho the
+    /// product of p_bsdf / q over the path's earlier directions (0 once rho >= R), so that the
+    /// directions' densities never weigh a path more than R times `path`'s for the same
+    /// directions (the MIS weights of light samples and emitter hits aside; they stay <= 1).
+    /// The Sibenik fireflies of `directions=learned` are such products (several vertices at
+    /// c 0.6-0.7 whose directions the BSDF drew: R 10.9); the corridor's useful chains are
+    /// too (BENCHMARKS.md, round 15, fire15). c then depends on the
+    /// path's prefix only, and the vertex's every density (its direction's, its light sample's
+    /// MIS weight, the next emitter hit's) is the mixture at that c: unbiased. Default
+    /// infinite (off).
+    pub ratio_max: f32,
     /// Strength of eq. 163 at every guided node unless `learned_strength`; with it, the
     /// training pass's proposal strength.
     pub strength: SkeletonStrength,
@@ -489,6 +504,7 @@ impl Default for SkeletonGuideSettings {
             c_skel: 0.5,
             learned_c_skel: true,
             c_max: DEFAULT_C_MAX,
+            ratio_max: f32::INFINITY,
             strength: SkeletonStrength::Auto {
                 max: DEFAULT_AUTO_MAX,
             },
@@ -535,6 +551,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "lobe_weights",
     "training_guided_cost",
     "c_max",
+    "ratio_max",
     "cost_model",
     "directions",
 ];
@@ -559,8 +576,8 @@ impl SkeletonGuideSettings {
     /// (1024..=2^24), `training_cost` (`path` or
     /// `vertex`), `training_significance` (>= 0), `training_min_nonzero`,
     /// `training_guided_cost` (>= 0), `cost_model` (`vertices`, `switch` or `measured`),
-    /// `lobe_weights` (`distance` or `learned`), `c_max` (the largest learned c, in [0.05, 1))
-    /// and `directions` (`lobes` or `learned`). Validates
+    /// `lobe_weights` (`distance` or `learned`), `c_max` (the largest learned c, in [0.05, 1)),
+    /// `ratio_max` (a number > 1, or `off`) and `directions` (`lobes` or `learned`). Validates
     /// the result.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         fn number<T: std::str::FromStr>(key: &str, value: &str) -> Result<T> {
@@ -611,6 +628,8 @@ impl SkeletonGuideSettings {
             "training_min_nonzero" => next.training_min_nonzero = number(key, value)?,
             "training_guided_cost" => next.training_guided_cost = number(key, value)?,
             "c_max" => next.c_max = number(key, value)?,
+            "ratio_max" if value.trim() == "off" => next.ratio_max = f32::INFINITY,
+            "ratio_max" => next.ratio_max = number(key, value)?,
             "cost_model" => next.cost_model = CostModel::parse(value)?,
             "resolution" => next.resolution = Resolution::LongestAxis(number(key, value)?),
             "voxel_budget" => next.resolution = Resolution::VoxelBudget(number(key, value)?),
@@ -705,6 +724,13 @@ impl SkeletonGuideSettings {
                 "skeleton c_max {} must be in [{}, 1)",
                 self.c_max,
                 super::training::CANDIDATES[1]
+            )));
+        }
+        if !(self.ratio_max > 1.0) {
+            // At most 1 guides nothing (the cap would be c = 0 at the first vertex); NaN fails.
+            return Err(Error::invalid(format!(
+                "skeleton ratio_max {} must be > 1 (or off)",
+                self.ratio_max
             )));
         }
         if self.learned_lobe_weights && self.learned_strength {
@@ -2285,6 +2311,15 @@ impl GuideQuery {
     /// Whether active lobe `i` samples the opening's rectangle (`aim=portal`) at this point.
     pub fn lobe_is_portal(&self, i: usize) -> bool {
         i < self.count && self.lobes[i].portal
+    }
+
+    /// Lowers the guiding probability here to at most `c` (`ratio_max`): a bound the
+    /// integrator derives from the path's prefix, before using any of the query's densities.
+    #[inline]
+    pub fn cap_guiding_probability(&mut self, c: f32) {
+        if self.c_skel > c {
+            self.c_skel = c.max(0.0);
+        }
     }
 
     /// Probability of sampling the skeleton rather than the BSDF here: `c_skel` where lobes

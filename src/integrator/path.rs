@@ -297,15 +297,38 @@ pub mod diagnostics {
         pub pdf: f32,
         /// Radiance accumulated before this vertex's direction (luminance).
         pub radiance_before: f32,
+        /// Whether the guide drew the direction (else the BSDF).
+        pub from_guide: bool,
+    }
+
+    /// What one contribution to the sample's radiance was.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum Kind {
+        /// An emitter hit at the vertex of this depth (reached by the previous direction).
+        Hit,
+        /// Next-event estimation at the vertex of this depth.
+        Nee,
+        /// The environment, along the ray leaving the vertex of depth - 1.
+        Escaped,
+    }
+
+    /// One weighted contribution (luminance of beta times the estimate) of a recorded path.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Contribution {
+        pub depth: u32,
+        pub kind: Kind,
+        pub luminance: f32,
     }
 
     thread_local! {
         static RECORD: RefCell<Option<Vec<Vertex>>> = const { RefCell::new(None) };
+        static CONTRIBUTIONS: RefCell<Vec<Contribution>> = const { RefCell::new(Vec::new()) };
     }
 
     /// Starts recording on this thread.
     pub fn start() {
         RECORD.with(|r| *r.borrow_mut() = Some(Vec::new()));
+        CONTRIBUTIONS.with(|c| c.borrow_mut().clear());
     }
 
     /// Stops recording and returns the vertices.
@@ -313,7 +336,32 @@ pub mod diagnostics {
         RECORD.with(|r| r.borrow_mut().take().unwrap_or_default())
     }
 
-    pub(super) fn record(query: &GuideQuery, depth: u32, bsdf_pdf: f32, pdf: f32, radiance: Rgb) {
+    /// The contributions recorded since [`start`] (call before the next `start`).
+    pub fn take_contributions() -> Vec<Contribution> {
+        CONTRIBUTIONS.with(|c| std::mem::take(&mut *c.borrow_mut()))
+    }
+
+    pub(super) fn contribution(depth: u32, kind: Kind, value: Rgb) {
+        let recording = RECORD.with(|r| r.borrow().is_some());
+        if recording && value != Rgb::ZERO {
+            CONTRIBUTIONS.with(|c| {
+                c.borrow_mut().push(Contribution {
+                    depth,
+                    kind,
+                    luminance: crate::math::luminance(value),
+                })
+            });
+        }
+    }
+
+    pub(super) fn record(
+        query: &GuideQuery,
+        depth: u32,
+        bsdf_pdf: f32,
+        pdf: f32,
+        radiance: Rgb,
+        from_guide: bool,
+    ) {
         RECORD.with(|r| {
             if let Some(v) = r.borrow_mut().as_mut() {
                 v.push(Vertex {
@@ -326,6 +374,7 @@ pub mod diagnostics {
                     bsdf_pdf,
                     pdf,
                     radiance_before: crate::math::luminance(radiance),
+                    from_guide,
                 });
             }
         });
@@ -358,6 +407,11 @@ impl PathTracer {
         // The throughput BSDF sampling alone would carry, for Russian roulette (see
         // `guide::MixtureSample::bsdf_pdf`); equal to `beta` when nothing is guided.
         let mut rr_beta = Rgb::ONE;
+        // The product of p_bsdf / pdf over the directions so far (`ratio_max`).
+        let mut ratio = 1.0f32;
+        let ratio_max = guided
+            .as_ref()
+            .map_or(f32::INFINITY, |(g, _)| g.settings().ratio_max);
         // State of the previous vertex, for MIS when a BSDF-sampled ray hits an emitter.
         let mut prev_delta = true;
         let mut prev_pdf = 0.0f32;
@@ -367,8 +421,11 @@ impl PathTracer {
         loop {
             counters.rays += 1;
             let Some(si) = scene.intersect(&ray) else {
-                radiance +=
+                let e =
                     beta * self.escaped(scene, ray.dir, depth, prev_delta, prev_pdf, prev_normal);
+                #[cfg(feature = "diagnostics")]
+                diagnostics::contribution(depth, diagnostics::Kind::Escaped, e);
+                radiance += e;
                 break;
             };
             if depth == 0 {
@@ -390,6 +447,8 @@ impl PathTracer {
                         * scene.lights()[light].pdf_with(prev_point, si.p, self.settings.triangles);
                     self.settings.mis.weight(prev_pdf, light_pdf)
                 };
+                #[cfg(feature = "diagnostics")]
+                diagnostics::contribution(depth, diagnostics::Kind::Hit, beta * le * weight);
                 radiance += beta * le * weight;
             }
             if depth >= self.settings.max_depth {
@@ -409,6 +468,10 @@ impl PathTracer {
                     if !bsdf.is_delta() {
                         counters.rays +=
                             query.init(guide, scene, si.p, si.p_error, si.ng, si.wo) as u64;
+                        if ratio_max.is_finite() {
+                            // Worst case after this vertex: ratio / (1 - c) <= ratio_max.
+                            query.cap_guiding_probability(1.0 - ratio / ratio_max);
+                        }
                     }
                     query
                 }
@@ -416,8 +479,11 @@ impl PathTracer {
             };
             if !bsdf.is_delta() {
                 rng.set_dimension(slot(depth, LIGHT_SLOT));
-                radiance += beta
+                let nee = beta
                     * self.sample_light(scene, &si, &frame, &bsdf, wo_local, query, rng, counters);
+                #[cfg(feature = "diagnostics")]
+                diagnostics::contribution(depth, diagnostics::Kind::Nee, nee);
+                radiance += nee;
             }
 
             rng.set_dimension(slot(depth, DIRECTION_SLOT));
@@ -434,9 +500,10 @@ impl PathTracer {
                 break;
             }
             #[cfg(feature = "diagnostics")]
-            diagnostics::record(query, depth, ms.bsdf_pdf, bs.pdf, radiance);
+            diagnostics::record(query, depth, ms.bsdf_pdf, bs.pdf, radiance, ms.from_guide);
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
             rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
+            ratio *= ms.bsdf_pdf / bs.pdf;
             if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
                 break;
             }
