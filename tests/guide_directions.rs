@@ -34,7 +34,7 @@ fn peaked_bins() -> Vec<f32> {
             (w, x)
         })
         .collect();
-    directional::bin_probabilities(samples.into_iter())
+    directional::bin_probabilities(samples.into_iter(), directional::FLOOR)
 }
 
 #[test]
@@ -153,6 +153,15 @@ fn options_parse_and_exclude_the_lobe_options() {
     s.set("directions", "learned").unwrap();
     assert!(s.set("lobe_weights", "learned").is_err());
     assert!(s.set("strength", "learned").is_err());
+    // Iterative training samples the learned distributions: it needs them.
+    s.set("training_passes", "3").unwrap();
+    assert_eq!(s.training_passes, 3);
+    assert!(s.set("training_passes", "0").is_err());
+    assert!(s.set("training_passes", "5").is_err());
+    assert!(s.set("directions", "lobes").is_err());
+    assert!(SkeletonGuideSettings::default()
+        .set("training_passes", "2")
+        .is_err());
 }
 
 /// The training (and so the distributions) are the same for any thread count; every guided
@@ -160,7 +169,26 @@ fn options_parse_and_exclude_the_lobe_options() {
 #[test]
 fn learned_directions_are_deterministic_and_reach_the_queries() {
     let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
-    let s = settings(&[("directions", "learned")]);
+    check_learned_directions(&scene, &settings(&[("directions", "learned")]));
+}
+
+/// The same with two training passes (the second sampling the first's distributions), and
+/// the second pass learns something else than the first.
+#[test]
+fn iterative_training_is_deterministic_and_reaches_the_queries() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let one = settings(&[("directions", "learned"), ("training_paths", "32768")]);
+    let mut two = one;
+    two.set("training_passes", "2").unwrap();
+    check_learned_directions(&scene, &two);
+    assert_ne!(
+        build(&scene, &one, 2).training().unwrap().directions,
+        build(&scene, &two, 2).training().unwrap().directions
+    );
+}
+
+fn check_learned_directions(scene: &Scene, s: &SkeletonGuideSettings) {
+    let (scene, s) = (scene, *s);
     let one = build(&scene, &s, 1);
     let t = one.training().expect("trained").clone();
     assert_eq!(build(&scene, &s, 2).training(), Some(&t));
@@ -211,6 +239,8 @@ fn learned_directions_are_deterministic_and_reach_the_queries() {
 const SPECS: &[&str] = &[
     "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned",
     "path_skeleton:c_skel=0.9:directions=learned",
+    "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned:training_passes=2:training_paths=65536",
+    "path_skeleton:c_skel=0.9:directions=learned:training_passes=3:training_paths=16384",
 ];
 
 #[test]
