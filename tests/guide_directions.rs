@@ -24,6 +24,11 @@ use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder, Bsdf, 
 /// Bin weights of a peaked, uneven distribution: a histogram of a power-cosine lobe plus a
 /// second weaker one, some bins empty before the floor.
 fn peaked_bins() -> Vec<f32> {
+    peaked_bins_with(directional::FLOOR)
+}
+
+/// The same with uniform share `floor` (`histogram_floor`).
+fn peaked_bins_with(floor: f32) -> Vec<f32> {
     let mut rng = Sampler::independent(Rng::new(11, 12));
     let a = Vec3::new(0.3, -0.6, 0.5).normalize();
     let b = Vec3::new(-0.8, 0.1, -0.3).normalize();
@@ -34,7 +39,7 @@ fn peaked_bins() -> Vec<f32> {
             (w, x)
         })
         .collect();
-    directional::bin_probabilities(samples.into_iter(), directional::FLOOR)
+    directional::bin_probabilities(samples.into_iter(), floor)
 }
 
 #[test]
@@ -44,7 +49,15 @@ fn chi2_of_the_histogram_distribution() {
     assert!(GuideQuery::with_distribution(0.5, &bins[1..]).is_err());
     assert!(GuideQuery::with_distribution(1.0, &bins).is_err());
     assert!(GuideQuery::with_distribution(0.5, &vec![0.0; BINS]).is_err());
-    for (k, bins) in [bins, vec![1.0; BINS]].into_iter().enumerate() {
+    // The default floor, a small one (`histogram_floor=0.05`: the emptiest bins' density
+    // a third of the default's) and uniform.
+    let low = peaked_bins_with(0.05);
+    assert!(
+        low.iter().all(|&p| p > 0.0)
+            && low.iter().fold(1.0f32, |m, &p| m.min(p))
+                < bins.iter().fold(1.0f32, |m, &p| m.min(p))
+    );
+    for (k, bins) in [bins, low, vec![1.0; BINS]].into_iter().enumerate() {
         let q = GuideQuery::with_distribution(0.5, &bins).unwrap();
         assert_eq!(q.guiding_probability(), 0.5);
         let name = format!("histogram {k}");
@@ -162,6 +175,15 @@ fn options_parse_and_exclude_the_lobe_options() {
     assert!(SkeletonGuideSettings::default()
         .set("training_passes", "2")
         .is_err());
+    let mut s = settings(&[("directions", "learned")]);
+    assert!(!s.training_history && s.histogram_floor == directional::FLOOR);
+    s.set("training_history", "all").unwrap();
+    s.set("histogram_floor", "0.05").unwrap();
+    assert!(s.training_history && s.histogram_floor == 0.05);
+    assert!(s.set("training_history", "some").is_err());
+    for bad in ["0", "-0.1", "1.5", "nan"] {
+        assert!(s.set("histogram_floor", bad).is_err(), "{bad}");
+    }
 }
 
 /// The training (and so the distributions) are the same for any thread count; every guided
@@ -239,7 +261,7 @@ fn check_learned_directions(scene: &Scene, s: &SkeletonGuideSettings) {
 const SPECS: &[&str] = &[
     "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned",
     "path_skeleton:c_skel=0.9:directions=learned",
-    "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned:training_passes=2:training_paths=65536",
+    "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned:histogram_floor=0.05:training_passes=2:training_paths=65536",
     "path_skeleton:c_skel=0.9:directions=learned:training_passes=3:training_paths=16384",
 ];
 
