@@ -210,10 +210,10 @@ fn iterative_training_is_deterministic_and_reaches_the_queries() {
 }
 
 fn check_learned_directions(scene: &Scene, s: &SkeletonGuideSettings) {
-    let (scene, s) = (scene, *s);
-    let one = build(&scene, &s, 1);
+    let s = *s;
+    let one = build(scene, &s, 1);
     let t = one.training().expect("trained").clone();
-    assert_eq!(build(&scene, &s, 2).training(), Some(&t));
+    assert_eq!(build(scene, &s, 2).training(), Some(&t));
     assert!(t.guided_nodes() > 0, "no node guided");
     let table = one.directions().expect("a table");
     for (k, &c) in t.probabilities.iter().enumerate() {
@@ -242,7 +242,7 @@ fn check_learned_directions(scene: &Scene, s: &SkeletonGuideSettings) {
         let Some(si) = scene.intersect(&ray) else {
             continue;
         };
-        let rays = query.init(&one, &scene, si.p, si.p_error, si.ng, si.wo);
+        let rays = query.init(&one, scene, si.p, si.p_error, si.ng, si.wo);
         assert_eq!(rays, 0, "a learned distribution traces no shadow ray");
         let Some(node) = query.node() else { continue };
         let c = one.guiding_probability(node);
