@@ -24,6 +24,11 @@ use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder, Bsdf, 
 /// Bin weights of a peaked, uneven distribution: a histogram of a power-cosine lobe plus a
 /// second weaker one, some bins empty before the floor.
 fn peaked_bins() -> Vec<f32> {
+    peaked_bins_with(directional::FLOOR)
+}
+
+/// The same with uniform share `floor` (`histogram_floor`).
+fn peaked_bins_with(floor: f32) -> Vec<f32> {
     let mut rng = Sampler::independent(Rng::new(11, 12));
     let a = Vec3::new(0.3, -0.6, 0.5).normalize();
     let b = Vec3::new(-0.8, 0.1, -0.3).normalize();
@@ -34,7 +39,7 @@ fn peaked_bins() -> Vec<f32> {
             (w, x)
         })
         .collect();
-    directional::bin_probabilities(samples.into_iter())
+    directional::bin_probabilities(samples.into_iter(), floor)
 }
 
 #[test]
@@ -44,7 +49,15 @@ fn chi2_of_the_histogram_distribution() {
     assert!(GuideQuery::with_distribution(0.5, &bins[1..]).is_err());
     assert!(GuideQuery::with_distribution(1.0, &bins).is_err());
     assert!(GuideQuery::with_distribution(0.5, &vec![0.0; BINS]).is_err());
-    for (k, bins) in [bins, vec![1.0; BINS]].into_iter().enumerate() {
+    // The default floor, a small one (`histogram_floor=0.05`: the emptiest bins' density
+    // a third of the default's) and uniform.
+    let low = peaked_bins_with(0.05);
+    assert!(
+        low.iter().all(|&p| p > 0.0)
+            && low.iter().fold(1.0f32, |m, &p| m.min(p))
+                < bins.iter().fold(1.0f32, |m, &p| m.min(p))
+    );
+    for (k, bins) in [bins, low, vec![1.0; BINS]].into_iter().enumerate() {
         let q = GuideQuery::with_distribution(0.5, &bins).unwrap();
         assert_eq!(q.guiding_probability(), 0.5);
         let name = format!("histogram {k}");
@@ -174,6 +187,24 @@ fn options_parse_and_exclude_the_lobe_options() {
     s.set("directions", "learned").unwrap();
     assert!(s.set("lobe_weights", "learned").is_err());
     assert!(s.set("strength", "learned").is_err());
+    // Iterative training samples the learned distributions: it needs them.
+    s.set("training_passes", "3").unwrap();
+    assert_eq!(s.training_passes, 3);
+    assert!(s.set("training_passes", "0").is_err());
+    assert!(s.set("training_passes", "5").is_err());
+    assert!(s.set("directions", "lobes").is_err());
+    assert!(SkeletonGuideSettings::default()
+        .set("training_passes", "2")
+        .is_err());
+    let mut s = settings(&[("directions", "learned")]);
+    assert!(!s.training_history && s.histogram_floor == directional::FLOOR);
+    s.set("training_history", "all").unwrap();
+    s.set("histogram_floor", "0.05").unwrap();
+    assert!(s.training_history && s.histogram_floor == 0.05);
+    assert!(s.set("training_history", "some").is_err());
+    for bad in ["0", "-0.1", "1.5", "nan"] {
+        assert!(s.set("histogram_floor", bad).is_err(), "{bad}");
+    }
 }
 
 #[test]
@@ -196,10 +227,29 @@ fn ratio_max_parses_and_validates() {
 #[test]
 fn learned_directions_are_deterministic_and_reach_the_queries() {
     let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
-    let s = settings(&[("directions", "learned")]);
-    let one = build(&scene, &s, 1);
+    check_learned_directions(&scene, &settings(&[("directions", "learned")]));
+}
+
+/// The same with two training passes (the second sampling the first's distributions), and
+/// the second pass learns something else than the first.
+#[test]
+fn iterative_training_is_deterministic_and_reaches_the_queries() {
+    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let one = settings(&[("directions", "learned"), ("training_paths", "32768")]);
+    let mut two = one;
+    two.set("training_passes", "2").unwrap();
+    check_learned_directions(&scene, &two);
+    assert_ne!(
+        build(&scene, &one, 2).training().unwrap().directions,
+        build(&scene, &two, 2).training().unwrap().directions
+    );
+}
+
+fn check_learned_directions(scene: &Scene, s: &SkeletonGuideSettings) {
+    let s = *s;
+    let one = build(scene, &s, 1);
     let t = one.training().expect("trained").clone();
-    assert_eq!(build(&scene, &s, 2).training(), Some(&t));
+    assert_eq!(build(scene, &s, 2).training(), Some(&t));
     assert!(t.guided_nodes() > 0, "no node guided");
     let table = one.directions().expect("a table");
     for (k, &c) in t.probabilities.iter().enumerate() {
@@ -228,7 +278,7 @@ fn learned_directions_are_deterministic_and_reach_the_queries() {
         let Some(si) = scene.intersect(&ray) else {
             continue;
         };
-        let rays = query.init(&one, &scene, si.p, si.p_error, si.ng, si.wo);
+        let rays = query.init(&one, scene, si.p, si.p_error, si.ng, si.wo);
         assert_eq!(rays, 0, "a learned distribution traces no shadow ray");
         let Some(node) = query.node() else { continue };
         let c = one.guiding_probability(node);
@@ -249,6 +299,8 @@ const SPECS: &[&str] = &[
     "path_skeleton:c_skel=0.9:directions=learned",
     // ratio_max binds at c = 0.9 (1 / (1 - 0.9) = 10 > 1.5): c varies with the path's prefix.
     "path_skeleton:c_skel=0.9:directions=learned:ratio_max=1.5",
+    "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned:histogram_floor=0.05:training_passes=2:training_paths=65536",
+    "path_skeleton:c_skel=0.9:directions=learned:training_passes=3:training_paths=16384",
 ];
 
 #[test]

@@ -233,7 +233,8 @@ struct CompareArgs {
     /// path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
     /// `importance_nodes`, `lobes`, `visibility`, `aim`, `fallback`, `training_depth`,
     /// `training_paths`, `training_cost`, `training_significance`, `training_min_nonzero`,
-    /// `training_guided_cost`, `cost_model`, `lobe_weights`, `c_max`, `directions`
+    /// `training_guided_cost`, `cost_model`, `lobe_weights`, `c_max`, `directions`,
+    /// `training_passes`, `training_history`, `histogram_floor`
     /// (e.g. `path,path:rr_depth=3,path_skeleton`);
     /// any of them also `sampler=sobol|independent` (e.g. `path:sampler=independent,path`).
     #[arg(long, default_value = "path")]

@@ -26,7 +26,7 @@ pub const Z_BINS: usize = 12;
 pub const PHI_BINS: usize = 24;
 /// Bins of one distribution.
 pub const BINS: usize = Z_BINS * PHI_BINS;
-/// Share of the density that is uniform over the sphere.
+/// Share of the density that is uniform over the sphere, by default (`histogram_floor`).
 pub const FLOOR: f32 = 0.15;
 /// Normal classes ([`class_of`]) and, within each, quadrants of the point's position.
 pub const NORMALS: usize = 6;
@@ -85,30 +85,47 @@ impl DirectionalTable {
     /// The table of `distributions`: per node, `CLASSES` x `BINS` bin probabilities (each
     /// class's summing to 1: [`fit`]), or None.
     pub fn new(distributions: &[Option<Vec<f32>>]) -> DirectionalTable {
+        Self::with_default(distributions, None)
+    }
+
+    /// As [`new`](Self::new), but every node without a distribution shares `default`
+    /// (`CLASSES` x `BINS` bin probabilities, stored once) instead of being left out: a later
+    /// training pass then also samples, and learns, the nodes the previous one never guided.
+    pub fn with_default(
+        distributions: &[Option<Vec<f32>>],
+        default: Option<&[f32]>,
+    ) -> DirectionalTable {
         let mut t = DirectionalTable {
             slot: Vec::with_capacity(distributions.len()),
             pdf: Vec::new(),
             cdf: Vec::new(),
         };
+        let shared = default.map(|p| t.push(p));
         for d in distributions {
-            let Some(p) = d else {
-                t.slot.push(NONE);
-                continue;
+            let slot = match d {
+                Some(p) => t.push(p),
+                None => shared.unwrap_or(NONE),
             };
-            assert_eq!(p.len(), CLASSES * BINS, "a node's distributions");
-            t.slot.push((t.pdf.len() / BINS) as u32);
-            for class in p.chunks_exact(BINS) {
-                let mut acc = 0.0f64;
-                for &x in class {
-                    t.pdf.push(x * BINS as f32 * INV_4PI);
-                    acc += x as f64;
-                    t.cdf.push(acc as f32);
-                }
-                // Exactly 1 at the end: the sampler's search then always finds a bin.
-                *t.cdf.last_mut().expect("BINS > 0") = 1.0;
-            }
+            t.slot.push(slot);
         }
         t
+    }
+
+    /// Appends one node's `CLASSES` distributions; returns the slot of the first.
+    fn push(&mut self, p: &[f32]) -> u32 {
+        assert_eq!(p.len(), CLASSES * BINS, "a node's distributions");
+        let slot = (self.pdf.len() / BINS) as u32;
+        for class in p.chunks_exact(BINS) {
+            let mut acc = 0.0f64;
+            for &x in class {
+                self.pdf.push(x * BINS as f32 * INV_4PI);
+                acc += x as f64;
+                self.cdf.push(acc as f32);
+            }
+            // Exactly 1 at the end: the sampler's search then always finds a bin.
+            *self.cdf.last_mut().expect("BINS > 0") = 1.0;
+        }
+        slot
     }
 
     /// The slot of `node`'s distribution for normal class `class`, if it has one.
@@ -156,7 +173,8 @@ impl DirectionalTable {
 /// weight), a hierarchy: the node's [`bin_probabilities`]; per normal class its own mixed with
 /// the node's (`PARENT_SHARE`); per quadrant its own mixed with its normal class's. A class
 /// with fewer than `MIN_CLASS_SAMPLES` positive weights takes its parent's.
-pub fn fit(samples: &[(usize, Vec3, f64)]) -> Vec<f32> {
+/// `floor` is each histogram's uniform share ([`bin_probabilities`]).
+pub fn fit(samples: &[(usize, Vec3, f64)], floor: f32) -> Vec<f32> {
     let positive = |x: f64| x > 0.0 && x.is_finite();
     // The distribution of the samples `keep` selects mixed with `parent`, or `parent`.
     let refine = |parent: &[f32], keep: &dyn Fn(usize) -> bool| -> Vec<f32> {
@@ -172,13 +190,14 @@ pub fn fit(samples: &[(usize, Vec3, f64)]) -> Vec<f32> {
                 .iter()
                 .filter(|s| keep(s.0))
                 .map(|&(_, w, x)| (w, x)),
+            floor,
         );
         p.iter()
             .zip(parent)
             .map(|(&a, &b)| ((1.0 - PARENT_SHARE) * a as f64 + PARENT_SHARE * b as f64) as f32)
             .collect()
     };
-    let node = bin_probabilities(samples.iter().map(|&(_, w, x)| (w, x)));
+    let node = bin_probabilities(samples.iter().map(|&(_, w, x)| (w, x)), floor);
     let mut out = Vec::with_capacity(CLASSES * BINS);
     for normal in 0..NORMALS {
         let by_normal = refine(&node, &|c| c / QUADRANTS == normal);
@@ -191,8 +210,8 @@ pub fn fit(samples: &[(usize, Vec3, f64)]) -> Vec<f32> {
 
 /// Bin probabilities (summing to 1) from weighted directions (weights >= 0, non-finite ones
 /// ignored): the weights' histogram, blurred by a 3 x 3 tent (phi wraps, z clamps), mixed with
-/// the uniform floor (module docs). Uniform where no weight is positive.
-pub fn bin_probabilities(samples: impl Iterator<Item = (Vec3, f64)>) -> Vec<f32> {
+/// the uniform share `floor` (in (0, 1]: module docs). Uniform where no weight is positive.
+pub fn bin_probabilities(samples: impl Iterator<Item = (Vec3, f64)>, floor: f32) -> Vec<f32> {
     let mut h = vec![0.0f64; BINS];
     for (w, x) in samples {
         if x > 0.0 && x.is_finite() {
@@ -222,7 +241,7 @@ pub fn bin_probabilities(samples: impl Iterator<Item = (Vec3, f64)>) -> Vec<f32>
     if !(total > 0.0 && total.is_finite()) {
         return vec![uniform as f32; BINS];
     }
-    let floor = FLOOR as f64;
+    let floor = floor as f64;
     blurred
         .iter()
         .map(|&b| ((1.0 - floor) * b / total + floor * uniform) as f32)
@@ -243,12 +262,31 @@ mod tests {
                 (w, (w.dot(axis).max(0.0) as f64).powi(8))
             })
             .collect();
-        let p = bin_probabilities(samples.into_iter());
+        let p = bin_probabilities(samples.into_iter(), FLOOR);
         DirectionalTable::new(&[
             None,
             Some(p.repeat(CLASSES)),
             Some(vec![1.0 / BINS as f32; CLASSES * BINS]),
         ])
+    }
+
+    /// Nodes without a distribution share the default's slots (stored once); their own
+    /// nodes keep theirs; without a default they have none.
+    #[test]
+    fn nodes_without_a_distribution_share_the_default() {
+        let uniform = vec![1.0 / BINS as f32; CLASSES * BINS];
+        let mut peaked = uniform.clone();
+        peaked[7] += 1.0;
+        let nodes = [None, Some(peaked.clone()), None];
+        let t = DirectionalTable::with_default(&nodes, Some(&uniform));
+        assert_eq!(t.len(), 2 * CLASSES);
+        assert_eq!(t.slot(0, 3), t.slot(2, 3));
+        assert_eq!(t.slot(1, 0), Some(CLASSES as u32));
+        let own = DirectionalTable::new(&[Some(peaked)]);
+        let w = Vec3::new(0.2, -0.5, 0.8).normalize();
+        assert_eq!(t.pdf(t.slot(1, 2).unwrap(), w), own.pdf(0, w));
+        assert_eq!(t.pdf(t.slot(0, 2).unwrap(), w), INV_4PI);
+        assert_eq!(DirectionalTable::new(&nodes).slot(0, 0), None);
     }
 
     #[test]

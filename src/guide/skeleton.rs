@@ -285,6 +285,17 @@ pub struct SkeletonGuideSettings {
     pub training_depth: u32,
     /// Camera paths of the training pass (`training_paths`).
     pub training_paths: u32,
+    /// `training_passes=N` (with `directions=learned`; default 1): training passes of
+    /// `training_paths` paths each; every pass after the first samples from the previous
+    /// pass's learned distributions and re-learns them from its own samples
+    /// (`guide::training`, "Iterative training").
+    pub training_passes: u32,
+    /// `training_history=all` (with `training_passes` above 1): each pass's histograms also
+    /// count the earlier passes' weighted samples; `last` (the default): its own only.
+    pub training_history: bool,
+    /// `histogram_floor=F` (with `directions=learned`): the uniform share of every learned
+    /// histogram (`guide::directional`), in (0, 1]; default [`directional::FLOOR`].
+    pub histogram_floor: f32,
     /// How the training pass weighs the guide's overhead (`training_cost`).
     pub training_cost: TrainingCost,
     /// Standard errors by which guiding must beat not guiding for `c_skel=learned` to guide
@@ -515,6 +526,9 @@ impl Default for SkeletonGuideSettings {
             cost_model: CostModel::Vertices,
             training_depth: DEFAULT_TRAINING_DEPTH,
             training_paths: DEFAULT_TRAINING_PATHS,
+            training_passes: 1,
+            training_history: false,
+            histogram_floor: directional::FLOOR,
             training_cost: TrainingCost::Path,
             training_significance: DEFAULT_TRAINING_SIGNIFICANCE,
             training_min_nonzero: DEFAULT_TRAINING_MIN_NONZERO,
@@ -545,6 +559,9 @@ pub const OPTION_NAMES: &[&str] = &[
     "fallback",
     "training_depth",
     "training_paths",
+    "training_passes",
+    "training_history",
+    "histogram_floor",
     "training_cost",
     "training_significance",
     "training_min_nonzero",
@@ -573,7 +590,9 @@ impl SkeletonGuideSettings {
     /// `importance_nodes`, `lobes`, `visibility` (true, voxel or false), `aim` (`point`, `opening` or `portal`),
     /// `fallback` (`point` or `drop`),
     /// and for the training pass `training_depth` (1..=64), `training_paths`
-    /// (1024..=2^24), `training_cost` (`path` or
+    /// (1024..=2^24), `training_passes` (1..=4, more than 1 only with `directions=learned`),
+    /// `training_history` (`last` or `all`), `histogram_floor` (in (0, 1]),
+    /// `training_cost` (`path` or
     /// `vertex`), `training_significance` (>= 0), `training_min_nonzero`,
     /// `training_guided_cost` (>= 0), `cost_model` (`vertices`, `switch` or `measured`),
     /// `lobe_weights` (`distance` or `learned`), `c_max` (the largest learned c, in [0.05, 1)),
@@ -623,6 +642,19 @@ impl SkeletonGuideSettings {
             }
             "training_depth" => next.training_depth = number(key, value)?,
             "training_paths" => next.training_paths = number(key, value)?,
+            "training_passes" => next.training_passes = number(key, value)?,
+            "histogram_floor" => next.histogram_floor = number(key, value)?,
+            "training_history" => {
+                next.training_history = match value.trim() {
+                    "all" => true,
+                    "last" => false,
+                    other => {
+                        return Err(Error::invalid(format!(
+                            "skeleton training_history '{other}' must be 'all' or 'last'"
+                        )))
+                    }
+                }
+            }
             "training_cost" => next.training_cost = TrainingCost::parse(value)?,
             "training_significance" => next.training_significance = number(key, value)?,
             "training_min_nonzero" => next.training_min_nonzero = number(key, value)?,
@@ -681,6 +713,24 @@ impl SkeletonGuideSettings {
                 "skeleton training_paths {} must be within 1024..=2^24",
                 self.training_paths
             )));
+        }
+        if !(self.histogram_floor > 0.0 && self.histogram_floor <= 1.0) {
+            return Err(Error::invalid(format!(
+                "skeleton histogram_floor {} must be in (0, 1]",
+                self.histogram_floor
+            )));
+        }
+        if !(1..=4).contains(&self.training_passes) {
+            return Err(Error::invalid(format!(
+                "skeleton training_passes {} must be within 1..=4",
+                self.training_passes
+            )));
+        }
+        if self.training_passes > 1 && !self.learned_directions {
+            // Later passes sample from the learned distributions.
+            return Err(Error::invalid(
+                "skeleton training_passes above 1 needs directions=learned",
+            ));
         }
         if !(self.training_significance.is_finite() && self.training_significance >= 0.0) {
             return Err(Error::invalid(format!(
@@ -1120,7 +1170,31 @@ impl SkeletonGuide {
         };
         if settings.trains() {
             let t = Instant::now();
-            let report = training::learn_guiding_probabilities(&guide, scene);
+            let mut history = vec![
+                Vec::new();
+                if settings.training_history {
+                    node_count
+                } else {
+                    0
+                }
+            ];
+            let mut report = training::learn_guiding_probabilities(&guide, scene, 0, &mut history);
+            // Iterative training (`training_passes`): each later pass samples every node from
+            // the previous pass's distributions (a uniform one where it had none) and learns
+            // them again from its own samples; only the last pass's choices are kept.
+            for pass in 1..settings.training_passes {
+                if report.paths == 0 {
+                    break;
+                }
+                let uniform =
+                    vec![1.0 / directional::BINS as f32; directional::CLASSES * directional::BINS];
+                guide.directions = Some(Arc::new(DirectionalTable::with_default(
+                    &report.directions,
+                    Some(&uniform),
+                )));
+                report = training::learn_guiding_probabilities(&guide, scene, pass, &mut history);
+            }
+            guide.directions = None;
             if report.paths == 0 {
                 // No camera to train from: the documented fixed default.
                 guide.node_c = vec![settings.c_skel; node_count];

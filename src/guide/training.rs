@@ -64,6 +64,22 @@
 //! render guides every point mapped to a guided node. Like the choice of c, the distribution is
 //! a deterministic function of the scene, fixed before rendering.
 //!
+//! # Iterative training (`training_passes=N`, round 15)
+//!
+//! With `directions=learned` the first pass samples from the lobes, which put half of a
+//! guided vertex's samples where geometry says light may come from; on the Veach ajar most of
+//! the light arrives through a narrow wedge after bounces the lobes do not aim at, so the
+//! histograms see few carrying samples there. Each later pass runs the same training with the
+//! previous pass's distributions as the skeleton density (the proposal is then
+//! q_0 = c0 p_learned + (1 - c0) p_bsdf, recorded as `p_skel`; every node without a
+//! distribution samples a uniform one, so the nodes the lobes never reached are sampled and
+//! learned too), and re-learns the histograms and the choices from its own samples only, with
+//! weights (w_e(q_0) e + r) / q_0 of that proposal. Nothing in the estimates above assumed the
+//! proposal was the lobes: q_0 >= (1 - c0) p_bsdf still covers every direction the BSDF
+//! samples, and every recorded density is exact. Each pass has its own random streams (the
+//! seed mixes in the pass number) and the same fixed chunks, so the result is the same for
+//! any thread count.
+//!
 //! # Estimator (derivation)
 //!
 //! At a node, the one-sample MIS estimator of the integral I = ∫ f dw with guiding
@@ -664,7 +680,14 @@ impl Grid {
 /// Runs the training pass for `guide` (whose node probabilities must all be [`TRAINING_C`]
 /// and whose strength is the settings' everywhere) and chooses every node's probability and
 /// strength (module docs).
-pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) -> TrainingReport {
+/// `pass` numbers the passes of iterative training (0 first; module docs, "Iterative
+/// training"): each has its own random streams.
+pub(super) fn learn_guiding_probabilities(
+    guide: &SkeletonGuide,
+    scene: &Scene,
+    pass: u32,
+    history: &mut [Vec<Weighted>],
+) -> TrainingReport {
     let nodes = guide.node_count();
     let settings = guide.settings();
     let grid = Grid::of(guide);
@@ -698,7 +721,8 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
     let per_chunk: Vec<(Vec<Sample>, u64)> = (0..chunks)
         .into_par_iter()
         .map(|c| {
-            let mut rng = Sampler::independent(Rng::new(TRAINING_SEED, c as u64));
+            let seed = TRAINING_SEED.wrapping_add(pass as u64 * 0x9e37_79b9_7f4a_7c15);
+            let mut rng = Sampler::independent(Rng::new(seed, c as u64));
             let mut query = GuideQuery::new();
             let mut out = Vec::new();
             let mut visits = Visits {
@@ -737,12 +761,23 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
     if settings.learned_directions {
         let mis = settings.render_estimator.mis;
         let groups: Vec<&mut [Sample]> = all.chunk_by_mut(|a, b| a.node == b.node).collect();
-        let learned: Vec<(u32, Vec<f32>)> = groups
+        let empty: &[Weighted] = &[];
+        let floor = settings.histogram_floor;
+        let learned: Vec<(u32, Vec<f32>, Vec<Weighted>)> = groups
             .into_par_iter()
-            .map(|g| (g[0].node, learn_directions(g, mis)))
+            .map(|g| {
+                let node = g[0].node;
+                let earlier = history.get(node as usize).map_or(empty, |h| h.as_slice());
+                let (d, weighted) = learn_directions(g, mis, earlier, floor);
+                (node, d, weighted)
+            })
             .collect();
-        for (node, d) in learned {
+        let keep = settings.training_history;
+        for (node, d, weighted) in learned {
             directions[node as usize] = Some(d);
+            if keep {
+                history[node as usize].extend(weighted);
+            }
         }
     }
     let mut by_node: Vec<&[Sample]> = vec![&[]; nodes];
@@ -874,7 +909,17 @@ pub(super) fn learn_guiding_probabilities(guide: &SkeletonGuide, scene: &Scene) 
 /// replaced by those of the distribution learned from the *other* half of the node's samples
 /// (even / odd positions), so that a distribution is never judged on the samples it was fitted
 /// to.
-fn learn_directions(samples: &mut [Sample], mis: MisHeuristic) -> Vec<f32> {
+///
+/// `earlier` are weighted samples of earlier passes at the node (`training_history=all`,
+/// module docs, "Iterative training"): each is an unbiased estimate of its bin's integral like
+/// this pass's, independent of this pass's samples, so they join both halves and the whole.
+/// Also returns this pass's weighted samples.
+fn learn_directions(
+    samples: &mut [Sample],
+    mis: MisHeuristic,
+    earlier: &[Weighted],
+    floor: f32,
+) -> (Vec<f32>, Vec<Weighted>) {
     let weight = |s: &Sample| -> f64 {
         let q0 = mixture(TRAINING_C, s.p_skel, s.p_bsdf);
         if !(s.carries() && q0 > 0.0) {
@@ -887,18 +932,23 @@ fn learn_directions(samples: &mut [Sample], mis: MisHeuristic) -> Vec<f32> {
         };
         (w * s.f_emitted as f64 + s.f_reflected as f64) / q0
     };
-    let weighted: Vec<(usize, Vec3, f64)> = samples
+    let weighted: Vec<Weighted> = samples
         .iter()
         .map(|s| (s.class as usize, s.wi, weight(s)))
         .collect();
     let half = |parity: usize| {
-        let part: Vec<(usize, Vec3, f64)> = weighted
+        let part: Vec<Weighted> = earlier
             .iter()
-            .enumerate()
-            .filter(|(i, _)| i % 2 == parity)
-            .map(|(_, &x)| x)
+            .copied()
+            .chain(
+                weighted
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, _)| i % 2 == parity)
+                    .map(|(_, &x)| x),
+            )
             .collect();
-        directional::fit(&part)
+        directional::fit(&part, floor)
     };
     let folds = DirectionalTable::new(&[Some(half(1)), Some(half(0))]);
     for (i, s) in samples.iter_mut().enumerate() {
@@ -910,8 +960,12 @@ fn learn_directions(samples: &mut [Sample], mis: MisHeuristic) -> Vec<f32> {
         s.p_strength[0] = folds.pdf(slot, s.wi);
         s.nee.p_strength[0] = folds.pdf(slot, s.nee.wi);
     }
-    directional::fit(&weighted)
+    let all: Vec<Weighted> = earlier.iter().chain(&weighted).copied().collect();
+    (directional::fit(&all, floor), weighted)
 }
+
+/// A weighted direction sample of a node's histogram: class, direction, weight.
+pub(super) type Weighted = (usize, Vec3, f64);
 
 /// Guide shadow rays per recorded query at a node, counted by the queries themselves.
 fn mean_shadow_rays(samples: &[Sample]) -> f64 {
@@ -1709,7 +1763,8 @@ mod tests {
     #[test]
     fn learned_directions_find_the_cone_and_are_chosen() {
         let mut samples = cone_node(false, 20_000);
-        let bins = learn_directions(&mut samples, MisHeuristic::Power);
+        let (bins, _) =
+            learn_directions(&mut samples, MisHeuristic::Power, &[], directional::FLOOR);
         let table = DirectionalTable::new(&[Some(bins)]);
         let axis = Vec3::new(0.3, 0.0, 0.95).normalize();
         let uniform = 1.0 / (4.0 * std::f32::consts::PI);
