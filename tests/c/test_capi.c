@@ -1067,7 +1067,24 @@ static void test_analysis(lacuna_context *ctx) {
 static void test_skeleton_guide(lacuna_context *ctx) {
     lacuna_scene *scene = build_box_scene(ctx);
     lacuna_render_job *job = NULL;
+    /* The default, learned directions: a run renders a finite, lit image. */
     OK(lacuna_render_job_new(scene, "path_skeleton", &job));
+    OK(lacuna_render_job_set_resolution(job, 8, 6));
+    OK(lacuna_render_job_set_samples_per_pixel(job, 2));
+    {
+        lacuna_film *learned = NULL;
+        OK(lacuna_render_job_run(job, &learned));
+        float lpx[8 * 6 * 3];
+        OK(lacuna_film_read(learned, LACUNA_FILM_CHANNEL_RADIANCE, lpx, 8, 6, 0, 0));
+        double lsum = 0;
+        for (int i = 0; i < 8 * 6 * 3; i++) lsum += lpx[i];
+        CHECK(lsum > 0 && isfinite(lsum));
+        lacuna_film_release(learned);
+    }
+    lacuna_render_job_free(job);
+    /* The lobes, named (the queries below sample them). */
+    job = NULL;
+    OK(lacuna_render_job_new(scene, "path_skeleton:directions=lobes", &job));
     /* Setters and their errors. */
     EXPECT(lacuna_render_job_set_skeleton_probability(NULL, 0.5f), LACUNA_STATUS_NULL_POINTER, "job");
     EXPECT(lacuna_render_job_set_skeleton_probability(job, 1.0f), LACUNA_STATUS_INVALID_ARGUMENT, "c_skel");
