@@ -1709,7 +1709,7 @@ mod tests {
         assert_eq!(MeasuredCosts::of(&s), LEARNED_COSTS);
         s.set("directions", "lobes").unwrap();
         assert_eq!(MeasuredCosts::of(&s), LOBE_COSTS);
-        assert!(LEARNED_COSTS.query < LOBE_COSTS.query);
+        const { assert!(LEARNED_COSTS.query < LOBE_COSTS.query) };
     }
 
     /// Every candidate c > 0 at one fixed strength, with c = 0 allowed to win.
