@@ -5,7 +5,9 @@
 //!
 //! `cargo run --release --example guide_training -- SCENE [OPTION=VALUE ...]` with SCENE a
 //! scene file or `corridor`, options as `path_skeleton`'s (`c_skel=learned`
-//! `strength=learned` `training_cost=vertex` ...; default `c_skel=learned strength=learned`).
+//! `strength=learned` `training_cost=vertex` ...; default `c_skel=learned strength=learned`,
+//! which implies `directions=lobes`: add `strength=auto` for `path_skeleton`'s default, the
+//! learned directions).
 
 use std::path::Path;
 

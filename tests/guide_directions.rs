@@ -177,23 +177,62 @@ fn build(scene: &Scene, settings: &SkeletonGuideSettings, threads: usize) -> Ske
         .install(|| SkeletonGuide::build(scene, settings, &|_, _| true).unwrap())
 }
 
+/// `directions=learned` is the default (round 15); the lobe options `lobe_weights=learned`
+/// and `strength=learned` imply `directions=lobes` unless `directions` is named, and named
+/// `learned` they are an error, in either order.
 #[test]
 fn options_parse_and_exclude_the_lobe_options() {
-    let s = settings(&[("directions", "learned")]);
-    assert!(s.learned_directions && s.trains());
+    let default = SkeletonGuideSettings::default();
+    assert!(default.learned_directions && default.trains());
+    assert!(settings(&[("directions", "learned")]).learned_directions);
     assert!(!settings(&[("directions", "lobes")]).learned_directions);
     let mut s = SkeletonGuideSettings::default();
     assert!(s.set("directions", "histogram").is_err());
     s.set("directions", "learned").unwrap();
     assert!(s.set("lobe_weights", "learned").is_err());
     assert!(s.set("strength", "learned").is_err());
+    for (key, value) in [("lobe_weights", "learned"), ("strength", "learned")] {
+        let s = settings(&[(key, value)]);
+        assert!(!s.learned_directions, "{key}={value} implies the lobes");
+        let s = settings(&[(key, value), ("directions", "lobes")]);
+        assert!(!s.learned_directions);
+        let mut s = settings(&[(key, value)]);
+        let err = s.set("directions", "learned").unwrap_err().to_string();
+        assert!(err.contains("directions=learned"), "{err}");
+    }
+    // The implication holds while the lobe option is learned.
+    assert!(settings(&[("strength", "learned"), ("strength", "auto")]).learned_directions);
+    assert!(
+        settings(&[("lobe_weights", "learned"), ("lobe_weights", "distance")]).learned_directions
+    );
+    // Options that do not weigh lobes keep the default.
+    assert!(settings(&[("c_skel", "0.5"), ("lobe_weights", "distance")]).learned_directions);
+    for spec in [
+        "path_skeleton:directions=learned:lobe_weights=learned",
+        "path_skeleton:strength=learned:directions=learned",
+    ] {
+        assert!(
+            lacuna::integrator::create(spec, Default::default()).is_err(),
+            "{spec}"
+        );
+    }
+    for spec in [
+        "path_skeleton:lobe_weights=learned",
+        "path_skeleton:strength=learned",
+        "path_skeleton:directions=lobes:lobe_weights=learned",
+    ] {
+        assert!(
+            lacuna::integrator::create(spec, Default::default()).is_ok(),
+            "{spec}"
+        );
+    }
     // Iterative training samples the learned distributions: it needs them.
     s.set("training_passes", "3").unwrap();
     assert_eq!(s.training_passes, 3);
     assert!(s.set("training_passes", "0").is_err());
     assert!(s.set("training_passes", "5").is_err());
     assert!(s.set("directions", "lobes").is_err());
-    assert!(SkeletonGuideSettings::default()
+    assert!(settings(&[("directions", "lobes")])
         .set("training_passes", "2")
         .is_err());
     let mut s = settings(&[("directions", "learned")]);
@@ -293,9 +332,10 @@ fn check_learned_directions(scene: &Scene, s: &SkeletonGuideSettings) {
     assert!(guided > 100, "{guided} guided points");
 }
 
-/// The specs z-tested against `path`.
+/// The specs z-tested against `path`: the default (`directions=learned` with the learned c,
+/// portal lobes as the training's proposal, voxel visibility) and a fixed high c.
 const SPECS: &[&str] = &[
-    "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned",
+    "path_skeleton",
     "path_skeleton:c_skel=0.9:directions=learned",
     // ratio_max binds at c = 0.9 (1 / (1 - 0.9) = 10 > 1.5): c varies with the path's prefix.
     "path_skeleton:c_skel=0.9:directions=learned:ratio_max=1.5",

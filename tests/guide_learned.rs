@@ -30,10 +30,11 @@ fn corridor() -> Scene {
 }
 
 /// The learned probability with portal lobes and visibility tested once per voxel (`G`, the
-/// defaults since round 13), named.
+/// defaults of rounds 13-14), named.
 fn learned() -> SkeletonGuideSettings {
     let mut s = SkeletonGuideSettings::default();
     for (key, value) in [
+        ("directions", "lobes"),
         ("c_skel", "learned"),
         ("aim", "portal"),
         ("visibility", "voxel"),
@@ -208,10 +209,11 @@ fn training_guides_some_corridor_nodes() {
     }
 }
 
-/// The specs z-tested against `path`.
+/// The specs z-tested against `path`: the learned c with the lobes (the learned directions,
+/// the default, in tests/guide_directions.rs).
 const SPECS: &[&str] = &[
-    "path_skeleton:c_skel=learned",
-    "path_skeleton:c_skel=learned:strength=64",
+    "path_skeleton:c_skel=learned:directions=lobes",
+    "path_skeleton:c_skel=learned:strength=64:directions=lobes",
     "path_skeleton:c_skel=learned:strength=learned",
 ];
 

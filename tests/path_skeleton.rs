@@ -182,11 +182,13 @@ fn load(path: &str) -> Scene {
 }
 
 /// The thesis's fixed probability c = 0.5, round lobes through the opening and visibility
-/// tested per point (the defaults before round 13): what the query tests below check is then
-/// a function of the point and the settings alone, not of a training pass or a voxel cache.
+/// tested per point (the defaults before round 13; the lobes, named, the default before round
+/// 15): what the query tests below check is then a function of the point and the settings
+/// alone, not of a training pass or a voxel cache.
 fn fixed() -> SkeletonGuideSettings {
     let mut s = SkeletonGuideSettings::default();
     for (key, value) in [
+        ("directions", "lobes"),
         ("c_skel", "0.5"),
         ("aim", "opening"),
         ("visibility", "true"),
@@ -733,12 +735,12 @@ fn nodes_without_a_path_to_an_importance_node_are_not_guided() {
     agree_with_path("two boxes", &scene, &camera, 6, 16, 16, &["path_skeleton"]);
 }
 
-/// Default (automatic strength) and an aggressive fixed setting (c_skel 0.9, s = 64).
-/// The defaults (learned c, portal lobes, voxel visibility) and a fixed high c with round lobes
-/// tested per point, where a wrong weight would show most.
+/// The lobes of the defaults before round 15 (learned c, portal lobes, voxel visibility) and a
+/// fixed high c with round lobes tested per point, where a wrong weight would show most. The
+/// default (`directions=learned`) is z-tested in tests/guide_directions.rs.
 const VARIANTS: &[&str] = &[
-    "path_skeleton",
-    "path_skeleton:c_skel=0.9:strength=64:aim=opening:visibility=true",
+    "path_skeleton:directions=lobes",
+    "path_skeleton:c_skel=0.9:strength=64:aim=opening:visibility=true:directions=lobes",
 ];
 
 #[test]
@@ -779,10 +781,10 @@ fn path_skeleton_agrees_with_path_in_direct_lighting() {
         16,
         32,
         &[
-            "path_skeleton:c_skel=0.9:strength=8",
+            "path_skeleton:c_skel=0.9:strength=8:directions=lobes",
             // ratio_max=2 caps the first vertex's c at 0.5: the light sample's MIS weight and
             // the emitter hit's must both use the capped mixture.
-            "path_skeleton:c_skel=0.9:strength=8:ratio_max=2",
+            "path_skeleton:c_skel=0.9:strength=8:directions=lobes:ratio_max=2",
         ],
     );
 }
@@ -807,8 +809,9 @@ fn path_skeleton_agrees_with_path_on_the_two_rooms() {
         20,
         16,
         &[
-            "path_skeleton:aim=portal:c_skel=0.9",
-            "path_skeleton:aim=portal:c_skel=0.9:fallback=drop",
+            "path_skeleton:aim=portal:c_skel=0.9:directions=lobes",
+            "path_skeleton:aim=portal:c_skel=0.9:fallback=drop:directions=lobes",
+            // lobe_weights=learned implies directions=lobes.
             "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:lobe_weights=learned",
             // c then depends on the path's prefix (10 > 1.5 at c = 0.9: the cap binds).
             "path_skeleton:aim=portal:c_skel=0.9:ratio_max=1.5",
@@ -828,12 +831,12 @@ fn path_skeleton_agrees_with_path_on_the_veach_door() {
         16,
         16,
         &[
-            "path_skeleton",
-            "path_skeleton:strength=auto:16:visibility=false",
-            "path_skeleton:aim=portal:c_skel=0.9",
-            "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel",
-            "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel:fallback=drop",
-            "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:fallback=drop:training_min_nonzero=256",
+            "path_skeleton:directions=lobes",
+            "path_skeleton:strength=auto:16:visibility=false:directions=lobes",
+            "path_skeleton:aim=portal:c_skel=0.9:directions=lobes",
+            "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel:directions=lobes",
+            "path_skeleton:aim=portal:c_skel=0.9:visibility=voxel:fallback=drop:directions=lobes",
+            "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:fallback=drop:training_min_nonzero=256:directions=lobes",
             "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:lobe_weights=learned",
         ],
     );
@@ -1186,7 +1189,7 @@ fn guided_images_do_not_depend_on_the_thread_that_traced_them() {
     let scene = two_rooms_builder().unwrap().build().unwrap();
     let camera = *scene.camera().unwrap();
     for spec in [
-        "path_skeleton:aim=portal:c_skel=0.5",
+        "path_skeleton:aim=portal:c_skel=0.5:directions=lobes",
         "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:training_paths=8192",
     ] {
         let mut skel = integrator::create(spec, IntegratorSettings::default()).unwrap();
@@ -1222,6 +1225,7 @@ fn learned_lobe_weights_are_the_mixture_the_query_samples() {
     let mut plain = settings;
     plain.set("c_skel", "0.5").unwrap();
     plain.set("lobe_weights", "distance").unwrap();
+    plain.set("directions", "lobes").unwrap();
     let plain = guide_of(&scene, plain);
     let report = learned.training().unwrap();
     let changed: Vec<u32> = (0..learned.node_count() as u32)
@@ -1353,17 +1357,6 @@ fn c_max_caps_the_learned_probabilities() {
 fn a_guide_that_guides_nothing_renders_paths_image() {
     let scene = two_rooms_builder().unwrap().build().unwrap();
     let camera = *scene.camera().unwrap();
-    let options = "c_skel=learned:aim=portal:visibility=voxel:training_paths=8192:training_min_nonzero=4000000000";
-    let mut settings = SkeletonGuideSettings::default();
-    for option in options.split(':') {
-        let (key, value) = option.split_once('=').unwrap();
-        settings.set(key, value).unwrap();
-    }
-    let guide = guide_of(&scene, settings);
-    assert!(guide.guides_nothing());
-    assert_eq!(guide.training().unwrap().guided_nodes(), 0);
-    // The same guide with a fixed c guides.
-    assert!(!guide_of(&scene, fixed()).guides_nothing());
     let image = |spec: &str| {
         let mut integrator = integrator::create(spec, IntegratorSettings::default()).unwrap();
         prepare(integrator.as_mut(), &scene, Some(2), &|_, _| true).unwrap();
@@ -1371,5 +1364,25 @@ fn a_guide_that_guides_nothing_renders_paths_image() {
     };
     let path = image("path");
     assert!(path.iter().any(|&b| b != 0), "black image");
-    assert_eq!(path, image(&format!("path_skeleton:{options}")));
+    // Both directions: the learned histograms (the default) and the lobes.
+    for directions in ["learned", "lobes"] {
+        let options = format!(
+            "c_skel=learned:aim=portal:visibility=voxel:training_paths=8192:training_min_nonzero=4000000000:directions={directions}"
+        );
+        let mut settings = SkeletonGuideSettings::default();
+        for option in options.split(':') {
+            let (key, value) = option.split_once('=').unwrap();
+            settings.set(key, value).unwrap();
+        }
+        let guide = guide_of(&scene, settings);
+        assert!(guide.guides_nothing());
+        assert_eq!(guide.training().unwrap().guided_nodes(), 0);
+        assert_eq!(
+            path,
+            image(&format!("path_skeleton:{options}")),
+            "{directions}"
+        );
+    }
+    // The same guide with a fixed c guides.
+    assert!(!guide_of(&scene, fixed()).guides_nothing());
 }

@@ -135,8 +135,8 @@ struct SceneArgs {
     c_skel: Option<String>,
     /// path_skeleton: skeleton strength s (power-cosine exponent): a number >= 0, `auto`
     /// (per point, from the free-space radius and the distance to the importance point) or
-    /// `auto:MAX`, or `learned` (per node, from a training pass whose proposal is auto:64)
-    /// [default: auto:64].
+    /// `auto:MAX`, or `learned` (per node, from a training pass whose proposal is auto:64;
+    /// implies the lobes, `directions=lobes`) [default: auto:64].
     #[arg(long)]
     skel_strength: Option<String>,
     /// path_skeleton: analysis voxels along the longest axis of the scene [default: a budget
@@ -233,8 +233,10 @@ struct CompareArgs {
     /// path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
     /// `importance_nodes`, `lobes`, `visibility`, `aim`, `fallback`, `training_depth`,
     /// `training_paths`, `training_cost`, `training_significance`, `training_min_nonzero`,
-    /// `training_guided_cost`, `cost_model`, `lobe_weights`, `c_max`, `directions`,
-    /// `training_passes`, `training_history`, `histogram_floor`
+    /// `training_guided_cost`, `cost_model`, `lobe_weights`, `c_max`, `directions`
+    /// (`learned`, the default: learned histograms replace the lobes; `lobes`; a learned
+    /// `lobe_weights` or `strength` implies `lobes`), `training_passes`, `training_history`,
+    /// `histogram_floor`, `ratio_max`
     /// (e.g. `path,path:rr_depth=3,path_skeleton`);
     /// any of them also `sampler=sobol|independent` (e.g. `path:sampler=independent,path`).
     #[arg(long, default_value = "path")]

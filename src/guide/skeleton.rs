@@ -100,6 +100,17 @@
 //! directions below the surface or hidden, a point outside the grid) is not guided: its guiding
 //! probability is 0 and the host samples the BSDF alone. Delta BSDFs are the host's business: it
 //! must not guide there (no mixture with a Dirac lobe has a density), which `path_skeleton` does.
+//!
+//! # Learned directions, the default (`directions=learned`, round 15)
+//!
+//! Everything above builds the lobes. Since round 15 the default renders with them only where
+//! the scene has no camera: with one, the training pass (`guide::training`) samples the lobes
+//! as its proposal and learns per guided node a directional histogram
+//! (`guide::directional`) that the render samples instead, with the learned probability. It
+//! needs no aim, rectangle or shadow ray per point and at 60 s beat the lobes by MSE on the
+//! corridor, the door, the ajar and Sponza (BENCHMARKS.md, round 14, merged; round 15 for the
+//! per-sample figures). `directions=lobes` renders with the lobes; `lobe_weights=learned` and
+//! `strength=learned` weigh lobes and imply it unless `directions` is named.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -270,10 +281,18 @@ pub struct SkeletonGuideSettings {
     /// variance-minimising fit; lobes given 0 are skipped at render time. `distance` (the
     /// default): eq. 165's inverse-square weights everywhere. Not with `strength=learned`.
     pub learned_lobe_weights: bool,
-    /// `directions=learned`: each trained node samples a directional histogram learned from its
-    /// training samples instead of its lobes (`guide::directional`); `lobes` (the default):
-    /// the lobes. Not with `strength=learned` or `lobe_weights=learned`.
+    /// `directions=learned` (the default, round 15): each trained node samples a directional
+    /// histogram learned from its training samples instead of its lobes
+    /// (`guide::directional`): no aim, no spherical rectangle, no guide shadow ray, and ahead
+    /// of the lobes by MSE on the corridor, the door, the ajar and Sponza at 60 s
+    /// (BENCHMARKS.md, round 14, merged). `lobes`: the lobes (eq. 163-165). Not with
+    /// `strength=learned` or `lobe_weights=learned`, which weigh lobes: naming either without
+    /// naming `directions` implies `directions=lobes` ([`set`](Self::set)).
     pub learned_directions: bool,
+    /// Whether `directions` was named ([`set`](Self::set)); if not, setting `lobe_weights` or
+    /// `strength` makes `learned_directions` false while either is learned and true otherwise.
+    /// Not an option key.
+    pub directions_named: bool,
     /// The training's cost of guiding at a vertex beyond an unguided vertex's, shadow rays
     /// aside, in unguided vertices (`training_guided_cost`, default
     /// [`DEFAULT_TRAINING_GUIDED_COST`], `guide::training`, "Cost").
@@ -521,7 +540,8 @@ impl Default for SkeletonGuideSettings {
             },
             learned_strength: false,
             learned_lobe_weights: false,
-            learned_directions: false,
+            learned_directions: true,
+            directions_named: false,
             training_guided_cost: DEFAULT_TRAINING_GUIDED_COST,
             cost_model: CostModel::Vertices,
             training_depth: DEFAULT_TRAINING_DEPTH,
@@ -613,10 +633,14 @@ impl SkeletonGuideSettings {
                 next.c_skel = number(key, value)?;
                 next.learned_c_skel = false;
             }
-            "strength" | "s" if value.trim() == "learned" => next.learned_strength = true,
+            "strength" | "s" if value.trim() == "learned" => {
+                next.learned_strength = true;
+                next.imply_directions();
+            }
             "strength" | "s" => {
                 next.strength = SkeletonStrength::parse(value)?;
                 next.learned_strength = false;
+                next.imply_directions();
             }
             "lobe_weights" => {
                 next.learned_lobe_weights = match value.trim() {
@@ -627,9 +651,11 @@ impl SkeletonGuideSettings {
                             "skeleton lobe_weights '{other}' must be 'learned' or 'distance'"
                         )))
                     }
-                }
+                };
+                next.imply_directions();
             }
             "directions" => {
+                next.directions_named = true;
                 next.learned_directions = match value.trim() {
                     "learned" => true,
                     "lobes" => false,
@@ -692,6 +718,15 @@ impl SkeletonGuideSettings {
         next.validate()?;
         *self = next;
         Ok(())
+    }
+
+    /// `lobe_weights=learned` and `strength=learned` weigh lobes: unless `directions` was
+    /// named (then a contradiction is [`validate`](Self::validate)'s error), the directions
+    /// are the lobes while either is set and learned otherwise (the default).
+    fn imply_directions(&mut self) {
+        if !self.directions_named {
+            self.learned_directions = !(self.learned_lobe_weights || self.learned_strength);
+        }
     }
 
     pub fn validate(&self) -> Result<()> {
@@ -792,7 +827,7 @@ impl SkeletonGuideSettings {
         if self.learned_directions && (self.learned_lobe_weights || self.learned_strength) {
             // The learned distribution replaces the lobes: there is nothing to weigh.
             return Err(Error::invalid(
-                "skeleton directions=learned does not combine with lobe_weights=learned or strength=learned",
+                "skeleton directions=learned does not combine with lobe_weights=learned or strength=learned (they weigh lobes: name directions=lobes, or leave directions out)",
             ));
         }
         if self.light_rays == 0 {
@@ -1216,7 +1251,8 @@ impl SkeletonGuide {
                     }
                 }
             }
-            if settings.learned_directions {
+            // Without a camera nothing was learned: the lobes at the fixed c, as documented.
+            if settings.learned_directions && report.paths > 0 {
                 // Only nodes that are guided keep their distribution.
                 let kept: Vec<Option<Vec<f32>>> = report
                     .directions

@@ -210,12 +210,29 @@
 //! training of the same `G` predicts 2.63 guided and 4.96 mapped of 6.62 vertices per
 //! (unrouletted) training path, i.e. per 5.02 render vertices 2.0 guided and 3.76 mapped.
 //! Hence, in unguided vertices:
-//! - `MEASURED_QUERY_COST` = (1.65 + 0.82 + 2.16 + 0.22) k / 2.0 / 6.26 k = 0.39 per guided
+//! - `LOBE_COSTS.query` = (1.65 + 0.82 + 2.16 + 0.22) k / 2.0 / 6.26 k = 0.39 per guided
 //!   query, whatever its c (the set-up is paid in full at c = 0.05);
-//! - `MEASURED_MAP_COST` = 1.51 k / 3.76 / 6.26 k = 0.064 per mapped vertex.
+//! - `LOBE_COSTS.map` = 1.51 k / 3.76 / 6.26 k = 0.064 per mapped vertex.
+//!
+//! With `directions=learned` (round 15, branch default15: the same callgrind set-up on the ajar
+//! and the door, `G:directions=learned` minus `path`) a guided query has no lobe set-up and no
+//! guide shadow ray: `GuideQuery::init` costs the node mapping (ajar 1.12 k, door 1.18 k per
+//! camera sample: `init` inclusive less its own lines and `class_of`'s) and 0.20 k of class
+//! and slot look-up; `sample_bsdf_or_guide` 1.27 k (ajar) and 1.25 k (door) more than
+//! `path`'s (the histogram's sampling and density). The training predicts 2.05 guided and 2.54
+//! mapped of 5.40 render vertices per sample on the ajar (2.82 and 3.50 of 7.45 per training
+//! path), 2.79 and 3.68 of 5.32 on the door, whose `path` vertices cost 2.79 k and 3.95 k.
+//! Hence per guided query (0.20 + 1.27) k / 2.05 / 2.79 k = 0.26 (ajar) and (0.20 + 1.25) k /
+//! 2.79 / 3.95 k = 0.13 (door), per mapped vertex 1.12 k / 2.54 / 2.79 k = 0.16 and 1.18 k /
+//! 3.68 / 3.95 k = 0.08; `LEARNED_COSTS` takes the means, 0.19 and 0.12. The change in the
+//! cost of the path's own rays and vertices is left out (scene-dependent: ajar -0.05 k per
+//! sample, door -1.77 k, its guided paths 10 % shorter), and there is no guide shadow ray. In
+//! absolute instructions the mapping costs about the same with either directions (0.40 k per
+//! mapped vertex on Sponza, 0.44 k on the ajar, 0.32 k on the door); the constants differ
+//! with the scene's vertex cost.
 //!
 //! With `cost_model=measured` a node's candidates cost
-//! `cost(c) = base + share (0.39 + 0.064 + COST_SHADOW_RAY rays)` (its own vertices' mapping
+//! `cost(c) = base + share (query + map + COST_SHADOW_RAY rays)` (its own vertices' mapping
 //! charged to it); with `switch` they keep `training_guided_cost`. With either, after the
 //! node choices the whole image is judged by the measured costs ([`SceneChoice`], also
 //! reported with `vertices`): with n_k the training samples at node k (how often the camera
@@ -223,7 +240,7 @@
 //! unguided and under the choice,
 //!
 //!   variance ratio = sum_k n_k V_k(chosen) / sum_k n_k V_k(0),
-//!   cost ratio = (vertices + sum_guided n_k overhead_k + 0.064 mapped) / vertices,
+//!   cost ratio = (vertices + sum_guided n_k overhead_k + map mapped) / vertices,
 //!
 //! with `vertices` all training vertices, overhead_k the guided query's cost (mapping aside)
 //! and `mapped` the non-delta training vertices in the voxels that `may_guide` would hold for
@@ -246,6 +263,13 @@
 //! sample there against `G` (BENCHMARKS.md, round 14, cost14a): the per-node constants
 //! charge the set-up in full, while at the door's and corridor's larger c the guided samples
 //! buy more than Sponza's.
+//!
+//! With `directions=learned` (round 15) the predicted cost ratios are 1.13 (ajar), 1.18
+//! (door), 1.27 (corridor), 1.14 (Sponza), 1.15 (Sibenik) against callgrind's instruction
+//! ratios 1.17, 1.04, 1.16, 1.07, 1.04; `switch` turns the ajar (predicted 0.94x) and Sponza
+//! (0.94x) off and keeps the door, the corridor and Sibenik. The ajar's decision is wrong per
+//! sample: its predicted variance ratio 0.94 against a measured MAE² ratio of 0.80 (BENCHMARKS.md,
+//! round 15, default15).
 //!
 //! Heuristic parts, stated: the proxy stops after `training_depth` vertices (light arriving
 //! after more bounces does not inform the choice), R carries the training path's own noise
@@ -290,14 +314,40 @@ const FIT_ITERATIONS: usize = 24;
 const FIT_FLOOR: f32 = 0.03;
 /// Width / height of the training pass's image.
 const TRAINING_ASPECT: f32 = 2.0;
-/// The measured costs (module docs, "Measured cost and the scene-level switch"): a guided
-/// query's cost beyond an unguided vertex's, in unguided vertices, whatever its c (the lobe
-/// set-up, the mixture's sampling and densities, the dearer rays of the paths it sends
-/// elsewhere), guide shadow rays aside.
-const MEASURED_QUERY_COST: f64 = 0.39;
-/// The node mapping, in unguided vertices, paid by every vertex in a
-/// voxel that may map to a guided node, guided or not.
-const MEASURED_MAP_COST: f64 = 0.064;
+/// The measured costs (module docs, "Measured cost and the scene-level switch"), in unguided
+/// vertices: `query`, a guided query's cost beyond an unguided vertex's whatever its c (with
+/// the lobes their set-up, the mixture's sampling and densities and the dearer rays of the
+/// paths it sends elsewhere; guide shadow rays aside); `map`, the node mapping, paid by every
+/// vertex in a voxel that may map to a guided node, guided or not.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct MeasuredCosts {
+    query: f64,
+    map: f64,
+}
+
+impl MeasuredCosts {
+    /// The costs of the settings' directions: the lobes' (callgrind of Sponza, round 13) or
+    /// the learned histograms' (callgrind of the ajar and the door, round 15).
+    fn of(settings: &super::SkeletonGuideSettings) -> MeasuredCosts {
+        if settings.learned_directions {
+            LEARNED_COSTS
+        } else {
+            LOBE_COSTS
+        }
+    }
+}
+
+/// `directions=lobes`: measured on Sponza (BENCHMARKS.md, round 13, guide13a; module docs).
+const LOBE_COSTS: MeasuredCosts = MeasuredCosts {
+    query: 0.39,
+    map: 0.064,
+};
+/// `directions=learned`: measured on the ajar and the door, the mean of the two (BENCHMARKS.md,
+/// round 15, branch default15; module docs): no set-up beyond the class lookup, no shadow ray.
+const LEARNED_COSTS: MeasuredCosts = MeasuredCosts {
+    query: 0.19,
+    map: 0.12,
+};
 /// `cost_model=switch|measured`: the whole image's predicted efficiency must gain this much (as a
 /// ratio above 1) for anything to be guided.
 const SCENE_MARGIN: f64 = 0.1;
@@ -636,11 +686,14 @@ struct Grid {
     /// Cost of guiding at a vertex beyond an unguided vertex's, shadow rays aside (with
     /// `cost_model=measured` the node mapping included).
     guided_cost: f64,
+    /// The measured costs of the settings' directions (the scene-level prediction's).
+    measured: MeasuredCosts,
 }
 
 impl Grid {
     fn of(guide: &SkeletonGuide) -> Grid {
         let settings = guide.settings();
+        let measured = MeasuredCosts::of(settings);
         Grid {
             c: if settings.learned_c_skel {
                 // `c_max` >= CANDIDATES[1] (validated): never empty.
@@ -660,10 +713,11 @@ impl Grid {
             may_turn_off: settings.learned_c_skel,
             lobe_weights: settings.learned_lobe_weights,
             guided_cost: if settings.cost_model == CostModel::Measured {
-                MEASURED_QUERY_COST + MEASURED_MAP_COST
+                measured.query + measured.map
             } else {
                 settings.training_guided_cost as f64
             },
+            measured,
         }
     }
 
@@ -843,7 +897,7 @@ pub(super) fn learn_guiding_probabilities(
             &samples,
             vertices,
             mapped_vertices,
-            MEASURED_MAP_COST,
+            grid.measured.map,
         );
         let mut scene = SceneChoice {
             vertices,
@@ -1126,7 +1180,7 @@ fn choose_node(
         variance_chosen: moments[best].variance(n),
         // The measured costs whatever the cost model (the scene-level prediction is of the
         // real cost); the node mapping is counted per mapped vertex there.
-        overhead: weights[w].1 * (MEASURED_QUERY_COST + COST_SHADOW_RAY * shadow_rays),
+        overhead: weights[w].1 * (grid.measured.query + COST_SHADOW_RAY * shadow_rays),
     }
 }
 
@@ -1700,6 +1754,18 @@ mod tests {
         assert!(s.pays());
     }
 
+    /// The scene-level prediction charges what the render's directions cost: the learned
+    /// histograms' query (no set-up, no shadow ray) is cheaper than the lobes'.
+    #[test]
+    fn measured_costs_follow_the_directions() {
+        let mut s = crate::guide::SkeletonGuideSettings::default();
+        assert!(s.learned_directions);
+        assert_eq!(MeasuredCosts::of(&s), LEARNED_COSTS);
+        s.set("directions", "lobes").unwrap();
+        assert_eq!(MeasuredCosts::of(&s), LOBE_COSTS);
+        const { assert!(LEARNED_COSTS.query < LOBE_COSTS.query) };
+    }
+
     /// Every candidate c > 0 at one fixed strength, with c = 0 allowed to win.
     fn one_strength_grid() -> Grid {
         Grid {
@@ -1708,6 +1774,7 @@ mod tests {
             may_turn_off: true,
             lobe_weights: false,
             guided_cost: crate::guide::skeleton::DEFAULT_TRAINING_GUIDED_COST as f64,
+            measured: LOBE_COSTS,
         }
     }
 
