@@ -1059,10 +1059,12 @@ lacuna_status lacuna_film_write_png(const struct lacuna_film *film,
                                     float exposure);
 
 // Builds the skeleton guide of `scene` with the skeleton settings of `settings` (a render job
-// whose `lacuna_render_job_set_skeleton_*` setters chose them, or one a scene file configured;
-// NULL for the defaults). `progress` (may be NULL) is called between stages on the calling
-// thread; returning false cancels (`LACUNA_STATUS_CANCELLED`). Runs on the scene context's
-// worker threads. On success `*out_guide` receives a new reference. Thread-safe.
+// whose `lacuna_render_job_set_skeleton_*` setters chose them, or one a scene file configured,
+// with the options of its integrator name applied over them, as in
+// `"path_skeleton:directions=lobes"`; NULL for the defaults). `progress` (may be NULL) is called
+// between stages on the calling thread; returning false cancels (`LACUNA_STATUS_CANCELLED`). Runs
+// on the scene context's worker threads. On success `*out_guide` receives a new reference.
+// Thread-safe.
 lacuna_status lacuna_skeleton_guide_build(const struct lacuna_scene *scene,
                                           const struct lacuna_render_job *settings,
                                           lacuna_progress_callback progress,

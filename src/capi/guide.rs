@@ -57,10 +57,12 @@ pub struct lacuna_skeleton_guide_info {
 }
 
 /// Builds the skeleton guide of `scene` with the skeleton settings of `settings` (a render job
-/// whose `lacuna_render_job_set_skeleton_*` setters chose them, or one a scene file configured;
-/// NULL for the defaults). `progress` (may be NULL) is called between stages on the calling
-/// thread; returning false cancels (`LACUNA_STATUS_CANCELLED`). Runs on the scene context's
-/// worker threads. On success `*out_guide` receives a new reference. Thread-safe.
+/// whose `lacuna_render_job_set_skeleton_*` setters chose them, or one a scene file configured,
+/// with the options of its integrator name applied over them, as in
+/// `"path_skeleton:directions=lobes"`; NULL for the defaults). `progress` (may be NULL) is called
+/// between stages on the calling thread; returning false cancels (`LACUNA_STATUS_CANCELLED`). Runs
+/// on the scene context's worker threads. On success `*out_guide` receives a new reference.
+/// Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_skeleton_guide_build(
     scene: *const lacuna_scene,
@@ -80,7 +82,7 @@ pub unsafe extern "C" fn lacuna_skeleton_guide_build(
             defaults.skeleton
         } else {
             // SAFETY: a live job (checked non-NULL).
-            unsafe { arg(settings, "settings") }?.skeleton_settings()
+            unsafe { arg(settings, "settings") }?.skeleton_settings()?
         };
         let report = stage_progress(progress, user_data);
         let pool = s.ctx.pool()?;

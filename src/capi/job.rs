@@ -230,9 +230,15 @@ impl lacuna_render_job {
         })
     }
 
-    /// The job's skeleton guide settings.
-    pub(crate) fn skeleton_settings(&self) -> crate::guide::SkeletonGuideSettings {
-        lock(&self.settings).integrator_settings.skeleton
+    /// The skeleton guide settings the job's integrator renders with: the setters' (or the
+    /// scene file's) values with the integrator name's options (`path_skeleton:directions=lobes`)
+    /// applied over them, as `JobSettings::make_integrator` does, so that a guide built for a
+    /// host is the one the job would render with.
+    pub(crate) fn skeleton_settings(&self) -> CapiResult<crate::guide::SkeletonGuideSettings> {
+        let settings = lock(&self.settings);
+        let (_, applied) =
+            integrator::parse_spec(&settings.integrator, settings.integrator_settings)?;
+        Ok(applied.skeleton)
     }
 
     pub(crate) fn set_last_stats(&self, stats: RenderStats) {

@@ -1064,6 +1064,24 @@ static void test_analysis(lacuna_context *ctx) {
 }
 
 /* Skeleton-guided path tracing: the job's skeleton settings, and the guide and query API. */
+/* Samples a guided query at its point on a fixed 4x4x4 grid of random numbers: each direction
+   must be unit and carry the density `lacuna_guide_query_pdf` gives it. Returns how many of
+   the 64 point up (y > 0). */
+static int sample_upward(const lacuna_guide_query *q) {
+    int upward = 0;
+    for (int i = 0; i < 64; i++) {
+        float u0 = (i % 4) / 4.0f + 0.1f, u1 = (i / 4 % 4) / 4.0f + 0.05f, u2 = (i / 16) / 4.0f + 0.12f;
+        lacuna_vec3 d;
+        float pdf = -1, pdf2 = -1;
+        OK(lacuna_guide_query_sample(q, u0, u1, u2, &d, &pdf));
+        CHECK(fabsf(d.x * d.x + d.y * d.y + d.z * d.z - 1) < 1e-4f && pdf > 0 && isfinite(pdf));
+        OK(lacuna_guide_query_pdf(q, d, &pdf2));
+        CHECK(fabsf(pdf - pdf2) <= 1e-4f * pdf);
+        upward += d.y > 0;
+    }
+    return upward;
+}
+
 static void test_skeleton_guide(lacuna_context *ctx) {
     lacuna_scene *scene = build_box_scene(ctx);
     lacuna_render_job *job = NULL;
@@ -1146,6 +1164,17 @@ static void test_skeleton_guide(lacuna_context *ctx) {
           info.guided_nodes >= 1 && info.guided_nodes <= info.nodes);
     CHECK(info.grid[0] > 0 && info.grid[1] > 0 && info.grid[2] > 0 && info.memory_bytes > 0 && info.seconds >= 0);
     lacuna_render_job_free(job);
+    /* The options of a job's integrator name reach its guide: the same settings with the
+       skeleton's lobes (`directions=lobes`) instead of the learned histograms. */
+    lacuna_render_job *lobes_job = NULL;
+    OK(lacuna_render_job_new(scene, "path_skeleton:directions=lobes", &lobes_job));
+    OK(lacuna_render_job_set_skeleton_probability(lobes_job, 0.6f));
+    OK(lacuna_render_job_set_skeleton_strength_auto(lobes_job, 32));
+    OK(lacuna_render_job_set_skeleton_resolution(lobes_job, 20, 0));
+    OK(lacuna_render_job_set_skeleton_importance(lobes_job, 4096, 8, 2));
+    lacuna_skeleton_guide *lobes_guide = NULL;
+    OK(lacuna_skeleton_guide_build(scene, lobes_job, NULL, NULL, &lobes_guide));
+    lacuna_render_job_free(lobes_job);
 
     /* Queries. */
     lacuna_guide_query *q = NULL;
@@ -1175,7 +1204,7 @@ static void test_skeleton_guide(lacuna_context *ctx) {
     OK(lacuna_guide_query_guiding_probability(q, &c));
     CHECK(fabsf(c - 0.6f) < 1e-6f);
     lacuna_vec3 d;
-    float pdf = -1, pdf2 = -1;
+    float pdf = -1;
     EXPECT(lacuna_guide_query_sample(NULL, 0.1f, 0.2f, 0.3f, &d, &pdf), LACUNA_STATUS_NULL_POINTER, "query");
     EXPECT(lacuna_guide_query_sample(q, 0.1f, 0.2f, 0.3f, NULL, &pdf), LACUNA_STATUS_NULL_POINTER, "out_direction");
     EXPECT(lacuna_guide_query_sample(q, 0.1f, 0.2f, 0.3f, &d, NULL), LACUNA_STATUS_NULL_POINTER, "out_pdf");
@@ -1186,20 +1215,17 @@ static void test_skeleton_guide(lacuna_context *ctx) {
     EXPECT(lacuna_guide_query_pdf(NULL, up, &pdf), LACUNA_STATUS_NULL_POINTER, "query");
     EXPECT(lacuna_guide_query_pdf(q, up, NULL), LACUNA_STATUS_NULL_POINTER, "out_pdf");
     EXPECT(lacuna_guide_query_pdf(q, v3(0, 0, 0), &pdf), LACUNA_STATUS_INVALID_ARGUMENT, "direction");
-    /* Sampled directions are unit and carry the mixture's density; most point up from the
-       floor, toward the lit inside of the box (with the default learned histogram 48 of these
-       64: it keeps a uniform share over the sphere, and the C API's guide takes the job's
-       skeleton settings, not its integrator options). */
-    int upward = 0;
-    for (int i = 0; i < 64; i++) {
-        float u0 = (i % 4) / 4.0f + 0.1f, u1 = (i / 4 % 4) / 4.0f + 0.05f, u2 = (i / 16) / 4.0f + 0.12f;
-        OK(lacuna_guide_query_sample(q, u0, u1, u2, &d, &pdf));
-        CHECK(fabsf(d.x * d.x + d.y * d.y + d.z * d.z - 1) < 1e-4f && pdf > 0 && isfinite(pdf));
-        OK(lacuna_guide_query_pdf(q, d, &pdf2));
-        CHECK(fabsf(pdf - pdf2) <= 1e-4f * pdf);
-        upward += d.y > 0;
-    }
-    CHECK(upward > 40);
+    /* Most sampled directions point up from the floor, toward the lit inside of the box: with
+       the default learned histogram 48 of the 64 (it keeps a uniform share over the sphere). */
+    CHECK(sample_upward(q) > 40);
+    /* The lobes aim more of the floor's directions up into the box than the histogram. */
+    lacuna_guide_query *lobes_query = NULL;
+    OK(lacuna_guide_query_new(lobes_guide, &lobes_query));
+    lacuna_skeleton_guide_release(lobes_guide);
+    OK(lacuna_guide_query_init(lobes_query, floor_point, up, up, &guided));
+    CHECK(guided);
+    CHECK(sample_upward(lobes_query) > 48);
+    lacuna_guide_query_free(lobes_query);
     /* Outside the grid nothing is guided: sampling is refused, the density is 0. */
     OK(lacuna_guide_query_init(q, v3(50, 50, 50), up, up, &guided));
     CHECK(!guided);
