@@ -161,6 +161,15 @@ fn main() {
     }
 }
 
+/// One line of `ATTRIB=1`'s split: each bin's share of the second moment per sample.
+fn print_shares(label: &str, bins: &[f64], samples: f64) {
+    let shares: Vec<String> = bins
+        .iter()
+        .map(|&v| format!("{:.3e}", v / samples))
+        .collect();
+    println!("  {label}: {}", shares.join(" "));
+}
+
 /// The second-moment split of `ATTRIB=1` (module docs).
 fn attribute(trace: &(dyn Fn(u64, u32, bool) -> Rgb + Sync), pixels: u32, spp: u32) {
     use diagnostics::Kind;
@@ -285,29 +294,20 @@ fn attribute(trace: &(dyn Fn(u64, u32, bool) -> Rgb + Sync), pixels: u32, spp: u
             row.join(" ")
         );
     }
-    println!(
-        "  by R (<0.5, 0.5-1, 1, 1-1.5, 1.5-3, 3-10, >=10): {}",
-        acc.by_r
-            .iter()
-            .map(|&v| format!("{:.3e}", v / n))
-            .collect::<Vec<_>>()
-            .join(" ")
+    print_shares(
+        "by R (<0.5, 0.5-1, 1, 1-1.5, 1.5-3, 3-10, >=10)",
+        &acc.by_r,
+        n,
     );
-    println!(
-        "  by guided vertices before it (0, 1, 2, 3+): {}",
-        acc.by_guided
-            .iter()
-            .map(|&v| format!("{:.3e}", v / n))
-            .collect::<Vec<_>>()
-            .join(" ")
+    print_shares(
+        "by guided vertices before it (0, 1, 2, 3+)",
+        &acc.by_guided,
+        n,
     );
-    println!(
-        "  by BSDF-drawn guided vertices before it (0, 1, 2, 3+): {}",
-        acc.by_bsdf_at_guided
-            .iter()
-            .map(|&v| format!("{:.3e}", v / n))
-            .collect::<Vec<_>>()
-            .join(" ")
+    print_shares(
+        "by BSDF-drawn guided vertices before it (0, 1, 2, 3+)",
+        &acc.by_bsdf_at_guided,
+        n,
     );
     let mut nodes: Vec<(u32, f64)> = acc.nodes.into_iter().collect();
     nodes.sort_by(|a, b| b.1.total_cmp(&a.1));
