@@ -12,14 +12,14 @@
 
 mod common;
 
-use common::agreement::agree_with_path;
+use common::agreement::{agree_on_corridor, agree_on_two_rooms, agree_on_veach_door, load_scene};
 use common::chi2::{assert_z, Stats};
 use common::directions::chi2_directions;
 use common::sphere::SphereGrid;
 use lacuna::guide::directional::{self, BINS};
 use lacuna::guide::{sample_bsdf_or_guide, GuideQuery, SkeletonGuide, SkeletonGuideSettings};
 use lacuna::math::{warp, Frame, Rgb, Rng, Sampler, Vec3};
-use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder, Bsdf, Material, Scene};
+use lacuna::scene::{Bsdf, Material, Scene};
 
 /// Bin weights of a peaked, uneven distribution: a histogram of a power-cosine lobe plus a
 /// second weaker one, some bins empty before the floor.
@@ -156,11 +156,6 @@ fn chi2_and_albedo_of_the_mixture(label: &str, q: &GuideQuery, c: f32) {
     );
 }
 
-fn load(path: &str) -> Scene {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
-    load_scene_file(&path).unwrap().builder.build().unwrap()
-}
-
 fn settings(options: &[(&str, &str)]) -> SkeletonGuideSettings {
     let mut s = SkeletonGuideSettings::default();
     for (key, value) in options {
@@ -265,7 +260,7 @@ fn ratio_max_parses_and_validates() {
 /// node has its distribution and a guided query samples it without shadow rays.
 #[test]
 fn learned_directions_are_deterministic_and_reach_the_queries() {
-    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let scene = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
     check_learned_directions(&scene, &settings(&[("directions", "learned")]));
 }
 
@@ -273,7 +268,7 @@ fn learned_directions_are_deterministic_and_reach_the_queries() {
 /// the second pass learns something else than the first.
 #[test]
 fn iterative_training_is_deterministic_and_reaches_the_queries() {
-    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let scene = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
     let one = settings(&[("directions", "learned"), ("training_paths", "32768")]);
     let mut two = one;
     two.set("training_passes", "2").unwrap();
@@ -345,21 +340,15 @@ const SPECS: &[&str] = &[
 
 #[test]
 fn learned_directions_agree_with_path_on_the_corridor() {
-    let scene = corridor_builder().unwrap().build().unwrap();
-    let camera = *scene.camera().unwrap();
-    agree_with_path("corridor", &scene, &camera, 8, 16, 64, SPECS);
+    agree_on_corridor(SPECS);
 }
 
 #[test]
 fn learned_directions_agree_with_path_on_the_two_rooms() {
-    let scene = two_rooms_builder().unwrap().build().unwrap();
-    let camera = *scene.camera().unwrap();
-    agree_with_path("two rooms", &scene, &camera, 6, 20, 16, SPECS);
+    agree_on_two_rooms(SPECS);
 }
 
 #[test]
 fn learned_directions_agree_with_path_on_the_veach_door() {
-    let scene = load("scenes/veach-door-pg2015/veach-door-pg2015.json");
-    let camera = *scene.camera().unwrap();
-    agree_with_path("veach door", &scene, &camera, 6, 16, 16, SPECS);
+    agree_on_veach_door(SPECS);
 }

@@ -9,20 +9,18 @@
 
 mod common;
 
-use common::agreement::{agree_with_path, box_scene};
+use common::agreement::{
+    agree_on_corridor, agree_on_two_rooms, agree_on_veach_door, agree_with_path, box_scene,
+    load_scene,
+};
 use lacuna::guide::{
     GuideQuery, SkeletonGuide, SkeletonGuideSettings, CANDIDATES, STRENGTH_CANDIDATES,
 };
 use lacuna::math::{warp, Rng, Vec3};
-use lacuna::scene::{corridor_builder, load_scene_file, two_rooms_builder, Scene};
-
-fn load(path: &str) -> Scene {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
-    load_scene_file(&path).unwrap().builder.build().unwrap()
-}
+use lacuna::scene::{corridor_builder, Scene};
 
 fn door() -> Scene {
-    load("scenes/veach-door-pg2015/veach-door-pg2015.json")
+    load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json")
 }
 
 fn corridor() -> Scene {
@@ -219,23 +217,17 @@ const SPECS: &[&str] = &[
 
 #[test]
 fn learned_agrees_with_path_on_the_corridor() {
-    let scene = corridor();
-    let camera = *scene.camera().unwrap();
-    agree_with_path("corridor", &scene, &camera, 8, 16, 64, SPECS);
+    agree_on_corridor(SPECS);
 }
 
 #[test]
 fn learned_agrees_with_path_on_the_two_rooms() {
-    let scene = two_rooms_builder().unwrap().build().unwrap();
-    let camera = *scene.camera().unwrap();
-    agree_with_path("two rooms", &scene, &camera, 6, 20, 16, SPECS);
+    agree_on_two_rooms(SPECS);
 }
 
 #[test]
 fn learned_agrees_with_path_on_the_veach_door() {
-    let scene = door();
-    let camera = *scene.camera().unwrap();
-    agree_with_path("veach door", &scene, &camera, 6, 16, 16, SPECS);
+    agree_on_veach_door(SPECS);
 }
 
 /// Glossy, mirror and glass surfaces: the training pass walks through delta vertices without

@@ -156,6 +156,38 @@ pub fn agree_with_path(
     }
 }
 
+/// A scene file of the repository (`scenes/...`), built.
+pub fn load_scene(path: &str) -> Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
+    lacuna::scene::load_scene_file(&path)
+        .unwrap()
+        .builder
+        .build()
+        .unwrap()
+}
+
+/// [`agree_with_path`] on the built-in corridor (the light far from the camera), at the depth,
+/// size and samples the guide's test files share: one place, so they test at the same strength.
+pub fn agree_on_corridor(specs: &[&str]) {
+    let scene = lacuna::scene::corridor_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    agree_with_path("corridor", &scene, &camera, 8, 16, 64, specs);
+}
+
+/// [`agree_with_path`] on the built-in two-room scene (light through one opening).
+pub fn agree_on_two_rooms(specs: &[&str]) {
+    let scene = lacuna::scene::two_rooms_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    agree_with_path("two rooms", &scene, &camera, 6, 20, 16, specs);
+}
+
+/// [`agree_with_path`] on the Veach door scene of `scenes/`.
+pub fn agree_on_veach_door(specs: &[&str]) {
+    let scene = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let camera = *scene.camera().unwrap();
+    agree_with_path("veach door", &scene, &camera, 6, 16, 16, specs);
+}
+
 /// A box open at the top with glossy (exponent 50 and 1e4), mirror and glass surfaces, a small
 /// area light, and optionally point, spot and directional lights.
 pub fn box_scene(delta_bsdfs: bool, area_light: bool, delta_lights: bool) -> (Scene, Camera) {
