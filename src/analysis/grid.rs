@@ -230,6 +230,15 @@ impl VoxelSet {
         v & ((1 << n) - 1)
     }
 
+    /// The set of the indices where `flags` is true.
+    pub fn from_flags(flags: &[bool]) -> Self {
+        let mut s = VoxelSet::new(flags.len());
+        for (i, _) in flags.iter().enumerate().filter(|(_, &f)| f) {
+            s.set(i);
+        }
+        s
+    }
+
     pub fn count(&self) -> usize {
         self.words.iter().map(|w| w.count_ones() as usize).sum()
     }

@@ -124,7 +124,7 @@ use super::directional::{self, DirectionalTable};
 use super::training::{self, TrainingReport};
 use crate::analysis::{
     map_point, may_map_to, Analysis, AnalysisSettings, Graph, NeighbourMasks, Resolution, Skeleton,
-    SkeletonSettings, StageTime, VoxelGrid,
+    SkeletonSettings, StageTime, VoxelGrid, VoxelSet,
 };
 use crate::error::{Error, Result};
 use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
@@ -1037,8 +1037,10 @@ pub struct SkeletonGuide {
     /// With `directions=learned`: the nodes' learned distributions (`guide::directional`).
     directions: Option<Arc<DirectionalTable>>,
     /// Per voxel: a point in it may map to a node with a guiding probability above 0 (see
-    /// `analysis::may_map_to`); queries elsewhere skip the mapping. Empty: everywhere.
-    may_guide: Vec<bool>,
+    /// `analysis::may_map_to`); queries elsewhere skip the mapping. Empty: everywhere. One bit
+    /// per voxel (a 1 M voxel grid: 128 KB, where one byte per voxel missed the caches at
+    /// most vertices).
+    may_guide: VoxelSet,
     /// No node has a guiding probability above 0 (every node learned c = 0, or the
     /// scene-level switch of `cost_model=switch|measured`): `path_skeleton` then traces
     /// exactly `path`'s samples.
@@ -1194,7 +1196,7 @@ impl SkeletonGuide {
             node_strength: Vec::new(),
             training: None,
             directions: None,
-            may_guide: Vec::new(),
+            may_guide: VoxelSet::new(0),
             guides_nothing: false,
             importance,
             importance_found,
@@ -1266,7 +1268,9 @@ impl SkeletonGuide {
             if settings.learned_c_skel {
                 let node_c = &guide.node_c;
                 guide.may_guide =
-                    may_map_to(&guide.grid, &guide.node_map, |n| node_c[n as usize] > 0.0);
+                    VoxelSet::from_flags(&may_map_to(&guide.grid, &guide.node_map, |n| {
+                        node_c[n as usize] > 0.0
+                    }));
             }
             stage("guiding probabilities (training)", t, 1.0)?;
         }
@@ -1459,7 +1463,8 @@ impl SkeletonGuide {
         if (0..3).any(|a| v[a] < 0 || v[a] >= self.grid.dims[a] as i64) {
             return true;
         }
-        self.may_guide[self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize)]
+        self.may_guide
+            .get(self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize))
     }
 
     /// [`Self::map_point_voxel`] where [`Self::may_guide_at`] allows it, else None; the grid
@@ -1479,7 +1484,7 @@ impl SkeletonGuide {
             // (`as i64`: one instruction, where `as usize` tests for values above 2^63.)
             let v = [g[0] as i64, g[1] as i64, g[2] as i64];
             let k = self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
-            if !self.may_guide.is_empty() && !self.may_guide[k] {
+            if !self.may_guide.is_empty() && !self.may_guide.get(k) {
                 return None;
             }
             v
@@ -1529,7 +1534,7 @@ impl SkeletonGuide {
         self.node_map.len() * 4
             + self.neighbours.memory_bytes()
             + self.voxel_sees.len() * 4
-            + self.may_guide.len()
+            + self.may_guide.memory_bytes()
             + self.node_c.len() * 4
             + self.node_positions.len() * 16
             + self.lobe_start.len() * 4
