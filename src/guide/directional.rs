@@ -75,9 +75,23 @@ pub struct DirectionalTable {
     slot: Vec<u32>,
     /// Per slot, `BINS` solid-angle densities.
     pdf: Vec<f32>,
-    /// Per slot, `BINS` cumulative bin probabilities (the last is 1).
+    /// Per slot, `BINS` cumulative bin probabilities (non-decreasing, the last is 1).
     cdf: Vec<f32>,
+    /// Per slot, the cumulative probability at the end of each z row of `cdf`, in one cache
+    /// line: sampling finds the row here, then the bin in the row's `PHI_BINS` entries (three
+    /// lines read instead of the binary search's five or more over the slot's 1,152 bytes).
+    row_ends: Vec<RowEnds>,
 }
+
+/// [`DirectionalTable::row_ends`] of one slot: `Z_BINS` cumulative probabilities padded with
+/// infinity (never <= a sample's `u_select`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(64))]
+struct RowEnds([f32; ROW_ENDS]);
+
+/// Entries of [`RowEnds`]: `Z_BINS` rounded up to a cache line of f32.
+const ROW_ENDS: usize = 16;
+const _: () = assert!(Z_BINS <= ROW_ENDS);
 
 const NONE: u32 = u32::MAX;
 
@@ -99,6 +113,7 @@ impl DirectionalTable {
             slot: Vec::with_capacity(distributions.len()),
             pdf: Vec::new(),
             cdf: Vec::new(),
+            row_ends: Vec::new(),
         };
         let shared = default.map(|p| t.push(p));
         for d in distributions {
@@ -120,10 +135,18 @@ impl DirectionalTable {
             for &x in class {
                 self.pdf.push(x * BINS as f32 * INV_4PI);
                 acc += x as f64;
-                self.cdf.push(acc as f32);
+                // At most 1 (a sum rounded above 1 before the last bin would break the
+                // order the row search relies on; with a positive floor it never is).
+                self.cdf.push((acc as f32).min(1.0));
             }
             // Exactly 1 at the end: the sampler's search then always finds a bin.
             *self.cdf.last_mut().expect("BINS > 0") = 1.0;
+            let cdf = &self.cdf[self.cdf.len() - BINS..];
+            let mut ends = RowEnds([f32::INFINITY; ROW_ENDS]);
+            for (iz, end) in ends.0[..Z_BINS].iter_mut().enumerate() {
+                *end = cdf[iz * PHI_BINS + PHI_BINS - 1];
+            }
+            self.row_ends.push(ends);
         }
         slot
     }
@@ -146,13 +169,33 @@ impl DirectionalTable {
 
     /// A direction from slot `slot`: `u_select` picks the bin, `u` the point in it.
     pub fn sample(&self, slot: u32, u_select: f32, u: Vec2) -> Vec3 {
-        let cdf = &self.cdf[slot as usize * BINS..(slot as usize + 1) * BINS];
-        let bin = cdf.partition_point(|&c| c <= u_select).min(BINS - 1);
-        let (iz, ip) = (bin / PHI_BINS, bin % PHI_BINS);
+        let (iz, ip) = self.select_bin(slot, u_select);
         let z = (-1.0 + 2.0 * (iz as f32 + u.x) / Z_BINS as f32).clamp(-1.0, 1.0);
         let phi = std::f32::consts::PI * (2.0 * (ip as f32 + u.y) / PHI_BINS as f32 - 1.0);
         let r = (1.0 - z * z).max(0.0).sqrt();
         Vec3::new(r * phi.cos(), r * phi.sin(), z)
+    }
+
+    /// The (z row, phi column) of the first bin of slot `slot` whose cumulative probability
+    /// exceeds `u_select` (the last bin if none does). The cdf is non-decreasing, so the entries
+    /// `<= u_select` are a prefix: its length is the count of row ends `<= u_select` rows of
+    /// `PHI_BINS` plus the count within the next row (a count of compares, no search).
+    #[inline]
+    fn select_bin(&self, slot: u32, u_select: f32) -> (usize, usize) {
+        let rows = &self.row_ends[slot as usize].0;
+        let iz = rows
+            .iter()
+            .filter(|&&c| c <= u_select)
+            .count()
+            .min(Z_BINS - 1);
+        let start = slot as usize * BINS + iz * PHI_BINS;
+        let row = &self.cdf[start..start + PHI_BINS];
+        let ip = row
+            .iter()
+            .filter(|&&c| c <= u_select)
+            .count()
+            .min(PHI_BINS - 1);
+        (iz, ip)
     }
 
     /// Distributions stored (`CLASSES` per node).
@@ -165,7 +208,10 @@ impl DirectionalTable {
     }
 
     pub fn memory_bytes(&self) -> usize {
-        self.slot.len() * 4 + self.pdf.len() * 4 + self.cdf.len() * 4
+        self.slot.len() * 4
+            + self.pdf.len() * 4
+            + self.cdf.len() * 4
+            + self.row_ends.len() * std::mem::size_of::<RowEnds>()
     }
 }
 
@@ -287,6 +333,34 @@ mod tests {
         assert_eq!(t.pdf(t.slot(1, 2).unwrap(), w), own.pdf(0, w));
         assert_eq!(t.pdf(t.slot(0, 2).unwrap(), w), INV_4PI);
         assert_eq!(DirectionalTable::new(&nodes).slot(0, 0), None);
+    }
+
+    /// The row search picks the bin of a binary search over the slot's whole cdf, for random
+    /// `u_select` and for every cdf entry itself (the boundaries), on peaked and uniform slots.
+    #[test]
+    fn row_search_selects_the_bin_of_the_binary_search() {
+        let t = lobe_table();
+        let mut rng = Sampler::independent(Rng::new(7, 8));
+        for slot in [0u32, 5, CLASSES as u32, 2 * CLASSES as u32 - 1] {
+            let cdf = &t.cdf[slot as usize * BINS..(slot as usize + 1) * BINS];
+            assert!(cdf.windows(2).all(|w| w[0] <= w[1]));
+            let mut us: Vec<f32> = (0..20_000).map(|_| rng.uniform()).collect();
+            // The neighbouring floats of a positive c.
+            let down = |c: f32| f32::from_bits(c.to_bits() - 1);
+            let up = |c: f32| f32::from_bits(c.to_bits() + 1);
+            for &c in cdf {
+                us.extend([c, down(c), up(c)]);
+            }
+            us.extend([0.0, down(1.0), 1.0]);
+            for u in us {
+                let bin = cdf.partition_point(|&c| c <= u).min(BINS - 1);
+                assert_eq!(
+                    t.select_bin(slot, u),
+                    (bin / PHI_BINS, bin % PHI_BINS),
+                    "{u}"
+                );
+            }
+        }
     }
 
     #[test]
