@@ -37,14 +37,14 @@ pub fn sample_bsdf_or_guide(
 ) -> Option<MixtureSample> {
     let c = query.guiding_probability();
     if c > 0.0 && rng.uniform() < c {
-        let (wi, _) = query.sample(rng.uniform(), rng.uniform2())?;
+        let (wi, guide_pdf) = query.sample(rng.uniform(), rng.uniform2())?;
         let wi_local = frame.to_local(wi);
         let f = bsdf.eval(wo_local, wi_local);
         if f == Rgb::ZERO {
             return None;
         }
         let bsdf_pdf = bsdf.pdf(wo_local, wi_local);
-        let pdf = query.mixture_pdf(wi, bsdf_pdf);
+        let pdf = query.mixture_pdf_given(guide_pdf, bsdf_pdf);
         return Some(MixtureSample {
             sample: BsdfSample {
                 wi: wi_local,

@@ -2533,11 +2533,30 @@ impl GuideQuery {
     pub fn mixture_pdf(&self, w: Vec3, bsdf_pdf: f32) -> f32 {
         let c = self.guiding_probability();
         if c > 0.0 {
-            c * self.pdf(w) + (1.0 - c) * bsdf_pdf
+            mix(c, self.pdf(w), bsdf_pdf)
         } else {
             bsdf_pdf
         }
     }
+
+    /// [`mixture_pdf`](Self::mixture_pdf) at a direction whose skeleton density `guide_pdf`
+    /// is known (what [`sample`](Self::sample) returned with it): the same value, without
+    /// evaluating the density again.
+    #[inline]
+    pub fn mixture_pdf_given(&self, guide_pdf: f32, bsdf_pdf: f32) -> f32 {
+        let c = self.guiding_probability();
+        if c > 0.0 {
+            mix(c, guide_pdf, bsdf_pdf)
+        } else {
+            bsdf_pdf
+        }
+    }
+}
+
+/// The one-sample mixture's density from its parts (eq. 168-170).
+#[inline(always)]
+fn mix(c: f32, guide_pdf: f32, bsdf_pdf: f32) -> f32 {
+    c * guide_pdf + (1.0 - c) * bsdf_pdf
 }
 
 #[cfg(test)]
