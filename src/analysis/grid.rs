@@ -230,6 +230,14 @@ impl VoxelSet {
         v & ((1 << n) - 1)
     }
 
+    /// [`crate::math::prefetch`] of the word holding bit `i` (nothing past the end).
+    #[inline]
+    pub fn prefetch(&self, i: usize) {
+        if let Some(w) = self.words.get(i >> 6) {
+            crate::math::prefetch(w);
+        }
+    }
+
     /// The set of the indices where `flags` is true.
     pub fn from_flags(flags: &[bool]) -> Self {
         let mut s = VoxelSet::new(flags.len());

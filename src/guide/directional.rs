@@ -247,6 +247,15 @@ impl DirectionalTable {
         (iz, ip)
     }
 
+    /// [`crate::math::prefetch`] of the line [`sample`](Self::sample) of slot `slot` reads
+    /// first.
+    #[inline]
+    pub fn prefetch(&self, slot: u32) {
+        if let Some(ends) = self.row_ends.get(slot as usize) {
+            crate::math::prefetch(ends);
+        }
+    }
+
     /// Distributions stored (`CLASSES` per node).
     pub fn len(&self) -> usize {
         self.pdf.len() / BINS

@@ -1500,6 +1500,51 @@ impl SkeletonGuide {
             .map(|k| (self.node_map[k], k))
     }
 
+    /// A hint ahead of [`GuideQuery::init`] at point `p` with geometric normal `normal` seen
+    /// from `incident`: requests the cache lines the mapping most likely reads (the voxel's
+    /// `may_guide` word, and the node map at the neighbour that the normal's dominant axis
+    /// faces: the facing shortcut's voxel on walls, floors and ceilings), so that their misses
+    /// overlap the work between the ray's hit and the query (the BSDF's texture lookups)
+    /// instead of stalling it. Both were the guided vertex's largest stalls by wall-time
+    /// profile (issue 8, round 16). No effect on any result.
+    #[inline]
+    pub fn prefetch(&self, p: Vec3, normal: Vec3, incident: Vec3) {
+        let g = self.grid.to_grid(p);
+        let d = &self.grid_extent;
+        if !(g[0] >= 0.0 && g[0] < d[0] && g[1] >= 0.0 && g[1] < d[1] && g[2] >= 0.0 && g[2] < d[2])
+        {
+            return;
+        }
+        let k = self.grid.index(
+            g[0] as i64 as usize,
+            g[1] as i64 as usize,
+            g[2] as i64 as usize,
+        );
+        self.may_guide.prefetch(k);
+        let n = if normal.dot(incident) >= 0.0 {
+            normal
+        } else {
+            -normal
+        };
+        let a = n.abs();
+        let [nx, ny, _] = self.grid.dims;
+        let (stride, towards) = if a.x >= a.y && a.x >= a.z {
+            (1, n.x)
+        } else if a.y >= a.z {
+            (nx, n.y)
+        } else {
+            (nx * ny, n.z)
+        };
+        let facing = if towards > 0.0 {
+            k.wrapping_add(stride)
+        } else {
+            k.wrapping_sub(stride)
+        };
+        if let Some(m) = self.node_map.get(facing) {
+            crate::math::prefetch(m);
+        }
+    }
+
     /// True when no node is guided (every learned c is 0): no query can guide, and
     /// `path_skeleton` skips the queries altogether (its samples are then `path`'s).
     pub fn guides_nothing(&self) -> bool {
@@ -2412,6 +2457,16 @@ impl GuideQuery {
             let l = &self.lobes[i];
             (l.axis, l.exponent, l.probability)
         })
+    }
+
+    /// A hint after [`init`](Self::init): requests the cache line that sampling this point's
+    /// learned distribution reads first (its row ends), so that the miss overlaps next-event
+    /// estimation. No effect on any result.
+    #[inline]
+    pub fn prefetch_directions(&self) {
+        if let Some(table) = self.learned() {
+            table.prefetch(self.slot);
+        }
     }
 
     /// The learned distribution that applies at this point (`directions=learned`), if any.

@@ -428,6 +428,9 @@ impl PathTracer {
                 radiance += e;
                 break;
             };
+            if let Some((guide, _)) = &guided {
+                guide.prefetch(si.p, si.ng, si.wo);
+            }
             if depth == 0 {
                 out.hit = true;
                 out.depth = si.t;
@@ -472,6 +475,7 @@ impl PathTracer {
                             // Worst case after this vertex: ratio / (1 - c) <= ratio_max.
                             query.cap_guiding_probability(1.0 - ratio / ratio_max);
                         }
+                        query.prefetch_directions();
                     }
                     query
                 }

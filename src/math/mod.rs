@@ -15,6 +15,21 @@ pub use sampler::{PixelSampler, Sampler, SamplerKind};
 
 pub use glam::{Vec2, Vec3};
 
+/// Asks the processor to bring the cache line holding `value` into its caches: a hint with no
+/// effect on any result (nothing on other architectures), for data a later step will read.
+#[inline(always)]
+pub fn prefetch<T>(value: &T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        // SAFETY: a prefetch has no architectural effect (it cannot fault), and `value` is a
+        // live reference; SSE is part of x86-64.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>((value as *const T).cast()) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = value;
+}
+
 /// Linear RGB radiometric quantity (radiance, power, reflectance). Lacuna renders in linear
 /// sRGB primaries; the spectral dimension is three samples, as in both source theses.
 pub type Rgb = Vec3;
