@@ -49,15 +49,15 @@ fn chi2_of_the_histogram_distribution() {
     assert!(GuideQuery::with_distribution(0.5, &bins[1..]).is_err());
     assert!(GuideQuery::with_distribution(1.0, &bins).is_err());
     assert!(GuideQuery::with_distribution(0.5, &vec![0.0; BINS]).is_err());
-    // The default floor, a small one (`histogram_floor=0.05`: the emptiest bins' density
-    // a third of the default's) and uniform.
-    let low = peaked_bins_with(0.05);
+    // The default floor (0.05), a larger one (`histogram_floor=0.15`, the default before
+    // round 16: the emptiest bins' density three times the default's) and uniform.
+    let high = peaked_bins_with(0.15);
     assert!(
-        low.iter().all(|&p| p > 0.0)
-            && low.iter().fold(1.0f32, |m, &p| m.min(p))
-                < bins.iter().fold(1.0f32, |m, &p| m.min(p))
+        bins.iter().all(|&p| p > 0.0)
+            && bins.iter().fold(1.0f32, |m, &p| m.min(p))
+                < high.iter().fold(1.0f32, |m, &p| m.min(p))
     );
-    for (k, bins) in [bins, low, vec![1.0; BINS]].into_iter().enumerate() {
+    for (k, bins) in [bins, high, vec![1.0; BINS]].into_iter().enumerate() {
         let q = GuideQuery::with_distribution(0.5, &bins).unwrap();
         assert_eq!(q.guiding_probability(), 0.5);
         let name = format!("histogram {k}");
@@ -233,8 +233,8 @@ fn options_parse_and_exclude_the_lobe_options() {
     let mut s = settings(&[("directions", "learned")]);
     assert!(!s.training_history && s.histogram_floor == directional::FLOOR);
     s.set("training_history", "all").unwrap();
-    s.set("histogram_floor", "0.05").unwrap();
-    assert!(s.training_history && s.histogram_floor == 0.05);
+    s.set("histogram_floor", "0.15").unwrap();
+    assert!(s.training_history && s.histogram_floor == 0.15);
     assert!(s.set("training_history", "some").is_err());
     for bad in ["0", "-0.1", "1.5", "nan"] {
         assert!(s.set("histogram_floor", bad).is_err(), "{bad}");

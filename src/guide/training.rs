@@ -392,6 +392,29 @@ pub struct TrainingReport {
     pub scene: SceneChoice,
 }
 
+impl TrainingReport {
+    /// Nothing learned: the fixed `c_skel` and strength at every node (no camera, no path).
+    fn untrained(settings: &super::SkeletonGuideSettings, nodes: usize) -> TrainingReport {
+        TrainingReport {
+            probabilities: vec![settings.c_skel; nodes],
+            strengths: vec![settings.strength; nodes],
+            samples: vec![0; nodes],
+            nonzero: vec![0; nodes],
+            relative_cost: vec![1.0; nodes],
+            best_ratio: vec![1.0; nodes],
+            mean_remaining: vec![0.0; nodes],
+            lobe_weights: vec![None; nodes],
+            directions: vec![None; nodes],
+            paths: 0,
+            scene: SceneChoice {
+                variance_ratio: 1.0,
+                cost_ratio: 1.0,
+                ..SceneChoice::default()
+            },
+        }
+    }
+}
+
 /// What the node choices do to the whole image, predicted from the training paths, before the
 /// scene-level switch (module docs, "Measured cost and the scene-level switch").
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -746,23 +769,7 @@ pub(super) fn learn_guiding_probabilities(
     let settings = guide.settings();
     let grid = Grid::of(guide);
     let Some(camera) = scene.camera() else {
-        return TrainingReport {
-            probabilities: vec![settings.c_skel; nodes],
-            strengths: vec![settings.strength; nodes],
-            samples: vec![0; nodes],
-            nonzero: vec![0; nodes],
-            relative_cost: vec![1.0; nodes],
-            best_ratio: vec![1.0; nodes],
-            mean_remaining: vec![0.0; nodes],
-            lobe_weights: vec![None; nodes],
-            directions: vec![None; nodes],
-            paths: 0,
-            scene: SceneChoice {
-                variance_ratio: 1.0,
-                cost_ratio: 1.0,
-                ..SceneChoice::default()
-            },
-        };
+        return TrainingReport::untrained(settings, nodes);
     };
     // The render's image size is not known here: a 2:1 frame covers the scene files' images
     // (2:1 and 1:1) and more; training nodes outside the view costs samples, not bias.
@@ -802,42 +809,56 @@ pub(super) fn learn_guiding_probabilities(
         })
         .collect();
 
-    // The samples in chunk order, then by node (a stable sort: the same order for any thread
-    // count), so that every node's samples are one slice.
+    // Every node's samples in chunk order (the same order for any thread count): counted,
+    // then moved once into per-node vectors of exact size.
+    let mut counts = vec![0usize; nodes];
     let mut vertices = 0u64;
-    let mut all: Vec<Sample> = Vec::new();
-    for (samples, v) in per_chunk {
-        all.extend(samples);
+    for (samples, v) in &per_chunk {
+        for s in samples {
+            counts[s.node as usize] += 1;
+        }
         vertices += v;
     }
-    all.sort_by_key(|s| s.node);
+    let mut per_node: Vec<Vec<Sample>> = counts.iter().map(|&n| Vec::with_capacity(n)).collect();
+    for (samples, _) in per_chunk {
+        for s in samples {
+            per_node[s.node as usize].push(s);
+        }
+    }
+    // Only the last pass's choices are kept (an earlier pass passes its distributions on):
+    // an earlier pass needs neither the choices nor the held-out densities that judge them.
+    let last = pass + 1 >= settings.training_passes;
     let mut directions = vec![None; nodes];
     if settings.learned_directions {
         let mis = settings.render_estimator.mis;
-        let groups: Vec<&mut [Sample]> = all.chunk_by_mut(|a, b| a.node == b.node).collect();
         let empty: &[Weighted] = &[];
         let floor = settings.histogram_floor;
-        let learned: Vec<(u32, Vec<f32>, Vec<Weighted>)> = groups
-            .into_par_iter()
-            .map(|g| {
-                let node = g[0].node;
-                let earlier = history.get(node as usize).map_or(empty, |h| h.as_slice());
-                let (d, weighted) = learn_directions(g, mis, earlier, floor);
+        let learned: Vec<(usize, Vec<f32>, Vec<Weighted>)> = per_node
+            .par_iter_mut()
+            .enumerate()
+            .filter(|(_, g)| !g.is_empty())
+            .map(|(node, g)| {
+                let earlier = history.get(node).map_or(empty, |h| h.as_slice());
+                let (d, weighted) = learn_directions(g, mis, earlier, floor, last);
                 (node, d, weighted)
             })
             .collect();
         let keep = settings.training_history;
         for (node, d, weighted) in learned {
-            directions[node as usize] = Some(d);
+            directions[node] = Some(d);
             if keep {
-                history[node as usize].extend(weighted);
+                history[node].extend(weighted);
             }
         }
     }
-    let mut by_node: Vec<&[Sample]> = vec![&[]; nodes];
-    for group in all.chunk_by(|a, b| a.node == b.node) {
-        by_node[group[0].node as usize] = group;
+    if !last {
+        return TrainingReport {
+            directions,
+            paths,
+            ..TrainingReport::untrained(settings, nodes)
+        };
     }
+    let by_node: Vec<&[Sample]> = per_node.iter().map(|g| g.as_slice()).collect();
     // Guide shadow rays per node: the cache's fills with `visibility=voxel` (a query that
     // fills an entry may be one whose sample is not recorded, and which query that is depends
     // on thread timing), else each recorded query's own rays.
@@ -967,12 +988,14 @@ pub(super) fn learn_guiding_probabilities(
 /// `earlier` are weighted samples of earlier passes at the node (`training_history=all`,
 /// module docs, "Iterative training"): each is an unbiased estimate of its bin's integral like
 /// this pass's, independent of this pass's samples, so they join both halves and the whole.
-/// Also returns this pass's weighted samples.
+/// Also returns this pass's weighted samples. Unless `judged` (a pass whose choices are
+/// kept), the halves are not fitted and the samples' densities are left alone.
 fn learn_directions(
     samples: &mut [Sample],
     mis: MisHeuristic,
     earlier: &[Weighted],
     floor: f32,
+    judged: bool,
 ) -> (Vec<f32>, Vec<Weighted>) {
     let weight = |s: &Sample| -> f64 {
         let q0 = mixture(TRAINING_C, s.p_skel, s.p_bsdf);
@@ -1004,15 +1027,17 @@ fn learn_directions(
             .collect();
         directional::fit(&part, floor)
     };
-    let folds = DirectionalTable::new(&[Some(half(1)), Some(half(0))]);
-    for (i, s) in samples.iter_mut().enumerate() {
-        // Sample i is judged by the distribution of the other half: node 0 holds the odd
-        // samples', node 1 the even ones'.
-        let slot = folds
-            .slot((i % 2 == 1) as u32, s.class as usize)
-            .expect("both halves have distributions");
-        s.p_strength[0] = folds.pdf(slot, s.wi);
-        s.nee.p_strength[0] = folds.pdf(slot, s.nee.wi);
+    if judged {
+        let folds = DirectionalTable::new(&[Some(half(1)), Some(half(0))]);
+        for (i, s) in samples.iter_mut().enumerate() {
+            // Sample i is judged by the distribution of the other half: node 0 holds the odd
+            // samples', node 1 the even ones'.
+            let slot = folds
+                .slot((i % 2 == 1) as u32, s.class as usize)
+                .expect("both halves have distributions");
+            s.p_strength[0] = folds.pdf(slot, s.wi);
+            s.nee.p_strength[0] = folds.pdf(slot, s.nee.wi);
+        }
     }
     let all: Vec<Weighted> = earlier.iter().chain(&weighted).copied().collect();
     (directional::fit(&all, floor), weighted)
@@ -1830,8 +1855,13 @@ mod tests {
     #[test]
     fn learned_directions_find_the_cone_and_are_chosen() {
         let mut samples = cone_node(false, 20_000);
-        let (bins, _) =
-            learn_directions(&mut samples, MisHeuristic::Power, &[], directional::FLOOR);
+        let (bins, _) = learn_directions(
+            &mut samples,
+            MisHeuristic::Power,
+            &[],
+            directional::FLOOR,
+            true,
+        );
         let table = DirectionalTable::new(&[Some(bins)]);
         let axis = Vec3::new(0.3, 0.0, 0.95).normalize();
         let uniform = 1.0 / (4.0 * std::f32::consts::PI);
