@@ -410,6 +410,10 @@ pub enum CostModel {
     /// `measured`: the nodes also chosen with the measured costs (a per-query cost and the
     /// node mapping), then the scene-level switch.
     Measured,
+    /// `paths`: the nodes chosen as with `vertices`, then the scene-level switch with the
+    /// variance of the whole camera path's estimate (`guide::training`, "The path-level
+    /// prediction") instead of the sum of the vertices' variances.
+    Paths,
 }
 
 impl CostModel {
@@ -418,8 +422,9 @@ impl CostModel {
             "vertices" => Ok(CostModel::Vertices),
             "switch" => Ok(CostModel::Switch),
             "measured" => Ok(CostModel::Measured),
+            "paths" => Ok(CostModel::Paths),
             other => Err(Error::invalid(format!(
-                "skeleton cost_model '{other}' must be 'vertices', 'switch' or 'measured'"
+                "skeleton cost_model '{other}' must be 'vertices', 'switch', 'measured' or 'paths'"
             ))),
         }
     }
@@ -614,7 +619,7 @@ impl SkeletonGuideSettings {
     /// `training_history` (`last` or `all`), `histogram_floor` (in (0, 1]),
     /// `training_cost` (`path` or
     /// `vertex`), `training_significance` (>= 0), `training_min_nonzero`,
-    /// `training_guided_cost` (>= 0), `cost_model` (`vertices`, `switch` or `measured`),
+    /// `training_guided_cost` (>= 0), `cost_model` (`vertices`, `switch`, `measured` or `paths`),
     /// `lobe_weights` (`distance` or `learned`), `c_max` (the largest learned c, in [0.05, 1)),
     /// `ratio_max` (a number > 1, or `off`) and `directions` (`lobes` or `learned`). Validates
     /// the result.
@@ -2605,6 +2610,7 @@ mod tests {
             ("vertices", CostModel::Vertices),
             ("switch", CostModel::Switch),
             ("measured", CostModel::Measured),
+            ("paths", CostModel::Paths),
         ] {
             s.set("cost_model", text).unwrap();
             assert_eq!(s.cost_model, model);
