@@ -1209,6 +1209,8 @@ fn learned_lobe_weights_are_the_mixture_the_query_samples() {
         ("visibility", "voxel"),
         ("lobe_weights", "learned"),
         ("training_paths", "32768"),
+        // The lobe weights themselves, not whether the scene-level switch keeps them.
+        ("cost_model", "vertices"),
     ] {
         settings.set(k, v).unwrap();
     }
@@ -1403,7 +1405,10 @@ fn the_path_level_switch_drops_forced_choices_and_keeps_the_corridor() {
     assert!(forced.training().unwrap().guided_nodes() > 0);
     let judged = guide_of(&rooms, settings("paths"));
     let t = judged.training().unwrap();
-    let predicted = t.scene.path_variance_ratio.expect("a path-level prediction");
+    let predicted = t
+        .scene
+        .path_variance_ratio
+        .expect("a path-level prediction");
     assert!(t.scene.switched_off && !t.scene.pays(), "{:?}", t.scene);
     assert!(predicted > 0.0 && predicted < 1.0, "{predicted}");
     assert!(judged.guides_nothing());

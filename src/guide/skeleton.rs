@@ -401,8 +401,8 @@ impl TrainingCost {
 /// the scene-level switch").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CostModel {
-    /// `vertices` (the default): a guided vertex costs `training_guided_cost` unguided
-    /// vertices plus its shadow rays; no scene-level switch.
+    /// `vertices`: a guided vertex costs `training_guided_cost` unguided vertices plus its
+    /// shadow rays; no scene-level switch.
     Vertices,
     /// `switch`: the nodes chosen as with `vertices`, then the scene-level switch judges the
     /// whole image with the measured costs and guides nothing unless it gains.
@@ -410,7 +410,8 @@ pub enum CostModel {
     /// `measured`: the nodes also chosen with the measured costs (a per-query cost and the
     /// node mapping), then the scene-level switch.
     Measured,
-    /// `paths`: the nodes chosen as with `vertices`, then the scene-level switch with the
+    /// `paths` (the default, round 16): the nodes chosen as with `vertices`, then the
+    /// scene-level switch with the
     /// variance of the whole camera path's estimate (`guide::training`, "The path-level
     /// prediction") instead of the sum of the vertices' variances.
     Paths,
@@ -548,7 +549,7 @@ impl Default for SkeletonGuideSettings {
             learned_directions: true,
             directions_named: false,
             training_guided_cost: DEFAULT_TRAINING_GUIDED_COST,
-            cost_model: CostModel::Vertices,
+            cost_model: CostModel::Paths,
             training_depth: DEFAULT_TRAINING_DEPTH,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_passes: 1,
@@ -2617,7 +2618,7 @@ mod tests {
         }
         assert_eq!(
             SkeletonGuideSettings::default().cost_model,
-            CostModel::Vertices
+            CostModel::Paths
         );
         assert!(OPTION_NAMES.contains(&"cost_model"));
     }

@@ -199,7 +199,7 @@
 //!
 //! # Measured cost and the scene-level switch (`cost_model=switch|measured`, round 14)
 //!
-//! With the default `cost_model=vertices` a guided vertex costs `training_guided_cost` (0.15)
+//! With `cost_model=vertices` a guided vertex costs `training_guided_cost` (0.15)
 //! unguided vertices and the node mapping nothing. Callgrind of Sponza (BENCHMARKS.md, round
 //! 13, guide13a: 64x36, 16 spp, render only, per camera sample, `G` minus `path`) says
 //! otherwise: 1.65 k instructions of lobe set-up in `GuideQuery::init`, 0.82 k in
@@ -271,7 +271,7 @@
 //! sample: its predicted variance ratio 0.94 against a measured MAE² ratio of 0.80 (BENCHMARKS.md,
 //! round 15, default15).
 //!
-//! # The path-level prediction (`cost_model=paths`, round 16)
+//! # The path-level prediction (`cost_model=paths`, the default since round 16)
 //!
 //! The variance sum above counts each vertex's estimate, rest of path included, and misses
 //! what guiding does to the product of weights along a path: it predicts 0.94x on both the
@@ -883,10 +883,11 @@ pub(super) fn learn_guiding_probabilities(
         for s in samples.iter_mut().filter(|s| s.step != NO_STEP) {
             s.step += steps;
         }
-        log.paths.extend(chunk_log.paths.into_iter().map(|p| PathRecord {
-            start: p.start + steps,
-            ..p
-        }));
+        log.paths
+            .extend(chunk_log.paths.into_iter().map(|p| PathRecord {
+                start: p.start + steps,
+                ..p
+            }));
         log.steps.extend(chunk_log.steps);
         all.extend(samples);
         vertices += v;
@@ -1426,7 +1427,9 @@ fn train_path(
     let lobe_weights = guide.settings().learned_lobe_weights;
     let mut path: Vec<TrainingVertex> = Vec::with_capacity(depth as usize);
     let mut own_light = light_sample(scene, &si, rng, estimator);
-    let first = own_light.as_ref().map_or(0.0, |l| finite_luminance(l.value));
+    let first = own_light
+        .as_ref()
+        .map_or(0.0, |l| finite_luminance(l.value));
     for _ in 0..depth {
         let bsdf = scene.bsdf(&si);
         let frame = si.shading_frame();
@@ -1613,7 +1616,13 @@ fn path_variance_ratio(log: &PathLog) -> f64 {
     let n = log.paths.len();
     // Each path's term of the two second moments (0 for a path a policy cannot draw).
     let (mut none, mut chosen) = (Vec::with_capacity(n), Vec::with_capacity(n));
-    let term = |e: f64, w: f64| if w > 0.0 && w.is_finite() { e * e * w } else { 0.0 };
+    let term = |e: f64, w: f64| {
+        if w > 0.0 && w.is_finite() {
+            e * e * w
+        } else {
+            0.0
+        }
+    };
     for p in &log.paths {
         let steps = &log.steps[p.start as usize..(p.start + p.len) as usize];
         // Per policy: the estimate, the running product of q_0 / q and the path's density

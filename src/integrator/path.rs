@@ -206,7 +206,7 @@ impl Integrator for PathTracer {
                 sc.vertices as f64 / t.paths.max(1) as f64,
                 sc.efficiency(),
                 if sc.switched_off {
-                    ": not enough, nothing guided (cost_model switch)"
+                    ": not enough, nothing guided (scene-level switch)"
                 } else {
                     ""
                 }
