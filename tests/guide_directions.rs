@@ -331,6 +331,8 @@ fn check_learned_directions(scene: &Scene, s: &SkeletonGuideSettings) {
 /// portal lobes as the training's proposal, voxel visibility) and a fixed high c.
 const SPECS: &[&str] = &[
     "path_skeleton",
+    // The default's learned choices where its scene-level switch turns them off (two rooms).
+    "path_skeleton:cost_model=vertices",
     "path_skeleton:c_skel=0.9:directions=learned",
     // ratio_max binds at c = 0.9 (1 / (1 - 0.9) = 10 > 1.5): c varies with the path's prefix.
     "path_skeleton:c_skel=0.9:directions=learned:ratio_max=1.5",

@@ -2871,6 +2871,8 @@ mod tests {
         let mut settings = SkeletonGuideSettings::default();
         settings.set("c_skel", "learned").unwrap();
         settings.set("training_paths", "8192").unwrap();
+        // The mapping of the nodes the training guides, whatever the scene-level switch says.
+        settings.set("cost_model", "vertices").unwrap();
         let guide = SkeletonGuide::build(&scene, &settings, &|_, _| true).unwrap();
         assert!(!guide.may_guide.is_empty());
         let mut rng = Rng::new(5, 1);
