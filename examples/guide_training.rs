@@ -60,6 +60,9 @@ fn main() {
     println!("# guided: {} of {}", t.guided_nodes(), guide.node_count());
     let sc = &t.scene;
     let per_path = |x: u64| x as f64 / t.paths.max(1) as f64;
+    if let Some(v) = sc.path_variance_ratio {
+        println!("# path-level variance {v:.4}x (cost_model=paths)");
+    }
     println!(
         "# scene-level: variance {:.4}x, cost {:.4}x, efficiency {:.4}x, switched off: {}; per training path: {:.3} vertices, {:.3} guided, {:.3} mapped",
         sc.variance_ratio,

@@ -331,10 +331,12 @@ fn check_learned_directions(scene: &Scene, s: &SkeletonGuideSettings) {
 /// portal lobes as the training's proposal, voxel visibility) and a fixed high c.
 const SPECS: &[&str] = &[
     "path_skeleton",
+    // The default's learned choices where its scene-level switch turns them off (two rooms).
+    "path_skeleton:cost_model=vertices",
     "path_skeleton:c_skel=0.9:directions=learned",
     // ratio_max binds at c = 0.9 (1 / (1 - 0.9) = 10 > 1.5): c varies with the path's prefix.
     "path_skeleton:c_skel=0.9:directions=learned:ratio_max=1.5",
-    "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned:histogram_floor=0.05:training_passes=2:training_paths=65536",
+    "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:directions=learned:histogram_floor=0.05:training_passes=2:training_paths=65536:cost_model=vertices",
     "path_skeleton:c_skel=0.9:directions=learned:training_passes=3:training_paths=16384",
 ];
 

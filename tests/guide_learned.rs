@@ -209,10 +209,12 @@ fn training_guides_some_corridor_nodes() {
 
 /// The specs z-tested against `path`: the learned c with the lobes (the learned directions,
 /// the default, in tests/guide_directions.rs).
+// `cost_model=vertices`: the learned choices themselves, whether or not the default
+// scene-level switch (`cost_model=paths`) would keep them at these scenes.
 const SPECS: &[&str] = &[
-    "path_skeleton:c_skel=learned:directions=lobes",
-    "path_skeleton:c_skel=learned:strength=64:directions=lobes",
-    "path_skeleton:c_skel=learned:strength=learned",
+    "path_skeleton:c_skel=learned:directions=lobes:cost_model=vertices",
+    "path_skeleton:c_skel=learned:strength=64:directions=lobes:cost_model=vertices",
+    "path_skeleton:c_skel=learned:strength=learned:cost_model=vertices",
 ];
 
 #[test]

@@ -1209,6 +1209,8 @@ fn learned_lobe_weights_are_the_mixture_the_query_samples() {
         ("visibility", "voxel"),
         ("lobe_weights", "learned"),
         ("training_paths", "32768"),
+        // The lobe weights themselves, not whether the scene-level switch keeps them.
+        ("cost_model", "vertices"),
     ] {
         settings.set(k, v).unwrap();
     }
@@ -1377,4 +1379,60 @@ fn a_guide_that_guides_nothing_renders_paths_image() {
     }
     // The same guide with a fixed c guides.
     assert!(!guide_of(&scene, fixed()).guides_nothing());
+}
+
+/// `cost_model=paths` judges the node choices by the whole camera path's predicted second
+/// moment (`guide::training`, "The path-level prediction"). In the two-room scene, with the
+/// per-node choices forced to guide wherever the best candidate is below c = 0's (no
+/// significance margin, guided vertices free, one carrying sample enough), `vertices` guides
+/// and the path-level prediction finds no gain worth the measured costs: `paths` guides
+/// nothing, so `path_skeleton` renders `path`'s image bit for bit. In the corridor, where
+/// guiding pays several times over, `paths` keeps the same choices as `vertices`.
+#[test]
+fn the_path_level_switch_drops_forced_choices_and_keeps_the_corridor() {
+    let options = "c_skel=learned:aim=portal:visibility=voxel:training_paths=16384:training_significance=0:training_guided_cost=0:training_min_nonzero=1";
+    let spec = |model: &str| format!("{options}:cost_model={model}");
+    let settings = |model: &str| {
+        let mut settings = SkeletonGuideSettings::default();
+        for option in spec(model).split(':') {
+            let (key, value) = option.split_once('=').unwrap();
+            settings.set(key, value).unwrap();
+        }
+        settings
+    };
+    let rooms = two_rooms_builder().unwrap().build().unwrap();
+    let forced = guide_of(&rooms, settings("vertices"));
+    assert!(forced.training().unwrap().guided_nodes() > 0);
+    let judged = guide_of(&rooms, settings("paths"));
+    let t = judged.training().unwrap();
+    let predicted = t
+        .scene
+        .path_variance_ratio
+        .expect("a path-level prediction");
+    assert!(t.scene.switched_off && !t.scene.pays(), "{:?}", t.scene);
+    assert!(predicted > 0.0 && predicted < 1.0, "{predicted}");
+    assert!(judged.guides_nothing());
+    let camera = *rooms.camera().unwrap();
+    let image = |spec: &str| {
+        let mut integrator = integrator::create(spec, IntegratorSettings::default()).unwrap();
+        prepare(integrator.as_mut(), &rooms, Some(2), &|_, _| true).unwrap();
+        pixel_bits(&rooms, &camera, integrator.as_ref(), 2)
+    };
+    assert_eq!(
+        image("path"),
+        image(&format!("path_skeleton:{}", spec("paths")))
+    );
+
+    let corridor = corridor_builder().unwrap().build().unwrap();
+    let kept = guide_of(&corridor, settings("paths"));
+    let t = kept.training().unwrap();
+    assert!(!t.scene.switched_off, "{:?}", t.scene);
+    assert!(t.scene.path_variance_ratio.unwrap() < 0.5, "{:?}", t.scene);
+    let plain = guide_of(&corridor, settings("vertices"));
+    assert!(plain.training().unwrap().guided_nodes() > 0);
+    assert_eq!(
+        t.probabilities,
+        plain.training().unwrap().probabilities,
+        "the prediction does not change the choices"
+    );
 }

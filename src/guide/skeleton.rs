@@ -401,8 +401,8 @@ impl TrainingCost {
 /// the scene-level switch").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CostModel {
-    /// `vertices` (the default): a guided vertex costs `training_guided_cost` unguided
-    /// vertices plus its shadow rays; no scene-level switch.
+    /// `vertices`: a guided vertex costs `training_guided_cost` unguided vertices plus its
+    /// shadow rays; no scene-level switch.
     Vertices,
     /// `switch`: the nodes chosen as with `vertices`, then the scene-level switch judges the
     /// whole image with the measured costs and guides nothing unless it gains.
@@ -410,6 +410,11 @@ pub enum CostModel {
     /// `measured`: the nodes also chosen with the measured costs (a per-query cost and the
     /// node mapping), then the scene-level switch.
     Measured,
+    /// `paths` (the default, round 16): the nodes chosen as with `vertices`, then the
+    /// scene-level switch with the
+    /// variance of the whole camera path's estimate (`guide::training`, "The path-level
+    /// prediction") instead of the sum of the vertices' variances.
+    Paths,
 }
 
 impl CostModel {
@@ -418,8 +423,9 @@ impl CostModel {
             "vertices" => Ok(CostModel::Vertices),
             "switch" => Ok(CostModel::Switch),
             "measured" => Ok(CostModel::Measured),
+            "paths" => Ok(CostModel::Paths),
             other => Err(Error::invalid(format!(
-                "skeleton cost_model '{other}' must be 'vertices', 'switch' or 'measured'"
+                "skeleton cost_model '{other}' must be 'vertices', 'switch', 'measured' or 'paths'"
             ))),
         }
     }
@@ -543,7 +549,7 @@ impl Default for SkeletonGuideSettings {
             learned_directions: true,
             directions_named: false,
             training_guided_cost: DEFAULT_TRAINING_GUIDED_COST,
-            cost_model: CostModel::Vertices,
+            cost_model: CostModel::Paths,
             training_depth: DEFAULT_TRAINING_DEPTH,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_passes: 1,
@@ -614,7 +620,7 @@ impl SkeletonGuideSettings {
     /// `training_history` (`last` or `all`), `histogram_floor` (in (0, 1]),
     /// `training_cost` (`path` or
     /// `vertex`), `training_significance` (>= 0), `training_min_nonzero`,
-    /// `training_guided_cost` (>= 0), `cost_model` (`vertices`, `switch` or `measured`),
+    /// `training_guided_cost` (>= 0), `cost_model` (`vertices`, `switch`, `measured` or `paths`),
     /// `lobe_weights` (`distance` or `learned`), `c_max` (the largest learned c, in [0.05, 1)),
     /// `ratio_max` (a number > 1, or `off`) and `directions` (`lobes` or `learned`). Validates
     /// the result.
@@ -2684,13 +2690,14 @@ mod tests {
             ("vertices", CostModel::Vertices),
             ("switch", CostModel::Switch),
             ("measured", CostModel::Measured),
+            ("paths", CostModel::Paths),
         ] {
             s.set("cost_model", text).unwrap();
             assert_eq!(s.cost_model, model);
         }
         assert_eq!(
             SkeletonGuideSettings::default().cost_model,
-            CostModel::Vertices
+            CostModel::Paths
         );
         assert!(OPTION_NAMES.contains(&"cost_model"));
     }
@@ -2943,6 +2950,8 @@ mod tests {
         let mut settings = SkeletonGuideSettings::default();
         settings.set("c_skel", "learned").unwrap();
         settings.set("training_paths", "8192").unwrap();
+        // The mapping of the nodes the training guides, whatever the scene-level switch says.
+        settings.set("cost_model", "vertices").unwrap();
         let guide = SkeletonGuide::build(&scene, &settings, &|_, _| true).unwrap();
         assert!(!guide.may_guide.is_empty());
         let mut rng = Rng::new(5, 1);

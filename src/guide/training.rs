@@ -199,7 +199,7 @@
 //!
 //! # Measured cost and the scene-level switch (`cost_model=switch|measured`, round 14)
 //!
-//! With the default `cost_model=vertices` a guided vertex costs `training_guided_cost` (0.15)
+//! With `cost_model=vertices` a guided vertex costs `training_guided_cost` (0.15)
 //! unguided vertices and the node mapping nothing. Callgrind of Sponza (BENCHMARKS.md, round
 //! 13, guide13a: 64x36, 16 spp, render only, per camera sample, `G` minus `path`) says
 //! otherwise: 1.65 k instructions of lobe set-up in `GuideQuery::init`, 0.82 k in
@@ -270,6 +270,37 @@
 //! (0.94x) off and keeps the door, the corridor and Sibenik. The ajar's decision is wrong per
 //! sample: its predicted variance ratio 0.94 against a measured MAE² ratio of 0.80 (BENCHMARKS.md,
 //! round 15, default15).
+//!
+//! # The path-level prediction (`cost_model=paths`, the default since round 16)
+//!
+//! The variance sum above counts each vertex's estimate, rest of path included, and misses
+//! what guiding does to the product of weights along a path: it predicts 0.94x on both the
+//! ajar and Sponza, where per sample the ajar's variance falls to about 0.78x and Sponza's
+//! does not fall at all. With `cost_model=paths` each training path is also kept as a whole:
+//! the light sample at its first vertex, and for each sampled direction i the luminance a_i of
+//! the light sample at the vertex it reached times the path's throughput there, with
+//! r_i = q_0 / q for the two policies compared (q = p_bsdf for guiding nothing; q = the choice's
+//! mixture at its node, with the learned directions' cross-fitted density, for the choices;
+//! r_i = 1 at vertices the training did not guide, which both policies sample by the BSDF).
+//! The path's next-event estimate under a policy and its second moment under that policy's
+//! own sampling are, by the same importance reweighting as for one vertex,
+//!
+//!   E = a_0 + sum_i a_i prod_{j <= i} r_j,   M = E_{q_0}[ E² prod_i 1 / r_i ],
+//!
+//! exact for any policy whose densities cover what q_0 covers (the coverage condition). The
+//! prediction is M(choices) / M(nothing) over all training paths: second moments, not
+//! variances (the image's mean squared signal is in both; leaving it out makes the ratio
+//! conservative, by under 10 % on the five test scenes). A path holds 20-50 % of a moment on
+//! Sponza and the door, so both policies' terms are capped at the same quantile of all terms
+//! (`PATH_TERM_QUANTILE`, 0.9999: a render sees a few 10^5 paths per pixel region, not the
+//! rare ones). This ratio replaces the variance sum in the efficiency; the costs, the margin
+//! and the switch are `switch`'s. The node choices and the training's samples are unchanged
+//! (the records are kept only with `cost_model=paths`), so a scene that is not switched off
+//! renders exactly as with `vertices`. Predicted ratios, 2^17 / 2^18 training paths
+//! (BENCHMARKS.md, round 16, open16): corridor 0.16 / 0.13, door 0.55 / 0.53, ajar 0.78 / 0.74,
+//! Sibenik 0.41 / 0.34, Sponza 0.83 / 0.80; with the costs, efficiencies 5.0, 1.53, 1.14,
+//! 2.11 and 1.05 (2^17): Sponza alone is switched off, as its per-sample figures say it should
+//! be. Its margin is thin (1.05-1.08 against 1.10).
 //!
 //! Heuristic parts, stated: the proxy stops after `training_depth` vertices (light arriving
 //! after more bounces does not inform the choice), R carries the training path's own noise
@@ -429,6 +460,10 @@ pub struct SceneChoice {
     /// Predicted variance of the choices relative to guiding nothing (sum over the nodes of
     /// samples x variance), and cost (vertices plus the overhead in vertices).
     pub variance_ratio: f64,
+    /// With `cost_model=paths`: the predicted variance of the whole camera path's estimate
+    /// under the choices relative to guiding nothing (module docs, "The path-level
+    /// prediction"), which then replaces `variance_ratio` in [`SceneChoice::efficiency`].
+    pub path_variance_ratio: Option<f64>,
     pub cost_ratio: f64,
     /// `cost_model=switch|measured` and the predicted efficiency 1 / (variance_ratio cost_ratio)
     /// was not above 1 + `SCENE_MARGIN`: every node was set to c = 0.
@@ -439,7 +474,8 @@ impl SceneChoice {
     /// Predicted whole-image efficiency of the node choices against guiding nothing (above 1:
     /// the guide pays).
     pub fn efficiency(&self) -> f64 {
-        1.0 / (self.variance_ratio * self.cost_ratio)
+        let variance = self.path_variance_ratio.unwrap_or(self.variance_ratio);
+        1.0 / (variance * self.cost_ratio)
     }
 
     /// Whether the predicted efficiency is clearly above guiding nothing's (by
@@ -488,7 +524,38 @@ struct Sample {
     rays: u32,
     /// Vertices of the training path from this one to its end (module docs, "Cost").
     remaining: u32,
+    /// Its sampled direction's entry in the pass's [`Step`]s (`NO_STEP` where it has none or
+    /// none are recorded).
+    step: u32,
 }
+
+/// [`Sample::step`] of a sample without a sampled direction's [`Step`].
+const NO_STEP: u32 = u32::MAX;
+
+/// One sampled direction of a training path, for the path-level prediction (module docs, "The
+/// path-level prediction").
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Step {
+    /// Luminance of the light sample at the vertex the direction reached, times the path's
+    /// throughput there (0 where none).
+    after: f32,
+    /// q_0 / q of the direction under guiding nothing and under the choices (1 where the
+    /// training did not guide the vertex: BSDF sampling in both).
+    r_none: f64,
+    r_chosen: f64,
+}
+
+/// One training path for the path-level prediction: the light sample at its first vertex (as
+/// [`Step::after`]) and its [`Step`]s.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct PathRecord {
+    first: f32,
+    start: u32,
+    len: u32,
+}
+/// The quantile of the paths' second-moment terms at which the path-level prediction caps
+/// them (module docs, "The path-level prediction").
+const PATH_TERM_QUANTILE: f64 = 0.9999;
 
 /// A vertex's light sample, as the candidates see it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -779,13 +846,16 @@ pub(super) fn learn_guiding_probabilities(
     // Non-delta training vertices per voxel (atomic adds: the counts do not depend on the
     // order), for the scene-level prediction's mapping cost.
     let per_voxel: Vec<AtomicU32> = (0..guide.grid().len()).map(|_| AtomicU32::new(0)).collect();
-    let per_chunk: Vec<(Vec<Sample>, u64)> = (0..chunks)
+    // The path-level prediction's records (module docs, "The path-level prediction").
+    let log_paths = settings.cost_model == CostModel::Paths;
+    let mut per_chunk: Vec<(Vec<Sample>, u64, PathLog)> = (0..chunks)
         .into_par_iter()
         .map(|c| {
             let seed = TRAINING_SEED.wrapping_add(pass as u64 * 0x9e37_79b9_7f4a_7c15);
             let mut rng = Sampler::independent(Rng::new(seed, c as u64));
             let mut query = GuideQuery::new();
             let mut out = Vec::new();
+            let mut log = PathLog::default();
             let mut visits = Visits {
                 vertices: 0,
                 per_voxel: &per_voxel,
@@ -802,10 +872,11 @@ pub(super) fn learn_guiding_probabilities(
                         &mut rng,
                         &mut out,
                         &mut visits,
+                        log_paths.then_some(&mut log),
                     );
                 }
             }
-            (out, visits.vertices)
+            (out, visits.vertices, log)
         })
         .collect();
 
@@ -813,14 +884,26 @@ pub(super) fn learn_guiding_probabilities(
     // then moved once into per-node vectors of exact size.
     let mut counts = vec![0usize; nodes];
     let mut vertices = 0u64;
-    for (samples, v) in &per_chunk {
-        for s in samples {
+    let mut log = PathLog::default();
+    for (samples, v, chunk_log) in &mut per_chunk {
+        // The chunk's path records appended to the pass's log, its samples' steps moved along.
+        let steps = log.steps.len() as u32;
+        for s in samples.iter_mut() {
             counts[s.node as usize] += 1;
+            if s.step != NO_STEP {
+                s.step += steps;
+            }
         }
-        vertices += v;
+        log.paths
+            .extend(chunk_log.paths.drain(..).map(|p| PathRecord {
+                start: p.start + steps,
+                ..p
+            }));
+        log.steps.append(&mut chunk_log.steps);
+        vertices += *v;
     }
     let mut per_node: Vec<Vec<Sample>> = counts.iter().map(|&n| Vec::with_capacity(n)).collect();
-    for (samples, _) in per_chunk {
+    for (samples, _, _) in per_chunk {
         for s in samples {
             per_node[s.node as usize].push(s);
         }
@@ -920,6 +1003,26 @@ pub(super) fn learn_guiding_probabilities(
             mapped_vertices,
             grid.measured.map,
         );
+        let path_variance_ratio = log_paths.then(|| {
+            for s in per_node.iter().flatten().filter(|s| s.step != NO_STEP) {
+                let q0 = mixture(TRAINING_C, s.p_skel, s.p_bsdf);
+                let choice = &choices[s.node as usize];
+                let q = match choice.guided {
+                    Some((c, k)) => match &choice.weights {
+                        Some(w) => match s.densities(w) {
+                            Some((p, _)) => mixture(c, p, s.p_bsdf),
+                            None => s.p_bsdf as f64,
+                        },
+                        None => mixture(c, s.p_strength[k], s.p_bsdf),
+                    },
+                    None => s.p_bsdf as f64,
+                };
+                let step = &mut log.steps[s.step as usize];
+                step.r_none = q0 / s.p_bsdf as f64;
+                step.r_chosen = q0 / q;
+            }
+            path_variance_ratio(&log)
+        });
         let mut scene = SceneChoice {
             vertices,
             guided_vertices: choices
@@ -930,6 +1033,7 @@ pub(super) fn learn_guiding_probabilities(
                 .sum(),
             mapped_vertices,
             variance_ratio,
+            path_variance_ratio,
             cost_ratio,
             switched_off: false,
         };
@@ -1341,6 +1445,7 @@ fn train_path(
     rng: &mut Sampler,
     out: &mut Vec<Sample>,
     visits: &mut Visits<'_>,
+    log: Option<&mut PathLog>,
 ) {
     let mut beta = Rgb::ONE;
     let depth = guide.settings().training_depth;
@@ -1348,6 +1453,9 @@ fn train_path(
     let lobe_weights = guide.settings().learned_lobe_weights;
     let mut path: Vec<TrainingVertex> = Vec::with_capacity(depth as usize);
     let mut own_light = light_sample(scene, &si, rng, estimator);
+    let first = own_light
+        .as_ref()
+        .map_or(0.0, |l| finite_luminance(l.value));
     for _ in 0..depth {
         let bsdf = scene.bsdf(&si);
         let frame = si.shading_frame();
@@ -1414,6 +1522,7 @@ fn train_path(
             active,
             rays,
             remaining: 1,
+            step: NO_STEP,
         };
         let Some(ms) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, query, rng) else {
             if guided {
@@ -1481,18 +1590,96 @@ fn train_path(
     // R(x_i+2) (zero beyond the last vertex sampled).
     let mut tail = Rgb::ZERO;
     let len = path.len() as u32;
+    let start = if let Some(log) = log {
+        let start = log.steps.len() as u32;
+        log.steps.extend(path.iter().map(|v| Step {
+            after: finite_luminance(v.beta * v.weight * v.direct),
+            r_none: 1.0,
+            r_chosen: 1.0,
+        }));
+        log.paths.push(PathRecord { first, start, len });
+        Some(start)
+    } else {
+        None
+    };
     for (i, v) in path.iter().enumerate().rev() {
         let reflected = v.direct + tail;
         if let Some(mut sample) = v.sample {
             let f = luminance(v.beta * v.f_cos * reflected);
             sample.f_reflected = if f.is_finite() { f.max(0.0) } else { 0.0 };
             sample.remaining = len - i as u32;
+            sample.step = start.map_or(NO_STEP, |s| s + i as u32);
             out.push(sample);
         }
         tail = v.weight * reflected;
         if !crate::math::is_finite3(tail) {
             tail = Rgb::ZERO;
         }
+    }
+}
+
+/// Luminance, 0 where it is not finite or negative.
+fn finite_luminance(x: Rgb) -> f32 {
+    let l = luminance(x);
+    if l.is_finite() {
+        l.max(0.0)
+    } else {
+        0.0
+    }
+}
+
+/// The training paths' [`Step`]s and [`PathRecord`]s (module docs, "The path-level
+/// prediction").
+#[derive(Default)]
+struct PathLog {
+    steps: Vec<Step>,
+    paths: Vec<PathRecord>,
+}
+
+/// The path-level ratio of the node choices' second moment to guiding nothing's (module docs,
+/// "The path-level prediction"); 1 where it cannot be estimated.
+fn path_variance_ratio(log: &PathLog) -> f64 {
+    let n = log.paths.len();
+    // Each path's term of the two second moments (0 for a path a policy cannot draw).
+    let (mut none, mut chosen) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let term = |e: f64, w: f64| {
+        if w > 0.0 && w.is_finite() {
+            e * e * w
+        } else {
+            0.0
+        }
+    };
+    for p in &log.paths {
+        let steps = &log.steps[p.start as usize..(p.start + p.len) as usize];
+        // Per policy: the estimate, the running product of q_0 / q and the path's density
+        // ratio q / q_0 over all its directions.
+        let (mut e_none, mut prod_none, mut w_none) = (p.first as f64, 1.0f64, 1.0f64);
+        let (mut e_chosen, mut prod_chosen, mut w_chosen) = (p.first as f64, 1.0f64, 1.0f64);
+        for st in steps {
+            prod_none *= st.r_none;
+            w_none /= st.r_none;
+            e_none += st.after as f64 * prod_none;
+            prod_chosen *= st.r_chosen;
+            w_chosen /= st.r_chosen;
+            e_chosen += st.after as f64 * prod_chosen;
+        }
+        none.push(term(e_none, w_none));
+        chosen.push(term(e_chosen, w_chosen));
+    }
+    if n == 0 {
+        return 1.0;
+    }
+    // Both policies' terms capped at the same quantile of all terms (module docs: a few
+    // paths in 10^5 would otherwise decide).
+    let mut pooled: Vec<f64> = none.iter().chain(&chosen).copied().collect();
+    let at = ((pooled.len() as f64 * PATH_TERM_QUANTILE) as usize).min(pooled.len() - 1);
+    let cap = *pooled.select_nth_unstable_by(at, |a, b| a.total_cmp(b)).1;
+    let moment = |terms: &[f64]| terms.iter().map(|t| t.min(cap)).sum::<f64>();
+    let (m_none, m_chosen) = (moment(&none), moment(&chosen));
+    if m_none > 0.0 && m_none.is_finite() && m_chosen.is_finite() {
+        m_chosen / m_none
+    } else {
+        1.0
     }
 }
 
@@ -1726,6 +1913,7 @@ mod tests {
                     active: 1,
                     rays: 1,
                     remaining: 1,
+                    step: NO_STEP,
                 }
             })
             .collect()
@@ -1781,6 +1969,68 @@ mod tests {
 
     /// The scene-level prediction charges what the render's directions cost: the learned
     /// histograms' query (no set-up, no shadow ray) is cheaper than the lobes'.
+    /// A camera path of one direction toward two equally probable outcomes under the training
+    /// proposal: A carries f = 1 (its step's `after` is f / q_0 = 2), B nothing. A policy that
+    /// draws A with probability a has second moment 1 / a; the path-level prediction is exact
+    /// on equal numbers of A and B paths, and each policy's weights q_0 / q enter it.
+    #[test]
+    fn the_path_level_prediction_is_the_ratio_of_second_moments() {
+        let (a_none, a_chosen) = (0.2f64, 0.8f64);
+        let mut log = PathLog::default();
+        for i in 0..2000u32 {
+            let carries = i % 2 == 0;
+            let step = if carries {
+                Step {
+                    after: 2.0,
+                    r_none: 0.5 / a_none,
+                    r_chosen: 0.5 / a_chosen,
+                }
+            } else {
+                Step {
+                    after: 0.0,
+                    r_none: 0.5 / (1.0 - a_none),
+                    r_chosen: 0.5 / (1.0 - a_chosen),
+                }
+            };
+            log.paths.push(PathRecord {
+                first: 0.0,
+                start: log.steps.len() as u32,
+                len: 1,
+            });
+            log.steps.push(step);
+        }
+        let ratio = path_variance_ratio(&log);
+        assert!((ratio - a_none / a_chosen).abs() < 1e-9, "{ratio}");
+        // Swapping the policies inverts it; equal policies give 1.
+        for st in &mut log.steps {
+            std::mem::swap(&mut st.r_none, &mut st.r_chosen);
+        }
+        assert!((path_variance_ratio(&log) - a_chosen / a_none).abs() < 1e-9);
+        for st in &mut log.steps {
+            st.r_chosen = st.r_none;
+        }
+        assert_eq!(path_variance_ratio(&log), 1.0);
+        // A second vertex's light sample is weighted by the first direction's ratio.
+        let mut two = PathLog::default();
+        two.paths.push(PathRecord {
+            first: 1.0,
+            start: 0,
+            len: 2,
+        });
+        two.steps.push(Step {
+            after: 0.0,
+            r_none: 2.0,
+            r_chosen: 1.0,
+        });
+        two.steps.push(Step {
+            after: 1.0,
+            r_none: 1.0,
+            r_chosen: 1.0,
+        });
+        // none: e = 1 + 1 x 2 = 3, w = 1 / 2: 4.5; chosen: e = 2, w = 1: 4.
+        assert!((path_variance_ratio(&two) - 4.0 / 4.5).abs() < 1e-12);
+    }
+
     #[test]
     fn measured_costs_follow_the_directions() {
         let mut s = crate::guide::SkeletonGuideSettings::default();
@@ -2003,6 +2253,7 @@ mod tests {
                     active,
                     rays: 1,
                     remaining: 1,
+                    step: NO_STEP,
                 }
             })
             .collect()
