@@ -474,8 +474,13 @@ impl SceneChoice {
     /// Predicted whole-image efficiency of the node choices against guiding nothing (above 1:
     /// the guide pays).
     pub fn efficiency(&self) -> f64 {
-        let variance = self.path_variance_ratio.unwrap_or(self.variance_ratio);
-        1.0 / (variance * self.cost_ratio)
+        1.0 / (self.predicted_variance() * self.cost_ratio)
+    }
+
+    /// The variance ratio the efficiency uses: the path-level one where it was predicted
+    /// (`cost_model=paths`), else the sum over the vertices.
+    pub fn predicted_variance(&self) -> f64 {
+        self.path_variance_ratio.unwrap_or(self.variance_ratio)
     }
 
     /// Whether the predicted efficiency is clearly above guiding nothing's (by
@@ -631,10 +636,21 @@ impl Sample {
         weights: Option<&[f32; MAX_LOBES]>,
         mis: MisHeuristic,
     ) -> Terms {
+        let (c, p, p_nee) = self.candidate(c, k, weights);
+        self.terms_with(c, p, p_nee, mis)
+    }
+
+    /// Candidate (c, strength index k, `weights`)'s probability and skeleton densities at the
+    /// sampled direction and at the light sample's: strength k's, or the lobe weights'
+    /// mixture; c = 0 where the weights leave the point unguided ([`lobe_mixture`]).
+    fn candidate(&self, c: f32, k: usize, weights: Option<&[f32; MAX_LOBES]>) -> (f32, f32, f32) {
         let Some(weights) = weights else {
-            return self.terms_with(c, self.p_strength[k], self.nee.p_strength[k], mis);
+            return (c, self.p_strength[k], self.nee.p_strength[k]);
         };
-        self.terms_weighted(c, self.densities(weights), mis)
+        match self.densities(weights) {
+            Some((p, p_nee)) => (c, p, p_nee),
+            None => (0.0, 0.0, 0.0),
+        }
     }
 
     /// The skeleton densities at the sampled direction and at the light sample's under lobe
@@ -1008,13 +1024,10 @@ pub(super) fn learn_guiding_probabilities(
                 let q0 = mixture(TRAINING_C, s.p_skel, s.p_bsdf);
                 let choice = &choices[s.node as usize];
                 let q = match choice.guided {
-                    Some((c, k)) => match &choice.weights {
-                        Some(w) => match s.densities(w) {
-                            Some((p, _)) => mixture(c, p, s.p_bsdf),
-                            None => s.p_bsdf as f64,
-                        },
-                        None => mixture(c, s.p_strength[k], s.p_bsdf),
-                    },
+                    Some((c, k)) => {
+                        let (c, p, _) = s.candidate(c, k, choice.weights.as_ref());
+                        mixture(c, p, s.p_bsdf)
+                    }
                     None => s.p_bsdf as f64,
                 };
                 let step = &mut log.steps[s.step as usize];

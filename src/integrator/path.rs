@@ -199,7 +199,7 @@ impl Integrator for PathTracer {
             let sc = &t.scene;
             notes.push(format!(
                 "scene-level (measured costs): predicted variance {:.3}x, cost {:.3}x ({:.2} guided and {:.2} mapped of {:.2} vertices per training path), efficiency {:.3}x{}",
-                sc.path_variance_ratio.unwrap_or(sc.variance_ratio),
+                sc.predicted_variance(),
                 sc.cost_ratio,
                 sc.guided_vertices as f64 / t.paths.max(1) as f64,
                 sc.mapped_vertices as f64 / t.paths.max(1) as f64,
