@@ -74,6 +74,7 @@ impl JobSettings {
             return integrator::create(&self.integrator, self.integrator_settings);
         }
         // Only bdpt jobs can have these (checked by their setters).
+        self.integrator_settings.mis.check_supported("bdpt")?;
         let mut bdpt = Bdpt::new(self.integrator_settings);
         if let Some(f) = self.strategy {
             bdpt = bdpt.with_strategy(f)?;
@@ -528,6 +529,8 @@ pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
             {
                 lacuna_mis_heuristic::Balance => MisHeuristic::Balance,
                 lacuna_mis_heuristic::Power => MisHeuristic::Power,
+                lacuna_mis_heuristic::Auto => MisHeuristic::Auto,
+                lacuna_mis_heuristic::Optimal => MisHeuristic::Optimal,
             };
             Ok(())
         })

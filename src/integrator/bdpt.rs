@@ -400,7 +400,8 @@ impl Bdpt {
     #[inline]
     fn mis(&self, x: f32) -> f32 {
         match self.settings.mis {
-            MisHeuristic::Balance => x,
+            // auto and optimal are refused at creation (`MisHeuristic::check_supported`).
+            MisHeuristic::Balance | MisHeuristic::Auto | MisHeuristic::Optimal => x,
             MisHeuristic::Power => x * x,
         }
     }

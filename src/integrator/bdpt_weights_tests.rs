@@ -387,7 +387,7 @@ impl Explicit<'_> {
                 0.0
             } else {
                 match self.model.mis {
-                    MisHeuristic::Balance => d.value,
+                    MisHeuristic::Balance | MisHeuristic::Auto | MisHeuristic::Optimal => d.value,
                     MisHeuristic::Power => d.value * d.value,
                 }
             }

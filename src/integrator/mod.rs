@@ -3,13 +3,14 @@
 
 mod bdpt;
 mod env_direct;
+pub mod mis_auto;
 mod path;
 
 pub use bdpt::{
     strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, ConnectionPolicy, StrategyFilter,
     UniformPerPixel,
 };
-pub use env_direct::EnvDirect;
+pub use env_direct::{EnvDirect, ALPHA_LAYER};
 #[cfg(feature = "diagnostics")]
 pub use path::diagnostics;
 pub use path::PathTracer;
@@ -27,20 +28,34 @@ use crate::math::Rgb;
 use crate::math::Sampler;
 use crate::scene::{CameraFrame, RenderSettingsFile, Scene};
 
-/// How one-sample MIS weights two strategies.
+/// How MIS weights two strategies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum MisHeuristic {
     Balance,
     /// Power heuristic with exponent 2 (Veach): the usual better choice.
     #[default]
     Power,
+    /// `env_direct` only: the balance heuristic with the split of light and BSDF samples
+    /// chosen per shading point by the second-order variance approximation of thesis 001
+    /// chapter 5 (a warm-up half, then the rest split by the estimated alpha, eq. 5.6); see
+    /// [`mis_auto`].
+    Auto,
+    /// `env_direct` only: Kondapaneni et al.'s optimal weights, their coefficients estimated
+    /// on a warm-up half of the samples; see [`mis_auto`].
+    Optimal,
 }
 
 impl MisHeuristic {
+    /// The one-sample weight of strategy a against b. `Auto` and `Optimal` need many samples
+    /// of one integral and are refused by the integrators that would call this
+    /// ([`MisHeuristic::check_supported`]); their weight with nothing estimated yet is the
+    /// balance heuristic's.
     #[inline]
     pub fn weight(self, pdf_a: f32, pdf_b: f32) -> f32 {
         match self {
-            MisHeuristic::Balance => crate::math::balance_heuristic(pdf_a, pdf_b),
+            MisHeuristic::Balance | MisHeuristic::Auto | MisHeuristic::Optimal => {
+                crate::math::balance_heuristic(pdf_a, pdf_b)
+            }
             MisHeuristic::Power => crate::math::power_heuristic(pdf_a, pdf_b),
         }
     }
@@ -49,9 +64,34 @@ impl MisHeuristic {
         match name {
             "balance" => Ok(MisHeuristic::Balance),
             "power" => Ok(MisHeuristic::Power),
+            "auto" => Ok(MisHeuristic::Auto),
+            "optimal" => Ok(MisHeuristic::Optimal),
             other => Err(Error::invalid(format!(
-                "unknown MIS heuristic '{other}' (expected balance or power)"
+                "unknown MIS heuristic '{other}' (expected balance, power, auto or optimal)"
             ))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            MisHeuristic::Balance => "balance",
+            MisHeuristic::Power => "power",
+            MisHeuristic::Auto => "auto",
+            MisHeuristic::Optimal => "optimal",
+        }
+    }
+
+    /// Fails for `auto` and `optimal` in an integrator that combines one sample per strategy
+    /// (`path`, `path_skeleton`, `bdpt`): they are implemented for `env_direct` only.
+    pub fn check_supported(self, integrator: &str) -> Result<()> {
+        match self {
+            MisHeuristic::Auto | MisHeuristic::Optimal if integrator != "env_direct" => {
+                Err(Error::invalid(format!(
+                    "mis={} is implemented for env_direct only, not for {integrator} (use balance or power)",
+                    self.name()
+                )))
+            }
+            _ => Ok(()),
         }
     }
 }
@@ -261,7 +301,7 @@ pub const NAMES: &[&str] = &["path", "path_skeleton", "bdpt", "env_direct"];
 
 /// Splits an integrator specification `NAME[:KEY=VALUE]...` into the name and the settings
 /// its options change, so one comparison can race variants of an integrator:
-/// - any integrator: `max_depth=D`, `mis=power|balance`, `env=STRATEGY` (environment
+/// - any integrator: `max_depth=D`, `mis=power|balance` (`env_direct` also `auto|optimal`), `env=STRATEGY` (environment
 ///   sampling: latlong, cube-uniform, cube-power, cube-dynamic, bsdf);
 /// - `path` and `path_skeleton`: `rr_depth=D` (bounces before Russian roulette starts),
 ///   `triangles=area|solid_angle` (how next-event estimation samples emissive triangles);
@@ -323,6 +363,9 @@ pub fn parse_spec(
 /// Creates an integrator from its specification (see [`parse_spec`]).
 pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
     let (name, settings) = parse_spec(spec, settings)?;
+    if NAMES.contains(&name) {
+        settings.mis.check_supported(name)?;
+    }
     match name {
         "env_direct" => Ok(Box::new(EnvDirect::new(settings)?)),
         "path" => Ok(Box::new(PathTracer::new(settings))),
