@@ -28,7 +28,8 @@ use lacuna::{Error, Result};
     about = "Lacuna: a physically based renderer that reads the empty space of a scene",
     after_help = "SCENE is an .obj file (framed automatically when no camera is given), a .json scene \
                   file (docs/scene-format.md), or a built-in scene: two-rooms (the default: two rooms \
-                  joined by an ajar door, lit from the far room) or corridor."
+                  joined by an ajar door, lit from the far room), corridor, or rooms:SEED (a procedural \
+                  family of interiors, see `lacuna family`)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -45,12 +46,39 @@ enum Command {
     Compare(CompareArgs),
     /// Analyse the empty space: voxelization, distance and opening maps, regions and portals.
     Analyze(AnalyzeArgs),
+    /// Describe scenes of the procedural family `rooms:SEED` (one line each), and optionally
+    /// write them as OBJ + MTL + scene file for other renderers.
+    Family(FamilyArgs),
+}
+
+#[derive(Args, Clone, Debug)]
+struct FamilyArgs {
+    /// First seed.
+    seed: u64,
+    /// Number of consecutive seeds.
+    #[arg(long, default_value_t = 1)]
+    count: u64,
+    /// Write rooms-SEED.obj, .mtl and .json into this directory.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+fn run_family(args: &FamilyArgs) -> Result<()> {
+    for seed in args.seed..args.seed.saturating_add(args.count) {
+        let scene = lacuna::scene::FamilyScene::generate(seed);
+        println!("{}", scene.description());
+        if let Some(dir) = &args.out {
+            let json = scene.write_files(dir)?;
+            println!("  -> {}", json.display());
+        }
+    }
+    Ok(())
 }
 
 /// Scene, camera, image and path options shared by every command.
 #[derive(Args, Clone, Debug)]
 struct SceneArgs {
-    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor). Default: two-rooms.
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, rooms:SEED). Default: two-rooms.
     scene: Option<PathBuf>,
     /// Maximum number of bounces (1 = direct lighting only) [default: 8, or the scene file's].
     #[arg(long)]
@@ -257,7 +285,7 @@ struct CompareArgs {
 
 #[derive(Args, Clone, Debug)]
 struct AnalyzeArgs {
-    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor). Default: two-rooms.
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, rooms:SEED). Default: two-rooms.
     scene: Option<PathBuf>,
     /// Voxels along the longest axis of the scene bounds.
     #[arg(long, default_value_t = 128, conflicts_with_all = ["voxel_size", "voxel_budget"])]
@@ -1003,6 +1031,7 @@ fn main() -> ExitCode {
         Command::Reference(args) => run_reference(args),
         Command::Compare(args) => run_compare(args),
         Command::Analyze(args) => run_analyze(args),
+        Command::Family(args) => run_family(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -325,7 +325,8 @@ enum ShapeSpec {
 // ---------------------------------------------------------------------------------------------
 // Loading.
 
-/// A scene as a command line names it: a built-in scene (`two-rooms`, `corridor`) unless a
+/// A scene as a command line names it: a built-in scene (`two-rooms`, `corridor`, a family
+/// scene `rooms:SEED`) unless a
 /// file of that name exists, an `.obj` file (no camera, no settings), or a `.json` scene file.
 /// Returns the loaded scene and a label for messages; one place for the `lacuna` command and
 /// the examples.
@@ -349,7 +350,14 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
                 );
                 return Ok((scene, "corridor".into()));
             }
-            _ => {}
+            Some(name) => {
+                if let Some(seed) = super::parse_family_name(name) {
+                    let family = super::FamilyScene::generate(seed);
+                    let scene = builtin(family.builder()?, RenderSettingsFile::default());
+                    return Ok((scene, name.into()));
+                }
+            }
+            None => {}
         }
     }
     let label = path.display().to_string();
@@ -371,7 +379,7 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
         }
         Some("json") => Ok((load_scene_file(path)?, label)),
         _ => Err(Error::invalid(format!(
-            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor)"
+            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor, rooms:SEED)"
         ))),
     }
 }
@@ -954,7 +962,7 @@ mod tests {
     #[test]
     fn scene_argument_resolves_builtins_and_files() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        for name in ["two-rooms", "corridor"] {
+        for name in ["two-rooms", "corridor", "rooms:5"] {
             let (loaded, label) = load_scene_arg(Path::new(name)).unwrap();
             assert_eq!(label, name);
             assert!(loaded.builder.build().is_ok());
