@@ -148,20 +148,22 @@ pub fn render(
     })
 }
 
-/// Runs the integrator's per-scene precomputation ([`Integrator::prepare`]) on `threads`
-/// worker threads (`None`: all cores), as the render would use them. Cheap for integrators
-/// that need nothing.
+/// Runs the integrator's per-scene precomputation ([`Integrator::prepare`]) for the view of
+/// `camera` (the camera the render will use) on `threads` worker threads (`None`: all cores),
+/// as the render would use them. Cheap for integrators that need nothing.
 pub fn prepare(
     integrator: &mut dyn Integrator,
     scene: &Scene,
+    camera: &Camera,
     threads: Option<usize>,
     progress: &(dyn Fn(&str, f64) -> bool + Sync),
 ) -> Result<Precomputation> {
     if threads == Some(0) {
         return Err(Error::invalid("thread count must be at least 1"));
     }
+    camera.validate()?;
     let pool = WorkerPool::new(threads, None)?;
-    pool.install(|| integrator.prepare(scene, progress))
+    pool.install(|| integrator.prepare(scene, camera, progress))
 }
 
 /// What an observer learns after each completed pass.

@@ -169,7 +169,7 @@ fn build(scene: &Scene, settings: &SkeletonGuideSettings, threads: usize) -> Ske
         .num_threads(threads)
         .build()
         .unwrap()
-        .install(|| SkeletonGuide::build(scene, settings, &|_, _| true).unwrap())
+        .install(|| SkeletonGuide::build(scene, scene.camera(), settings, &|_, _| true).unwrap())
 }
 
 /// `directions=learned` is the default (round 15); the lobe options `lobe_weights=learned`

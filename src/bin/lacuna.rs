@@ -751,7 +751,13 @@ fn prepare_integrator(
     integrator: &mut dyn integrator::Integrator,
     prep: &Prepared,
 ) -> Result<integrator::Precomputation> {
-    let pre = lacuna::render::prepare(integrator, &prep.scene, prep.render.threads, &|_, _| true)?;
+    let pre = lacuna::render::prepare(
+        integrator,
+        &prep.scene,
+        &prep.camera,
+        prep.render.threads,
+        &|_, _| true,
+    )?;
     if !pre.stages.is_empty() {
         let stages: Vec<String> = pre
             .stages

@@ -219,6 +219,7 @@ impl lacuna_render_job {
         let pre = crate::render::prepare(
             p.integrator.as_mut(),
             &self.scene.scene,
+            &p.camera,
             p.settings.render.threads,
             &|_, _| !self.cancel.load(Ordering::Relaxed),
         )?;

@@ -331,6 +331,7 @@ pub fn compare(
             prepare(
                 contenders[c].integrator.as_mut(),
                 scene,
+                camera,
                 settings.threads,
                 &prepare_progress,
             )?;

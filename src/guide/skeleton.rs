@@ -131,7 +131,7 @@ use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
 use crate::integrator::MisHeuristic;
 use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::{luminance, warp, Frame, Rng, Vec2, Vec3};
-use crate::scene::Scene;
+use crate::scene::{Camera, Scene};
 
 /// Most lobes a query holds (the upper bound of `max_lobes`).
 pub const MAX_LOBES: usize = 8;
@@ -240,7 +240,7 @@ pub struct SkeletonGuideSettings {
     /// camera to train from (default 0.5, the thesis's).
     pub c_skel: f32,
     /// `c_skel=learned` (the default): a probability per node, learned by a training pass
-    /// from the scene's camera (`guide::training`); 0 (not guided at all) where guiding is not
+    /// from the render's camera (`guide::training`); 0 (not guided at all) where guiding is not
     /// measurably better than BSDF sampling. The thesis's one global c = 0.5 guides open
     /// rooms too, where the lobes only add variance: it is worse per sample than `path` on
     /// both doors (BENCHMARKS.md, issue 8, round 6), where the learned c wins 1.45x on the
@@ -1083,6 +1083,7 @@ impl SkeletonGuide {
     /// fraction)` is called between stages and may cancel by returning false.
     pub fn build(
         scene: &Scene,
+        camera: Option<&Camera>,
         settings: &SkeletonGuideSettings,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<SkeletonGuide> {
@@ -1221,7 +1222,8 @@ impl SkeletonGuide {
                     0
                 }
             ];
-            let mut report = training::learn_guiding_probabilities(&guide, scene, 0, &mut history);
+            let mut report =
+                training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history);
             // Iterative training (`training_passes`): each later pass samples every node from
             // the previous pass's distributions (a uniform one where it had none) and learns
             // them again from its own samples; only the last pass's choices are kept.
@@ -1235,7 +1237,13 @@ impl SkeletonGuide {
                     &report.directions,
                     Some(&uniform),
                 )));
-                report = training::learn_guiding_probabilities(&guide, scene, pass, &mut history);
+                report = training::learn_guiding_probabilities(
+                    &guide,
+                    scene,
+                    camera,
+                    pass,
+                    &mut history,
+                );
             }
             guide.directions = None;
             if report.paths == 0 {
@@ -2952,7 +2960,7 @@ mod tests {
         settings.set("training_paths", "8192").unwrap();
         // The mapping of the nodes the training guides, whatever the scene-level switch says.
         settings.set("cost_model", "vertices").unwrap();
-        let guide = SkeletonGuide::build(&scene, &settings, &|_, _| true).unwrap();
+        let guide = SkeletonGuide::build(&scene, scene.camera(), &settings, &|_, _| true).unwrap();
         assert!(!guide.may_guide.is_empty());
         let mut rng = Rng::new(5, 1);
         let bounds = scene.bounds();

@@ -25,7 +25,7 @@ use crate::guide::SkeletonGuideSettings;
 use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::Rgb;
 use crate::math::Sampler;
-use crate::scene::{CameraFrame, RenderSettingsFile, Scene};
+use crate::scene::{Camera, CameraFrame, RenderSettingsFile, Scene};
 
 /// How one-sample MIS weights two strategies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -212,13 +212,17 @@ pub trait Integrator: Send + Sync {
         Vec::new()
     }
 
-    /// Builds what this integrator needs of `scene` (and nothing else: most need nothing).
+    /// Builds what this integrator needs of `scene` seen through `camera` (and nothing else:
+    /// most need nothing). `camera` is the one the render will use, however it was given
+    /// (scene file, command line, C API, automatic framing): a precomputation that learns from
+    /// the view (the skeleton guide's training) must see the rendered view.
     /// Must run before rendering `scene` (see [`crate::render::prepare`], which runs it on
     /// the render's worker threads); running it again rebuilds. `progress(stage, fraction)`
     /// may cancel by returning false.
     fn prepare(
         &mut self,
         _scene: &Scene,
+        _camera: &Camera,
         _progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Precomputation> {
         Ok(Precomputation::default())
