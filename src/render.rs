@@ -9,7 +9,7 @@
 //! start at [`FIRST_INTEGRATOR_DIMENSION`].
 
 use std::cell::Cell;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
@@ -106,6 +106,8 @@ pub struct RenderStats {
     pub rays: u64,
     pub passes: u32,
     pub cancelled: bool,
+    /// [`TraceCounters::largest_guided_ratio`] over the render's samples.
+    pub largest_guided_ratio: f32,
     /// The integrator's per-scene precomputation before this render ([`prepare`]): not part
     /// of `seconds`; left 0 by `render`, filled in by the caller that ran it.
     pub precompute_seconds: f64,
@@ -224,6 +226,8 @@ fn render_in_pool(
     // Time spent in `on_pass`, subtracted from the clock.
     let mut observer_time = Duration::ZERO;
     let rays = AtomicU64::new(0);
+    // Bits of a non-negative f32: their order as integers is the floats' order.
+    let largest_ratio = AtomicU32::new(0);
     let tiles_done = AtomicU64::new(0);
     let mut spp_done = 0u32;
     let mut seconds_per_spp: Option<f64> = None;
@@ -307,6 +311,10 @@ fn render_in_pool(
                         }
                     }
                     rays.fetch_add(counters.rays, Ordering::Relaxed);
+                    largest_ratio.fetch_max(
+                        counters.largest_guided_ratio.max(0.0).to_bits(),
+                        Ordering::Relaxed,
+                    );
                     let done = tiles_done.fetch_add(1, Ordering::Relaxed) + 1;
                     let fraction = match settings.time_limit {
                         Some(limit) => {
@@ -372,6 +380,7 @@ fn render_in_pool(
     stats.spp = spp_done;
     stats.samples = film.total_samples();
     stats.rays = rays.load(Ordering::Relaxed);
+    stats.largest_guided_ratio = f32::from_bits(largest_ratio.load(Ordering::Relaxed));
     progress(Progress {
         fraction: 1.0,
         spp_done,

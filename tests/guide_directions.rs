@@ -244,11 +244,15 @@ fn options_parse_and_exclude_the_lobe_options() {
 #[test]
 fn ratio_max_parses_and_validates() {
     let s = SkeletonGuideSettings::default();
-    assert_eq!(s.ratio_max, f32::INFINITY, "off by default");
-    assert_eq!(settings(&[("ratio_max", "2.5")]).ratio_max, 2.5);
+    assert_eq!(s.ratio_max, None, "auto by default");
+    assert_eq!(settings(&[("ratio_max", "2.5")]).ratio_max, Some(2.5));
     assert_eq!(
         settings(&[("ratio_max", "2"), ("ratio_max", "off")]).ratio_max,
-        f32::INFINITY
+        Some(f32::INFINITY)
+    );
+    assert_eq!(
+        settings(&[("ratio_max", "2"), ("ratio_max", "auto")]).ratio_max,
+        None
     );
     let mut s = SkeletonGuideSettings::default();
     for bad in ["1", "0.5", "0", "-3", "nan", "x"] {

@@ -693,6 +693,12 @@ fn run_render(args: &RenderArgs) -> Result<()> {
     if let Some(dir) = &args.strategy_images {
         write_strategy_images(&film, dir, args.exposure, &meta)?;
     }
+    if stats.largest_guided_ratio > 0.0 {
+        println!(
+            "{name}: largest guided path weight against path's for the same directions: {:.2}x",
+            stats.largest_guided_ratio
+        );
+    }
     println!(
         "{}: {}x{}, {} spp of {} (max depth {}) in {:.2} s: {:.2} M samples/s, {:.2} M rays/s -> {}",
         prep.label,

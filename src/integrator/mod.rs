@@ -137,6 +137,10 @@ impl Precomputation {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct TraceCounters {
     pub rays: u64,
+    /// The largest weight of a guided path against plain path tracing's for the same
+    /// directions (the product of p_bsdf / p over its directions so far; 1 when no
+    /// direction was guided): a firefly regression shows here first.
+    pub largest_guided_ratio: f32,
 }
 
 /// The camera and image an integrator renders for.

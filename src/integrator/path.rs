@@ -412,7 +412,7 @@ impl PathTracer {
         let mut ratio = 1.0f32;
         let ratio_max = guided
             .as_ref()
-            .map_or(f32::INFINITY, |(g, _)| g.settings().ratio_max);
+            .map_or(f32::INFINITY, |(g, _)| g.ratio_max());
         // State of the previous vertex, for MIS when a BSDF-sampled ray hits an emitter.
         let mut prev_delta = true;
         let mut prev_pdf = 0.0f32;
@@ -509,6 +509,7 @@ impl PathTracer {
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
             rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
             ratio *= ms.bsdf_pdf / bs.pdf;
+            counters.largest_guided_ratio = counters.largest_guided_ratio.max(ratio);
             if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
                 break;
             }

@@ -1,0 +1,92 @@
+//! path_skeleton on the procedural family `rooms:SEED` (scenes no default was tuned on).
+
+mod common;
+
+use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::math::luminance;
+use lacuna::render::{prepare, RenderSettings};
+use lacuna::scene::FamilyScene;
+
+/// The largest single-sample luminance of `spec` over `seeds` one-sample renders, the mean,
+/// and the render's largest guided path weight against `path`'s.
+fn largest_sample(seed: u64, spec: &str, max_depth: u32, seeds: u64) -> (f64, f64, f32) {
+    let family = FamilyScene::generate(seed);
+    let scene = family.builder().unwrap().build().unwrap();
+    let settings = IntegratorSettings {
+        max_depth,
+        ..Default::default()
+    };
+    let mut integrator = integrator::create(spec, settings).unwrap();
+    prepare(
+        integrator.as_mut(),
+        &scene,
+        &family.camera,
+        Some(2),
+        &|_, _| true,
+    )
+    .unwrap();
+    let (mut largest, mut sum, mut n, mut ratio) = (0f64, 0f64, 0f64, 0f32);
+    for s in 0..seeds {
+        let rs = RenderSettings {
+            width: 64,
+            height: 48,
+            spp: 1,
+            seed: s * 7919 + 1,
+            sampler: lacuna::math::SamplerKind::Independent,
+            threads: Some(2),
+            ..Default::default()
+        };
+        let (film, stats) = lacuna::render::render(
+            &scene,
+            &family.camera,
+            integrator.as_ref(),
+            &rs,
+            &|_| true,
+            &std::sync::atomic::AtomicBool::new(false),
+        )
+        .unwrap();
+        ratio = ratio.max(stats.largest_guided_ratio);
+        for p in film.radiance() {
+            let l = luminance(p) as f64;
+            largest = largest.max(l);
+            sum += l;
+            n += 1.0;
+        }
+    }
+    (largest, sum / n, ratio)
+}
+
+/// The fireflies: on a family scene of two rooms and one door (the light in the room
+/// the camera looks into), a fixed c = 0.5 with the lobes (what an untrained guide renders)
+/// weighed paths up to 2^k times `path`'s, k the directions the BSDF drew where the lobes have
+/// no density: single samples at 4x `path`'s largest. With `ratio_max=auto` (2 at a fixed c)
+/// its largest sample stays within 2x `path`'s; with the bound off they come back (the test
+/// can fail).
+#[test]
+fn a_fixed_c_makes_no_fireflies() {
+    let (path, path_mean, no_ratio) = largest_sample(33, "path", 65, 16);
+    assert!(no_ratio <= 1.0, "{no_ratio}");
+    let (fixed, fixed_mean, ratio) =
+        largest_sample(33, "path_skeleton:c_skel=0.5:directions=lobes", 65, 16);
+    assert!(ratio > 1.0 && ratio <= 2.0 * (1.0 + 1e-5), "{ratio}");
+    let (off, _, off_ratio) = largest_sample(
+        33,
+        "path_skeleton:c_skel=0.5:directions=lobes:ratio_max=off",
+        65,
+        16,
+    );
+    assert!(
+        fixed <= 2.0 * path,
+        "fixed c: {fixed} against path's {path}"
+    );
+    assert!(
+        off > 2.0 * path,
+        "the bound off: {off} against path's {path}"
+    );
+    assert!(off_ratio > 4.0, "{off_ratio}");
+    // Same expectation (a loose check; the z-tests below are the real one).
+    assert!(
+        (fixed_mean / path_mean - 1.0).abs() < 0.1,
+        "{fixed_mean} {path_mean}"
+    );
+}
