@@ -90,3 +90,57 @@ fn a_fixed_c_makes_no_fireflies() {
         "{fixed_mean} {path_mean}"
     );
 }
+
+/// The family scenes the tests draw: `n` seeds from 100 on (none chosen by hand; the z-test
+/// fails on a black image, so a scene the camera sees no light in would show).
+fn drawn_seeds(n: usize) -> Vec<u64> {
+    (100..).take(n).collect()
+}
+
+/// Unbiasedness: the default `path_skeleton` (smaller training) and a fixed c = 0.5 with the
+/// lobes (guiding everywhere) against `path`, region means z-tested over 8 seeds, on a dozen
+/// family scenes drawn by seed.
+#[test]
+fn guided_images_agree_with_path_on_family_scenes() {
+    for seed in drawn_seeds(12) {
+        let family = FamilyScene::generate(seed);
+        let scene = family.builder().unwrap().build().unwrap();
+        common::agreement::agree_with_path(
+            &family.description(),
+            &scene,
+            &family.camera,
+            12,
+            16,
+            32,
+            &[
+                "path_skeleton:training_paths=8192",
+                "path_skeleton:c_skel=0.5:directions=lobes",
+            ],
+        );
+    }
+}
+
+/// What the scene-level switch decides on family scenes (`cargo test --release --test family
+/// -- --ignored --nocapture switch`).
+#[test]
+#[ignore]
+fn probe_switch() {
+    for seed in 0..40 {
+        let family = FamilyScene::generate(seed);
+        let scene = family.builder().unwrap().build().unwrap();
+        let (_, settings) =
+            integrator::parse_spec("path_skeleton", IntegratorSettings::default()).unwrap();
+        let mut pt = lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap();
+        prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+        let guide = pt.guide().unwrap();
+        let t = guide.training().unwrap();
+        println!(
+            "{} | guides nothing {} | efficiency {:.3} variance {:.3} cost {:.3}",
+            family.description(),
+            guide.guides_nothing(),
+            t.scene.efficiency(),
+            t.scene.predicted_variance(),
+            t.scene.cost_ratio
+        );
+    }
+}

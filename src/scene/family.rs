@@ -243,7 +243,8 @@ impl FamilyScene {
         }
         for (e, &(a, b)) in pairs.iter().enumerate() {
             let Some(door) = chosen[e] else { continue };
-            let along_x = b == a + 1; // wall at x = xs[i + 1], running along z
+            // Neighbours in one row share a wall at x = xs[i + 1], running along z.
+            let along_x = b == a + 1 && a / c == b / c;
             let (lo, hi) = if along_x {
                 let j = a / c;
                 (self.zs[j], self.zs[j + 1])
@@ -398,7 +399,9 @@ impl FamilyScene {
             .map(|(o, &(wall, start))| {
                 let mid = start + o.width / 2.0;
                 let y = o.height.min(DOOR_HEIGHT) * 0.5;
-                if o.rooms[1] == o.rooms[0] + 1 {
+                if o.rooms[1] == o.rooms[0] + 1
+                    && o.rooms[0] / self.columns == o.rooms[1] / self.columns
+                {
                     Vec3::new(wall, y, mid)
                 } else {
                     Vec3::new(mid, y, wall)
@@ -675,6 +678,17 @@ mod tests {
             let e = a.camera.eye;
             assert!(e.x > x0 && e.x < x1 && e.z > z0 && e.z < z1 && e.y < a.height);
             assert!(a.builder().unwrap().build().is_ok());
+            // Every opening lies within its wall, between the posts.
+            for (o, &(_, start)) in a.openings.iter().zip(&a.placements) {
+                let [r0, r1] = o.rooms;
+                let (x0, x1, z0, z1) = a.room_extent(r0);
+                let (lo, hi) = if r1 == r0 + 1 && r0 / a.columns == r1 / a.columns {
+                    (z0, z1)
+                } else {
+                    (x0, x1)
+                };
+                assert!(start >= lo && start + o.width <= hi, "rooms:{seed} {o:?}");
+            }
         }
     }
 
