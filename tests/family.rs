@@ -144,3 +144,30 @@ fn probe_switch() {
         );
     }
 }
+
+/// The scene-level switch on open family scenes (one outer side missing, or no ceiling)
+/// whose camera shares its room with a light: guiding cannot pay there (the direct light
+/// dominates, much of what the lobes aim at leaves the scene) and the default switches itself
+/// off, so `path_skeleton` renders `path`'s samples.
+#[test]
+fn the_switch_turns_guiding_off_on_open_scenes_lit_in_the_camera_room() {
+    for seed in [0, 16, 21] {
+        let family = FamilyScene::generate(seed);
+        assert_ne!(family.openness, lacuna::scene::Openness::Closed);
+        assert_eq!(family.min_openings_to_light(), 0);
+        let scene = family.builder().unwrap().build().unwrap();
+        let (_, settings) =
+            integrator::parse_spec("path_skeleton", IntegratorSettings::default()).unwrap();
+        let mut pt = lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap();
+        prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+        let guide = pt.guide().unwrap();
+        let t = guide.training().unwrap();
+        assert!(t.paths > 0);
+        assert!(
+            guide.guides_nothing(),
+            "{}: efficiency {:.3}",
+            family.description(),
+            t.scene.efficiency()
+        );
+    }
+}
