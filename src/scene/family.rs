@@ -33,7 +33,7 @@ const ALBEDO: f32 = 0.7;
 /// Power of each light (radiance times area), so small lights are brighter.
 const LIGHT_RADIANCE_AREA: f32 = 12.0;
 /// Random stream of the generator (any constant: it only separates it from other users).
-const FAMILY_STREAM: u64 = 0x726f_6f6d_73;
+const FAMILY_STREAM: u64 = 0x0072_6f6f_6d73;
 /// Half the side of the ground plane of scenes open to the outside (metres).
 const OUTSIDE: f32 = 40.0;
 
@@ -431,7 +431,7 @@ impl FamilyScene {
 
     /// Triangle meshes: (name, material index, positions, triangles); materials 0 walls,
     /// 1 light.
-    fn meshes(&self) -> Vec<(&'static str, u32, Vec<Vec3>, Vec<[u32; 3]>)> {
+    fn meshes(&self) -> Vec<NamedMesh> {
         let (xmax, zmax) = (*self.xs.last().unwrap(), *self.zs.last().unwrap());
         let h = WALL / 2.0;
         let mut walls = Triangles::default();
@@ -567,6 +567,9 @@ impl FamilyScene {
         write(format!("{stem}.json"), &json)
     }
 }
+
+/// A mesh of the family: (name, material index, positions, triangles).
+type NamedMesh = (&'static str, u32, Vec<Vec3>, Vec<[u32; 3]>);
 
 /// Parses a family scene name `rooms:SEED`.
 pub fn parse_family_name(name: &str) -> Option<u64> {
