@@ -171,3 +171,76 @@ fn the_switch_turns_guiding_off_on_open_scenes_lit_in_the_camera_room() {
         );
     }
 }
+
+/// Per-sample variance and time of the default `path_skeleton` against `path` on a few family
+/// scenes (`-- --ignored --nocapture per_sample`): the training's prediction against what the
+/// render does, without precomputation or equal-time noise.
+#[test]
+#[ignore]
+fn probe_per_sample() {
+    for seed in [18, 30, 33, 3] {
+        let family = FamilyScene::generate(seed);
+        let scene = family.builder().unwrap().build().unwrap();
+        let mut row = Vec::new();
+        for spec in ["path", "path_skeleton"] {
+            let settings = IntegratorSettings {
+                max_depth: 65,
+                ..Default::default()
+            };
+            let mut integrator = integrator::create(spec, settings).unwrap();
+            prepare(
+                integrator.as_mut(),
+                &scene,
+                &family.camera,
+                Some(2),
+                &|_, _| true,
+            )
+            .unwrap();
+            let (w, h, seeds) = (32u32, 24u32, 24u64);
+            let n = (w * h) as usize;
+            let (mut sum, mut sum2, mut secs) = (vec![0f64; n], vec![0f64; n], 0f64);
+            for s in 0..seeds {
+                let rs = RenderSettings {
+                    width: w,
+                    height: h,
+                    spp: 16,
+                    seed: s * 7919 + 1,
+                    sampler: lacuna::math::SamplerKind::Independent,
+                    threads: Some(2),
+                    ..Default::default()
+                };
+                let (film, stats) = lacuna::render::render(
+                    &scene,
+                    &family.camera,
+                    integrator.as_ref(),
+                    &rs,
+                    &|_| true,
+                    &std::sync::atomic::AtomicBool::new(false),
+                )
+                .unwrap();
+                secs += stats.seconds;
+                for (k, p) in film.radiance().iter().enumerate() {
+                    let l = luminance(*p) as f64;
+                    sum[k] += l;
+                    sum2[k] += l * l;
+                }
+            }
+            let var: f64 = (0..n)
+                .map(|k| {
+                    let m = sum[k] / seeds as f64;
+                    sum2[k] / seeds as f64 - m * m
+                })
+                .sum::<f64>()
+                / n as f64;
+            row.push((var, secs));
+        }
+        let (vp, tp) = row[0];
+        let (vs, ts) = row[1];
+        println!(
+            "rooms:{seed}: variance path/skel {:.3}x, time skel/path {:.3}x, efficiency {:.3}x",
+            vp / vs,
+            ts / tp,
+            vp / vs / (ts / tp)
+        );
+    }
+}
