@@ -540,7 +540,8 @@ fn host_path_tracer_agrees_with_lacuna_render() {
             max_depth: *max_depth,
             ..Default::default()
         };
-        let lacuna = common::agreement::region_means(scene, &camera, "path", settings, *size, *spp, 8);
+        let lacuna =
+            common::agreement::region_means(scene, &camera, "path", settings, *size, *spp, 8);
         let host = host_region_means(&exe, &out, name, *size, *spp, *max_depth, 8);
         println!("{name}: lacuna {lacuna:?}\n  host {host:?}");
         assert!(host[0].0 > 0.0, "{name}: black host image");

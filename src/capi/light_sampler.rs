@@ -302,24 +302,30 @@ struct Query {
 }
 
 /// Names the argument of a single call (`query`) or the element of a batch (`queries[i]`).
-fn element(name: &str, index: Option<usize>) -> String {
-    index.map_or(name.to_string(), |i| format!("{name}s[{i}]"))
+fn element(single: &str, plural: &str, index: Option<usize>) -> String {
+    index.map_or(single.to_string(), |i| format!("{plural}[{i}]"))
 }
 
 /// A random number in [0, 1): non-finite values are invalid, finite ones outside are out of
 /// range.
 fn unit(v: f32, what: impl Fn() -> String) -> CapiResult<f32> {
     if !v.is_finite() {
-        return Err(CapiError::invalid(format!("{} is {v} (must be finite)", what())));
+        return Err(CapiError::invalid(format!(
+            "{} is {v} (must be finite)",
+            what()
+        )));
     }
     if !(0.0..1.0).contains(&v) {
-        return Err(CapiError::range(format!("{} = {v} is outside [0, 1)", what())));
+        return Err(CapiError::range(format!(
+            "{} = {v} is outside [0, 1)",
+            what()
+        )));
     }
     Ok(v)
 }
 
 fn query_from_c(q: &lacuna_light_query, index: Option<usize>, with_u: bool) -> CapiResult<Query> {
-    let name = || element("query", index);
+    let name = || element("query", "queries", index);
     let position = Vec3::from(q.position);
     if !position.is_finite() {
         return Err(CapiError::invalid(format!(
@@ -367,7 +373,7 @@ fn hit_from_c(
     h: &lacuna_light_hit,
     index: Option<usize>,
 ) -> CapiResult<(usize, Vec3, f32)> {
-    let name = || element("hit", index);
+    let name = || element("hit", "hits", index);
     let count = s.scene().lights().len();
     if h.light as usize >= count {
         return Err(CapiError::range(format!(
@@ -452,7 +458,9 @@ impl lacuna_light_sampler {
                     l.pdf_with(q.position, point, self.triangles),
                 )
             }
-            Light::Environment { map, .. } => (map.radiance(dir), map.pdf(self.env, q.env_normal, dir)),
+            Light::Environment { map, .. } => {
+                (map.radiance(dir), map.pdf(self.env, q.env_normal, dir))
+            }
             _ => (Rgb::ZERO, 0.0),
         };
         lacuna_light_eval {
@@ -469,11 +477,9 @@ impl lacuna_light_sampler {
         };
         let (index, pmf, u_light) = selector.sample_reuse(u[0]);
         let light = &scene.lights()[index];
-        let Some(s) = light.sample_emission_with(
-            self.env,
-            Vec2::new(u_light, u[1]),
-            Vec2::new(u[2], u[3]),
-        ) else {
+        let Some(s) =
+            light.sample_emission_with(self.env, Vec2::new(u_light, u[1]), Vec2::new(u[2], u[3]))
+        else {
             return NO_EMISSION;
         };
         let (pdf_position, pdf_direction) = light.split_emission_pdf(s.pdf_emit);
@@ -507,9 +513,8 @@ fn emission_flags(light: &Light) -> u32 {
 unsafe fn emission_numbers(u: *const f32, index: Option<usize>) -> CapiResult<[f32; 4]> {
     // SAFETY: readable for 4 floats per the contract (NULL was rejected by the caller).
     let raw: [f32; 4] = unsafe { u.cast::<[f32; 4]>().read_unaligned() };
-    let name = element("u", index);
     for (k, &v) in raw.iter().enumerate() {
-        unit(v, || format!("{name}[{k}]"))?;
+        unit(v, || format!("{}[{k}]", element("u", "u", index)))?;
     }
     Ok(raw)
 }
@@ -517,7 +522,13 @@ unsafe fn emission_numbers(u: *const f32, index: Option<usize>) -> CapiResult<[f
 /// Checks `count` elements of `size` bytes every `stride` bytes (0 = packed) from `ptr`: non-NULL
 /// unless `count` is 0, stride at least one element, span within the address space. Returns the
 /// resolved stride.
-fn strided(ptr: *const u8, stride: usize, count: usize, size: usize, name: &str) -> CapiResult<usize> {
+fn strided(
+    ptr: *const u8,
+    stride: usize,
+    count: usize,
+    size: usize,
+    name: &str,
+) -> CapiResult<usize> {
     let stride = if stride == 0 { size } else { stride };
     if stride < size {
         return Err(CapiError::invalid(format!(
@@ -549,7 +560,12 @@ fn strided(ptr: *const u8, stride: usize, count: usize, size: usize, name: &str)
 /// `i < count` of a checked array the caller guarantees readable.
 unsafe fn read_at<T: Copy>(ptr: *const T, stride: usize, i: usize) -> T {
     // SAFETY: within the checked span; `read_unaligned` needs no alignment.
-    unsafe { ptr.cast::<u8>().add(i * stride).cast::<T>().read_unaligned() }
+    unsafe {
+        ptr.cast::<u8>()
+            .add(i * stride)
+            .cast::<T>()
+            .read_unaligned()
+    }
 }
 
 /// Writes element `i` of a strided output array checked by [`strided`].
@@ -717,9 +733,7 @@ pub unsafe extern "C" fn lacuna_light_sampler_get_light_info(
             kind: kind as u32,
             triangle,
             power: l.power().max(0.0),
-            selection_probability: scene
-                .light_sampler()
-                .map_or(0.0, |t| t.pmf(light as usize)),
+            selection_probability: scene.light_sampler().map_or(0.0, |t| t.pmf(light as usize)),
         };
         // SAFETY: checked non-NULL, writable per the contract.
         unsafe { write_out(out, info) };
@@ -774,7 +788,11 @@ pub unsafe extern "C" fn lacuna_light_sampler_sample(
         let s = unsafe { arg(sampler, "sampler") }?;
         call.context(&s.scene.ctx);
         // SAFETY: NULL or a readable query.
-        let q = query_from_c(&unsafe { super::buffer::read_arg(query, "query") }?, None, true)?;
+        let q = query_from_c(
+            &unsafe { super::buffer::read_arg(query, "query") }?,
+            None,
+            true,
+        )?;
         let out = out_ptr(out_sample, "out_sample")?;
         let sample = s.sample(&q);
         // SAFETY: checked non-NULL, writable per the contract.
@@ -802,7 +820,11 @@ pub unsafe extern "C" fn lacuna_light_sampler_eval(
         let s = unsafe { arg(sampler, "sampler") }?;
         call.context(&s.scene.ctx);
         // SAFETY: NULL or a readable query.
-        let q = query_from_c(&unsafe { super::buffer::read_arg(query, "query") }?, None, false)?;
+        let q = query_from_c(
+            &unsafe { super::buffer::read_arg(query, "query") }?,
+            None,
+            false,
+        )?;
         // SAFETY: NULL or a readable hit.
         let (light, dir, distance) =
             hit_from_c(s, &unsafe { super::buffer::read_arg(hit, "hit") }?, None)?;
@@ -1013,7 +1035,8 @@ pub unsafe extern "C" fn lacuna_light_sampler_sample_emission_batch(
         )?;
         // SAFETY (both loops): i < count of the checked array of 16-byte elements the caller
         // promises readable.
-        let numbers = |i: usize| unsafe { emission_numbers(u.cast::<u8>().add(i * us).cast(), Some(i)) };
+        let numbers =
+            |i: usize| unsafe { emission_numbers(u.cast::<u8>().add(i * us).cast(), Some(i)) };
         for i in 0..count {
             numbers(i)?;
         }

@@ -127,7 +127,11 @@ pub unsafe extern "C" fn lacuna_scene_get_surface(
         let si = s
             .scene
             .interaction(&Ray::new(Vec3::ZERO, Vec3::Z, f32::INFINITY), &h);
-        let ns = if si.ns.dot(si.ng) < 0.0 { -si.ns } else { si.ns };
+        let ns = if si.ns.dot(si.ng) < 0.0 {
+            -si.ns
+        } else {
+            si.ns
+        };
         let material = &s.scene.materials()[si.material as usize];
         let diffuse = match material.diffuse_texture {
             Some(t) => s.scene.textures()[t as usize].lookup(si.uv) * material.diffuse,

@@ -262,14 +262,14 @@ static void test_batches(const lacuna_light_sampler *ls) {
     qs[7].q.u[1] = 2.0f;
     memset(batch, 0, sizeof batch);
     EXPECT(lacuna_light_sampler_sample_batch(ls, &qs[0].q, sizeof qs[0], N, batch, 0), LACUNA_STATUS_OUT_OF_RANGE,
-           "querys[7] u[1]");
+           "queries[7] u[1]");
     CHECK(batch[0].light == 0 && batch[0].pdf == 0);
     hits[3].light = 77;
     EXPECT(lacuna_light_sampler_eval_batch(ls, &qs[0].q, sizeof qs[0], hits, 0, N, evals, 0), LACUNA_STATUS_OUT_OF_RANGE,
            "hits[3]");
     us[5][3] = NAN;
     EXPECT(lacuna_light_sampler_sample_emission_batch(ls, &us[0][0], 0, N, emitted, 0), LACUNA_STATUS_INVALID_ARGUMENT,
-           "us[5][3]");
+           "u[5][3]");
     /* Strides, NULL arrays. */
     EXPECT(lacuna_light_sampler_sample_batch(ls, &qs[0].q, 4, N, batch, 0), LACUNA_STATUS_INVALID_ARGUMENT, "stride");
     EXPECT(lacuna_light_sampler_sample_batch(ls, NULL, 0, N, batch, 0), LACUNA_STATUS_NULL_POINTER, "queries");
