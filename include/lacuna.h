@@ -725,7 +725,8 @@ typedef struct lacuna_light_sample {
 // Where a host's own ray met a light (`lacuna_light_sampler_eval`): the light's id, the
 // direction of the ray (finite, non-zero) and the distance along the unit direction to the
 // point on the light (finite and > 0 for emissive triangles; ignored, typically +infinity,
-// for the environment).
+// for the environment). The point must lie on that light (where the host's ray met it): the
+// solid-angle strategy's density does not depend on the point and is not checked against it.
 typedef struct lacuna_light_hit {
     uint32_t light;
     float direction[3];
