@@ -36,7 +36,10 @@ pub struct lacuna_scene_builder {
     pub(crate) label: String,
 }
 
-fn new_builder(ctx: Arc<lacuna_context>, builder: SceneBuilder) -> *mut lacuna_scene_builder {
+pub(crate) fn new_builder(
+    ctx: Arc<lacuna_context>,
+    builder: SceneBuilder,
+) -> *mut lacuna_scene_builder {
     Box::into_raw(Box::new(lacuna_scene_builder {
         ctx,
         builder,

@@ -47,7 +47,7 @@ pub struct lacuna_environment_info {
     pub cube_build_seconds: f64,
 }
 
-fn strategy_from_c(value: u32) -> CapiResult<EnvStrategy> {
+pub(crate) fn strategy_from_c(value: u32) -> CapiResult<EnvStrategy> {
     Ok(
         match lacuna_environment_strategy::from_c(value, "strategy")? {
             lacuna_environment_strategy::LatLong => EnvStrategy::LatLong,
@@ -57,6 +57,16 @@ fn strategy_from_c(value: u32) -> CapiResult<EnvStrategy> {
             lacuna_environment_strategy::Bsdf => EnvStrategy::BsdfOnly,
         },
     )
+}
+
+pub(crate) fn strategy_to_c(strategy: EnvStrategy) -> u32 {
+    (match strategy {
+        EnvStrategy::LatLong => lacuna_environment_strategy::LatLong,
+        EnvStrategy::CubeUniform => lacuna_environment_strategy::CubeUniform,
+        EnvStrategy::CubePower => lacuna_environment_strategy::CubePower,
+        EnvStrategy::CubeDynamic => lacuna_environment_strategy::CubeDynamic,
+        EnvStrategy::BsdfOnly => lacuna_environment_strategy::Bsdf,
+    }) as u32
 }
 
 /// Reads `width` x `height` RGB float pixels (pixel (x, y) at
