@@ -381,8 +381,20 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
 /// [`Error::Parse`] with the field path as location (e.g. `lights[1]`); OBJ problems come from
 /// [`load_obj`]. Without a camera, [`auto_camera`] frames the scene (with a warning).
 pub fn load_scene_file(path: &Path) -> Result<LoadedScene> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let file: SceneFile = serde_json::from_str(&text).map_err(|e| json_error(path, &e))?;
+    let bytes =
+        crate::limits::read_file_bounded(path, "scene file", crate::limits::MAX_SCENE_FILE_BYTES)?;
+    // A byte-order mark (written by some editors) is not JSON, but says nothing wrong.
+    let bytes = super::obj::strip_bom(&bytes);
+    let text = std::str::from_utf8(bytes).map_err(|e| {
+        let at = e.valid_up_to();
+        let line = 1 + bytes[..at].iter().filter(|&&b| b == b'\n').count();
+        Error::parse(
+            path,
+            format!("line {line}"),
+            format!("not UTF-8 text (invalid byte at offset {at}): a scene file is JSON"),
+        )
+    })?;
+    let file: SceneFile = serde_json::from_str(text).map_err(|e| json_error(path, &e))?;
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     // Invalid values become parse errors located in the scene file; I/O and parse errors of
     // the files it names (OBJ, MTL, textures) keep their own path.
@@ -609,9 +621,7 @@ impl TransformSpec {
         if !m.is_finite() || m.row(3) != Vec4::W {
             return Err(format!("transform {m} must be finite and affine"));
         }
-        if m.determinant() == 0.0 {
-            return Err(format!("transform {m} is singular (zero scale?)"));
-        }
+        crate::limits::check_transform_scale(glam::Mat3::from_mat4(m))?;
         Ok(m)
     }
 }
