@@ -33,6 +33,10 @@ pub const MAX_TEXTURE_PIXELS: u64 = 1 << 28;
 /// Largest JSON scene file, in bytes (scene files describe objects; meshes live in OBJ files).
 pub const MAX_SCENE_FILE_BYTES: u64 = 64 << 20;
 
+/// Most triangles the inline shapes of one scene file may make (a 60-byte line asks for a
+/// sphere of 4 million triangles; a small file of many would need tens of gigabytes).
+pub const MAX_SHAPE_TRIANGLES: u64 = 1 << 24;
+
 /// Largest OBJ or MTL file, in bytes (the text is held in memory while it is parsed).
 pub const MAX_OBJ_FILE_BYTES: u64 = 4 << 30;
 

@@ -529,3 +529,18 @@ fn building_a_builder_twice_is_an_error() {
         lacuna_context_release(ctx);
     }
 }
+
+/// A few short lines asking for spheres of millions of triangles each: refused by count
+/// before any is built.
+#[test]
+fn shapes_making_too_many_triangles_are_refused() {
+    let dir = TempDir::new("shapes");
+    let sphere = r#"{"type": "sphere", "center": [0, 0, 0], "radius": 1, "segments": 2048}"#;
+    let file = format!(r#"{{"shapes": [{}]}}"#, vec![sphere; 5].join(", "));
+    dir.write("s.json", file.as_bytes());
+    refused(
+        &dir,
+        &with_quick(&["render", "s.json", "-o", "x.png"]),
+        &["s.json:shapes[4]", "over the limit of 16777216"],
+    );
+}

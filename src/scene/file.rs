@@ -431,6 +431,18 @@ pub fn load_scene_file(path: &Path) -> Result<LoadedScene> {
         objects.push(report);
     }
 
+    let mut shape_triangles = 0u64;
+    for (i, s) in file.shapes.iter().enumerate() {
+        shape_triangles += s.triangle_count();
+        let limit = crate::limits::MAX_SHAPE_TRIANGLES;
+        if shape_triangles > limit {
+            return Err(Error::parse(
+                path,
+                format!("shapes[{i}]"),
+                format!("shapes[0..={i}] make {shape_triangles} triangles, over the limit of {limit} for the inline shapes of a scene file"),
+            ));
+        }
+    }
     for (i, s) in file.shapes.iter().enumerate() {
         let loc = format!("shapes[{i}]");
         let (desc, spec) = shape_mesh(s, i).map_err(|m| Error::parse(path, loc.clone(), m))?;
@@ -756,6 +768,20 @@ fn positive(v: f32, what: &str) -> std::result::Result<f32, String> {
 }
 
 /// The triangles of an inline shape (material left to the caller) and its material spec.
+impl ShapeSpec {
+    /// Triangles the shape makes (as [`shape_mesh`] builds it), before it is built.
+    fn triangle_count(&self) -> u64 {
+        match self {
+            ShapeSpec::Quad { .. } => 2,
+            ShapeSpec::Disk { segments, .. } => segments.unwrap_or(64) as u64,
+            ShapeSpec::Sphere { segments, .. } => {
+                let slices = segments.unwrap_or(48) as u64;
+                2 * slices * (slices / 2).max(2)
+            }
+        }
+    }
+}
+
 fn shape_mesh(
     s: &ShapeSpec,
     index: usize,
