@@ -9,6 +9,16 @@
  * - Shared objects (context, scene, film) are refcounted with _retain/_release; single-owner
  *   objects (scene builder, mesh, render job) use _new/_free. Releasing or freeing NULL is a
  *   no-op. Objects keep the objects they were made from alive.
+ * - Undefined behaviour: releasing or freeing an object more often than it was created and
+ *   retained, and any use of an object after its last release or its free, as with free() in
+ *   C. Lacuna cannot tell such a pointer from a live one in general; the one case it catches
+ *   is a scene builder used, built or freed again after lacuna_scene_builder_build or
+ *   lacuna_scene_builder_free (LACUNA_STATUS_INVALID_OPERATION), unless a newer builder
+ *   reuses its address.
+ * - Limits (docs/limits.md) are the same as the lacuna command's: LACUNA_MAX_THREADS,
+ *   LACUNA_MAX_DEPTH_LIMIT, LACUNA_MAX_LIGHT_PATHS, films up to 65536 pixels a side within
+ *   the context's memory budget (never more than the machine's physical memory), and files
+ *   whose headers claim more than the budget are refused before any pixel is read.
  * - Buffers are (pointer, byte stride, count); a stride of 0 means packed, a count of 0
  *   accepts NULL. Input data is copied. Enumerations are passed as uint32_t and validated.
  * - Each type's documentation states its thread-safety contract.
@@ -1027,7 +1037,8 @@ lacuna_status lacuna_scene_builder_new_from_file(const struct lacuna_context *co
                                                  const char *path,
                                                  struct lacuna_scene_builder **out_builder);
 
-// Frees a builder that was not built. NULL is a no-op.
+// Frees a builder that was not built. NULL is a no-op. A builder that was already built or
+// freed is left alone (the failure is recorded for `lacuna_last_error_message()`).
 void lacuna_scene_builder_free(struct lacuna_scene_builder *builder);
 
 // Sets what the builder does with zero-area triangles added afterwards: a
@@ -1129,7 +1140,8 @@ lacuna_status lacuna_scene_builder_load_obj(struct lacuna_scene_builder *builder
 // sampler, and writes the committed scene (reference count 1) to `*out_scene`.
 //
 // Consumes the builder whether or not the build succeeds (unless `builder` is NULL): do not
-// use or free it afterwards.
+// use or free it afterwards. Building (or using, or freeing) a builder that was already built
+// is caught and fails with `LACUNA_STATUS_INVALID_OPERATION`.
 lacuna_status lacuna_scene_builder_build(struct lacuna_scene_builder *builder,
                                          struct lacuna_scene **out_scene);
 
@@ -1195,7 +1207,10 @@ lacuna_status lacuna_context_set_error_callback(const struct lacuna_context *con
 // lat-long map or a 4:3 horizontal cross. NaN or infinite texels are an error
 // (`LACUNA_STATUS_PARSE`, naming the texel); negative ones are clamped to zero and counted
 // (`lacuna_environment_info.clamped_values`). Scale 1, no rotation, Y up, visible.
-// `LACUNA_STATUS_IO` when the file cannot be read. Thread-safe.
+// `LACUNA_STATUS_IO` when the file cannot be read. A file whose header claims more than
+// 2^28 texels is `LACUNA_STATUS_PARSE`, and one needing more than `LACUNA_DEFAULT_MEMORY_BUDGET`
+// (or physical memory) `LACUNA_STATUS_OVER_BUDGET`, both before any pixel is read.
+// Thread-safe.
 lacuna_status lacuna_environment_new_from_file(const char *path,
                                                struct lacuna_environment **out_env);
 

@@ -65,12 +65,7 @@ impl Default for RenderSettings {
 
 impl RenderSettings {
     pub fn validate(&self) -> Result<()> {
-        if self.width == 0 || self.height == 0 || self.width > 65536 || self.height > 65536 {
-            return Err(Error::invalid(format!(
-                "image size {}x{} must be within 1..=65536",
-                self.width, self.height
-            )));
-        }
+        crate::limits::check_film_side(self.width, self.height)?;
         if self.spp == 0 {
             return Err(Error::invalid("samples per pixel must be at least 1"));
         }
@@ -84,6 +79,9 @@ impl RenderSettings {
         }
         if self.threads == Some(0) {
             return Err(Error::invalid("thread count must be at least 1"));
+        }
+        if let Some(n) = self.threads {
+            crate::limits::check_threads("thread count", n)?;
         }
         Ok(())
     }
@@ -164,6 +162,9 @@ pub fn prepare(
         return Err(Error::invalid("thread count must be at least 1"));
     }
     camera.validate()?;
+    if let Some(n) = threads {
+        crate::limits::check_threads("thread count", n)?;
+    }
     let pool = WorkerPool::new(threads, None)?;
     pool.install(|| integrator.prepare(scene, camera, progress))
 }

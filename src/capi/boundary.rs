@@ -1,9 +1,10 @@
 //! Status codes, the thread-local last error, and the one panic boundary every entry point runs
 //! under.
 
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::ffi::{c_char, CStr, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::Once;
 
 use super::context::lacuna_context;
 use crate::error::Error;
@@ -128,6 +129,46 @@ pub(crate) type CapiResult<T> = Result<T, CapiError>;
 
 thread_local! {
     static LAST_ERROR: RefCell<CString> = RefCell::new(CString::default());
+    /// How many boundary calls are running on this thread (entry points may nest).
+    static BOUNDARY_DEPTH: Cell<u32> = const { Cell::new(0) };
+    /// Where the last panic inside a boundary happened, for its message.
+    static PANIC_LOCATION: RefCell<Option<String>> = const { RefCell::new(None) };
+}
+
+/// Installs, once, a panic hook that stays silent for panics inside a boundary call on the
+/// calling thread (the host's stderr is not Lacuna's to write: the message, with its
+/// location, goes to `lacuna_last_error_message()` instead) and hands every other panic to
+/// the hook that was there before.
+fn install_quiet_panic_hook() {
+    static INSTALL: Once = Once::new();
+    INSTALL.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if BOUNDARY_DEPTH.with(Cell::get) == 0 {
+                return previous(info);
+            }
+            let location = info
+                .location()
+                .map(|l| format!("{}:{}", l.file(), l.line()));
+            PANIC_LOCATION.with(|p| *p.borrow_mut() = location);
+        }));
+    });
+}
+
+/// Marks the calling thread as inside a boundary call while alive.
+struct InBoundary;
+
+impl InBoundary {
+    fn enter() -> Self {
+        BOUNDARY_DEPTH.with(|d| d.set(d.get() + 1));
+        InBoundary
+    }
+}
+
+impl Drop for InBoundary {
+    fn drop(&mut self) {
+        BOUNDARY_DEPTH.with(|d| d.set(d.get().saturating_sub(1)));
+    }
 }
 
 /// What the body of an entry point tells the boundary besides its result: the context whose
@@ -161,15 +202,27 @@ pub(crate) fn boundary<T>(
     function: &'static str,
     body: impl for<'a> FnOnce(&mut Call<'a>) -> CapiResult<T>,
 ) -> Result<T, lacuna_status> {
+    install_quiet_panic_hook();
     let mut call = Call::default();
-    let result = catch_unwind(AssertUnwindSafe(|| body(&mut call)));
+    let result = {
+        let _inside = InBoundary::enter();
+        catch_unwind(AssertUnwindSafe(|| body(&mut call)))
+    };
     let error = match result {
         Ok(Ok(value)) => return Ok(value),
         Ok(Err(e)) => e,
-        Err(payload) => CapiError::new(
-            lacuna_status::Panic,
-            format!("internal panic: {}", panic_message(payload.as_ref())),
-        ),
+        Err(payload) => {
+            let location = PANIC_LOCATION
+                .with(|p| p.borrow_mut().take())
+                .map_or(String::new(), |l| format!(" at {l}"));
+            CapiError::new(
+                lacuna_status::Panic,
+                format!(
+                    "internal panic{location}: {}",
+                    panic_message(payload.as_ref())
+                ),
+            )
+        }
     };
     let status = error.status;
     // Reporting must not unwind either (a context's mutex could be poisoned, a message could

@@ -166,7 +166,10 @@ fn new_handle(map: EnvironmentMap) -> *mut lacuna_environment {
 /// lat-long map or a 4:3 horizontal cross. NaN or infinite texels are an error
 /// (`LACUNA_STATUS_PARSE`, naming the texel); negative ones are clamped to zero and counted
 /// (`lacuna_environment_info.clamped_values`). Scale 1, no rotation, Y up, visible.
-/// `LACUNA_STATUS_IO` when the file cannot be read. Thread-safe.
+/// `LACUNA_STATUS_IO` when the file cannot be read. A file whose header claims more than
+/// 2^28 texels is `LACUNA_STATUS_PARSE`, and one needing more than `LACUNA_DEFAULT_MEMORY_BUDGET`
+/// (or physical memory) `LACUNA_STATUS_OVER_BUDGET`, both before any pixel is read.
+/// Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_environment_new_from_file(
     path: *const c_char,
@@ -361,7 +364,12 @@ pub unsafe extern "C" fn lacuna_scene_builder_set_environment(
 ) -> lacuna_status {
     boundary::status("lacuna_scene_builder_set_environment", |call| {
         // SAFETY: NULL or a live builder used by this thread only.
-        let b = unsafe { builder.as_mut() }.ok_or_else(|| CapiError::null("builder"))?;
+        if builder.is_null() {
+            return Err(CapiError::null("builder"));
+        }
+        super::builder::check_live(builder, false)?;
+        // SAFETY: a live builder (checked above) used by this thread only.
+        let b = unsafe { &mut *builder };
         // SAFETY: the builder holds its context alive for the call.
         call.context(unsafe { &*Arc::as_ptr(&b.ctx) });
         // SAFETY: NULL or a live environment.

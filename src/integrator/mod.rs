@@ -109,6 +109,7 @@ impl IntegratorSettings {
     /// guide options.
     pub fn apply_file(&mut self, file: &RenderSettingsFile) -> Result<()> {
         if let Some(d) = file.max_depth {
+            crate::limits::check_max_depth("render.max_depth", d)?;
             self.max_depth = d;
         }
         for (key, value) in file.skeleton_options() {
@@ -306,7 +307,13 @@ pub fn parse_spec(
             })
         };
         match key {
-            "max_depth" => settings.max_depth = count()?,
+            "max_depth" => {
+                settings.max_depth = count()?;
+                crate::limits::check_max_depth(
+                    &format!("integrator option max_depth in '{spec}'"),
+                    settings.max_depth,
+                )?;
+            }
             "rr_depth" if name == "path" || name == "path_skeleton" => {
                 settings.rr_start_depth = count()?
             }
@@ -331,6 +338,7 @@ pub fn parse_spec(
 /// Creates an integrator from its specification (see [`parse_spec`]).
 pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
     let (name, settings) = parse_spec(spec, settings)?;
+    crate::limits::check_max_depth("max_depth", settings.max_depth)?;
     match name {
         "env_direct" => Ok(Box::new(EnvDirect::new(settings)?)),
         "path" => Ok(Box::new(PathTracer::new(settings))),
