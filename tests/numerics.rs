@@ -84,7 +84,7 @@ fn renders_finite(scene: &Scene, camera: &Camera, what: &str) {
     };
     for name in ["path", "bdpt"] {
         let mut integrator = integrator::create(name, IntegratorSettings::default()).unwrap();
-        lacuna::render::prepare(integrator.as_mut(), scene, Some(2), &|_, _| true).unwrap();
+        lacuna::render::prepare(integrator.as_mut(), scene, camera, Some(2), &|_, _| true).unwrap();
         let (film, _) = render(
             scene,
             camera,
