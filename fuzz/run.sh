@@ -26,6 +26,16 @@ for t in "${targets[@]}"; do
     mkdir -p "corpus/$t" "artifacts/$t"
     echo "== fuzz $t for ${seconds}s"
     start=$(date +%s)
+    # Inputs that once crashed or hung stay fixed: replay them first.
+    known=(known/"$t"-*)
+    if [ -e "${known[0]}" ]; then
+        if ! "target/$host/release/$t" -timeout=10 -rss_limit_mb=4096 "${known[@]}" \
+            2> "artifacts/$t.known.log"; then
+            echo "fuzz $t: a known input fails again; log in fuzz/artifacts/$t.known.log" >&2
+            tail -n 30 "artifacts/$t.known.log" >&2
+            failed=1
+        fi
+    fi
     if ! nice -n 19 "target/$host/release/$t" "corpus/$t" "seeds/$t" \
         -max_total_time="$seconds" -timeout=10 -rss_limit_mb=4096 -max_len=65536 \
         -artifact_prefix="artifacts/$t/" -print_final_stats=1 2> "artifacts/$t.log"; then

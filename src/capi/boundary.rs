@@ -1,7 +1,7 @@
 //! Status codes, the thread-local last error, and the one panic boundary every entry point runs
 //! under.
 
-use std::cell::{Cell, RefCell};
+use std::cell::RefCell;
 use std::ffi::{c_char, CStr, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Once;
@@ -129,22 +129,21 @@ pub(crate) type CapiResult<T> = Result<T, CapiError>;
 
 thread_local! {
     static LAST_ERROR: RefCell<CString> = RefCell::new(CString::default());
-    /// How many boundary calls are running on this thread (entry points may nest).
-    static BOUNDARY_DEPTH: Cell<u32> = const { Cell::new(0) };
     /// Where the last panic inside a boundary happened, for its message.
     static PANIC_LOCATION: RefCell<Option<String>> = const { RefCell::new(None) };
 }
 
-/// Installs, once, a panic hook that stays silent for panics inside a boundary call on the
-/// calling thread (the host's stderr is not Lacuna's to write: the message, with its
-/// location, goes to `lacuna_last_error_message()` instead) and hands every other panic to
-/// the hook that was there before.
+/// Installs, once, a panic hook that stays silent for panics inside a boundary call, on the
+/// calling thread or on a worker of a pool made inside one (the host's stderr is not Lacuna's
+/// to write: the message goes to `lacuna_last_error_message()` instead, with its location
+/// when the panic happened on the calling thread) and hands every other panic to the hook
+/// that was there before.
 fn install_quiet_panic_hook() {
     static INSTALL: Once = Once::new();
     INSTALL.call_once(|| {
         let previous = std::panic::take_hook();
         std::panic::set_hook(Box::new(move |info| {
-            if BOUNDARY_DEPTH.with(Cell::get) == 0 {
+            if !crate::workers::panics_reported_by_caller() {
                 return previous(info);
             }
             let location = info
@@ -155,19 +154,23 @@ fn install_quiet_panic_hook() {
     });
 }
 
-/// Marks the calling thread as inside a boundary call while alive.
-struct InBoundary;
+/// Marks the calling thread as inside a boundary call while alive: its panics are reported
+/// by the boundary, not printed. Entry points may nest; the outermost restores the flag.
+struct InBoundary {
+    was_inside: bool,
+}
 
 impl InBoundary {
     fn enter() -> Self {
-        BOUNDARY_DEPTH.with(|d| d.set(d.get() + 1));
-        InBoundary
+        InBoundary {
+            was_inside: crate::workers::set_panics_reported_by_caller(true),
+        }
     }
 }
 
 impl Drop for InBoundary {
     fn drop(&mut self) {
-        BOUNDARY_DEPTH.with(|d| d.set(d.get().saturating_sub(1)));
+        crate::workers::set_panics_reported_by_caller(self.was_inside);
     }
 }
 
@@ -285,6 +288,17 @@ pub extern "C" fn lacuna_status_string(status: u32) -> *const c_char {
                 .as_ptr())
         },
     )
+}
+
+/// Testing aid for Rust tests (not in the C header): panics on a worker thread of a pool made
+/// inside a C API call, as a render's panic would, and returns what the boundary makes of it.
+#[doc(hidden)]
+pub fn debug_trigger_worker_panic() -> lacuna_status {
+    status("debug_trigger_worker_panic", |_| {
+        let pool = crate::workers::WorkerPool::new(Some(1), Some("lacuna-debug"))
+            .map_err(|e| CapiError::operation(format!("no worker thread: {e}")))?;
+        pool.install(|| panic!("debug_trigger_worker_panic was called"))
+    })
 }
 
 /// Testing aid: panics inside Lacuna and returns what the panic boundary makes of it

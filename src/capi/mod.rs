@@ -34,7 +34,8 @@ mod version;
 
 pub use analysis::*;
 pub use boundary::{
-    lacuna_debug_trigger_panic, lacuna_last_error_message, lacuna_status, lacuna_status_string,
+    debug_trigger_worker_panic, lacuna_debug_trigger_panic, lacuna_last_error_message,
+    lacuna_status, lacuna_status_string,
 };
 pub use builder::*;
 pub use compare::*;
