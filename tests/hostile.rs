@@ -536,7 +536,7 @@ fn building_a_builder_twice_is_an_error() {
 fn shapes_making_too_many_triangles_are_refused() {
     let dir = TempDir::new("shapes");
     let sphere = r#"{"type": "sphere", "center": [0, 0, 0], "radius": 1, "segments": 2048}"#;
-    let file = format!(r#"{{"shapes": [{}]}}"#, vec![sphere; 5].join(", "));
+    let file = format!(r#"{{"shapes": [{}]}}"#, [sphere; 5].join(", "));
     dir.write("s.json", file.as_bytes());
     refused(
         &dir,
