@@ -120,6 +120,22 @@ fn t02_exr_header_claiming_terapixels_is_refused_before_reading() {
     assert!(env.is_null());
 }
 
+/// A small tiled EXR whose tile description claims tiles of gigabytes (found by the fuzzer,
+/// `fuzz/known/environment-huge-tile-1`, after its first byte that picks `.exr`): the reader
+/// sizes each block by the tile, so the tile counts against the budget, from the header.
+#[test]
+fn exr_header_claiming_huge_tiles_is_refused_before_reading() {
+    let dir = TempDir::new("exr-tile");
+    let input = include_bytes!("../fuzz/known/environment-huge-tile-1");
+    dir.write("tile.exr", &input[1..]);
+    let e = lacuna::light::environment::EnvImage::load_within(&dir.0.join("tile.exr"), 256 << 20)
+        .unwrap_err();
+    assert!(
+        matches!(e, lacuna::Error::OverBudget { .. }) && e.to_string().contains("tile.exr"),
+        "{e}"
+    );
+}
+
 /// A Radiance header claiming gigapixels is refused the same way.
 #[test]
 fn t02_hdr_header_claiming_gigapixels_is_refused_before_reading() {

@@ -272,6 +272,19 @@ pub fn read_exr_rgb_within(path: &Path, budget: u64) -> Result<ExrImage> {
         // result.
         let per_pixel = 4 * header.channels.list.len() as u64 + 12 + 12;
         bytes = bytes.saturating_add(pixels.saturating_mul(per_pixel));
+        // The reader allocates each block at the size its header allows before reading it (a
+        // tile header can claim tiles far larger than the image): count a block twice, as
+        // read and as decompressed.
+        let block_pixels = match header.blocks {
+            exr::meta::BlockDescription::Tiles(tiles) => {
+                tiles.tile_size.width() as u64 * tiles.tile_size.height() as u64
+            }
+            exr::meta::BlockDescription::ScanLines => {
+                header.compression.scan_lines_per_block() as u64 * w as u64
+            }
+        };
+        let block_bytes = block_pixels.saturating_mul(header.channels.bytes_per_pixel as u64);
+        bytes = bytes.saturating_add(block_bytes.saturating_mul(2));
     }
     crate::limits::check_bytes(|| format!("EXR image {}", path.display()), bytes, budget)?;
     let image = x::read()
