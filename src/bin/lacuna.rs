@@ -749,6 +749,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
             format!("{:.3}", precomputation.seconds()),
         );
     write_film(&film, &args.out, args.exposure, &meta)?;
+    write_alpha_preview(&film, &args.out)?;
     if let Some(dir) = &args.strategy_images {
         write_strategy_images(&film, dir, args.exposure, &meta)?;
     }
@@ -772,6 +773,25 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// `mis=auto`: the false-colour PNG of the `alpha` layer (thesis 001 Figure 5.7) beside the
+/// output, as `NAME.alpha.png` (the layer itself is in the EXR).
+fn write_alpha_preview(film: &Film, out: &Path) -> Result<()> {
+    let Some(index) = film
+        .layer_names()
+        .iter()
+        .position(|n| n == integrator::ALPHA_LAYER)
+    else {
+        return Ok(());
+    };
+    let colours: Vec<_> = film
+        .layer(index)
+        .iter()
+        .map(|p| integrator::mis_auto::alpha_false_colour(p.x, p.y))
+        .collect();
+    let path = out.with_extension("alpha.png");
+    lacuna::film::write_png_rgb(&path, film.width(), film.height(), &colours, 0.0)
 }
 
 /// Writes every strategy layer of `film` as EXR and PNG, and the weighted and unweighted
