@@ -83,7 +83,7 @@ struct SceneArgs {
     /// Maximum number of bounces (1 = direct lighting only) [default: 8, or the scene file's].
     #[arg(long)]
     max_depth: Option<u32>,
-    /// MIS heuristic between light and BSDF sampling: power or balance.
+    /// MIS heuristic between light and BSDF sampling: power or balance; env_direct also auto (the per-point sample split of thesis 001 ch. 5) or optimal (Kondapaneni et al. 2019).
     #[arg(long, default_value = "power")]
     mis: String,
     /// Bidirectional integrators: light subpaths per iteration [default: one per pixel].
