@@ -1471,7 +1471,9 @@ lacuna_status lacuna_render_job_set_resolution(struct lacuna_render_job *job,
 lacuna_status lacuna_render_job_set_thread_count(struct lacuna_render_job *job,
                                                  uint32_t thread_count);
 
-// Sets the MIS heuristic: a `lacuna_mis_heuristic` value.
+// Sets the MIS heuristic: a `lacuna_mis_heuristic` value. Unset, each integrator uses its
+// own default: `LACUNA_MIS_HEURISTIC_POWER` for `path`, `path_skeleton` and `bdpt`,
+// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`.
 lacuna_status lacuna_render_job_set_mis_heuristic(struct lacuna_render_job *job,
                                                   uint32_t heuristic);
 

@@ -603,7 +603,7 @@ fn mis_weightings_of_env_direct_agree_with_balance() {
         let (scene, camera) = sphere_scene(map, material.clone(), true);
         let with = |mis| IntegratorSettings {
             max_depth: 1,
-            mis,
+            mis: Some(mis),
             ..Default::default()
         };
         let spec = "env_direct:env=cube-dynamic:samples=8:bsdf=8";
@@ -656,6 +656,41 @@ fn mis_weightings_of_env_direct_agree_with_balance() {
             shaded > 100 && spread.1 - spread.0 > 0.2,
             "{name}: {shaded} {spread:?}"
         );
+    }
+}
+
+/// Unset, `mis` is each integrator's own default: env_direct's is the balance heuristic over
+/// the counts (bit-identical images), `path`'s the power heuristic.
+#[test]
+fn unset_mis_is_each_integrators_default() {
+    let glossy = Material::glossy(Rgb::splat(0.2), Rgb::splat(0.5), 200.0);
+    let (scene, camera) = sphere_scene(load("sky.exr"), glossy, true);
+    let rs = RenderSettings {
+        width: 16,
+        height: 16,
+        spp: 2,
+        ..Default::default()
+    };
+    let image = |spec: &str, mis: Option<MisHeuristic>| {
+        let settings = IntegratorSettings {
+            max_depth: 2,
+            mis,
+            ..Default::default()
+        };
+        let integrator = integrator::create(spec, settings).unwrap();
+        render_image(&scene, &camera, integrator.as_ref(), &rs).radiance()
+    };
+    for (spec, default, other) in [
+        (
+            "env_direct:samples=4:bsdf=4",
+            MisHeuristic::Balance,
+            MisHeuristic::Power,
+        ),
+        ("path", MisHeuristic::Power, MisHeuristic::Balance),
+    ] {
+        let unset = image(spec, None);
+        assert_eq!(unset, image(spec, Some(default)), "{spec}: {default:?}");
+        assert_ne!(unset, image(spec, Some(other)), "{spec}: {other:?}");
     }
 }
 

@@ -83,9 +83,9 @@ struct SceneArgs {
     /// Maximum number of bounces (1 = direct lighting only) [default: 8, or the scene file's].
     #[arg(long)]
     max_depth: Option<u32>,
-    /// MIS heuristic between light and BSDF sampling: power or balance; env_direct also auto (the per-point sample split of thesis 001 ch. 5) or optimal (Kondapaneni et al. 2019).
-    #[arg(long, default_value = "power")]
-    mis: String,
+    /// MIS heuristic between light and BSDF sampling: power or balance; env_direct also auto (the per-point sample split of thesis 001 ch. 5) or optimal (Kondapaneni et al. 2019) [default: power; env_direct: balance].
+    #[arg(long)]
+    mis: Option<String>,
     /// Bidirectional integrators: light subpaths per iteration [default: one per pixel].
     #[arg(long)]
     light_paths: Option<u32>,
@@ -508,7 +508,7 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     }
     render.threads = args.threads;
     let mut integrator = IntegratorSettings {
-        mis: MisHeuristic::parse(&args.mis)?,
+        mis: args.mis.as_deref().map(MisHeuristic::parse).transpose()?,
         light_paths: args.light_paths,
         env,
         ..Default::default()

@@ -395,7 +395,7 @@ impl Bdpt {
 
     #[inline]
     fn mis(&self, x: f32) -> f32 {
-        match self.settings.mis {
+        match self.settings.mis.unwrap_or_default() {
             // auto and optimal are refused at creation (`MisHeuristic::check_supported`).
             MisHeuristic::Balance | MisHeuristic::Auto | MisHeuristic::Optimal => x,
             MisHeuristic::Power => x * x,

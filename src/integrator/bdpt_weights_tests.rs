@@ -626,7 +626,7 @@ fn compare(scene: &Scene, view: &View, recorded: &[Recorded], model: Model) -> C
 
 fn model(settings: &IntegratorSettings, n_light: usize, n_conn: usize) -> Model {
     Model {
-        mis: settings.mis,
+        mis: settings.mis.unwrap_or_default(),
         n_light: n_light as f64,
         n_conn: n_conn as f64,
         roulette: true,
@@ -666,7 +666,7 @@ fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
     ] {
         let settings = IntegratorSettings {
             max_depth: 6,
-            mis,
+            mis: Some(mis),
             ..Default::default()
         };
         let mut bdpt = Bdpt::new(settings).with_light_paths(n_light).unwrap();

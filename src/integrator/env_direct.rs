@@ -237,10 +237,7 @@ impl EnvDirect {
         DRAWN.with(|cell| {
             let mut drawn = cell.take();
             drawn.clear();
-            let adaptive = matches!(
-                self.settings.mis,
-                MisHeuristic::Auto | MisHeuristic::Optimal
-            );
+            let adaptive = matches!(self.mis(), MisHeuristic::Auto | MisHeuristic::Optimal);
             // The warm-up: `warm` samples of each technique (the half-half mixture of eq. 5.5),
             // a quarter of the total each, as the thesis's M = N.
             let warm = total / 4;
@@ -256,12 +253,12 @@ impl EnvDirect {
                     &mut drawn,
                 );
                 let counts = (n_light as f32, n_bsdf as f32);
-                let sum = match self.settings.mis {
+                let sum = match self.mis() {
                     MisHeuristic::Power => power(&drawn, counts),
                     _ => balance(&drawn, counts),
                 };
-                let alpha = (self.settings.mis == MisHeuristic::Auto)
-                    .then_some(n_bsdf as f32 / total as f32);
+                let alpha =
+                    (self.mis() == MisHeuristic::Auto).then_some(n_bsdf as f32 / total as f32);
                 (sum, alpha)
             } else {
                 let warm_counts = (warm as f32, warm as f32);
@@ -277,7 +274,7 @@ impl EnvDirect {
                 );
                 let first = balance(&drawn, warm_counts);
                 let (m, n) = (2 * warm, total - 2 * warm);
-                let (second, alpha) = if self.settings.mis == MisHeuristic::Auto {
+                let (second, alpha) = if self.mis() == MisHeuristic::Auto {
                     let mut estimate = AlphaEstimate::default();
                     for d in &drawn {
                         estimate.add(d.weight, luminance(d.value), d.pdf_bsdf, d.pdf_light);
@@ -367,6 +364,14 @@ fn power(drawn: &[Drawn], (n_light, n_bsdf): (f32, f32)) -> Rgb {
     })
 }
 
+impl EnvDirect {
+    /// The weighting in use: balance unless the settings name another (see
+    /// [`IntegratorSettings::mis`]).
+    fn mis(&self) -> MisHeuristic {
+        self.settings.mis.unwrap_or(MisHeuristic::Balance)
+    }
+}
+
 impl Integrator for EnvDirect {
     fn name(&self) -> &'static str {
         "env_direct"
@@ -376,7 +381,7 @@ impl Integrator for EnvDirect {
     /// point (zero where the sample shaded nothing) and G the fraction of samples that shaded
     /// a point, so a pixel's alpha is R / G ([`super::mis_auto::alpha_false_colour`] draws it).
     fn layers(&self) -> Vec<String> {
-        if self.settings.mis == MisHeuristic::Auto {
+        if self.mis() == MisHeuristic::Auto {
             vec![ALPHA_LAYER.to_string()]
         } else {
             Vec::new()

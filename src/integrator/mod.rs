@@ -102,7 +102,11 @@ pub struct IntegratorSettings {
     /// Maximum number of bounces (scattering events) of a path; 0 shows emitters only, 1 is
     /// direct lighting. A path has at most `max_depth + 1` segments.
     pub max_depth: u32,
-    pub mis: MisHeuristic,
+    /// How MIS weights light and BSDF sampling. `None` is the integrator's own default:
+    /// [`MisHeuristic::Power`] for the one-sample integrators (`path`, `path_skeleton`,
+    /// `bdpt`), [`MisHeuristic::Balance`] for `env_direct`, whose many samples per strategy
+    /// the balance heuristic over the counts combines as the thesis's estimator does.
+    pub mis: Option<MisHeuristic>,
     /// Russian roulette (`path`, `path_skeleton`): a path that has made this many bounces may
     /// be ended before the next one, surviving with probability `min(max(throughput), 0.95)`
     /// (see `path.rs`). Lower starts make samples cheaper and noisier. The default is 5 (as
@@ -132,7 +136,7 @@ impl Default for IntegratorSettings {
     fn default() -> Self {
         IntegratorSettings {
             max_depth: 8,
-            mis: MisHeuristic::Power,
+            mis: None,
             rr_start_depth: 5,
             light_paths: None,
             env: EnvStrategy::default(),
@@ -360,7 +364,7 @@ pub fn parse_spec(
             "triangles" if name == "path" || name == "path_skeleton" => {
                 settings.triangles = TriangleSampling::parse(value)?
             }
-            "mis" => settings.mis = MisHeuristic::parse(value)?,
+            "mis" => settings.mis = Some(MisHeuristic::parse(value)?),
             "env" => settings.env = EnvStrategy::parse(value)?,
             "samples" if name == "env_direct" => settings.env_samples = count()?,
             "bsdf" if name == "env_direct" => settings.env_bsdf_samples = count()?,
@@ -379,8 +383,8 @@ pub fn parse_spec(
 pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
     let (name, settings) = parse_spec(spec, settings)?;
     crate::limits::check_max_depth("max_depth", settings.max_depth)?;
-    if NAMES.contains(&name) {
-        settings.mis.check_supported(name)?;
+    if let (true, Some(mis)) = (NAMES.contains(&name), settings.mis) {
+        mis.check_supported(name)?;
     }
     match name {
         "env_direct" => Ok(Box::new(EnvDirect::new(settings)?)),
