@@ -60,7 +60,7 @@ fn main() {
     };
     for spec in args[7].split(',') {
         let mut integrator = integrator::create(spec, IntegratorSettings::default()).unwrap();
-        prepare(integrator.as_mut(), &scene, None, &|_, _| true).unwrap();
+        prepare(integrator.as_mut(), &scene, &camera, None, &|_, _| true).unwrap();
         let integrator = integrator.as_ref();
         // One sample: its radiance, with vertex records when `record`.
         let trace = |pixel: u64, s: u32, record: bool| -> Rgb {

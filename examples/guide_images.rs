@@ -114,7 +114,7 @@ fn main() {
         .camera()
         .expect("scene camera")
         .frame(width as f32 / height as f32);
-    let guide = SkeletonGuide::build(&scene, &settings, &|_, _| true).unwrap();
+    let guide = SkeletonGuide::build(&scene, scene.camera(), &settings, &|_, _| true).unwrap();
     let g = guide.grid();
     println!(
         "grid {:?} voxel {:.4}; {} nodes, {} guided; {} importance nodes kept of {} found; {:.3} s",

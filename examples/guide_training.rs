@@ -33,7 +33,7 @@ fn main() {
         let (key, value) = option.split_once('=').expect("OPTION=VALUE");
         settings.set(key, value).unwrap();
     }
-    let guide = SkeletonGuide::build(&scene, &settings, &|_, _| true).unwrap();
+    let guide = SkeletonGuide::build(&scene, scene.camera(), &settings, &|_, _| true).unwrap();
     let t = guide.training().expect("a training pass");
     println!(
         "# {} nodes, {} training paths, {:.3} s precomputation",

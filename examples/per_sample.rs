@@ -89,7 +89,7 @@ fn main() {
             ..Default::default()
         };
         let mut integrator = integrator::create(spec, settings).unwrap();
-        prepare(integrator.as_mut(), &scene, None, &|_, _| true).unwrap();
+        prepare(integrator.as_mut(), &scene, &camera, None, &|_, _| true).unwrap();
         let (mut mae2, mut rmse2, mut mae, mut cpu) = (vec![], vec![], vec![], vec![]);
         for seed in 0..seeds {
             let rs = RenderSettings {

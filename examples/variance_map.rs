@@ -53,12 +53,12 @@ fn main() {
         let mut integrator = integrator::create(spec, settings).unwrap();
         let first_guided = name == "path_skeleton" && guided_first.is_none();
         if !first_guided {
-            prepare(integrator.as_mut(), &scene, None, &|_, _| true).unwrap();
+            prepare(integrator.as_mut(), &scene, &camera, None, &|_, _| true).unwrap();
         } else {
             // The first guided spec renders with the instance whose guide the region map and
             // tables below read (one precomputation, not two).
             let mut pt = PathTracer::skeleton_guided(parsed).unwrap();
-            prepare(&mut pt, &scene, None, &|_, _| true).unwrap();
+            prepare(&mut pt, &scene, &camera, None, &|_, _| true).unwrap();
             let guide = pt.guide().unwrap().clone();
             integrator = Box::new(pt);
             let frame = camera.frame(width as f32 / height as f32);

@@ -9,6 +9,16 @@
  * - Shared objects (context, scene, film) are refcounted with _retain/_release; single-owner
  *   objects (scene builder, mesh, render job) use _new/_free. Releasing or freeing NULL is a
  *   no-op. Objects keep the objects they were made from alive.
+ * - Undefined behaviour: releasing or freeing an object more often than it was created and
+ *   retained, and any use of an object after its last release or its free, as with free() in
+ *   C. Lacuna cannot tell such a pointer from a live one in general; the one case it catches
+ *   is a scene builder used, built or freed again after lacuna_scene_builder_build or
+ *   lacuna_scene_builder_free (LACUNA_STATUS_INVALID_OPERATION), unless a newer builder
+ *   reuses its address.
+ * - Limits (docs/limits.md) are the same as the lacuna command's: LACUNA_MAX_THREADS,
+ *   LACUNA_MAX_DEPTH_LIMIT, LACUNA_MAX_LIGHT_PATHS, films up to 65536 pixels a side within
+ *   the context's memory budget (never more than the machine's physical memory), and files
+ *   whose headers claim more than the budget are refused before any pixel is read.
  * - Buffers are (pointer, byte stride, count); a stride of 0 means packed, a count of 0
  *   accepts NULL. Input data is copied. Enumerations are passed as uint32_t and validated.
  * - Each type's documentation states its thread-safety contract.
@@ -59,6 +69,32 @@
 
 // Largest number of light subpaths per iteration accepted.
 #define LACUNA_MAX_LIGHT_PATHS (1 << 28)
+
+// `lacuna_light_query.flags`: the host's BSDF transmits (glass, leaves), so light may arrive
+// from both sides: the environment map's per-normal face balancing is then not used (the
+// faces are balanced by power, as for an unknown normal). Light sampling otherwise does not
+// depend on the BSDF.
+#define LACUNA_LIGHT_QUERY_TRANSMISSIVE 1
+
+// `lacuna_light_sample.flags`: the light is a delta light (point, spot, directional): no BSDF
+// sample can find it, weight the sample 1 and do not MIS it.
+#define LACUNA_LIGHT_SAMPLE_DELTA 1
+
+// `lacuna_light_sample.flags`: the light is at infinity (directional, environment):
+// `distance` is +infinity and the shadow ray is unbounded.
+#define LACUNA_LIGHT_SAMPLE_INFINITE 2
+
+// `lacuna_emission_sample.flags`: the origin is a single point (point and spot lights):
+// `pdf_position` is 1 and no camera path can hit it.
+#define LACUNA_EMISSION_DELTA_POSITION 1
+
+// `lacuna_emission_sample.flags`: the direction is fixed (directional lights):
+// `pdf_direction` is 1.
+#define LACUNA_EMISSION_DELTA_DIRECTION 2
+
+// `lacuna_emission_sample.flags`: light from infinity (directional, environment): the origin
+// is on a disk of the scene's bounding sphere, `pdf_position` per unit area of that disk.
+#define LACUNA_EMISSION_INFINITE 4
 
 // Thin on the calling thread only (the result is identical; default: the context's workers).
 #define LACUNA_SKELETON_SEQUENTIAL 1
@@ -348,6 +384,47 @@ typedef uint32_t lacuna_up_axis;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
+// How light sampling picks points of emissive triangles (`lacuna_light_sampler_new`).
+enum lacuna_triangle_strategy
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    // Uniformly by area (the default of `lacuna render`).
+    LACUNA_TRIANGLE_STRATEGY_AREA = 0,
+    // Uniformly in the solid angle the triangle subtends (by area where that construction is
+    // unreliable: tiny or nearly hemispherical solid angles).
+    LACUNA_TRIANGLE_STRATEGY_SOLID_ANGLE = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum lacuna_triangle_strategy lacuna_triangle_strategy;
+#else
+typedef uint32_t lacuna_triangle_strategy;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+// Kinds of lights (`lacuna_light_info.kind`).
+enum lacuna_light_kind
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    // One emissive triangle (emitting on its front side).
+    LACUNA_LIGHT_KIND_AREA = 0,
+    LACUNA_LIGHT_KIND_POINT = 1,
+    LACUNA_LIGHT_KIND_SPOT = 2,
+    LACUNA_LIGHT_KIND_DIRECTIONAL = 3,
+    LACUNA_LIGHT_KIND_ENVIRONMENT = 4,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum lacuna_light_kind lacuna_light_kind;
+#else
+typedef uint32_t lacuna_light_kind;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
 // The analysed empty space of a scene.
 //
 // Refcounted (`lacuna_analysis_retain`/`lacuna_analysis_release`); keeps its scene alive.
@@ -384,6 +461,38 @@ typedef struct lacuna_film lacuna_film;
 // Single owner (`lacuna_guide_query_new`/`lacuna_guide_query_free`); keeps its guide alive.
 // Not thread-safe: give each worker thread its own query and reuse it from point to point.
 typedef struct lacuna_guide_query lacuna_guide_query;
+
+// Lacuna's light sampling over the lights of a committed scene (emissive triangles, point,
+// spot and directional lights, the environment map), for a host that shades its own
+// surfaces. Light ids are indices in `[0, light_count)`: one per emissive triangle, one per
+// point, spot or directional light, and one for the environment map
+// (`lacuna_light_sampler_get_info`, `lacuna_light_sampler_get_light_info`).
+//
+// Refcounted (`lacuna_light_sampler_retain`/`lacuna_light_sampler_release`); it keeps its
+// scene alive. Immutable once made, so thread-safe: every function taking a
+// `const lacuna_light_sampler*` may be called from any number of threads at once, and none
+// allocates memory on success.
+//
+// ## Combining with the host's BSDF sampling (multiple importance sampling)
+// All densities are per unit **solid angle at the receiver** and **include the probability of
+// having picked the light** (`selection_probability`, by power). At a non-delta vertex a host
+// takes two samples and weights each by the power heuristic
+// `w(a, b) = a^2 / (a^2 + b^2)` (or balance, `a / (a + b)`):
+// - light sample `s` (`lacuna_light_sampler_sample`): unless `s.light` is
+//   `LACUNA_INVALID_INDEX` or the shadow ray is blocked, add
+//   `f(wo, s.direction) |cos| s.radiance w(s.pdf, p_bsdf(s.direction)) / s.pdf`, where
+//   `p_bsdf` is the host BSDF's solid-angle density of that direction; for a
+//   `LACUNA_LIGHT_SAMPLE_DELTA` sample (point, spot, directional light) the weight is 1 (no
+//   BSDF sample can hit it) and `s.pdf` is just the selection probability.
+// - BSDF sample `wi` with density `p_bsdf`: if the ray hits an emissive triangle (its light
+//   from `lacuna_light_sampler_get_triangle_light`) or escapes to the environment
+//   (`environment_light`, distance +infinity), `lacuna_light_sampler_eval` gives the emitted
+//   radiance `L` and the density `p_light` light sampling has for that direction from the same
+//   query; add `f |cos| L w(p_bsdf, p_light) / p_bsdf` (weight 1 after a delta BSDF lobe).
+//
+// The query (position, normal, flags) of `eval` must be the one the vertex used to sample, so
+// that both densities describe the same estimator.
+typedef struct lacuna_light_sampler lacuna_light_sampler;
 
 // A triangle mesh description: positions, optional normals and uvs, triangle indices and
 // material indices, each copied from the host's buffers when set (the host's buffers may be
@@ -547,6 +656,132 @@ typedef struct lacuna_skeleton_guide_info {
     double seconds;
 } lacuna_skeleton_guide_info;
 
+// A shading point asking for light. The layout (36 bytes, 4-byte aligned) never changes with
+// build options; fill it with `lacuna_light_query_init` then set the fields.
+typedef struct lacuna_light_query {
+    // The receiving point (finite).
+    float position[3];
+    // `LACUNA_LIGHT_QUERY_*` bits; others must be 0.
+    uint32_t flags;
+    // The shading normal on the side of the outgoing direction (finite; need not be unit
+    // length), or zero when unknown. The environment map's per-normal cube-face balancing
+    // uses it; other lights ignore it.
+    float normal[3];
+    // Two random numbers in [0, 1) for the sample calls (ignored by `eval`): the first picks
+    // the light and, rescaled within the chosen light's share, the first coordinate of the
+    // point on it, so a stratified pair stays stratified over each light.
+    float u[2];
+} lacuna_light_query;
+
+// What a light sampler covers (`lacuna_light_sampler_get_info`).
+typedef struct lacuna_light_sampler_info {
+    // Number of lights (ids are `0..light_count`).
+    uint32_t light_count;
+    // Id of the environment map, or `LACUNA_INVALID_INDEX`.
+    uint32_t environment_light;
+    // Number of emissive triangles (area lights).
+    uint32_t area_light_count;
+    // The `lacuna_triangle_strategy` and `lacuna_environment_strategy` it was made with.
+    uint32_t triangle_strategy;
+    uint32_t environment_strategy;
+    // Sum of the lights' powers (luminance, W).
+    float total_power;
+} lacuna_light_sampler_info;
+
+// One light (`lacuna_light_sampler_get_light_info`).
+typedef struct lacuna_light_info {
+    // A `lacuna_light_kind` value.
+    uint32_t kind;
+    // Global triangle index of an area light, else `LACUNA_INVALID_INDEX`.
+    uint32_t triangle;
+    // Emitted power (luminance, W), what light selection is proportional to.
+    float power;
+    // Probability that light sampling and emission sampling pick this light.
+    float selection_probability;
+} lacuna_light_info;
+
+// One light sample seen from a query's position (`lacuna_light_sampler_sample`). The layout
+// (72 bytes, 4-byte aligned) never changes with build options. When no light could be
+// sampled (no lights, the receiver behind the chosen emitter, a zero-probability direction)
+// `light` is `LACUNA_INVALID_INDEX` and `pdf` and `radiance` are 0: the sample contributes
+// nothing (it still counts as a sample).
+typedef struct lacuna_light_sample {
+    // Unit direction from the receiver towards the light.
+    float direction[3];
+    // Distance to the point on the light (+infinity for lights at infinity).
+    float distance;
+    // Incident radiance along `direction` (for delta lights, the value whose ratio to `pdf`
+    // is the contribution: intensity / distance^2 for point and spot lights, irradiance for
+    // directional ones).
+    struct lacuna_rgb radiance;
+    // Solid-angle density of this direction, selection probability included (for delta
+    // lights, the selection probability alone).
+    float pdf;
+    // The point on the light (the receiver for lights at infinity), for the shadow ray.
+    float point[3];
+    // Probability of having picked this light (part of `pdf`).
+    float selection_probability;
+    // The light's normal at `point` (area lights), or the direction light travels.
+    float light_normal[3];
+    // The light's id, or `LACUNA_INVALID_INDEX` for no sample.
+    uint32_t light;
+    // Bound on the floating-point error of `point` (zero off triangles), for offsetting the
+    // shadow ray's end (`lacuna_surface_spawn_shadow_ray` does it).
+    float point_error[3];
+    // `LACUNA_LIGHT_SAMPLE_*` bits.
+    uint32_t flags;
+} lacuna_light_sample;
+
+// Where a host's own ray met a light (`lacuna_light_sampler_eval`): the light's id, the
+// direction of the ray (finite, non-zero) and the distance along the unit direction to the
+// point on the light (finite and > 0 for emissive triangles; ignored, typically +infinity,
+// for the environment). The point must lie on that light (where the host's ray met it): the
+// solid-angle strategy's density does not depend on the point and is not checked against it.
+typedef struct lacuna_light_hit {
+    uint32_t light;
+    float direction[3];
+    float distance;
+} lacuna_light_hit;
+
+// The radiance a light sends along a host's ray and the density light sampling gives that
+// direction (`lacuna_light_sampler_eval`).
+typedef struct lacuna_light_eval {
+    // Radiance arriving along the ray from the light (zero from the back of a triangle and
+    // from delta lights).
+    struct lacuna_rgb radiance;
+    // Solid-angle density `lacuna_light_sampler_sample` has of producing this direction at
+    // this light from the same query, selection probability included; 0 for delta lights.
+    float pdf;
+    // Probability of picking this light.
+    float selection_probability;
+} lacuna_light_eval;
+
+// A ray of light leaving a light, to start a light path (`lacuna_light_sampler_sample_emission`).
+// The layout (64 bytes, 4-byte aligned) never changes with build options. The light path's
+// initial throughput (flux weight) is
+// `power / (selection_probability * pdf_position * pdf_direction)`. With no lights, `light` is
+// `LACUNA_INVALID_INDEX` and the densities and power are 0.
+typedef struct lacuna_emission_sample {
+    float origin[3];
+    // The light's id, or `LACUNA_INVALID_INDEX`.
+    uint32_t light;
+    // Unit direction the light travels.
+    float direction[3];
+    // `LACUNA_EMISSION_*` bits.
+    uint32_t flags;
+    // The light's normal at the origin (area lights), or the direction.
+    float normal[3];
+    // Density of the origin per unit area (1 for delta positions).
+    float pdf_position;
+    // Emitted radiance times the cosine at the light (area lights, environment: radiance),
+    // intensity (point, spot) or irradiance (directional).
+    struct lacuna_rgb power;
+    // Density of the direction per unit solid angle (1 for a delta direction).
+    float pdf_direction;
+    // Probability of having picked this light.
+    float selection_probability;
+} lacuna_emission_sample;
+
 // A ray for the scene queries. The layout (32 bytes, 4-byte aligned) never changes with build
 // options. Fill it with `lacuna_ray_init()` then set the fields.
 //
@@ -640,6 +875,61 @@ typedef struct lacuna_skeleton_node {
     // For a raw node: the filtered node it belongs to; for a filtered node: its own index.
     uint32_t filtered;
 } lacuna_skeleton_node;
+
+// A surface point and its material, resolved at a hit (`lacuna_scene_get_surface`). The
+// layout (116 bytes, 4-byte aligned) never changes with build options.
+//
+// Materials follow Lacuna's conventions (docs/scene-format.md): BSDFs are two-sided (they
+// reflect on the side of the outgoing direction); DIFFUSE is Lambertian `diffuse / pi`;
+// GLOSSY is the modified Phong `diffuse / pi + specular (exponent + 2) / (2 pi)
+// cos^exponent(alpha)` with alpha the angle between the incident direction and the mirror
+// direction of the outgoing one (zero beyond 90 degrees); MIRROR reflects `specular`;
+// DIELECTRIC is smooth glass of index `ior`. `emission` is emitted on the geometric normal's
+// side only.
+typedef struct lacuna_surface {
+    float position[3];
+    // Global triangle index.
+    uint32_t triangle;
+    // Bound on the floating-point error of `position`, per axis.
+    float position_error[3];
+    // Material index.
+    uint32_t material;
+    // Unit geometric normal on the triangle's front side.
+    float geometric_normal[3];
+    // A `lacuna_material_kind` value.
+    uint32_t kind;
+    // Unit shading normal (interpolated vertex normals, else the geometric normal), on the
+    // same side as the geometric normal.
+    float shading_normal[3];
+    // Phong exponent (GLOSSY).
+    float exponent;
+    // Texture coordinates (the barycentrics u, v without texture coordinates).
+    float uv[2];
+    // Index of refraction (DIELECTRIC).
+    float ior;
+    // Diffuse albedo with the texture applied.
+    struct lacuna_rgb diffuse;
+    // Specular reflectance (GLOSSY, MIRROR).
+    struct lacuna_rgb specular;
+    // Emitted radiance on the front side.
+    struct lacuna_rgb emission;
+} lacuna_surface;
+
+// The scene's camera (`lacuna_scene_get_camera`): a look-at placement with a vertical field
+// of view, and a thin lens when `lens_radius > 0`. Camera rays through film position
+// (fx, fy) in [0, 1)^2 (x right, y down) of a W x H image: `forward = normalize(target - eye)`,
+// `right = normalize(cross(forward, up))`, `up' = cross(right, forward)`,
+// `t = tan(vfov / 2)`, direction
+// `normalize(forward + right t (W / H) (2 fx - 1) + up' t (1 - 2 fy))` from `eye`.
+typedef struct lacuna_camera {
+    float eye[3];
+    // Vertical field of view, degrees.
+    float vfov_degrees;
+    float target[3];
+    float lens_radius;
+    float up[3];
+    float focus_distance;
+} lacuna_camera;
 
 #ifdef __cplusplus
 extern "C" {
@@ -747,7 +1037,8 @@ lacuna_status lacuna_scene_builder_new_from_file(const struct lacuna_context *co
                                                  const char *path,
                                                  struct lacuna_scene_builder **out_builder);
 
-// Frees a builder that was not built. NULL is a no-op.
+// Frees a builder that was not built. NULL is a no-op. A builder that was already built or
+// freed is left alone (the failure is recorded for `lacuna_last_error_message()`).
 void lacuna_scene_builder_free(struct lacuna_scene_builder *builder);
 
 // Sets what the builder does with zero-area triangles added afterwards: a
@@ -849,7 +1140,8 @@ lacuna_status lacuna_scene_builder_load_obj(struct lacuna_scene_builder *builder
 // sampler, and writes the committed scene (reference count 1) to `*out_scene`.
 //
 // Consumes the builder whether or not the build succeeds (unless `builder` is NULL): do not
-// use or free it afterwards.
+// use or free it afterwards. Building (or using, or freeing) a builder that was already built
+// is caught and fails with `LACUNA_STATUS_INVALID_OPERATION`.
 lacuna_status lacuna_scene_builder_build(struct lacuna_scene_builder *builder,
                                          struct lacuna_scene **out_scene);
 
@@ -915,7 +1207,10 @@ lacuna_status lacuna_context_set_error_callback(const struct lacuna_context *con
 // lat-long map or a 4:3 horizontal cross. NaN or infinite texels are an error
 // (`LACUNA_STATUS_PARSE`, naming the texel); negative ones are clamped to zero and counted
 // (`lacuna_environment_info.clamped_values`). Scale 1, no rotation, Y up, visible.
-// `LACUNA_STATUS_IO` when the file cannot be read. Thread-safe.
+// `LACUNA_STATUS_IO` when the file cannot be read. A file whose header claims more than
+// 2^28 texels is `LACUNA_STATUS_PARSE`, and one needing more than `LACUNA_DEFAULT_MEMORY_BUDGET`
+// (or physical memory) `LACUNA_STATUS_OVER_BUDGET`, both before any pixel is read.
+// Thread-safe.
 lacuna_status lacuna_environment_new_from_file(const char *path,
                                                struct lacuna_environment **out_env);
 
@@ -1290,6 +1585,122 @@ lacuna_status lacuna_render_job_take_partial_film(struct lacuna_render_job *job,
 lacuna_status lacuna_render_job_get_stats(const struct lacuna_render_job *job,
                                           struct lacuna_render_stats *out_stats);
 
+// Fills `*query` with defaults: position and normal 0 (normal unknown), flags 0, u = (0, 0).
+// NULL is a no-op. Thread-safe.
+void lacuna_light_query_init(struct lacuna_light_query *query);
+
+// Makes a light sampler over the lights of `scene` (which it keeps alive), picking points of
+// emissive triangles by `triangle_strategy` (a `lacuna_triangle_strategy` value) and
+// environment directions by `environment_strategy` (a `lacuna_environment_strategy` value;
+// `LACUNA_ENVIRONMENT_STRATEGY_BSDF` never samples the map, which BSDF sampling must then
+// find). Builds the environment map's sampling structures now, so that no later call
+// allocates. Writes the sampler (reference count 1) to `*out_sampler`. Thread-safe.
+lacuna_status lacuna_light_sampler_new(const struct lacuna_scene *scene,
+                                       uint32_t triangle_strategy,
+                                       uint32_t environment_strategy,
+                                       struct lacuna_light_sampler **out_sampler);
+
+// Adds a reference to `sampler`. NULL is a no-op. Thread-safe.
+void lacuna_light_sampler_retain(const struct lacuna_light_sampler *sampler);
+
+// Drops a reference to `sampler`; the last one destroys it. NULL is a no-op. Thread-safe.
+void lacuna_light_sampler_release(const struct lacuna_light_sampler *sampler);
+
+// Writes what the sampler covers (light count, the environment's id, strategies, total power)
+// to `*out_info`. Thread-safe.
+lacuna_status lacuna_light_sampler_get_info(const struct lacuna_light_sampler *sampler,
+                                            struct lacuna_light_sampler_info *out_info);
+
+// Writes light `light`'s kind, triangle, power and selection probability to `*out_info`.
+// `LACUNA_STATUS_OUT_OF_RANGE` unless `light < light_count`. Thread-safe.
+lacuna_status lacuna_light_sampler_get_light_info(const struct lacuna_light_sampler *sampler,
+                                                  uint32_t light,
+                                                  struct lacuna_light_info *out_info);
+
+// Writes the id of the light global triangle `triangle` belongs to (`lacuna_hit.triangle`) to
+// `*out_light`, or `LACUNA_INVALID_INDEX` when it does not emit. `LACUNA_STATUS_OUT_OF_RANGE`
+// unless `triangle` is below the scene's triangle count. Thread-safe.
+lacuna_status lacuna_light_sampler_get_triangle_light(const struct lacuna_light_sampler *sampler,
+                                                      uint32_t triangle,
+                                                      uint32_t *out_light);
+
+// Samples one light for the shading point `*query` (position, normal, flags, and its two
+// random numbers `u`) and writes the sample to `*out_sample` (see `lacuna_light_sample` for
+// "no sample"). The shadow ray is the host's (or `lacuna_surface_spawn_shadow_ray`).
+// Errors: NULL pointers, non-finite position or normal (`LACUNA_STATUS_INVALID_ARGUMENT`),
+// unknown flags, `u` outside [0, 1) (`LACUNA_STATUS_OUT_OF_RANGE`). Thread-safe; does not
+// allocate.
+lacuna_status lacuna_light_sampler_sample(const struct lacuna_light_sampler *sampler,
+                                          const struct lacuna_light_query *query,
+                                          struct lacuna_light_sample *out_sample);
+
+// The radiance light `hit->light` sends along the host's ray (from the query's position in
+// direction `hit->direction`, meeting the light at `hit->distance`) and the solid-angle
+// density `lacuna_light_sampler_sample` gives that direction from the same query, selection
+// probability included: the light-sampling density for the MIS weight of a BSDF-sampled ray
+// that hit an emitter or escaped to the environment. The query's `u` is ignored. Written to
+// `*out_eval`. Errors: NULL pointers, a light id out of range, non-finite or zero direction,
+// a distance to a triangle that is not finite and positive. Thread-safe; does not allocate.
+lacuna_status lacuna_light_sampler_eval(const struct lacuna_light_sampler *sampler,
+                                        const struct lacuna_light_query *query,
+                                        const struct lacuna_light_hit *hit,
+                                        struct lacuna_light_eval *out_eval);
+
+// Samples a ray of light leaving a light, for light tracing: the light is picked by power
+// with `u[0]` (rescaled, it also picks the origin with `u[1]`), the direction with
+// `u[2], u[3]`. `u` points to 4 floats in [0, 1). Written to `*out_sample`. Thread-safe; does
+// not allocate.
+lacuna_status lacuna_light_sampler_sample_emission(const struct lacuna_light_sampler *sampler,
+                                                   const float *u,
+                                                   struct lacuna_emission_sample *out_sample);
+
+// The densities `lacuna_light_sampler_sample_emission` has of light `light` emitting in unit
+// direction `direction` (finite, non-zero): the origin's per unit area and the direction's per
+// unit solid angle (as in `lacuna_emission_sample`), without the selection probability
+// (`lacuna_light_sampler_get_light_info`). Written to `*out_pdf_position` and
+// `*out_pdf_direction`. Thread-safe; does not allocate.
+lacuna_status lacuna_light_sampler_emission_pdf(const struct lacuna_light_sampler *sampler,
+                                                uint32_t light,
+                                                struct lacuna_vec3 direction,
+                                                float *out_pdf_position,
+                                                float *out_pdf_direction);
+
+// `lacuna_light_sampler_sample` for `count` queries found every `query_stride` bytes from
+// `queries` (0 = packed), samples written every `sample_stride` bytes to `out_samples`
+// (0 = packed). Every query is checked before any sample is written; on failure nothing is
+// written and the message names the first bad element. A count of 0 accepts NULL arrays.
+// Runs on the calling thread (call it from several threads to parallelise); thread-safe;
+// does not allocate.
+lacuna_status lacuna_light_sampler_sample_batch(const struct lacuna_light_sampler *sampler,
+                                                const struct lacuna_light_query *queries,
+                                                size_t query_stride,
+                                                size_t count,
+                                                struct lacuna_light_sample *out_samples,
+                                                size_t sample_stride);
+
+// `lacuna_light_sampler_eval` for `count` (query, hit) pairs from strided arrays (0 = packed),
+// results written every `eval_stride` bytes to `out_evals`. Every element is checked before
+// any result is written. Runs on the calling thread; thread-safe; does not allocate.
+lacuna_status lacuna_light_sampler_eval_batch(const struct lacuna_light_sampler *sampler,
+                                              const struct lacuna_light_query *queries,
+                                              size_t query_stride,
+                                              const struct lacuna_light_hit *hits,
+                                              size_t hit_stride,
+                                              size_t count,
+                                              struct lacuna_light_eval *out_evals,
+                                              size_t eval_stride);
+
+// `lacuna_light_sampler_sample_emission` for `count` sets of 4 random numbers found every
+// `u_stride` bytes from `u` (0 = packed, 16 bytes), samples written every `sample_stride`
+// bytes to `out_samples`. Every number is checked before any sample is written. Runs on the
+// calling thread; thread-safe; does not allocate.
+lacuna_status lacuna_light_sampler_sample_emission_batch(const struct lacuna_light_sampler *sampler,
+                                                         const float *u,
+                                                         size_t u_stride,
+                                                         size_t count,
+                                                         struct lacuna_emission_sample *out_samples,
+                                                         size_t sample_stride);
+
 // Creates an empty mesh description (no triangles, material 0). Thread-safe.
 lacuna_status lacuna_mesh_new(struct lacuna_mesh **out_mesh);
 
@@ -1453,6 +1864,44 @@ lacuna_status lacuna_skeleton_export(const struct lacuna_skeleton *skeleton,
                                      uint32_t graph,
                                      uint32_t format,
                                      const char *path);
+
+// Writes the surface point and the material at `*hit` (from `lacuna_scene_intersect` on this
+// scene) to `*out_surface`: position with its error bound, normals, uv, and the material's
+// parameters with textures applied. `LACUNA_STATUS_OUT_OF_RANGE` for a miss or a triangle
+// index out of range, `LACUNA_STATUS_INVALID_ARGUMENT` for barycentrics outside the
+// triangle. Thread-safe.
+lacuna_status lacuna_scene_get_surface(const struct lacuna_scene *scene,
+                                       const struct lacuna_hit *hit,
+                                       struct lacuna_surface *out_surface);
+
+// Writes the scene's camera (from its scene file, the built-in scene, or
+// `lacuna_scene_builder_set_camera`) to `*out_camera`. `LACUNA_STATUS_INVALID_OPERATION` when
+// the scene has none. Thread-safe.
+lacuna_status lacuna_scene_get_camera(const struct lacuna_scene *scene,
+                                      struct lacuna_camera *out_camera);
+
+// Writes the ray leaving `*surface` in `direction` (finite, non-zero), its origin moved off
+// the surface by the position's error bound on the side `direction` goes to, tmax = +infinity,
+// to `*out_ray`. Thread-safe.
+lacuna_status lacuna_surface_spawn_ray(const struct lacuna_surface *surface,
+                                       struct lacuna_vec3 direction,
+                                       struct lacuna_ray *out_ray);
+
+// Writes the shadow ray from `*surface` to the light point of `*sample` (a sample with a
+// light, from a query at this surface) to `*out_ray`: both ends moved off their surfaces by
+// their error bounds and the far end short by a relative 1e-4, or an unbounded ray for lights
+// at infinity. `lacuna_scene_occluded` on it tells whether the light is visible.
+// `LACUNA_STATUS_INVALID_ARGUMENT` for a sample without a light. Thread-safe.
+lacuna_status lacuna_surface_spawn_shadow_ray(const struct lacuna_surface *surface,
+                                              const struct lacuna_light_sample *sample,
+                                              struct lacuna_ray *out_ray);
+
+// Creates a scene builder filled with one of Lacuna's built-in scenes (camera included), as
+// `lacuna render` names them: `"two-rooms"` (two rooms joined by a doorway, lit from the far
+// one) or `"corridor"`. `LACUNA_STATUS_INVALID_ARGUMENT` for another name. Thread-safe.
+lacuna_status lacuna_scene_builder_new_builtin(const struct lacuna_context *context,
+                                               const char *name,
+                                               struct lacuna_scene_builder **out_builder);
 
 // The library's version packed as `LACUNA_VERSION` is (`major << 16 | minor << 8 | patch`).
 // Compare it with `LACUNA_VERSION` to check that the header matches the library. Thread-safe.

@@ -12,6 +12,7 @@ pub mod geometry;
 pub mod guide;
 pub mod integrator;
 pub mod light;
+pub mod limits;
 pub mod math;
 pub mod render;
 pub mod scene;

@@ -9,7 +9,7 @@
 //! start at [`FIRST_INTEGRATOR_DIMENSION`].
 
 use std::cell::Cell;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
@@ -65,12 +65,7 @@ impl Default for RenderSettings {
 
 impl RenderSettings {
     pub fn validate(&self) -> Result<()> {
-        if self.width == 0 || self.height == 0 || self.width > 65536 || self.height > 65536 {
-            return Err(Error::invalid(format!(
-                "image size {}x{} must be within 1..=65536",
-                self.width, self.height
-            )));
-        }
+        crate::limits::check_film_side(self.width, self.height)?;
         if self.spp == 0 {
             return Err(Error::invalid("samples per pixel must be at least 1"));
         }
@@ -84,6 +79,9 @@ impl RenderSettings {
         }
         if self.threads == Some(0) {
             return Err(Error::invalid("thread count must be at least 1"));
+        }
+        if let Some(n) = self.threads {
+            crate::limits::check_threads("thread count", n)?;
         }
         Ok(())
     }
@@ -106,6 +104,8 @@ pub struct RenderStats {
     pub rays: u64,
     pub passes: u32,
     pub cancelled: bool,
+    /// [`TraceCounters::largest_guided_ratio`] over the render's samples.
+    pub largest_guided_ratio: f32,
     /// The integrator's per-scene precomputation before this render ([`prepare`]): not part
     /// of `seconds`; left 0 by `render`, filled in by the caller that ran it.
     pub precompute_seconds: f64,
@@ -148,20 +148,25 @@ pub fn render(
     })
 }
 
-/// Runs the integrator's per-scene precomputation ([`Integrator::prepare`]) on `threads`
-/// worker threads (`None`: all cores), as the render would use them. Cheap for integrators
-/// that need nothing.
+/// Runs the integrator's per-scene precomputation ([`Integrator::prepare`]) for the view of
+/// `camera` (the camera the render will use) on `threads` worker threads (`None`: all cores),
+/// as the render would use them. Cheap for integrators that need nothing.
 pub fn prepare(
     integrator: &mut dyn Integrator,
     scene: &Scene,
+    camera: &Camera,
     threads: Option<usize>,
     progress: &(dyn Fn(&str, f64) -> bool + Sync),
 ) -> Result<Precomputation> {
     if threads == Some(0) {
         return Err(Error::invalid("thread count must be at least 1"));
     }
+    camera.validate()?;
+    if let Some(n) = threads {
+        crate::limits::check_threads("thread count", n)?;
+    }
     let pool = WorkerPool::new(threads, None)?;
-    pool.install(|| integrator.prepare(scene, progress))
+    pool.install(|| integrator.prepare(scene, camera, progress))
 }
 
 /// What an observer learns after each completed pass.
@@ -222,6 +227,8 @@ fn render_in_pool(
     // Time spent in `on_pass`, subtracted from the clock.
     let mut observer_time = Duration::ZERO;
     let rays = AtomicU64::new(0);
+    // Bits of a non-negative f32: their order as integers is the floats' order.
+    let largest_ratio = AtomicU32::new(0);
     let tiles_done = AtomicU64::new(0);
     let mut spp_done = 0u32;
     let mut seconds_per_spp: Option<f64> = None;
@@ -305,6 +312,10 @@ fn render_in_pool(
                         }
                     }
                     rays.fetch_add(counters.rays, Ordering::Relaxed);
+                    largest_ratio.fetch_max(
+                        counters.largest_guided_ratio.max(0.0).to_bits(),
+                        Ordering::Relaxed,
+                    );
                     let done = tiles_done.fetch_add(1, Ordering::Relaxed) + 1;
                     let fraction = match settings.time_limit {
                         Some(limit) => {
@@ -370,6 +381,7 @@ fn render_in_pool(
     stats.spp = spp_done;
     stats.samples = film.total_samples();
     stats.rays = rays.load(Ordering::Relaxed);
+    stats.largest_guided_ratio = f32::from_bits(largest_ratio.load(Ordering::Relaxed));
     progress(Progress {
         fraction: 1.0,
         spp_done,

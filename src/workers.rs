@@ -7,8 +7,26 @@
 //! vanishes under them: CI saw exactly this in the C++ wrapper test under AddressSanitizer. So
 //! every pool Lacuna makes spawns its own threads and joins them on drop.
 
+use std::cell::Cell;
 use std::ops::Deref;
 use std::thread::JoinHandle;
+
+thread_local! {
+    /// Whether a panic on this thread is reported by a caller instead of printed: true inside
+    /// a C API call (the boundary turns the panic into `LACUNA_STATUS_PANIC` and an error
+    /// message; the host's stderr is not Lacuna's) and on the workers of pools made there.
+    static PANICS_REPORTED_BY_CALLER: Cell<bool> = const { Cell::new(false) };
+}
+
+/// See [`PANICS_REPORTED_BY_CALLER`].
+pub(crate) fn panics_reported_by_caller() -> bool {
+    PANICS_REPORTED_BY_CALLER.with(Cell::get)
+}
+
+/// Sets the calling thread's flag (see [`PANICS_REPORTED_BY_CALLER`]); returns the old value.
+pub(crate) fn set_panics_reported_by_caller(on: bool) -> bool {
+    PANICS_REPORTED_BY_CALLER.with(|flag| flag.replace(on))
+}
 
 /// A rayon pool that joins its worker threads when dropped (see the module doc).
 pub struct WorkerPool {
@@ -25,6 +43,8 @@ impl WorkerPool {
         name: Option<&str>,
     ) -> Result<WorkerPool, rayon::ThreadPoolBuildError> {
         let mut handles = Vec::new();
+        // Workers of a pool made inside a C API call panic as quietly as the call itself.
+        let quiet = panics_reported_by_caller();
         let mut builder = rayon::ThreadPoolBuilder::new().num_threads(threads.unwrap_or(0));
         if let Some(name) = name {
             let name = name.to_string();
@@ -39,7 +59,10 @@ impl WorkerPool {
                 if let Some(size) = worker.stack_size() {
                     thread = thread.stack_size(size);
                 }
-                handles.push(thread.spawn(|| worker.run())?);
+                handles.push(thread.spawn(move || {
+                    set_panics_reported_by_caller(quiet);
+                    worker.run()
+                })?);
                 Ok(())
             })
             .build()?;

@@ -8,8 +8,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
+mod common;
+
 /// C test programs besides `test_capi.c`, run the same ways (one program per part of the API).
-const MORE_C_TESTS: &[&str] = &["test_environment"];
+const MORE_C_TESTS: &[&str] = &["test_environment", "test_light_sampler"];
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -404,6 +406,146 @@ fn c_tests_pass_under_valgrind() {
             "test_cpp_vg",
         );
         run_test(&prefix, &cpp, &[], "C++ wrapper tests (valgrind)");
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Reads a little-endian PFM (as examples/c/host_pathtracer.c writes it) into rows from the top.
+fn read_pfm(path: &Path) -> (usize, usize, Vec<[f32; 3]>) {
+    let bytes = std::fs::read(path).unwrap();
+    let mut fields = Vec::new();
+    let mut start = 0;
+    let mut pos = 0;
+    while fields.len() < 4 {
+        if bytes[pos].is_ascii_whitespace() {
+            if pos > start {
+                fields.push(String::from_utf8_lossy(&bytes[start..pos]).into_owned());
+            }
+            start = pos + 1;
+        }
+        pos += 1;
+    }
+    assert_eq!(fields[0], "PF", "{}: not a colour PFM", path.display());
+    let (w, h): (usize, usize) = (fields[1].parse().unwrap(), fields[2].parse().unwrap());
+    assert!(fields[3].starts_with('-'), "PFM must be little-endian");
+    let data = &bytes[pos..];
+    assert_eq!(data.len(), w * h * 12, "{}: wrong size", path.display());
+    let mut pixels = vec![[0.0f32; 3]; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            for c in 0..3 {
+                let i = ((h - 1 - y) * w + x) * 12 + c * 4;
+                pixels[y * w + x][c] = f32::from_le_bytes(data[i..i + 4].try_into().unwrap());
+            }
+        }
+    }
+    (w, h, pixels)
+}
+
+/// Region means (image and quadrants) with standard errors over `seeds` runs of the host path
+/// tracer, as `common::agreement::region_means` computes them for Lacuna's integrators.
+fn host_region_means(
+    exe: &Path,
+    dir: &Path,
+    scene: &str,
+    size: u32,
+    spp: u32,
+    max_depth: u32,
+    seeds: u64,
+) -> Vec<(f64, f64)> {
+    let runs: Vec<[f64; 5]> = (0..seeds)
+        .map(|seed| {
+            let out = dir.join(format!("host-{seed}.pfm"));
+            check(
+                Command::new(exe)
+                    .arg(scene)
+                    .arg(&out)
+                    .args([size, size, spp].map(|v| v.to_string()))
+                    .arg((seed * 7919 + 1).to_string())
+                    .arg(max_depth.to_string())
+                    .arg("2"),
+                "host_pathtracer",
+            );
+            let (w, h, px) = read_pfm(&out);
+            assert_eq!((w, h), (size as usize, size as usize));
+            let mut sums = [0.0f64; 5];
+            let half = size as usize / 2;
+            for y in 0..h {
+                for x in 0..w {
+                    let p = px[y * w + x];
+                    assert!(
+                        p.iter().all(|v| v.is_finite() && *v >= 0.0),
+                        "host pixel {p:?}"
+                    );
+                    let v = (p[0] + p[1] + p[2]) as f64 / 3.0;
+                    sums[0] += v;
+                    sums[1 + y / half * 2 + x / half] += v;
+                }
+            }
+            let n = (w * h) as f64;
+            [
+                sums[0] / n,
+                sums[1] * 4.0 / n,
+                sums[2] * 4.0 / n,
+                sums[3] * 4.0 / n,
+                sums[4] * 4.0 / n,
+            ]
+        })
+        .collect();
+    (0..5)
+        .map(|k| {
+            let n = runs.len() as f64;
+            let mean = runs.iter().map(|r| r[k]).sum::<f64>() / n;
+            let var = runs.iter().map(|r| (r[k] - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            (mean, (var / n).sqrt())
+        })
+        .collect()
+}
+
+/// examples/c/host_pathtracer.c (materials shaded by the host, light sampling and MIS
+/// densities from `lacuna_light_sampler`) estimates the same image as Lacuna's `path`
+/// integrator (`lacuna render --integrator path`): z-tests of the image and quadrant means over
+/// 8 seeds each, on the Cornell box and the built-in two-room scene.
+#[test]
+fn host_path_tracer_agrees_with_lacuna_render() {
+    use lacuna::integrator::IntegratorSettings;
+    let out = scratch("host-pathtracer");
+    let exe = compile(
+        "examples/c/host_pathtracer.c",
+        Link::Shared,
+        &["-O2"],
+        &out,
+        "host_pathtracer",
+    );
+    let cornell = root().join("scenes/cornell-box/cornell-box.json");
+    let cases: [(&str, lacuna::scene::Scene, u32, u32, u32); 2] = [
+        (
+            cornell.to_str().unwrap(),
+            common::agreement::load_scene("scenes/cornell-box/cornell-box.json"),
+            24,
+            16,
+            8,
+        ),
+        (
+            "two-rooms",
+            lacuna::scene::two_rooms_builder().unwrap().build().unwrap(),
+            20,
+            16,
+            6,
+        ),
+    ];
+    for (name, scene, size, spp, max_depth) in &cases {
+        let camera = *scene.camera().unwrap();
+        let settings = IntegratorSettings {
+            max_depth: *max_depth,
+            ..Default::default()
+        };
+        let lacuna =
+            common::agreement::region_means(scene, &camera, "path", settings, *size, *spp, 8);
+        let host = host_region_means(&exe, &out, name, *size, *spp, *max_depth, 8);
+        println!("{name}: lacuna {lacuna:?}\n  host {host:?}");
+        assert!(host[0].0 > 0.0, "{name}: black host image");
+        common::agreement::assert_agree(name, ("lacuna path", &lacuna), ("host", &host));
     }
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -169,7 +169,7 @@ fn build(scene: &Scene, settings: &SkeletonGuideSettings, threads: usize) -> Ske
         .num_threads(threads)
         .build()
         .unwrap()
-        .install(|| SkeletonGuide::build(scene, settings, &|_, _| true).unwrap())
+        .install(|| SkeletonGuide::build(scene, scene.camera(), settings, &|_, _| true).unwrap())
 }
 
 /// `directions=learned` is the default (round 15); the lobe options `lobe_weights=learned`
@@ -244,11 +244,15 @@ fn options_parse_and_exclude_the_lobe_options() {
 #[test]
 fn ratio_max_parses_and_validates() {
     let s = SkeletonGuideSettings::default();
-    assert_eq!(s.ratio_max, f32::INFINITY, "off by default");
-    assert_eq!(settings(&[("ratio_max", "2.5")]).ratio_max, 2.5);
+    assert_eq!(s.ratio_max, None, "auto by default");
+    assert_eq!(settings(&[("ratio_max", "2.5")]).ratio_max, Some(2.5));
     assert_eq!(
         settings(&[("ratio_max", "2"), ("ratio_max", "off")]).ratio_max,
-        f32::INFINITY
+        Some(f32::INFINITY)
+    );
+    assert_eq!(
+        settings(&[("ratio_max", "2"), ("ratio_max", "auto")]).ratio_max,
+        None
     );
     let mut s = SkeletonGuideSettings::default();
     for bad in ["1", "0.5", "0", "-3", "nan", "x"] {

@@ -54,7 +54,7 @@ fn build(scene: &Scene, settings: &SkeletonGuideSettings, threads: usize) -> Ske
         .num_threads(threads)
         .build()
         .unwrap()
-        .install(|| SkeletonGuide::build(scene, settings, &|_, _| true).unwrap())
+        .install(|| SkeletonGuide::build(scene, scene.camera(), settings, &|_, _| true).unwrap())
 }
 
 /// Random surface points (position, error, geometric normal, incident direction).

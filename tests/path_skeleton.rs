@@ -193,7 +193,7 @@ fn fixed() -> SkeletonGuideSettings {
 }
 
 fn guide_of(scene: &Scene, settings: SkeletonGuideSettings) -> SkeletonGuide {
-    SkeletonGuide::build(scene, &settings, &|_, _| true).unwrap()
+    SkeletonGuide::build(scene, scene.camera(), &settings, &|_, _| true).unwrap()
 }
 
 /// Random surface points of a scene with their geometric normal and a random incident
@@ -869,25 +869,34 @@ fn rendering_needs_the_precomputation_for_the_same_scene() {
     };
     let err = err.to_string();
     assert!(err.contains("prepare"), "{err}");
-    prepare(skel.as_mut(), &rooms, Some(1), &|_, _| true).unwrap();
+    prepare(
+        skel.as_mut(),
+        &rooms,
+        rooms.camera().unwrap(),
+        Some(1),
+        &|_, _| true,
+    )
+    .unwrap();
     let Err(err) = run(skel.as_ref()) else {
         panic!("rendered with another scene's guide")
     };
     let err = err.to_string();
     assert!(err.contains("another scene"), "{err}");
-    let pre = prepare(skel.as_mut(), &cornell, Some(2), &|_, _| true).unwrap();
+    let pre = prepare(skel.as_mut(), &cornell, &camera, Some(2), &|_, _| true).unwrap();
     assert!(pre.seconds() > 0.0 && pre.stages.len() >= 4);
     assert!(pre.notes[0].contains("importance nodes"));
     run(skel.as_ref()).unwrap();
     // Cancelling the precomputation.
-    let err = prepare(skel.as_mut(), &cornell, None, &|_, _| false).err();
+    let err = prepare(skel.as_mut(), &cornell, &camera, None, &|_, _| false).err();
     assert!(matches!(err, Some(lacuna::Error::Cancelled)));
     // `path` needs nothing.
     let mut path = integrator::create("path", IntegratorSettings::default()).unwrap();
-    assert!(prepare(path.as_mut(), &cornell, None, &|_, _| true)
-        .unwrap()
-        .stages
-        .is_empty());
+    assert!(
+        prepare(path.as_mut(), &cornell, &camera, None, &|_, _| true)
+            .unwrap()
+            .stages
+            .is_empty()
+    );
 }
 
 #[test]
@@ -1185,7 +1194,7 @@ fn guided_images_do_not_depend_on_the_thread_that_traced_them() {
         "path_skeleton:aim=portal:c_skel=learned:visibility=voxel:training_paths=8192",
     ] {
         let mut skel = integrator::create(spec, IntegratorSettings::default()).unwrap();
-        prepare(skel.as_mut(), &scene, Some(2), &|_, _| true).unwrap();
+        prepare(skel.as_mut(), &scene, &camera, Some(2), &|_, _| true).unwrap();
         let image = |threads: usize| pixel_bits(&scene, &camera, skel.as_ref(), threads);
         let one = image(1);
         assert!(one.iter().any(|&b| b != 0), "{spec}: black image");
@@ -1353,7 +1362,7 @@ fn a_guide_that_guides_nothing_renders_paths_image() {
     let camera = *scene.camera().unwrap();
     let image = |spec: &str| {
         let mut integrator = integrator::create(spec, IntegratorSettings::default()).unwrap();
-        prepare(integrator.as_mut(), &scene, Some(2), &|_, _| true).unwrap();
+        prepare(integrator.as_mut(), &scene, &camera, Some(2), &|_, _| true).unwrap();
         pixel_bits(&scene, &camera, integrator.as_ref(), 2)
     };
     let path = image("path");
@@ -1415,7 +1424,7 @@ fn the_path_level_switch_drops_forced_choices_and_keeps_the_corridor() {
     let camera = *rooms.camera().unwrap();
     let image = |spec: &str| {
         let mut integrator = integrator::create(spec, IntegratorSettings::default()).unwrap();
-        prepare(integrator.as_mut(), &rooms, Some(2), &|_, _| true).unwrap();
+        prepare(integrator.as_mut(), &rooms, &camera, Some(2), &|_, _| true).unwrap();
         pixel_bits(&rooms, &camera, integrator.as_ref(), 2)
     };
     assert_eq!(

@@ -242,6 +242,82 @@ public:
         detail::check(lacuna_scene_new_with_environment(p_, env ? env->get() : nullptr, &s));
         return Scene(s);
     }
+    /// The surface point and material at a hit of this scene.
+    lacuna_surface surface(const lacuna_hit &hit) const {
+        lacuna_surface s;
+        detail::check(lacuna_scene_get_surface(p_, &hit, &s));
+        return s;
+    }
+    /// The scene's camera (throws when it has none).
+    lacuna_camera camera() const {
+        lacuna_camera c;
+        detail::check(lacuna_scene_get_camera(p_, &c));
+        return c;
+    }
+};
+
+/// Lacuna's light sampling at a host's own shading points (see `lacuna_light_sampler` in
+/// lacuna.h for the MIS conventions). Copyable (copy = retain); thread-safe; no call allocates
+/// except the vector-returning batch helpers.
+class LightSampler
+    : public detail::Shared<lacuna_light_sampler, lacuna_light_sampler_retain, lacuna_light_sampler_release> {
+public:
+    using Shared::Shared;
+    explicit LightSampler(const Scene &scene, uint32_t triangle_strategy = LACUNA_TRIANGLE_STRATEGY_AREA,
+                          uint32_t environment_strategy = LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC) {
+        lacuna_light_sampler *s = nullptr;
+        detail::check(lacuna_light_sampler_new(scene.get(), triangle_strategy, environment_strategy, &s));
+        p_ = s;
+    }
+    lacuna_light_sampler_info info() const {
+        lacuna_light_sampler_info i;
+        detail::check(lacuna_light_sampler_get_info(p_, &i));
+        return i;
+    }
+    lacuna_light_info light_info(uint32_t light) const {
+        lacuna_light_info i;
+        detail::check(lacuna_light_sampler_get_light_info(p_, light, &i));
+        return i;
+    }
+    /// The light of an emissive triangle, or LACUNA_INVALID_INDEX.
+    uint32_t triangle_light(uint32_t triangle) const {
+        uint32_t l = 0;
+        detail::check(lacuna_light_sampler_get_triangle_light(p_, triangle, &l));
+        return l;
+    }
+    lacuna_light_sample sample(const lacuna_light_query &query) const {
+        lacuna_light_sample s;
+        detail::check(lacuna_light_sampler_sample(p_, &query, &s));
+        return s;
+    }
+    lacuna_light_eval eval(const lacuna_light_query &query, const lacuna_light_hit &hit) const {
+        lacuna_light_eval e;
+        detail::check(lacuna_light_sampler_eval(p_, &query, &hit, &e));
+        return e;
+    }
+    lacuna_emission_sample sample_emission(const float (&u)[4]) const {
+        lacuna_emission_sample e;
+        detail::check(lacuna_light_sampler_sample_emission(p_, u, &e));
+        return e;
+    }
+    /// (pdf_position, pdf_direction) of light `light` emitting along `direction`.
+    std::pair<float, float> emission_pdf(uint32_t light, lacuna_vec3 direction) const {
+        float pos = 0, dir = 0;
+        detail::check(lacuna_light_sampler_emission_pdf(p_, light, direction, &pos, &dir));
+        return {pos, dir};
+    }
+    std::vector<lacuna_light_sample> sample(const std::vector<lacuna_light_query> &queries) const {
+        std::vector<lacuna_light_sample> out(queries.size());
+        detail::check(lacuna_light_sampler_sample_batch(p_, queries.data(), 0, queries.size(), out.data(), 0));
+        return out;
+    }
+    std::vector<lacuna_light_eval> eval(const std::vector<lacuna_light_query> &queries,
+                                        const std::vector<lacuna_light_hit> &hits) const {
+        if (queries.size() != hits.size()) throw Error(LACUNA_STATUS_INVALID_ARGUMENT, "queries and hits differ in size");
+        std::vector<lacuna_light_eval> out(queries.size());
+        detail::check(lacuna_light_sampler_eval_batch(p_, queries.data(), 0, hits.data(), 0, queries.size(), out.data(), 0));
+        return out;
+    }
 };
 
 class SceneBuilder {
@@ -255,6 +331,12 @@ public:
     static SceneBuilder from_file(const Context &ctx, const std::string &path) {
         lacuna_scene_builder *b = nullptr;
         detail::check(lacuna_scene_builder_new_from_file(ctx.get(), path.c_str(), &b));
+        return SceneBuilder(b);
+    }
+    /// A built-in scene ("two-rooms", "corridor").
+    static SceneBuilder builtin(const Context &ctx, const std::string &name) {
+        lacuna_scene_builder *b = nullptr;
+        detail::check(lacuna_scene_builder_new_builtin(ctx.get(), name.c_str(), &b));
         return SceneBuilder(b);
     }
     uint32_t add_material(uint32_t kind) {

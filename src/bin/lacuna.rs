@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, Parser, Subcommand};
 use lacuna::compare::{compare, render_reference, write_report, Contender};
-use lacuna::film::{read_exr_rgb, ExrMetadata, Film, ImageErrors};
+use lacuna::film::{ExrMetadata, Film, ImageErrors};
 use lacuna::integrator::{self, IntegratorSettings, MisHeuristic};
 use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
 use lacuna::math::{SamplerKind, Vec3};
@@ -28,7 +28,8 @@ use lacuna::{Error, Result};
     about = "Lacuna: a physically based renderer that reads the empty space of a scene",
     after_help = "SCENE is an .obj file (framed automatically when no camera is given), a .json scene \
                   file (docs/scene-format.md), or a built-in scene: two-rooms (the default: two rooms \
-                  joined by an ajar door, lit from the far room) or corridor."
+                  joined by an ajar door, lit from the far room), corridor, or rooms:SEED (a procedural \
+                  family of interiors, see `lacuna family`)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -45,12 +46,39 @@ enum Command {
     Compare(CompareArgs),
     /// Analyse the empty space: voxelization, distance and opening maps, regions and portals.
     Analyze(AnalyzeArgs),
+    /// Describe scenes of the procedural family `rooms:SEED` (one line each), and optionally
+    /// write them as OBJ + MTL + scene file for other renderers.
+    Family(FamilyArgs),
+}
+
+#[derive(Args, Clone, Debug)]
+struct FamilyArgs {
+    /// First seed.
+    seed: u64,
+    /// Number of consecutive seeds.
+    #[arg(long, default_value_t = 1)]
+    count: u64,
+    /// Write rooms-SEED.obj, .mtl and .json into this directory.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+fn run_family(args: &FamilyArgs) -> Result<()> {
+    for seed in args.seed..args.seed.saturating_add(args.count) {
+        let scene = lacuna::scene::FamilyScene::generate(seed);
+        println!("{}", scene.description());
+        if let Some(dir) = &args.out {
+            let json = scene.write_files(dir)?;
+            println!("  -> {}", json.display());
+        }
+    }
+    Ok(())
 }
 
 /// Scene, camera, image and path options shared by every command.
 #[derive(Args, Clone, Debug)]
 struct SceneArgs {
-    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor). Default: two-rooms.
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, rooms:SEED). Default: two-rooms.
     scene: Option<PathBuf>,
     /// Maximum number of bounces (1 = direct lighting only) [default: 8, or the scene file's].
     #[arg(long)]
@@ -156,6 +184,13 @@ struct SceneArgs {
     /// (saves one shadow ray per lobe and point).
     #[arg(long)]
     skel_no_visibility: bool,
+    /// Refuse films (and environment maps) needing more memory than this many MiB; at most
+    /// the machine's physical memory (docs/limits.md).
+    #[arg(long, default_value_t = lacuna::limits::DEFAULT_MEMORY_BUDGET >> 20)]
+    memory_budget_mib: u64,
+    /// Render a scene without geometry or environment (black) instead of refusing it.
+    #[arg(long)]
+    allow_empty: bool,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -257,7 +292,7 @@ struct CompareArgs {
 
 #[derive(Args, Clone, Debug)]
 struct AnalyzeArgs {
-    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor). Default: two-rooms.
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, rooms:SEED). Default: two-rooms.
     scene: Option<PathBuf>,
     /// Voxels along the longest axis of the scene bounds.
     #[arg(long, default_value_t = 128, conflicts_with_all = ["voxel_size", "voxel_budget"])]
@@ -321,6 +356,26 @@ fn parse_vec3(s: &str) -> std::result::Result<Vec3, String> {
     Ok(Vec3::from(v))
 }
 
+/// The memory budget of `--memory-budget-mib`, checked against physical memory.
+fn memory_budget(mib: u64) -> Result<u64> {
+    lacuna::limits::check_memory_budget("--memory-budget-mib", mib.saturating_mul(1 << 20))
+}
+
+/// Refuses a scene with nothing to render (no triangles, no lights and no environment map:
+/// random bytes or an image renamed `.obj`, an empty `{}` scene file) unless asked for.
+fn check_not_empty(scene: &Scene, label: &str, allow_empty: bool) -> Result<()> {
+    if allow_empty
+        || scene.triangle_count() > 0
+        || !scene.lights().is_empty()
+        || scene.environment().is_some()
+    {
+        return Ok(());
+    }
+    Err(Error::invalid(format!(
+        "scene {label} is empty (no triangles, lights or environment map): nothing to render; --allow-empty renders it anyway"
+    )))
+}
+
 /// A scene ready to render with its settings: the scene file's, overridden by options.
 struct Prepared {
     scene: Scene,
@@ -331,6 +386,8 @@ struct Prepared {
     file_integrator: Option<String>,
     file_time: Option<f64>,
     label: String,
+    /// Bytes the film may take (`--memory-budget-mib`).
+    memory_budget: u64,
 }
 
 fn load_builder(path: &Path) -> Result<(SceneBuilder, RenderSettingsFile, String)> {
@@ -350,7 +407,9 @@ fn apply_environment(
 ) -> Result<()> {
     let mut map = match &args.env {
         Some(path) => {
-            let map = EnvironmentMap::load(path, EnvSettings::default())?;
+            let budget = memory_budget(args.memory_budget_mib)?;
+            let image = lacuna::light::environment::EnvImage::load_within(path, budget)?;
+            let map = EnvironmentMap::new(image, EnvSettings::default())?;
             if map.image().clamped() > 0 {
                 eprintln!(
                     "lacuna: warning: environment map {}: {} negative texel values clamped to 0",
@@ -423,8 +482,22 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
         Some(s) => EnvStrategy::parse(s)?,
         None => EnvStrategy::default(),
     };
+    let budget = memory_budget(args.memory_budget_mib)?;
+    if let Some(n) = args.threads {
+        if n == 0 {
+            return Err(Error::invalid("--threads 0: at least 1 worker thread"));
+        }
+        lacuna::limits::check_threads("--threads", n)?;
+    }
+    if let Some(d) = args.max_depth {
+        lacuna::limits::check_max_depth("--max-depth", d)?;
+    }
+    if let Some(n) = args.light_paths {
+        lacuna::limits::check_light_paths("--light-paths", n as u64)?;
+    }
     apply_environment(&mut builder, args, env)?;
     let scene = builder.build()?;
+    check_not_empty(&scene, &label, args.allow_empty)?;
     let mut render = RenderSettings::default();
     render.width = args.width.or(file.width).unwrap_or(render.width);
     render.height = args.height.or(file.height).unwrap_or(render.height);
@@ -447,6 +520,7 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
         integrator.env_bsdf_samples = n;
     }
     integrator.apply_file(&file)?;
+    lacuna::limits::check_film(render.width, render.height, 0, budget)?;
     if let Some(d) = args.max_depth {
         integrator.max_depth = d;
     }
@@ -527,6 +601,7 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
         file_integrator: file.integrator,
         file_time: file.time,
         label,
+        memory_budget: budget,
     })
 }
 
@@ -584,6 +659,12 @@ fn ensure_parent(path: &Path) -> Result<()> {
 }
 
 fn run_render(args: &RenderArgs) -> Result<()> {
+    if !args.exposure.is_finite() {
+        return Err(Error::invalid(format!(
+            "--exposure {} must be a finite number of stops",
+            args.exposure
+        )));
+    }
     let mut prep = prepare(&args.scene)?;
     if let Some(s) = args.spp {
         prep.render.spp = s;
@@ -639,6 +720,12 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         }
         Box::new(bdpt)
     };
+    lacuna::limits::check_film(
+        prep.render.width,
+        prep.render.height,
+        integrator.layers().len(),
+        prep.memory_budget,
+    )?;
     let precomputation = prepare_integrator(integrator.as_mut(), &prep)?;
     let bar = ProgressBar::new(args.scene.quiet);
     let (film, stats) = render(
@@ -664,6 +751,12 @@ fn run_render(args: &RenderArgs) -> Result<()> {
     write_film(&film, &args.out, args.exposure, &meta)?;
     if let Some(dir) = &args.strategy_images {
         write_strategy_images(&film, dir, args.exposure, &meta)?;
+    }
+    if stats.largest_guided_ratio > 0.0 {
+        println!(
+            "{name}: largest guided path weight against path's for the same directions: {:.2}x",
+            stats.largest_guided_ratio
+        );
     }
     println!(
         "{}: {}x{}, {} spp of {} (max depth {}) in {:.2} s: {:.2} M samples/s, {:.2} M rays/s -> {}",
@@ -726,7 +819,13 @@ fn prepare_integrator(
     integrator: &mut dyn integrator::Integrator,
     prep: &Prepared,
 ) -> Result<integrator::Precomputation> {
-    let pre = lacuna::render::prepare(integrator, &prep.scene, prep.render.threads, &|_, _| true)?;
+    let pre = lacuna::render::prepare(
+        integrator,
+        &prep.scene,
+        &prep.camera,
+        prep.render.threads,
+        &|_, _| true,
+    )?;
     if !pre.stages.is_empty() {
         let stages: Vec<String> = pre
             .stages
@@ -826,8 +925,15 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
             args.time
         )));
     }
+    // Refused now, not after rendering for the whole budget.
+    if args.out.exists() && !args.out.is_dir() {
+        return Err(Error::invalid(format!(
+            "--out {} exists and is not a directory (compare writes a directory of reports)",
+            args.out.display()
+        )));
+    }
     let prep = prepare(&args.scene)?;
-    let reference = read_exr_rgb(&args.reference)?;
+    let reference = lacuna::film::read_exr_rgb_within(&args.reference, prep.memory_budget)?;
     if (reference.width, reference.height) != (prep.render.width, prep.render.height) {
         return Err(Error::invalid(format!(
             "reference {} is {}x{} but the render is {}x{}: give the same --width/--height",
@@ -902,7 +1008,15 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
         ),
         Some(path) => load_builder(path)?,
     };
+    let memory_budget = memory_budget(args.memory_budget_mib)?;
+    if let Some(n) = args.threads {
+        if n == 0 {
+            return Err(Error::invalid("--threads 0: at least 1 worker thread"));
+        }
+        lacuna::limits::check_threads("--threads", n)?;
+    }
     let scene = builder.build()?;
+    check_not_empty(&scene, &label, false)?;
     let resolution = match (args.voxel_size, args.voxel_budget) {
         (Some(s), _) => Resolution::VoxelSize(s),
         (None, Some(b)) => Resolution::VoxelBudget(b),
@@ -916,7 +1030,7 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
         } else {
             Outside::Solid
         },
-        memory_budget: args.memory_budget_mib.saturating_mul(1 << 20),
+        memory_budget,
         all_maps: args.all_maps || args.skeleton,
         // Without --all-maps the skeleton computes the Euclidean distance beside its thinning.
         euclidean: args.all_maps,
@@ -1006,6 +1120,7 @@ fn main() -> ExitCode {
         Command::Reference(args) => run_reference(args),
         Command::Compare(args) => run_compare(args),
         Command::Analyze(args) => run_analyze(args),
+        Command::Family(args) => run_family(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

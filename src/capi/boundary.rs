@@ -4,6 +4,7 @@
 use std::cell::RefCell;
 use std::ffi::{c_char, CStr, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::Once;
 
 use super::context::lacuna_context;
 use crate::error::Error;
@@ -128,6 +129,49 @@ pub(crate) type CapiResult<T> = Result<T, CapiError>;
 
 thread_local! {
     static LAST_ERROR: RefCell<CString> = RefCell::new(CString::default());
+    /// Where the last panic inside a boundary happened, for its message.
+    static PANIC_LOCATION: RefCell<Option<String>> = const { RefCell::new(None) };
+}
+
+/// Installs, once, a panic hook that stays silent for panics inside a boundary call, on the
+/// calling thread or on a worker of a pool made inside one (the host's stderr is not Lacuna's
+/// to write: the message goes to `lacuna_last_error_message()` instead, with its location
+/// when the panic happened on the calling thread) and hands every other panic to the hook
+/// that was there before.
+fn install_quiet_panic_hook() {
+    static INSTALL: Once = Once::new();
+    INSTALL.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !crate::workers::panics_reported_by_caller() {
+                return previous(info);
+            }
+            let location = info
+                .location()
+                .map(|l| format!("{}:{}", l.file(), l.line()));
+            PANIC_LOCATION.with(|p| *p.borrow_mut() = location);
+        }));
+    });
+}
+
+/// Marks the calling thread as inside a boundary call while alive: its panics are reported
+/// by the boundary, not printed. Entry points may nest; the outermost restores the flag.
+struct InBoundary {
+    was_inside: bool,
+}
+
+impl InBoundary {
+    fn enter() -> Self {
+        InBoundary {
+            was_inside: crate::workers::set_panics_reported_by_caller(true),
+        }
+    }
+}
+
+impl Drop for InBoundary {
+    fn drop(&mut self) {
+        crate::workers::set_panics_reported_by_caller(self.was_inside);
+    }
 }
 
 /// What the body of an entry point tells the boundary besides its result: the context whose
@@ -161,15 +205,27 @@ pub(crate) fn boundary<T>(
     function: &'static str,
     body: impl for<'a> FnOnce(&mut Call<'a>) -> CapiResult<T>,
 ) -> Result<T, lacuna_status> {
+    install_quiet_panic_hook();
     let mut call = Call::default();
-    let result = catch_unwind(AssertUnwindSafe(|| body(&mut call)));
+    let result = {
+        let _inside = InBoundary::enter();
+        catch_unwind(AssertUnwindSafe(|| body(&mut call)))
+    };
     let error = match result {
         Ok(Ok(value)) => return Ok(value),
         Ok(Err(e)) => e,
-        Err(payload) => CapiError::new(
-            lacuna_status::Panic,
-            format!("internal panic: {}", panic_message(payload.as_ref())),
-        ),
+        Err(payload) => {
+            let location = PANIC_LOCATION
+                .with(|p| p.borrow_mut().take())
+                .map_or(String::new(), |l| format!(" at {l}"));
+            CapiError::new(
+                lacuna_status::Panic,
+                format!(
+                    "internal panic{location}: {}",
+                    panic_message(payload.as_ref())
+                ),
+            )
+        }
     };
     let status = error.status;
     // Reporting must not unwind either (a context's mutex could be poisoned, a message could
@@ -232,6 +288,17 @@ pub extern "C" fn lacuna_status_string(status: u32) -> *const c_char {
                 .as_ptr())
         },
     )
+}
+
+/// Testing aid for Rust tests (not in the C header): panics on a worker thread of a pool made
+/// inside a C API call, as a render's panic would, and returns what the boundary makes of it.
+#[doc(hidden)]
+pub fn debug_trigger_worker_panic() -> lacuna_status {
+    status("debug_trigger_worker_panic", |_| {
+        let pool = crate::workers::WorkerPool::new(Some(1), Some("lacuna-debug"))
+            .map_err(|e| CapiError::operation(format!("no worker thread: {e}")))?;
+        pool.install(|| panic!("debug_trigger_worker_panic was called"))
+    })
 }
 
 /// Testing aid: panics inside Lacuna and returns what the panic boundary makes of it

@@ -1,8 +1,9 @@
 //! `lacuna_scene_builder`: materials, meshes, lights, camera and file loading, consumed by
 //! `lacuna_scene_builder_build` into a committed `lacuna_scene`.
 
+use std::collections::BTreeSet;
 use std::ffi::c_char;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use super::boundary::{self, lacuna_status, Call, CapiError, CapiResult};
 use super::buffer::{
@@ -36,14 +37,51 @@ pub struct lacuna_scene_builder {
     pub(crate) label: String,
 }
 
-fn new_builder(ctx: Arc<lacuna_context>, builder: SceneBuilder) -> *mut lacuna_scene_builder {
-    Box::into_raw(Box::new(lacuna_scene_builder {
+/// Addresses of the live builders. A builder that was built or freed is gone from here, so
+/// building it again, using it after the build or freeing it twice is refused
+/// (`LACUNA_STATUS_INVALID_OPERATION`) instead of touching freed memory: a cheap check, as
+/// builder calls are few. (A new builder may reuse a freed address; then the stale handle
+/// names the new builder, which no check can tell.)
+static LIVE_BUILDERS: Mutex<BTreeSet<usize>> = Mutex::new(BTreeSet::new());
+
+fn live_builders() -> std::sync::MutexGuard<'static, BTreeSet<usize>> {
+    LIVE_BUILDERS.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn not_live() -> CapiError {
+    CapiError::operation(
+        "builder is not a live builder: it was already built or freed (a builder is consumed by lacuna_scene_builder_build)",
+    )
+}
+
+/// Checks that `builder` is live, and with `take` forgets it (it is about to be consumed).
+pub(crate) fn check_live(builder: *mut lacuna_scene_builder, take: bool) -> CapiResult<()> {
+    let mut live = live_builders();
+    let known = if take {
+        live.remove(&(builder as usize))
+    } else {
+        live.contains(&(builder as usize))
+    };
+    if known {
+        Ok(())
+    } else {
+        Err(not_live())
+    }
+}
+
+pub(crate) fn new_builder(
+    ctx: Arc<lacuna_context>,
+    builder: SceneBuilder,
+) -> *mut lacuna_scene_builder {
+    let handle = Box::into_raw(Box::new(lacuna_scene_builder {
         ctx,
         builder,
         camera: None,
         settings: RenderSettingsFile::default(),
         label: "scene".to_string(),
-    }))
+    }));
+    live_builders().insert(handle as usize);
+    handle
 }
 
 /// Creates an empty scene builder on `context` (which it keeps alive). Thread-safe.
@@ -99,11 +137,17 @@ pub unsafe extern "C" fn lacuna_scene_builder_new_from_file(
     })
 }
 
-/// Frees a builder that was not built. NULL is a no-op.
+/// Frees a builder that was not built. NULL is a no-op. A builder that was already built or
+/// freed is left alone (the failure is recorded for `lacuna_last_error_message()`).
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_scene_builder_free(builder: *mut lacuna_scene_builder) {
     boundary::value("lacuna_scene_builder_free", (), |_| {
-        // SAFETY: NULL or a builder from `lacuna_scene_builder_new*`, not used afterwards.
+        if builder.is_null() {
+            return Ok(());
+        }
+        check_live(builder, true)?;
+        // SAFETY: a live builder from `lacuna_scene_builder_new*` (checked above), not used
+        // afterwards.
         unsafe { box_free(builder) };
         Ok(())
     })
@@ -120,7 +164,12 @@ unsafe fn with_builder(
 ) -> lacuna_status {
     boundary::status(function, |call: &mut Call<'_>| {
         // SAFETY: NULL or a live builder used by this thread only (caller's contract).
-        let b = unsafe { builder.as_mut() }.ok_or_else(|| CapiError::null("builder"))?;
+        if builder.is_null() {
+            return Err(CapiError::null("builder"));
+        }
+        check_live(builder, false)?;
+        // SAFETY: a live builder (checked above) used by this thread only.
+        let b = unsafe { &mut *builder };
         // SAFETY: the context outlives the call: the builder holds a reference to it and
         // `f` cannot drop the builder (it only borrows it).
         call.context(unsafe { &*Arc::as_ptr(&b.ctx) });
@@ -485,7 +534,8 @@ pub unsafe extern "C" fn lacuna_scene_builder_load_obj(
 /// sampler, and writes the committed scene (reference count 1) to `*out_scene`.
 ///
 /// Consumes the builder whether or not the build succeeds (unless `builder` is NULL): do not
-/// use or free it afterwards.
+/// use or free it afterwards. Building (or using, or freeing) a builder that was already built
+/// is caught and fails with `LACUNA_STATUS_INVALID_OPERATION`.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_scene_builder_build(
     builder: *mut lacuna_scene_builder,
@@ -495,6 +545,9 @@ pub unsafe extern "C" fn lacuna_scene_builder_build(
         return boundary::status("lacuna_scene_builder_build", |_| {
             Err(CapiError::null("builder"))
         });
+    }
+    if let Err(e) = check_live(builder, true) {
+        return boundary::status("lacuna_scene_builder_build", |_| Err(e));
     }
     // SAFETY: a live builder from `lacuna_scene_builder_new*`; ownership passes to this call.
     let b = unsafe { Box::from_raw(builder) };

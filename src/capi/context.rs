@@ -42,6 +42,10 @@ pub const LACUNA_DEFAULT_MEMORY_BUDGET: u64 = 8_589_934_592;
 /// Most worker threads a context or a job accepts.
 pub const LACUNA_MAX_THREADS: u32 = 4096;
 
+// The C API's limits are the library's (src/limits.rs); cbindgen needs literals.
+const _: () = assert!(LACUNA_DEFAULT_MEMORY_BUDGET == crate::limits::DEFAULT_MEMORY_BUDGET);
+const _: () = assert!(LACUNA_MAX_THREADS == crate::limits::MAX_THREADS);
+
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
@@ -55,8 +59,9 @@ impl lacuna_context {
         }
     }
 
+    /// The budget set, but never more than the machine's physical memory.
     pub(crate) fn memory_budget(&self) -> u64 {
-        self.memory_budget.load(Ordering::Relaxed)
+        crate::limits::effective_memory_budget(self.memory_budget.load(Ordering::Relaxed))
     }
 
     /// The worker pool of batched queries.

@@ -47,7 +47,7 @@ pub struct lacuna_environment_info {
     pub cube_build_seconds: f64,
 }
 
-fn strategy_from_c(value: u32) -> CapiResult<EnvStrategy> {
+pub(crate) fn strategy_from_c(value: u32) -> CapiResult<EnvStrategy> {
     Ok(
         match lacuna_environment_strategy::from_c(value, "strategy")? {
             lacuna_environment_strategy::LatLong => EnvStrategy::LatLong,
@@ -57,6 +57,16 @@ fn strategy_from_c(value: u32) -> CapiResult<EnvStrategy> {
             lacuna_environment_strategy::Bsdf => EnvStrategy::BsdfOnly,
         },
     )
+}
+
+pub(crate) fn strategy_to_c(strategy: EnvStrategy) -> u32 {
+    (match strategy {
+        EnvStrategy::LatLong => lacuna_environment_strategy::LatLong,
+        EnvStrategy::CubeUniform => lacuna_environment_strategy::CubeUniform,
+        EnvStrategy::CubePower => lacuna_environment_strategy::CubePower,
+        EnvStrategy::CubeDynamic => lacuna_environment_strategy::CubeDynamic,
+        EnvStrategy::BsdfOnly => lacuna_environment_strategy::Bsdf,
+    }) as u32
 }
 
 /// Reads `width` x `height` RGB float pixels (pixel (x, y) at
@@ -156,7 +166,10 @@ fn new_handle(map: EnvironmentMap) -> *mut lacuna_environment {
 /// lat-long map or a 4:3 horizontal cross. NaN or infinite texels are an error
 /// (`LACUNA_STATUS_PARSE`, naming the texel); negative ones are clamped to zero and counted
 /// (`lacuna_environment_info.clamped_values`). Scale 1, no rotation, Y up, visible.
-/// `LACUNA_STATUS_IO` when the file cannot be read. Thread-safe.
+/// `LACUNA_STATUS_IO` when the file cannot be read. A file whose header claims more than
+/// 2^28 texels is `LACUNA_STATUS_PARSE`, and one needing more than `LACUNA_DEFAULT_MEMORY_BUDGET`
+/// (or physical memory) `LACUNA_STATUS_OVER_BUDGET`, both before any pixel is read.
+/// Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_environment_new_from_file(
     path: *const c_char,
@@ -351,7 +364,12 @@ pub unsafe extern "C" fn lacuna_scene_builder_set_environment(
 ) -> lacuna_status {
     boundary::status("lacuna_scene_builder_set_environment", |call| {
         // SAFETY: NULL or a live builder used by this thread only.
-        let b = unsafe { builder.as_mut() }.ok_or_else(|| CapiError::null("builder"))?;
+        if builder.is_null() {
+            return Err(CapiError::null("builder"));
+        }
+        super::builder::check_live(builder, false)?;
+        // SAFETY: a live builder (checked above) used by this thread only.
+        let b = unsafe { &mut *builder };
         // SAFETY: the builder holds its context alive for the call.
         call.context(unsafe { &*Arc::as_ptr(&b.ctx) });
         // SAFETY: NULL or a live environment.

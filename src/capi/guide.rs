@@ -85,8 +85,16 @@ pub unsafe extern "C" fn lacuna_skeleton_guide_build(
             unsafe { arg(settings, "settings") }?.skeleton_settings()?
         };
         let report = stage_progress(progress, user_data);
+        // The camera a job on this scene renders with by default: the scene's, else the
+        // automatic framing (square image), so the training sees that view.
+        let camera = s
+            .scene
+            .camera()
+            .copied()
+            .unwrap_or_else(|| crate::scene::auto_camera(s.scene.bounds(), 1.0));
         let pool = s.ctx.pool()?;
-        let guide = pool.install(|| SkeletonGuide::build(&s.scene, &skeleton, &report))?;
+        let guide =
+            pool.install(|| SkeletonGuide::build(&s.scene, Some(&camera), &skeleton, &report))?;
         // SAFETY: the scene handle is live (checked above); the guide keeps one reference.
         let scene_ref = unsafe { arc_clone(scene) };
         let handle = arc_into_handle(lacuna_skeleton_guide {

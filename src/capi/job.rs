@@ -12,7 +12,6 @@ use super::context::LACUNA_MAX_THREADS;
 use super::film::{lacuna_film, stats_to_c};
 use super::scene::lacuna_scene;
 use super::types::*;
-use crate::error::Error;
 use crate::film::{ExrMetadata, Film};
 use crate::guide::SkeletonStrength;
 use crate::integrator::{self, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter};
@@ -149,21 +148,7 @@ impl lacuna_render_job {
         let (w, h) = (settings.render.width, settings.render.height);
         let integrator = settings.make_integrator()?;
         let layers = integrator.layers().len();
-        let bytes = Film::memory_bytes_for(w, h, layers);
-        let budget = self.scene.ctx.memory_budget();
-        if bytes > budget {
-            let what = if layers > 0 {
-                format!("a {w}x{h} film with {layers} strategy images")
-            } else {
-                format!("a {w}x{h} film")
-            };
-            return Err(Error::OverBudget {
-                what,
-                bytes,
-                budget,
-            }
-            .into());
-        }
+        crate::limits::check_film(w, h, layers, self.scene.ctx.memory_budget())?;
         let mut camera = settings
             .camera
             .or_else(|| self.scene.scene.camera().copied())
@@ -219,6 +204,7 @@ impl lacuna_render_job {
         let pre = crate::render::prepare(
             p.integrator.as_mut(),
             &self.scene.scene,
+            &p.camera,
             p.settings.render.threads,
             &|_, _| !self.cancel.load(Ordering::Relaxed),
         )?;
@@ -449,6 +435,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_seed(
 
 /// Largest maximum path depth accepted.
 pub const LACUNA_MAX_DEPTH_LIMIT: u32 = 1024;
+const _: () = assert!(LACUNA_MAX_DEPTH_LIMIT == crate::limits::MAX_DEPTH);
 
 /// Sets the maximum number of bounces (0 shows emitters only, 1 is direct lighting), at most
 /// `LACUNA_MAX_DEPTH_LIMIT`.
@@ -742,6 +729,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_thin_lens(
 
 /// Largest number of light subpaths per iteration accepted.
 pub const LACUNA_MAX_LIGHT_PATHS: u32 = 1 << 28;
+const _: () = assert!(LACUNA_MAX_LIGHT_PATHS == crate::limits::MAX_LIGHT_PATHS);
 
 /// bdpt: traces `count` light subpaths per iteration (one iteration per sample per pixel);
 /// each camera path connects to one of them, light tracing splats all of them. 0 restores the

@@ -24,15 +24,18 @@ mod environment;
 mod film;
 mod guide;
 mod job;
+mod light_sampler;
 mod mesh;
 mod scene;
 mod skeleton;
+mod surface;
 mod types;
 mod version;
 
 pub use analysis::*;
 pub use boundary::{
-    lacuna_debug_trigger_panic, lacuna_last_error_message, lacuna_status, lacuna_status_string,
+    debug_trigger_worker_panic, lacuna_debug_trigger_panic, lacuna_last_error_message,
+    lacuna_status, lacuna_status_string,
 };
 pub use builder::*;
 pub use compare::*;
@@ -41,8 +44,10 @@ pub use environment::*;
 pub use film::*;
 pub use guide::*;
 pub use job::*;
+pub use light_sampler::*;
 pub use mesh::*;
 pub use scene::*;
 pub use skeleton::*;
+pub use surface::*;
 pub use types::*;
 pub use version::*;

@@ -92,6 +92,9 @@ pub fn render_reference(
         rays: stats_a.rays + stats_b.rays,
         passes: stats_a.passes + stats_b.passes,
         cancelled: false,
+        largest_guided_ratio: stats_a
+            .largest_guided_ratio
+            .max(stats_b.largest_guided_ratio),
         precompute_seconds: 0.0,
     };
     Ok(Reference { film, stats, noise })
@@ -331,6 +334,7 @@ pub fn compare(
             prepare(
                 contenders[c].integrator.as_mut(),
                 scene,
+                camera,
                 settings.threads,
                 &prepare_progress,
             )?;

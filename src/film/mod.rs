@@ -10,7 +10,10 @@ pub mod metrics;
 mod output;
 
 pub use metrics::{image_errors, ImageErrors};
-pub use output::{encode_srgb, read_exr_rgb, write_exr_rgb, write_png_rgb, ExrImage, ExrMetadata};
+pub use output::{
+    encode_srgb, read_exr_rgb, read_exr_rgb_within, write_exr_rgb, write_png_rgb, ExrImage,
+    ExrMetadata,
+};
 
 use crate::math::Rgb;
 

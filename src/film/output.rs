@@ -223,14 +223,16 @@ pub fn encode_srgb(v: f32) -> u8 {
     (s * 255.0 + 0.5) as u8
 }
 
+/// EXR text is Latin-1: other characters (a file name that is not UTF-8 shows U+FFFD, or any
+/// non-Latin script) are written as '?', so that a finished render is never lost to its label.
 fn text(v: &str) -> Result<AttributeValue> {
-    Text::new_or_none(v)
+    let latin1: String = v
+        .chars()
+        .map(|c| if (c as u32) < 256 { c } else { '?' })
+        .collect();
+    Text::new_or_none(&latin1)
         .map(AttributeValue::Text)
-        .ok_or_else(|| {
-            Error::invalid(format!(
-                "EXR attribute value '{v}' is not storable as EXR text"
-            ))
-        })
+        .ok_or_else(|| Error::invalid(format!("EXR attribute value '{v}' is not storable")))
 }
 
 fn exr_error(path: &Path, e: exr::error::Error) -> Error {
@@ -243,6 +245,48 @@ fn exr_error(path: &Path, e: exr::error::Error) -> Error {
 /// Reads the R, G, B channels (any sample type) of the first layer of an EXR file, with the
 /// `lacuna:*` attributes Lacuna wrote.
 pub fn read_exr_rgb(path: &Path) -> Result<ExrImage> {
+    read_exr_rgb_within(
+        path,
+        crate::limits::effective_memory_budget(crate::limits::DEFAULT_MEMORY_BUDGET),
+    )
+}
+
+/// [`read_exr_rgb`] refusing, from the headers alone and before any pixel is decoded, a file
+/// whose layers would need more than `budget` bytes or more than
+/// [`crate::limits::MAX_ENV_TEXELS`] pixels (a 74-byte header can claim terapixels).
+pub fn read_exr_rgb_within(path: &Path, budget: u64) -> Result<ExrImage> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| exr_error(path, e))?;
+    let mut bytes = 0u64;
+    for header in meta.headers.iter() {
+        let (w, h) = (header.layer_size.width(), header.layer_size.height());
+        let pixels = w as u64 * h as u64;
+        let limit = crate::limits::MAX_ENV_TEXELS as u64;
+        if pixels > limit {
+            return Err(Error::parse(
+                path,
+                "header",
+                format!("a {w}x{h} layer is over the limit of {limit} pixels"),
+            ));
+        }
+        // Decoded channels as stored (at most 4 bytes a sample), their f32 copies and the RGB
+        // result.
+        let per_pixel = 4 * header.channels.list.len() as u64 + 12 + 12;
+        bytes = bytes.saturating_add(pixels.saturating_mul(per_pixel));
+        // The reader allocates each block at the size its header allows before reading it (a
+        // tile header can claim tiles far larger than the image): count a block twice, as
+        // read and as decompressed.
+        let block_pixels = match header.blocks {
+            exr::meta::BlockDescription::Tiles(tiles) => {
+                tiles.tile_size.width() as u64 * tiles.tile_size.height() as u64
+            }
+            exr::meta::BlockDescription::ScanLines => {
+                header.compression.scan_lines_per_block() as u64 * w as u64
+            }
+        };
+        let block_bytes = block_pixels.saturating_mul(header.channels.bytes_per_pixel as u64);
+        bytes = bytes.saturating_add(block_bytes.saturating_mul(2));
+    }
+    crate::limits::check_bytes(|| format!("EXR image {}", path.display()), bytes, budget)?;
     let image = x::read()
         .no_deep_data()
         .largest_resolution_level()

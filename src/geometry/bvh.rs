@@ -1129,6 +1129,83 @@ mod tests {
         }
     }
 
+    /// Depth of a binary tree (root 0).
+    fn bvh2_depth(bvh2: &Bvh2) -> usize {
+        let mut deepest = 0;
+        let mut stack = vec![(0usize, 0usize)];
+        while let Some((i, depth)) = stack.pop() {
+            deepest = deepest.max(depth);
+            let node = &bvh2.nodes[i];
+            if !node.is_leaf() {
+                let c = node.first_index as usize;
+                stack.push((c, depth + 1));
+                stack.push((c + 1, depth + 1));
+            }
+        }
+        deepest
+    }
+
+    /// Issue 29: one triangle repeated n times (all neighbour costs tied) and nested, slightly
+    /// scaled copies of one triangle (costs monotone along the Morton order) made obvhs's PLOC
+    /// merge one pair per iteration: n iterations, O(n^2) time (16,000 copies 5-12 s, 100,000
+    /// over two minutes) and a binary tree about n deep. Patched obvhs (vendor/obvhs/PATCHED.md)
+    /// pairs Morton neighbours when fewer than 1/32 of at least 1,024 clusters agree, so the
+    /// depth stays below 1,024 plus a few per halving; without the patch this test takes
+    /// minutes and fails on the depth. Every quality's final tree still answers as brute force.
+    #[test]
+    fn duplicate_and_nested_triangles_build_in_n_log_n() {
+        let n = 30_000;
+        let triangle = |s: f32| [Vec3::ZERO, Vec3::new(s, 0.0, 0.0), Vec3::new(0.0, s, 0.2)];
+        let identical = vec![triangle(1.0); n];
+        let nested: Vec<[Vec3; 3]> = (0..n).map(|i| triangle(1.0 + i as f32 * 1e-5)).collect();
+        let bound = 1024 + 128 * (n as f64).log2().ceil() as usize;
+        let mut rng = Rng::new(29, 1);
+        for (name, tris) in [("identical", &identical), ("nested", &nested)] {
+            let obvhs_tris: Vec<Triangle> = tris
+                .iter()
+                .map(|t| Triangle {
+                    v0: t[0].into(),
+                    v1: t[1].into(),
+                    v2: t[2].into(),
+                })
+                .collect();
+            for quality in [BvhQuality::Fast, BvhQuality::Medium] {
+                // PLOC alone: its depth bounds its iterations from below (the reinsertion
+                // that follows may deepen a nested chain, as SAH prefers there).
+                let params = quality.ploc_params();
+                let bvh2 = PlocBuilder::with_capacity(n).build(
+                    params.ploc_search_distance,
+                    &obvhs_tris,
+                    (0..n as u32).collect(),
+                    params.sort_precision,
+                    params.search_depth_threshold,
+                );
+                let depth = bvh2_depth(&bvh2);
+                assert!(depth <= bound, "{name} {quality:?}: PLOC depth {depth}");
+            }
+            let rays: Vec<Ray> = (0..100)
+                .map(|_| {
+                    let o = Vec3::new(0.3, 0.3, -1.0) + warp::uniform_sphere(rng.uniform2()) * 0.3;
+                    let target = Vec3::new(rng.uniform(), rng.uniform(), 0.1);
+                    Ray::new(o, (target - o).normalize(), f32::INFINITY)
+                })
+                .collect();
+            for quality in [BvhQuality::Fast, BvhQuality::Medium, BvhQuality::High] {
+                let bvh = Bvh::build(tris, quality);
+                assert!(bvh.inner_depth() <= MAX_TRAVERSAL_DEPTH);
+                for ray in &rays {
+                    let brute = brute_force(tris, ray);
+                    assert_eq!(
+                        bvh.intersect(ray).map(|h| h.t),
+                        brute.map(|b| b.1),
+                        "{name}"
+                    );
+                    assert_eq!(bvh.occluded(ray), brute.is_some(), "{name}");
+                }
+            }
+        }
+    }
+
     fn random_triangles(n: usize, rng: &mut Rng) -> Vec<[Vec3; 3]> {
         (0..n)
             .map(|_| {

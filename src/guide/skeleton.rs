@@ -131,7 +131,7 @@ use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
 use crate::integrator::MisHeuristic;
 use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::{luminance, warp, Frame, Rng, Vec2, Vec3};
-use crate::scene::Scene;
+use crate::scene::{Camera, Scene};
 
 /// Most lobes a query holds (the upper bound of `max_lobes`).
 pub const MAX_LOBES: usize = 8;
@@ -240,7 +240,7 @@ pub struct SkeletonGuideSettings {
     /// camera to train from (default 0.5, the thesis's).
     pub c_skel: f32,
     /// `c_skel=learned` (the default): a probability per node, learned by a training pass
-    /// from the scene's camera (`guide::training`); 0 (not guided at all) where guiding is not
+    /// from the render's camera (`guide::training`); 0 (not guided at all) where guiding is not
     /// measurably better than BSDF sampling. The thesis's one global c = 0.5 guides open
     /// rooms too, where the lobes only add variance: it is worse per sample than `path` on
     /// both doors (BENCHMARKS.md, issue 8, round 6), where the learned c wins 1.45x on the
@@ -262,13 +262,18 @@ pub struct SkeletonGuideSettings {
     /// product of p_bsdf / q over the path's earlier directions (0 once rho >= R), so that the
     /// directions' densities never weigh a path more than R times `path`'s for the same
     /// directions (the MIS weights of light samples and emitter hits aside; they stay <= 1).
+    /// `None` (`ratio_max=auto`, the default): off where the training chose every node's c,
+    /// [`FIXED_C_RATIO_MAX`] where c is fixed (a number `c_skel`, or a guide that could not
+    /// train): a fixed c guides where the lobes miss the light as much as where they find
+    /// it, and at c = 0.5 every BSDF-drawn direction the lobes do not cover doubles the
+    /// path's weight (a family scene of two rooms: single samples at 4x `path`'s largest).
     /// The Sibenik fireflies of `directions=learned` are such products (several vertices at
     /// c 0.6-0.7 whose directions the BSDF drew: R 10.9); the corridor's useful chains are
     /// too (BENCHMARKS.md, round 15, fire15). c then depends on the
     /// path's prefix only, and the vertex's every density (its direction's, its light sample's
     /// MIS weight, the next emitter hit's) is the mixture at that c: unbiased. Default
     /// infinite (off).
-    pub ratio_max: f32,
+    pub ratio_max: Option<f32>,
     /// Strength of eq. 163 at every guided node unless `learned_strength`; with it, the
     /// training pass's proposal strength.
     pub strength: SkeletonStrength,
@@ -461,6 +466,10 @@ pub const DEFAULT_TRAINING_GUIDED_COST: f32 = 0.15;
 /// Default of `training_min_nonzero` (the floor since round 4).
 pub const DEFAULT_TRAINING_MIN_NONZERO: u32 = 32;
 
+/// `ratio_max` where c is fixed (module docs of [`SkeletonGuideSettings::ratio_max`]):
+/// at c = 0.5 a path keeps guiding until one direction's weight reached twice `path`'s.
+pub const FIXED_C_RATIO_MAX: f32 = 2.0;
+
 /// Default camera paths of the training pass (2^15 until round 6: too few for the
 /// corridor's choices to be stable, `guide::training` module docs).
 pub const DEFAULT_TRAINING_PATHS: u32 = 1 << 17;
@@ -540,7 +549,7 @@ impl Default for SkeletonGuideSettings {
             c_skel: 0.5,
             learned_c_skel: true,
             c_max: DEFAULT_C_MAX,
-            ratio_max: f32::INFINITY,
+            ratio_max: None,
             strength: SkeletonStrength::Auto {
                 max: DEFAULT_AUTO_MAX,
             },
@@ -692,8 +701,9 @@ impl SkeletonGuideSettings {
             "training_min_nonzero" => next.training_min_nonzero = number(key, value)?,
             "training_guided_cost" => next.training_guided_cost = number(key, value)?,
             "c_max" => next.c_max = number(key, value)?,
-            "ratio_max" if value.trim() == "off" => next.ratio_max = f32::INFINITY,
-            "ratio_max" => next.ratio_max = number(key, value)?,
+            "ratio_max" if value.trim() == "off" => next.ratio_max = Some(f32::INFINITY),
+            "ratio_max" if value.trim() == "auto" => next.ratio_max = None,
+            "ratio_max" => next.ratio_max = Some(number(key, value)?),
             "cost_model" => next.cost_model = CostModel::parse(value)?,
             "resolution" => next.resolution = Resolution::LongestAxis(number(key, value)?),
             "voxel_budget" => next.resolution = Resolution::VoxelBudget(number(key, value)?),
@@ -817,11 +827,10 @@ impl SkeletonGuideSettings {
                 super::training::CANDIDATES[1]
             )));
         }
-        if !(self.ratio_max > 1.0) {
+        if let Some(r) = self.ratio_max.filter(|r| !(*r > 1.0)) {
             // At most 1 guides nothing (the cap would be c = 0 at the first vertex); NaN fails.
             return Err(Error::invalid(format!(
-                "skeleton ratio_max {} must be > 1 (or off)",
-                self.ratio_max
+                "skeleton ratio_max {r} must be > 1 (or off, or auto)"
             )));
         }
         if self.learned_lobe_weights && self.learned_strength {
@@ -1083,6 +1092,7 @@ impl SkeletonGuide {
     /// fraction)` is called between stages and may cancel by returning false.
     pub fn build(
         scene: &Scene,
+        camera: Option<&Camera>,
         settings: &SkeletonGuideSettings,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<SkeletonGuide> {
@@ -1221,7 +1231,8 @@ impl SkeletonGuide {
                     0
                 }
             ];
-            let mut report = training::learn_guiding_probabilities(&guide, scene, 0, &mut history);
+            let mut report =
+                training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history);
             // Iterative training (`training_passes`): each later pass samples every node from
             // the previous pass's distributions (a uniform one where it had none) and learns
             // them again from its own samples; only the last pass's choices are kept.
@@ -1235,7 +1246,13 @@ impl SkeletonGuide {
                     &report.directions,
                     Some(&uniform),
                 )));
-                report = training::learn_guiding_probabilities(&guide, scene, pass, &mut history);
+                report = training::learn_guiding_probabilities(
+                    &guide,
+                    scene,
+                    camera,
+                    pass,
+                    &mut history,
+                );
             }
             guide.directions = None;
             if report.paths == 0 {
@@ -1548,6 +1565,18 @@ impl SkeletonGuide {
         };
         if let Some(m) = self.node_map.get(facing) {
             crate::math::prefetch(m);
+        }
+    }
+
+    /// The bound on a guided path's weight against `path`'s the render applies
+    /// ([`SkeletonGuideSettings::ratio_max`]; infinite: none).
+    pub fn ratio_max(&self) -> f32 {
+        let trained =
+            self.settings.learned_c_skel && self.training.as_ref().is_some_and(|t| t.paths > 0);
+        match self.settings.ratio_max {
+            Some(r) => r,
+            None if trained => f32::INFINITY,
+            None => FIXED_C_RATIO_MAX,
         }
     }
 
@@ -2952,7 +2981,7 @@ mod tests {
         settings.set("training_paths", "8192").unwrap();
         // The mapping of the nodes the training guides, whatever the scene-level switch says.
         settings.set("cost_model", "vertices").unwrap();
-        let guide = SkeletonGuide::build(&scene, &settings, &|_, _| true).unwrap();
+        let guide = SkeletonGuide::build(&scene, scene.camera(), &settings, &|_, _| true).unwrap();
         assert!(!guide.may_guide.is_empty());
         let mut rng = Rng::new(5, 1);
         let bounds = scene.bounds();

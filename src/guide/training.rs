@@ -4,7 +4,7 @@
 //!
 //! # Training pass
 //!
-//! `training_paths` camera paths (default 2^17) from the scene's camera (film and lens positions uniform over
+//! `training_paths` camera paths (default 2^17) from the render's camera (film and lens positions uniform over
 //! a 2:1 image), each at most `training_depth` vertices deep (default 8, the integrators'
 //! default maximum depth), sample every guided vertex x (a non-delta BSDF whose node has
 //! lobes there) from the one-sample mixture at the training probability `c0 = TRAINING_C`
@@ -322,7 +322,7 @@ use super::{
 use super::{MAX_LOBES, STRENGTH_CANDIDATES};
 use crate::integrator::MisHeuristic;
 use crate::math::{luminance, Rgb, Rng, Sampler, Vec3};
-use crate::scene::{Scene, SurfaceInteraction};
+use crate::scene::{Camera, Scene, SurfaceInteraction};
 
 /// Guiding probability of the training pass (c0 above): both strategies get half the samples,
 /// so the reweighting factor q_c0 / q_c is at most 2 for any c.
@@ -845,13 +845,14 @@ impl Grid {
 pub(super) fn learn_guiding_probabilities(
     guide: &SkeletonGuide,
     scene: &Scene,
+    camera: Option<&Camera>,
     pass: u32,
     history: &mut [Vec<Weighted>],
 ) -> TrainingReport {
     let nodes = guide.node_count();
     let settings = guide.settings();
     let grid = Grid::of(guide);
-    let Some(camera) = scene.camera() else {
+    let Some(camera) = camera else {
         return TrainingReport::untrained(settings, nodes);
     };
     // The render's image size is not known here: a 2:1 frame covers the scene files' images

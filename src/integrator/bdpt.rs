@@ -344,11 +344,7 @@ impl Bdpt {
 
     /// Sets the number of light subpaths traced per iteration (default: one per pixel).
     pub fn with_light_paths(mut self, count: usize) -> Result<Self> {
-        if count == 0 {
-            return Err(Error::invalid(
-                "bdpt: light subpaths per iteration must be at least 1",
-            ));
-        }
+        crate::limits::check_light_paths("bdpt: light subpaths per iteration", count as u64)?;
         self.light_paths = Some(count);
         Ok(self)
     }

@@ -27,7 +27,7 @@ use crate::guide::{ResamplingSettings, SkeletonGuideSettings};
 use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::Rgb;
 use crate::math::Sampler;
-use crate::scene::{CameraFrame, RenderSettingsFile, Scene};
+use crate::scene::{Camera, CameraFrame, RenderSettingsFile, Scene};
 
 /// How one-sample MIS weights two strategies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -114,6 +114,7 @@ impl IntegratorSettings {
     /// guide options.
     pub fn apply_file(&mut self, file: &RenderSettingsFile) -> Result<()> {
         if let Some(d) = file.max_depth {
+            crate::limits::check_max_depth("render.max_depth", d)?;
             self.max_depth = d;
         }
         for (key, value) in file.skeleton_options() {
@@ -142,6 +143,10 @@ impl Precomputation {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct TraceCounters {
     pub rays: u64,
+    /// The largest weight of a guided path against plain path tracing's for the same
+    /// directions (the product of p_bsdf / p over its directions so far; 1 when no
+    /// direction was guided): a firefly regression shows here first.
+    pub largest_guided_ratio: f32,
 }
 
 /// The camera and image an integrator renders for.
@@ -217,13 +222,17 @@ pub trait Integrator: Send + Sync {
         Vec::new()
     }
 
-    /// Builds what this integrator needs of `scene` (and nothing else: most need nothing).
+    /// Builds what this integrator needs of `scene` seen through `camera` (and nothing else:
+    /// most need nothing). `camera` is the one the render will use, however it was given
+    /// (scene file, command line, C API, automatic framing): a precomputation that learns from
+    /// the view (the skeleton guide's training) must see the rendered view.
     /// Must run before rendering `scene` (see [`crate::render::prepare`], which runs it on
     /// the render's worker threads); running it again rebuilds. `progress(stage, fraction)`
     /// may cancel by returning false.
     fn prepare(
         &mut self,
         _scene: &Scene,
+        _camera: &Camera,
         _progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Precomputation> {
         Ok(Precomputation::default())
@@ -316,7 +325,13 @@ pub fn parse_spec(
             })
         };
         match key {
-            "max_depth" => settings.max_depth = count()?,
+            "max_depth" => {
+                settings.max_depth = count()?;
+                crate::limits::check_max_depth(
+                    &format!("integrator option max_depth in '{spec}'"),
+                    settings.max_depth,
+                )?;
+            }
             "rr_depth" if name == "path" || name == "path_skeleton" => {
                 settings.rr_start_depth = count()?
             }
@@ -345,6 +360,7 @@ pub fn parse_spec(
 /// Creates an integrator from its specification (see [`parse_spec`]).
 pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
     let (name, settings) = parse_spec(spec, settings)?;
+    crate::limits::check_max_depth("max_depth", settings.max_depth)?;
     match name {
         "env_direct" => Ok(Box::new(EnvDirect::new(settings)?)),
         "path" => Ok(Box::new(PathTracer::new(settings))),

@@ -19,7 +19,7 @@ use crate::geometry::Ray;
 use crate::guide::{sample_bsdf_or_guide, GuideQuery, RenderEstimator, SkeletonGuide};
 use crate::math::{Frame, Rgb, Sampler, Vec3};
 use crate::render::FIRST_INTEGRATOR_DIMENSION;
-use crate::scene::{Bsdf, Scene, SurfaceInteraction};
+use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction};
 
 /// Sampler dimension slots of one bounce, so that each slot means the same thing in every
 /// sample of a pixel (and a stratified sampler stratifies that one integral): the light 2-D
@@ -149,6 +149,7 @@ impl Integrator for PathTracer {
     fn prepare(
         &mut self,
         scene: &Scene,
+        camera: &Camera,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Precomputation> {
         let Some(slot) = self.guiding.as_mut() else {
@@ -162,7 +163,7 @@ impl Integrator for PathTracer {
             triangles: self.settings.triangles,
             env: self.settings.env,
         };
-        let guide = SkeletonGuide::build(scene, &skeleton, progress)?;
+        let guide = SkeletonGuide::build(scene, Some(camera), &skeleton, progress)?;
         let notes = vec![format!(
             "skeleton guide: {} nodes ({} raw), {} importance nodes ({} found), {} of {} nodes guided, {:.1} MiB",
             guide.node_count(),
@@ -411,7 +412,7 @@ impl PathTracer {
         let mut ratio = 1.0f32;
         let ratio_max = guided
             .as_ref()
-            .map_or(f32::INFINITY, |(g, _)| g.settings().ratio_max);
+            .map_or(f32::INFINITY, |(g, _)| g.ratio_max());
         // State of the previous vertex, for MIS when a BSDF-sampled ray hits an emitter.
         let mut prev_delta = true;
         let mut prev_pdf = 0.0f32;
@@ -508,6 +509,7 @@ impl PathTracer {
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
             rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
             ratio *= ms.bsdf_pdf / bs.pdf;
+            counters.largest_guided_ratio = counters.largest_guided_ratio.max(ratio);
             if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
                 break;
             }

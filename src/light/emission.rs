@@ -215,3 +215,22 @@ impl Light {
         }
     }
 }
+
+impl Light {
+    /// A density of [`Light::sample_emission_with`] (`pdf_emit`, or [`Light::emission_pdf_with`])
+    /// split into the density of the origin (area measure; 1 for the delta positions of point
+    /// and spot lights) and of the direction (solid angle; 1 for the delta direction of a
+    /// directional light), as light tracers that weight by MIS keep them apart. Their product
+    /// is `pdf_emit`.
+    pub fn split_emission_pdf(&self, pdf_emit: f32) -> (f32, f32) {
+        match *self {
+            Light::Area { area, .. } => (1.0 / area, pdf_emit * area),
+            Light::Point { .. } | Light::Spot { .. } => (1.0, pdf_emit),
+            Light::Directional { .. } => (pdf_emit, 1.0),
+            Light::Environment { scene_radius, .. } => {
+                let disk = PI * scene_radius * scene_radius;
+                (1.0 / disk, pdf_emit * disk)
+            }
+        }
+    }
+}

@@ -54,6 +54,12 @@ impl Camera {
                 self.eye
             )));
         }
+        if !(self.up.length_squared() > 0.0) {
+            return Err(Error::invalid(format!(
+                "camera up {} is the zero vector: give a direction (e.g. 0,1,0)",
+                self.up
+            )));
+        }
         if forward
             .normalize()
             .cross(self.up.normalize_or_zero())

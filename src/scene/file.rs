@@ -325,7 +325,8 @@ enum ShapeSpec {
 // ---------------------------------------------------------------------------------------------
 // Loading.
 
-/// A scene as a command line names it: a built-in scene (`two-rooms`, `corridor`) unless a
+/// A scene as a command line names it: a built-in scene (`two-rooms`, `corridor`, a family
+/// scene `rooms:SEED`) unless a
 /// file of that name exists, an `.obj` file (no camera, no settings), or a `.json` scene file.
 /// Returns the loaded scene and a label for messages; one place for the `lacuna` command and
 /// the examples.
@@ -349,7 +350,14 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
                 );
                 return Ok((scene, "corridor".into()));
             }
-            _ => {}
+            Some(name) => {
+                if let Some(seed) = super::parse_family_name(name) {
+                    let family = super::FamilyScene::generate(seed);
+                    let scene = builtin(family.builder()?, RenderSettingsFile::default());
+                    return Ok((scene, name.into()));
+                }
+            }
+            None => {}
         }
     }
     let label = path.display().to_string();
@@ -371,7 +379,7 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
         }
         Some("json") => Ok((load_scene_file(path)?, label)),
         _ => Err(Error::invalid(format!(
-            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor)"
+            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor, rooms:SEED)"
         ))),
     }
 }
@@ -381,8 +389,20 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
 /// [`Error::Parse`] with the field path as location (e.g. `lights[1]`); OBJ problems come from
 /// [`load_obj`]. Without a camera, [`auto_camera`] frames the scene (with a warning).
 pub fn load_scene_file(path: &Path) -> Result<LoadedScene> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let file: SceneFile = serde_json::from_str(&text).map_err(|e| json_error(path, &e))?;
+    let bytes =
+        crate::limits::read_file_bounded(path, "scene file", crate::limits::MAX_SCENE_FILE_BYTES)?;
+    // A byte-order mark (written by some editors) is not JSON, but says nothing wrong.
+    let bytes = super::obj::strip_bom(&bytes);
+    let text = std::str::from_utf8(bytes).map_err(|e| {
+        let at = e.valid_up_to();
+        let line = 1 + bytes[..at].iter().filter(|&&b| b == b'\n').count();
+        Error::parse(
+            path,
+            format!("line {line}"),
+            format!("not UTF-8 text (invalid byte at offset {at}): a scene file is JSON"),
+        )
+    })?;
+    let file: SceneFile = serde_json::from_str(text).map_err(|e| json_error(path, &e))?;
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     // Invalid values become parse errors located in the scene file; I/O and parse errors of
     // the files it names (OBJ, MTL, textures) keep their own path.
@@ -419,6 +439,18 @@ pub fn load_scene_file(path: &Path) -> Result<LoadedScene> {
         objects.push(report);
     }
 
+    let mut shape_triangles = 0u64;
+    for (i, s) in file.shapes.iter().enumerate() {
+        shape_triangles += s.triangle_count();
+        let limit = crate::limits::MAX_SHAPE_TRIANGLES;
+        if shape_triangles > limit {
+            return Err(Error::parse(
+                path,
+                format!("shapes[{i}]"),
+                format!("shapes[0..={i}] make {shape_triangles} triangles, over the limit of {limit} for the inline shapes of a scene file"),
+            ));
+        }
+    }
     for (i, s) in file.shapes.iter().enumerate() {
         let loc = format!("shapes[{i}]");
         let (desc, spec) = shape_mesh(s, i).map_err(|m| Error::parse(path, loc.clone(), m))?;
@@ -609,9 +641,7 @@ impl TransformSpec {
         if !m.is_finite() || m.row(3) != Vec4::W {
             return Err(format!("transform {m} must be finite and affine"));
         }
-        if m.determinant() == 0.0 {
-            return Err(format!("transform {m} is singular (zero scale?)"));
-        }
+        crate::limits::check_transform_scale(glam::Mat3::from_mat4(m))?;
         Ok(m)
     }
 }
@@ -746,6 +776,20 @@ fn positive(v: f32, what: &str) -> std::result::Result<f32, String> {
 }
 
 /// The triangles of an inline shape (material left to the caller) and its material spec.
+impl ShapeSpec {
+    /// Triangles the shape makes (as [`shape_mesh`] builds it), before it is built.
+    fn triangle_count(&self) -> u64 {
+        match self {
+            ShapeSpec::Quad { .. } => 2,
+            ShapeSpec::Disk { segments, .. } => segments.unwrap_or(64) as u64,
+            ShapeSpec::Sphere { segments, .. } => {
+                let slices = segments.unwrap_or(48) as u64;
+                2 * slices * (slices / 2).max(2)
+            }
+        }
+    }
+}
+
 fn shape_mesh(
     s: &ShapeSpec,
     index: usize,
@@ -954,7 +998,7 @@ mod tests {
     #[test]
     fn scene_argument_resolves_builtins_and_files() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        for name in ["two-rooms", "corridor"] {
+        for name in ["two-rooms", "corridor", "rooms:5"] {
             let (loaded, label) = load_scene_arg(Path::new(name)).unwrap();
             assert_eq!(label, name);
             assert!(loaded.builder.build().is_ok());

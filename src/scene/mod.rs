@@ -10,6 +10,7 @@ mod builder;
 mod builtin;
 mod camera;
 mod corridor;
+mod family;
 mod file;
 mod interaction;
 mod material;
@@ -20,6 +21,7 @@ pub use builder::{DegeneratePolicy, MeshDesc, SceneBuilder};
 pub use builtin::two_rooms_builder;
 pub use camera::{Camera, CameraFrame};
 pub use corridor::{corridor_builder, corridor_render_settings};
+pub use family::{parse_family_name, FamilyLight, FamilyScene, Opening, Openness};
 pub use file::{
     auto_camera, convert_layout, load_scene_arg, load_scene_file, LoadedScene, RenderSettingsFile,
 };

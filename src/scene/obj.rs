@@ -93,12 +93,17 @@ pub fn load_obj(
         Some(m) => Some(Xform::new(m)?),
         None => None,
     };
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let text = String::from_utf8_lossy(&bytes);
+    let bytes =
+        crate::limits::read_file_bounded(path, "OBJ file", crate::limits::MAX_OBJ_FILE_BYTES)?;
+    check_text(&bytes, path, "an OBJ file")?;
+    let text = String::from_utf8_lossy(strip_bom(&bytes));
     let scan = prescan_obj(&text, path)?;
 
     let obj_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    let state = RefCell::new(MtlState::default());
+    let state = RefCell::new(MtlState {
+        raw_names: raw_mtllib_names(&bytes),
+        ..Default::default()
+    });
     // tobj's optional features (merging, reordering) add fields: keep the struct update.
     #[allow(clippy::needless_update)]
     let options = tobj::LoadOptions {
@@ -199,10 +204,9 @@ impl Xform {
             )));
         }
         let linear = Mat3::from_mat4(m);
+        crate::limits::check_transform_scale(linear)
+            .map_err(|e| Error::invalid(format!("OBJ {e}")))?;
         let det = linear.determinant();
-        if det == 0.0 || !det.is_finite() {
-            return Err(Error::invalid(format!("OBJ transform {m} is singular")));
-        }
         Ok(Xform {
             m,
             normal: linear.inverse().transpose(),
@@ -571,6 +575,32 @@ struct MtlState {
     material_dirs: Vec<PathBuf>,
     warnings: Vec<String>,
     fatal: Option<Error>,
+    /// `mtllib` names that are not UTF-8, as written (the text tobj sees has them replaced),
+    /// keyed by that replaced text.
+    raw_names: Vec<(String, PathBuf)>,
+}
+
+/// The `mtllib` names of an OBJ file that are not valid UTF-8, keyed by their lossy text, so
+/// that a material library with such a name is still found.
+fn raw_mtllib_names(bytes: &[u8]) -> Vec<(String, PathBuf)> {
+    let mut names = Vec::new();
+    for line in bytes.split(|&b| b == b'\n') {
+        let line = line.trim_ascii();
+        let Some(rest) = line.strip_prefix(b"mtllib") else {
+            continue;
+        };
+        let rest = rest.trim_ascii();
+        if rest.is_empty() || std::str::from_utf8(rest).is_ok() {
+            continue;
+        }
+        #[cfg(unix)]
+        {
+            use std::os::unix::ffi::OsStrExt;
+            let lossy = String::from_utf8_lossy(rest).trim().to_string();
+            names.push((lossy, PathBuf::from(std::ffi::OsStr::from_bytes(rest))));
+        }
+    }
+    names
 }
 
 /// tobj's material loader: reads, checks and normalises an MTL file.
@@ -581,6 +611,11 @@ fn load_mtl_file(obj_dir: &Path, mtl: &Path, state: &RefCell<MtlState>) -> tobj:
     }
     let written = mtl.to_string_lossy().replace('\\', "/");
     let written = written.trim();
+    let raw = state
+        .raw_names
+        .iter()
+        .find(|(lossy, _)| lossy == written)
+        .map(|(_, raw)| obj_dir.join(raw));
     if written.is_empty() {
         state
             .warnings
@@ -589,7 +624,9 @@ fn load_mtl_file(obj_dir: &Path, mtl: &Path, state: &RefCell<MtlState>) -> tobj:
     }
     // `mtllib a.mtl b.mtl` names several files; a single name may also contain spaces.
     let whole = obj_dir.join(written);
-    let files: Vec<PathBuf> = if whole.is_file() || !written.contains(char::is_whitespace) {
+    let files: Vec<PathBuf> = if let Some(raw) = raw {
+        vec![raw]
+    } else if whole.is_file() || !written.contains(char::is_whitespace) {
         vec![whole]
     } else {
         written
@@ -599,17 +636,24 @@ fn load_mtl_file(obj_dir: &Path, mtl: &Path, state: &RefCell<MtlState>) -> tobj:
     };
     let mut all: Vec<tobj::Material> = Vec::new();
     for file in files {
-        let bytes = match std::fs::read(&file) {
+        let bytes =
+            crate::limits::read_file_bounded(&file, "MTL file", crate::limits::MAX_OBJ_FILE_BYTES)
+                .and_then(|b| check_text(&b, &file, "an MTL file").map(|()| b));
+        let bytes = match bytes {
             Ok(b) => b,
             Err(e) => {
+                let reason = match e {
+                    Error::Io { source, .. } => source.to_string(),
+                    other => other.to_string(),
+                };
                 state.warnings.push(format!(
-                    "{}: material library not read ({e}); its materials fall back to the grey default",
+                    "{}: material library not read ({reason}); its materials fall back to the grey default",
                     file.display()
                 ));
                 continue;
             }
         };
-        let text = String::from_utf8_lossy(&bytes);
+        let text = String::from_utf8_lossy(strip_bom(&bytes));
         let normalised = match prescan_mtl(&text, &file) {
             Ok(t) => t,
             Err(e) => {
@@ -660,6 +704,25 @@ struct ObjScan {
     warnings: Vec<String>,
 }
 
+/// A UTF-8 byte-order mark, which some editors write, is not part of the first statement.
+pub(crate) fn strip_bom(bytes: &[u8]) -> &[u8] {
+    bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes)
+}
+
+/// OBJ and MTL files are text: a NUL byte means a binary file (an image renamed `.obj`,
+/// random bytes), refused with the line where it appears instead of parsed into nothing.
+fn check_text(bytes: &[u8], path: &Path, what: &str) -> Result<()> {
+    if let Some(at) = bytes.iter().position(|&b| b == 0) {
+        let line = 1 + bytes[..at].iter().filter(|&&b| b == b'\n').count();
+        return Err(Error::parse(
+            path,
+            location(line),
+            format!("binary data (a NUL byte at offset {at}): this is not {what}"),
+        ));
+    }
+    Ok(())
+}
+
 fn location(line: usize) -> String {
     format!("line {line}")
 }
@@ -698,6 +761,7 @@ fn prescan_obj(text: &str, path: &Path) -> Result<ObjScan> {
     let mut polylines = 0usize;
     let mut polygons_fanned = 0usize;
     const KIND: [&str; 3] = ["vertex", "texture coordinate", "normal"];
+    const KIND_PLURAL: [&str; 3] = ["vertices", "texture coordinates", "normals"];
     for (i, raw) in text.lines().enumerate() {
         let n = i + 1;
         let err = |msg: String| Error::parse(path, location(n), msg);
@@ -848,8 +912,8 @@ fn prescan_obj(text: &str, path: &Path) -> Result<ObjScan> {
                 path,
                 location(line),
                 format!(
-                    "face {} index {idx} out of range (the file has {} {}s)",
-                    KIND[k], counts[k], KIND[k]
+                    "face {} index {idx} out of range (the file has {} {})",
+                    KIND[k], counts[k], KIND_PLURAL[k]
                 ),
             ));
         }

@@ -51,7 +51,15 @@ impl Texture {
 
     /// Loads an 8-bit PNG or JPEG file, decoding sRGB to linear.
     pub fn load(path: &Path) -> Result<Self> {
-        let img = image::open(path).map_err(|e| match e {
+        // Decoded 8-bit image (at most 4 channels), its RGB copy and the linear texels.
+        let reader = crate::limits::open_image_checked(
+            path,
+            "texture",
+            crate::limits::MAX_TEXTURE_PIXELS,
+            4 + 3 + 12,
+            crate::limits::DEFAULT_MEMORY_BUDGET,
+        )?;
+        let img = reader.decode().map_err(|e| match e {
             image::ImageError::IoError(io) => Error::io(path, io),
             other => Error::parse(path, "", other.to_string()),
         })?;

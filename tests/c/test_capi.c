@@ -324,6 +324,15 @@ static void test_builder(lacuna_context *ctx) {
     lacuna_scene *scene = NULL;
     EXPECT(lacuna_scene_builder_build(NULL, &scene), LACUNA_STATUS_NULL_POINTER, "builder");
     OK(lacuna_scene_builder_build(b, &scene));
+    /* A built builder is gone: building, using or freeing it again is caught, not a crash. */
+    lacuna_scene *again = NULL;
+    EXPECT(lacuna_scene_builder_build(b, &again), LACUNA_STATUS_INVALID_OPERATION,
+           "already built or freed");
+    CHECK(again == NULL);
+    EXPECT(lacuna_scene_builder_set_degenerate_policy(b, LACUNA_DEGENERATE_POLICY_SKIP),
+           LACUNA_STATUS_INVALID_OPERATION, "already built or freed");
+    lacuna_scene_builder_free(b);
+    CHECK(strstr(lacuna_last_error_message(), "lacuna_scene_builder_free") != NULL);
     lacuna_scene_stats st;
     OK(lacuna_scene_get_stats(scene, &st));
     CHECK(st.meshes == 3 && st.triangles == 5 && st.degenerate_triangles_skipped == 1);

@@ -100,6 +100,44 @@ static void test_environment(const lacuna::Context &ctx) {
     CHECK(lacuna::RenderJob(scene.with_environment(nullptr), "path").resolution(4, 4).samples_per_pixel(1).run().read()[0] == 0.0f);
 }
 
+// The light sampler's wrapper on the built-in two-room scene (area lights only).
+static void test_light_sampler(const lacuna::Context &ctx) {
+    lacuna::Scene scene = lacuna::SceneBuilder::builtin(ctx, "two-rooms").build();
+    lacuna::LightSampler lights(scene);
+    lacuna::LightSampler copy = lights;
+    CHECK(copy.get() == lights.get());
+    lacuna_light_sampler_info info = lights.info();
+    CHECK(info.light_count > 0 && info.area_light_count == info.light_count);
+    CHECK(info.environment_light == LACUNA_INVALID_INDEX);
+    CHECK(lights.light_info(0).kind == LACUNA_LIGHT_KIND_AREA);
+    uint32_t tri = lights.light_info(0).triangle;
+    CHECK(lights.triangle_light(tri) == 0);
+    lacuna_camera cam = scene.camera();
+    lacuna_light_query q;
+    lacuna_light_query_init(&q);
+    for (int k = 0; k < 3; k++) q.position[k] = cam.eye[k];
+    q.u[0] = 0.3f;
+    q.u[1] = 0.6f;
+    lacuna_light_sample s = lights.sample(q);
+    CHECK(s.light < info.light_count && s.pdf > 0);
+    lacuna_light_hit hit = {s.light, {s.direction[0], s.direction[1], s.direction[2]}, s.distance};
+    CHECK(std::fabs(lights.eval(q, hit).pdf - s.pdf) <= 1e-3f * s.pdf);
+    std::vector<lacuna_light_sample> batch = lights.sample(std::vector<lacuna_light_query>(4, q));
+    CHECK(batch.size() == 4 && batch[3].light == s.light);
+    CHECK(lights.eval(std::vector<lacuna_light_query>(2, q), std::vector<lacuna_light_hit>(2, hit)).size() == 2);
+    const float u[4] = {0.1f, 0.2f, 0.3f, 0.4f};
+    lacuna_emission_sample e = lights.sample_emission(u);
+    CHECK(lights.emission_pdf(e.light, lacuna::vec3(e.direction[0], e.direction[1], e.direction[2])).second > 0);
+    q.u[0] = 1.5f;
+    EXPECT_ERROR(lights.sample(q), LACUNA_STATUS_OUT_OF_RANGE, "u[0]");
+    EXPECT_ERROR(lights.light_info(info.light_count), LACUNA_STATUS_OUT_OF_RANGE, "light");
+    EXPECT_ERROR(lacuna::SceneBuilder::builtin(ctx, "attic"), LACUNA_STATUS_INVALID_ARGUMENT, "attic");
+    lacuna_hit h = scene.intersect(lacuna::make_ray(lacuna::vec3(cam.eye[0], cam.eye[1], cam.eye[2]),
+                                                    lacuna::vec3(cam.target[0] - cam.eye[0], cam.target[1] - cam.eye[1],
+                                                                 cam.target[2] - cam.eye[2])));
+    CHECK(scene.surface(h).triangle == h.triangle);
+}
+
 int main(int argc, char **argv) {
     if (argc < 2) return 2;
     std::string dir = argv[1];
@@ -107,6 +145,7 @@ int main(int argc, char **argv) {
     CHECK(lacuna::version_string() == LACUNA_VERSION_STRING);
 
     lacuna::Context ctx = lacuna::Context::create();
+    test_light_sampler(ctx);
     ctx.set_thread_count(2);
     CHECK(ctx.thread_count() == 2);
     EXPECT_ERROR(ctx.set_thread_count(1u << 20), LACUNA_STATUS_OUT_OF_RANGE, "thread_count");

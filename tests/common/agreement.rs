@@ -75,7 +75,7 @@ pub fn region_means_with(
     seeds: u64,
 ) -> Vec<(f64, f64)> {
     let mut integrator = integrator::create(name, settings).unwrap();
-    lacuna::render::prepare(integrator.as_mut(), scene, None, &|_, _| true).unwrap();
+    lacuna::render::prepare(integrator.as_mut(), scene, camera, None, &|_, _| true).unwrap();
     let runs: Vec<Vec<f64>> = (0..seeds)
         .map(|seed| {
             let rs = RenderSettings {

@@ -10,7 +10,7 @@ use crate::error::{Error, Result};
 use crate::math::{luminance, Rgb, Vec3};
 
 /// Largest number of texels accepted (u32 indices, and 3 GiB of f32 RGB).
-pub const MAX_TEXELS: usize = 1 << 28;
+pub const MAX_TEXELS: usize = crate::limits::MAX_ENV_TEXELS;
 
 /// Radiance texels on a layout.
 #[derive(Clone, Debug)]
@@ -75,23 +75,36 @@ impl EnvImage {
 
     /// Loads an `.exr` or `.hdr` file (layout from the aspect ratio).
     pub fn load(path: &Path) -> Result<Self> {
+        Self::load_within(
+            path,
+            crate::limits::effective_memory_budget(crate::limits::DEFAULT_MEMORY_BUDGET),
+        )
+    }
+
+    /// [`EnvImage::load`] refusing, from the file's header and before decoding, images over
+    /// [`MAX_TEXELS`] or needing more than `budget` bytes.
+    pub fn load_within(path: &Path, budget: u64) -> Result<Self> {
         let ext = path
             .extension()
             .and_then(|e| e.to_str())
             .map(str::to_ascii_lowercase);
         let (w, h, pixels) = match ext.as_deref() {
             Some("exr") => {
-                let img = crate::film::read_exr_rgb(path)?;
+                let img = crate::film::read_exr_rgb_within(path, budget)?;
                 (img.width as usize, img.height as usize, img.pixels)
             }
             Some("hdr") => {
-                let img = image::ImageReader::open(path)
-                    .map_err(|e| Error::io(path, e))?
-                    .with_guessed_format()
-                    .map_err(|e| Error::io(path, e))?
-                    .decode()
-                    .map_err(|e| Error::parse(path, "", e.to_string()))?
-                    .into_rgb32f();
+                // Decoded f32 RGB, and the texel copy.
+                let img = crate::limits::open_image_checked(
+                    path,
+                    "environment map",
+                    MAX_TEXELS as u64,
+                    24,
+                    budget,
+                )?
+                .decode()
+                .map_err(|e| Error::parse(path, "", e.to_string()))?
+                .into_rgb32f();
                 let (w, h) = (img.width() as usize, img.height() as usize);
                 let pixels = img
                     .pixels()

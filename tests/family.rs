@@ -1,0 +1,246 @@
+//! path_skeleton on the procedural family `rooms:SEED` (scenes no default was tuned on).
+
+mod common;
+
+use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::math::luminance;
+use lacuna::render::{prepare, RenderSettings};
+use lacuna::scene::FamilyScene;
+
+/// The largest single-sample luminance of `spec` over `seeds` one-sample renders, the mean,
+/// and the render's largest guided path weight against `path`'s.
+fn largest_sample(seed: u64, spec: &str, max_depth: u32, seeds: u64) -> (f64, f64, f32) {
+    let family = FamilyScene::generate(seed);
+    let scene = family.builder().unwrap().build().unwrap();
+    let settings = IntegratorSettings {
+        max_depth,
+        ..Default::default()
+    };
+    let mut integrator = integrator::create(spec, settings).unwrap();
+    prepare(
+        integrator.as_mut(),
+        &scene,
+        &family.camera,
+        Some(2),
+        &|_, _| true,
+    )
+    .unwrap();
+    let (mut largest, mut sum, mut n, mut ratio) = (0f64, 0f64, 0f64, 0f32);
+    for s in 0..seeds {
+        let rs = RenderSettings {
+            width: 64,
+            height: 48,
+            spp: 1,
+            seed: s * 7919 + 1,
+            sampler: lacuna::math::SamplerKind::Independent,
+            threads: Some(2),
+            ..Default::default()
+        };
+        let (film, stats) = lacuna::render::render(
+            &scene,
+            &family.camera,
+            integrator.as_ref(),
+            &rs,
+            &|_| true,
+            &std::sync::atomic::AtomicBool::new(false),
+        )
+        .unwrap();
+        ratio = ratio.max(stats.largest_guided_ratio);
+        for p in film.radiance() {
+            let l = luminance(p) as f64;
+            largest = largest.max(l);
+            sum += l;
+            n += 1.0;
+        }
+    }
+    (largest, sum / n, ratio)
+}
+
+/// The fireflies: on a family scene of two rooms and one door (the light in the room
+/// the camera looks into), a fixed c = 0.5 with the lobes (what an untrained guide renders)
+/// weighed paths up to 2^k times `path`'s, k the directions the BSDF drew where the lobes have
+/// no density: single samples at 4x `path`'s largest. With `ratio_max=auto` (2 at a fixed c)
+/// its largest sample stays within 2x `path`'s; with the bound off they come back (the test
+/// can fail).
+#[test]
+fn a_fixed_c_makes_no_fireflies() {
+    let (path, path_mean, no_ratio) = largest_sample(33, "path", 65, 16);
+    assert!(no_ratio <= 1.0, "{no_ratio}");
+    let (fixed, fixed_mean, ratio) =
+        largest_sample(33, "path_skeleton:c_skel=0.5:directions=lobes", 65, 16);
+    assert!(ratio > 1.0 && ratio <= 2.0 * (1.0 + 1e-5), "{ratio}");
+    let (off, _, off_ratio) = largest_sample(
+        33,
+        "path_skeleton:c_skel=0.5:directions=lobes:ratio_max=off",
+        65,
+        16,
+    );
+    assert!(
+        fixed <= 2.0 * path,
+        "fixed c: {fixed} against path's {path}"
+    );
+    assert!(
+        off > 2.0 * path,
+        "the bound off: {off} against path's {path}"
+    );
+    assert!(off_ratio > 4.0, "{off_ratio}");
+    // Same expectation (a loose check; the z-tests below are the real one).
+    assert!(
+        (fixed_mean / path_mean - 1.0).abs() < 0.1,
+        "{fixed_mean} {path_mean}"
+    );
+}
+
+/// The family scenes the tests draw: `n` seeds from 100 on (none chosen by hand; the z-test
+/// fails on a black image, so a scene the camera sees no light in would show).
+fn drawn_seeds(n: usize) -> Vec<u64> {
+    (100..).take(n).collect()
+}
+
+/// Unbiasedness: the default `path_skeleton` (smaller training) and a fixed c = 0.5 with the
+/// lobes (guiding everywhere) against `path`, region means z-tested over 8 seeds, on a dozen
+/// family scenes drawn by seed.
+#[test]
+fn guided_images_agree_with_path_on_family_scenes() {
+    for seed in drawn_seeds(12) {
+        let family = FamilyScene::generate(seed);
+        let scene = family.builder().unwrap().build().unwrap();
+        common::agreement::agree_with_path(
+            &family.description(),
+            &scene,
+            &family.camera,
+            12,
+            16,
+            32,
+            &[
+                "path_skeleton:training_paths=8192",
+                "path_skeleton:c_skel=0.5:directions=lobes",
+            ],
+        );
+    }
+}
+
+/// What the scene-level switch decides on family scenes (`cargo test --release --test family
+/// -- --ignored --nocapture switch`).
+#[test]
+#[ignore]
+fn probe_switch() {
+    for seed in 0..40 {
+        let family = FamilyScene::generate(seed);
+        let scene = family.builder().unwrap().build().unwrap();
+        let (_, settings) =
+            integrator::parse_spec("path_skeleton", IntegratorSettings::default()).unwrap();
+        let mut pt = lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap();
+        prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+        let guide = pt.guide().unwrap();
+        let t = guide.training().unwrap();
+        println!(
+            "{} | guides nothing {} | efficiency {:.3} variance {:.3} cost {:.3}",
+            family.description(),
+            guide.guides_nothing(),
+            t.scene.efficiency(),
+            t.scene.predicted_variance(),
+            t.scene.cost_ratio
+        );
+    }
+}
+
+/// The scene-level switch on open family scenes (one outer side missing, or no ceiling)
+/// whose camera shares its room with a light: guiding cannot pay there (the direct light
+/// dominates, much of what the lobes aim at leaves the scene) and the default switches itself
+/// off, so `path_skeleton` renders `path`'s samples.
+#[test]
+fn the_switch_turns_guiding_off_on_open_scenes_lit_in_the_camera_room() {
+    for seed in [0, 16, 21] {
+        let family = FamilyScene::generate(seed);
+        assert_ne!(family.openness, lacuna::scene::Openness::Closed);
+        assert_eq!(family.min_openings_to_light(), 0);
+        let scene = family.builder().unwrap().build().unwrap();
+        let (_, settings) =
+            integrator::parse_spec("path_skeleton", IntegratorSettings::default()).unwrap();
+        let mut pt = lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap();
+        prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+        let guide = pt.guide().unwrap();
+        let t = guide.training().unwrap();
+        assert!(t.paths > 0);
+        assert!(
+            guide.guides_nothing(),
+            "{}: efficiency {:.3}",
+            family.description(),
+            t.scene.efficiency()
+        );
+    }
+}
+
+/// Per-sample variance and time of the default `path_skeleton` against `path` on a few family
+/// scenes (`-- --ignored --nocapture per_sample`): the training's prediction against what the
+/// render does, without precomputation or equal-time noise.
+#[test]
+#[ignore]
+fn probe_per_sample() {
+    for seed in [18, 30, 33, 3] {
+        let family = FamilyScene::generate(seed);
+        let scene = family.builder().unwrap().build().unwrap();
+        let mut row = Vec::new();
+        for spec in ["path", "path_skeleton"] {
+            let settings = IntegratorSettings {
+                max_depth: 65,
+                ..Default::default()
+            };
+            let mut integrator = integrator::create(spec, settings).unwrap();
+            prepare(
+                integrator.as_mut(),
+                &scene,
+                &family.camera,
+                Some(2),
+                &|_, _| true,
+            )
+            .unwrap();
+            let (w, h, seeds) = (32u32, 24u32, 24u64);
+            let n = (w * h) as usize;
+            let (mut sum, mut sum2, mut secs) = (vec![0f64; n], vec![0f64; n], 0f64);
+            for s in 0..seeds {
+                let rs = RenderSettings {
+                    width: w,
+                    height: h,
+                    spp: 16,
+                    seed: s * 7919 + 1,
+                    sampler: lacuna::math::SamplerKind::Independent,
+                    threads: Some(2),
+                    ..Default::default()
+                };
+                let (film, stats) = lacuna::render::render(
+                    &scene,
+                    &family.camera,
+                    integrator.as_ref(),
+                    &rs,
+                    &|_| true,
+                    &std::sync::atomic::AtomicBool::new(false),
+                )
+                .unwrap();
+                secs += stats.seconds;
+                for (k, p) in film.radiance().iter().enumerate() {
+                    let l = luminance(*p) as f64;
+                    sum[k] += l;
+                    sum2[k] += l * l;
+                }
+            }
+            let var: f64 = (0..n)
+                .map(|k| {
+                    let m = sum[k] / seeds as f64;
+                    sum2[k] / seeds as f64 - m * m
+                })
+                .sum::<f64>()
+                / n as f64;
+            row.push((var, secs));
+        }
+        let (vp, tp) = row[0];
+        let (vs, ts) = row[1];
+        println!(
+            "rooms:{seed}: variance path/skel {:.3}x, time skel/path {:.3}x, efficiency {:.3}x",
+            vp / vs,
+            ts / tp,
+            vp / vs / (ts / tp)
+        );
+    }
+}
