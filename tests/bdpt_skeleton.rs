@@ -63,7 +63,10 @@ fn prepared(spec: &str, scene: &Scene, max_depth: u32) -> Box<dyn Integrator> {
         ..Default::default()
     };
     let mut i = integrator::create(spec, settings).unwrap();
-    lacuna::render::prepare(i.as_mut(), scene, None, &|_, _| true).unwrap();
+    lacuna::render::prepare(i.as_mut(), scene, scene.camera().unwrap(), None, &|_, _| {
+        true
+    })
+    .unwrap();
     i
 }
 
@@ -165,7 +168,7 @@ fn skelbpt_without_a_usable_skeleton_renders_exactly_bdpt() {
         ..Default::default()
     };
     let mut skel = BdptSkeleton::new(settings_).unwrap();
-    let pre = lacuna::render::prepare(&mut skel, &scene, None, &|_, _| true).unwrap();
+    let pre = lacuna::render::prepare(&mut skel, &scene, &camera, None, &|_, _| true).unwrap();
     let bdpt = prepared("bdpt", &scene, 4);
     assert!(!skel.resamples(), "{:?}", pre.notes);
     assert!(

@@ -580,6 +580,7 @@ impl Integrator for BdptSkeleton {
     fn prepare(
         &mut self,
         scene: &Scene,
+        _camera: &Camera,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Precomputation> {
         self.prepared_for = None;
