@@ -772,6 +772,9 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         stats.rays_per_second() / 1e6,
         args.out.display()
     );
+    for note in integrator.render_notes() {
+        println!("{}: {note}", integrator.name());
+    }
     Ok(())
 }
 

@@ -503,6 +503,7 @@ fn record(
     let mut paths = LightPaths {
         vertices: Vec::new(),
         ranges: Vec::new(),
+        policy_data: None,
     };
     let mut out = LightTracingOutput::default();
     for k in 0..n_light {

@@ -2,14 +2,16 @@
 //! file behind the small [`Integrator`] trait; [`create`] makes one by name.
 
 mod bdpt;
+mod bdpt_skeleton;
 mod env_direct;
 pub mod mis_auto;
 mod path;
 
 pub use bdpt::{
-    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, ConnectionPolicy, StrategyFilter,
-    UniformPerPixel,
+    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, ConnectionPolicy, LightPaths,
+    LightVertex, StrategyFilter, UniformPerPixel,
 };
+pub use bdpt_skeleton::{BdptSkeleton, ResamplingStats};
 pub use env_direct::{EnvDirect, ALPHA_LAYER};
 #[cfg(feature = "diagnostics")]
 pub use path::diagnostics;
@@ -22,7 +24,7 @@ use crate::analysis::StageTime;
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::SkeletonGuideSettings;
+use crate::guide::{ResamplingSettings, SkeletonGuideSettings};
 use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::Rgb;
 use crate::math::Sampler;
@@ -130,6 +132,8 @@ pub struct IntegratorSettings {
     pub env_bsdf_samples: u32,
     /// `path_skeleton`: skeleton guiding (c_skel, strength, analysis resolution ...).
     pub skeleton: SkeletonGuideSettings,
+    /// `bdpt_skeleton`: the resampling options (N, alpha_accept, contribution images).
+    pub resampling: ResamplingSettings,
 }
 
 impl Default for IntegratorSettings {
@@ -144,6 +148,7 @@ impl Default for IntegratorSettings {
             env_samples: 30,
             env_bsdf_samples: 30,
             skeleton: SkeletonGuideSettings::default(),
+            resampling: ResamplingSettings::default(),
         }
     }
 }
@@ -298,6 +303,11 @@ pub trait Integrator: Send + Sync {
         Ok(Iteration::default())
     }
 
+    /// Lines for the render summary about the last render (statistics the integrator kept).
+    fn render_notes(&self) -> Vec<String> {
+        Vec::new()
+    }
+
     /// One sample of the radiance arriving at the camera along `ray`, with the first-hit AOVs.
     fn sample(
         &self,
@@ -310,7 +320,13 @@ pub trait Integrator: Send + Sync {
 }
 
 /// Names of the integrators this build offers.
-pub const NAMES: &[&str] = &["path", "path_skeleton", "bdpt", "env_direct"];
+pub const NAMES: &[&str] = &[
+    "path",
+    "path_skeleton",
+    "bdpt",
+    "bdpt_skeleton",
+    "env_direct",
+];
 
 /// Splits an integrator specification `NAME[:KEY=VALUE]...` into the name and the settings
 /// its options change, so one comparison can race variants of an integrator:
@@ -320,7 +336,9 @@ pub const NAMES: &[&str] = &["path", "path_skeleton", "bdpt", "env_direct"];
 ///   `triangles=area|solid_angle` (how next-event estimation samples emissive triangles);
 /// - `env_direct`: `samples=N` (light samples per shading point) and `bsdf=N` (BSDF samples);
 /// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
-///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`.
+///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`;
+/// - `bdpt_skeleton`: `subset=N`, `accept=ALPHA`, `images=true` ([`ResamplingSettings::set`])
+///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`.
 pub fn parse_spec(
     spec: &str,
     mut settings: IntegratorSettings,
@@ -369,6 +387,10 @@ pub fn parse_spec(
             "samples" if name == "env_direct" => settings.env_samples = count()?,
             "bsdf" if name == "env_direct" => settings.env_bsdf_samples = count()?,
             _ if name == "path_skeleton" => settings.skeleton.set(key, value)?,
+            "resolution" | "voxel_budget" if name == "bdpt_skeleton" => {
+                settings.skeleton.set(key, value)?
+            }
+            _ if name == "bdpt_skeleton" => settings.resampling.set(key, value)?,
             other => {
                 return Err(Error::invalid(format!(
                     "integrator '{name}' has no option '{other}' (in '{spec}')"
@@ -397,6 +419,7 @@ pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integr
                 None => bdpt,
             }))
         }
+        "bdpt_skeleton" => Ok(Box::new(BdptSkeleton::new(settings)?)),
         other => Err(Error::invalid(format!(
             "unknown integrator '{other}' (available: {})",
             NAMES.join(", ")
