@@ -589,7 +589,7 @@ impl Integrator for BdptSkeleton {
         let mut resampler = SkeletonResampler::plain(self.settings.resampling);
         match self.build_skeleton(scene, progress, &mut stages)? {
             Err(why) => notes.push(format!(
-                "bdpt_skeleton renders as bdpt: no usable skeleton ({why})"
+                "renders as bdpt: no usable skeleton ({why})"
             )),
             Ok(skeleton) => {
                 let t = Instant::now();
@@ -601,12 +601,12 @@ impl Integrator for BdptSkeleton {
                 let nodes = skeleton.positions.len();
                 if seeing == 0 {
                     notes.push(format!(
-                        "bdpt_skeleton renders as bdpt: none of the {nodes} skeleton nodes sees \
+                        "renders as bdpt: none of the {nodes} skeleton nodes sees \
                          a vertex of {PILOT_LIGHT_PATHS} pilot light subpaths"
                     ));
                 } else {
                     notes.push(format!(
-                        "bdpt_skeleton: {nodes} filtered skeleton nodes, {seeing} see pilot light \
+                        "{nodes} filtered skeleton nodes, {seeing} see pilot light \
                          vertices; resampling from {} light subpaths, accept {}",
                         self.settings.resampling.subset, self.settings.resampling.accept
                     ));
@@ -664,7 +664,7 @@ impl Integrator for BdptSkeleton {
         }
         let it = s.iterations as f64;
         vec![format!(
-            "bdpt_skeleton: {:.1} of {} nodes used per iteration, resampling {:.2} ms and {:.0} \
+            "{:.1} of {} nodes used per iteration, resampling {:.2} ms and {:.0} \
              node-vertex visibility rays per iteration ({:.1} % visible)",
             s.nodes_used as f64 / it,
             self.resampler.mapped.len(),
