@@ -158,8 +158,8 @@ impl Default for IntegratorSettings {
 }
 
 impl IntegratorSettings {
-    /// Applies what a scene file says about integrators: its maximum depth and `path_skeleton`
-    /// guide options.
+    /// Applies what a scene file says about integrators: its maximum depth, `path_skeleton`
+    /// guide options and the resampling options of `bdpt_skeleton` and `bdpt_ic`.
     pub fn apply_file(&mut self, file: &RenderSettingsFile) -> Result<()> {
         if let Some(d) = file.max_depth {
             crate::limits::check_max_depth("render.max_depth", d)?;
@@ -167,6 +167,9 @@ impl IntegratorSettings {
         }
         for (key, value) in file.skeleton_options() {
             self.skeleton.set(&key, &value)?;
+        }
+        for (key, value) in file.resampling_options() {
+            self.resampling.set(&key, &value)?;
         }
         Ok(())
     }
