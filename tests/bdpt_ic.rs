@@ -87,6 +87,7 @@ fn icbpt_gives_the_same_image_for_any_thread_count_and_uses_its_records() {
         notes.iter().any(|n| n.contains("importance records")),
         "{notes:?}"
     );
+    assert!(notes.iter().any(|n| n.contains("occluded")), "{notes:?}");
     for name in [
         "resampled_visibility",
         "resampled_distance",

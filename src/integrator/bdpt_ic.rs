@@ -21,8 +21,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::bdpt::{CameraVertex, ConnectionPolicy, LightPaths, PathObserver};
-use super::resampled::{build_tables, Anchor, Tables, NO_TABLE};
+use super::bdpt::{CameraVertex, Connection, ConnectionPolicy, LightPaths, PathObserver};
+use super::resampled::{build_tables, Anchor, OcclusionTally, Tables, NO_TABLE};
 use super::{
     Bdpt, Integrator, IntegratorSettings, Iteration, ResamplingStats, SampleContext, TraceCounters,
     View,
@@ -32,7 +32,7 @@ use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::resampling::Origin;
 use crate::guide::ResamplingSettings;
-use crate::math::{Rgb, Rng, Sampler, Vec3};
+use crate::math::{Rng, Sampler, Vec3};
 use crate::scene::{Scene, SurfaceInteraction};
 
 /// Random-number stream of the record subpaths (apart from the pixels' and the light's).
@@ -184,6 +184,7 @@ struct IcResampler {
     /// `begin_iteration` (which sees the view) to the policy's (which sees the light subpaths).
     pending: Mutex<Option<Arc<Records>>>,
     stats: Mutex<ResamplingStats>,
+    occlusion: OcclusionTally,
 }
 
 impl IcResampler {
@@ -260,7 +261,7 @@ impl ConnectionPolicy for IcResampler {
         vertex: &CameraVertex,
         paths: &LightPaths,
         rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
     ) {
         let Some(it) = paths
             .policy_data
@@ -275,7 +276,8 @@ impl ConnectionPolicy for IcResampler {
             records.normals[i].dot(n) > RECORD_COS
         });
         let table = record.map_or(NO_TABLE, |r| it.tables.anchor_table[r]);
-        it.tables.resample(vertex, table, rng, connect);
+        it.tables
+            .resample(vertex, table, rng, &self.occlusion, connect);
     }
 }
 
@@ -311,7 +313,7 @@ impl ConnectionPolicy for Shared {
         vertex: &CameraVertex,
         paths: &LightPaths,
         rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
     ) {
         self.0.connect_vertex(vertex, paths, rng, connect)
     }
@@ -334,6 +336,7 @@ impl BdptIc {
             settings: settings.resampling,
             pending: Mutex::new(None),
             stats: Mutex::new(ResamplingStats::default()),
+            occlusion: OcclusionTally::default(),
         });
         bdpt.set_policy(Box::new(Shared(resampler.clone())));
         Ok(BdptIc {
@@ -424,6 +427,7 @@ impl Integrator for BdptIc {
     ) -> Result<Iteration> {
         if sample_index == 0 {
             *self.resampler.stats() = ResamplingStats::default();
+            self.resampler.occlusion.reset();
         }
         let start = Instant::now();
         let records = Arc::new(self.trace_records(scene, view, seed, sample_index));
@@ -453,14 +457,17 @@ impl Integrator for BdptIc {
             return Vec::new();
         }
         let it = s.iterations as f64;
-        vec![format!(
-            "{:.1} importance records per iteration (density {}), records and resampling \
-             {:.2} ms and {:.0} record-vertex visibility rays per iteration ({:.1} % visible)",
-            s.nodes_used as f64 / it,
-            self.settings.resampling.density,
-            1e3 * s.build_seconds / it,
-            s.pairs as f64 / it,
-            100.0 * s.visible_pairs as f64 / s.pairs.max(1) as f64
-        )]
+        vec![
+            format!(
+                "{:.1} importance records per iteration (density {}), records and resampling \
+                 {:.2} ms and {:.0} record-vertex visibility rays per iteration ({:.1} % visible)",
+                s.nodes_used as f64 / it,
+                self.settings.resampling.density,
+                1e3 * s.build_seconds / it,
+                s.pairs as f64 / it,
+                100.0 * s.visible_pairs as f64 / s.pairs.max(1) as f64
+            ),
+            self.resampler.occlusion.note(),
+        ]
     }
 }

@@ -30,8 +30,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::bdpt::{CameraVertex, ConnectionPolicy, LightPaths};
-use super::resampled::{build_tables, Anchor, Tables, NO_TABLE};
+use super::bdpt::{CameraVertex, Connection, ConnectionPolicy, LightPaths};
+use super::resampled::{build_tables, Anchor, OcclusionTally, Tables, NO_TABLE};
 use super::{
     Bdpt, Integrator, IntegratorSettings, Iteration, Precomputation, SampleContext, TraceCounters,
     View,
@@ -44,7 +44,7 @@ use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::resampling::Origin;
 use crate::guide::ResamplingSettings;
-use crate::math::{Rgb, Sampler, Vec3};
+use crate::math::{Sampler, Vec3};
 use crate::scene::{Camera, Scene};
 
 /// Light subpaths of the pilot that decides whether any node sees light vertices.
@@ -94,6 +94,7 @@ pub struct SkeletonResampler {
     /// Camera vertices mapped to each node so far in this render (002 N_mapped).
     mapped: Vec<AtomicU64>,
     stats: Mutex<ResamplingStats>,
+    occlusion: OcclusionTally,
 }
 
 impl SkeletonResampler {
@@ -103,6 +104,7 @@ impl SkeletonResampler {
             skeleton: None,
             mapped: Vec::new(),
             stats: Mutex::new(ResamplingStats::default()),
+            occlusion: OcclusionTally::default(),
         }
     }
 
@@ -168,6 +170,7 @@ impl ConnectionPolicy for SkeletonResampler {
                 c.store(0, Ordering::Relaxed);
             }
             *self.stats.lock().unwrap_or_else(|e| e.into_inner()) = ResamplingStats::default();
+            self.occlusion.reset();
         }
         let start = Instant::now();
         let tables = self.build_tables(scene, skeleton, paths);
@@ -208,7 +211,7 @@ impl ConnectionPolicy for SkeletonResampler {
         vertex: &CameraVertex,
         paths: &LightPaths,
         rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
     ) {
         let (Some(skeleton), Some(tables)) = (
             &self.skeleton,
@@ -235,7 +238,7 @@ impl ConnectionPolicy for SkeletonResampler {
             self.mapped[n as usize].fetch_add(1, Ordering::Relaxed);
         }
         let table = node.map_or(NO_TABLE, |n| tables.anchor_table[n as usize]);
-        tables.resample(vertex, table, rng, connect);
+        tables.resample(vertex, table, rng, &self.occlusion, connect);
     }
 }
 
@@ -271,7 +274,7 @@ impl ConnectionPolicy for Shared {
         vertex: &CameraVertex,
         paths: &LightPaths,
         rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
     ) {
         self.0.connect_vertex(vertex, paths, rng, connect)
     }
@@ -550,14 +553,17 @@ impl Integrator for BdptSkeleton {
             return Vec::new();
         }
         let it = s.iterations as f64;
-        vec![format!(
-            "{:.1} of {} nodes used per iteration, resampling {:.2} ms and {:.0} \
-             node-vertex visibility rays per iteration ({:.1} % visible)",
-            s.nodes_used as f64 / it,
-            self.resampler.mapped.len(),
-            1e3 * s.build_seconds / it,
-            s.pairs as f64 / it,
-            100.0 * s.visible_pairs as f64 / s.pairs.max(1) as f64
-        )]
+        vec![
+            format!(
+                "{:.1} of {} nodes used per iteration, resampling {:.2} ms and {:.0} \
+                 node-vertex visibility rays per iteration ({:.1} % visible)",
+                s.nodes_used as f64 / it,
+                self.resampler.mapped.len(),
+                1e3 * s.build_seconds / it,
+                s.pairs as f64 / it,
+                100.0 * s.visible_pairs as f64 / s.pairs.max(1) as f64
+            ),
+            self.resampler.occlusion.note(),
+        ]
     }
 }

@@ -10,8 +10,8 @@ mod path;
 mod resampled;
 
 pub use bdpt::{
-    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, ConnectionPolicy, LightPaths,
-    LightVertex, StrategyFilter, UniformPerPixel,
+    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, Connection, ConnectionPolicy,
+    LightPaths, LightVertex, StrategyFilter, UniformPerPixel,
 };
 pub use bdpt_ic::BdptIc;
 pub use bdpt_skeleton::{BdptSkeleton, ResamplingStats};

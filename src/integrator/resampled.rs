@@ -8,13 +8,52 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use rayon::prelude::*;
 
-use super::bdpt::{CameraVertex, LightPaths};
+use super::bdpt::{CameraVertex, Connection, LightPaths};
 use crate::guide::resampling::{combined_distribution, sample_cdf, Origin};
-use crate::math::{luminance, Rgb, Sampler, Vec3};
+use crate::math::{luminance, Sampler, Vec3};
 use crate::scene::Scene;
 
 /// No distribution: the vertex resamples uniformly.
 pub(super) const NO_TABLE: u32 = u32::MAX;
+/// Connections are tallied for occlusion at every this many pixels only (a sample that keeps
+/// shared counters out of the hot path).
+const OCCLUSION_TALLY_EVERY: u64 = 16;
+
+/// Resampled connections and those whose shadow ray was blocked, over a render, by whether
+/// they came from an anchor's distribution (0) or the uniform fallback (1); tallied at every
+/// [`OCCLUSION_TALLY_EVERY`]th pixel.
+#[derive(Default)]
+pub(super) struct OcclusionTally {
+    connections: [AtomicU64; 2],
+    occluded: [AtomicU64; 2],
+}
+
+impl OcclusionTally {
+    pub fn reset(&self) {
+        for c in self.connections.iter().chain(&self.occluded) {
+            c.store(0, Ordering::Relaxed);
+        }
+    }
+
+    /// A line for the render notes.
+    pub fn note(&self) -> String {
+        let part = |k: usize| {
+            let n = self.connections[k].load(Ordering::Relaxed);
+            let o = self.occluded[k].load(Ordering::Relaxed);
+            if n == 0 {
+                "none".to_string()
+            } else {
+                format!("{:.1} % of {n} occluded", 100.0 * o as f64 / n as f64)
+            }
+        };
+        format!(
+            "resampled connections (every {OCCLUSION_TALLY_EVERY}th pixel): from distributions \
+             {}, from the uniform fallback {}",
+            part(0),
+            part(1)
+        )
+    }
+}
 
 /// A point distributions are built for.
 #[derive(Clone, Copy, Debug)]
@@ -60,8 +99,11 @@ impl Tables {
         vertex: &CameraVertex,
         table: u32,
         rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+        tally: &OcclusionTally,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
     ) {
+        let tallied = vertex.pixel_index % OCCLUSION_TALLY_EVERY == 0;
+        let kind = (table == NO_TABLE) as usize;
         let e = self.entries.len();
         let subset = self.subset as f32;
         let lengths = self.lengths().min(vertex.max_light_segments as usize);
@@ -85,9 +127,13 @@ impl Tables {
                 (i, q, Origin::from_u8(self.origins[base + a + i]))
             };
             let (j, v) = self.entries[a + i];
-            let added = connect(j as usize, v as usize, 1.0 / (subset * q));
+            let c = connect(j as usize, v as usize, 1.0 / (subset * q));
             if let Some(cell) = vertex.layers.get(origin as usize) {
-                cell.set(cell.get() + added);
+                cell.set(cell.get() + c.added);
+            }
+            if tallied {
+                tally.connections[kind].fetch_add(1, Ordering::Relaxed);
+                tally.occluded[kind].fetch_add(c.occluded as u64, Ordering::Relaxed);
             }
         }
     }
