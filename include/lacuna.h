@@ -1429,7 +1429,8 @@ lacuna_status lacuna_guide_query_pdf(const struct lacuna_guide_query *query,
                                      float *out_pdf);
 
 // Creates a render job of `scene` (kept alive by the job) with the integrator named
-// `integrator` (`"path"`, `"path_skeleton"`, `"bdpt"`, `"env_direct"`, optionally with
+// `integrator` (`"path"`, `"path_skeleton"`, `"bdpt"`, `"bdpt_skeleton"`, `"bdpt_ic"`,
+// `"env_direct"`, optionally with
 // options as `NAME:KEY=VALUE...`; NULL for the scene file's integrator or `"path"`).
 // Integrators with a per-scene precomputation (`path_skeleton`'s skeleton guide) run it at
 // the start of every run, on the job's threads; its time is reported in
@@ -1764,6 +1765,52 @@ lacuna_status lacuna_mesh_set_material(struct lacuna_mesh *mesh, uint32_t materi
 lacuna_status lacuna_mesh_get_counts(const struct lacuna_mesh *mesh,
                                      size_t *out_vertex_count,
                                      size_t *out_triangle_count);
+
+// `bdpt_skeleton` and `bdpt_ic`: resample from the first `subset` light subpaths of each
+// iteration (N, 1..=16777216; default 1024, 002 §5). `LACUNA_STATUS_INVALID_ARGUMENT` for 0
+// or more, `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+lacuna_status lacuna_render_job_set_resampling_subset(struct lacuna_render_job *job,
+                                                      uint32_t subset);
+
+// `bdpt_skeleton`: node acceptance alpha_accept (finite, >= 0; default 1, 002 §4.4): a node
+// gets distributions in an iteration only when more than alpha_accept times the mean number
+// of camera vertices per node mapped to it so far. `LACUNA_STATUS_INVALID_ARGUMENT` for a
+// negative or non-finite value, `LACUNA_STATUS_INVALID_OPERATION` for jobs of other
+// integrators.
+lacuna_status lacuna_render_job_set_resampling_accept(struct lacuna_render_job *job, float accept);
+
+// `bdpt_skeleton` and `bdpt_ic`: also render one image per resampling distribution and one
+// for the uniform fallback (002 Figure 10), as the film layers `resampled_visibility`,
+// `resampled_distance`, `resampled_uniform` and `resampled_fallback` (default false).
+// `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+lacuna_status lacuna_render_job_set_resampling_images(struct lacuna_render_job *job, bool enabled);
+
+// `bdpt_ic`: importance records come from the eye subpaths of this fraction of the pixels
+// per iteration (d in (0, 1]; default 0.001, 002 §5). `LACUNA_STATUS_INVALID_ARGUMENT`
+// outside (0, 1], `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+lacuna_status lacuna_render_job_set_record_density(struct lacuna_render_job *job, float density);
+
+// `bdpt_skeleton` and `bdpt_ic`: writes the resampling subset N the next run uses to
+// `*out_subset`. `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+lacuna_status lacuna_render_job_get_resampling_subset(const struct lacuna_render_job *job,
+                                                      uint32_t *out_subset);
+
+// `bdpt_skeleton` and `bdpt_ic`: writes the node acceptance alpha_accept the next run uses
+// to `*out_accept` (`bdpt_ic` has no nodes and ignores it). `LACUNA_STATUS_INVALID_OPERATION`
+// for jobs of other integrators.
+lacuna_status lacuna_render_job_get_resampling_accept(const struct lacuna_render_job *job,
+                                                      float *out_accept);
+
+// `bdpt_skeleton` and `bdpt_ic`: writes whether the next run renders the per-distribution
+// images to `*out_enabled`. `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+lacuna_status lacuna_render_job_get_resampling_images(const struct lacuna_render_job *job,
+                                                      bool *out_enabled);
+
+// `bdpt_skeleton` and `bdpt_ic`: writes the importance-record density d the next run uses to
+// `*out_density` (`bdpt_skeleton` has no records and ignores it).
+// `LACUNA_STATUS_INVALID_OPERATION` for jobs of other integrators.
+lacuna_status lacuna_render_job_get_record_density(const struct lacuna_render_job *job,
+                                                   float *out_density);
 
 // Fills `*ray` with defaults: origin 0, direction +Z, tmax = +infinity, flags 0. NULL is a
 // no-op. Thread-safe.

@@ -503,6 +503,42 @@ public:
     }
     /// bdpt: light subpaths per iteration (0 = one per pixel).
     RenderJob &light_paths(uint32_t count) { return set(lacuna_render_job_set_light_paths(j_.get(), count)); }
+    /// bdpt_skeleton and bdpt_ic: resample from the first `subset` light subpaths (N).
+    RenderJob &resampling_subset(uint32_t subset) {
+        return set(lacuna_render_job_set_resampling_subset(j_.get(), subset));
+    }
+    /// bdpt_skeleton: node acceptance alpha_accept (>= 0).
+    RenderJob &resampling_accept(float accept) {
+        return set(lacuna_render_job_set_resampling_accept(j_.get(), accept));
+    }
+    /// bdpt_skeleton and bdpt_ic: one image per resampling distribution (002 Figure 10).
+    RenderJob &resampling_images(bool enabled) {
+        return set(lacuna_render_job_set_resampling_images(j_.get(), enabled));
+    }
+    /// bdpt_ic: importance-record density d in (0, 1].
+    RenderJob &record_density(float density) {
+        return set(lacuna_render_job_set_record_density(j_.get(), density));
+    }
+    uint32_t resampling_subset() const {
+        uint32_t v = 0;
+        detail::check(lacuna_render_job_get_resampling_subset(j_.get(), &v));
+        return v;
+    }
+    float resampling_accept() const {
+        float v = 0;
+        detail::check(lacuna_render_job_get_resampling_accept(j_.get(), &v));
+        return v;
+    }
+    bool resampling_images() const {
+        bool v = false;
+        detail::check(lacuna_render_job_get_resampling_images(j_.get(), &v));
+        return v;
+    }
+    float record_density() const {
+        float v = 0;
+        detail::check(lacuna_render_job_get_record_density(j_.get(), &v));
+        return v;
+    }
     /// bdpt: render only strategy (s, t); clear_strategy_filter() renders all again.
     RenderJob &strategy_filter(uint32_t s, uint32_t t, bool unweighted) {
         return set(lacuna_render_job_set_strategy_filter(j_.get(), s, t, unweighted));

@@ -203,12 +203,13 @@ struct SceneArgs {
 struct RenderArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Integrator (available: path, path_skeleton, bdpt, env_direct), with options as
-    /// NAME:KEY=VALUE... (max_depth, mis, env=STRATEGY; path and path_skeleton also rr_depth=D,
-    /// the bounces before Russian roulette, and triangles=area|solid_angle, how next-event
-    /// estimation samples emissive triangles; env_direct also samples=N, bsdf=N; path_skeleton
-    /// its guide options, see `compare --integrators`) [default: path, or the
-    /// scene file's].
+    /// Integrator (available: path, path_skeleton, bdpt, bdpt_skeleton, bdpt_ic, env_direct),
+    /// with options as NAME:KEY=VALUE... (max_depth, mis, env=STRATEGY; path and path_skeleton
+    /// also rr_depth=D, the bounces before Russian roulette, and triangles=area|solid_angle, how
+    /// next-event estimation samples emissive triangles; env_direct also samples=N, bsdf=N;
+    /// path_skeleton its guide options, see `compare --integrators`; bdpt_skeleton subset=N,
+    /// accept=ALPHA, images=true, resolution=N, voxel_budget=N; bdpt_ic subset=N, density=D,
+    /// images=true) [default: path, or the scene file's].
     #[arg(long)]
     integrator: Option<String>,
     /// Samples per pixel [default: 16, or the scene file's].
@@ -272,7 +273,9 @@ struct CompareArgs {
     /// (`learned`, the default: learned histograms replace the lobes; `lobes`; a learned
     /// `lobe_weights` or `strength` implies `lobes`), `training_passes`, `training_history`,
     /// `histogram_floor`, `ratio_max`
-    /// (e.g. `path,path:rr_depth=3,path_skeleton`);
+    /// (e.g. `path,path:rr_depth=3,path_skeleton`); for bdpt_skeleton `subset`, `accept`,
+    /// `images`, `resolution`, `voxel_budget` and for bdpt_ic `subset`, `density`, `images`
+    /// (e.g. `bdpt,bdpt_skeleton:subset=1024:accept=1,bdpt_ic`);
     /// any of them also `sampler=sobol|independent` (e.g. `path:sampler=independent,path`).
     #[arg(long, default_value = "path")]
     integrators: String,

@@ -86,6 +86,11 @@ impl JobSettings {
         Ok(Box::new(bdpt))
     }
 
+    /// The integrator's name without its options.
+    pub(crate) fn integrator_name(&self) -> &str {
+        self.integrator.split(':').next().unwrap_or_default().trim()
+    }
+
     /// Fails unless the job's integrator is bidirectional (for its own settings).
     fn require_bidirectional(&self, what: &str) -> CapiResult<()> {
         if self.integrator == "bdpt" {
@@ -230,6 +235,11 @@ impl lacuna_render_job {
         Ok(applied.skeleton)
     }
 
+    /// A copy of the job's settings (for getters).
+    pub(crate) fn settings(&self) -> JobSettings {
+        lock(&self.settings).clone()
+    }
+
     pub(crate) fn set_last_stats(&self, stats: RenderStats) {
         *lock(&self.last_stats) = Some(stats);
     }
@@ -261,7 +271,8 @@ impl lacuna_render_job {
 }
 
 /// Creates a render job of `scene` (kept alive by the job) with the integrator named
-/// `integrator` (`"path"`, `"path_skeleton"`, `"bdpt"`, `"env_direct"`, optionally with
+/// `integrator` (`"path"`, `"path_skeleton"`, `"bdpt"`, `"bdpt_skeleton"`, `"bdpt_ic"`,
+/// `"env_direct"`, optionally with
 /// options as `NAME:KEY=VALUE...`; NULL for the scene file's integrator or `"path"`).
 /// Integrators with a per-scene precomputation (`path_skeleton`'s skeleton guide) run it at
 /// the start of every run, on the job's threads; its time is reported in

@@ -35,6 +35,9 @@ pub struct ResamplingSettings {
     pub accept: f32,
     /// Adds the per-distribution contribution images (002 Figure 10).
     pub images: bool,
+    /// ICBPT (`bdpt_ic`): importance records come from the eye subpaths of this fraction d of
+    /// the pixels per iteration (002 §5: 0.001), at least one subpath.
+    pub density: f32,
 }
 
 impl Default for ResamplingSettings {
@@ -43,16 +46,17 @@ impl Default for ResamplingSettings {
             subset: 1024,
             accept: 1.0,
             images: false,
+            density: 0.001,
         }
     }
 }
 
 /// Option keys of [`ResamplingSettings::set`].
-pub const RESAMPLING_KEYS: &[&str] = &["subset", "accept", "images"];
+pub const RESAMPLING_KEYS: &[&str] = &["subset", "accept", "images", "density"];
 
 impl ResamplingSettings {
     /// Sets one option: `subset=N` (N >= 1), `accept=ALPHA` (ALPHA >= 0, finite),
-    /// `images=true|false`.
+    /// `images=true|false`, `density=D` (0 < D <= 1).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         match key {
             "subset" => {
@@ -77,6 +81,18 @@ impl ResamplingSettings {
                 }
                 self.accept = a;
             }
+            "density" => {
+                let d: f32 = value
+                    .parse()
+                    .map_err(|_| Error::invalid(format!("density={value} must be a number")))?;
+                if !(d > 0.0 && d <= 1.0) {
+                    return Err(Error::invalid(format!(
+                        "density={value} must be in (0, 1]: the fraction of pixels whose eye \
+                         subpaths place importance records (002: 0.001)"
+                    )));
+                }
+                self.density = d;
+            }
             "images" => {
                 self.images = match value {
                     "true" | "1" | "on" => true,
@@ -90,9 +106,8 @@ impl ResamplingSettings {
             }
             other => {
                 return Err(Error::invalid(format!(
-                    "bdpt_skeleton has no option '{other}' (options: {}, and the skeleton's \
-                     resolution and voxel_budget)",
-                    RESAMPLING_KEYS.join(", ")
+                    "no resampling option '{other}' (bdpt_skeleton: subset, accept, images, \
+                     resolution, voxel_budget; bdpt_ic: subset, density, images)"
                 )))
             }
         }
@@ -365,12 +380,14 @@ mod tests {
         s.set("subset", "64").unwrap();
         s.set("accept", "0.5").unwrap();
         s.set("images", "true").unwrap();
+        s.set("density", "0.01").unwrap();
         assert_eq!(
             s,
             ResamplingSettings {
                 subset: 64,
                 accept: 0.5,
-                images: true
+                images: true,
+                density: 0.01,
             }
         );
         for (k, v) in [
@@ -380,6 +397,9 @@ mod tests {
             ("accept", "nan"),
             ("accept", "inf"),
             ("images", "maybe"),
+            ("density", "0"),
+            ("density", "1.5"),
+            ("density", "nan"),
             ("radius", "2"),
         ] {
             let err = s.set(k, v).unwrap_err().to_string();

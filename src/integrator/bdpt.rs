@@ -95,13 +95,13 @@ pub trait ConnectionPolicy: Send + Sync {
     );
 
     /// Calls `connect(subpath, vertex index in the pool, factor)` for each light vertex
-    /// `vertex` connects to; `connect` returns what the connection added to the pixel.
+    /// `vertex` connects to; `connect` returns what the connection gave.
     fn connect_vertex(
         &self,
         vertex: &CameraVertex,
         paths: &LightPaths,
         rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
     ) {
         let mut each = |j: usize, factor: f32| {
             let (a, b) = paths.ranges[j];
@@ -114,6 +114,15 @@ pub trait ConnectionPolicy: Send + Sync {
         };
         self.connect(vertex, paths.ranges.len(), rng, &mut each);
     }
+}
+
+/// What one connection of a camera vertex to a light vertex gave.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Connection {
+    /// Added to the pixel.
+    pub added: Rgb,
+    /// The shadow ray between the two vertices was blocked.
+    pub occluded: bool,
 }
 
 /// The default: every vertex of a camera path connects to the camera path's "own" light
@@ -1007,18 +1016,26 @@ impl Bdpt {
                     let mut connect = |j: usize, v: usize, factor: f32| {
                         let v = &p.vertices[v];
                         if v.path_len + 1 + state.path_len > self.max_len() {
-                            return Rgb::ZERO;
+                            return Connection::default();
                         }
+                        let rays_before = counters.rays;
                         let Some(mut e) =
                             self.connect_vertices(scene, &si, &bsdf, &state, v, counters)
                         else {
-                            return Rgb::ZERO;
+                            // A shadow ray was traced only for a connection it then refused.
+                            return Connection {
+                                added: Rgb::ZERO,
+                                occluded: counters.rays > rays_before,
+                            };
                         };
                         e.value *= state.throughput * factor;
                         obs.estimate(&e, Endpoint::LightPath(j));
                         let added = self.accept(&e, ctx.layers);
                         radiance += added;
-                        added
+                        Connection {
+                            added,
+                            occluded: false,
+                        }
                     };
                     self.policy.connect_vertex(&vertex, p, rng, &mut connect);
                 }

@@ -30,7 +30,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::bdpt::{CameraVertex, ConnectionPolicy, LightPaths};
+use super::bdpt::{CameraVertex, Connection, ConnectionPolicy, LightPaths};
+use super::resampled::{build_tables, Anchor, OcclusionTally, Tables, NO_TABLE};
 use super::{
     Bdpt, Integrator, IntegratorSettings, Iteration, Precomputation, SampleContext, TraceCounters,
     View,
@@ -41,9 +42,9 @@ use crate::analysis::{
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::resampling::{combined_distribution, sample_cdf, Origin};
+use crate::guide::resampling::Origin;
 use crate::guide::ResamplingSettings;
-use crate::math::{luminance, Rgb, Sampler, Vec3};
+use crate::math::{Sampler, Vec3};
 use crate::scene::{Camera, Scene};
 
 /// Light subpaths of the pilot that decides whether any node sees light vertices.
@@ -54,8 +55,6 @@ const PILOT_SEED: u64 = 0x5ce1_b9d7;
 const OPENNESS_RAYS: usize = 64;
 /// A node is enclosed when fewer than this fraction of its rays leave the scene.
 const ENCLOSED_ESCAPE_FRACTION: f32 = 0.25;
-/// No node: the vertex resamples uniformly.
-const NO_TABLE: u32 = u32::MAX;
 
 /// The filtered skeleton and its node map.
 struct NodeSkeleton {
@@ -71,28 +70,6 @@ impl NodeSkeleton {
         self.masks
             .map_point(&self.grid, &self.node_map, si.p, si.ng, si.wo)
             .filter(|&n| (n as usize) < self.positions.len())
-    }
-}
-
-/// One iteration's distributions.
-struct Tables {
-    /// Light subpaths resampled from (N).
-    subset: usize,
-    /// Light vertices of the subset by segments from the light: those of length l are
-    /// `entries[len_start[l - 1]..len_start[l]]`, as (subpath, vertex index in the pool).
-    entries: Vec<(u32, u32)>,
-    len_start: Vec<u32>,
-    /// Per node: its table, or [`NO_TABLE`].
-    node_table: Vec<u32>,
-    /// Table k: `cdfs[k E..(k + 1) E]` (E = entries.len()), one CDF per length range, and
-    /// each entry's distribution.
-    cdfs: Vec<f32>,
-    origins: Vec<u8>,
-}
-
-impl Tables {
-    fn lengths(&self) -> usize {
-        self.len_start.len() - 1
     }
 }
 
@@ -117,6 +94,7 @@ pub struct SkeletonResampler {
     /// Camera vertices mapped to each node so far in this render (002 N_mapped).
     mapped: Vec<AtomicU64>,
     stats: Mutex<ResamplingStats>,
+    occlusion: OcclusionTally,
 }
 
 impl SkeletonResampler {
@@ -126,6 +104,7 @@ impl SkeletonResampler {
             skeleton: None,
             mapped: Vec::new(),
             stats: Mutex::new(ResamplingStats::default()),
+            occlusion: OcclusionTally::default(),
         }
     }
 
@@ -150,78 +129,20 @@ impl SkeletonResampler {
     }
 
     fn build_tables(&self, scene: &Scene, skeleton: &NodeSkeleton, paths: &LightPaths) -> Tables {
-        let subset = (self.settings.subset as usize).min(paths.ranges.len());
-        let longest = paths.vertices.iter().map(|v| v.path_len).max().unwrap_or(0) as usize;
-        let mut per_len: Vec<Vec<(u32, u32)>> = vec![Vec::new(); longest];
-        for (j, &(a, b)) in paths.ranges[..subset].iter().enumerate() {
-            for v in a..b {
-                let len = paths.vertices[v as usize].path_len as usize;
-                per_len[len - 1].push((j as u32, v));
-            }
-        }
-        let mut entries = Vec::new();
-        let mut len_start = vec![0u32];
-        for list in per_len {
-            entries.extend(list);
-            len_start.push(entries.len() as u32);
-        }
+        let anchors: Vec<Anchor> = skeleton
+            .positions
+            .iter()
+            .map(|&p| Anchor { p, surface: None })
+            .collect();
         let accepted = self.accepted_nodes();
-        let mut node_table = vec![NO_TABLE; accepted.len()];
-        let used: Vec<usize> = (0..accepted.len()).filter(|&k| accepted[k]).collect();
-        for (t, &k) in used.iter().enumerate() {
-            node_table[k] = t as u32;
-        }
-        let e = entries.len();
-        let mut cdfs = vec![0.0f32; used.len() * e];
-        let mut origins = vec![0u8; used.len() * e];
-        let visible_pairs = AtomicU64::new(0);
-        if e > 0 {
-            cdfs.par_chunks_mut(e)
-                .zip(origins.par_chunks_mut(e))
-                .zip(used.par_iter())
-                .for_each(|((cdf, origin), &k)| {
-                    let node = skeleton.positions[k];
-                    let mut weights = vec![0.0f32; e];
-                    let mut visible = vec![false; e];
-                    let mut seen = 0u64;
-                    for (i, &(_, v)) in entries.iter().enumerate() {
-                        let y = &paths.vertices[v as usize];
-                        let d = node - y.si.p;
-                        let dist2 = d.length_squared().max(1e-12);
-                        let w = luminance(y.throughput).max(0.0) / dist2;
-                        weights[i] = if w.is_finite() { w } else { 0.0 };
-                        // The node must be on the side the vertex was reached from (the only
-                        // side a connection can leave it by) and unoccluded.
-                        let same_side = d.dot(y.si.ng) * y.si.wo.dot(y.si.ng) > 0.0;
-                        visible[i] = same_side
-                            && !scene.occluded(&y.si.spawn_ray_to(node, Vec3::ZERO, Vec3::ZERO));
-                        seen += visible[i] as u64;
-                    }
-                    for l in 0..len_start.len() - 1 {
-                        let (a, b) = (len_start[l] as usize, len_start[l + 1] as usize);
-                        combined_distribution(
-                            &weights[a..b],
-                            &visible[a..b],
-                            &mut cdf[a..b],
-                            &mut origin[a..b],
-                        );
-                    }
-                    visible_pairs.fetch_add(seen, Ordering::Relaxed);
-                });
-        }
+        let (tables, visible_pairs) =
+            build_tables(scene, &anchors, &accepted, paths, self.settings.subset);
         let mut stats = self.stats.lock().unwrap_or_else(|e| e.into_inner());
         stats.iterations += 1;
-        stats.nodes_used += used.len() as u64;
-        stats.pairs += (used.len() * e) as u64;
-        stats.visible_pairs += visible_pairs.into_inner();
-        Tables {
-            subset,
-            entries,
-            len_start,
-            node_table,
-            cdfs,
-            origins,
-        }
+        stats.nodes_used += tables.table_count() as u64;
+        stats.pairs += tables.cdfs.len() as u64;
+        stats.visible_pairs += visible_pairs;
+        tables
     }
 }
 
@@ -249,6 +170,7 @@ impl ConnectionPolicy for SkeletonResampler {
                 c.store(0, Ordering::Relaxed);
             }
             *self.stats.lock().unwrap_or_else(|e| e.into_inner()) = ResamplingStats::default();
+            self.occlusion.reset();
         }
         let start = Instant::now();
         let tables = self.build_tables(scene, skeleton, paths);
@@ -289,7 +211,7 @@ impl ConnectionPolicy for SkeletonResampler {
         vertex: &CameraVertex,
         paths: &LightPaths,
         rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
     ) {
         let (Some(skeleton), Some(tables)) = (
             &self.skeleton,
@@ -315,38 +237,8 @@ impl ConnectionPolicy for SkeletonResampler {
         if let Some(n) = node {
             self.mapped[n as usize].fetch_add(1, Ordering::Relaxed);
         }
-        let table = node.map_or(NO_TABLE, |n| tables.node_table[n as usize]);
-        let e = tables.entries.len();
-        let subset = tables.subset as f32;
-        let lengths = tables.lengths().min(vertex.max_light_segments as usize);
-        for l in 0..lengths {
-            let (a, b) = (
-                tables.len_start[l] as usize,
-                tables.len_start[l + 1] as usize,
-            );
-            if a == b {
-                continue;
-            }
-            let u = rng.uniform();
-            let (i, q, origin) = if table == NO_TABLE {
-                let n = b - a;
-                (
-                    ((u * n as f32) as usize).min(n - 1),
-                    1.0 / n as f32,
-                    Origin::Fallback,
-                )
-            } else {
-                let base = table as usize * e;
-                let cdf = &tables.cdfs[base + a..base + b];
-                let (i, q) = sample_cdf(cdf, u);
-                (i, q, Origin::from_u8(tables.origins[base + a + i]))
-            };
-            let (j, v) = tables.entries[a + i];
-            let added = connect(j as usize, v as usize, 1.0 / (subset * q));
-            if let Some(cell) = vertex.layers.get(origin as usize) {
-                cell.set(cell.get() + added);
-            }
-        }
+        let table = node.map_or(NO_TABLE, |n| tables.anchor_table[n as usize]);
+        tables.resample(vertex, table, rng, &self.occlusion, connect);
     }
 }
 
@@ -382,7 +274,7 @@ impl ConnectionPolicy for Shared {
         vertex: &CameraVertex,
         paths: &LightPaths,
         rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
     ) {
         self.0.connect_vertex(vertex, paths, rng, connect)
     }
@@ -661,14 +553,17 @@ impl Integrator for BdptSkeleton {
             return Vec::new();
         }
         let it = s.iterations as f64;
-        vec![format!(
-            "{:.1} of {} nodes used per iteration, resampling {:.2} ms and {:.0} \
-             node-vertex visibility rays per iteration ({:.1} % visible)",
-            s.nodes_used as f64 / it,
-            self.resampler.mapped.len(),
-            1e3 * s.build_seconds / it,
-            s.pairs as f64 / it,
-            100.0 * s.visible_pairs as f64 / s.pairs.max(1) as f64
-        )]
+        vec![
+            format!(
+                "{:.1} of {} nodes used per iteration, resampling {:.2} ms and {:.0} \
+                 node-vertex visibility rays per iteration ({:.1} % visible)",
+                s.nodes_used as f64 / it,
+                self.resampler.mapped.len(),
+                1e3 * s.build_seconds / it,
+                s.pairs as f64 / it,
+                100.0 * s.visible_pairs as f64 / s.pairs.max(1) as f64
+            ),
+            self.resampler.occlusion.note(),
+        ]
     }
 }

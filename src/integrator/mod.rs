@@ -2,15 +2,18 @@
 //! file behind the small [`Integrator`] trait; [`create`] makes one by name.
 
 mod bdpt;
+mod bdpt_ic;
 mod bdpt_skeleton;
 mod env_direct;
 pub mod mis_auto;
 mod path;
+mod resampled;
 
 pub use bdpt::{
-    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, ConnectionPolicy, LightPaths,
-    LightVertex, StrategyFilter, UniformPerPixel,
+    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, Connection, ConnectionPolicy,
+    LightPaths, LightVertex, StrategyFilter, UniformPerPixel,
 };
+pub use bdpt_ic::BdptIc;
 pub use bdpt_skeleton::{BdptSkeleton, ResamplingStats};
 pub use env_direct::{EnvDirect, ALPHA_LAYER};
 #[cfg(feature = "diagnostics")]
@@ -132,7 +135,8 @@ pub struct IntegratorSettings {
     pub env_bsdf_samples: u32,
     /// `path_skeleton`: skeleton guiding (c_skel, strength, analysis resolution ...).
     pub skeleton: SkeletonGuideSettings,
-    /// `bdpt_skeleton`: the resampling options (N, alpha_accept, contribution images).
+    /// `bdpt_skeleton` and `bdpt_ic`: the resampling options (N, alpha_accept, record density
+    /// d, contribution images).
     pub resampling: ResamplingSettings,
 }
 
@@ -154,8 +158,8 @@ impl Default for IntegratorSettings {
 }
 
 impl IntegratorSettings {
-    /// Applies what a scene file says about integrators: its maximum depth and `path_skeleton`
-    /// guide options.
+    /// Applies what a scene file says about integrators: its maximum depth, `path_skeleton`
+    /// guide options and the resampling options of `bdpt_skeleton` and `bdpt_ic`.
     pub fn apply_file(&mut self, file: &RenderSettingsFile) -> Result<()> {
         if let Some(d) = file.max_depth {
             crate::limits::check_max_depth("render.max_depth", d)?;
@@ -163,6 +167,9 @@ impl IntegratorSettings {
         }
         for (key, value) in file.skeleton_options() {
             self.skeleton.set(&key, &value)?;
+        }
+        for (key, value) in file.resampling_options() {
+            self.resampling.set(&key, &value)?;
         }
         Ok(())
     }
@@ -325,6 +332,7 @@ pub const NAMES: &[&str] = &[
     "path_skeleton",
     "bdpt",
     "bdpt_skeleton",
+    "bdpt_ic",
     "env_direct",
 ];
 
@@ -338,7 +346,8 @@ pub const NAMES: &[&str] = &[
 /// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
 ///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`;
 /// - `bdpt_skeleton`: `subset=N`, `accept=ALPHA`, `images=true` ([`ResamplingSettings::set`])
-///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`.
+///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`;
+/// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`.
 pub fn parse_spec(
     spec: &str,
     mut settings: IntegratorSettings,
@@ -390,7 +399,12 @@ pub fn parse_spec(
             "resolution" | "voxel_budget" if name == "bdpt_skeleton" => {
                 settings.skeleton.set(key, value)?
             }
-            _ if name == "bdpt_skeleton" => settings.resampling.set(key, value)?,
+            "subset" | "accept" | "images" if name == "bdpt_skeleton" => {
+                settings.resampling.set(key, value)?
+            }
+            "subset" | "density" | "images" if name == "bdpt_ic" => {
+                settings.resampling.set(key, value)?
+            }
             other => {
                 return Err(Error::invalid(format!(
                     "integrator '{name}' has no option '{other}' (in '{spec}')"
@@ -420,6 +434,7 @@ pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integr
             }))
         }
         "bdpt_skeleton" => Ok(Box::new(BdptSkeleton::new(settings)?)),
+        "bdpt_ic" => Ok(Box::new(BdptIc::new(settings)?)),
         other => Err(Error::invalid(format!(
             "unknown integrator '{other}' (available: {})",
             NAMES.join(", ")

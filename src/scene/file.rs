@@ -43,22 +43,35 @@ pub struct RenderSettingsFile {
     /// see `guide::SkeletonGuideSettings::set`), numbers, strings or booleans.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub skeleton: Option<BTreeMap<String, serde_json::Value>>,
+    /// Options of the vertex-connection resampling of `bdpt_skeleton` and `bdpt_ic` by name
+    /// (`subset`, `accept`, `images`, `density`: see `guide::ResamplingSettings::set`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resampling: Option<BTreeMap<String, serde_json::Value>>,
+}
+
+/// Options of an object as (key, text) pairs, in key order.
+fn options_as_text(map: &Option<BTreeMap<String, serde_json::Value>>) -> Vec<(String, String)> {
+    map.iter()
+        .flatten()
+        .map(|(k, v)| {
+            let text = match v {
+                serde_json::Value::String(s) => s.clone(),
+                other => other.to_string(),
+            };
+            (k.clone(), text)
+        })
+        .collect()
 }
 
 impl RenderSettingsFile {
     /// The `skeleton` options as (key, text) pairs, in key order.
     pub fn skeleton_options(&self) -> Vec<(String, String)> {
-        self.skeleton
-            .iter()
-            .flatten()
-            .map(|(k, v)| {
-                let text = match v {
-                    serde_json::Value::String(s) => s.clone(),
-                    other => other.to_string(),
-                };
-                (k.clone(), text)
-            })
-            .collect()
+        options_as_text(&self.skeleton)
+    }
+
+    /// The `resampling` options as (key, text) pairs, in key order.
+    pub fn resampling_options(&self) -> Vec<(String, String)> {
+        options_as_text(&self.resampling)
     }
 }
 
@@ -589,6 +602,12 @@ fn check_settings(s: &RenderSettingsFile) -> std::result::Result<(), (String, St
             .set(&key, &value)
             .map_err(|e| (format!("render.skeleton.{key}"), e.to_string()))?;
     }
+    let mut resampling = crate::guide::ResamplingSettings::default();
+    for (key, value) in s.resampling_options() {
+        resampling
+            .set(&key, &value)
+            .map_err(|e| (format!("render.resampling.{key}"), e.to_string()))?;
+    }
     if let Some(name) = &s.sampler {
         crate::math::SamplerKind::parse(name)
             .map_err(|e| ("render.sampler".to_string(), e.to_string()))?;
@@ -1099,7 +1118,8 @@ mod tests {
             "lamp_mat": { "emission": 8 }
           },
           "render": { "width": 320, "height": 240, "spp": 64, "max_depth": 8, "integrator": "path",
-                      "seed": 3, "sampler": "independent", "time": 1.5, "skeleton": { "c_skel": 0.25, "strength": 16 } }
+                      "seed": 3, "sampler": "independent", "time": 1.5, "skeleton": { "c_skel": 0.25, "strength": 16 },
+                      "resampling": { "subset": 64, "accept": 0.5 } }
         }"#;
         let path = dir.write("scene.json", json);
         let loaded = load_scene_file(&path).unwrap();
@@ -1118,6 +1138,14 @@ mod tests {
                     [
                         ("c_skel".to_string(), serde_json::json!(0.25)),
                         ("strength".to_string(), serde_json::json!(16)),
+                    ]
+                    .into_iter()
+                    .collect()
+                ),
+                resampling: Some(
+                    [
+                        ("accept".to_string(), serde_json::json!(0.5)),
+                        ("subset".to_string(), serde_json::json!(64)),
                     ]
                     .into_iter()
                     .collect()
@@ -1328,6 +1356,14 @@ mod tests {
             (
                 r#"{"render": {"skeleton": {"colour": 1}}}"#,
                 "render.skeleton.colour",
+            ),
+            (
+                r#"{"render": {"resampling": {"subset": 0}}}"#,
+                "render.resampling.subset",
+            ),
+            (
+                r#"{"render": {"resampling": {"density": 2}}}"#,
+                "render.resampling.density",
             ),
         ];
         for (json, loc) in cases {

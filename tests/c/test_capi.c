@@ -1401,6 +1401,99 @@ static void test_skeleton(lacuna_context *ctx) {
     lacuna_skeleton_retain(NULL);
 }
 
+/* Vertex-connection resampling options (bdpt_skeleton, bdpt_ic): set, read back, rejected
+ * with clear messages; a small bdpt_ic render. */
+static void test_resampling(lacuna_context *ctx) {
+    lacuna_scene *scene = build_box_scene(ctx);
+    lacuna_render_job *pt = NULL, *skel = NULL, *ic = NULL;
+    uint32_t subset = 0;
+    float accept = -1, density = -1;
+    bool images = true;
+    OK(lacuna_render_job_new(scene, "path", &pt));
+    EXPECT(lacuna_render_job_set_resampling_subset(pt, 64), LACUNA_STATUS_INVALID_OPERATION, "bdpt_skeleton");
+    EXPECT(lacuna_render_job_set_resampling_accept(pt, 1), LACUNA_STATUS_INVALID_OPERATION, "'path'");
+    EXPECT(lacuna_render_job_set_resampling_images(pt, true), LACUNA_STATUS_INVALID_OPERATION, "bdpt_ic");
+    EXPECT(lacuna_render_job_set_record_density(pt, 0.01f), LACUNA_STATUS_INVALID_OPERATION, "bdpt_ic");
+    EXPECT(lacuna_render_job_get_resampling_subset(pt, &subset), LACUNA_STATUS_INVALID_OPERATION, "'path'");
+    CHECK(subset == 0);
+    lacuna_render_job_free(pt);
+    /* Defaults (002 section 5), then the integrator name's options, then setters (the latest wins). */
+    OK(lacuna_render_job_new(scene, "bdpt_skeleton", &skel));
+    OK(lacuna_render_job_get_resampling_subset(skel, &subset));
+    OK(lacuna_render_job_get_resampling_accept(skel, &accept));
+    OK(lacuna_render_job_get_resampling_images(skel, &images));
+    OK(lacuna_render_job_get_record_density(skel, &density));
+    CHECK(subset == 1024 && accept == 1.0f && !images && density == 0.001f);
+    lacuna_render_job_free(skel);
+    OK(lacuna_render_job_new(scene, "bdpt_skeleton:subset=64:accept=0.5", &skel));
+    OK(lacuna_render_job_get_resampling_subset(skel, &subset));
+    OK(lacuna_render_job_get_resampling_accept(skel, &accept));
+    CHECK(subset == 64 && accept == 0.5f);
+    OK(lacuna_render_job_set_resampling_subset(skel, 128));
+    OK(lacuna_render_job_set_resampling_accept(skel, 0.25f));
+    OK(lacuna_render_job_set_resampling_images(skel, true));
+    OK(lacuna_render_job_get_resampling_subset(skel, &subset));
+    OK(lacuna_render_job_get_resampling_accept(skel, &accept));
+    OK(lacuna_render_job_get_resampling_images(skel, &images));
+    CHECK(subset == 128 && accept == 0.25f && images);
+    /* Invalid values: rejected, nothing changed. */
+    EXPECT(lacuna_render_job_set_resampling_subset(skel, 0), LACUNA_STATUS_INVALID_ARGUMENT, "subset=0");
+    EXPECT(lacuna_render_job_set_resampling_subset(skel, (1u << 24) + 1), LACUNA_STATUS_INVALID_ARGUMENT,
+           "subset");
+    EXPECT(lacuna_render_job_set_resampling_accept(skel, -1), LACUNA_STATUS_INVALID_ARGUMENT, "accept=-1");
+    EXPECT(lacuna_render_job_set_resampling_accept(skel, NAN), LACUNA_STATUS_INVALID_ARGUMENT, "accept");
+    EXPECT(lacuna_render_job_set_resampling_accept(skel, INFINITY), LACUNA_STATUS_INVALID_ARGUMENT, "accept");
+    EXPECT(lacuna_render_job_set_record_density(skel, 0.01f), LACUNA_STATUS_INVALID_OPERATION, "bdpt_ic");
+    OK(lacuna_render_job_get_resampling_subset(skel, &subset));
+    OK(lacuna_render_job_get_resampling_accept(skel, &accept));
+    CHECK(subset == 128 && accept == 0.25f);
+    /* NULL arguments. */
+    EXPECT(lacuna_render_job_set_resampling_subset(NULL, 64), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_resampling_accept(NULL, 1), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_resampling_images(NULL, true), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_set_record_density(NULL, 0.1f), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_get_resampling_subset(NULL, &subset), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_get_resampling_subset(skel, NULL), LACUNA_STATUS_NULL_POINTER, "out_subset");
+    EXPECT(lacuna_render_job_get_resampling_accept(NULL, &accept), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_get_resampling_accept(skel, NULL), LACUNA_STATUS_NULL_POINTER, "out_accept");
+    EXPECT(lacuna_render_job_get_resampling_images(NULL, &images), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_get_resampling_images(skel, NULL), LACUNA_STATUS_NULL_POINTER, "out_enabled");
+    EXPECT(lacuna_render_job_get_record_density(NULL, &density), LACUNA_STATUS_NULL_POINTER, "job");
+    EXPECT(lacuna_render_job_get_record_density(skel, NULL), LACUNA_STATUS_NULL_POINTER, "out_density");
+    lacuna_render_job_free(skel);
+    /* ICBPT: density and subset, and a small render. */
+    OK(lacuna_render_job_new(scene, "bdpt_ic:density=0.5", &ic));
+    lacuna_scene_release(scene);
+    OK(lacuna_render_job_get_record_density(ic, &density));
+    CHECK(density == 0.5f);
+    EXPECT(lacuna_render_job_set_record_density(ic, 0), LACUNA_STATUS_INVALID_ARGUMENT, "density=0");
+    EXPECT(lacuna_render_job_set_record_density(ic, 1.5f), LACUNA_STATUS_INVALID_ARGUMENT, "(0, 1]");
+    EXPECT(lacuna_render_job_set_record_density(ic, NAN), LACUNA_STATUS_INVALID_ARGUMENT, "density");
+    EXPECT(lacuna_render_job_set_resampling_accept(ic, 1), LACUNA_STATUS_INVALID_OPERATION, "bdpt_skeleton");
+    OK(lacuna_render_job_set_record_density(ic, 0.05f));
+    OK(lacuna_render_job_set_resampling_subset(ic, 16));
+    OK(lacuna_render_job_get_record_density(ic, &density));
+    OK(lacuna_render_job_get_resampling_subset(ic, &subset));
+    CHECK(density == 0.05f && subset == 16);
+    enum { W = 10, H = 8, N = W * H * 3 };
+    OK(lacuna_render_job_set_resolution(ic, W, H));
+    OK(lacuna_render_job_set_samples_per_pixel(ic, 2));
+    OK(lacuna_render_job_set_max_depth(ic, 3));
+    lacuna_film *film = NULL;
+    OK(lacuna_render_job_run(ic, &film));
+    static float radiance[N];
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, radiance, W, H, 0, 0));
+    double sum = 0;
+    int finite = 1;
+    for (int i = 0; i < N; i++) {
+        sum += radiance[i];
+        finite &= isfinite(radiance[i]) && radiance[i] >= 0;
+    }
+    CHECK(finite && sum > 0);
+    lacuna_film_release(film);
+    lacuna_render_job_free(ic);
+}
+
 int main(int argc, char **argv) {
     if (argc < 2) {
         fprintf(stderr, "usage: %s SCRATCH_DIR\n", argv[0]);
@@ -1417,6 +1510,7 @@ int main(int argc, char **argv) {
     test_queries(ctx);
     test_render(ctx);
     test_bdpt(ctx);
+    test_resampling(ctx);
     test_analysis(ctx);
     test_skeleton_guide(ctx);
     test_skeleton(ctx);

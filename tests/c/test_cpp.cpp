@@ -244,6 +244,30 @@ int main(int argc, char **argv) {
         EXPECT_ERROR(job.light_paths(3), LACUNA_STATUS_INVALID_OPERATION, "bdpt");
     }
 
+    // Resampling options: set, read back, invalid values rejected.
+    {
+        lacuna::RenderJob skel(scene, "bdpt_skeleton:subset=64");
+        CHECK(skel.resampling_subset() == 64 && skel.resampling_accept() == 1.0f);
+        skel.resampling_subset(256).resampling_accept(0.5f).resampling_images(true);
+        CHECK(skel.resampling_subset() == 256 && skel.resampling_accept() == 0.5f && skel.resampling_images());
+        EXPECT_ERROR(skel.resampling_subset(0), LACUNA_STATUS_INVALID_ARGUMENT, "subset");
+        EXPECT_ERROR(skel.resampling_accept(-2), LACUNA_STATUS_INVALID_ARGUMENT, "accept");
+        EXPECT_ERROR(skel.record_density(0.1f), LACUNA_STATUS_INVALID_OPERATION, "bdpt_ic");
+        CHECK(skel.resampling_subset() == 256);
+        lacuna::RenderJob ic(scene, "bdpt_ic");
+        CHECK(ic.record_density() == 0.001f && ic.resampling_subset() == 1024);
+        ic.record_density(0.25f).resampling_subset(8);
+        CHECK(ic.record_density() == 0.25f && ic.resampling_subset() == 8);
+        EXPECT_ERROR(ic.record_density(2), LACUNA_STATUS_INVALID_ARGUMENT, "density");
+        EXPECT_ERROR(job.resampling_subset(4), LACUNA_STATUS_INVALID_OPERATION, "bdpt_skeleton");
+        EXPECT_ERROR(job.resampling_images(), LACUNA_STATUS_INVALID_OPERATION, "bdpt_ic");
+        ic.resolution(8, 6).samples_per_pixel(2).max_depth(3);
+        auto image = ic.run().read();
+        double total = 0;
+        for (float v : image) total += v;
+        CHECK(std::isfinite(total) && total > 0);
+    }
+
     // A throwing callback cancels the render; run() rethrows its exception.
     job.on_progress([](double f) -> bool {
         if (f >= 0.0) throw std::runtime_error("callback failed on purpose");
