@@ -1539,10 +1539,11 @@ lacuna_status lacuna_render_job_set_thin_lens(struct lacuna_render_job *job,
                                               float lens_radius,
                                               float focus_distance);
 
-// bdpt: traces `count` light subpaths per iteration (one iteration per sample per pixel);
-// each camera path connects to one of them, light tracing splats all of them. 0 restores the
-// default, one per pixel. At most `LACUNA_MAX_LIGHT_PATHS`. `LACUNA_STATUS_INVALID_OPERATION`
-// for jobs of other integrators.
+// bdpt, bdpt_skeleton, bdpt_ic: traces `count` light subpaths per iteration (one iteration
+// per sample per pixel); each camera path connects to one of them (the resampling integrators
+// resample among them), light tracing splats all of them. 0 restores the default, one per
+// pixel. At most `LACUNA_MAX_LIGHT_PATHS`. `LACUNA_STATUS_INVALID_OPERATION` for jobs of
+// other integrators.
 lacuna_status lacuna_render_job_set_light_paths(struct lacuna_render_job *job, uint32_t count);
 
 // bdpt, for debugging: renders only strategy (`s`, `t`) (s light vertices, t camera

@@ -91,7 +91,19 @@ impl JobSettings {
         self.integrator.split(':').next().unwrap_or_default().trim()
     }
 
-    /// Fails unless the job's integrator is bidirectional (for its own settings).
+    /// Fails unless the job's integrator traces light subpaths (`bdpt` and the resampling
+    /// integrators built on it).
+    fn require_light_subpaths(&self, what: &str) -> CapiResult<()> {
+        match self.integrator_name() {
+            "bdpt" | "bdpt_skeleton" | "bdpt_ic" => Ok(()),
+            _ => Err(CapiError::operation(format!(
+                "{what} applies to bdpt, bdpt_skeleton and bdpt_ic; this job renders with '{}'",
+                self.integrator
+            ))),
+        }
+    }
+
+    /// Fails unless the job's integrator is plain `bdpt` (its strategy filter and images).
     fn require_bidirectional(&self, what: &str) -> CapiResult<()> {
         if self.integrator == "bdpt" {
             Ok(())
@@ -750,10 +762,11 @@ pub unsafe extern "C" fn lacuna_render_job_set_thin_lens(
 pub const LACUNA_MAX_LIGHT_PATHS: u32 = 1 << 28;
 const _: () = assert!(LACUNA_MAX_LIGHT_PATHS == crate::limits::MAX_LIGHT_PATHS);
 
-/// bdpt: traces `count` light subpaths per iteration (one iteration per sample per pixel);
-/// each camera path connects to one of them, light tracing splats all of them. 0 restores the
-/// default, one per pixel. At most `LACUNA_MAX_LIGHT_PATHS`. `LACUNA_STATUS_INVALID_OPERATION`
-/// for jobs of other integrators.
+/// bdpt, bdpt_skeleton, bdpt_ic: traces `count` light subpaths per iteration (one iteration
+/// per sample per pixel); each camera path connects to one of them (the resampling integrators
+/// resample among them), light tracing splats all of them. 0 restores the default, one per
+/// pixel. At most `LACUNA_MAX_LIGHT_PATHS`. `LACUNA_STATUS_INVALID_OPERATION` for jobs of
+/// other integrators.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_set_light_paths(
     job: *mut lacuna_render_job,
@@ -762,7 +775,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_light_paths(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_light_paths", job, |s| {
-            s.require_bidirectional("light subpaths per iteration")?;
+            s.require_light_subpaths("light subpaths per iteration")?;
             if count > LACUNA_MAX_LIGHT_PATHS {
                 return Err(CapiError::range(format!(
                     "count {count} exceeds {LACUNA_MAX_LIGHT_PATHS}"

@@ -845,7 +845,7 @@ static void test_bdpt(lacuna_context *ctx) {
     lacuna_scene *scene = build_box_scene(ctx);
     lacuna_render_job *pt = NULL, *job = NULL;
     OK(lacuna_render_job_new(scene, "path", &pt));
-    EXPECT(lacuna_render_job_set_light_paths(pt, 10), LACUNA_STATUS_INVALID_OPERATION, "bdpt");
+    EXPECT(lacuna_render_job_set_light_paths(pt, 10), LACUNA_STATUS_INVALID_OPERATION, "bdpt_skeleton");
     EXPECT(lacuna_render_job_set_strategy_filter(pt, 1, 2, false), LACUNA_STATUS_INVALID_OPERATION, "bdpt");
     EXPECT(lacuna_render_job_set_strategy_images(pt, 3), LACUNA_STATUS_INVALID_OPERATION, "'path'");
     OK(lacuna_render_job_clear_strategy_filter(pt));
@@ -1472,6 +1472,7 @@ static void test_resampling(lacuna_context *ctx) {
     EXPECT(lacuna_render_job_set_resampling_accept(ic, 1), LACUNA_STATUS_INVALID_OPERATION, "bdpt_skeleton");
     OK(lacuna_render_job_set_record_density(ic, 0.05f));
     OK(lacuna_render_job_set_resampling_subset(ic, 16));
+    OK(lacuna_render_job_set_light_paths(ic, 40)); /* the resampling integrators trace light subpaths */
     OK(lacuna_render_job_get_record_density(ic, &density));
     OK(lacuna_render_job_get_resampling_subset(ic, &subset));
     CHECK(density == 0.05f && subset == 16);
