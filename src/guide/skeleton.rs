@@ -307,6 +307,10 @@ pub struct SkeletonGuideSettings {
     pub cost_model: CostModel,
     /// Vertices per training path (`training_depth`).
     pub training_depth: u32,
+    /// `pilot_paths=N` (default [`DEFAULT_PILOT_PATHS`], 0: none): camera rays of the pilot
+    /// that checks the scene-level switch's prediction with the render's own estimator
+    /// (`integrator::path`, "The pilot"), each traced twice guided and twice unguided.
+    pub pilot_paths: u32,
     /// Camera paths of the training pass (`training_paths`).
     pub training_paths: u32,
     /// `training_passes=N` (with `directions=learned`; default 1): training passes of
@@ -479,6 +483,9 @@ pub const DEFAULT_C_MAX: f32 = 0.7;
 
 /// Default vertices per training path: the integrators' default maximum depth.
 pub const DEFAULT_TRAINING_DEPTH: u32 = 8;
+/// Camera rays of the pilot (`pilot_paths`): 4 x 32768 render samples, a few tenths of a
+/// second on the family scenes.
+pub const DEFAULT_PILOT_PATHS: u32 = 32768;
 
 /// Where a lobe points from a surface point x.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -560,6 +567,7 @@ impl Default for SkeletonGuideSettings {
             training_guided_cost: DEFAULT_TRAINING_GUIDED_COST,
             cost_model: CostModel::Paths,
             training_depth: DEFAULT_TRAINING_DEPTH,
+            pilot_paths: DEFAULT_PILOT_PATHS,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_passes: 1,
             training_history: false,
@@ -606,6 +614,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "ratio_max",
     "cost_model",
     "directions",
+    "pilot_paths",
 ];
 
 impl SkeletonGuideSettings {
@@ -682,6 +691,7 @@ impl SkeletonGuideSettings {
                 }
             }
             "training_depth" => next.training_depth = number(key, value)?,
+            "pilot_paths" => next.pilot_paths = number(key, value)?,
             "training_paths" => next.training_paths = number(key, value)?,
             "training_passes" => next.training_passes = number(key, value)?,
             "histogram_floor" => next.histogram_floor = number(key, value)?,
@@ -753,6 +763,12 @@ impl SkeletonGuideSettings {
             )));
         }
         self.strength.validate()?;
+        if self.pilot_paths > 1 << 22 {
+            return Err(Error::invalid(format!(
+                "skeleton pilot_paths {} must be at most 4194304",
+                self.pilot_paths
+            )));
+        }
         if !(1..=64).contains(&self.training_depth) {
             return Err(Error::invalid(format!(
                 "skeleton training_depth {} must be within 1..=64",
@@ -1577,6 +1593,24 @@ impl SkeletonGuide {
             Some(r) => r,
             None if trained => f32::INFINITY,
             None => FIXED_C_RATIO_MAX,
+        }
+    }
+
+    /// The pilot's verdict (`integrator::path`, "The pilot"): recorded in the training report,
+    /// and unless `pays`, every node set to c = 0 so that `path_skeleton` traces `path`'s
+    /// samples.
+    pub fn apply_pilot(&mut self, pilot: super::Pilot) {
+        if let Some(t) = self.training.as_mut() {
+            t.scene.pilot = Some(pilot);
+            if !pilot.pays() {
+                t.scene.switched_off = true;
+                t.probabilities.fill(0.0);
+                t.relative_cost.fill(1.0);
+            }
+        }
+        if !pilot.pays() {
+            self.node_c.fill(0.0);
+            self.guides_nothing = true;
         }
     }
 
