@@ -271,7 +271,7 @@ struct CompareArgs {
     /// `training_guided_cost`, `cost_model`, `lobe_weights`, `c_max`, `directions`
     /// (`learned`, the default: learned histograms replace the lobes; `lobes`; a learned
     /// `lobe_weights` or `strength` implies `lobes`), `training_passes`, `training_history`,
-    /// `histogram_floor`, `ratio_max`
+    /// `histogram_floor`, `ratio_max`, `pilot_paths`
     /// (e.g. `path,path:rr_depth=3,path_skeleton`);
     /// any of them also `sampler=sobol|independent` (e.g. `path:sampler=independent,path`).
     #[arg(long, default_value = "path")]
