@@ -267,6 +267,13 @@ enum lacuna_mis_heuristic
     LACUNA_MIS_HEURISTIC_BALANCE = 0,
     // Power heuristic, exponent 2 (the default).
     LACUNA_MIS_HEURISTIC_POWER = 1,
+    // `env_direct` only: the per-shading-point split of light and BSDF samples of thesis 001
+    // chapter 5 (a warm-up half, then the rest split by the estimated fraction). Other
+    // integrators refuse it when the render starts (`LACUNA_STATUS_INVALID_ARGUMENT`).
+    LACUNA_MIS_HEURISTIC_AUTO = 2,
+    // `env_direct` only: optimal MIS weights (Kondapaneni et al. 2019), estimated on a
+    // warm-up half of the samples. Other integrators refuse it as for `Auto`.
+    LACUNA_MIS_HEURISTIC_OPTIMAL = 3,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -1464,7 +1471,9 @@ lacuna_status lacuna_render_job_set_resolution(struct lacuna_render_job *job,
 lacuna_status lacuna_render_job_set_thread_count(struct lacuna_render_job *job,
                                                  uint32_t thread_count);
 
-// Sets the MIS heuristic: a `lacuna_mis_heuristic` value.
+// Sets the MIS heuristic: a `lacuna_mis_heuristic` value. Unset, each integrator uses its
+// own default: `LACUNA_MIS_HEURISTIC_POWER` for `path`, `path_skeleton` and `bdpt`,
+// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`.
 lacuna_status lacuna_render_job_set_mis_heuristic(struct lacuna_render_job *job,
                                                   uint32_t heuristic);
 

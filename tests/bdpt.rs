@@ -44,7 +44,7 @@ fn bdpt_agrees_with_path_on_the_cornell_box() {
             &camera,
             IntegratorSettings {
                 max_depth: 5,
-                mis,
+                mis: Some(mis),
                 ..Default::default()
             },
             24,

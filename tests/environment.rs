@@ -21,7 +21,7 @@ use std::sync::Arc;
 
 use common::agreement::render_image;
 use common::chi2::{assert_chi2, Stats};
-use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::integrator::{self, IntegratorSettings, MisHeuristic};
 use lacuna::light::environment::{EnvImage, Grid};
 use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap};
 use lacuna::math::{luminance, warp, Rgb, Rng, SamplerKind, Vec3, PI};
@@ -582,6 +582,115 @@ fn strategies_agree_with_each_other_bsdf_sampling_and_bdpt() {
             let other = region_means(&scene, &camera, spec, direct, 16, 8, 8);
             assert_agree(&format!("{name}: path (depth 1) vs {spec}"), &path, &other);
         }
+    }
+}
+
+/// env_direct's weightings estimate the same image: `power`, `auto` (the thesis 001 ch. 5
+/// sample split with its eq. 5.6 combination) and `optimal` against `balance`, by z-tests on
+/// the image and quadrant means, on a glossy sphere (a narrow lobe, where BSDF samples win)
+/// over a diffuse floor (where light samples win) under a sky with a sun and a studio map, and
+/// a perfect mirror sphere (no MIS at the mirror: the camera path passes it to the floor).
+/// `auto` writes its alpha layer, inside the clamp wherever a point was shaded.
+#[test]
+fn mis_weightings_of_env_direct_agree_with_balance() {
+    let glossy = Material::glossy(Rgb::splat(0.2), Rgb::splat(0.5), 200.0);
+    let mirror = Material::mirror(Rgb::splat(0.9));
+    for (name, map, material) in [
+        ("sky", load("sky.exr"), glossy.clone()),
+        ("studio", load("studio.exr"), glossy),
+        ("sky, mirror sphere", load("sky.exr"), mirror.clone()),
+    ] {
+        let (scene, camera) = sphere_scene(map, material.clone(), true);
+        let with = |mis| IntegratorSettings {
+            max_depth: 1,
+            mis: Some(mis),
+            ..Default::default()
+        };
+        let spec = "env_direct:env=cube-dynamic:samples=8:bsdf=8";
+        let balance = region_means(&scene, &camera, spec, with(MisHeuristic::Balance), 16, 8, 8);
+        assert!(balance[0].0 > 0.0);
+        for mis in [
+            MisHeuristic::Power,
+            MisHeuristic::Auto,
+            MisHeuristic::Optimal,
+        ] {
+            let other = region_means(&scene, &camera, spec, with(mis), 16, 8, 8);
+            assert_agree(
+                &format!("{name}: {spec} balance vs {mis:?}"),
+                &balance,
+                &other,
+            );
+        }
+        if material == mirror {
+            // Through the mirror env_direct shades the floor only: the image test suffices.
+            continue;
+        }
+        let auto = integrator::create(spec, with(MisHeuristic::Auto)).unwrap();
+        let rs = RenderSettings {
+            width: 16,
+            height: 16,
+            spp: 4,
+            ..Default::default()
+        };
+        let film = render_image(&scene, &camera, auto.as_ref(), &rs);
+        let index = film
+            .layer_names()
+            .iter()
+            .position(|n| n == integrator::ALPHA_LAYER)
+            .expect("mis=auto writes the alpha layer");
+        let (mut shaded, mut spread) = (0, (1.0f32, 0.0f32));
+        for p in film.layer(index) {
+            assert!(
+                p.is_finite() && (0.0..=1.0).contains(&p.y),
+                "{name}: alpha {p}"
+            );
+            if p.y > 0.99 {
+                let alpha = p.x / p.y;
+                assert!((0.024..=0.976).contains(&alpha), "{name}: alpha {alpha}");
+                spread = (spread.0.min(alpha), spread.1.max(alpha));
+                shaded += 1;
+            }
+        }
+        // The sphere and the floor want different splits.
+        assert!(
+            shaded > 100 && spread.1 - spread.0 > 0.2,
+            "{name}: {shaded} {spread:?}"
+        );
+    }
+}
+
+/// Unset, `mis` is each integrator's own default: env_direct's is the balance heuristic over
+/// the counts (bit-identical images), `path`'s the power heuristic.
+#[test]
+fn unset_mis_is_each_integrators_default() {
+    let glossy = Material::glossy(Rgb::splat(0.2), Rgb::splat(0.5), 200.0);
+    let (scene, camera) = sphere_scene(load("sky.exr"), glossy, true);
+    let rs = RenderSettings {
+        width: 16,
+        height: 16,
+        spp: 2,
+        ..Default::default()
+    };
+    let image = |spec: &str, mis: Option<MisHeuristic>| {
+        let settings = IntegratorSettings {
+            max_depth: 2,
+            mis,
+            ..Default::default()
+        };
+        let integrator = integrator::create(spec, settings).unwrap();
+        render_image(&scene, &camera, integrator.as_ref(), &rs).radiance()
+    };
+    for (spec, default, other) in [
+        (
+            "env_direct:samples=4:bsdf=4",
+            MisHeuristic::Balance,
+            MisHeuristic::Power,
+        ),
+        ("path", MisHeuristic::Power, MisHeuristic::Balance),
+    ] {
+        let unset = image(spec, None);
+        assert_eq!(unset, image(spec, Some(default)), "{spec}: {default:?}");
+        assert_ne!(unset, image(spec, Some(other)), "{spec}: {other:?}");
     }
 }
 

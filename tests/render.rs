@@ -139,7 +139,7 @@ fn white_furnace_matches_closed_form() {
         for mis in [MisHeuristic::Power, MisHeuristic::Balance] {
             let settings = IntegratorSettings {
                 max_depth,
-                mis,
+                mis: Some(mis),
                 ..Default::default()
             };
             let (mean, err) = mean_and_error(6, |seed| {

@@ -83,9 +83,9 @@ struct SceneArgs {
     /// Maximum number of bounces (1 = direct lighting only) [default: 8, or the scene file's].
     #[arg(long)]
     max_depth: Option<u32>,
-    /// MIS heuristic between light and BSDF sampling: power or balance.
-    #[arg(long, default_value = "power")]
-    mis: String,
+    /// MIS heuristic between light and BSDF sampling: power or balance; env_direct also auto (the per-point sample split of thesis 001 ch. 5) or optimal (Kondapaneni et al. 2019) [default: power; env_direct: balance].
+    #[arg(long)]
+    mis: Option<String>,
     /// Bidirectional integrators: light subpaths per iteration [default: one per pixel].
     #[arg(long)]
     light_paths: Option<u32>,
@@ -508,7 +508,7 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     }
     render.threads = args.threads;
     let mut integrator = IntegratorSettings {
-        mis: MisHeuristic::parse(&args.mis)?,
+        mis: args.mis.as_deref().map(MisHeuristic::parse).transpose()?,
         light_paths: args.light_paths,
         env,
         ..Default::default()
@@ -749,6 +749,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
             format!("{:.3}", precomputation.seconds()),
         );
     write_film(&film, &args.out, args.exposure, &meta)?;
+    write_alpha_preview(&film, &args.out)?;
     if let Some(dir) = &args.strategy_images {
         write_strategy_images(&film, dir, args.exposure, &meta)?;
     }
@@ -771,7 +772,29 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         stats.rays_per_second() / 1e6,
         args.out.display()
     );
+    for note in integrator.render_notes() {
+        println!("{}: {note}", integrator.name());
+    }
     Ok(())
+}
+
+/// `mis=auto`: the false-colour PNG of the `alpha` layer (thesis 001 Figure 5.7) beside the
+/// output, as `NAME.alpha.png` (the layer itself is in the EXR).
+fn write_alpha_preview(film: &Film, out: &Path) -> Result<()> {
+    let Some(index) = film
+        .layer_names()
+        .iter()
+        .position(|n| n == integrator::ALPHA_LAYER)
+    else {
+        return Ok(());
+    };
+    let colours: Vec<_> = film
+        .layer(index)
+        .iter()
+        .map(|p| integrator::mis_auto::alpha_false_colour(p.x, p.y))
+        .collect();
+    let path = out.with_extension("alpha.png");
+    lacuna::film::write_png_rgb(&path, film.width(), film.height(), &colours, 0.0)
 }
 
 /// Writes every strategy layer of `film` as EXR and PNG, and the weighted and unweighted

@@ -73,6 +73,9 @@ impl JobSettings {
             return integrator::create(&self.integrator, self.integrator_settings);
         }
         // Only bdpt jobs can have these (checked by their setters).
+        if let Some(mis) = self.integrator_settings.mis {
+            mis.check_supported("bdpt")?;
+        }
         let mut bdpt = Bdpt::new(self.integrator_settings);
         if let Some(f) = self.strategy {
             bdpt = bdpt.with_strategy(f)?;
@@ -502,7 +505,9 @@ pub unsafe extern "C" fn lacuna_render_job_set_thread_count(
     }
 }
 
-/// Sets the MIS heuristic: a `lacuna_mis_heuristic` value.
+/// Sets the MIS heuristic: a `lacuna_mis_heuristic` value. Unset, each integrator uses its
+/// own default: `LACUNA_MIS_HEURISTIC_POWER` for `path`, `path_skeleton` and `bdpt`,
+/// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
     job: *mut lacuna_render_job,
@@ -511,11 +516,14 @@ pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_mis_heuristic", job, |s| {
-            s.integrator_settings.mis = match lacuna_mis_heuristic::from_c(heuristic, "heuristic")?
-            {
-                lacuna_mis_heuristic::Balance => MisHeuristic::Balance,
-                lacuna_mis_heuristic::Power => MisHeuristic::Power,
-            };
+            s.integrator_settings.mis = Some(
+                match lacuna_mis_heuristic::from_c(heuristic, "heuristic")? {
+                    lacuna_mis_heuristic::Balance => MisHeuristic::Balance,
+                    lacuna_mis_heuristic::Power => MisHeuristic::Power,
+                    lacuna_mis_heuristic::Auto => MisHeuristic::Auto,
+                    lacuna_mis_heuristic::Optimal => MisHeuristic::Optimal,
+                },
+            );
             Ok(())
         })
     }

@@ -231,6 +231,13 @@ pub enum lacuna_mis_heuristic {
     Balance = 0,
     /// Power heuristic, exponent 2 (the default).
     Power = 1,
+    /// `env_direct` only: the per-shading-point split of light and BSDF samples of thesis 001
+    /// chapter 5 (a warm-up half, then the rest split by the estimated fraction). Other
+    /// integrators refuse it when the render starts (`LACUNA_STATUS_INVALID_ARGUMENT`).
+    Auto = 2,
+    /// `env_direct` only: optimal MIS weights (Kondapaneni et al. 2019), estimated on a
+    /// warm-up half of the samples. Other integrators refuse it as for `Auto`.
+    Optimal = 3,
 }
 
 /// Numbers of the pixel samples (`lacuna_render_job_set_sampler`).
@@ -334,7 +341,12 @@ c_enum!(lacuna_material_rgb {
 c_enum!(lacuna_material_float { Exponent, Ior });
 c_enum!(lacuna_degenerate_policy { Error, Skip });
 c_enum!(lacuna_bvh_quality { Fast, Medium, High });
-c_enum!(lacuna_mis_heuristic { Balance, Power });
+c_enum!(lacuna_mis_heuristic {
+    Balance,
+    Power,
+    Auto,
+    Optimal
+});
 c_enum!(lacuna_sampler { Sobol, Independent });
 c_enum!(lacuna_environment_layout { LatLong, CubeCross });
 c_enum!(lacuna_environment_strategy {

@@ -13,11 +13,13 @@
 
 pub mod directional;
 mod mixture;
+pub mod resampling;
 mod skeleton;
 mod training;
 
 pub use directional::DirectionalTable;
 pub use mixture::{sample_bsdf_or_guide, MixtureSample};
+pub use resampling::ResamplingSettings;
 pub use skeleton::{
     CostModel, GuideLobe, GuideQuery, ImportanceNode, LobeAim, LobeFallback, RenderEstimator,
     SkeletonGuide, SkeletonGuideSettings, SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX,

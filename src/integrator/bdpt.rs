@@ -25,6 +25,7 @@
 //! [`Bdpt::accept`], which applies the strategy filter and fills the per-strategy images; a
 //! [`PathObserver`] sees the vertices and estimates (the weight tests use it).
 
+use std::any::Any;
 use std::cell::Cell;
 
 use rayon::prelude::*;
@@ -45,6 +46,11 @@ pub struct CameraVertex<'a> {
     /// Segments from the camera to this vertex.
     pub segments: u32,
     pub si: &'a SurfaceInteraction,
+    /// Longest light subpath (segments) a connection from here may use within the maximum
+    /// path length.
+    pub max_light_segments: u32,
+    /// This sample's values of the policy's own layers ([`ConnectionPolicy::layers`]).
+    pub layers: &'a [Cell<Rgb>],
 }
 
 /// Chooses the stored light subpaths each camera vertex connects to (all the valid vertices of
@@ -56,13 +62,30 @@ pub struct CameraVertex<'a> {
 /// samples the connection strategies get in the MIS weights (000 eq. 185: the many-path
 /// estimator with every camera vertex connected to all N subpaths has N). A resampling policy
 /// (eq. 186) picks per camera vertex with probability p(j) and gives the factor
-/// connection_count / (N p(j)); choosing per subpath length, as SkelBPT does, will need a
-/// length here too.
+/// connection_count / (N p(j)). A policy may also pick single vertices of a subpath
+/// ([`ConnectionPolicy::connect_vertex`]), as SkelBPT does, one per subpath length.
 pub trait ConnectionPolicy: Send + Sync {
     /// MIS sample count of the connection strategies, for `light_paths` subpaths.
     fn connection_count(&self, light_paths: usize) -> f32;
 
-    /// Calls `connect(subpath, factor)` for each light subpath `vertex` connects to.
+    /// What the policy builds from one iteration's light subpaths (resampling tables), handed
+    /// back through [`LightPaths::policy_data`], and the rays it traced for it.
+    fn begin_iteration(
+        &self,
+        _scene: &Scene,
+        _paths: &LightPaths,
+        _sample_index: u32,
+    ) -> Result<(Option<Box<dyn Any + Send + Sync>>, u64)> {
+        Ok((None, 0))
+    }
+
+    /// Names of the policy's own per-pixel images (after the strategy images).
+    fn layers(&self) -> Vec<String> {
+        Vec::new()
+    }
+
+    /// Calls `connect(subpath, factor)` for each light subpath `vertex` connects to (all its
+    /// vertices). The default hands every vertex of those subpaths to `connect_vertex`.
     fn connect(
         &self,
         vertex: &CameraVertex,
@@ -70,6 +93,27 @@ pub trait ConnectionPolicy: Send + Sync {
         rng: &mut Sampler,
         connect: &mut dyn FnMut(usize, f32),
     );
+
+    /// Calls `connect(subpath, vertex index in the pool, factor)` for each light vertex
+    /// `vertex` connects to; `connect` returns what the connection added to the pixel.
+    fn connect_vertex(
+        &self,
+        vertex: &CameraVertex,
+        paths: &LightPaths,
+        rng: &mut Sampler,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+    ) {
+        let mut each = |j: usize, factor: f32| {
+            let (a, b) = paths.ranges[j];
+            for v in a as usize..b as usize {
+                if paths.vertices[v].path_len > vertex.max_light_segments {
+                    break;
+                }
+                connect(j, v, factor);
+            }
+        };
+        self.connect(vertex, paths.ranges.len(), rng, &mut each);
+    }
 }
 
 /// The default: every vertex of a camera path connects to the camera path's "own" light
@@ -120,26 +164,30 @@ impl ConnectionPolicy for AllLightPaths {
 
 /// A stored light subpath vertex (never on a delta BSDF).
 #[derive(Clone, Copy, Debug)]
-struct LightVertex {
-    si: SurfaceInteraction,
-    throughput: Rgb,
+pub struct LightVertex {
+    pub(crate) si: SurfaceInteraction,
+    /// The subpath's contribution so far (emission times scattering and geometry over the
+    /// densities), arriving at this vertex.
+    pub(crate) throughput: Rgb,
     /// Segments from the light to this vertex.
-    path_len: u32,
+    pub(crate) path_len: u32,
     d_vcm: f32,
     d_vc: f32,
 }
 
 /// The light subpaths of one iteration.
-struct LightPaths {
-    vertices: Vec<LightVertex>,
+pub struct LightPaths {
+    pub(crate) vertices: Vec<LightVertex>,
     /// Range of `vertices` of each light subpath.
-    ranges: Vec<(u32, u32)>,
+    pub(crate) ranges: Vec<(u32, u32)>,
+    /// What the connection policy built from them ([`ConnectionPolicy::begin_iteration`]).
+    pub(crate) policy_data: Option<Box<dyn Any + Send + Sync>>,
 }
 
 /// What light tracing produced besides the vertex pool: splats onto the image and onto the
 /// strategy images, and the rays traced.
 #[derive(Default)]
-struct LightTracingOutput {
+pub(crate) struct LightTracingOutput {
     splats: Vec<(u32, Rgb)>,
     layer_splats: Vec<(u32, u32, Rgb)>,
     counters: TraceCounters,
@@ -352,6 +400,12 @@ impl Bdpt {
         self.filter().map_or(true, |f| f.s == s && f.t == t) || self.strategy_layer(s, t).is_some()
     }
 
+    /// Number of strategy images (the policy's layers follow them).
+    fn strategy_layer_count(&self) -> usize {
+        self.strategy_images
+            .map_or(0, |max| 2 * strategies(max).len())
+    }
+
     /// First of the two layers (weighted, unweighted) of strategy (s, t), if it has images.
     #[inline]
     fn strategy_layer(&self, s: u32, t: u32) -> Option<usize> {
@@ -393,16 +447,22 @@ impl Bdpt {
         self
     }
 
+    /// Replaces the connection policy (an integrator built on bdpt sets its own when prepared).
+    pub fn set_policy(&mut self, policy: Box<dyn ConnectionPolicy>) {
+        self.policy = policy;
+    }
+
     #[inline]
     fn mis(&self, x: f32) -> f32 {
-        match self.settings.mis {
-            MisHeuristic::Balance => x,
+        match self.settings.mis.unwrap_or_default() {
+            // auto and optimal are refused at creation (`MisHeuristic::check_supported`).
+            MisHeuristic::Balance | MisHeuristic::Auto | MisHeuristic::Optimal => x,
             MisHeuristic::Power => x * x,
         }
     }
 
     /// Longest path in segments.
-    fn max_len(&self) -> u32 {
+    pub(crate) fn max_len(&self) -> u32 {
         self.settings.max_depth + 1
     }
 
@@ -941,24 +1001,26 @@ impl Bdpt {
                         pixel_index: ctx.pixel_index,
                         segments: state.path_len,
                         si: &si,
+                        max_light_segments: self.max_len() - 1 - state.path_len,
+                        layers: &ctx.layers[self.strategy_layer_count().min(ctx.layers.len())..],
                     };
-                    let mut connect = |j: usize, factor: f32| {
-                        let (a, b) = p.ranges[j];
-                        for v in &p.vertices[a as usize..b as usize] {
-                            if v.path_len + 1 + state.path_len > self.max_len() {
-                                break;
-                            }
-                            if let Some(mut e) =
-                                self.connect_vertices(scene, &si, &bsdf, &state, v, counters)
-                            {
-                                e.value *= state.throughput * factor;
-                                obs.estimate(&e, Endpoint::LightPath(j));
-                                radiance += self.accept(&e, ctx.layers);
-                            }
+                    let mut connect = |j: usize, v: usize, factor: f32| {
+                        let v = &p.vertices[v];
+                        if v.path_len + 1 + state.path_len > self.max_len() {
+                            return Rgb::ZERO;
                         }
+                        let Some(mut e) =
+                            self.connect_vertices(scene, &si, &bsdf, &state, v, counters)
+                        else {
+                            return Rgb::ZERO;
+                        };
+                        e.value *= state.throughput * factor;
+                        obs.estimate(&e, Endpoint::LightPath(j));
+                        let added = self.accept(&e, ctx.layers);
+                        radiance += added;
+                        added
                     };
-                    self.policy
-                        .connect(&vertex, p.ranges.len(), rng, &mut connect);
+                    self.policy.connect_vertex(&vertex, p, rng, &mut connect);
                 }
             }
             let Some(wi) = self.scatter(&bsdf, &si, &mut state, rng, Transport::Radiance) else {
@@ -974,7 +1036,7 @@ impl Bdpt {
 
     /// The light subpaths of one iteration into the vertex pool, in parallel and
     /// deterministically (fixed chunks merged in order, each path seeded by its index).
-    fn trace_light_paths(
+    pub(crate) fn trace_light_paths(
         &self,
         scene: &Scene,
         view: &View,
@@ -1015,6 +1077,7 @@ impl Bdpt {
         let mut paths = LightPaths {
             vertices: Vec::new(),
             ranges: Vec::with_capacity(count),
+            policy_data: None,
         };
         let mut total = LightTracingOutput::default();
         for (v, r, out) in chunks {
@@ -1037,13 +1100,15 @@ impl Integrator for Bdpt {
     }
 
     fn layers(&self) -> Vec<String> {
-        let Some(max) = self.strategy_images else {
-            return Vec::new();
+        let mut names: Vec<String> = match self.strategy_images {
+            Some(max) => strategies(max)
+                .into_iter()
+                .flat_map(|(s, t)| [true, false].map(|w| strategy_layer_name(s, t, w)))
+                .collect(),
+            None => Vec::new(),
         };
-        strategies(max)
-            .into_iter()
-            .flat_map(|(s, t)| [true, false].map(|w| strategy_layer_name(s, t, w)))
-            .collect()
+        names.extend(self.policy.layers());
+        names
     }
 
     fn uses_iterations(&self) -> bool {
@@ -1063,12 +1128,15 @@ impl Integrator for Bdpt {
                 "bdpt: light subpaths per iteration must be at least 1",
             ));
         }
-        let (paths, out) = self.trace_light_paths(scene, view, seed, sample_index, count);
+        let (mut paths, out) = self.trace_light_paths(scene, view, seed, sample_index, count);
+        let (policy_data, policy_rays) =
+            self.policy.begin_iteration(scene, &paths, sample_index)?;
+        paths.policy_data = policy_data;
         Ok(Iteration {
             data: Some(Box::new(paths)),
             splats: out.splats,
             layer_splats: out.layer_splats,
-            rays: out.counters.rays,
+            rays: out.counters.rays + policy_rays,
         })
     }
 

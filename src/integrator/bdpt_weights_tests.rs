@@ -387,7 +387,7 @@ impl Explicit<'_> {
                 0.0
             } else {
                 match self.model.mis {
-                    MisHeuristic::Balance => d.value,
+                    MisHeuristic::Balance | MisHeuristic::Auto | MisHeuristic::Optimal => d.value,
                     MisHeuristic::Power => d.value * d.value,
                 }
             }
@@ -503,6 +503,7 @@ fn record(
     let mut paths = LightPaths {
         vertices: Vec::new(),
         ranges: Vec::new(),
+        policy_data: None,
     };
     let mut out = LightTracingOutput::default();
     for k in 0..n_light {
@@ -626,7 +627,7 @@ fn compare(scene: &Scene, view: &View, recorded: &[Recorded], model: Model) -> C
 
 fn model(settings: &IntegratorSettings, n_light: usize, n_conn: usize) -> Model {
     Model {
-        mis: settings.mis,
+        mis: settings.mis.unwrap_or_default(),
         n_light: n_light as f64,
         n_conn: n_conn as f64,
         roulette: true,
@@ -666,7 +667,7 @@ fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
     ] {
         let settings = IntegratorSettings {
             max_depth: 6,
-            mis,
+            mis: Some(mis),
             ..Default::default()
         };
         let mut bdpt = Bdpt::new(settings).with_light_paths(n_light).unwrap();

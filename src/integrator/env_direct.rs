@@ -17,17 +17,28 @@
 //! come from the 2-D lat-long density. Unlike the thesis's GPU version, every shading point
 //! draws its own random samples (no sequence shared between pixels, so no spatial bias).
 //!
+//! `mis` chooses the weighting: `balance` (the above), `power` (exponent 2, over the same
+//! counts), `auto` (thesis 001 chapter 5: a warm-up of N/4 samples of each technique
+//! estimates the fraction alpha of BSDF samples, eq. 5.4-5.5, the other N/2 are split by it,
+//! and the two estimates are combined by eq. 5.6; alpha goes to the `alpha` layer) and
+//! `optimal` (Kondapaneni et al. 2019, its coefficients from the same warm-up); see
+//! [`super::mis_auto`].
+//!
 //! Other lights contribute one light-sampled estimate per shading point (no MIS: BSDF
 //! samples only look for the environment); with `max_depth` 1 this integrator therefore
 //! estimates what `path --max-depth 1` does.
 
-use super::{Integrator, IntegratorSettings, SampleContext, TraceCounters};
+use super::mis_auto::{self, optimal_term, AlphaEstimate, OptimalSystem};
+use super::{Integrator, IntegratorSettings, MisHeuristic, SampleContext, TraceCounters};
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::light::{EnvStrategy, EnvironmentMap, Light};
-use crate::math::{Rgb, Sampler, Vec3};
+use crate::math::{luminance, Rgb, Sampler, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
+
+/// The name of the layer `mis=auto` writes (see [`EnvDirect`]'s `layers`).
+pub const ALPHA_LAYER: &str = "alpha";
 
 pub struct EnvDirect {
     settings: IntegratorSettings,
@@ -69,15 +80,29 @@ impl EnvDirect {
         rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> Rgb {
+        self.shade_with_alpha(scene, si, rng, counters).0
+    }
+
+    /// [`EnvDirect::shade`], and for `mis=auto` the fraction of BSDF samples it chose.
+    fn shade_with_alpha(
+        &self,
+        scene: &Scene,
+        si: &SurfaceInteraction,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+    ) -> (Rgb, Option<f32>) {
         let bsdf = scene.bsdf(si);
         if bsdf.is_delta() {
-            return Rgb::ZERO;
+            return (Rgb::ZERO, None);
         }
         let mut radiance = self.other_lights(scene, si, &bsdf, rng, counters);
+        let mut alpha = None;
         if let Some((_, env)) = scene.environment() {
-            radiance += self.environment(scene, env, si, &bsdf, rng, counters);
+            let (e, a) = self.environment(scene, env, si, &bsdf, rng, counters);
+            radiance += e;
+            alpha = a;
         }
-        radiance
+        (radiance, alpha)
     }
 
     /// One light-sampled estimate of the lights other than the environment.
@@ -117,59 +142,47 @@ impl EnvDirect {
         f * ls.radiance / (pmf * ls.pdf)
     }
 
-    /// s(w) / q(w) for one environment direction, with `pdf_light` the light-sampling
-    /// density already multiplied by N_L / N (the BSDF's share is added here).
+    /// Draws `n_light` environment samples (split between cube faces by the strategy) and
+    /// `n_bsdf` BSDF samples at a non-specular surface point, and records each with its value
+    /// s(w) (zero behind the surface or occluded) and both densities. Every sample drawn is
+    /// recorded, zero ones included: the optimal estimator's control variate needs them.
     #[allow(clippy::too_many_arguments)]
-    fn contribution(
+    fn draw(
         &self,
         scene: &Scene,
         env: &EnvironmentMap,
         si: &SurfaceInteraction,
         bsdf: &Bsdf,
-        wi: Vec3,
-        q_light: f32,
-        share_bsdf: f32,
-        counters: &mut TraceCounters,
-    ) -> Rgb {
-        if wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
-            return Rgb::ZERO;
-        }
-        let frame = si.shading_frame();
-        let (wo_l, wi_l) = (frame.to_local(si.wo), frame.to_local(wi));
-        let f = bsdf.eval(wo_l, wi_l) * wi_l.z.abs();
-        let le = env.radiance(wi);
-        let value = f * le;
-        if value == Rgb::ZERO {
-            return Rgb::ZERO;
-        }
-        let q = q_light + share_bsdf * bsdf.pdf(wo_l, wi_l);
-        if !(q > 0.0) {
-            return Rgb::ZERO;
-        }
-        counters.rays += 1;
-        if scene.occluded(&si.spawn_ray(wi)) {
-            return Rgb::ZERO;
-        }
-        value / q
-    }
-
-    /// The many-sample environment estimate at a non-specular surface point.
-    fn environment(
-        &self,
-        scene: &Scene,
-        env: &EnvironmentMap,
-        si: &SurfaceInteraction,
-        bsdf: &Bsdf,
+        (n_light, n_bsdf): (u32, u32),
         rng: &mut Sampler,
         counters: &mut TraceCounters,
-    ) -> Rgb {
+        out: &mut Vec<Drawn>,
+    ) {
         let strategy = self.settings.env;
-        let n_light = self.light_samples();
-        let n_bsdf = self.settings.env_bsdf_samples;
-        let total = (n_light + n_bsdf) as f32;
-        let (share_light, share_bsdf) = (n_light as f32 / total, n_bsdf as f32 / total);
         let normal = si.facing_normal();
-        let mut sum = Rgb::ZERO;
+        let frame = si.shading_frame();
+        let wo_l = frame.to_local(si.wo);
+        let mut record = |weight: f32, from_bsdf: bool, wi: Vec3, pdf_light: f32| {
+            let wi_l = frame.to_local(wi);
+            let pdf_bsdf = bsdf.pdf(wo_l, wi_l);
+            let mut value = Rgb::ZERO;
+            if wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0 {
+                let v = bsdf.eval(wo_l, wi_l) * wi_l.z.abs() * env.radiance(wi);
+                if v != Rgb::ZERO {
+                    counters.rays += 1;
+                    if !scene.occluded(&si.spawn_ray(wi)) {
+                        value = v;
+                    }
+                }
+            }
+            out.push(Drawn {
+                weight,
+                from_bsdf,
+                value,
+                pdf_light,
+                pdf_bsdf,
+            });
+        };
         match strategy.balancing() {
             Some(balancing) if n_light > 0 => {
                 let mu = env.face_balance(balancing, normal);
@@ -184,34 +197,18 @@ impl EnvDirect {
                             continue;
                         };
                         let wi = env.to_world(local).normalize();
-                        let q_light = share_light * mu_f * pdf_f;
-                        sum += beta
-                            * self.contribution(
-                                scene, env, si, bsdf, wi, q_light, share_bsdf, counters,
-                            );
+                        record(beta, false, wi, mu_f * pdf_f);
                     }
                 }
             }
             _ => {
                 for _ in 0..n_light {
-                    let Some(s) = env.sample(strategy, normal, rng.uniform2()) else {
-                        continue;
-                    };
-                    sum += self.contribution(
-                        scene,
-                        env,
-                        si,
-                        bsdf,
-                        s.wi,
-                        share_light * s.pdf,
-                        share_bsdf,
-                        counters,
-                    );
+                    if let Some(s) = env.sample(strategy, normal, rng.uniform2()) {
+                        record(1.0, false, s.wi, s.pdf);
+                    }
                 }
             }
         }
-        let frame = si.shading_frame();
-        let wo_l = frame.to_local(si.wo);
         for _ in 0..n_bsdf {
             let Some(bs) = bsdf.sample_from(wo_l, rng, Transport::Radiance) else {
                 continue;
@@ -220,10 +217,158 @@ impl EnvDirect {
                 continue;
             }
             let wi = frame.to_world(bs.wi);
-            let q_light = share_light * env.pdf(strategy, normal, wi);
-            sum += self.contribution(scene, env, si, bsdf, wi, q_light, share_bsdf, counters);
+            record(1.0, true, wi, env.pdf(strategy, normal, wi));
         }
-        sum / total
+    }
+
+    /// The many-sample environment estimate at a non-specular surface point, and for
+    /// `mis=auto` the fraction alpha of BSDF samples it chose.
+    fn environment(
+        &self,
+        scene: &Scene,
+        env: &EnvironmentMap,
+        si: &SurfaceInteraction,
+        bsdf: &Bsdf,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+    ) -> (Rgb, Option<f32>) {
+        let (n_light, n_bsdf) = (self.light_samples(), self.settings.env_bsdf_samples);
+        let total = n_light + n_bsdf;
+        DRAWN.with(|cell| {
+            let mut drawn = cell.take();
+            drawn.clear();
+            let adaptive = matches!(self.mis(), MisHeuristic::Auto | MisHeuristic::Optimal);
+            // The warm-up: `warm` samples of each technique (the half-half mixture of eq. 5.5),
+            // a quarter of the total each, as the thesis's M = N.
+            let warm = total / 4;
+            let result = if !adaptive || n_light == 0 || n_bsdf == 0 || warm == 0 {
+                self.draw(
+                    scene,
+                    env,
+                    si,
+                    bsdf,
+                    (n_light, n_bsdf),
+                    rng,
+                    counters,
+                    &mut drawn,
+                );
+                let counts = (n_light as f32, n_bsdf as f32);
+                let sum = match self.mis() {
+                    MisHeuristic::Power => power(&drawn, counts),
+                    _ => balance(&drawn, counts),
+                };
+                let alpha =
+                    (self.mis() == MisHeuristic::Auto).then_some(n_bsdf as f32 / total as f32);
+                (sum, alpha)
+            } else {
+                let warm_counts = (warm as f32, warm as f32);
+                self.draw(
+                    scene,
+                    env,
+                    si,
+                    bsdf,
+                    (warm, warm),
+                    rng,
+                    counters,
+                    &mut drawn,
+                );
+                let first = balance(&drawn, warm_counts);
+                let (m, n) = (2 * warm, total - 2 * warm);
+                let (second, alpha) = if self.mis() == MisHeuristic::Auto {
+                    let mut estimate = AlphaEstimate::default();
+                    for d in &drawn {
+                        estimate.add(d.weight, luminance(d.value), d.pdf_bsdf, d.pdf_light);
+                    }
+                    let alpha = estimate.alpha();
+                    let counts = mis_auto::split(n, alpha);
+                    drawn.clear();
+                    self.draw(scene, env, si, bsdf, counts, rng, counters, &mut drawn);
+                    let counts = (counts.0 as f32, counts.1 as f32);
+                    (balance(&drawn, counts), Some(counts.1 / n as f32))
+                } else {
+                    let mut system = OptimalSystem::default();
+                    for d in &drawn {
+                        let mixture = warm as f32 * (d.pdf_light + d.pdf_bsdf);
+                        system.add(d.weight, d.value, d.pdf_light, d.pdf_bsdf, mixture);
+                    }
+                    let a = system.solve();
+                    // The rest keeps the requested proportion of light and BSDF samples.
+                    let counts = mis_auto::split(n, n_bsdf as f32 / total as f32);
+                    drawn.clear();
+                    self.draw(scene, env, si, bsdf, counts, rng, counters, &mut drawn);
+                    let counts = (counts.0 as f32, counts.1 as f32);
+                    let sum = drawn.iter().fold(Rgb::ZERO, |acc, d| {
+                        acc + d.weight
+                            * optimal_term(
+                                &a,
+                                d.from_bsdf,
+                                counts,
+                                d.value,
+                                d.pdf_light,
+                                d.pdf_bsdf,
+                            )
+                    });
+                    (sum, None)
+                };
+                // Eq. 5.6: the two unbiased estimates weighted by their sample counts.
+                let sum = (first * m as f32 + second * n as f32) / (m + n) as f32;
+                (sum, alpha)
+            };
+            cell.set(drawn);
+            result
+        })
+    }
+}
+
+/// One environment sample of a shading point: its weight (a fractional cube-face sample's
+/// share of eq. 3.6, else 1), which technique drew it, s(w), and both densities.
+#[derive(Clone, Copy, Debug)]
+struct Drawn {
+    weight: f32,
+    from_bsdf: bool,
+    value: Rgb,
+    pdf_light: f32,
+    pdf_bsdf: f32,
+}
+
+thread_local! {
+    /// The samples of one shading point, reused by every shading point of the thread.
+    static DRAWN: std::cell::Cell<Vec<Drawn>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
+/// The balance heuristic over the counts (eq. 3.7): sum of s / (n_L pdf_L + n_B pdf_B),
+/// i.e. the mean of s / q over the n_L + n_B samples.
+fn balance(drawn: &[Drawn], (n_light, n_bsdf): (f32, f32)) -> Rgb {
+    drawn.iter().fold(Rgb::ZERO, |acc, d| {
+        let q = n_light * d.pdf_light + n_bsdf * d.pdf_bsdf;
+        if d.value == Rgb::ZERO || !(q > 0.0) {
+            acc
+        } else {
+            acc + d.weight * d.value / q
+        }
+    })
+}
+
+/// The power heuristic (exponent 2) over the counts: a sample of technique i weighs
+/// (n_i p_i)^2 / sum_k (n_k p_k)^2 and contributes that times s / (n_i p_i).
+fn power(drawn: &[Drawn], (n_light, n_bsdf): (f32, f32)) -> Rgb {
+    drawn.iter().fold(Rgb::ZERO, |acc, d| {
+        let (l, b) = (n_light * d.pdf_light, n_bsdf * d.pdf_bsdf);
+        let own = if d.from_bsdf { b } else { l };
+        let q2 = l * l + b * b;
+        if d.value == Rgb::ZERO || !(q2 > 0.0 && q2.is_finite()) {
+            acc
+        } else {
+            acc + d.weight * d.value * (own / q2)
+        }
+    })
+}
+
+impl EnvDirect {
+    /// The weighting in use: balance unless the settings name another (see
+    /// [`IntegratorSettings::mis`]).
+    fn mis(&self) -> MisHeuristic {
+        self.settings.mis.unwrap_or(MisHeuristic::Balance)
     }
 }
 
@@ -232,13 +377,24 @@ impl Integrator for EnvDirect {
         "env_direct"
     }
 
+    /// `mis=auto`: the `alpha` layer, R the fraction of BSDF samples chosen at the shaded
+    /// point (zero where the sample shaded nothing) and G the fraction of samples that shaded
+    /// a point, so a pixel's alpha is R / G ([`super::mis_auto::alpha_false_colour`] draws it).
+    fn layers(&self) -> Vec<String> {
+        if self.mis() == MisHeuristic::Auto {
+            vec![ALPHA_LAYER.to_string()]
+        } else {
+            Vec::new()
+        }
+    }
+
     fn sample(
         &self,
         scene: &Scene,
         mut ray: Ray,
         rng: &mut Sampler,
         counters: &mut TraceCounters,
-        _ctx: &SampleContext,
+        ctx: &SampleContext,
     ) -> PixelSample {
         let mut out = PixelSample::default();
         let mut radiance = Rgb::ZERO;
@@ -269,7 +425,11 @@ impl Integrator for EnvDirect {
                 out.albedo = bsdf.albedo_hint();
             }
             if !bsdf.is_delta() {
-                radiance += beta * self.shade(scene, &si, rng, counters);
+                let (shaded, alpha) = self.shade_with_alpha(scene, &si, rng, counters);
+                radiance += beta * shaded;
+                if let (Some(alpha), Some(layer)) = (alpha, ctx.layers.first()) {
+                    layer.set(Rgb::new(alpha, 1.0, 0.0));
+                }
                 break;
             }
             let frame = si.shading_frame();

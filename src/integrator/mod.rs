@@ -2,14 +2,17 @@
 //! file behind the small [`Integrator`] trait; [`create`] makes one by name.
 
 mod bdpt;
+mod bdpt_skeleton;
 mod env_direct;
+pub mod mis_auto;
 mod path;
 
 pub use bdpt::{
-    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, ConnectionPolicy, StrategyFilter,
-    UniformPerPixel,
+    strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, ConnectionPolicy, LightPaths,
+    LightVertex, StrategyFilter, UniformPerPixel,
 };
-pub use env_direct::EnvDirect;
+pub use bdpt_skeleton::{BdptSkeleton, ResamplingStats};
+pub use env_direct::{EnvDirect, ALPHA_LAYER};
 #[cfg(feature = "diagnostics")]
 pub use path::diagnostics;
 pub use path::PathTracer;
@@ -21,26 +24,40 @@ use crate::analysis::StageTime;
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::SkeletonGuideSettings;
+use crate::guide::{ResamplingSettings, SkeletonGuideSettings};
 use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::Rgb;
 use crate::math::Sampler;
 use crate::scene::{Camera, CameraFrame, RenderSettingsFile, Scene};
 
-/// How one-sample MIS weights two strategies.
+/// How MIS weights two strategies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum MisHeuristic {
     Balance,
     /// Power heuristic with exponent 2 (Veach): the usual better choice.
     #[default]
     Power,
+    /// `env_direct` only: the balance heuristic with the split of light and BSDF samples
+    /// chosen per shading point by the second-order variance approximation of thesis 001
+    /// chapter 5 (a warm-up half, then the rest split by the estimated alpha, eq. 5.6); see
+    /// [`mis_auto`].
+    Auto,
+    /// `env_direct` only: Kondapaneni et al.'s optimal weights, their coefficients estimated
+    /// on a warm-up half of the samples; see [`mis_auto`].
+    Optimal,
 }
 
 impl MisHeuristic {
+    /// The one-sample weight of strategy a against b. `Auto` and `Optimal` need many samples
+    /// of one integral and are refused by the integrators that would call this
+    /// ([`MisHeuristic::check_supported`]); their weight with nothing estimated yet is the
+    /// balance heuristic's.
     #[inline]
     pub fn weight(self, pdf_a: f32, pdf_b: f32) -> f32 {
         match self {
-            MisHeuristic::Balance => crate::math::balance_heuristic(pdf_a, pdf_b),
+            MisHeuristic::Balance | MisHeuristic::Auto | MisHeuristic::Optimal => {
+                crate::math::balance_heuristic(pdf_a, pdf_b)
+            }
             MisHeuristic::Power => crate::math::power_heuristic(pdf_a, pdf_b),
         }
     }
@@ -49,9 +66,34 @@ impl MisHeuristic {
         match name {
             "balance" => Ok(MisHeuristic::Balance),
             "power" => Ok(MisHeuristic::Power),
+            "auto" => Ok(MisHeuristic::Auto),
+            "optimal" => Ok(MisHeuristic::Optimal),
             other => Err(Error::invalid(format!(
-                "unknown MIS heuristic '{other}' (expected balance or power)"
+                "unknown MIS heuristic '{other}' (expected balance, power, auto or optimal)"
             ))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            MisHeuristic::Balance => "balance",
+            MisHeuristic::Power => "power",
+            MisHeuristic::Auto => "auto",
+            MisHeuristic::Optimal => "optimal",
+        }
+    }
+
+    /// Fails for `auto` and `optimal` in an integrator that combines one sample per strategy
+    /// (`path`, `path_skeleton`, `bdpt`): they are implemented for `env_direct` only.
+    pub fn check_supported(self, integrator: &str) -> Result<()> {
+        match self {
+            MisHeuristic::Auto | MisHeuristic::Optimal if integrator != "env_direct" => {
+                Err(Error::invalid(format!(
+                    "mis={} is implemented for env_direct only, not for {integrator} (use balance or power)",
+                    self.name()
+                )))
+            }
+            _ => Ok(()),
         }
     }
 }
@@ -62,7 +104,11 @@ pub struct IntegratorSettings {
     /// Maximum number of bounces (scattering events) of a path; 0 shows emitters only, 1 is
     /// direct lighting. A path has at most `max_depth + 1` segments.
     pub max_depth: u32,
-    pub mis: MisHeuristic,
+    /// How MIS weights light and BSDF sampling. `None` is the integrator's own default:
+    /// [`MisHeuristic::Power`] for the one-sample integrators (`path`, `path_skeleton`,
+    /// `bdpt`), [`MisHeuristic::Balance`] for `env_direct`, whose many samples per strategy
+    /// the balance heuristic over the counts combines as the thesis's estimator does.
+    pub mis: Option<MisHeuristic>,
     /// Russian roulette (`path`, `path_skeleton`): a path that has made this many bounces may
     /// be ended before the next one, surviving with probability `min(max(throughput), 0.95)`
     /// (see `path.rs`). Lower starts make samples cheaper and noisier. The default is 5 (as
@@ -86,13 +132,15 @@ pub struct IntegratorSettings {
     pub env_bsdf_samples: u32,
     /// `path_skeleton`: skeleton guiding (c_skel, strength, analysis resolution ...).
     pub skeleton: SkeletonGuideSettings,
+    /// `bdpt_skeleton`: the resampling options (N, alpha_accept, contribution images).
+    pub resampling: ResamplingSettings,
 }
 
 impl Default for IntegratorSettings {
     fn default() -> Self {
         IntegratorSettings {
             max_depth: 8,
-            mis: MisHeuristic::Power,
+            mis: None,
             rr_start_depth: 5,
             light_paths: None,
             env: EnvStrategy::default(),
@@ -100,6 +148,7 @@ impl Default for IntegratorSettings {
             env_samples: 30,
             env_bsdf_samples: 30,
             skeleton: SkeletonGuideSettings::default(),
+            resampling: ResamplingSettings::default(),
         }
     }
 }
@@ -254,6 +303,11 @@ pub trait Integrator: Send + Sync {
         Ok(Iteration::default())
     }
 
+    /// Lines for the render summary about the last render (statistics the integrator kept).
+    fn render_notes(&self) -> Vec<String> {
+        Vec::new()
+    }
+
     /// One sample of the radiance arriving at the camera along `ray`, with the first-hit AOVs.
     fn sample(
         &self,
@@ -266,17 +320,25 @@ pub trait Integrator: Send + Sync {
 }
 
 /// Names of the integrators this build offers.
-pub const NAMES: &[&str] = &["path", "path_skeleton", "bdpt", "env_direct"];
+pub const NAMES: &[&str] = &[
+    "path",
+    "path_skeleton",
+    "bdpt",
+    "bdpt_skeleton",
+    "env_direct",
+];
 
 /// Splits an integrator specification `NAME[:KEY=VALUE]...` into the name and the settings
 /// its options change, so one comparison can race variants of an integrator:
-/// - any integrator: `max_depth=D`, `mis=power|balance`, `env=STRATEGY` (environment
+/// - any integrator: `max_depth=D`, `mis=power|balance` (`env_direct` also `auto|optimal`), `env=STRATEGY` (environment
 ///   sampling: latlong, cube-uniform, cube-power, cube-dynamic, bsdf);
 /// - `path` and `path_skeleton`: `rr_depth=D` (bounces before Russian roulette starts),
 ///   `triangles=area|solid_angle` (how next-event estimation samples emissive triangles);
 /// - `env_direct`: `samples=N` (light samples per shading point) and `bsdf=N` (BSDF samples);
 /// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
-///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`.
+///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`;
+/// - `bdpt_skeleton`: `subset=N`, `accept=ALPHA`, `images=true` ([`ResamplingSettings::set`])
+///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`.
 pub fn parse_spec(
     spec: &str,
     mut settings: IntegratorSettings,
@@ -320,11 +382,15 @@ pub fn parse_spec(
             "triangles" if name == "path" || name == "path_skeleton" => {
                 settings.triangles = TriangleSampling::parse(value)?
             }
-            "mis" => settings.mis = MisHeuristic::parse(value)?,
+            "mis" => settings.mis = Some(MisHeuristic::parse(value)?),
             "env" => settings.env = EnvStrategy::parse(value)?,
             "samples" if name == "env_direct" => settings.env_samples = count()?,
             "bsdf" if name == "env_direct" => settings.env_bsdf_samples = count()?,
             _ if name == "path_skeleton" => settings.skeleton.set(key, value)?,
+            "resolution" | "voxel_budget" if name == "bdpt_skeleton" => {
+                settings.skeleton.set(key, value)?
+            }
+            _ if name == "bdpt_skeleton" => settings.resampling.set(key, value)?,
             other => {
                 return Err(Error::invalid(format!(
                     "integrator '{name}' has no option '{other}' (in '{spec}')"
@@ -339,6 +405,9 @@ pub fn parse_spec(
 pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
     let (name, settings) = parse_spec(spec, settings)?;
     crate::limits::check_max_depth("max_depth", settings.max_depth)?;
+    if let (true, Some(mis)) = (NAMES.contains(&name), settings.mis) {
+        mis.check_supported(name)?;
+    }
     match name {
         "env_direct" => Ok(Box::new(EnvDirect::new(settings)?)),
         "path" => Ok(Box::new(PathTracer::new(settings))),
@@ -350,6 +419,7 @@ pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integr
                 None => bdpt,
             }))
         }
+        "bdpt_skeleton" => Ok(Box::new(BdptSkeleton::new(settings)?)),
         other => Err(Error::invalid(format!(
             "unknown integrator '{other}' (available: {})",
             NAMES.join(", ")

@@ -127,7 +127,10 @@ impl PathTracer {
             1.0
         } else {
             let direction_pdf = query.mixture_pdf(ls.wi, bsdf.pdf(wo_local, wi_local));
-            self.settings.mis.weight(light_pdf, direction_pdf)
+            self.settings
+                .mis
+                .unwrap_or_default()
+                .weight(light_pdf, direction_pdf)
         };
         f * ls.radiance * (weight / light_pdf)
     }
@@ -156,7 +159,11 @@ impl PathTracer {
         }
         let pmf = scene.light_sampler().map_or(0.0, |s| s.pmf(index));
         let light_pdf = pmf * env.pdf(self.settings.env, prev_normal, dir);
-        le * self.settings.mis.weight(prev_pdf, light_pdf)
+        le * self
+            .settings
+            .mis
+            .unwrap_or_default()
+            .weight(prev_pdf, light_pdf)
     }
 }
 
@@ -268,7 +275,7 @@ impl Integrator for PathTracer {
         // The training scores its candidates with this render's light sampling and MIS.
         let mut skeleton = self.settings.skeleton;
         skeleton.render_estimator = RenderEstimator {
-            mis: self.settings.mis,
+            mis: self.settings.mis.unwrap_or_default(),
             triangles: self.settings.triangles,
             env: self.settings.env,
         };
@@ -583,7 +590,10 @@ impl PathTracer {
                     let pmf = scene.light_sampler().map_or(0.0, |s| s.pmf(light));
                     let light_pdf = pmf
                         * scene.lights()[light].pdf_with(prev_point, si.p, self.settings.triangles);
-                    self.settings.mis.weight(prev_pdf, light_pdf)
+                    self.settings
+                        .mis
+                        .unwrap_or_default()
+                        .weight(prev_pdf, light_pdf)
                 };
                 #[cfg(feature = "diagnostics")]
                 diagnostics::contribution(depth, diagnostics::Kind::Hit, beta * le * weight);

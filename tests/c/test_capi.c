@@ -618,7 +618,15 @@ static void test_render(lacuna_context *ctx) {
     EXPECT(lacuna_render_job_set_resolution(job, 8, 70000), LACUNA_STATUS_OUT_OF_RANGE, "70000");
     EXPECT(lacuna_render_job_set_thread_count(job, LACUNA_MAX_THREADS + 1), LACUNA_STATUS_OUT_OF_RANGE,
            "thread_count");
-    EXPECT(lacuna_render_job_set_mis_heuristic(job, 2), LACUNA_STATUS_INVALID_ARGUMENT, "heuristic");
+    EXPECT(lacuna_render_job_set_mis_heuristic(job, 4), LACUNA_STATUS_INVALID_ARGUMENT, "heuristic");
+    OK(lacuna_render_job_set_mis_heuristic(job, LACUNA_MIS_HEURISTIC_AUTO));
+    OK(lacuna_render_job_set_mis_heuristic(job, LACUNA_MIS_HEURISTIC_OPTIMAL));
+    {
+        /* path takes balance and power only: the run is refused and writes no film. */
+        lacuna_film *refused = NULL;
+        EXPECT(lacuna_render_job_run(job, &refused), LACUNA_STATUS_INVALID_ARGUMENT, "env_direct");
+        CHECK(refused == NULL);
+    }
     EXPECT(lacuna_render_job_set_sampler(job, 2), LACUNA_STATUS_INVALID_ARGUMENT, "sampler");
     EXPECT(lacuna_render_job_set_sampler(NULL, LACUNA_SAMPLER_SOBOL), LACUNA_STATUS_NULL_POINTER, "job");
     EXPECT(lacuna_render_job_set_camera(job, v3(0, 0, 0), v3(0, 0, -1), v3(0, NAN, 0), 40),

@@ -222,15 +222,22 @@ static void test_rendering(lacuna_context *ctx) {
     OK(lacuna_render_job_set_environment_samples(job, 6, 2));
     OK(lacuna_render_job_set_resolution(job, 16, 16));
     OK(lacuna_render_job_set_samples_per_pixel(job, 8));
-    lacuna_film *film = NULL;
-    OK(lacuna_render_job_run(job, &film));
-    float px[16 * 16 * 3];
-    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, px, 16, 16, 0, 0));
-    double sum = 0;
-    for (int y = 6; y < 10; y++)
-        for (int x = 6; x < 10; x++) sum += px[3 * (y * 16 + x)];
-    CHECK(fabs(sum / 16.0 - 0.5) < 0.06);
-    lacuna_film_release(film);
+    /* Every MIS weighting env_direct takes gives the same floor (auto and optimal included). */
+    EXPECT(lacuna_render_job_set_mis_heuristic(job, 4), LACUNA_STATUS_INVALID_ARGUMENT, "heuristic");
+    const uint32_t heuristics[4] = {LACUNA_MIS_HEURISTIC_BALANCE, LACUNA_MIS_HEURISTIC_POWER, LACUNA_MIS_HEURISTIC_AUTO,
+                                    LACUNA_MIS_HEURISTIC_OPTIMAL};
+    for (int k = 0; k < 4; k++) {
+        OK(lacuna_render_job_set_mis_heuristic(job, heuristics[k]));
+        lacuna_film *film = NULL;
+        OK(lacuna_render_job_run(job, &film));
+        float px[16 * 16 * 3];
+        OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, px, 16, 16, 0, 0));
+        double sum = 0;
+        for (int y = 6; y < 10; y++)
+            for (int x = 6; x < 10; x++) sum += px[3 * (y * 16 + x)];
+        CHECK(fabs(sum / 16.0 - 0.5) < 0.06);
+        lacuna_film_release(film);
+    }
     lacuna_render_job_free(job);
 
     /* Update in place: a sky of 2, the same size. */

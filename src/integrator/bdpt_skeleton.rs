@@ -1,0 +1,676 @@
+//! SkelBPT (002, whole paper; 000 chapter 11): bidirectional path tracing whose camera
+//! vertices resample the light vertex they connect to, one per light subpath length, from
+//! distributions cached at the nodes of the filtered skeleton of the empty space.
+//!
+//! Each iteration (002 §4.1): `bdpt` traces the light subpaths (one per pixel by default) and
+//! splats light tracing (t = 1, not resampled); [`SkeletonResampler`] then builds, for every
+//! node in use, one distribution per light subpath length over the vertices of the first N
+//! subpaths (`guide::resampling`: p_V from shadow rays between the node and each vertex, p_U,
+//! p_C, max heuristic premultiplied). Each camera vertex z_{t-1}, t >= 2, maps to its node
+//! through the node map and picks one light vertex of each length, connected with the factor
+//! 1 / (N q). In the MIS weights the connection strategies count N samples (002 line 196: the
+//! resampled estimator estimates the one connecting every camera vertex to all N subpaths,
+//! 002 eq. 3), light tracing one per light subpath, the others one.
+//!
+//! Node acceptance (002 §4.4): camera vertices are counted per node over the iterations of a
+//! render; an iteration builds distributions only at nodes mapped to more than alpha_accept
+//! times the mean, and vertices mapped elsewhere resample uniformly (the first iteration has
+//! no counts yet, so it resamples uniformly everywhere). Everything a distribution depends on
+//! is fixed before the iteration's camera paths, so the estimate stays unbiased.
+//!
+//! Graceful degradation: without a usable skeleton (the analysis fails, finds no node, or the
+//! scene is open: every node sees the outside in a quarter of its directions or more), or
+//! when no node sees any vertex of a pilot set of light subpaths, the integrator renders
+//! exactly `bdpt`'s image (same samples, same numbers) and its precomputation notes say why.
+
+use std::any::Any;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::bdpt::{CameraVertex, ConnectionPolicy, LightPaths};
+use super::{
+    Bdpt, Integrator, IntegratorSettings, Iteration, Precomputation, SampleContext, TraceCounters,
+    View,
+};
+use crate::analysis::{
+    Analysis, AnalysisSettings, NeighbourMasks, Skeleton, SkeletonSettings, StageTime, VoxelGrid,
+};
+use crate::error::{Error, Result};
+use crate::film::PixelSample;
+use crate::geometry::Ray;
+use crate::guide::resampling::{combined_distribution, sample_cdf, Origin};
+use crate::guide::ResamplingSettings;
+use crate::math::{luminance, Rgb, Sampler, Vec3};
+use crate::scene::{Camera, Scene};
+
+/// Light subpaths of the pilot that decides whether any node sees light vertices.
+const PILOT_LIGHT_PATHS: usize = 256;
+/// Seed of the pilot's light subpaths (the decision is a deterministic function of the scene).
+const PILOT_SEED: u64 = 0x5ce1_b9d7;
+/// Directions each node casts to tell an enclosed node from an open one.
+const OPENNESS_RAYS: usize = 64;
+/// A node is enclosed when fewer than this fraction of its rays leave the scene.
+const ENCLOSED_ESCAPE_FRACTION: f32 = 0.25;
+/// No node: the vertex resamples uniformly.
+const NO_TABLE: u32 = u32::MAX;
+
+/// The filtered skeleton and its node map.
+struct NodeSkeleton {
+    grid: VoxelGrid,
+    node_map: Vec<u32>,
+    masks: NeighbourMasks,
+    positions: Vec<Vec3>,
+}
+
+impl NodeSkeleton {
+    #[inline]
+    fn node_of(&self, si: &crate::scene::SurfaceInteraction) -> Option<u32> {
+        self.masks
+            .map_point(&self.grid, &self.node_map, si.p, si.ng, si.wo)
+            .filter(|&n| (n as usize) < self.positions.len())
+    }
+}
+
+/// One iteration's distributions.
+struct Tables {
+    /// Light subpaths resampled from (N).
+    subset: usize,
+    /// Light vertices of the subset by segments from the light: those of length l are
+    /// `entries[len_start[l - 1]..len_start[l]]`, as (subpath, vertex index in the pool).
+    entries: Vec<(u32, u32)>,
+    len_start: Vec<u32>,
+    /// Per node: its table, or [`NO_TABLE`].
+    node_table: Vec<u32>,
+    /// Table k: `cdfs[k E..(k + 1) E]` (E = entries.len()), one CDF per length range, and
+    /// each entry's distribution.
+    cdfs: Vec<f32>,
+    origins: Vec<u8>,
+}
+
+impl Tables {
+    fn lengths(&self) -> usize {
+        self.len_start.len() - 1
+    }
+}
+
+/// Accumulated over a render, for the render notes (002 Table 4 and the resampling cost).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ResamplingStats {
+    pub iterations: u64,
+    /// Nodes with distributions, summed over iterations.
+    pub nodes_used: u64,
+    /// Seconds spent building distributions (visibility rays included).
+    pub build_seconds: f64,
+    /// Node-to-light-vertex pairs evaluated, and those found visible.
+    pub pairs: u64,
+    pub visible_pairs: u64,
+}
+
+/// SkelBPT's connection policy: builds the distributions per iteration and resamples.
+pub struct SkeletonResampler {
+    settings: ResamplingSettings,
+    /// None: renders as `bdpt` (see the module docs).
+    skeleton: Option<NodeSkeleton>,
+    /// Camera vertices mapped to each node so far in this render (002 N_mapped).
+    mapped: Vec<AtomicU64>,
+    stats: Mutex<ResamplingStats>,
+}
+
+impl SkeletonResampler {
+    fn plain(settings: ResamplingSettings) -> Self {
+        SkeletonResampler {
+            settings,
+            skeleton: None,
+            mapped: Vec::new(),
+            stats: Mutex::new(ResamplingStats::default()),
+        }
+    }
+
+    fn stats(&self) -> ResamplingStats {
+        *self.stats.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Nodes that get distributions this iteration (002 §4.4).
+    fn accepted_nodes(&self) -> Vec<bool> {
+        let counts: Vec<u64> = self
+            .mapped
+            .iter()
+            .map(|c| c.load(Ordering::Relaxed))
+            .collect();
+        let total: u64 = counts.iter().sum();
+        if total == 0 {
+            return vec![false; counts.len()];
+        }
+        let mean = total as f64 / counts.len() as f64;
+        let threshold = self.settings.accept as f64 * mean;
+        counts.iter().map(|&c| c as f64 > threshold).collect()
+    }
+
+    fn build_tables(&self, scene: &Scene, skeleton: &NodeSkeleton, paths: &LightPaths) -> Tables {
+        let subset = (self.settings.subset as usize).min(paths.ranges.len());
+        let longest = paths.vertices.iter().map(|v| v.path_len).max().unwrap_or(0) as usize;
+        let mut per_len: Vec<Vec<(u32, u32)>> = vec![Vec::new(); longest];
+        for (j, &(a, b)) in paths.ranges[..subset].iter().enumerate() {
+            for v in a..b {
+                let len = paths.vertices[v as usize].path_len as usize;
+                per_len[len - 1].push((j as u32, v));
+            }
+        }
+        let mut entries = Vec::new();
+        let mut len_start = vec![0u32];
+        for list in per_len {
+            entries.extend(list);
+            len_start.push(entries.len() as u32);
+        }
+        let accepted = self.accepted_nodes();
+        let mut node_table = vec![NO_TABLE; accepted.len()];
+        let used: Vec<usize> = (0..accepted.len()).filter(|&k| accepted[k]).collect();
+        for (t, &k) in used.iter().enumerate() {
+            node_table[k] = t as u32;
+        }
+        let e = entries.len();
+        let mut cdfs = vec![0.0f32; used.len() * e];
+        let mut origins = vec![0u8; used.len() * e];
+        let visible_pairs = AtomicU64::new(0);
+        if e > 0 {
+            cdfs.par_chunks_mut(e)
+                .zip(origins.par_chunks_mut(e))
+                .zip(used.par_iter())
+                .for_each(|((cdf, origin), &k)| {
+                    let node = skeleton.positions[k];
+                    let mut weights = vec![0.0f32; e];
+                    let mut visible = vec![false; e];
+                    let mut seen = 0u64;
+                    for (i, &(_, v)) in entries.iter().enumerate() {
+                        let y = &paths.vertices[v as usize];
+                        let d = node - y.si.p;
+                        let dist2 = d.length_squared().max(1e-12);
+                        let w = luminance(y.throughput).max(0.0) / dist2;
+                        weights[i] = if w.is_finite() { w } else { 0.0 };
+                        // The node must be on the side the vertex was reached from (the only
+                        // side a connection can leave it by) and unoccluded.
+                        let same_side = d.dot(y.si.ng) * y.si.wo.dot(y.si.ng) > 0.0;
+                        visible[i] = same_side
+                            && !scene.occluded(&y.si.spawn_ray_to(node, Vec3::ZERO, Vec3::ZERO));
+                        seen += visible[i] as u64;
+                    }
+                    for l in 0..len_start.len() - 1 {
+                        let (a, b) = (len_start[l] as usize, len_start[l + 1] as usize);
+                        combined_distribution(
+                            &weights[a..b],
+                            &visible[a..b],
+                            &mut cdf[a..b],
+                            &mut origin[a..b],
+                        );
+                    }
+                    visible_pairs.fetch_add(seen, Ordering::Relaxed);
+                });
+        }
+        let mut stats = self.stats.lock().unwrap_or_else(|e| e.into_inner());
+        stats.iterations += 1;
+        stats.nodes_used += used.len() as u64;
+        stats.pairs += (used.len() * e) as u64;
+        stats.visible_pairs += visible_pairs.into_inner();
+        Tables {
+            subset,
+            entries,
+            len_start,
+            node_table,
+            cdfs,
+            origins,
+        }
+    }
+}
+
+impl ConnectionPolicy for SkeletonResampler {
+    fn connection_count(&self, light_paths: usize) -> f32 {
+        if self.skeleton.is_some() {
+            (self.settings.subset as usize).min(light_paths).max(1) as f32
+        } else {
+            1.0
+        }
+    }
+
+    fn begin_iteration(
+        &self,
+        scene: &Scene,
+        paths: &LightPaths,
+        sample_index: u32,
+    ) -> Result<(Option<Box<dyn Any + Send + Sync>>, u64)> {
+        let Some(skeleton) = &self.skeleton else {
+            return Ok((None, 0));
+        };
+        if sample_index == 0 {
+            // A new render: counts and statistics start over.
+            for c in &self.mapped {
+                c.store(0, Ordering::Relaxed);
+            }
+            *self.stats.lock().unwrap_or_else(|e| e.into_inner()) = ResamplingStats::default();
+        }
+        let start = Instant::now();
+        let tables = self.build_tables(scene, skeleton, paths);
+        let rays = (tables.cdfs.len()) as u64;
+        self.stats
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .build_seconds += start.elapsed().as_secs_f64();
+        Ok((Some(Box::new(tables)), rays))
+    }
+
+    fn layers(&self) -> Vec<String> {
+        if self.settings.images {
+            Origin::ALL
+                .iter()
+                .map(|o| o.layer_name().to_string())
+                .collect()
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// Without a skeleton: `bdpt`'s own light subpath (pixel index modulo their number).
+    fn connect(
+        &self,
+        vertex: &CameraVertex,
+        light_paths: usize,
+        _rng: &mut Sampler,
+        connect: &mut dyn FnMut(usize, f32),
+    ) {
+        if light_paths > 0 {
+            connect((vertex.pixel_index % light_paths as u64) as usize, 1.0);
+        }
+    }
+
+    fn connect_vertex(
+        &self,
+        vertex: &CameraVertex,
+        paths: &LightPaths,
+        rng: &mut Sampler,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+    ) {
+        let (Some(skeleton), Some(tables)) = (
+            &self.skeleton,
+            paths
+                .policy_data
+                .as_ref()
+                .and_then(|d| d.downcast_ref::<Tables>()),
+        ) else {
+            // The default: every vertex of the pixel's own subpath.
+            let mut each = |j: usize, factor: f32| {
+                let (a, b) = paths.ranges[j];
+                for v in a as usize..b as usize {
+                    if paths.vertices[v].path_len > vertex.max_light_segments {
+                        break;
+                    }
+                    connect(j, v, factor);
+                }
+            };
+            self.connect(vertex, paths.ranges.len(), rng, &mut each);
+            return;
+        };
+        let node = skeleton.node_of(vertex.si);
+        if let Some(n) = node {
+            self.mapped[n as usize].fetch_add(1, Ordering::Relaxed);
+        }
+        let table = node.map_or(NO_TABLE, |n| tables.node_table[n as usize]);
+        let e = tables.entries.len();
+        let subset = tables.subset as f32;
+        let lengths = tables.lengths().min(vertex.max_light_segments as usize);
+        for l in 0..lengths {
+            let (a, b) = (
+                tables.len_start[l] as usize,
+                tables.len_start[l + 1] as usize,
+            );
+            if a == b {
+                continue;
+            }
+            let u = rng.uniform();
+            let (i, q, origin) = if table == NO_TABLE {
+                let n = b - a;
+                (
+                    ((u * n as f32) as usize).min(n - 1),
+                    1.0 / n as f32,
+                    Origin::Fallback,
+                )
+            } else {
+                let base = table as usize * e;
+                let cdf = &tables.cdfs[base + a..base + b];
+                let (i, q) = sample_cdf(cdf, u);
+                (i, q, Origin::from_u8(tables.origins[base + a + i]))
+            };
+            let (j, v) = tables.entries[a + i];
+            let added = connect(j as usize, v as usize, 1.0 / (subset * q));
+            if let Some(cell) = vertex.layers.get(origin as usize) {
+                cell.set(cell.get() + added);
+            }
+        }
+    }
+}
+
+/// The policy shared between the integrator (for its statistics) and `bdpt`.
+struct Shared(Arc<SkeletonResampler>);
+
+impl ConnectionPolicy for Shared {
+    fn connection_count(&self, light_paths: usize) -> f32 {
+        self.0.connection_count(light_paths)
+    }
+    fn begin_iteration(
+        &self,
+        scene: &Scene,
+        paths: &LightPaths,
+        sample_index: u32,
+    ) -> Result<(Option<Box<dyn Any + Send + Sync>>, u64)> {
+        self.0.begin_iteration(scene, paths, sample_index)
+    }
+    fn layers(&self) -> Vec<String> {
+        self.0.layers()
+    }
+    fn connect(
+        &self,
+        vertex: &CameraVertex,
+        light_paths: usize,
+        rng: &mut Sampler,
+        connect: &mut dyn FnMut(usize, f32),
+    ) {
+        self.0.connect(vertex, light_paths, rng, connect)
+    }
+    fn connect_vertex(
+        &self,
+        vertex: &CameraVertex,
+        paths: &LightPaths,
+        rng: &mut Sampler,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Rgb,
+    ) {
+        self.0.connect_vertex(vertex, paths, rng, connect)
+    }
+}
+
+/// Fraction of [`OPENNESS_RAYS`] directions (a Fibonacci sphere) from `p` that leave the
+/// scene: 0 inside a closed room, about one half above an open floor.
+fn escape_fraction(scene: &Scene, p: Vec3) -> f32 {
+    let golden = std::f32::consts::PI * (3.0 - 5.0f32.sqrt());
+    let escaped = (0..OPENNESS_RAYS)
+        .filter(|&k| {
+            let z = 1.0 - (2.0 * k as f32 + 1.0) / OPENNESS_RAYS as f32;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let phi = golden * k as f32;
+            let dir = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+            scene.intersect(&Ray::new(p, dir, f32::INFINITY)).is_none()
+        })
+        .count();
+    escaped as f32 / OPENNESS_RAYS as f32
+}
+
+/// What a scene was prepared from, to refuse rendering another one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Fingerprint {
+    triangles: usize,
+    lights: usize,
+    bounds: [u32; 6],
+}
+
+impl Fingerprint {
+    fn of(scene: &Scene) -> Self {
+        let b = scene.bounds();
+        Fingerprint {
+            triangles: scene.triangle_count(),
+            lights: scene.lights().len(),
+            bounds: [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z].map(f32::to_bits),
+        }
+    }
+}
+
+/// The `bdpt_skeleton` integrator (module docs).
+pub struct BdptSkeleton {
+    settings: IntegratorSettings,
+    bdpt: Bdpt,
+    resampler: Arc<SkeletonResampler>,
+    prepared_for: Option<Fingerprint>,
+}
+
+impl BdptSkeleton {
+    pub fn new(settings: IntegratorSettings) -> Result<Self> {
+        let mut bdpt = Bdpt::new(settings);
+        if let Some(n) = settings.light_paths {
+            bdpt = bdpt.with_light_paths(n as usize)?;
+        }
+        let resampler = Arc::new(SkeletonResampler::plain(settings.resampling));
+        bdpt.set_policy(Box::new(Shared(resampler.clone())));
+        Ok(BdptSkeleton {
+            settings,
+            bdpt,
+            resampler,
+            prepared_for: None,
+        })
+    }
+
+    /// Whether the render resamples (false: it renders exactly `bdpt`'s image).
+    pub fn resamples(&self) -> bool {
+        self.resampler.skeleton.is_some()
+    }
+
+    /// Statistics of the last render (002 Table 4: nodes used per iteration; resampling cost).
+    pub fn stats(&self) -> ResamplingStats {
+        self.resampler.stats()
+    }
+
+    /// The skeleton, or why there is none to use.
+    fn build_skeleton(
+        &self,
+        scene: &Scene,
+        progress: &dyn Fn(&str, f64) -> bool,
+        stages: &mut Vec<StageTime>,
+    ) -> Result<std::result::Result<NodeSkeleton, String>> {
+        let t = Instant::now();
+        let analysis_settings = AnalysisSettings {
+            resolution: self.settings.skeleton.resolution,
+            all_maps: true,
+            euclidean: false,
+            regions: false,
+            ..Default::default()
+        };
+        let analysis = match Analysis::build(scene, &analysis_settings, &|_, _| true) {
+            Ok(a) => a,
+            Err(Error::Cancelled) => return Err(Error::Cancelled),
+            Err(e) => return Ok(Err(format!("the empty-space analysis failed ({e})"))),
+        };
+        stages.push(StageTime {
+            stage: "analysis (voxels, maps)",
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        if !progress("analysis", 0.4) {
+            return Err(Error::Cancelled);
+        }
+        let t = Instant::now();
+        let skeleton_settings = SkeletonSettings {
+            parallel: true,
+            topology: false,
+        };
+        let skeleton = match Skeleton::build(&analysis, &skeleton_settings, &|_, _| true) {
+            Ok(s) => s,
+            Err(Error::Cancelled) => return Err(Error::Cancelled),
+            Err(e) => return Ok(Err(format!("the skeleton failed ({e})"))),
+        };
+        drop(analysis);
+        stages.push(StageTime {
+            stage: "skeleton (thinning, filter, node map)",
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        let Skeleton {
+            grid,
+            filtered,
+            node_map,
+            ..
+        } = skeleton;
+        if filtered.graph.nodes.is_empty() {
+            return Ok(Err("the skeleton has no node".into()));
+        }
+        let enclosed = filtered
+            .graph
+            .nodes
+            .par_iter()
+            .filter(|n| escape_fraction(scene, n.position) < ENCLOSED_ESCAPE_FRACTION)
+            .count();
+        if enclosed == 0 {
+            return Ok(Err(format!(
+                "an open scene: every one of its {} nodes sees the outside in at least {:.0} % \
+                 of its directions",
+                filtered.graph.nodes.len(),
+                100.0 * ENCLOSED_ESCAPE_FRACTION
+            )));
+        }
+        Ok(Ok(NodeSkeleton {
+            masks: NeighbourMasks::new(&grid, &node_map),
+            grid,
+            node_map,
+            positions: filtered.graph.nodes.iter().map(|n| n.position).collect(),
+        }))
+    }
+
+    /// Nodes that see at least one vertex of a pilot set of light subpaths.
+    fn nodes_seeing_light(&self, scene: &Scene, skeleton: &NodeSkeleton) -> usize {
+        let camera = scene.camera().copied().or_else(|| {
+            let b = scene.bounds();
+            let centre = (b.min + b.max) * 0.5;
+            Camera::look_at(
+                centre + Vec3::Z * (b.max - b.min).length().max(1.0),
+                centre,
+                Vec3::Y,
+                45.0,
+            )
+            .ok()
+        });
+        let Some(camera) = camera else {
+            return 0;
+        };
+        let view = View {
+            frame: camera.frame(1.0),
+            width: 16,
+            height: 16,
+        };
+        let (paths, _) =
+            self.bdpt
+                .trace_light_paths(scene, &view, PILOT_SEED, 0, PILOT_LIGHT_PATHS);
+        skeleton
+            .positions
+            .par_iter()
+            .filter(|&&node| {
+                paths.vertices.iter().any(|y| {
+                    let d = node - y.si.p;
+                    d.dot(y.si.ng) * y.si.wo.dot(y.si.ng) > 0.0
+                        && !scene.occluded(&y.si.spawn_ray_to(node, Vec3::ZERO, Vec3::ZERO))
+                })
+            })
+            .count()
+    }
+}
+
+impl Integrator for BdptSkeleton {
+    fn name(&self) -> &'static str {
+        "bdpt_skeleton"
+    }
+
+    fn layers(&self) -> Vec<String> {
+        self.bdpt.layers()
+    }
+
+    fn prepare(
+        &mut self,
+        scene: &Scene,
+        _camera: &Camera,
+        progress: &dyn Fn(&str, f64) -> bool,
+    ) -> Result<Precomputation> {
+        self.prepared_for = None;
+        let mut stages = Vec::new();
+        let mut notes = Vec::new();
+        let mut resampler = SkeletonResampler::plain(self.settings.resampling);
+        match self.build_skeleton(scene, progress, &mut stages)? {
+            Err(why) => notes.push(format!(
+                "renders as bdpt: no usable skeleton ({why})"
+            )),
+            Ok(skeleton) => {
+                let t = Instant::now();
+                let seeing = self.nodes_seeing_light(scene, &skeleton);
+                stages.push(StageTime {
+                    stage: "pilot light subpaths",
+                    seconds: t.elapsed().as_secs_f64(),
+                });
+                let nodes = skeleton.positions.len();
+                if seeing == 0 {
+                    notes.push(format!(
+                        "renders as bdpt: none of the {nodes} skeleton nodes sees \
+                         a vertex of {PILOT_LIGHT_PATHS} pilot light subpaths"
+                    ));
+                } else {
+                    notes.push(format!(
+                        "{nodes} filtered skeleton nodes, {seeing} see pilot light \
+                         vertices; resampling from {} light subpaths, accept {}",
+                        self.settings.resampling.subset, self.settings.resampling.accept
+                    ));
+                    resampler.mapped = (0..nodes).map(|_| AtomicU64::new(0)).collect();
+                    resampler.skeleton = Some(skeleton);
+                }
+            }
+        }
+        self.resampler = Arc::new(resampler);
+        self.bdpt
+            .set_policy(Box::new(Shared(self.resampler.clone())));
+        self.prepared_for = Some(Fingerprint::of(scene));
+        Ok(Precomputation { stages, notes })
+    }
+
+    fn check_prepared(&self, scene: &Scene) -> Result<()> {
+        if self.prepared_for == Some(Fingerprint::of(scene)) {
+            Ok(())
+        } else {
+            Err(Error::invalid(
+                "bdpt_skeleton must be prepared for this scene before rendering it",
+            ))
+        }
+    }
+
+    fn uses_iterations(&self) -> bool {
+        true
+    }
+
+    fn begin_iteration(
+        &self,
+        scene: &Scene,
+        view: &View,
+        seed: u64,
+        sample_index: u32,
+    ) -> Result<Iteration> {
+        self.bdpt.begin_iteration(scene, view, seed, sample_index)
+    }
+
+    fn sample(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        ctx: &SampleContext,
+    ) -> PixelSample {
+        self.bdpt.sample(scene, ray, rng, counters, ctx)
+    }
+
+    fn render_notes(&self) -> Vec<String> {
+        let s = self.stats();
+        if !self.resamples() || s.iterations == 0 {
+            return Vec::new();
+        }
+        let it = s.iterations as f64;
+        vec![format!(
+            "{:.1} of {} nodes used per iteration, resampling {:.2} ms and {:.0} \
+             node-vertex visibility rays per iteration ({:.1} % visible)",
+            s.nodes_used as f64 / it,
+            self.resampler.mapped.len(),
+            1e3 * s.build_seconds / it,
+            s.pairs as f64 / it,
+            100.0 * s.visible_pairs as f64 / s.pairs.max(1) as f64
+        )]
+    }
+}
