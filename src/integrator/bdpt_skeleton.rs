@@ -588,9 +588,7 @@ impl Integrator for BdptSkeleton {
         let mut notes = Vec::new();
         let mut resampler = SkeletonResampler::plain(self.settings.resampling);
         match self.build_skeleton(scene, progress, &mut stages)? {
-            Err(why) => notes.push(format!(
-                "renders as bdpt: no usable skeleton ({why})"
-            )),
+            Err(why) => notes.push(format!("renders as bdpt: no usable skeleton ({why})")),
             Ok(skeleton) => {
                 let t = Instant::now();
                 let seeing = self.nodes_seeing_light(scene, &skeleton);
