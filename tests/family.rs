@@ -59,7 +59,7 @@ fn largest_sample(seed: u64, spec: &str, max_depth: u32, seeds: u64) -> (f64, f6
 /// The fireflies: on a family scene of two rooms and one door (the light in the room
 /// the camera looks into), a fixed c = 0.5 with the lobes (what an untrained guide renders)
 /// weighed paths up to 2^k times `path`'s, k the directions the BSDF drew where the lobes have
-/// no density: single samples at 4x `path`'s largest. With `ratio_max=auto` (2 at a fixed c)
+/// no density: single samples at 4x `path`'s largest. With `ratio_max=auto` (2)
 /// its largest sample stays within 2x `path`'s; with the bound off they come back (the test
 /// can fail).
 #[test]
