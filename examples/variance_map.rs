@@ -9,7 +9,8 @@
 //! shared by all specs) and `OUT/NAME-mean.png`.
 //!
 //! `cargo run --release --example variance_map -- SCENE WIDTH HEIGHT SPP SEEDS SPECS OUT`
-//! (SPECS comma-separated; `path:max_depth=2` etc. give the radiance by depth).
+//! (SPECS comma-separated; `path:max_depth=2` etc. give the radiance by depth). `SAMPLER=independent`
+//! in the environment renders with independent numbers instead of the default Sobol sampler.
 
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
