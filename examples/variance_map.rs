@@ -9,7 +9,8 @@
 //! shared by all specs) and `OUT/NAME-mean.png`.
 //!
 //! `cargo run --release --example variance_map -- SCENE WIDTH HEIGHT SPP SEEDS SPECS OUT`
-//! (SPECS comma-separated; `path:max_depth=2` etc. give the radiance by depth).
+//! (SPECS comma-separated; `path:max_depth=2` etc. give the radiance by depth). `SAMPLER=independent`
+//! in the environment renders with independent numbers instead of the default Sobol sampler.
 
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
@@ -219,6 +220,9 @@ fn main() {
                 }
             }
         }
+        let sampler_kind = std::env::var("SAMPLER").map_or(Default::default(), |s| {
+            lacuna::math::SamplerKind::parse(&s).expect("SAMPLER: sobol or independent")
+        });
         let (mut sum, mut sum2) = (vec![0.0f64; n], vec![0.0f64; n]);
         for seed in 0..seeds {
             let rs = RenderSettings {
@@ -226,6 +230,7 @@ fn main() {
                 height,
                 spp,
                 seed: 5000 + seed,
+                sampler: sampler_kind,
                 ..Default::default()
             };
             let (film, _) = render(
@@ -303,7 +308,7 @@ fn main() {
             // the MAE weighs.
             let sd: f64 = (0..n).filter(|&i| m[i]).map(|i| var[i].sqrt()).sum();
             print!(
-                " {:.3} [{:.3}] |",
+                " {:.3e} [{:.3e}] |",
                 t / k.max(1) as f64,
                 sd / k.max(1) as f64
             );

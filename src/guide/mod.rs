@@ -26,4 +26,4 @@ pub use skeleton::{
     DEFAULT_TRAINING_DEPTH, DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH,
     OPTION_NAMES, STRENGTH_CANDIDATES,
 };
-pub use training::{SceneChoice, TrainingReport, CANDIDATES, TRAINING_C};
+pub use training::{Pilot, SceneChoice, TrainingReport, CANDIDATES, TRAINING_C};

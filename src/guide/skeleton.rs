@@ -262,17 +262,22 @@ pub struct SkeletonGuideSettings {
     /// product of p_bsdf / q over the path's earlier directions (0 once rho >= R), so that the
     /// directions' densities never weigh a path more than R times `path`'s for the same
     /// directions (the MIS weights of light samples and emitter hits aside; they stay <= 1).
-    /// `None` (`ratio_max=auto`, the default): off where the training chose every node's c,
-    /// [`FIXED_C_RATIO_MAX`] where c is fixed (a number `c_skel`, or a guide that could not
-    /// train): a fixed c guides where the lobes miss the light as much as where they find
-    /// it, and at c = 0.5 every BSDF-drawn direction the lobes do not cover doubles the
-    /// path's weight (a family scene of two rooms: single samples at 4x `path`'s largest).
-    /// The Sibenik fireflies of `directions=learned` are such products (several vertices at
-    /// c 0.6-0.7 whose directions the BSDF drew: R 10.9); the corridor's useful chains are
-    /// too (BENCHMARKS.md, round 15, fire15). c then depends on the
-    /// path's prefix only, and the vertex's every density (its direction's, its light sample's
-    /// MIS weight, the next emitter hit's) is the mixture at that c: unbiased. Default
-    /// infinite (off).
+    /// `None` (`ratio_max=auto`, the default): [`AUTO_RATIO_MAX`], trained or not. Why a
+    /// bound at all: at a vertex where the guide's density is small, the BSDF's direction
+    /// weighs 1 / (1 - c) of `path`'s, and averaged over BSDF-drawn directions the factor
+    /// E_bsdf[p_bsdf / q] is at least 1 (Cauchy-Schwarz) wherever the guide does not aim at
+    /// what the path will find. Light that arrives after many bounces (on the closed family
+    /// scenes at depth 65 most of the second moment is next-event estimation at depth 7 and
+    /// beyond) is such a contribution for every vertex before it, so the path's second moment
+    /// grows like a product of these factors. A fixed c guides where the lobes miss the light
+    /// as much as where they find it (a family scene of two rooms: single samples at 4x
+    /// `path`'s largest); the training's choices do it too, on paths longer than its own:
+    /// unbounded, the trained guide's per-sample variance was 1.38x `path`'s on rooms:18,
+    /// 0.83x with R = 2 (BENCHMARKS.md, "Procedural family", the product). The directions the
+    /// guide draws (rho falls) leave the bound room; chains of them, the corridor's gain,
+    /// are not cut. c then depends on the path's prefix only, and the vertex's every density
+    /// (its direction's, its light sample's MIS weight, the next emitter hit's) is the
+    /// mixture at that c: unbiased.
     pub ratio_max: Option<f32>,
     /// Strength of eq. 163 at every guided node unless `learned_strength`; with it, the
     /// training pass's proposal strength.
@@ -307,6 +312,10 @@ pub struct SkeletonGuideSettings {
     pub cost_model: CostModel,
     /// Vertices per training path (`training_depth`).
     pub training_depth: u32,
+    /// `pilot_paths=N` (default [`DEFAULT_PILOT_PATHS`], 0: none): camera rays of the pilot
+    /// that checks the scene-level switch's prediction with the render's own estimator
+    /// (`integrator::path`, "The pilot"), each traced twice guided and twice unguided.
+    pub pilot_paths: u32,
     /// Camera paths of the training pass (`training_paths`).
     pub training_paths: u32,
     /// `training_passes=N` (with `directions=learned`; default 1): training passes of
@@ -466,9 +475,9 @@ pub const DEFAULT_TRAINING_GUIDED_COST: f32 = 0.15;
 /// Default of `training_min_nonzero` (the floor since round 4).
 pub const DEFAULT_TRAINING_MIN_NONZERO: u32 = 32;
 
-/// `ratio_max` where c is fixed (module docs of [`SkeletonGuideSettings::ratio_max`]):
-/// at c = 0.5 a path keeps guiding until one direction's weight reached twice `path`'s.
-pub const FIXED_C_RATIO_MAX: f32 = 2.0;
+/// `ratio_max=auto` (module docs of [`SkeletonGuideSettings::ratio_max`]): a path keeps
+/// guiding until its directions weigh it twice `path`'s (the first vertex's c at most 0.5).
+pub const AUTO_RATIO_MAX: f32 = 2.0;
 
 /// Default camera paths of the training pass (2^15 until round 6: too few for the
 /// corridor's choices to be stable, `guide::training` module docs).
@@ -479,6 +488,9 @@ pub const DEFAULT_C_MAX: f32 = 0.7;
 
 /// Default vertices per training path: the integrators' default maximum depth.
 pub const DEFAULT_TRAINING_DEPTH: u32 = 8;
+/// Camera rays of the pilot (`pilot_paths`): 4 x 32768 render samples, a few tenths of a
+/// second on the family scenes.
+pub const DEFAULT_PILOT_PATHS: u32 = 32768;
 
 /// Where a lobe points from a surface point x.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -560,6 +572,7 @@ impl Default for SkeletonGuideSettings {
             training_guided_cost: DEFAULT_TRAINING_GUIDED_COST,
             cost_model: CostModel::Paths,
             training_depth: DEFAULT_TRAINING_DEPTH,
+            pilot_paths: DEFAULT_PILOT_PATHS,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_passes: 1,
             training_history: false,
@@ -606,6 +619,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "ratio_max",
     "cost_model",
     "directions",
+    "pilot_paths",
 ];
 
 impl SkeletonGuideSettings {
@@ -682,6 +696,7 @@ impl SkeletonGuideSettings {
                 }
             }
             "training_depth" => next.training_depth = number(key, value)?,
+            "pilot_paths" => next.pilot_paths = number(key, value)?,
             "training_paths" => next.training_paths = number(key, value)?,
             "training_passes" => next.training_passes = number(key, value)?,
             "histogram_floor" => next.histogram_floor = number(key, value)?,
@@ -753,6 +768,12 @@ impl SkeletonGuideSettings {
             )));
         }
         self.strength.validate()?;
+        if self.pilot_paths > 1 << 22 {
+            return Err(Error::invalid(format!(
+                "skeleton pilot_paths {} must be at most 4194304",
+                self.pilot_paths
+            )));
+        }
         if !(1..=64).contains(&self.training_depth) {
             return Err(Error::invalid(format!(
                 "skeleton training_depth {} must be within 1..=64",
@@ -1571,12 +1592,24 @@ impl SkeletonGuide {
     /// The bound on a guided path's weight against `path`'s the render applies
     /// ([`SkeletonGuideSettings::ratio_max`]; infinite: none).
     pub fn ratio_max(&self) -> f32 {
-        let trained =
-            self.settings.learned_c_skel && self.training.as_ref().is_some_and(|t| t.paths > 0);
-        match self.settings.ratio_max {
-            Some(r) => r,
-            None if trained => f32::INFINITY,
-            None => FIXED_C_RATIO_MAX,
+        self.settings.ratio_max.unwrap_or(AUTO_RATIO_MAX)
+    }
+
+    /// The pilot's verdict (`integrator::path`, "The pilot"): recorded in the training report,
+    /// and unless `pays`, every node set to c = 0 so that `path_skeleton` traces `path`'s
+    /// samples.
+    pub fn apply_pilot(&mut self, pilot: super::Pilot) {
+        if let Some(t) = self.training.as_mut() {
+            t.scene.pilot = Some(pilot);
+            if !pilot.pays() {
+                t.scene.switched_off = true;
+                t.probabilities.fill(0.0);
+                t.relative_cost.fill(1.0);
+            }
+        }
+        if !pilot.pays() {
+            self.node_c.fill(0.0);
+            self.guides_nothing = true;
         }
     }
 

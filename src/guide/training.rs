@@ -465,6 +465,9 @@ pub struct SceneChoice {
     /// prediction"), which then replaces `variance_ratio` in [`SceneChoice::efficiency`].
     pub path_variance_ratio: Option<f64>,
     pub cost_ratio: f64,
+    /// The pilot's measurement with the render's estimator, where one ran (`pilot_paths`;
+    /// `integrator::path`, "The pilot"): it has the last word on the switch.
+    pub pilot: Option<Pilot>,
     /// `cost_model=switch|measured` and the predicted efficiency 1 / (variance_ratio cost_ratio)
     /// was not above 1 + `SCENE_MARGIN`: every node was set to c = 0.
     pub switched_off: bool,
@@ -485,6 +488,45 @@ impl SceneChoice {
 
     /// Whether the predicted efficiency is clearly above guiding nothing's (by
     /// `SCENE_MARGIN`): `cost_model=switch|measured` guide nothing otherwise.
+    pub fn pays(&self) -> bool {
+        self.efficiency() > 1.0 + SCENE_MARGIN
+    }
+}
+
+/// What the pilot measured (`integrator::path`, "The pilot"): the render's own samples, guided
+/// against unguided from the same rays and random numbers.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Pilot {
+    /// Rays the pilot traced from.
+    pub rays: u32,
+    /// Mean per-ray variance of the sample's luminance (half the squared difference of two
+    /// independent samples along the same ray), unguided and guided.
+    pub variance_path: f64,
+    pub variance_guided: f64,
+    /// Rays traced (closest hits and shadow rays) per sample, unguided and guided.
+    pub rays_per_sample_path: f64,
+    pub rays_per_sample_guided: f64,
+    /// Guided cost per sample relative to unguided: the ray ratio times the training's
+    /// overhead ratio (the guided queries and node mapping per vertex).
+    pub cost_ratio: f64,
+}
+
+impl Pilot {
+    /// Measured variance ratio, guided over unguided (1 where unguided has none).
+    pub fn variance_ratio(&self) -> f64 {
+        if self.variance_path > 0.0 {
+            self.variance_guided / self.variance_path
+        } else {
+            1.0
+        }
+    }
+
+    /// Efficiency of the guided samples against unguided ones at the cost proxy.
+    pub fn efficiency(&self) -> f64 {
+        1.0 / (self.variance_ratio() * self.cost_ratio)
+    }
+
+    /// Whether guiding pays by the scene-level margin.
     pub fn pays(&self) -> bool {
         self.efficiency() > 1.0 + SCENE_MARGIN
     }
@@ -1049,6 +1091,7 @@ pub(super) fn learn_guiding_probabilities(
             variance_ratio,
             path_variance_ratio,
             cost_ratio,
+            pilot: None,
             switched_off: false,
         };
         if settings.cost_model.switches()

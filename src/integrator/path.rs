@@ -8,16 +8,39 @@
 //! density this file uses for a direction (the throughput's denominator, the MIS weights of
 //! next-event estimation and of emitters hit) is then the density of that one-sample mixture,
 //! so both integrators estimate the same image.
+//!
+//! # The pilot
+//!
+//! The training's scene-level prediction (`guide::training`, "The path-level prediction")
+//! scores its choices with a proxy: next-event estimation only, paths cut at
+//! `training_depth` (8) vertices. On scenes it was not tuned on it promised too much: on
+//! the family `rooms:SEED` it predicted variance ratios of 0.41-0.64 where the render's
+//! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, round 17), and guided scenes lost
+//! to `path`. So before a trained guide is used, `prepare` traces a pilot with this file's own
+//! estimator at the render's depth: `pilot_paths` camera rays (drawn over the training's
+//! image), each traced twice unguided and twice guided with the same random numbers for both
+//! policies. Half the squared difference of a ray's two samples is an unbiased estimate of the
+//! variance along that ray (the pixel's variance less the part from where in the pixel the
+//! ray goes, which guiding does not change); their means give the measured variance ratio.
+//! The cost is a work count, not a time: the ratio of rays traced (closest hits and shadow
+//! rays) per sample, times the training's overhead ratio for the guided queries and the node
+//! mapping (measured constants, `guide::training`, "Cost"). Unless 1 / (variance ratio x cost
+//! ratio) exceeds the switch's margin (1.1), every node is set to c = 0 and `path_skeleton`
+//! traces `path`'s samples. The pilot's random numbers are its own and its verdict is a
+//! deterministic function of the scene (chunk sums combined in chunk order), so the render
+//! stays unbiased either way.
 
 use std::cell::RefCell;
 use std::sync::Arc;
+
+use rayon::prelude::*;
 
 use super::{Integrator, IntegratorSettings, Precomputation, SampleContext, TraceCounters};
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::{sample_bsdf_or_guide, GuideQuery, RenderEstimator, SkeletonGuide};
-use crate::math::{Frame, Rgb, Sampler, Vec3};
+use crate::guide::{sample_bsdf_or_guide, GuideQuery, Pilot, RenderEstimator, SkeletonGuide};
+use crate::math::{luminance, Frame, Rgb, Rng, Sampler, Vec3};
 use crate::render::FIRST_INTEGRATOR_DIMENSION;
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction};
 
@@ -144,6 +167,92 @@ impl PathTracer {
     }
 }
 
+/// Camera rays per chunk of the pilot (the fixed work partition).
+const PILOT_CHUNK: u32 = 256;
+const PILOT_SEED: u64 = 0x9170_7a11;
+/// Width / height of the pilot's image: the training's (the render's is not known yet).
+const PILOT_ASPECT: f32 = 2.0;
+
+impl PathTracer {
+    /// The pilot (module docs, "The pilot"): None where it does not apply (no pilot rays, a
+    /// guide without a trained scene-level switch, or one that guides nothing already).
+    fn pilot(&self, scene: &Scene, camera: &Camera, guide: &SkeletonGuide) -> Option<Pilot> {
+        let settings = guide.settings();
+        let training = guide.training().filter(|t| t.paths > 0)?;
+        let rays = settings.pilot_paths;
+        if rays == 0
+            || guide.guides_nothing()
+            || !settings.learned_c_skel
+            || !settings.cost_model.switches()
+        {
+            return None;
+        }
+        let frame = camera.frame(PILOT_ASPECT);
+        let chunks: Vec<[f64; 4]> = (0..rays.div_ceil(PILOT_CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let mut query = GuideQuery::new();
+                let mut counters = [TraceCounters::default(), TraceCounters::default()];
+                let mut variance = [0f64; 2];
+                for i in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(rays) {
+                    let mut pick = Rng::new(PILOT_SEED, i as u64);
+                    let ray = frame.generate_ray(pick.uniform2(), pick.uniform2());
+                    for (k, counter) in counters.iter_mut().enumerate() {
+                        let mut l = [0f64; 2];
+                        for (j, lj) in l.iter_mut().enumerate() {
+                            // The same numbers for both policies: their difference is less
+                            // noisy than either.
+                            let mut rng =
+                                Sampler::independent(Rng::new(PILOT_SEED + 1 + j as u64, i as u64));
+                            let guided = if k == 1 {
+                                Some((guide, &mut query))
+                            } else {
+                                None
+                            };
+                            let sample = self.trace(scene, ray, &mut rng, counter, guided);
+                            *lj = luminance(sample.radiance) as f64;
+                        }
+                        let d = l[0] - l[1];
+                        variance[k] += if d.is_finite() {
+                            0.5 * d * d
+                        } else {
+                            f64::INFINITY
+                        };
+                    }
+                }
+                [
+                    variance[0],
+                    variance[1],
+                    counters[0].rays as f64,
+                    counters[1].rays as f64,
+                ]
+            })
+            .collect();
+        let mut sum = [0f64; 4];
+        for chunk in &chunks {
+            for (s, c) in sum.iter_mut().zip(chunk) {
+                *s += c;
+            }
+        }
+        let n = rays as f64;
+        let samples = 2.0 * n;
+        let (rays_path, rays_guided) = (sum[2] / samples, sum[3] / samples);
+        let ray_ratio = if rays_path > 0.0 {
+            rays_guided / rays_path
+        } else {
+            1.0
+        };
+        Some(Pilot {
+            rays,
+            variance_path: sum[0] / n,
+            variance_guided: sum[1] / n,
+            rays_per_sample_path: rays_path,
+            rays_per_sample_guided: rays_guided,
+            cost_ratio: ray_ratio * training.scene.cost_ratio,
+        })
+    }
+}
+
 impl Integrator for PathTracer {
     fn name(&self) -> &'static str {
         if self.guiding.is_some() {
@@ -159,10 +268,10 @@ impl Integrator for PathTracer {
         camera: &Camera,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Precomputation> {
-        let Some(slot) = self.guiding.as_mut() else {
+        if self.guiding.is_none() {
             return Ok(Precomputation::default());
-        };
-        *slot = None;
+        }
+        self.guiding = Some(None);
         // The training scores its candidates with this render's light sampling and MIS.
         let mut skeleton = self.settings.skeleton;
         skeleton.render_estimator = RenderEstimator {
@@ -170,7 +279,13 @@ impl Integrator for PathTracer {
             triangles: self.settings.triangles,
             env: self.settings.env,
         };
-        let guide = SkeletonGuide::build(scene, Some(camera), &skeleton, progress)?;
+        let mut guide = SkeletonGuide::build(scene, Some(camera), &skeleton, progress)?;
+        let pilot_started = std::time::Instant::now();
+        let pilot = self.pilot(scene, camera, &guide);
+        if let Some(p) = pilot {
+            guide.apply_pilot(p);
+        }
+        let pilot_seconds = pilot_started.elapsed().as_secs_f64();
         let notes = vec![format!(
             "skeleton guide: {} nodes ({} raw), {} importance nodes ({} found), {} of {} nodes guided, {:.1} MiB",
             guide.node_count(),
@@ -182,6 +297,19 @@ impl Integrator for PathTracer {
             guide.memory_bytes() as f64 / (1024.0 * 1024.0)
         )];
         let mut notes = notes;
+        if let Some(p) = pilot {
+            notes.push(format!(
+                "pilot ({} rays, {:.2} s): variance {:.3}x, cost {:.3}x ({:.2} against {:.2} rays per sample), efficiency {:.3}x{}",
+                p.rays,
+                pilot_seconds,
+                p.variance_ratio(),
+                p.cost_ratio,
+                p.rays_per_sample_guided,
+                p.rays_per_sample_path,
+                p.efficiency(),
+                if p.pays() { "" } else { ": not enough, nothing guided" }
+            ));
+        }
         if let Some(t) = guide.training() {
             let guided: Vec<f32> = t
                 .probabilities
@@ -237,8 +365,14 @@ impl Integrator for PathTracer {
                 ));
             }
         }
-        let stages = guide.timings().to_vec();
-        *slot = Some(Arc::new(guide));
+        let mut stages = guide.timings().to_vec();
+        if pilot.is_some() {
+            stages.push(crate::analysis::StageTime {
+                stage: "pilot (guided against unguided samples)",
+                seconds: pilot_seconds,
+            });
+        }
+        self.guiding = Some(Some(Arc::new(guide)));
         Ok(Precomputation { stages, notes })
     }
 
