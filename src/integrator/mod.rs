@@ -196,7 +196,8 @@ pub struct TraceCounters {
     pub rays: u64,
     /// The largest weight of a guided path against plain path tracing's for the same
     /// directions (the product of p_bsdf / p over its directions so far; 1 when no
-    /// direction was guided): a firefly regression shows here first.
+    /// direction was guided; 0 when the integrator guides nothing): a firefly regression
+    /// shows here first.
     pub largest_guided_ratio: f32,
 }
 

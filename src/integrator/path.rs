@@ -653,7 +653,9 @@ impl PathTracer {
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
             rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
             ratio *= ms.bsdf_pdf / bs.pdf;
-            counters.largest_guided_ratio = counters.largest_guided_ratio.max(ratio);
+            if guided.is_some() {
+                counters.largest_guided_ratio = counters.largest_guided_ratio.max(ratio);
+            }
             if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
                 break;
             }
