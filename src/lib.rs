@@ -16,6 +16,7 @@ pub mod limits;
 pub mod math;
 pub mod render;
 pub mod scene;
+pub mod timing;
 pub mod workers;
 
 pub use error::{Error, Result};

@@ -19,8 +19,9 @@ pub use voxelize::{fill_interiors, voxelize};
 pub mod opening;
 pub mod regions;
 
+pub use crate::timing::StageTime;
 pub use opening::{opening_map_26, opening_map_l1, OpeningMap};
-pub use pipeline::{Analysis, AnalysisSettings, MemoryUse, StageTime};
+pub use pipeline::{Analysis, AnalysisSettings, MemoryUse};
 pub use regions::{
     find_portals, label_regions, sample_portal, Labeling, Portal, PortalFace, Region, NO_REGION,
 };
@@ -30,6 +31,7 @@ pub use report::{summary_json, write_analysis};
 pub mod complex;
 pub mod reach;
 pub mod skeleton;
+mod skeleton_maps;
 mod skeleton_report;
 pub mod thinning;
 #[cfg(test)]

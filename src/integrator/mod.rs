@@ -17,7 +17,6 @@ pub use path::PathTracer;
 use std::any::Any;
 use std::cell::Cell;
 
-use crate::analysis::StageTime;
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
@@ -26,6 +25,7 @@ use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::Rgb;
 use crate::math::Sampler;
 use crate::scene::{Camera, CameraFrame, RenderSettingsFile, Scene};
+use crate::timing::StageTime;
 
 /// How one-sample MIS weights two strategies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
