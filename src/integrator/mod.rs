@@ -159,7 +159,7 @@ impl View {
     /// that a tool replaying a sample (examples/firefly_map.rs) traces the render's own path.
     #[inline]
     pub fn primary_ray(&self, x: u32, y: u32, rng: &mut Sampler) -> Ray {
-        use crate::render::{FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION};
+        use crate::math::{FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION};
         rng.set_dimension(FILM_DIMENSION);
         let jitter = rng.uniform2();
         let film_pos = crate::math::Vec2::new(
