@@ -10,6 +10,7 @@ pub mod error;
 pub mod film;
 pub mod geometry;
 pub mod guide;
+pub mod image_file;
 pub mod integrator;
 pub mod light;
 pub mod limits;
