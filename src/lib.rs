@@ -1,7 +1,8 @@
 //! Lacuna: an embeddable, physically based renderer that analyses the empty space of a scene.
 //!
 //! Data flows from a [`scene::SceneBuilder`] (validated input) to an immutable
-//! [`scene::Scene`], through an integrator, into a [`film::Film`]. See `DESIGN.md`.
+//! [`scene::Scene`], through an integrator, into a [`film::Film`]. See `ARCHITECTURE.md` (module map, layers) and
+//! `docs/design.md` (principles).
 
 pub mod analysis;
 pub mod capi;

@@ -1,4 +1,5 @@
-//! Empty-space analysis (000 chapters 6 and 10): voxelize the scene, measure its empty space
+//! Empty-space analysis (L. Noël, *Discrete shape analysis for global illumination*, PhD
+//! thesis 2015, chapters 6 and 10: "000" in `docs/references.md`): voxelize the scene, measure its empty space
 //! with distance and opening maps, and cut it into regions joined by portals.
 //!
 //! [`Analysis::build`] runs the pipeline on a committed scene: voxelize (26-separating) →

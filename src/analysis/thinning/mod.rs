@@ -1,5 +1,5 @@
-//! Directional parallel collapse of a cubical complex (000 §5.2.4, Algorithm 2, after Chaussard
-//! and Couprie 2009), the parameter-free curvilinear constraint of Algorithm 3 (§6.2.3), and the
+//! Directional parallel collapse of a cubical complex (Noël's thesis, "000" in
+//! `docs/references.md`, §5.2.4, Algorithm 2, after Chaussard and Couprie 2009), the parameter-free curvilinear constraint of Algorithm 3 (§6.2.3), and the
 //! piercing of surface parts (§6.2.4).
 //!
 //! # Directions
