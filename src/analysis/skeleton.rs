@@ -752,7 +752,7 @@ fn map_point_with(
 /// (a + b) / √2, (a + b + c) / √3; the runner-up among offsets with as many components
 /// swaps in the next axis or flips the smallest sign: b, (a + c) / √2, (a + b - c) / √3.
 /// A few dozen instructions against a search over every mapped neighbour (about 1,400
-/// per guided vertex, issue 8 round 8).
+/// per guided vertex).
 fn clearly_facing_offset(n: Vec3) -> Option<[i64; 3]> {
     /// Far above the search's tolerance (1e-4) and the rounding of either computation.
     const FACING_MARGIN: f32 = 1e-3;
@@ -805,7 +805,7 @@ fn clearly_facing_offset(n: Vec3) -> Option<[i64; 3]> {
 /// 1 against the runner-up's 1/√2, whatever the rounding of the normalisation), found without
 /// normalising n. None elsewhere (then the caller normalises and asks
 /// `clearly_facing_offset`). The geometric normals of axis-aligned walls are such vectors;
-/// most of the vertices a guided path tracer maps lie on them (issue 8, round 12).
+/// most of the vertices a guided path tracer maps lie on them.
 #[inline]
 fn axis_facing_offset(n: Vec3) -> Option<[i64; 3]> {
     let (axis, value) = if n.y == 0.0 && n.z == 0.0 {

@@ -33,8 +33,7 @@ pub const FIRST_INTEGRATOR_DIMENSION: u32 = 2;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum SamplerKind {
     /// Owen-scrambled Sobol (0,2)-sequence pairs, one per dimension slot: lower error per
-    /// sample, and 1.8x less time to `path`'s error on the Cornell box (BENCHMARKS.md,
-    /// issue 2, round 4). The default.
+    /// sample, and 1.8x less time to `path`'s error on the Cornell box (BENCHMARKS.md). The default.
     #[default]
     Sobol,
     /// Independent PCG32 numbers per pixel sample.

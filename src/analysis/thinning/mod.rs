@@ -438,13 +438,13 @@ const MIN_PARALLEL_WORK: usize = 2048;
 
 /// The same threshold for a pass shared with the helper of a run ([`PassHelper`]), which costs
 /// some hundreds of nanoseconds (cache lines crossing between the cores) rather than a
-/// wake-up. 256, 1024 and 2048 were tried on the door at 234 (round 7, loaded machine): 1024
+/// wake-up. 256, 1024 and 2048 were tried on the door at 234 (on a loaded machine): 1024
 /// was as fast as 256 and no slower than 2048.
 const MIN_SHARED_WORK: usize = 1024;
 
 /// Changed bricks (the bricks to examine are their dilation) at the start of a [`Thinning::run`]
 /// that resumes a collapse below which the run keeps its passes on the calling thread instead of
-/// sharing them with a helper ([`PassHelper`]). Measured on the door (BENCHMARKS.md, round 8): the
+/// sharing them with a helper ([`PassHelper`]). Measured on the door (BENCHMARKS.md): the
 /// re-thinning after a pierce (a run that starts with the one or two bricks of the pierced squares,
 /// then some hundred bricks per pass for hundreds of iterations) was 10-20 % faster on 2 threads
 /// without the helper at 118 and 234. A first run keeps the helper whatever its size: at 118 (at

@@ -33,7 +33,7 @@ const SHUT_DOWN: u32 = 5;
 /// a rayon fork/join per pass. A pass follows some microseconds of sequential list work, after
 /// which a rayon worker has gone to sleep: waking it (an inter-processor interrupt on this KVM
 /// guest) cost about 10 µs per pass at the door's 234, more than half of a typical pass
-/// (BENCHMARKS.md, round 7). The helper instead polls (spin, then yield) between passes.
+/// (BENCHMARKS.md). The helper instead polls (spin, then yield) between passes.
 ///
 /// Never a hang: the calling thread never waits for work the helper has not taken. A pass is
 /// split into chunks that the caller claims from the front and the helper from the back of the
