@@ -76,7 +76,7 @@
 //!
 //! # Piercing (§6.2.4)
 //!
-//! What the constrained collapse leaves may still hold surfaces; [`piercing`] removes one
+//! What the constrained collapse leaves may still hold surfaces; `piercing.rs` removes one
 //! square per surface part and the collapse resumes, until only points and edges are left
 //! ([`Thinning::curvilinear`]).
 
