@@ -1,5 +1,5 @@
 //! Build script: gives the C library (cdylib) a SONAME carrying the exact version while Lacuna
-//! is 0.x (CAPI.md rule 10), so programs linked against one 0.x release never load another.
+//! is 0.x (docs/capi-conventions.md, rule 10), so programs linked against one 0.x release never load another.
 
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");

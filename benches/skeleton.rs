@@ -11,7 +11,7 @@
 //!
 //! Environment: `SKELETON_BENCH_REPS` (repetitions, default 5), `SKELETON_BENCH_THREADS`
 //! (comma-separated thread counts, default `1,2`), `SKELETON_BENCH_EUCLIDEAN=opening` (the
-//! squared Euclidean distance beside the L1 opening, as before round 7, instead of beside the
+//! squared Euclidean distance beside the L1 opening, the alternative schedule, instead of beside the
 //! thinning). Each figure is the median over the
 //! repetitions, which are interleaved over the thread counts. "cpu" is the on-CPU time of all
 //! the process's threads during the stage (from /proc/self/task/*/schedstat), which does not
@@ -98,7 +98,7 @@ fn run(triangles: &[[Vec3; 3]], grid: VoxelGrid, euclidean_beside_opening: bool)
         timed(|| distance_map(dims, &occ, Metric::L1, Outside::Solid, false).values);
     row.stages.push(("distance L1".into(), w, c, b));
     // The library's schedule (`Skeleton`'s docs); with `euclidean_beside_opening` the squared
-    // Euclidean distance runs beside the L1 opening (the order before round 7) if the library
+    // Euclidean distance runs beside the L1 opening (the alternative schedule) if the library
     // would compute it beside the thinning.
     let (maps, w, c, b) = timed(|| {
         let maps = || SkeletonMaps::from_l1(dims, &occ, Outside::Solid, d1);

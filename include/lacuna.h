@@ -1,7 +1,7 @@
 /*
  * lacuna.h: the C API of Lacuna, an embeddable physically based renderer.
  *
- * Conventions (see CAPI.md of the project):
+ * Conventions (docs/capi-conventions.md in the Lacuna sources):
  * - Every fallible function returns a lacuna_status; LACUNA_STATUS_OK is 0. Out-parameters
  *   are written only on success. lacuna_last_error_message() tells what went wrong on the
  *   calling thread, lacuna_status_string() names a code, and a context may carry an error

@@ -23,12 +23,9 @@ use crate::workers::WorkerPool;
 
 const TILE: u32 = 16;
 
-/// Dimension slot of the position in the pixel (2-D).
-pub const FILM_DIMENSION: u32 = 0;
-/// Dimension slot of the position on the lens (2-D).
-pub const LENS_DIMENSION: u32 = 1;
-/// The first slot an integrator's [`Integrator::sample`] sees.
-pub const FIRST_INTEGRATOR_DIMENSION: u32 = 2;
+/// The camera's dimension slots, defined beside the sampler so that integrators see them
+/// without depending on the render loop; re-exported here for the render's users.
+pub use crate::math::{FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION};
 
 /// What to render and for how long.
 #[derive(Clone, Debug, PartialEq)]

@@ -121,7 +121,7 @@ impl VoxelGrid {
     #[inline]
     pub fn to_grid(&self, p: Vec3) -> [f64; 3] {
         // Written out: `[0, 1, 2].map(..)` stays a call to `array::try_map` in the guided
-        // path tracer's vertex set-up (about 40 instructions per point, issue 8 round 11).
+        // path tracer's vertex set-up (about 40 instructions per point).
         [
             (p.x as f64 - self.origin[0]) / self.voxel_size,
             (p.y as f64 - self.origin[1]) / self.voxel_size,

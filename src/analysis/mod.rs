@@ -1,4 +1,5 @@
-//! Empty-space analysis (000 chapters 6 and 10): voxelize the scene, measure its empty space
+//! Empty-space analysis (L. Noël, *Discrete shape analysis for global illumination*, PhD
+//! thesis 2015, chapters 6 and 10: "000" in `docs/references.md`): voxelize the scene, measure its empty space
 //! with distance and opening maps, and cut it into regions joined by portals.
 //!
 //! [`Analysis::build`] runs the pipeline on a committed scene: voxelize (26-separating) →
@@ -19,8 +20,9 @@ pub use voxelize::{fill_interiors, voxelize};
 pub mod opening;
 pub mod regions;
 
+pub use crate::timing::StageTime;
 pub use opening::{opening_map_26, opening_map_l1, OpeningMap};
-pub use pipeline::{Analysis, AnalysisSettings, MemoryUse, StageTime};
+pub use pipeline::{Analysis, AnalysisSettings, MemoryUse};
 pub use regions::{
     find_portals, label_regions, sample_portal, Labeling, Portal, PortalFace, Region, NO_REGION,
 };
@@ -30,6 +32,7 @@ pub use report::{summary_json, write_analysis};
 pub mod complex;
 pub mod reach;
 pub mod skeleton;
+mod skeleton_maps;
 mod skeleton_report;
 pub mod thinning;
 #[cfg(test)]

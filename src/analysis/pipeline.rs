@@ -8,11 +8,12 @@ use super::opening::{opening_map_26, OpeningMap};
 use super::regions::{
     find_portals, label_regions, sample_portal, Labeling, Portal, Region, NO_REGION,
 };
-use super::skeleton::{SkeletonMaps, EUCLIDEAN_BESIDE_THINNING};
+use super::skeleton_maps::{SkeletonMaps, EUCLIDEAN_BESIDE_THINNING};
 use super::voxelize::{fill_interiors, voxelize};
 use crate::error::{Error, Result};
 use crate::math::{Vec2, Vec3};
 use crate::scene::Scene;
+use crate::timing::StageTime;
 
 /// Parameters of an analysis.
 #[derive(Clone, Debug, PartialEq)]
@@ -56,13 +57,6 @@ impl Default for AnalysisSettings {
             regions: true,
         }
     }
-}
-
-/// Wall-clock time of one stage.
-#[derive(Clone, Debug, PartialEq)]
-pub struct StageTime {
-    pub stage: &'static str,
-    pub seconds: f64,
 }
 
 /// Bytes held by each structure.

@@ -4,7 +4,7 @@
 //! (Round 4 also kept a per-voxel shortcut cache of `map_point` here, `MapPointCache`; it saved
 //! 0.2-0.4 % of a guided sample's instructions on the door, because most surface points'
 //! neighbourhoods map to several nodes and the full search ran anyway, at 8 bytes per voxel.
-//! Removed in round 5; the mask is what pays: no mapping at all where nothing is guided.)
+//! Removed; the mask is what pays: no mapping at all where nothing is guided.)
 
 use rayon::prelude::*;
 
@@ -261,7 +261,7 @@ mod tests {
         for wanted in 0..node {
             let reach = may_map_to(&grid, &map, |n| n == wanted);
             // Within 5 voxels at most (a centre 4 voxels away only with |n| rounded above 1,
-            // which round 5's 4-voxel box ignored), and tighter than that box in the empty
+            // which a 4-voxel box would ignore), and tighter than that box in the empty
             // space, where it also marked the neighbouring rooms' voxels.
             let flags: Vec<bool> = map.iter().map(|&m| m == wanted).collect();
             let boxed = dilate(&grid, &flags, 5);

@@ -40,11 +40,12 @@ use std::time::Instant;
 use super::complex::{diagonal_contacts, Betti, Complex, UnionFind, POINT, SPAN_BIT};
 use super::distance::{distance_map, Metric, Outside};
 use super::grid::{VoxelGrid, VoxelSet};
-use super::opening::opening_and_decenterness_l1;
-use super::pipeline::{Analysis, StageTime};
+use super::pipeline::Analysis;
+pub use super::skeleton_maps::{SkeletonMaps, EUCLIDEAN_BESIDE_THINNING};
 use super::thinning::{Constraint, Thinning, ThinningStats};
 use crate::error::{Error, Result};
 use crate::math::Vec3;
+use crate::timing::StageTime;
 
 /// Node index of voxels that map to no node (occupied, or unreachable from every node).
 pub const UNDEFINED_NODE: u32 = u32::MAX;
@@ -751,7 +752,7 @@ fn map_point_with(
 /// (a + b) / √2, (a + b + c) / √3; the runner-up among offsets with as many components
 /// swaps in the next axis or flips the smallest sign: b, (a + c) / √2, (a + b - c) / √3.
 /// A few dozen instructions against a search over every mapped neighbour (about 1,400
-/// per guided vertex, issue 8 round 8).
+/// per guided vertex).
 fn clearly_facing_offset(n: Vec3) -> Option<[i64; 3]> {
     /// Far above the search's tolerance (1e-4) and the rounding of either computation.
     const FACING_MARGIN: f32 = 1e-3;
@@ -804,7 +805,7 @@ fn clearly_facing_offset(n: Vec3) -> Option<[i64; 3]> {
 /// 1 against the runner-up's 1/√2, whatever the rounding of the normalisation), found without
 /// normalising n. None elsewhere (then the caller normalises and asks
 /// `clearly_facing_offset`). The geometric normals of axis-aligned walls are such vectors;
-/// most of the vertices a guided path tracer maps lie on them (issue 8, round 12).
+/// most of the vertices a guided path tracer maps lie on them.
 #[inline]
 fn axis_facing_offset(n: Vec3) -> Option<[i64; 3]> {
     let (axis, value) = if n.y == 0.0 && n.z == 0.0 {
@@ -993,59 +994,6 @@ fn map_grid_point_beyond_axes(
         }
     }
     search(vx, false)
-}
-
-/// Where the skeleton's schedule ([`Skeleton#schedule`]) computes the squared Euclidean
-/// distance: beside the thinning (true), or beside the L1 opening in [`SkeletonMaps::from_l1`]
-/// (false, the order before round 7). The one switch of the schedule; the analysis pipeline
-/// and [`Skeleton::from_maps`] follow it.
-pub const EUCLIDEAN_BESIDE_THINNING: bool = true;
-
-/// The voxel maps the skeleton needs (000 §6.2.2), all measured with the same `Outside`: the
-/// L1 distance D1 and opening Ω1 (the collapse's clock and the constraint of Algorithm 3), the
-/// decenterness Ω1 − D1, and the squared Euclidean distance (maximal-ball radii, piercing
-/// priority) unless the schedule computes that beside the thinning
-/// ([`EUCLIDEAN_BESIDE_THINNING`]): the piercing is the first stage that reads it.
-pub struct SkeletonMaps {
-    pub distance_l1: Vec<u32>,
-    pub opening_l1: Vec<u32>,
-    pub decenterness_l1: Vec<u32>,
-    /// `None` when [`Skeleton::from_maps`] computes it beside the thinning.
-    pub sq_euclidean: Option<Vec<u32>>,
-}
-
-impl SkeletonMaps {
-    /// The maps of the empty space of `occupied` (see [`SkeletonMaps::from_l1`]).
-    pub fn new(dims: [usize; 3], occupied: &VoxelSet, outside: Outside) -> SkeletonMaps {
-        let d1 = distance_map(dims, occupied, Metric::L1, outside, false).values;
-        Self::from_l1(dims, occupied, outside, d1)
-    }
-
-    /// The maps from an L1 distance map: the L1 opening and decenterness (the flood split over
-    /// the rayon pool, see [`super::opening`]), and, unless the schedule computes it beside the
-    /// thinning, the squared Euclidean distance alongside them (`rayon::join`).
-    pub fn from_l1(
-        dims: [usize; 3],
-        occupied: &VoxelSet,
-        outside: Outside,
-        distance_l1: Vec<u32>,
-    ) -> SkeletonMaps {
-        let opening = || opening_and_decenterness_l1(dims, &distance_l1);
-        let ((opening_l1, decenterness_l1), sq_euclidean) = if EUCLIDEAN_BESIDE_THINNING {
-            (opening(), None)
-        } else {
-            let (o, sq) = rayon::join(opening, || {
-                distance_map(dims, occupied, Metric::SquaredEuclidean, outside, false).values
-            });
-            (o, Some(sq))
-        };
-        SkeletonMaps {
-            distance_l1,
-            opening_l1,
-            decenterness_l1,
-            sq_euclidean,
-        }
-    }
 }
 
 /// Options of the skeleton pipeline.

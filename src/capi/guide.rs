@@ -1,5 +1,5 @@
 //! `lacuna_skeleton_guide` and `lacuna_guide_query`: skeleton-guided direction sampling for a
-//! host's own path tracer, in the shape of Open PGL (CAPI.md rule 17): one immutable guide per
+//! host's own path tracer, in the shape of Open PGL (docs/capi-conventions.md, rule 17): one immutable guide per
 //! scene, one reusable query per worker thread, random numbers from the host, and every sampled
 //! direction with the exact density of the whole skeleton mixture.
 

@@ -1,6 +1,6 @@
 //! Lacuna's stable C API: the only place in the crate with `extern "C"`.
 //!
-//! The conventions are those of `shared/CAPI.md`: one `lacuna_` prefix, opaque handles,
+//! The conventions are those of `docs/capi-conventions.md`: one `lacuna_` prefix, opaque handles,
 //! refcounted shared objects (`_retain`/`_release` over `Arc`) and single-owner builders and jobs
 //! (`_new`/`_free` over `Box`), `lacuna_status` return codes with out-parameters written only on
 //! success, a thread-local last-error message, an optional error callback per context, and every

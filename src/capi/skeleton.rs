@@ -1,6 +1,6 @@
 //! `lacuna_skeleton`: the curvilinear skeleton of an analysed empty space (thinning, piercing,
 //! the filtered skeleton, the node map), with node and edge enumeration, surface-point mapping
-//! (000 eq. 151-155) and OBJ / PLY export.
+//! (eq. 151-155 of L. Noël's thesis, "000" in `docs/references.md`) and OBJ / PLY export.
 
 use std::ffi::{c_char, c_void};
 use std::sync::Arc;

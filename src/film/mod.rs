@@ -9,11 +9,12 @@
 pub mod metrics;
 mod output;
 
-pub use metrics::{image_errors, ImageErrors};
-pub use output::{
+/// Image files are read and written by [`crate::image_file`]; re-exported for the film's users.
+pub use crate::image_file::{
     encode_srgb, read_exr_rgb, read_exr_rgb_within, write_exr_rgb, write_png_rgb, ExrImage,
     ExrMetadata,
 };
+pub use metrics::{image_errors, ImageErrors};
 
 use crate::math::Rgb;
 

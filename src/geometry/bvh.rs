@@ -698,7 +698,7 @@ impl QueryRay {
 /// slack that keeps the quantised test conservative, byte-to-float conversions), and its boxes
 /// are up to one grid step (1/255 of the node) larger on every side, so rays enter children
 /// and leaves they miss. This node is 256 bytes (3.2x), one aligned 256-bit load per plane.
-/// Measured against the compressed node in BENCHMARKS.md, round 11.
+/// Measured against the compressed node (BENCHMARKS.md).
 ///
 /// `planes[2 * axis]` holds the eight children's minima on `axis`, `planes[2 * axis + 1]` their
 /// maxima: the exact bounds of the triangles below each child (unions of f32 minima and maxima

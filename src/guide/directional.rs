@@ -27,8 +27,7 @@ pub const PHI_BINS: usize = 24;
 /// Bins of one distribution.
 pub const BINS: usize = Z_BINS * PHI_BINS;
 /// Share of the density that is uniform over the sphere, by default (`histogram_floor`).
-/// 0.05 since round 16 (0.15 before): per sample it gains on all five test scenes
-/// (BENCHMARKS.md, round 16, branch train16).
+/// 0.05 rather than 0.15: per sample it gains on all five test scenes (BENCHMARKS.md).
 pub const FLOOR: f32 = 0.05;
 /// Normal classes ([`class_of`]) and, within each, quadrants of the point's position.
 pub const NORMALS: usize = 6;
@@ -87,7 +86,7 @@ const PHI_MARGIN: f32 = 1e-3;
 /// within a few ulps, below 1e-5 columns), `None` unless it lies more than `PHI_MARGIN` from
 /// every column boundary (then both round down to the same column), and for zero, tiny, huge
 /// or non-finite (x, y). `atan2f`, which every learned density evaluation called, was 3.7 %
-/// of the guided render's time on the ajar (issue 8, round 16); the columns, and so the
+/// of the guided render's time on the ajar; the columns, and so the
 /// images, are the same.
 #[inline]
 fn phi_bin_fast(x: f32, y: f32) -> Option<usize> {

@@ -1,4 +1,4 @@
-//! What integrators ask of the empty-space analysis (DESIGN.md §3): a direction and its pdf.
+//! What integrators ask of the empty-space analysis (docs/design.md: a module owns its data): a direction and its pdf.
 //! Integrators never reach into the voxel grid or the skeleton graph themselves.
 //!
 //! [`SkeletonGuide`] is skeleton-guided ray sampling (000 chapter 9, lines 2600-2790, and the

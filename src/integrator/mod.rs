@@ -23,7 +23,6 @@ pub use path::PathTracer;
 use std::any::Any;
 use std::cell::Cell;
 
-use crate::analysis::StageTime;
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
@@ -32,6 +31,7 @@ use crate::light::{EnvStrategy, TriangleSampling};
 use crate::math::Rgb;
 use crate::math::Sampler;
 use crate::scene::{Camera, CameraFrame, RenderSettingsFile, Scene};
+use crate::timing::StageTime;
 
 /// How MIS weights two strategies.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -216,7 +216,7 @@ impl View {
     /// that a tool replaying a sample (examples/firefly_map.rs) traces the render's own path.
     #[inline]
     pub fn primary_ray(&self, x: u32, y: u32, rng: &mut Sampler) -> Ray {
-        use crate::render::{FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION};
+        use crate::math::{FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION};
         rng.set_dimension(FILM_DIMENSION);
         let jitter = rng.uniform2();
         let film_pos = crate::math::Vec2::new(

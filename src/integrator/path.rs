@@ -40,8 +40,8 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::{sample_bsdf_or_guide, GuideQuery, Pilot, RenderEstimator, SkeletonGuide};
+use crate::math::FIRST_INTEGRATOR_DIMENSION;
 use crate::math::{luminance, Frame, Rgb, Rng, Sampler, Vec3};
-use crate::render::FIRST_INTEGRATOR_DIMENSION;
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction};
 
 /// Sampler dimension slots of one bounce, so that each slot means the same thing in every

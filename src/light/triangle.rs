@@ -14,7 +14,7 @@
 //!
 //! It is not the default: on the Cornell box and the Veach door it lowers `path`'s error at
 //! equal samples by only 1.6 % and 0.3 % while a sample costs 23 % more instructions, so it
-//! loses at equal time (BENCHMARKS.md, issue 2, round 5); rules spending it only where the
+//! loses at equal time (BENCHMARKS.md); rules spending it only where the
 //! area density varies most across the triangle lost too.
 
 use crate::math::{Vec2, Vec3};

@@ -11,7 +11,9 @@ pub mod warp;
 pub use distribution::{AliasTable, Distribution1D, Distribution2D};
 pub use frame::Frame;
 pub use rng::{mix64, Rng};
-pub use sampler::{PixelSampler, Sampler, SamplerKind};
+pub use sampler::{
+    PixelSampler, Sampler, SamplerKind, FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION,
+};
 
 pub use glam::{Vec2, Vec3};
 

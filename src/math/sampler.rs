@@ -22,12 +22,18 @@ use super::{mix64, Rng};
 use crate::error::{Error, Result};
 use glam::Vec2;
 
+/// Dimension slot of the position in the pixel (2-D), drawn by the camera.
+pub const FILM_DIMENSION: u32 = 0;
+/// Dimension slot of the position on the lens (2-D), drawn by the camera.
+pub const LENS_DIMENSION: u32 = 1;
+/// The first slot an integrator's `Integrator::sample` sees: the camera's slots come first.
+pub const FIRST_INTEGRATOR_DIMENSION: u32 = 2;
+
 /// Which numbers pixel samples draw.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum SamplerKind {
     /// Owen-scrambled Sobol (0,2)-sequence pairs, one per dimension slot: lower error per
-    /// sample, and 1.8x less time to `path`'s error on the Cornell box (BENCHMARKS.md,
-    /// issue 2, round 4). The default.
+    /// sample, and 1.8x less time to `path`'s error on the Cornell box (BENCHMARKS.md). The default.
     #[default]
     Sobol,
     /// Independent PCG32 numbers per pixel sample.

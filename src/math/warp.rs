@@ -122,7 +122,7 @@ pub fn uniform_triangle(u: Vec2) -> (f32, f32) {
 /// for small or distant rectangles. Those four angles (four `acos`, most of the set-up's
 /// cost) are computed at the first sample or density evaluation that needs them: a guided
 /// vertex sets up its portal's rectangle once and evaluates its density for every direction
-/// it weighs, and most of those (the BSDF's samples, the light's) miss it (issue 8, round 8).
+/// it weighs, and most of those (the BSDF's samples, the light's) miss it.
 #[derive(Clone, Debug)]
 pub struct SphericalRectangle {
     /// The rectangle's frame: unit edge directions x, y and z = x × y flipped so that the
@@ -155,7 +155,7 @@ const DEFERRED_SOLID_ANGLE: f64 = 1e-6;
 
 /// What [`SphericalRectangle::new`] computes of a rectangle before it looks at the origin
 /// (its corner and its frame in f64), for a rectangle seen from many origins: a guided vertex
-/// sets up its portal's rectangle anew at every point (issue 8, round 11).
+/// sets up its portal's rectangle anew at every point.
 /// [`seen_from`](Self::seen_from) gives bit for bit what `SphericalRectangle::new` gives.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RectangleFrame {
@@ -205,7 +205,7 @@ impl RectangleFrame {
 
     /// [`seen_from`](Self::seen_from) written into `rect` (false where `seen_from` gives None,
     /// and then `rect` holds nothing to sample): a guided vertex sets up a portal's rectangle
-    /// in its query's lobe, without moving the 150-byte result there (issue 8, round 12).
+    /// in its query's lobe, without moving the 150-byte result there.
     #[inline]
     pub fn seen_from_into(&self, origin: Vec3, rect: &mut SphericalRectangle) -> bool {
         let &RectangleFrame {

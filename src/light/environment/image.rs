@@ -90,7 +90,7 @@ impl EnvImage {
             .map(str::to_ascii_lowercase);
         let (w, h, pixels) = match ext.as_deref() {
             Some("exr") => {
-                let img = crate::film::read_exr_rgb_within(path, budget)?;
+                let img = crate::image_file::read_exr_rgb_within(path, budget)?;
                 (img.width as usize, img.height as usize, img.pixels)
             }
             Some("hdr") => {

@@ -1,4 +1,5 @@
-//! Environment-map lights (001 chapter 3; background 001 §2.7.2): radiance arriving from
+//! Environment-map lights (H. Lu, *Importance sampling of realistic light sources*, PhD
+//! thesis 2014, "001" in `docs/references.md`: chapter 3; background §2.7.2): radiance arriving from
 //! infinitely far away, stored as a lat-long or cube-map image, with light-based importance
 //! sampling by the classic 2-D lat-long density or by per-face cube-map CDFs with the
 //! per-normal dynamic face balancing of the thesis, each with its exact pdf so that it

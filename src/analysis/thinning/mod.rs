@@ -1,5 +1,5 @@
-//! Directional parallel collapse of a cubical complex (000 §5.2.4, Algorithm 2, after Chaussard
-//! and Couprie 2009), the parameter-free curvilinear constraint of Algorithm 3 (§6.2.3), and the
+//! Directional parallel collapse of a cubical complex (Noël's thesis, "000" in
+//! `docs/references.md`, §5.2.4, Algorithm 2, after Chaussard and Couprie 2009), the parameter-free curvilinear constraint of Algorithm 3 (§6.2.3), and the
 //! piercing of surface parts (§6.2.4).
 //!
 //! # Directions
@@ -35,7 +35,7 @@
 //! border: a layer of the collapse crosses a brick in 4 iterations along any axis, where a
 //! 64-vertex row would stay busy for 64 iterations under a front moving along it.
 //!
-//! Work per iteration: only bricks near a change can hold a free face. A cell's freeness depends on
+//! PassCost per iteration: only bricks near a change can hold a free face. A cell's freeness depends on
 //! its cofaces, so when cells of brick b are removed only the faces of removed cells change, and
 //! those lie in b or its +x, +y, +z neighbours (the set A). A face free at the start of an
 //! iteration is always removed or loses its coface during it (its coface is in L, so its sub-step
@@ -46,11 +46,11 @@
 //! removes them; both passes write only the brick they process, so they run in parallel over bricks
 //! with results identical to the sequential order (tested): during [`Thinning::run`] on the calling
 //! thread and one helper thread, started by the run's first pass worth sharing and kept to the
-//! run's end (`Duo`: a rayon fork/join per pass cost more than it saved, the sleeping worker's
+//! run's end (`PassHelper`: a rayon fork/join per pass cost more than it saved, the sleeping worker's
 //! wake-up; a run that resumes a collapse with few changed bricks has no helper), elsewhere over
 //! the rayon pool. Scratch planes are atomics with relaxed loads and stores: plain moves on x86-64,
 //! and no `unsafe` in the passes (the only `unsafe` is the hand-over of a pass to the helper, see
-//! `Duo`).
+//! `PassHelper`).
 //!
 //! # Dates and the constraint (Definitions 6.1-6.3, Algorithm 3)
 //!
@@ -76,30 +76,21 @@
 //!
 //! # Piercing (§6.2.4)
 //!
-//! Without cubes (a complex with a cube always has a free square), what is left of the
-//! constrained collapse may still hold squares: every edge of such a square lies on at least two
-//! squares (a constrained edge is born, so it has none). Each connected surface part (squares
-//! joined through edges) is pierced by removing one square and the collapse is resumed. We pick
-//! the square whose two sides lie in different components of the complement (so removing it
-//! joins two of them: b2 decreases by one, b0 and b1 are unchanged, by Alexander duality),
-//! preferring the one with the largest priority (the Euclidean distance map: the hole is
-//! central), and repeat until no square remains. The iteration count goes on through the
-//! re-thinning, so the edges of a pierced surface are born late, get large thresholds, and the
-//! surface collapses onto the curves attached to it (Figure 36c) instead of growing branches.
-//! A part where no square separates two complement components (a contractible 2-complex such
-//! as Bing's house) is pierced anyway; that raises b1 and is counted in
-//! [`ThinningStats::forced_pierces`].
+//! What the constrained collapse leaves may still hold surfaces; `piercing.rs` removes one
+//! square per surface part and the collapse resumes, until only points and edges are left
+//! ([`Thinning::curvilinear`]).
 
-use std::cell::UnsafeCell;
-use std::panic::{catch_unwind, resume_unwind, AssertUnwindSafe};
-use std::sync::atomic::Ordering::Release;
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Acquire, Ordering::Relaxed};
+mod pass_helper;
+mod piercing;
+
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
 use super::complex::{Complex, SPAN_BIT};
 use super::grid::VoxelSet;
+use pass_helper::{claim, PassHelper, ShutDownOnDrop};
 
 /// Date of a cell that is never born or never dies.
 pub const NEVER: u32 = u32::MAX;
@@ -273,7 +264,7 @@ fn bits(mut w: u64) -> impl Iterator<Item = u32> {
 /// A pair kind of one sub-step: free face of span `g`, coface of span `f` at the same vertex
 /// (negative orientation) or one step back along the axis (positive), the other cofaces of g.
 #[derive(Clone, Copy, Debug)]
-struct Kind {
+struct PairKind {
     g: usize,
     f: usize,
     /// Other cofaces of g: (span, axis of the step back or 3 = same vertex).
@@ -377,8 +368,8 @@ fn closed_up<const SPAN: usize>(border: &Planes, b: usize, step: &[usize; 3]) ->
 /// at most two per sub-step (dim 2: both square orientations containing the axis), and how
 /// many each sub-step has. A constant, so that the pair test of each kind compiles to straight
 /// word logic ([`Thinning::remove_kind`]).
-const KINDS: ([[Kind; 2]; 18], [usize; 18]) = {
-    let empty = Kind {
+const PAIR_KINDS: ([[PairKind; 2]; 18], [usize; 18]) = {
+    let empty = PairKind {
         g: 0,
         f: 0,
         others: [(0, 0); 5],
@@ -410,7 +401,7 @@ const KINDS: ([[Kind; 2]; 18], [usize; 18]) = {
                             }
                             i += 1;
                         }
-                        table[s][count[s]] = Kind {
+                        table[s][count[s]] = PairKind {
                             g,
                             f,
                             others,
@@ -433,27 +424,27 @@ const KINDS: ([[Kind; 2]; 18], [usize; 18]) = {
 /// instructions): the free-face, birth, border and closure passes read about four times as
 /// many words per brick.
 #[derive(Clone, Copy, Debug)]
-enum Work {
+enum PassCost {
     Light = 1,
     Heavy = 4,
 }
 
-/// Brick visits (in [`Work`] units) below which a pass is cheaper on the calling thread than
+/// Brick visits (in [`PassCost`] units) below which a pass is cheaper on the calling thread than
 /// split over the pool: a split costs microseconds (waking a sleeping worker more), a light
 /// brick visit some 10 ns. The long tail of the collapse (hundreds of iterations of a few
 /// hundred bricks after the piercing) then runs without any task overhead, while the first
 /// iterations (thousands of bricks per pass) still split. Measured on the door and Sponza.
 const MIN_PARALLEL_WORK: usize = 2048;
 
-/// The same threshold for a pass shared with the helper of a run ([`Duo`]), which costs
+/// The same threshold for a pass shared with the helper of a run ([`PassHelper`]), which costs
 /// some hundreds of nanoseconds (cache lines crossing between the cores) rather than a
-/// wake-up. 256, 1024 and 2048 were tried on the door at 234 (round 7, loaded machine): 1024
+/// wake-up. 256, 1024 and 2048 were tried on the door at 234 (on a loaded machine): 1024
 /// was as fast as 256 and no slower than 2048.
 const MIN_SHARED_WORK: usize = 1024;
 
 /// Changed bricks (the bricks to examine are their dilation) at the start of a [`Thinning::run`]
 /// that resumes a collapse below which the run keeps its passes on the calling thread instead of
-/// sharing them with a helper ([`Duo`]). Measured on the door (BENCHMARKS.md, round 8): the
+/// sharing them with a helper ([`PassHelper`]). Measured on the door (BENCHMARKS.md): the
 /// re-thinning after a pierce (a run that starts with the one or two bricks of the pierced squares,
 /// then some hundred bricks per pass for hundreds of iterations) was 10-20 % faster on 2 threads
 /// without the helper at 118 and 234. A first run keeps the helper whatever its size: at 118 (at
@@ -468,7 +459,7 @@ enum Split {
     /// On the calling thread.
     Sequential,
     /// Inside [`Thinning::run`]: passes of at least `min_shared_work` shared with the run's
-    /// helper thread ([`Duo`]), each thread claiming chunks from one end of the list. Outside
+    /// helper thread ([`PassHelper`]), each thread claiming chunks from one end of the list. Outside
     /// a run (single iterations, the piercing's own passes): one contiguous part of the list
     /// per pool thread, if the pass holds at least `min_parallel_work`. Either way a part of
     /// a brick list sorted by index is a slab of the grid, so each thread mostly reads the
@@ -478,246 +469,6 @@ enum Split {
     /// Fixed chunks of this many bricks, however little work the pass holds (tests: splits
     /// every list on small grids).
     Chunks(usize),
-}
-
-/// States of [`Duo::state`].
-const IDLE: u32 = 0;
-const POSTED: u32 = 1;
-const TAKEN: u32 = 2;
-const DONE: u32 = 3;
-const PANICKED: u32 = 4;
-const SHUT_DOWN: u32 = 5;
-
-/// The helper thread of a [`Thinning::run`]: one pool thread that joins the collapse at the run's
-/// first pass worth sharing, stays to the run's end and takes part in every split pass, instead of
-/// a rayon fork/join per pass. A pass follows some microseconds of sequential list work, after
-/// which a rayon worker has gone to sleep: waking it (an inter-processor interrupt on this KVM
-/// guest) cost about 10 µs per pass at the door's 234, more than half of a typical pass
-/// (BENCHMARKS.md, round 7). The helper instead polls (spin, then yield) between passes.
-///
-/// Never a hang: the calling thread never waits for work the helper has not taken. A pass is
-/// split into chunks that the caller claims from the front and the helper from the back of the
-/// list ([`claim`]); the caller, once the list is exhausted, withdraws the job if the helper has
-/// not taken it (then the caller did everything) and otherwise waits only for the chunks the
-/// helper is running, whose panics are caught and passed on to the caller. The helper returns
-/// when the run ends (also on a panic of the caller: [`ShutDownOnDrop`]); with one pool thread
-/// there is no helper.
-struct Duo {
-    /// IDLE (no job), POSTED (a job for the helper), TAKEN (the helper runs it), DONE or
-    /// PANICKED (it finished), SHUT_DOWN (the run is over).
-    state: AtomicU32,
-    /// The posted job, with its lifetime erased; read by the helper only between taking it
-    /// (POSTED -> TAKEN) and DONE/PANICKED, written by the caller only when IDLE.
-    job: UnsafeCell<Option<&'static (dyn Fn() + Sync)>>,
-    /// The thread that runs the collapse: if the pool ever hands the helper's task to it
-    /// (while it waits inside some rayon call), the task returns at once instead of serving
-    /// itself forever.
-    owner: Mutex<Option<std::thread::ThreadId>>,
-    /// Whether the helper's task was spawned ([`Duo::start`]).
-    started: AtomicBool,
-}
-
-// SAFETY: `job` is accessed under the protocol of `state` (see the field's comment), with
-// one writer: only the thread running the collapse calls `run_pair`, one pass at a time
-// (checked there). The caller writes it only in IDLE, before the Release store of POSTED;
-// the helper reads it only after its Acquire CAS POSTED -> TAKEN and before its Release store
-// of DONE/PANICKED, and the caller does not write it again before reading DONE/PANICKED with
-// Acquire (or withdrawing the job with a successful CAS POSTED -> IDLE, after which the
-// helper cannot take it).
-unsafe impl Sync for Duo {}
-
-/// Polls: spins for up to [`SPIN`], then yields the core at each poll. Between two shared
-/// passes lie the sequential list work (some tens of microseconds) and, late in a collapse,
-/// runs of passes too small to share (hundreds of microseconds), so the helper normally spins
-/// through them; a helper that yields hands its core to another task for a whole time slice
-/// on a loaded machine, and misses the next passes (100 µs was tried: slower at 234). After
-/// the spin, a wait (say, for a helper that was preempted mid-chunk) yields so as not to keep
-/// the thread it waits for off the core.
-struct BackOff {
-    start: Option<std::time::Instant>,
-    polls: u32,
-    yielding: bool,
-}
-
-/// How long [`BackOff`] spins before it yields.
-const SPIN: std::time::Duration = std::time::Duration::from_micros(1000);
-
-impl BackOff {
-    fn new() -> BackOff {
-        BackOff {
-            start: None,
-            polls: 0,
-            yielding: false,
-        }
-    }
-
-    #[inline]
-    fn wait(&mut self) {
-        if self.yielding {
-            std::thread::yield_now();
-            return;
-        }
-        // The clock is read every 64 polls (a read costs some 20 ns).
-        if self.polls % 64 == 0 {
-            let now = std::time::Instant::now();
-            self.yielding = now - *self.start.get_or_insert(now) > SPIN;
-        }
-        self.polls = self.polls.wrapping_add(1);
-        std::hint::spin_loop();
-    }
-}
-
-impl Duo {
-    fn new() -> Duo {
-        Duo {
-            state: AtomicU32::new(IDLE),
-            job: UnsafeCell::new(None),
-            owner: Mutex::new(None),
-            started: AtomicBool::new(false),
-        }
-    }
-
-    /// Spawns the helper's task (detached, see [`Thinning::run`]) unless it already was.
-    fn start(self: &Arc<Self>) {
-        if !self.started.swap(true, Relaxed) {
-            let helper = Arc::clone(self);
-            rayon::spawn(move || helper.serve());
-        }
-    }
-
-    /// The helper's loop: runs posted jobs until the run shuts it down.
-    ///
-    /// Panics only inside the caught job: it runs as a detached rayon task, whose panic would
-    /// abort the process.
-    fn serve(&self) {
-        let owner = *self.owner.lock().unwrap_or_else(|e| e.into_inner());
-        if owner == Some(std::thread::current().id()) {
-            return;
-        }
-        let mut back_off = BackOff::new();
-        loop {
-            match self.state.load(Acquire) {
-                POSTED => {
-                    if self
-                        .state
-                        .compare_exchange(POSTED, TAKEN, Acquire, Relaxed)
-                        .is_ok()
-                    {
-                        // SAFETY: TAKEN, so the caller keeps the job alive and does not
-                        // write `job` until it reads DONE or PANICKED (see `Sync for Duo`).
-                        let Some(job) = (unsafe { *self.job.get() }) else {
-                            // Unreachable: a job is written before every POSTED store.
-                            self.state.store(PANICKED, Release);
-                            continue;
-                        };
-                        let done = catch_unwind(AssertUnwindSafe(job)).is_ok();
-                        self.state
-                            .store(if done { DONE } else { PANICKED }, Release);
-                        back_off = BackOff::new();
-                    }
-                }
-                SHUT_DOWN => return,
-                _ => back_off.wait(),
-            }
-        }
-    }
-
-    /// Runs `mine` on the calling thread while the helper (if it is serving) runs `helper`;
-    /// returns when both are done. `mine` must itself finish the work the helper does not
-    /// take (both claim from one list, see [`claim`]).
-    ///
-    /// Only the thread running the collapse calls it, one pass at a time (a pass's closure
-    /// does not start another pass): the `Sync` argument rests on that single writer of
-    /// `job`, so it is checked in release builds too (one load per pass).
-    fn run_pair(&self, helper: &(dyn Fn() + Sync), mine: impl FnOnce()) {
-        assert_eq!(
-            self.state.load(Relaxed),
-            IDLE,
-            "a thinning pass started inside another pass"
-        );
-        // SAFETY: only the lifetime is erased. The state is IDLE, so the helper does not read
-        // `job`; it may read it from the POSTED store below until this function has seen
-        // DONE/PANICKED or withdrawn the job, and this function returns (or unwinds, the
-        // caller's panic being caught below) only after that, while `helper` is alive.
-        unsafe {
-            *self.job.get() = Some(std::mem::transmute::<
-                &(dyn Fn() + Sync),
-                &'static (dyn Fn() + Sync),
-            >(helper));
-        }
-        self.state.store(POSTED, Release);
-        let mine = catch_unwind(AssertUnwindSafe(mine));
-        let mut helper_panicked = false;
-        if self
-            .state
-            .compare_exchange(POSTED, IDLE, Relaxed, Relaxed)
-            .is_err()
-        {
-            // Taken: the helper is running its last chunks (or found none left).
-            let mut back_off = BackOff::new();
-            loop {
-                match self.state.load(Acquire) {
-                    DONE => break,
-                    PANICKED => {
-                        helper_panicked = true;
-                        break;
-                    }
-                    _ => back_off.wait(),
-                }
-            }
-            self.state.store(IDLE, Relaxed);
-        }
-        // SAFETY: IDLE again (withdrawn, or DONE/PANICKED seen), so the helper does not read
-        // `job`; clearing it leaves no dangling reference to `helper` behind.
-        unsafe {
-            *self.job.get() = None;
-        }
-        if let Err(panic) = mine {
-            resume_unwind(panic);
-        }
-        assert!(
-            !helper_panicked,
-            "a thinning pass panicked on the helper thread"
-        );
-    }
-}
-
-/// Shuts the helper down when the run ends, also when the caller unwinds.
-struct ShutDownOnDrop<'d>(&'d Duo);
-
-impl Drop for ShutDownOnDrop<'_> {
-    fn drop(&mut self) {
-        self.0.state.store(SHUT_DOWN, Release);
-    }
-}
-
-/// Claims the next chunk of a pass from the front (the caller) or the back (the helper) of the
-/// unclaimed range `lo..hi` packed as lo | hi << 32: a quarter of what is left, at least
-/// `min`. Each thread so works on a contiguous part of the (sorted) brick list, a slab of the
-/// grid, and the two meet wherever the work balances.
-fn claim(range: &AtomicU64, min: u32, front: bool) -> Option<(usize, usize)> {
-    let mut current = range.load(Relaxed);
-    loop {
-        let (lo, hi) = (current as u32, (current >> 32) as u32);
-        if lo >= hi {
-            return None;
-        }
-        let take = ((hi - lo) / 4).max(min).min(hi - lo);
-        let (a, b) = if front {
-            (lo, lo + take)
-        } else {
-            (hi - take, hi)
-        };
-        let next = if front {
-            (lo + take) as u64 | (hi as u64) << 32
-        } else {
-            lo as u64 | ((hi - take) as u64) << 32
-        };
-        match range.compare_exchange_weak(current, next, Relaxed, Relaxed) {
-            Ok(_) => return Some((a as usize, b as usize)),
-            Err(now) => current = now,
-        }
-    }
 }
 
 /// A born edge waiting for the iteration at which the constraint catches it.
@@ -761,18 +512,18 @@ pub struct Thinning<'a> {
     death: Option<Vec<u32>>,
     /// How the per-brick passes are split over the pool.
     split: Split,
-    /// Work (brick visits weighted by [`Work`]) below which a pass runs on the calling
+    /// PassCost (brick visits weighted by [`PassCost`]) below which a pass runs on the calling
     /// thread.
     min_parallel_work: usize,
     /// The helper of [`Thinning::run`] (with [`Split::PerThread`]), whether it is serving
     /// (during a run), and the work below which a pass is not shared with it.
-    duo: Arc<Duo>,
+    helper: Arc<PassHelper>,
     serving: bool,
     min_shared_work: usize,
     /// Changed bricks at the start of a resumed run below which the run has no helper
     /// ([`MIN_HELPER_BRICKS`]; the bricks to examine are their dilation).
     min_helper_bricks: usize,
-    /// Smallest chunk a thread claims in a shared pass (0: by the pass's [`Work`]).
+    /// Smallest chunk a thread claims in a shared pass (0: by the pass's [`PassCost`]).
     min_claim: u32,
     /// Chunks the helper ran (tests: the helper did take part).
     helper_chunks: AtomicU64,
@@ -826,7 +577,7 @@ impl<'a> Thinning<'a> {
             .filter(|&b| layout.real(b as usize))
             .collect();
         // Cubes: voxel v is the cube of internal vertex v + 1.
-        t.for_each(&real, Work::Heavy, |b| {
+        t.for_each(&real, PassCost::Heavy, |b| {
             let mut word = 0u64;
             let base = layout.coords(b, 0);
             let inside = |a: usize, v: usize| v >= 1 && v <= dims[a];
@@ -864,7 +615,7 @@ impl<'a> Thinning<'a> {
         });
         // Closure, one dimension at a time: a cell is present if a coface is.
         for dim in [2u32, 1, 0] {
-            t.for_each(&real, Work::Heavy, |b| {
+            t.for_each(&real, PassCost::Heavy, |b| {
                 for span in (0..8usize).filter(|s| s.count_ones() == dim) {
                     let mut w = 0;
                     for &(up, at) in cofaces(span) {
@@ -925,7 +676,7 @@ impl<'a> Thinning<'a> {
                 Split::Sequential
             },
             min_parallel_work: MIN_PARALLEL_WORK,
-            duo: Arc::new(Duo::new()),
+            helper: Arc::new(PassHelper::new()),
             serving: false,
             min_shared_work: MIN_SHARED_WORK,
             min_helper_bricks: MIN_HELPER_BRICKS,
@@ -971,7 +722,7 @@ impl<'a> Thinning<'a> {
 
     /// Whether a pass of `work` over `len` bricks is split into parallel tasks.
     #[inline]
-    fn split(&self, len: usize, work: Work) -> bool {
+    fn split(&self, len: usize, work: PassCost) -> bool {
         match self.split {
             Split::Sequential => false,
             Split::PerThread => len > 1 && len * work as usize >= self.min_parallel_work,
@@ -994,7 +745,7 @@ impl<'a> Thinning<'a> {
     fn chunked<T: Send>(
         &self,
         list: &[u32],
-        work: Work,
+        work: PassCost,
         f: impl Fn(&[u32], &mut Vec<T>) + Sync,
     ) -> Vec<T> {
         if self.serving {
@@ -1028,18 +779,18 @@ impl<'a> Thinning<'a> {
     fn shared_with_helper<T: Send>(
         &self,
         list: &[u32],
-        work: Work,
+        work: PassCost,
         f: &(impl Fn(&[u32], &mut Vec<T>) + Sync),
     ) -> Vec<T> {
         let min = match (self.min_claim, work) {
-            (0, Work::Light) => 32,
-            (0, Work::Heavy) => 8,
+            (0, PassCost::Light) => 32,
+            (0, PassCost::Heavy) => 8,
             (min, _) => min,
         };
         let range = AtomicU64::new((list.len() as u64) << 32);
         // The helper's outputs and where each of its chunks starts in them.
         let theirs: Mutex<(Vec<T>, Vec<usize>)> = Mutex::new((Vec::new(), Vec::new()));
-        let helper = || {
+        let helpers_part = || {
             let (mut out, mut starts) = (Vec::new(), Vec::new());
             while let Some((a, b)) = claim(&range, min, false) {
                 starts.push(out.len());
@@ -1049,8 +800,8 @@ impl<'a> Thinning<'a> {
             *theirs.lock().unwrap() = (out, starts);
         };
         let mut mine = Vec::new();
-        self.duo.start();
-        self.duo.run_pair(&helper, || {
+        self.helper.start();
+        self.helper.run_pair(&helpers_part, || {
             while let Some((a, b)) = claim(&range, min, true) {
                 f(&list[a..b], &mut mine);
             }
@@ -1065,12 +816,17 @@ impl<'a> Thinning<'a> {
     }
 
     /// Runs `f` on every brick of the list (see [`Thinning::chunked`]).
-    fn for_each(&self, list: &[u32], work: Work, f: impl Fn(usize) + Sync) {
+    fn for_each(&self, list: &[u32], work: PassCost, f: impl Fn(usize) + Sync) {
         self.chunked::<()>(list, work, |c, _| c.iter().for_each(|&b| f(b as usize)));
     }
 
     /// The bricks of the list for which `keep` holds, in list order.
-    fn filter(&self, list: &[u32], work: Work, keep: impl Fn(usize) -> bool + Sync) -> Vec<u32> {
+    fn filter(
+        &self,
+        list: &[u32],
+        work: PassCost,
+        keep: impl Fn(usize) -> bool + Sync,
+    ) -> Vec<u32> {
         self.chunked(list, work, |c, out| {
             out.extend(c.iter().copied().filter(|&b| keep(b as usize)))
         })
@@ -1352,7 +1108,7 @@ impl<'a> Thinning<'a> {
                     }
                 }
             };
-            self.chunked(list, Work::Heavy, scan)
+            self.chunked(list, PassCost::Heavy, scan)
         };
         for (b, axis, new) in found {
             let (b, axis) = (b as usize, axis as usize);
@@ -1420,7 +1176,7 @@ impl<'a> Thinning<'a> {
 
         // Free faces (g present, not in W, exactly one coface) on A.
         let (cells, inhibit, free) = (&self.cells, &self.inhibit, &self.free);
-        let any_free = self.filter(&active, Work::Heavy, |b| {
+        let any_free = self.filter(&active, PassCost::Heavy, |b| {
             let mut any = 0;
             macro_rules! spans {
                 ($($g:literal)*) => {$(
@@ -1442,7 +1198,7 @@ impl<'a> Thinning<'a> {
         // forward along each axis).
         let with_cofaces = self.dilate(&any_free, &[0, -sx, -sy, -sz]);
         let (cells, free, border) = (&self.cells, &self.free, &self.border);
-        self.for_each(&with_cofaces, Work::Heavy, |b| {
+        self.for_each(&with_cofaces, PassCost::Heavy, |b| {
             macro_rules! spans {
                 ($($f:literal)*) => {$(
                     let w = cofaces_of_free::<$f>(cells, free, b, &step);
@@ -1477,7 +1233,7 @@ impl<'a> Thinning<'a> {
         };
         let border = &self.border;
         for dim in (1..top_dim).rev() {
-            self.for_each(&closure, Work::Heavy, |b| {
+            self.for_each(&closure, PassCost::Heavy, |b| {
                 macro_rules! spans {
                     ($($s:literal)*) => {$(
                         let w = closed_up::<$s>(border, b, &step);
@@ -1495,7 +1251,7 @@ impl<'a> Thinning<'a> {
         }
         // Per span (edges to cubes): the bricks holding present cells of that span in L.
         let cells = &self.cells;
-        let spans_in_l = self.chunked(&closure, Work::Light, |c, out: &mut Vec<(u32, u8)>| {
+        let spans_in_l = self.chunked(&closure, PassCost::Light, |c, out: &mut Vec<(u32, u8)>| {
             for &b in c {
                 let mut spans = 0u8;
                 for f in 1..8 {
@@ -1517,7 +1273,7 @@ impl<'a> Thinning<'a> {
             }
         }
 
-        for s in 0..KINDS.0.len() {
+        for s in 0..PAIR_KINDS.0.len() {
             let removed = self.sub_step(s, l, &in_l);
             if let Some(obs) = observer.as_mut() {
                 obs(
@@ -1542,10 +1298,10 @@ impl<'a> Thinning<'a> {
     /// some (only those are written, a third of A or less), L on the closure's bricks.
     fn finish_scratch(&self, with_free: &[u32], closure: &[u32]) {
         let (free, border) = (&self.free, &self.border);
-        self.for_each(with_free, Work::Light, |b| {
+        self.for_each(with_free, PassCost::Light, |b| {
             (0..7).for_each(|s| free.set(b, s, 0))
         });
-        self.for_each(closure, Work::Light, |b| {
+        self.for_each(closure, PassCost::Light, |b| {
             (0..8).for_each(|s| border.set(b, s, 0))
         });
     }
@@ -1580,10 +1336,10 @@ impl<'a> Thinning<'a> {
         l: u32,
         in_l: &[Vec<u32>; 8],
     ) -> usize {
-        if K >= KINDS.1[S] {
+        if K >= PAIR_KINDS.1[S] {
             return 0;
         }
-        let (kind, axis, positive) = const { (KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
+        let (kind, axis, positive) = const { (PAIR_KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
         let step = self.layout.step;
         let o = step[axis] as isize;
         let mut removed = 0;
@@ -1605,9 +1361,9 @@ impl<'a> Thinning<'a> {
         };
         let (cells, inhibit, border, masks) =
             (&self.cells, &self.inhibit, &self.border, &self.masks);
-        let with_pairs = self.filter(candidates, Work::Light, |b| {
+        let with_pairs = self.filter(candidates, PassCost::Light, |b| {
             // Constants here, not captured: the closure body then folds the kind's spans.
-            let (kind, axis, positive) = const { (KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
+            let (kind, axis, positive) = const { (PAIR_KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
             let mut m = cells.get(b, kind.g) & !inhibit.get(b, kind.g);
             if m != 0 {
                 m &= if positive {
@@ -1642,8 +1398,8 @@ impl<'a> Thinning<'a> {
             &with_pairs
         };
         let (cells, masks) = (&self.cells, &self.masks);
-        self.for_each(touched, Work::Light, |b| {
-            let (kind, axis, positive) = const { (KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
+        self.for_each(touched, PassCost::Light, |b| {
+            let (kind, axis, positive) = const { (PAIR_KINDS.0[S][K], S / 6, (S / 3) % 2 == 1) };
             let m = masks.get(b, 0);
             cells.clear(b, kind.g, m);
             let fm = if positive {
@@ -1675,7 +1431,7 @@ impl<'a> Thinning<'a> {
         &mut self,
         b: usize,
         bit: u32,
-        kind: &Kind,
+        kind: &PairKind,
         axis: usize,
         positive: bool,
         l: u32,
@@ -1704,7 +1460,7 @@ impl<'a> Thinning<'a> {
 
     /// Runs Algorithm 2 until no unconstrained free pair is left. Returns the iterations run.
     ///
-    /// With [`Split::PerThread`] the run keeps one helper thread of the pool ([`Duo`]) for
+    /// With [`Split::PerThread`] the run keeps one helper thread of the pool ([`PassHelper`]) for
     /// its passes, unless it resumes a collapse (not the first run) with fewer than
     /// [`MIN_HELPER_BRICKS`] changed bricks (then its passes stay on the calling thread). The
     /// helper may start late or never (a busy pool, a pool of one thread) without changing
@@ -1724,15 +1480,15 @@ impl<'a> Thinning<'a> {
             self.split = Split::PerThread;
         } else if matches!(self.split, Split::PerThread) && !self.serving {
             // A fresh pair per run, its helper a detached task started by the first pass worth
-            // sharing ([`Duo::start`]): the run never waits for the helper to start (a busy
+            // sharing ([`PassHelper::start`]): the run never waits for the helper to start (a busy
             // pool, or a caller outside the pool), a helper that starts after the run finds
             // its own pair shut down and returns, and a run without such a pass wakes no
             // worker and keeps no core spinning.
-            let duo = Arc::new(Duo::new());
-            *duo.owner.lock().unwrap_or_else(|e| e.into_inner()) =
+            let helper = Arc::new(PassHelper::new());
+            *helper.owner.lock().unwrap_or_else(|e| e.into_inner()) =
                 Some(std::thread::current().id());
-            self.duo = Arc::clone(&duo);
-            let _shut_down = ShutDownOnDrop(&duo);
+            self.helper = Arc::clone(&helper);
+            let _shut_down = ShutDownOnDrop(&helper);
             self.serving = true;
             while self.iterate(observer.as_deref_mut()) {}
             self.serving = false;
@@ -1750,449 +1506,11 @@ impl<'a> Thinning<'a> {
             }
         }
     }
-
-    /// The present squares as (internal vertex, span), sorted by vertex and then span (3, 5,
-    /// 6): read from the brick planes, so a pierce round costs O(bricks + squares) rather than
-    /// a pass over every lattice vertex. The bricks are read in vertex order (per layer of
-    /// bricks along z: each vertex row, z then y, across the bricks along x, four bits each),
-    /// so the list comes out sorted without a sort; each row of bricks is read once, and its
-    /// 16 vertex rows visit only its bricks holding a square.
-    fn squares(&self) -> Vec<(u32, u8)> {
-        const SPANS: [u8; 3] = [3, 5, 6];
-        let nb = self.layout.nb;
-        let step = self.layout.step;
-        let size = self.layout.size;
-        let planes = |b: usize| SPANS.map(|span| self.cells.get(b, span as usize));
-        // The squares of one layer of bricks (brick z = bz), in vertex order.
-        let layer = |bz: usize| {
-            let row = |by: usize, bx: usize| by * step[1] + bz * step[2] + bx;
-            // Per row of bricks along x: its bricks holding a square (x index and square
-            // planes, in x order), read once, and the union of their square bits.
-            let mut with_squares: Vec<(usize, [u64; 3])> = Vec::new();
-            let mut row_start = vec![0usize; nb[1] + 1];
-            let mut row_bits = vec![0u64; nb[1]];
-            for by in 0..nb[1] {
-                if by > 0 && by + 1 < nb[1] {
-                    for bx in 1..nb[0] - 1 {
-                        let words = planes(row(by, bx));
-                        let union = words.iter().fold(0, |a, &w| a | w);
-                        if union != 0 {
-                            with_squares.push((bx, words));
-                            row_bits[by] |= union;
-                        }
-                    }
-                }
-                row_start[by + 1] = with_squares.len();
-            }
-            let mut out = Vec::new();
-            for zo in 0..4 {
-                let z = (bz - 1) * 4 + zo;
-                for by in 1..nb[1] - 1 {
-                    // The 16 bits of vertex layer zo in this row of bricks.
-                    let layer_bits = (row_bits[by] >> (16 * zo)) & 0xFFFF;
-                    if layer_bits == 0 {
-                        continue;
-                    }
-                    for yo in 0..4 {
-                        if (layer_bits >> (4 * yo)) & 0xF == 0 {
-                            continue;
-                        }
-                        let y = (by - 1) * 4 + yo;
-                        let shift = 4 * yo + 16 * zo;
-                        for &(bx, words) in &with_squares[row_start[by]..row_start[by + 1]] {
-                            let words = words.map(|w| (w >> shift) & 0xF);
-                            if words.iter().all(|&w| w == 0) {
-                                continue;
-                            }
-                            for xo in 0..4 {
-                                for (k, &span) in SPANS.iter().enumerate() {
-                                    if (words[k] >> xo) & 1 != 0 {
-                                        let x = (bx - 1) * 4 + xo;
-                                        let v = x + size[0] * (y + size[1] * z);
-                                        out.push((v as u32, span));
-                                    }
-                                }
-                            }
-                        }
-                    }
-                }
-            }
-            out
-        };
-        let layers = 1..nb[2] - 1;
-        if !matches!(self.split, Split::Sequential) {
-            let len = layers.len().div_ceil(rayon::current_num_threads());
-            layers
-                .into_par_iter()
-                .with_min_len(len)
-                .flat_map_iter(layer)
-                .collect()
-        } else {
-            layers.flat_map(layer).collect()
-        }
-    }
-
-    /// Pierces every surface part once (see the module docs). `priority` is a per-voxel map
-    /// (larger = pierce there first; e.g. the squared Euclidean distance). Returns the number
-    /// of squares removed (0 when no square is left).
-    pub fn pierce(&mut self, priority: Option<&[u32]>) -> usize {
-        let squares = self.squares();
-        let Some((chosen, forced)) = choose_pierced_squares(
-            self.dims,
-            &squares,
-            priority,
-            !matches!(self.split, Split::Sequential),
-        ) else {
-            return 0;
-        };
-        self.stats.pierce_rounds += 1;
-        self.stats.forced_pierces += forced;
-        let size = self.layout.size;
-        let l = self.iteration;
-        for &(v, span) in &chosen {
-            let v = v as usize;
-            let c = [
-                v % size[0],
-                (v / size[0]) % size[1],
-                v / (size[0] * size[1]),
-            ];
-            let (b, bit) = self.layout.locate(c);
-            self.cells.clear(b, span as usize, 1 << bit);
-            self.note_changed(&[b as u32]);
-            if let Some(death) = &mut self.death {
-                death[8 * v + span as usize] = l;
-            }
-        }
-        self.stats.pierced += chosen.len() as u64;
-        chosen.len()
-    }
-
-    /// Algorithm 3 followed by piercing and re-thinning until the complex has no square: the
-    /// result is a 1-complex (points and edges). `priority` as in [`Thinning::pierce`].
-    pub fn curvilinear(&mut self, priority: Option<&[u32]>, mut observer: Observer<'_, '_>) {
-        self.run(observer.as_deref_mut());
-        while self.pierce(priority) > 0 {
-            self.run(observer.as_deref_mut());
-        }
-    }
-}
-
-/// The squares to pierce in a complex without cubes (see the module docs): one per surface
-/// part, as (internal vertex, span), and how many of them were forced. `squares` lists every
-/// square of the complex (internal vertex index of a complex of voxel dims `dims`, sorted by
-/// vertex, then span 3, 5, 6). `None` if there is no square.
-fn choose_pierced_squares(
-    dims: [usize; 3],
-    squares: &[(u32, u8)],
-    priority: Option<&[u32]>,
-    parallel: bool,
-) -> Option<(Vec<(u32, u8)>, u64)> {
-    if squares.is_empty() {
-        return None;
-    }
-    let size = dims.map(|d| d + 2);
-    // The surface parts and the complement's components are independent: with `parallel`
-    // they are computed on two threads (the rest of the choice is a sequential union-find
-    // whose outcome depends on the order of the parts).
-    let parts = || surface_parts(size, squares);
-    let sides = || {
-        let (runs, sides) = ComplementRuns::new(size, squares);
-        (square_sides(dims, &runs, squares, priority), sides)
-    };
-    let (by_part, (info, mut sides)) = if parallel {
-        rayon::join(parts, sides)
-    } else {
-        (parts(), sides())
-    };
-    let mut chosen = Vec::new();
-    let mut forced = 0;
-    for part in by_part.chunk_by(|a, b| a.0 == b.0) {
-        let mut best: Option<usize> = None;
-        for &(_, k) in part {
-            let (r1, r2, p) = info[k as usize];
-            let better = match best {
-                None => true,
-                Some(b) => p > info[b].2,
-            };
-            if sides.find(r1 as usize) != sides.find(r2 as usize) && better {
-                best = Some(k as usize);
-            }
-        }
-        let k = match best {
-            Some(k) => {
-                let (r1, r2, _) = info[k];
-                sides.union(r1 as usize, r2 as usize);
-                k
-            }
-            None => {
-                forced += 1;
-                let mut b = part[0].1 as usize;
-                for &(_, k) in part {
-                    if info[k as usize].2 > info[b].2 {
-                        b = k as usize;
-                    }
-                }
-                b
-            }
-        };
-        chosen.push(squares[k]);
-    }
-    chosen.sort_unstable();
-    Some((chosen, forced))
-}
-
-/// The surface parts of a complex without cubes (squares joined through shared edges) as
-/// (part, square index) sorted by part: parts in order of their smallest square, squares in
-/// list order within a part. `squares` as in [`choose_pierced_squares`], `size` the internal
-/// vertices per axis.
-fn surface_parts(size: [usize; 3], squares: &[(u32, u8)]) -> Vec<(u32, u32)> {
-    use super::complex::UnionFind;
-    let plane = size[0] * size[1];
-    let s = [1, size[0], plane];
-    // The squares sharing an edge with a square of span 3, 5 or 6 at vertex v, as (vertex
-    // offset, z layers back, span), keeping only those listed before it (at a vertex w < v,
-    // or at v with a smaller span): each of the square's four edges (two along each of its
-    // axes: at v and one step along the other axis) has four cofaces, at its vertex or one
-    // step back. An offset's sign is that of its (z, y, x) steps read lexicographically (the
-    // lattice is at least 3 vertices wide), so which neighbours come earlier is the same for
-    // every square of a span: a table (6 entries per span) instead of 16 tests per square.
-    // Only the earlier squares (which skips a square itself, a coface of its own edges):
-    // adjacency is symmetric and a set's root is its smallest square (`UnionFind::union`), so
-    // joining each pair once gives the same parts and roots as joining it from both squares.
-    let span_slot = |span: u8| usize::from(span != 3) + usize::from(span == 6);
-    let mut earlier: [Vec<(isize, usize, u8)>; 3] = Default::default();
-    for span in [3u8, 5, 6] {
-        for a in (0..3).filter(|&a| span & (1 << a) != 0) {
-            let e = (span & !(1 << a)) as usize;
-            for own in [[0isize; 3], std::array::from_fn(|i| isize::from(i == a))] {
-                for &(sq, at) in cofaces(e) {
-                    let d: [isize; 3] = std::array::from_fn(|i| own[i] - isize::from(i == at));
-                    let order = [d[2], d[1], d[0]].cmp(&[0, 0, 0]);
-                    if order.is_lt() || (order.is_eq() && sq < span as usize) {
-                        let delta =
-                            d[0] * s[0] as isize + d[1] * s[1] as isize + d[2] * s[2] as isize;
-                        earlier[span_slot(span)].push((delta, (-d[2]) as usize, sq as u8));
-                    }
-                }
-            }
-        }
-    }
-    // Each pair of edge-adjacent squares is joined once, from its later square k: the other
-    // one, j < k, lies at a vertex w <= v (the list is sorted by vertex), so in k's z layer
-    // of vertices or the one before. So the index needs only two layers of vertices (by
-    // parity of z; some 100 kB, in cache) instead of the whole lattice: per vertex the
-    // square bits, and the first index of its squares plus one (0 = none).
-    let mut bits = vec![0u8; 2 * plane];
-    let mut first = vec![0u32; 2 * plane];
-    // The slot of vertex w in z layer wz: the layers are known from the squares' order and
-    // the steps taken, so no division per lookup (a 64-bit division costs some tens of cycles,
-    // and there are 6 lookups per square).
-    let slot = |w: usize, wz: usize| (wz & 1) * plane + (w - wz * plane);
-    // The squares of the layers held: (z, range of square indices), older first.
-    let mut held: [Option<(usize, std::ops::Range<usize>)>; 2] = [None, None];
-    let mut parts = UnionFind::new(squares.len());
-    let mut k = 0;
-    while k < squares.len() {
-        // The squares of the next layer z: [k, end).
-        let z = squares[k].0 as usize / plane;
-        let end = k + squares[k..].partition_point(|&(v, _)| v as usize / plane == z);
-        // Keep layer z - 1 if held; forget (clear) the others.
-        let keep =
-            |h: &Option<(usize, std::ops::Range<usize>)>| matches!(h, Some((hz, _)) if hz + 1 == z);
-        let mut kept = None;
-        for h in held.iter_mut() {
-            if keep(h) {
-                kept = h.take();
-            } else if let Some((hz, range)) = h.take() {
-                for &(v, _) in &squares[range] {
-                    bits[slot(v as usize, hz)] = 0;
-                }
-            }
-        }
-        held = [kept, Some((z, k..end))];
-        for (i, &(v, span)) in squares[k..end].iter().enumerate().rev() {
-            let at = slot(v as usize, z);
-            bits[at] |= SPAN_BIT[span as usize];
-            first[at] = (k + i) as u32 + 1;
-        }
-        // Index of a present square from its vertex's slot: the first index of its vertex
-        // plus its rank there (the list is sorted by vertex, then span 3, 5, 6).
-        let index = |at: usize, span: u8| -> usize {
-            let below = [3u8, 5, 6]
-                .iter()
-                .filter(|&&t| t < span && bits[at] & SPAN_BIT[t as usize] != 0)
-                .count();
-            first[at] as usize - 1 + below
-        };
-        for (k, &(v, span)) in squares.iter().enumerate().take(end).skip(k) {
-            for &(delta, back, sq) in &earlier[span_slot(span)] {
-                let w = (v as isize + delta) as usize;
-                let at = slot(w, z - back);
-                if bits[at] & SPAN_BIT[sq as usize] != 0 {
-                    parts.union(k, index(at, sq));
-                }
-            }
-        }
-        k = end;
-    }
-    // Sorted by (root, square): a counting sort by root (squares taken in increasing order
-    // stay in list order within a part), linear instead of a comparison sort.
-    let n = squares.len();
-    let roots: Vec<u32> = (0..n).map(|k| parts.find(k) as u32).collect();
-    let mut start = vec![0u32; n + 1];
-    for &r in &roots {
-        start[r as usize + 1] += 1;
-    }
-    for i in 0..n {
-        start[i + 1] += start[i];
-    }
-    let mut by_part = vec![(0u32, 0u32); n];
-    for (k, &r) in roots.iter().enumerate() {
-        let at = &mut start[r as usize];
-        by_part[*at as usize] = (r, k as u32);
-        *at += 1;
-    }
-    by_part
-}
-
-/// Per square: the complement runs on its two sides (the cube positions at the square's own
-/// vertex and one step back along its normal) and its priority (the larger of the two cube
-/// positions' voxel priorities; 0 outside the grid or without a map).
-fn square_sides(
-    dims: [usize; 3],
-    runs: &ComplementRuns,
-    squares: &[(u32, u8)],
-    priority: Option<&[u32]>,
-) -> Vec<(u32, u32, u32)> {
-    let size = dims.map(|d| d + 2);
-    // Priority of a cube position given by its internal vertex coordinates (internal vertex v
-    // is the cube of voxel v - 1).
-    let prio = |c: [usize; 3]| -> u32 {
-        let Some(p) = priority else { return 0 };
-        if (0..3).all(|a| c[a] >= 1 && c[a] <= dims[a]) {
-            p[(c[0] - 1) + dims[0] * ((c[1] - 1) + dims[1] * (c[2] - 1))]
-        } else {
-            0
-        }
-    };
-    squares
-        .iter()
-        .map(|&(v, span)| {
-            let normal = (0..3).find(|a| span & (1 << a) == 0).unwrap();
-            // The coordinates once per square (two divisions), the other cube by a step.
-            let (row, x) = (v as usize / size[0], v as usize % size[0]);
-            let c1 = [x, row % size[1], row / size[1]];
-            let mut c2 = c1;
-            c2[normal] -= 1;
-            let run = |c: [usize; 3]| runs.run_at(c[1] + size[1] * c[2], c[0]) as u32;
-            (run(c1), run(c2), prio(c1).max(prio(c2)))
-        })
-        .collect()
-}
-
-/// The connected components of the complement of a complex that has no cube (what a collapse
-/// leaves), for piercing. The complement is the union of the open cells not in the complex;
-/// an absent cell's cofaces are absent too, so every component holds open unit cubes, and two
-/// cubes that share an absent square are in one component ([`Complex::complement_labels`]).
-/// Without cubes every cube position of the internal array is open, and only present squares
-/// separate neighbours; so the cube positions of one row along x split into runs at the YZ
-/// squares, and runs of neighbouring rows join where their overlap has a column without an
-/// XZ (rows along y) or XY (rows along z) square. Work: O(rows + squares), against a
-/// union-find over every cube position.
-struct ComplementRuns {
-    /// Per row (y + size_y z): the x of its YZ squares (sorted), as CSR offsets into `cuts`.
-    cut_start: Vec<u32>,
-    cuts: Vec<u32>,
-}
-
-impl ComplementRuns {
-    /// The runs and their components (a union-find over runs: run r of row w is number
-    /// `cut_start[w] + w + r`).
-    fn new(size: [usize; 3], squares: &[(u32, u8)]) -> (ComplementRuns, super::complex::UnionFind) {
-        let rows = size[1] * size[2];
-        // Per span of square (XY = 3, XZ = 5, YZ = 6): CSR lists of x per row; `squares` is
-        // sorted by vertex, so by row and then x.
-        let csr = |span: u8| {
-            let mut start = vec![0u32; rows + 1];
-            let mut xs = Vec::new();
-            for &(v, sp) in squares {
-                if sp == span {
-                    start[v as usize / size[0] + 1] += 1;
-                    xs.push((v as usize % size[0]) as u32);
-                }
-            }
-            for w in 0..rows {
-                start[w + 1] += start[w];
-            }
-            (start, xs)
-        };
-        let (cut_start, cuts) = csr(6);
-        let runs = cuts.len() + rows;
-        let mut components = super::complex::UnionFind::new(runs);
-        // Joins the runs of row a and row b (b one step after a along y or z) wherever their
-        // overlap has a column not blocked by a square of `blocks` (listed for row b).
-        let join = |uf: &mut super::complex::UnionFind,
-                    a: usize,
-                    b: usize,
-                    blocks: &(Vec<u32>, Vec<u32>)| {
-            let bounds = |w: usize| {
-                let c = &cuts[cut_start[w] as usize..cut_start[w + 1] as usize];
-                (c, cut_start[w] as usize + w)
-            };
-            let ((ca, ra), (cb, rb)) = (bounds(a), bounds(b));
-            let blocked = &blocks.1[blocks.0[b] as usize..blocks.0[b + 1] as usize];
-            let (mut i, mut j, mut k) = (0usize, 0usize, 0usize);
-            let mut x = 0u32;
-            let end = size[0] as u32;
-            while x < end {
-                let ea = ca.get(i).copied().unwrap_or(end);
-                let eb = cb.get(j).copied().unwrap_or(end);
-                let stop = ea.min(eb);
-                // Blocked columns in [x, stop).
-                while k < blocked.len() && blocked[k] < x {
-                    k += 1;
-                }
-                let mut n = 0;
-                while k + n < blocked.len() && blocked[k + n] < stop {
-                    n += 1;
-                }
-                if (n as u32) < stop - x {
-                    uf.union(ra + i, rb + j);
-                }
-                x = stop;
-                if ea == stop {
-                    i += 1;
-                }
-                if eb == stop {
-                    j += 1;
-                }
-            }
-        };
-        let (xz, xy) = (csr(5), csr(3));
-        for z in 0..size[2] {
-            for y in 0..size[1] {
-                let w = y + size[1] * z;
-                if y > 0 {
-                    join(&mut components, w - 1, w, &xz);
-                }
-                if z > 0 {
-                    join(&mut components, w - size[1], w, &xy);
-                }
-            }
-        }
-        (ComplementRuns { cut_start, cuts }, components)
-    }
-
-    /// The run holding the cube position at x in row w (y + size_y z).
-    fn run_at(&self, w: usize, x: usize) -> usize {
-        let x = x as u32;
-        let c = &self.cuts[self.cut_start[w] as usize..self.cut_start[w + 1] as usize];
-        self.cut_start[w] as usize + w + c.partition_point(|&cut| cut <= x)
-    }
 }
 
 #[cfg(test)]
 mod tests {
+    use super::piercing::{surface_parts, ComplementRuns};
     use super::*;
     use crate::analysis::distance::{distance_map, Metric, Outside};
     use crate::analysis::grid::VoxelSet;
@@ -2339,7 +1657,7 @@ mod tests {
         }
     }
 
-    /// The runs' helper thread ([`Duo`]) with every pass shared and one-brick claims gives the
+    /// The runs' helper thread ([`PassHelper`]) with every pass shared and one-brick claims gives the
     /// sequential collapse after every sub-step, through the piercing, with the same dates,
     /// W and statistics, in pools of 1, 2 and 3 threads (with 1, the helper's task only runs
     /// after the run, on the same thread, and returns at once).
