@@ -38,16 +38,6 @@ const KNOWN_UPWARD: &[(&str, &str, &str)] = &[
         "the scene file validates skeleton-guide options through SkeletonGuideSettings; phase 2 \
          keeps raw options in the scene file and validates them where the guide is built",
     ),
-    (
-        "src/guide/skeleton.rs",
-        "integrator",
-        "MisHeuristic lives in integrator; phase 2 moves it below guide (light or math)",
-    ),
-    (
-        "src/guide/training.rs",
-        "integrator",
-        "MisHeuristic, as for guide/skeleton.rs",
-    ),
 ];
 
 fn layer_of(module: &str) -> Option<usize> {

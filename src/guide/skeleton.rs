@@ -128,9 +128,8 @@ use crate::analysis::{
 };
 use crate::error::{Error, Result};
 use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
-use crate::integrator::MisHeuristic;
 use crate::light::{EnvStrategy, TriangleSampling};
-use crate::math::{luminance, warp, Frame, Rng, Vec2, Vec3};
+use crate::math::{luminance, warp, Frame, MisHeuristic, Rng, Vec2, Vec3};
 use crate::scene::{Camera, Scene};
 
 /// Most lobes a query holds (the upper bound of `max_lobes`).

@@ -320,8 +320,7 @@ use super::{
     TrainingCost,
 };
 use super::{MAX_LOBES, STRENGTH_CANDIDATES};
-use crate::integrator::MisHeuristic;
-use crate::math::{luminance, Rgb, Rng, Sampler, Vec3};
+use crate::math::{luminance, MisHeuristic, Rgb, Rng, Sampler, Vec3};
 use crate::scene::{Camera, Scene, SurfaceInteraction};
 
 /// Guiding probability of the training pass (c0 above): both strategies get half the samples,

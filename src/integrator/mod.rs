@@ -20,6 +20,9 @@ pub use env_direct::{EnvDirect, ALPHA_LAYER};
 pub use path::diagnostics;
 pub use path::PathTracer;
 
+/// Re-exported: the heuristic lives in [`crate::math`], below the guides that weigh with it.
+pub use crate::math::MisHeuristic;
+
 use std::any::Any;
 use std::cell::Cell;
 
@@ -33,59 +36,9 @@ use crate::math::Sampler;
 use crate::scene::{Camera, CameraFrame, RenderSettingsFile, Scene};
 use crate::timing::StageTime;
 
-/// How MIS weights two strategies.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum MisHeuristic {
-    Balance,
-    /// Power heuristic with exponent 2 (Veach): the usual better choice.
-    #[default]
-    Power,
-    /// `env_direct` only: the balance heuristic with the split of light and BSDF samples
-    /// chosen per shading point by the second-order variance approximation of thesis 001
-    /// chapter 5 (a warm-up half, then the rest split by the estimated alpha, eq. 5.6); see
-    /// [`mis_auto`].
-    Auto,
-    /// `env_direct` only: Kondapaneni et al.'s optimal weights, their coefficients estimated
-    /// on a warm-up half of the samples; see [`mis_auto`].
-    Optimal,
-}
-
+/// Which integrators may use which heuristic: integrator knowledge, so it lives here rather
+/// than beside the heuristic in [`crate::math`].
 impl MisHeuristic {
-    /// The one-sample weight of strategy a against b. `Auto` and `Optimal` need many samples
-    /// of one integral and are refused by the integrators that would call this
-    /// ([`MisHeuristic::check_supported`]); their weight with nothing estimated yet is the
-    /// balance heuristic's.
-    #[inline]
-    pub fn weight(self, pdf_a: f32, pdf_b: f32) -> f32 {
-        match self {
-            MisHeuristic::Balance | MisHeuristic::Auto | MisHeuristic::Optimal => {
-                crate::math::balance_heuristic(pdf_a, pdf_b)
-            }
-            MisHeuristic::Power => crate::math::power_heuristic(pdf_a, pdf_b),
-        }
-    }
-
-    pub fn parse(name: &str) -> Result<Self> {
-        match name {
-            "balance" => Ok(MisHeuristic::Balance),
-            "power" => Ok(MisHeuristic::Power),
-            "auto" => Ok(MisHeuristic::Auto),
-            "optimal" => Ok(MisHeuristic::Optimal),
-            other => Err(Error::invalid(format!(
-                "unknown MIS heuristic '{other}' (expected balance, power, auto or optimal)"
-            ))),
-        }
-    }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            MisHeuristic::Balance => "balance",
-            MisHeuristic::Power => "power",
-            MisHeuristic::Auto => "auto",
-            MisHeuristic::Optimal => "optimal",
-        }
-    }
-
     /// Fails for `auto` and `optimal` in an integrator that combines one sample per strategy
     /// (`path`, `path_skeleton`, `bdpt`): they are implemented for `env_direct` only.
     pub fn check_supported(self, integrator: &str) -> Result<()> {

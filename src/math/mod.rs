@@ -4,12 +4,14 @@
 
 mod distribution;
 mod frame;
+mod mis;
 mod rng;
 mod sampler;
 pub mod warp;
 
 pub use distribution::{AliasTable, Distribution1D, Distribution2D};
 pub use frame::Frame;
+pub use mis::{balance_heuristic, power_heuristic, MisHeuristic};
 pub use rng::{mix64, Rng};
 pub use sampler::{
     PixelSampler, Sampler, SamplerKind, FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION,
@@ -51,38 +53,6 @@ pub fn luminance(c: Rgb) -> f32 {
 #[inline]
 pub fn is_finite3(v: Vec3) -> bool {
     v.x.is_finite() && v.y.is_finite() && v.z.is_finite()
-}
-
-/// Power heuristic with beta = 2 (Veach), written so that an infinite pdf (delta strategy)
-/// or two zero pdfs never produce NaN.
-#[inline]
-pub fn power_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
-    if pdf_a.is_infinite() {
-        return 1.0;
-    }
-    let a = pdf_a * pdf_a;
-    let b = pdf_b * pdf_b;
-    if a + b > 0.0 && (a + b).is_finite() {
-        a / (a + b)
-    } else if pdf_a > pdf_b {
-        1.0
-    } else {
-        0.0
-    }
-}
-
-/// Balance heuristic (Veach): the provably good default for one sample per strategy.
-#[inline]
-pub fn balance_heuristic(pdf_a: f32, pdf_b: f32) -> f32 {
-    if pdf_a.is_infinite() {
-        return 1.0;
-    }
-    let s = pdf_a + pdf_b;
-    if s > 0.0 && s.is_finite() {
-        pdf_a / s
-    } else {
-        0.0
-    }
 }
 
 /// Next representable float towards +infinity (pbrt's `NextFloatUp`), used to push spawned
@@ -302,14 +272,5 @@ mod tests {
         for _ in 0..100_000 {
             check(Vec3::new(f(), f(), f()), Vec3::new(f(), f(), f()));
         }
-    }
-
-    #[test]
-    fn heuristics_handle_degenerate_pdfs() {
-        assert_eq!(power_heuristic(0.0, 0.0), 0.0);
-        assert_eq!(power_heuristic(f32::INFINITY, 3.0), 1.0);
-        assert_eq!(balance_heuristic(1.0, 1.0), 0.5);
-        assert!((power_heuristic(1.0, 2.0) - 0.2).abs() < 1e-6);
-        assert_eq!(power_heuristic(1e30, 1.0), 1.0);
     }
 }
