@@ -116,23 +116,6 @@ pub fn check_bytes(what: impl FnOnce() -> String, bytes: u64, budget: u64) -> Re
     Ok(())
 }
 
-/// Checks that a `width` x `height` film with `layers` strategy images fits the budget.
-pub fn check_film(width: u32, height: u32, layers: usize, budget: u64) -> Result<()> {
-    check_film_side(width, height)?;
-    let bytes = crate::film::Film::memory_bytes_for(width, height, layers);
-    check_bytes(
-        || {
-            if layers > 0 {
-                format!("a {width}x{height} film with {layers} strategy images")
-            } else {
-                format!("a {width}x{height} film")
-            }
-        },
-        bytes,
-        budget,
-    )
-}
-
 /// Width and height in 1..=[`MAX_FILM_SIDE`].
 pub fn check_film_side(width: u32, height: u32) -> Result<()> {
     if width == 0 || height == 0 || width > MAX_FILM_SIDE || height > MAX_FILM_SIDE {
@@ -275,17 +258,5 @@ mod tests {
         assert!(check_memory_budget("--memory-budget-mib", 0).is_err());
         assert_eq!(check_memory_budget("x", 1 << 20).unwrap(), 1 << 20);
         assert_eq!(effective_memory_budget(u64::MAX), physical);
-    }
-
-    #[test]
-    fn film_limits_name_the_size_and_the_budget() {
-        let e = check_film(65536, 65536, 0, DEFAULT_MEMORY_BUDGET).unwrap_err();
-        let text = e.to_string();
-        assert!(
-            text.contains("65536x65536") && text.contains("8589934592"),
-            "{text}"
-        );
-        assert!(check_film(512, 512, 0, DEFAULT_MEMORY_BUDGET).is_ok());
-        assert!(check_film(65537, 1, 0, u64::MAX).is_err());
     }
 }

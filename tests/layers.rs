@@ -25,20 +25,12 @@ const LAYERS: &[&[&str]] = &[
 
 /// Upward uses that exist today, as (file, module used, why it is still there). Phase 2 of
 /// the architecture work (issue 28) removes them; do not add to this list.
-const KNOWN_UPWARD: &[(&str, &str, &str)] = &[
-    (
-        "src/limits.rs",
-        "film",
-        "check_film asks Film for its bytes per pixel; its callers (capi/job.rs, bin) move to a \
-         Film::check_budget in phase 2",
-    ),
-    (
-        "src/scene/file.rs",
-        "guide",
-        "the scene file validates skeleton-guide options through SkeletonGuideSettings; phase 2 \
+const KNOWN_UPWARD: &[(&str, &str, &str)] = &[(
+    "src/scene/file.rs",
+    "guide",
+    "the scene file validates skeleton-guide options through SkeletonGuideSettings; phase 2 \
          keeps raw options in the scene file and validates them where the guide is built",
-    ),
-];
+)];
 
 fn layer_of(module: &str) -> Option<usize> {
     LAYERS.iter().position(|l| l.contains(&module))

@@ -523,7 +523,7 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
         integrator.env_bsdf_samples = n;
     }
     integrator.apply_file(&file)?;
-    lacuna::limits::check_film(render.width, render.height, 0, budget)?;
+    lacuna::film::Film::check_budget(render.width, render.height, 0, budget)?;
     if let Some(d) = args.max_depth {
         integrator.max_depth = d;
     }
@@ -723,7 +723,7 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         }
         Box::new(bdpt)
     };
-    lacuna::limits::check_film(
+    lacuna::film::Film::check_budget(
         prep.render.width,
         prep.render.height,
         integrator.layers().len(),

@@ -168,7 +168,7 @@ impl lacuna_render_job {
         let (w, h) = (settings.render.width, settings.render.height);
         let integrator = settings.make_integrator()?;
         let layers = integrator.layers().len();
-        crate::limits::check_film(w, h, layers, self.scene.ctx.memory_budget())?;
+        crate::film::Film::check_budget(w, h, layers, self.scene.ctx.memory_budget())?;
         let mut camera = settings
             .camera
             .or_else(|| self.scene.scene.camera().copied())

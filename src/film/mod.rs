@@ -16,6 +16,8 @@ pub use crate::image_file::{
 };
 pub use metrics::{image_errors, ImageErrors};
 
+use crate::error::Result;
+use crate::limits;
 use crate::math::Rgb;
 
 /// What one camera sample contributes to its pixel.
@@ -77,6 +79,23 @@ impl Film {
     /// Bytes a `width` x `height` film with `layer_count` layers holds.
     pub fn memory_bytes_for(width: u32, height: u32, layer_count: usize) -> u64 {
         width as u64 * height as u64 * (PER_PIXEL_BYTES + 24 * layer_count as u64)
+    }
+
+    /// Checks that a `width` x `height` film with `layers` strategy images has sides within
+    /// [`crate::limits::MAX_FILM_SIDE`] and fits `budget` bytes, before anything is allocated.
+    pub fn check_budget(width: u32, height: u32, layers: usize, budget: u64) -> Result<()> {
+        limits::check_film_side(width, height)?;
+        limits::check_bytes(
+            || {
+                if layers > 0 {
+                    format!("a {width}x{height} film with {layers} strategy images")
+                } else {
+                    format!("a {width}x{height} film")
+                }
+            },
+            Film::memory_bytes_for(width, height, layers),
+            budget,
+        )
     }
 
     pub fn layer_names(&self) -> &[String] {
@@ -282,6 +301,19 @@ const PER_PIXEL_BYTES: u64 = 24 + 12 + 12 + 4 + 4 + 4;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn film_budget_names_the_size_and_the_budget() {
+        let budget = limits::DEFAULT_MEMORY_BUDGET;
+        let e = Film::check_budget(65536, 65536, 0, budget).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.contains("65536x65536") && text.contains("8589934592"),
+            "{text}"
+        );
+        assert!(Film::check_budget(512, 512, 0, budget).is_ok());
+        assert!(Film::check_budget(65537, 1, 0, u64::MAX).is_err());
+    }
 
     #[test]
     fn accumulates_means_and_drops_non_finite_samples() {
