@@ -81,36 +81,32 @@
 //!
 //! The remaining lobes' probabilities are renormalised (eq. 165 over the lobes kept).
 //!
-//! What a query costs (issue 8, round 7): the node mapping visits only the mapped voxels of the
-//! neighbourhood (`analysis::NeighbourMasks`, the same node as eq. 151-155 directly); a target
-//! shared by several lobes (their bottleneck, or their importance point) gets one shadow ray; lobes
-//! that end up the same density at x (through the same portal rectangle, or toward the same target
-//! with the same radius) are one active lobe with their summed probability, so one rectangle set-up
-//! and one density per evaluated direction. Round 8: where the neighbour that best faces the normal
-//! is mapped and clearly ahead of the others, the mapping takes it without the search
-//! (`analysis::map_point`, the same node), and a portal rectangle computes its four angles only for
-//! a sample or a direction that hits it. None of this changes the mixture. With `visibility=voxel`
-//! the visibility of each target is decided once per mapped voxel, from its centre, and cached:
-//! that changes which lobes apply near silhouettes (still a function of the point, so unbiased),
-//! not their shapes. Round 12: which of a node's lobes share a target or a portal is found at
-//! build (`LobePlan`), not searched per vertex; lobes keep only their axis (a frame is set up
-//! to sample one); portal rectangles are set up in the query's lobe; the mapping takes the
-//! facing neighbour of an axis-aligned normal without normalising it (all of it exact: the
-//! same lobes, bit for bit). A point with no lobe left (no path to any importance node, all
-//! directions below the surface or hidden, a point outside the grid) is not guided: its guiding
-//! probability is 0 and the host samples the BSDF alone. Delta BSDFs are the host's business: it
-//! must not guide there (no mixture with a Dirac lobe has a density), which `path_skeleton` does.
+//! A point with no lobe left (no path to any importance node, all directions below the surface
+//! or hidden, a point outside the grid) is not guided: its guiding probability is 0 and the host
+//! samples the BSDF alone. Delta BSDFs are the host's business: it must not guide there (no
+//! mixture with a Dirac lobe has a density), which `path_skeleton` does.
 //!
-//! # Learned directions, the default (`directions=learned`, round 15)
+//! What a query costs, kept small without changing the mixture: the node mapping visits only
+//! the mapped voxels of the neighbourhood (`analysis::NeighbourMasks`, the same node as
+//! eq. 151-155), and takes the neighbour that best faces the normal without a search where it is
+//! mapped and clearly ahead (`analysis::map_point`); a target shared by several lobes gets one
+//! shadow ray; lobes with the same density at x (the same portal rectangle, or the same target
+//! and radius) are one active lobe with their summed probability. Which lobes share a target or
+//! a portal is found at build (`LobePlan`), not per vertex; lobes keep only their axis; a portal
+//! rectangle computes its angles only for a direction that hits it. With `visibility=voxel` the
+//! visibility of each target is decided once per mapped voxel, from its centre, and cached: that
+//! changes which lobes apply near silhouettes (still a function of the point, so unbiased), not
+//! their shapes.
 //!
-//! Everything above builds the lobes. Since round 15 the default renders with them only where
-//! the scene has no camera: with one, the training pass (`guide::training`) samples the lobes
-//! as its proposal and learns per guided node a directional histogram
-//! (`guide::directional`) that the render samples instead, with the learned probability. It
-//! needs no aim, rectangle or shadow ray per point and at 60 s beat the lobes by MSE on the
-//! corridor, the door, the ajar and Sponza (BENCHMARKS.md, round 14, merged; round 15 for the
-//! per-sample figures). `directions=lobes` renders with the lobes; `lobe_weights=learned` and
-//! `strength=learned` weigh lobes and imply it unless `directions` is named.
+//! # Learned directions, the default (`directions=learned`)
+//!
+//! Everything above builds the lobes. With a camera the default renders with learned
+//! distributions instead: the training pass (`guide::training`) samples the lobes as its
+//! proposal and learns per guided node a directional histogram (`guide::directional`) that the
+//! render samples, with the learned probability. It needs no aim, rectangle or shadow ray per
+//! point and beats the lobes by MSE at equal time on the test scenes (BENCHMARKS.md). Without a
+//! camera the lobes are used. `directions=lobes` renders with the lobes; `lobe_weights=learned`
+//! and `strength=learned` weigh lobes and imply it unless `directions` is named.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -241,17 +237,15 @@ pub struct SkeletonGuideSettings {
     /// `c_skel=learned` (the default): a probability per node, learned by a training pass
     /// from the render's camera (`guide::training`); 0 (not guided at all) where guiding is not
     /// measurably better than BSDF sampling. The thesis's one global c = 0.5 guides open
-    /// rooms too, where the lobes only add variance: it is worse per sample than `path` on
-    /// both doors (BENCHMARKS.md, issue 8, round 6), where the learned c wins 1.45x on the
-    /// door at equal cost (round 12, merged).
+    /// rooms too, where the lobes only add variance and lose to `path` per sample
+    /// (BENCHMARKS.md).
     pub learned_c_skel: bool,
     /// `c_max`: with `c_skel=learned`, the largest guiding probability the training may choose
     /// (default [`DEFAULT_C_MAX`]). A BSDF-sampled direction that no lobe covers is weighted
     /// 1 / (1 - c) times what `path` gives it, once per such vertex: a cap bounds that factor
     /// (3.3 at 0.7, 10 at 0.9) where the training's samples missed the rare paths that make
-    /// it a firefly. On Sponza a node learned 0.9 and one sample through it twice held 92 % of
-    /// a run's squared error; no node of the ajar, the door or the corridor learns above 0.7
-    /// (BENCHMARKS.md, round 13, guide13b).
+    /// it a firefly (a node learning 0.9 lets a single sample dominate a run's squared error
+    /// on Sponza; BENCHMARKS.md).
     pub c_max: f32,
     /// `ratio_max=R`: a bound on how much more than `path` a guided path may weigh. At each
     /// vertex the weight of the direction against BSDF sampling alone is p_bsdf / q <= 1 /
@@ -290,11 +284,10 @@ pub struct SkeletonGuideSettings {
     /// variance-minimising fit; lobes given 0 are skipped at render time. `distance` (the
     /// default): eq. 165's inverse-square weights everywhere. Not with `strength=learned`.
     pub learned_lobe_weights: bool,
-    /// `directions=learned` (the default, round 15): each trained node samples a directional
+    /// `directions=learned` (the default): each trained node samples a directional
     /// histogram learned from its training samples instead of its lobes
     /// (`guide::directional`): no aim, no spherical rectangle, no guide shadow ray, and ahead
-    /// of the lobes by MSE on the corridor, the door, the ajar and Sponza at 60 s
-    /// (BENCHMARKS.md, round 14, merged). `lobes`: the lobes (eq. 163-165). Not with
+    /// of the lobes by MSE at equal time on the test scenes (BENCHMARKS.md). `lobes`: the lobes (eq. 163-165). Not with
     /// `strength=learned` or `lobe_weights=learned`, which weigh lobes: naming either without
     /// naming `directions` implies `directions=lobes` ([`set`](Self::set)).
     pub learned_directions: bool,
@@ -306,7 +299,7 @@ pub struct SkeletonGuideSettings {
     /// aside, in unguided vertices (`training_guided_cost`, default
     /// [`DEFAULT_TRAINING_GUIDED_COST`], `guide::training`, "Cost").
     pub training_guided_cost: f32,
-    /// What the training charges for guiding (`cost_model`, round 14; `guide::training`,
+    /// What the training charges for guiding (`cost_model`; `guide::training`,
     /// "Measured cost and the scene-level switch"): see [`CostModel`].
     pub cost_model: CostModel,
     /// Vertices per training path (`training_depth`).
@@ -336,8 +329,7 @@ pub struct SkeletonGuideSettings {
     /// Non-zero training samples a node needs before `c_skel=learned` may guide it
     /// (`training_min_nonzero`, default [`DEFAULT_TRAINING_MIN_NONZERO`]): the second moment
     /// the choice compares is a mean of squares, and with a few hundred non-zero samples the
-    /// best of 70 candidates wins by its winner's margin (round 9: small under-table nodes of
-    /// the ajar guided at c 0.2-0.4 from 300-660 non-zero samples).
+    /// best of 70 candidates wins by its winner's margin.
     pub training_min_nonzero: u32,
     /// Resolution of the analysis grid. By default a budget of 2^20 voxels: the thinning's
     /// time grows with the voxel count, so a budget bounds the precomputation whatever the
@@ -364,11 +356,10 @@ pub struct SkeletonGuideSettings {
     /// see through (those samples are wasted), or lose one it does.
     pub voxel_visibility: bool,
     /// Where each lobe aims (see [`LobeAim`]). By default at the opening's rectangle
-    /// (`aim=portal`): aiming through the opening lowers the Veach door's error per sample by
-    /// a fifth and its squared RMSE by 2.7x against eq. 162's point, while the corridor (no
-    /// opening) renders the same image (BENCHMARKS.md, issue 8, round 4); sampling the
-    /// opening's rectangle instead of a round lobe around it lowers the door's error per
-    /// sample by another 1.2x at the same c (round 6, branch `slit8`).
+    /// (`aim=portal`): aiming through the opening lowers the error per sample against eq.
+    /// 162's point where a lobe passes a narrow opening (the Veach door), and
+    /// changes nothing where there is none (the corridor); the opening's rectangle fits a slit
+    /// better than a round lobe around it (BENCHMARKS.md).
     pub aim: LobeAim,
     /// What a lobe with an opening does where x does not see its bottleneck (see
     /// [`LobeFallback`]); only with `aim=opening` or `aim=portal`.
@@ -392,7 +383,7 @@ pub struct RenderEstimator {
 /// "Cost").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TrainingCost {
-    /// One unguided vertex (round 4): each vertex judged as if it were the whole sample.
+    /// One unguided vertex: each vertex judged as if it were the whole sample.
     Vertex,
     /// The vertices the vertex's estimate is made of: itself and the rest of its path.
     Path,
@@ -423,9 +414,8 @@ pub enum CostModel {
     /// `measured`: the nodes also chosen with the measured costs (a per-query cost and the
     /// node mapping), then the scene-level switch.
     Measured,
-    /// `paths` (the default, round 16): the nodes chosen as with `vertices`, then the
-    /// scene-level switch with the
-    /// variance of the whole camera path's estimate (`guide::training`, "The path-level
+    /// `paths` (the default): the nodes chosen as with `vertices`, then the scene-level switch
+    /// with the variance of the whole camera path's estimate (`guide::training`, "The path-level
     /// prediction") instead of the sum of the vertices' variances.
     Paths,
 }
@@ -463,23 +453,25 @@ pub const STRENGTH_CANDIDATES: [SkeletonStrength; 7] = [
     },
 ];
 
-/// Default of `training_significance` (2 until round 6: it left unguided corridor nodes
-/// whose training estimated guiding 1.7-2.1x better, `guide::training` module docs).
+/// Default of `training_significance`: a stricter test leaves unguided nodes whose training
+/// estimates guiding clearly better, because the rare samples that make guiding pay also make
+/// its standard error large (`guide::training`, "Choice").
 pub const DEFAULT_TRAINING_SIGNIFICANCE: f32 = 1.0;
 
-/// Default of `training_guided_cost`: the round-3 profile of the door (`guide::training`,
-/// "Cost").
+/// Default of `training_guided_cost`, from a callgrind profile of the door: lobe set-up and
+/// densities against a `path` vertex's instructions (`guide::training`, "Cost").
 pub const DEFAULT_TRAINING_GUIDED_COST: f32 = 0.15;
 
-/// Default of `training_min_nonzero` (the floor since round 4).
+/// Default of `training_min_nonzero`: fewer non-zero samples make the standard error itself
+/// untrustworthy.
 pub const DEFAULT_TRAINING_MIN_NONZERO: u32 = 32;
 
 /// `ratio_max=auto` (module docs of [`SkeletonGuideSettings::ratio_max`]): a path keeps
 /// guiding until its directions weigh it twice `path`'s (the first vertex's c at most 0.5).
 pub const AUTO_RATIO_MAX: f32 = 2.0;
 
-/// Default camera paths of the training pass (2^15 until round 6: too few for the
-/// corridor's choices to be stable, `guide::training` module docs).
+/// Default camera paths of the training pass: fewer leave the choices unstable on scenes whose
+/// gains are in rare samples (the corridor).
 pub const DEFAULT_TRAINING_PATHS: u32 = 1 << 17;
 
 /// Default largest learned guiding probability (`c_max`).
@@ -524,11 +516,11 @@ impl LobeAim {
 /// bottleneck (or sees it below its surface), with `aim=opening` or `aim=portal`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LobeFallback {
-    /// Aim at the importance point of eq. 162 instead (a second shadow ray), as since round 4.
+    /// Aim at the importance point of eq. 162 instead (a second shadow ray).
     Point,
-    /// Drop the lobe; the lobes kept are renormalised. Round 9 found the ajar's near room
-    /// aiming most of its lobe probability at the empty space in front of the door, where
-    /// the back room's point lies and no light is.
+    /// Drop the lobe; the lobes kept are renormalised. Aiming at the point instead can send
+    /// most of a lobe's probability into empty space with no light (the ajar's near room, at
+    /// the back room's point in front of the door).
     Drop,
 }
 
@@ -970,10 +962,9 @@ impl Portal {
 }
 
 /// What [`GuideQuery::init`] needs of a node's lobe beyond the lobe itself, found once at build
-/// (issue 8, round 12): which of the node's distinct lobe targets (openings and importance
-/// points, equal as `Vec3`s) and distinct portals (equal as `Portal`s) the lobe's are. The
-/// query used to find them by a linear search over what it had aimed at so far, per lobe
-/// and vertex; the answers (the shadow ray, the rectangle) stay per point.
+/// rather than searched per lobe and vertex: which of the node's distinct lobe targets
+/// (openings and importance points, equal as `Vec3`s) and distinct portals (equal as
+/// `Portal`s) the lobe's are. The answers (the shadow ray, the rectangle) stay per point.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct LobePlan {
     /// Whether the lobe aims through its opening ([`GuideLobe::has_opening`] and an aim other
@@ -1548,8 +1539,8 @@ impl SkeletonGuide {
     /// `may_guide` word, and the node map at the neighbour that the normal's dominant axis
     /// faces: the facing shortcut's voxel on walls, floors and ceilings), so that their misses
     /// overlap the work between the ray's hit and the query (the BSDF's texture lookups)
-    /// instead of stalling it. Both were the guided vertex's largest stalls by wall-time
-    /// profile (issue 8, round 16). No effect on any result.
+    /// instead of stalling it: they are the guided vertex's largest stalls in a wall-time
+    /// profile. No effect on any result.
     #[inline]
     pub fn prefetch(&self, p: Vec3, normal: Vec3, incident: Vec3) {
         let g = self.grid.to_grid(p);

@@ -1,314 +1,85 @@
-//! `c_skel=learned` and `strength=learned`: the probability of sampling the skeleton lobes
-//! and the lobes' strength (eq. 163), chosen per node from a training pass (issue 8: "learned
-//! per node from accumulated contributions").
+//! `c_skel=learned` and `strength=learned`: the probability c of sampling the skeleton lobes
+//! and the lobes' strength s (eq. 163), chosen per node from a training pass before rendering.
 //!
 //! # Training pass
 //!
-//! `training_paths` camera paths (default 2^17) from the render's camera (film and lens positions uniform over
-//! a 2:1 image), each at most `training_depth` vertices deep (default 8, the integrators'
-//! default maximum depth), sample every guided vertex x (a non-delta BSDF whose node has
-//! lobes there) from the one-sample mixture at the training probability `c0 = TRAINING_C`
-//! and the settings' strength s0 (the proposal), density
-//! `q_0 = c0 p_skel,s0 + (1 - c0) p_bsdf`, like `path_skeleton` does. Each such vertex
-//! records for its node one sample of the contribution proxy
+//! `training_paths` camera paths (film and lens positions uniform over a 2:1 image), each at
+//! most `training_depth` vertices deep, sample every guided vertex x from the one-sample
+//! mixture q_0 = c0 p_skel,s0 + (1 - c0) p_bsdf (c0 = [`TRAINING_C`], s0 the settings'
+//! strength), as `path_skeleton` does. Each such vertex records for its node the contribution
+//! proxy f = lum(beta f_s |cos| L(wi)), L = L_e(x') + R(x'), with R the light the rest of the
+//! path reflects toward x by next-event estimation at each later vertex (corridor light arrives
+//! after several bounces), kept as emission e and reflection r, together with every density a
+//! candidate's weights need and the vertex's own light sample. Work is cut into fixed chunks
+//! with their own random streams, so the result does not depend on the thread count.
 //!
-//!   f = lum( beta (x) f_s(x, wo, wi) |cos| (x) L(wi) ),
-//!   L(wi) = L_e(x') + R(x'),  R(x_j) = NEE(x_j) + f_s |cos| / q (x_j) R(x_j+1),
+//! # Estimator
 //!
-//! with x' the next vertex along wi, R the radiance the rest of the training path reflects
-//! toward x estimated by unweighted next-event estimation at each later vertex (the corridor's
-//! light arrives after several bounces: a one-bounce proxy sees nothing there), and beta the
-//! path throughput up to x (a vertex reached with a large throughput weighs more in the
-//! pixel's variance), together with p_bsdf(wi), p_skel,s0(wi) and p_skel,s(wi) for every
-//! candidate strength s (the same lobes with other exponents: which lobes apply at x, and
-//! where they point, does not depend on s, so every p_skel,s is exact). f is kept in its two
-//! parts, the emission L_e(x') (with the density p_light(wi) at which the render's light
-//! sampling at x draws that emitter point, 0 if it is none) and the reflected R(x'), and the
-//! vertex also records its own light sample (value, light density, and its direction's
-//! p_bsdf, p_skel,s0 and p_skel,s): see "What is measured". The work is cut into
-//! fixed chunks with their own random streams and the samples are concatenated in chunk
-//! order, so the result is the same for any thread count.
+//! The second moment of F = f / q_c,s under w ~ q_c,s is E_{q_0}[f² / (q_c,s q_0)]: every
+//! candidate (c, s) is judged from the same samples by importance reweighting
+//! ([`reweighted_second_moment`]). This is exact when q_0 > 0 wherever f > 0 (the coverage
+//! condition), which q_0 >= (1 - c0) p_bsdf guarantees for every non-delta BSDF.
 //!
-//! # Lobe weights (`lobe_weights=learned`, round 12)
+//! # What is measured
 //!
-//! Eq. 165 selects a node's lobes by importance-node power over squared graph distance. On the
-//! Veach ajar that gives most of the probability at near-room nodes to the back room's lobe,
-//! whose opening those points do not see (BENCHMARKS.md, round 9). With `lobe_weights=learned`
-//! each sample also records, for each of the node's lobes j, its density p_j at the sampled
-//! direction and at the light sample's (`GuideQuery::node_lobe_pdfs`) and which lobes apply at
-//! x. Under weights W the skeleton density at x is sum W_j p_j / sum W_j over the lobes that
-//! apply (the query renormalises over them; where none of positive weight applies, x is not
-//! guided), so every candidate W is evaluated from the same samples by the same reweighting as
-//! (c, s) above, exactly. The candidates, each with every c: eq. 165's weights, each lobe
-//! alone, and a fit ([`fit_lobe_weights`]: multiplicative updates toward a stationary point of
-//! the second moment, weights under `FIT_FLOOR` set to 0). The chosen W replaces the node's
-//! probabilities; a lobe of weight 0 is skipped by every query (no aim, no shadow ray). W is a
-//! deterministic function of the scene and the render's pdfs are the mixture with W, so the
-//! render stays unbiased. Not combined with `strength=learned` (the densities are recorded at
-//! the proposal's strength only).
-//!
-//! # Learned directions (`directions=learned`, round 14)
-//!
-//! Each node's lobes are replaced by distributions learned from its samples
-//! (`guide::directional`): per class of point (normal's dominant axis and sign, quadrant of the
-//! offset from the node), an equal-area histogram of the sampled directions weighted by
-//! (w_e(q_0) e + r) / q_0, the contribution with its emission MIS-weighted at the training
-//! proposal, over the proposal's density. The candidates (c, s) are then judged with that
-//! distribution's density in place of p_skel,s (the settings' strength is the only s), by the
-//! same reweighting: the samples were drawn from the lobes' q_0, which covers every direction
-//! f > 0 whatever the candidate (coverage condition above), so every candidate's moments stay
-//! exact. A distribution is not judged on the samples it was fitted to: each sample's density
-//! is that of the distribution fitted to the node's other half (even / odd positions), while
-//! the render uses the one fitted to all. No shadow ray is counted (the distribution traces
-//! none). The samples come only from points where the lobes applied during training; the
-//! render guides every point mapped to a guided node. Like the choice of c, the distribution is
-//! a deterministic function of the scene, fixed before rendering.
-//!
-//! # Iterative training (`training_passes=N`, round 15)
-//!
-//! With `directions=learned` the first pass samples from the lobes, which put half of a
-//! guided vertex's samples where geometry says light may come from; on the Veach ajar most of
-//! the light arrives through a narrow wedge after bounces the lobes do not aim at, so the
-//! histograms see few carrying samples there. Each later pass runs the same training with the
-//! previous pass's distributions as the skeleton density (the proposal is then
-//! q_0 = c0 p_learned + (1 - c0) p_bsdf, recorded as `p_skel`; every node without a
-//! distribution samples a uniform one, so the nodes the lobes never reached are sampled and
-//! learned too), and re-learns the histograms and the choices from its own samples only, with
-//! weights (w_e(q_0) e + r) / q_0 of that proposal. Nothing in the estimates above assumed the
-//! proposal was the lobes: q_0 >= (1 - c0) p_bsdf still covers every direction the BSDF
-//! samples, and every recorded density is exact. Each pass has its own random streams (the
-//! seed mixes in the pass number) and the same fixed chunks, so the result is the same for
-//! any thread count.
-//!
-//! # Estimator (derivation)
-//!
-//! At a node, the one-sample MIS estimator of the integral I = ∫ f dw with guiding
-//! probability c and strength s is F_c,s = f(w) / q_c,s(w), w ~ q_c,s,
-//! q_c,s = c p_skel,s + (1 - c) p_bsdf. Its second moment is
-//!
-//!   M(c, s) = E_{q_c,s}[f² / q_c,s²] = ∫ f² / q_c,s dw = E_{q_0}[ f² / (q_c,s q_0) ]
-//!
-//! (importance reweighting: the last expectation is over the training samples, drawn from
-//! q_0), so every candidate (c, s) is evaluated from the same samples, unbiasedly, by the mean
-//! of f_i² / (q_c,s(w_i) q_0(w_i)) ([`reweighted_second_moment`]).
-//!
-//! **The coverage condition.** The middle equality moves the integral from q_c,s to q_0; it
-//! holds exactly when q_0 > 0 wherever f² / q_c,s > 0, i.e. wherever f > 0: the training
-//! proposal must be able to draw every direction that carries a contribution. Since
-//! q_0 >= (1 - c0) p_bsdf with c0 = 1/2 < 1, this holds wherever the BSDF's sampling density is
-//! positive where f_s |cos| > 0 (all non-delta BSDFs here; delta vertices are never guided).
-//! Where p_bsdf = 0 but f > 0 (a BSDF whose sampling misses part of its support), q_0 still
-//! covers that direction if p_skel,s0 > 0 there, and p_skel,s has the same support (the
-//! union of the lobes' hemispheres, cos > 0) for every finite s, so such directions are
-//! covered for every candidate strength as soon as they are for s0; the sample then makes
-//! M(0, ·) infinite (BSDF sampling alone cannot reach it), which the choice below respects.
-//! The reweighted estimator's own variance, ∫ f⁴ / (q_c,s² q_0), is finite because
-//! q_0 >= p_bsdf / 2 and q_c,s >= (1 - c) p_bsdf with c <= 0.9: the weights q_0 / q_c,s stay
-//! bounded wherever the BSDF samples, whatever s.
-//!
-//! # What is measured: the render's estimator at the vertex (round 7)
-//!
-//! `path_skeleton` does not estimate ∫ f dw with the direction sample alone: at every vertex
-//! it also draws one light sample, and both are MIS-weighted (power heuristic) against each
-//! other. Until round 7 the training judged F = f / q with f's emission unweighted, as if a
-//! hit on a lamp were the only way to see it. At nodes that see a lamp (the door's and the
-//! ajar's lit room, Sponza's sunlit courtyard) that variance is dominated by lamp hits that
-//! next-event estimation already makes cheap, and guiding toward the lamp looked like a
-//! large gain that the render never sees (there those hits get MIS weights near 0); in the
-//! render the guided lobes only cost samples and shadow rays, and move density from the
-//! directions that do carry the indirect light. The per-sample losses against `path` and
-//! against a fixed c = 0.1 on the ajar (BENCHMARKS.md, issue 8, round 7) were this. Now each
-//! candidate (c, s) is judged by the estimate the render makes at x under it,
-//!
-//!   E_c,s = N_c,s + D_c,s,   N_c,s = w_l(c, s) n,   D_c,s = (w_e(c, s) e + r) / q_c,s(w),
-//!
-//! with n = lum(beta f_s |cos| L) / p_light of the light sample (direction w_l),
-//! w_l = power(p_light, q_c,s(w_l)) (1 for delta lights), e and r the emitted and reflected
-//! parts of f above, w_e = power(q_c,s(w), p_light(w)) (1 where the direction found no light
-//! the render samples). N and D are independent draws, so
-//!
-//!   V(c, s) = E[N²] - E[N]² + E[D²] - E[D]²,
-//!
-//! E[N²] and E[N] are means over the recorded light samples (their distribution does not
-//! depend on (c, s), only their weight does), and E[D²] = E_q0[(w_e e + r)² / (q_c,s q_0)],
-//! E[D] = E_q0[(w_e e + r) / q_0] reweighted as above ([`Sample::terms`]). The light sample
-//! at x is the one the previous vertex's R uses (one draw, two uses: correlated estimates,
-//! none biased). This is exact for the vertex's own MIS pair; what follows x is still the
-//! proxy R (next-event estimation only). The heuristic, the triangle sampling and the
-//! environment strategy are the render's (`SkeletonGuideSettings::render_estimator`, set by
-//! `path_skeleton` from its own settings).
+//! The render MIS-weights its direction sample against a light sample at every vertex, so a
+//! candidate is judged by that estimate, E = w_l n + (w_e e + r) / q_c,s, with the render's
+//! heuristic, triangle sampling and environment strategy
+//! (`SkeletonGuideSettings::render_estimator`). Judging f / q alone would credit guiding toward
+//! lamps that next-event estimation already finds ([`Sample::terms`]).
 //!
 //! # Cost
 //!
-//! The efficiency to maximise is 1 / (V cost). Cost is counted in unguided path vertices (a
-//! continuation ray, a shadow ray, shading): guiding adds `training_guided_cost` (default 0.15)
-//! and `COST_SHADOW_RAY` per guide shadow ray of a query at this node (counted in training);
-//! the strength costs nothing. With learned lobe weights the overhead is paid only at the share
-//! of the node's samples where a lobe of positive weight applies.
-//! With `visibility=voxel` the count is of the cache's first fills during training (each (voxel,
-//! target) counted once, whatever the thread timing): it overstates the warm cache of a long
-//! render, which traces almost none. The constants come from the round-3 profile of the door
-//! (callgrind: ~5,500 instructions per `path` vertex, ~1,400 per guide shadow ray, ~600 for the
-//! lobe set-up per query plus the lobe densities in the MIS weights); the node mapping is paid at c
-//! = 0 too (the node must be known to know its c), so it is not part of the difference. What the
-//! overhead is compared with is `training_cost`:
-//! - `path` (default): the vertices the sample's estimate is made of, this vertex and the
-//!   rest of its training path (mean over the node's samples): F's variance is that of the
-//!   whole estimate from x on, and producing one costs all of those vertices, not one;
-//! - `vertex` (round 4): one vertex, as if each vertex were the whole sample. It overstates
-//!   the guide's relative cost by the path's length (3-6 vertices per estimate on the
-//!   corridor), and with round 4's 5-vertex paths most corridor nodes had only 30-450
-//!   non-zero samples: 5 of 17 nodes were guided, now 9 (BENCHMARKS.md, issue 8, round 5).
+//! Efficiency is 1 / (variance x cost), cost in unguided path vertices: guiding adds
+//! `training_guided_cost` and `COST_SHADOW_RAY` per guide shadow ray. `training_cost=path`
+//! compares that with the vertices the estimate from x on is made of, `vertex` with one.
 //!
 //! # Choice
 //!
-//! The node gets (c*, s*) = argmin over the candidates (c > 0) of V(c, s) cost(c). With
-//! `c_skel=learned` it is kept only if guiding is *measurably* better than not guiding: the
-//! efficiency difference V(c*, s*) cost(c*) - V(0) cost(0) must be below zero by
-//! `training_significance` standard errors (default 1) of mean(d), with
-//! d_i = cost(c*) m_i(c*, s*) - cost(0) m_i(0) and m_i a sample's term of the second moment E[N²] + E[D²] (the squared
-//! means are far less noisy and are left out of the error) ([`choose_node`]); and the node must
-//! have had at least `MIN_SAMPLES` training samples, `training_min_nonzero` (default 32) of
-//! them non-zero. Otherwise c = 0: the node is not guided at all (no lobes, no shadow rays).
-//! The floor is there because M is a mean of squares, dominated by rare large samples: with a few dozen non-zero samples
-//! the standard error itself is not to be trusted. (The test compares the best of several
-//! candidates, chosen on the same samples, with c = 0: it is optimistic by the usual winner's
-//! margin; the candidates are few and strongly correlated.) With a fixed `c_skel` and
-//! `strength=learned` only s is chosen, at c = `c_skel`, without the test (there is no "off"
-//! to fall back to); nodes with too few samples keep the settings' strength. Nodes no
-//! training path reaches are not guided with a learned c. Without a camera nothing is
-//! learned: the guide keeps the fixed `c_skel` and strength everywhere (the C API's guide for
-//! a host without a camera). Whatever the choice, the render stays unbiased: (c, s) is a
-//! deterministic function of the scene, and every density `path_skeleton` uses is the
-//! mixture's at that node's (c, s).
+//! A node gets the candidate of least variance x cost, kept only if it beats c = 0 by
+//! `training_significance` standard errors and the node had `MIN_SAMPLES` samples,
+//! `training_min_nonzero` of them non-zero (second moments are dominated by rare large
+//! samples); otherwise it is not guided ([`choose_node`]). With a fixed `c_skel` only s is
+//! chosen. Without a camera nothing is learned. The choice is a deterministic function of the
+//! scene, so the render stays unbiased.
 //!
-//! **Why the learned choice lost the corridor again (round 6).** Not the resolution (the pass
-//! does not know it: the choices are the same at 32x32 and 128x128) and not the sampler (the
-//! pass draws independent numbers; at 32x32 the learned (c, s) is 2x behind the fixed
-//! default in MAE² per sample with either render sampler). With 2^15 paths the choice was
-//! not stable: a change in how next-event estimation consumes random numbers (round 5's
-//! light choice reuse) moved per-node ratios by up to 2x (node 2 of the corridor 0.22 ->
-//! 0.47, node 16 0.61 -> 0.95) and the guided set from 9 to 7 of 17 nodes, and the 2-sigma
-//! rule left unguided nodes estimated 1.7-2.1x better guided (corridor nodes 2, 9, 12, 15 at
-//! ratios 0.47-0.60 with 480-2200 non-zero samples; with 2^17 paths node 6 at 0.25 with
-//! 5000): d is dominated by the rare samples
-//! that BSDF sampling reaches only with a small density, exactly where guiding helps, so
-//! its standard error is large where the gain is. With 2^17 paths and 1 standard error the
-//! corridor guides 14 of 17 nodes (all but 4, 13, 16) and matches the fixed default per sample; on the door
-//! 14 of 58 (BENCHMARKS.md, issue 8, round 6).
+//! # Lobe weights
 //!
-//! # Measured cost and the scene-level switch (`cost_model=switch|measured`, round 14)
+//! With `lobe_weights=learned` the candidates also include per-lobe weights W (eq. 165's, each
+//! lobe alone, and a fit by [`fit_lobe_weights`]), judged by the same reweighting since each
+//! sample records every lobe's density; eq. 165 can favour a lobe whose opening x cannot see.
 //!
-//! With `cost_model=vertices` a guided vertex costs `training_guided_cost` (0.15)
-//! unguided vertices and the node mapping nothing. Callgrind of Sponza (BENCHMARKS.md, round
-//! 13, guide13a: 64x36, 16 spp, render only, per camera sample, `G` minus `path`) says
-//! otherwise: 1.65 k instructions of lobe set-up in `GuideQuery::init`, 0.82 k in
-//! `sample_bsdf_or_guide`, 2.16 k of dearer next-event shadow rays (as many, 27 % dearer each:
-//! the guided paths go elsewhere) and 0.22 k of dearer closest-hit rays, plus 1.51 k of node
-//! mapping, paid at every vertex whose voxel may map to a guided node (`may_guide`), guided
-//! or not. `path` costs 31.41 k per sample for 5.02 closest-hit rays: 6.26 k per vertex. The
-//! training of the same `G` predicts 2.63 guided and 4.96 mapped of 6.62 vertices per
-//! (unrouletted) training path, i.e. per 5.02 render vertices 2.0 guided and 3.76 mapped.
-//! Hence, in unguided vertices:
-//! - `LOBE_COSTS.query` = (1.65 + 0.82 + 2.16 + 0.22) k / 2.0 / 6.26 k = 0.39 per guided
-//!   query, whatever its c (the set-up is paid in full at c = 0.05);
-//! - `LOBE_COSTS.map` = 1.51 k / 3.76 / 6.26 k = 0.064 per mapped vertex.
+//! # Learned directions
 //!
-//! With `directions=learned` (round 15, branch default15: the same callgrind set-up on the ajar
-//! and the door, `G:directions=learned` minus `path`) a guided query has no lobe set-up and no
-//! guide shadow ray: `GuideQuery::init` costs the node mapping (ajar 1.12 k, door 1.18 k per
-//! camera sample: `init` inclusive less its own lines and `class_of`'s) and 0.20 k of class
-//! and slot look-up; `sample_bsdf_or_guide` 1.27 k (ajar) and 1.25 k (door) more than
-//! `path`'s (the histogram's sampling and density). The training predicts 2.05 guided and 2.54
-//! mapped of 5.40 render vertices per sample on the ajar (2.82 and 3.50 of 7.45 per training
-//! path), 2.79 and 3.68 of 5.32 on the door, whose `path` vertices cost 2.79 k and 3.95 k.
-//! Hence per guided query (0.20 + 1.27) k / 2.05 / 2.79 k = 0.26 (ajar) and (0.20 + 1.25) k /
-//! 2.79 / 3.95 k = 0.13 (door), per mapped vertex 1.12 k / 2.54 / 2.79 k = 0.16 and 1.18 k /
-//! 3.68 / 3.95 k = 0.08; `LEARNED_COSTS` takes the means, 0.19 and 0.12. The change in the
-//! cost of the path's own rays and vertices is left out (scene-dependent: ajar -0.05 k per
-//! sample, door -1.77 k, its guided paths 10 % shorter), and there is no guide shadow ray. In
-//! absolute instructions the mapping costs about the same with either directions (0.40 k per
-//! mapped vertex on Sponza, 0.44 k on the ajar, 0.32 k on the door); the constants differ
-//! with the scene's vertex cost.
+//! With `directions=learned` each node's lobes are replaced by equal-area histograms of the
+//! sampled directions per class of point (`guide::directional`), weighted by
+//! (w_e e + r) / q_0. A histogram is judged on the half of the samples it was not fitted to.
 //!
-//! With `cost_model=measured` a node's candidates cost
-//! `cost(c) = base + share (query + map + COST_SHADOW_RAY rays)` (its own vertices' mapping
-//! charged to it); with `switch` they keep `training_guided_cost`. With either, after the
-//! node choices the whole image is judged by the measured costs ([`SceneChoice`], also
-//! reported with `vertices`): with n_k the training samples at node k (how often the camera
-//! paths take a guided-capable vertex there) and V_k its estimate's variance per sample,
-//! unguided and under the choice,
+//! # Iterative training
 //!
-//!   variance ratio = sum_k n_k V_k(chosen) / sum_k n_k V_k(0),
-//!   cost ratio = (vertices + sum_guided n_k overhead_k + map mapped) / vertices,
+//! With `training_passes=N` each later pass samples from the previous pass's histograms
+//! (uniform where a node has none) and re-learns from its own samples only; coverage still
+//! holds through the BSDF share.
 //!
-//! with `vertices` all training vertices, overhead_k the guided query's cost (mapping aside)
-//! and `mapped` the non-delta training vertices in the voxels that `may_guide` would hold for
-//! the chosen set. Unless the predicted efficiency 1 / (variance ratio x cost ratio) exceeds
-//! 1 + `SCENE_MARGIN` (0.1: the guided code's instruction-cache misses make its wall time per
-//! sample 7-16 % above its instruction ratio, BENCHMARKS.md round 13 merged), every node gets
-//! c = 0: the guide guides nothing ([`SkeletonGuide::guides_nothing`]) and `path_skeleton`
-//! traces `path`'s samples (no mapping, no query; the image is `path`'s, bit for bit). The
-//! decision is a deterministic function of the scene and the training, so the render stays
-//! unbiased either way.
+//! # Measured cost and the scene-level switch
 //!
-//! The sum over nodes counts each vertex's estimate variance, which includes the rest of its
-//! path's: it overstates the image's variance (every vertex counts its followers again), so
-//! the predicted relative gain is conservative. Predicted against measured per-sample
-//! efficiency (MAE² x instructions) of `G`'s choices: Sponza 0.88 / 0.92x, ajar 0.91 /
-//! 0.95x, Sibenik 1.27 / 1.60x, door 1.56 / 1.45x, corridor 1.45 / 4.25x (the corridor's gain
-//! is in rare large samples the variance sum underweights); `switch` turns Sponza and the
-//! ajar off and keeps `G` elsewhere. `measured`'s dearer nodes guide fewer nodes on the door
-//! (11 of 58 instead of 16) and the corridor (13 of 17 instead of 15) and lose 5-10 % per
-//! sample there against `G` (BENCHMARKS.md, round 14, cost14a): the per-node constants
-//! charge the set-up in full, while at the door's and corridor's larger c the guided samples
-//! buy more than Sponza's.
+//! With `cost_model=measured` a candidate's cost adds the per-query and node-mapping costs
+//! measured by callgrind (`LOBE_COSTS`, `LEARNED_COSTS`). With `switch`, `measured` or `paths`
+//! the whole image is judged after the node choices ([`SceneChoice`]); unless its predicted
+//! efficiency exceeds 1 + `SCENE_MARGIN` nothing is guided
+//! ([`SkeletonGuide::guides_nothing`]) and `path_skeleton` renders `path`'s image exactly.
 //!
-//! With `directions=learned` (round 15) the predicted cost ratios are 1.13 (ajar), 1.18
-//! (door), 1.27 (corridor), 1.14 (Sponza), 1.15 (Sibenik) against callgrind's instruction
-//! ratios 1.17, 1.04, 1.16, 1.07, 1.04; `switch` turns the ajar (predicted 0.94x) and Sponza
-//! (0.94x) off and keeps the door, the corridor and Sibenik. The ajar's decision is wrong per
-//! sample: its predicted variance ratio 0.94 against a measured MAE² ratio of 0.80 (BENCHMARKS.md,
-//! round 15, default15).
+//! # The path-level prediction
 //!
-//! # The path-level prediction (`cost_model=paths`, the default since round 16)
+//! `cost_model=paths` (the default) predicts the variance ratio from whole training paths
+//! rather than a sum over vertices, which misses how guiding changes the product of weights
+//! along a path: M = E_{q_0}[E² prod_i 1 / r_i], E = a_0 + sum_i a_i prod_{j <= i} r_j, with
+//! r_i = q_0 / q at each guided vertex, for guiding nothing and for the choices; terms are
+//! capped at the `PATH_TERM_QUANTILE` quantile.
 //!
-//! The variance sum above counts each vertex's estimate, rest of path included, and misses
-//! what guiding does to the product of weights along a path: it predicts 0.94x on both the
-//! ajar and Sponza, where per sample the ajar's variance falls to about 0.78x and Sponza's
-//! does not fall at all. With `cost_model=paths` each training path is also kept as a whole:
-//! the light sample at its first vertex, and for each sampled direction i the luminance a_i of
-//! the light sample at the vertex it reached times the path's throughput there, with
-//! r_i = q_0 / q for the two policies compared (q = p_bsdf for guiding nothing; q = the choice's
-//! mixture at its node, with the learned directions' cross-fitted density, for the choices;
-//! r_i = 1 at vertices the training did not guide, which both policies sample by the BSDF).
-//! The path's next-event estimate under a policy and its second moment under that policy's
-//! own sampling are, by the same importance reweighting as for one vertex,
-//!
-//!   E = a_0 + sum_i a_i prod_{j <= i} r_j,   M = E_{q_0}[ E² prod_i 1 / r_i ],
-//!
-//! exact for any policy whose densities cover what q_0 covers (the coverage condition). The
-//! prediction is M(choices) / M(nothing) over all training paths: second moments, not
-//! variances (the image's mean squared signal is in both; leaving it out makes the ratio
-//! conservative, by under 10 % on the five test scenes). A path holds 20-50 % of a moment on
-//! Sponza and the door, so both policies' terms are capped at the same quantile of all terms
-//! (`PATH_TERM_QUANTILE`, 0.9999: a render sees a few 10^5 paths per pixel region, not the
-//! rare ones). This ratio replaces the variance sum in the efficiency; the costs, the margin
-//! and the switch are `switch`'s. The node choices and the training's samples are unchanged
-//! (the records are kept only with `cost_model=paths`), so a scene that is not switched off
-//! renders exactly as with `vertices`. Predicted ratios, 2^17 / 2^18 training paths
-//! (BENCHMARKS.md, round 16, open16): corridor 0.16 / 0.13, door 0.55 / 0.53, ajar 0.78 / 0.74,
-//! Sibenik 0.41 / 0.34, Sponza 0.83 / 0.80; with the costs, efficiencies 5.0, 1.53, 1.14,
-//! 2.11 and 1.05 (2^17): Sponza alone is switched off, as its per-sample figures say it should
-//! be. Its margin is thin (1.05-1.08 against 1.10).
-//!
-//! Heuristic parts, stated: the proxy stops after `training_depth` vertices (light arriving
-//! after more bounces does not inform the choice), R carries the training path's own noise
-//! (next-event estimation only, unlike the render's MIS), and each node is judged with the
-//! rest of the path guided at c0 (the choice at one node changes the paths the others see).
-//! The objective is the variance (the image's MSE), not the MAE `lacuna compare` ranks by: on
-//! the corridor the learned choice matches the fixed c = 0.5 in MSE per sample but is 1.2x
-//! behind it in MAE² per sample (round 5), a heavy-tailed estimator's two errors disagreeing.
+//! Heuristic parts: the proxy stops after `training_depth` vertices, R carries its own noise,
+//! each node is judged with the others guided at c0, and the objective is the variance (MSE),
+//! not the MAE `lacuna compare` ranks by.
 
 use std::sync::atomic::{AtomicU32, Ordering as AtomicOrdering};
 
@@ -323,7 +94,7 @@ use super::{MAX_LOBES, STRENGTH_CANDIDATES};
 use crate::math::{luminance, MisHeuristic, Rgb, Rng, Sampler, Vec3};
 use crate::scene::{Camera, Scene, SurfaceInteraction};
 
-/// Guiding probability of the training pass (c0 above): both strategies get half the samples,
+/// Guiding probability of the training pass (c0 in the module docs): both strategies get half the samples,
 /// so the reweighting factor q_c0 / q_c is at most 2 for any c.
 pub const TRAINING_C: f32 = 0.5;
 /// The candidate probabilities (c = 0 is "not guided").
@@ -356,8 +127,7 @@ struct MeasuredCosts {
 }
 
 impl MeasuredCosts {
-    /// The costs of the settings' directions: the lobes' (callgrind of Sponza, round 13) or
-    /// the learned histograms' (callgrind of the ajar and the door, round 15).
+    /// The costs of the settings' directions: the lobes' or the learned histograms'.
     fn of(settings: &super::SkeletonGuideSettings) -> MeasuredCosts {
         if settings.learned_directions {
             LEARNED_COSTS
@@ -367,13 +137,15 @@ impl MeasuredCosts {
     }
 }
 
-/// `directions=lobes`: measured on Sponza (BENCHMARKS.md, round 13, guide13a; module docs).
+/// `directions=lobes`, from callgrind of Sponza (`path_skeleton` minus `path` per camera sample,
+/// divided by the guided queries or mapped vertices per sample and by `path`'s instructions per
+/// vertex; BENCHMARKS.md).
 const LOBE_COSTS: MeasuredCosts = MeasuredCosts {
     query: 0.39,
     map: 0.064,
 };
-/// `directions=learned`: measured on the ajar and the door, the mean of the two (BENCHMARKS.md,
-/// round 15, branch default15; module docs): no set-up beyond the class lookup, no shadow ray.
+/// `directions=learned`, measured as [`LOBE_COSTS`] on the ajar and the door, the mean of the
+/// two: no set-up beyond the class lookup, no shadow ray.
 const LEARNED_COSTS: MeasuredCosts = MeasuredCosts {
     query: 0.19,
     map: 0.12,
@@ -2112,9 +1884,8 @@ mod tests {
     /// The choice judges the render's estimator: guiding toward light that next-event
     /// estimation already samples well (MIS-weighted hits, the vertex's own light sample)
     /// does not pay and is turned off; the same radiance arriving as reflected light, which
-    /// only direction sampling finds, is guided. Judged by the unweighted emission alone (the
-    /// proxy before round 7: no light density, no light sample), the first node would be
-    /// guided too.
+    /// only direction sampling finds, is guided. Judged by the unweighted emission alone (no
+    /// light density, no light sample), the first node would be guided too.
     #[test]
     fn choice_does_not_guide_toward_light_that_light_sampling_covers() {
         let grid = one_strength_grid();

@@ -68,11 +68,8 @@ pub struct IntegratorSettings {
     /// Russian roulette (`path`, `path_skeleton`): a path that has made this many bounces may
     /// be ended before the next one, surviving with probability `min(max(throughput), 0.95)`
     /// (see `path.rs`). Lower starts make samples cheaper and noisier. The default is 5 (as
-    /// Mitsuba's): by instructions x MAE^2 at 256 spp (BENCHMARKS.md, branch `samp9`), a start
-    /// at 5 against 3 wins on the Cornell box (1.18x) and Sponza (1.17x), wins narrowly on the
-    /// ajar (1.05x), ties for `path_skeleton` on the door (1.00x) and loses 3 % on the door
-    /// (0.97x, two standard errors); at equal time on the Cornell box it gave 6 % lower MAE
-    /// (round 8). The one loss is smaller than each of the gains, so 5 serves most scenes best.
+    /// Mitsuba's): by instructions x MAE^2 per sample, a start at 5 against 3 wins on most test
+    /// scenes and loses little on the one where it loses (BENCHMARKS.md).
     pub rr_start_depth: u32,
     /// Bidirectional integrators: light subpaths traced per iteration (`None` = one per pixel).
     pub light_paths: Option<u32>,
