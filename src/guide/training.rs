@@ -3,83 +3,75 @@
 //!
 //! # Training pass
 //!
-//! `training_paths` camera paths (film and lens positions uniform over a 2:1 image), each at
-//! most `training_depth` vertices deep, sample every guided vertex x from the one-sample
-//! mixture q_0 = c0 p_skel,s0 + (1 - c0) p_bsdf (c0 = [`TRAINING_C`], s0 the settings'
-//! strength), as `path_skeleton` does. Each such vertex records for its node the contribution
-//! proxy f = lum(beta f_s |cos| L(wi)), L = L_e(x') + R(x'), with R the light the rest of the
-//! path reflects toward x by next-event estimation at each later vertex (corridor light arrives
-//! after several bounces), kept as emission e and reflection r, together with every density a
-//! candidate's weights need and the vertex's own light sample. Work is cut into fixed chunks
-//! with their own random streams, so the result does not depend on the thread count.
+//! `training_paths` camera paths, each at most `training_depth` vertices deep, sample every
+//! guided vertex x from q_0 = c0 p_skel,s0 + (1 - c0) p_bsdf (c0 = [`TRAINING_C`], s0 the
+//! settings' strength), as `path_skeleton` does, and record for its node the contribution
+//! f = lum(beta f_s |cos| L(wi)), L = L_e(x') + R(x'), R the light the rest of the path reflects
+//! toward x by next-event estimation (corridor light arrives after several bounces), with every
+//! density a candidate needs and the vertex's own light sample. Fixed chunks with their own
+//! random streams make the result independent of the thread count.
 //!
 //! # Estimator
 //!
-//! The second moment of F = f / q_c,s under w ~ q_c,s is E_{q_0}[f² / (q_c,s q_0)]: every
-//! candidate (c, s) is judged from the same samples by importance reweighting
-//! ([`reweighted_second_moment`]). This is exact when q_0 > 0 wherever f > 0 (the coverage
-//! condition), which q_0 >= (1 - c0) p_bsdf guarantees for every non-delta BSDF.
+//! F = f / q_c,s has second moment E_{q_0}[f² / (q_c,s q_0)], so every candidate (c, s) is
+//! judged from the same samples by importance reweighting ([`reweighted_second_moment`]),
+//! exactly where q_0 > 0 wherever f > 0 (the coverage condition, which the BSDF share of q_0
+//! guarantees for every non-delta BSDF).
 //!
 //! # What is measured
 //!
-//! The render MIS-weights its direction sample against a light sample at every vertex, so a
-//! candidate is judged by that estimate, E = w_l n + (w_e e + r) / q_c,s, with the render's
-//! heuristic, triangle sampling and environment strategy
-//! (`SkeletonGuideSettings::render_estimator`). Judging f / q alone would credit guiding toward
-//! lamps that next-event estimation already finds ([`Sample::terms`]).
+//! The render MIS-weights its direction sample against a light sample, so a candidate is
+//! judged by that estimate, w_l n + (w_e e + r) / q_c,s, with the render's heuristic and light
+//! sampling (`SkeletonGuideSettings::render_estimator`): f / q alone would credit guiding
+//! toward lamps that next-event estimation already finds ([`Sample::terms`]).
 //!
 //! # Cost
 //!
-//! Efficiency is 1 / (variance x cost), cost in unguided path vertices: guiding adds
-//! `training_guided_cost` and `COST_SHADOW_RAY` per guide shadow ray. `training_cost=path`
-//! compares that with the vertices the estimate from x on is made of, `vertex` with one.
+//! Efficiency is 1 / (variance x cost), cost in unguided vertices: guiding adds
+//! `training_guided_cost` and `COST_SHADOW_RAY` per guide shadow ray, against the vertices of
+//! the estimate from x on (`training_cost=path`) or one vertex (`vertex`).
 //!
 //! # Choice
 //!
-//! A node gets the candidate of least variance x cost, kept only if it beats c = 0 by
+//! A node gets the candidate of least variance x cost if it beats c = 0 by
 //! `training_significance` standard errors and the node had `MIN_SAMPLES` samples,
-//! `training_min_nonzero` of them non-zero (second moments are dominated by rare large
-//! samples); otherwise it is not guided ([`choose_node`]). With a fixed `c_skel` only s is
-//! chosen. Without a camera nothing is learned. The choice is a deterministic function of the
-//! scene, so the render stays unbiased.
+//! `training_min_nonzero` of them non-zero; otherwise it is not guided ([`choose_node`]). With
+//! a fixed `c_skel` only s is chosen; without a camera nothing is. The choice is a
+//! deterministic function of the scene, so the render stays unbiased.
 //!
 //! # Lobe weights
 //!
-//! With `lobe_weights=learned` the candidates also include per-lobe weights W (eq. 165's, each
-//! lobe alone, and a fit by [`fit_lobe_weights`]), judged by the same reweighting since each
-//! sample records every lobe's density; eq. 165 can favour a lobe whose opening x cannot see.
+//! `lobe_weights=learned` adds per-lobe weights to the candidates (eq. 165's, each lobe alone,
+//! [`fit_lobe_weights`]), judged by the same reweighting: eq. 165 can favour a lobe whose
+//! opening x cannot see.
 //!
 //! # Learned directions
 //!
-//! With `directions=learned` each node's lobes are replaced by equal-area histograms of the
-//! sampled directions per class of point (`guide::directional`), weighted by
-//! (w_e e + r) / q_0. A histogram is judged on the half of the samples it was not fitted to.
+//! `directions=learned` replaces a node's lobes by equal-area histograms of its sampled
+//! directions per class of point (`guide::directional`), each judged on the half of the
+//! samples it was not fitted to.
 //!
 //! # Iterative training
 //!
-//! With `training_passes=N` each later pass samples from the previous pass's histograms
-//! (uniform where a node has none) and re-learns from its own samples only; coverage still
-//! holds through the BSDF share.
+//! With `training_passes=N` each later pass samples from the previous pass's histograms and
+//! re-learns from its own samples; the BSDF share keeps the coverage condition.
 //!
 //! # Measured cost and the scene-level switch
 //!
-//! With `cost_model=measured` a candidate's cost adds the per-query and node-mapping costs
-//! measured by callgrind (`LOBE_COSTS`, `LEARNED_COSTS`). With `switch`, `measured` or `paths`
-//! the whole image is judged after the node choices ([`SceneChoice`]); unless its predicted
-//! efficiency exceeds 1 + `SCENE_MARGIN` nothing is guided
+//! `cost_model=measured` adds callgrind-measured per-query and node-mapping costs
+//! (`LOBE_COSTS`, `LEARNED_COSTS`). With `switch`, `measured` or `paths` the whole image is then
+//! judged ([`SceneChoice`]): below 1 + `SCENE_MARGIN` predicted efficiency nothing is guided
 //! ([`SkeletonGuide::guides_nothing`]) and `path_skeleton` renders `path`'s image exactly.
 //!
 //! # The path-level prediction
 //!
-//! `cost_model=paths` (the default) predicts the variance ratio from whole training paths
-//! rather than a sum over vertices, which misses how guiding changes the product of weights
-//! along a path: M = E_{q_0}[E² prod_i 1 / r_i], E = a_0 + sum_i a_i prod_{j <= i} r_j, with
-//! r_i = q_0 / q at each guided vertex, for guiding nothing and for the choices; terms are
-//! capped at the `PATH_TERM_QUANTILE` quantile.
+//! `cost_model=paths` (the default) takes the variance ratio from whole training paths, as a
+//! sum over vertices misses the product of weights along a path: M = E_{q_0}[E² prod_i 1 / r_i],
+//! E = a_0 + sum_i a_i prod_{j <= i} r_j, r_i = q_0 / q at each guided vertex, for guiding
+//! nothing and for the choices, terms capped at the `PATH_TERM_QUANTILE` quantile.
 //!
 //! Heuristic parts: the proxy stops after `training_depth` vertices, R carries its own noise,
-//! each node is judged with the others guided at c0, and the objective is the variance (MSE),
-//! not the MAE `lacuna compare` ranks by.
+//! each node is judged with the others guided at c0, and the objective is MSE, not MAE.
 
 use std::sync::atomic::{AtomicU32, Ordering as AtomicOrdering};
 
