@@ -1,10 +1,8 @@
 //! Where a point may map to a node at all ([`may_map_to`]): a per-voxel mask that lets a
 //! guide skip [`map_point`](super::map_point) (eq. 151-155) where no node it cares about is within reach.
-//!
-//! (Round 4 also kept a per-voxel shortcut cache of `map_point` here, `MapPointCache`; it saved
-//! 0.2-0.4 % of a guided sample's instructions on the door, because most surface points'
-//! neighbourhoods map to several nodes and the full search ran anyway, at 8 bytes per voxel.
-//! Removed; the mask is what pays: no mapping at all where nothing is guided.)
+//! A mask rather than a cache of `map_point`'s answers: most surface points' neighbourhoods map
+//! to several nodes, so a cache saves little, while the mask skips the mapping entirely where
+//! nothing is guided.
 
 use rayon::prelude::*;
 
@@ -26,11 +24,10 @@ use super::{VoxelGrid, UNDEFINED_NODE};
 ///
 /// A superset of the exact set (the cone is tested per constraint, not jointly; tolerances
 /// cover f32 rounding): where this is false, the point maps to no wanted node (or to none),
-/// without searching. Round 5's mask was every voxel within 4 voxels of a wanted one; this
-/// one drops the voxels of open space more than one voxel from a
-/// wanted node and wall voxels whose searches along n⁺ lead away from it (and, to stay a
-/// superset under rounding, allows centres 4 voxels away inside thick walls, which the box
-/// did not).
+/// without searching. Unlike a plain distance mask (every voxel within 4 voxels of a wanted
+/// one), it drops the voxels of open space more than one voxel from a wanted node and wall
+/// voxels whose searches along n⁺ lead away from it (and, to stay a superset under rounding,
+/// allows centres 4 voxels away inside thick walls).
 pub fn may_map_to(grid: &VoxelGrid, map: &[u32], wanted: impl Fn(u32) -> bool + Sync) -> Vec<bool> {
     let wanted_voxel: Vec<bool> = map
         .par_iter()

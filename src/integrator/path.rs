@@ -15,7 +15,7 @@
 //! scores its choices with a proxy: next-event estimation only, paths cut at
 //! `training_depth` (8) vertices. On scenes it was not tuned on it promised too much: on
 //! the family `rooms:SEED` it predicted variance ratios of 0.41-0.64 where the render's
-//! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, round 17), and guided scenes lost
+//! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, "Procedural family"), and guided scenes lost
 //! to `path`. So before a trained guide is used, `prepare` traces a pilot with this file's own
 //! estimator at the render's depth: `pilot_paths` camera rays (drawn over the training's
 //! image), each traced twice unguided and twice guided with the same random numbers for both
