@@ -103,16 +103,65 @@ pub trait ConnectionPolicy: Send + Sync {
         rng: &mut Sampler,
         connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
     ) {
-        let mut each = |j: usize, factor: f32| {
-            let (a, b) = paths.ranges[j];
-            for v in a as usize..b as usize {
-                if paths.vertices[v].path_len > vertex.max_light_segments {
-                    break;
-                }
-                connect(j, v, factor);
+        connect_whole_subpaths(self, vertex, paths, rng, connect);
+    }
+}
+
+/// [`ConnectionPolicy::connect_vertex`]'s default: every vertex (up to the camera vertex's
+/// length limit) of each subpath the policy's `connect` picks.
+pub fn connect_whole_subpaths<P: ConnectionPolicy + ?Sized>(
+    policy: &P,
+    vertex: &CameraVertex,
+    paths: &LightPaths,
+    rng: &mut Sampler,
+    connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
+) {
+    let mut each = |j: usize, factor: f32| {
+        let (a, b) = paths.ranges[j];
+        for v in a as usize..b as usize {
+            if paths.vertices[v].path_len > vertex.max_light_segments {
+                break;
             }
-        };
-        self.connect(vertex, paths.ranges.len(), rng, &mut each);
+            connect(j, v, factor);
+        }
+    };
+    policy.connect(vertex, paths.ranges.len(), rng, &mut each);
+}
+
+/// A policy shared with its integrator (which reads its statistics or hands it per-iteration
+/// input) is given to `bdpt` as an `Arc`.
+impl<P: ConnectionPolicy + ?Sized> ConnectionPolicy for std::sync::Arc<P> {
+    fn connection_count(&self, light_paths: usize) -> f32 {
+        (**self).connection_count(light_paths)
+    }
+    fn begin_iteration(
+        &self,
+        scene: &Scene,
+        paths: &LightPaths,
+        sample_index: u32,
+    ) -> Result<(Option<Box<dyn Any + Send + Sync>>, u64)> {
+        (**self).begin_iteration(scene, paths, sample_index)
+    }
+    fn layers(&self) -> Vec<String> {
+        (**self).layers()
+    }
+    fn connect(
+        &self,
+        vertex: &CameraVertex,
+        light_paths: usize,
+        rng: &mut Sampler,
+        connect: &mut dyn FnMut(usize, f32),
+    ) {
+        (**self).connect(vertex, light_paths, rng, connect)
+    }
+    fn connect_vertex(
+        &self,
+        vertex: &CameraVertex,
+        paths: &LightPaths,
+        rng: &mut Sampler,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
+    ) {
+        (**self).connect_vertex(vertex, paths, rng, connect)
     }
 }
 

@@ -22,7 +22,9 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::bdpt::{CameraVertex, Connection, ConnectionPolicy, LightPaths, PathObserver};
-use super::resampled::{build_tables, Anchor, OcclusionTally, Tables, NO_TABLE};
+use super::resampled::{
+    build_tables, distribution_layers, Anchor, OcclusionTally, Tables, NO_TABLE,
+};
 use super::{
     Bdpt, Integrator, IntegratorSettings, Iteration, ResamplingStats, SampleContext, TraceCounters,
     View,
@@ -30,7 +32,6 @@ use super::{
 use crate::error::Result;
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::resampling::Origin;
 use crate::guide::ResamplingSettings;
 use crate::math::{Rng, Sampler, Vec3};
 use crate::scene::{Scene, SurfaceInteraction};
@@ -232,14 +233,7 @@ impl ConnectionPolicy for IcResampler {
     }
 
     fn layers(&self) -> Vec<String> {
-        if self.settings.images {
-            Origin::ALL
-                .iter()
-                .map(|o| o.layer_name().to_string())
-                .collect()
-        } else {
-            Vec::new()
-        }
+        distribution_layers(self.settings.images)
     }
 
     /// Unused: `connect_vertex` picks the vertices; without the iteration's tables (never
@@ -281,44 +275,6 @@ impl ConnectionPolicy for IcResampler {
     }
 }
 
-/// The policy shared between the integrator (records, statistics) and `bdpt`.
-struct Shared(Arc<IcResampler>);
-
-impl ConnectionPolicy for Shared {
-    fn connection_count(&self, light_paths: usize) -> f32 {
-        self.0.connection_count(light_paths)
-    }
-    fn begin_iteration(
-        &self,
-        scene: &Scene,
-        paths: &LightPaths,
-        sample_index: u32,
-    ) -> Result<(Option<Box<dyn Any + Send + Sync>>, u64)> {
-        self.0.begin_iteration(scene, paths, sample_index)
-    }
-    fn layers(&self) -> Vec<String> {
-        self.0.layers()
-    }
-    fn connect(
-        &self,
-        vertex: &CameraVertex,
-        light_paths: usize,
-        rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, f32),
-    ) {
-        self.0.connect(vertex, light_paths, rng, connect)
-    }
-    fn connect_vertex(
-        &self,
-        vertex: &CameraVertex,
-        paths: &LightPaths,
-        rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
-    ) {
-        self.0.connect_vertex(vertex, paths, rng, connect)
-    }
-}
-
 /// The `bdpt_ic` integrator (module docs).
 pub struct BdptIc {
     settings: IntegratorSettings,
@@ -338,7 +294,7 @@ impl BdptIc {
             stats: Mutex::new(ResamplingStats::default()),
             occlusion: OcclusionTally::default(),
         });
-        bdpt.set_policy(Box::new(Shared(resampler.clone())));
+        bdpt.set_policy(Box::new(resampler.clone()));
         Ok(BdptIc {
             settings,
             bdpt,

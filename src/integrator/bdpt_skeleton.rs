@@ -30,8 +30,10 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::bdpt::{CameraVertex, Connection, ConnectionPolicy, LightPaths};
-use super::resampled::{build_tables, Anchor, OcclusionTally, Tables, NO_TABLE};
+use super::bdpt::{connect_whole_subpaths, CameraVertex, Connection, ConnectionPolicy, LightPaths};
+use super::resampled::{
+    build_tables, distribution_layers, Anchor, OcclusionTally, Tables, NO_TABLE,
+};
 use super::{
     Bdpt, Integrator, IntegratorSettings, Iteration, Precomputation, SampleContext, TraceCounters,
     View,
@@ -42,7 +44,6 @@ use crate::analysis::{
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::resampling::Origin;
 use crate::guide::ResamplingSettings;
 use crate::math::{Sampler, Vec3};
 use crate::scene::{Camera, Scene};
@@ -183,14 +184,7 @@ impl ConnectionPolicy for SkeletonResampler {
     }
 
     fn layers(&self) -> Vec<String> {
-        if self.settings.images {
-            Origin::ALL
-                .iter()
-                .map(|o| o.layer_name().to_string())
-                .collect()
-        } else {
-            Vec::new()
-        }
+        distribution_layers(self.settings.images)
     }
 
     /// Without a skeleton: `bdpt`'s own light subpath (pixel index modulo their number).
@@ -221,16 +215,7 @@ impl ConnectionPolicy for SkeletonResampler {
                 .and_then(|d| d.downcast_ref::<Tables>()),
         ) else {
             // The default: every vertex of the pixel's own subpath.
-            let mut each = |j: usize, factor: f32| {
-                let (a, b) = paths.ranges[j];
-                for v in a as usize..b as usize {
-                    if paths.vertices[v].path_len > vertex.max_light_segments {
-                        break;
-                    }
-                    connect(j, v, factor);
-                }
-            };
-            self.connect(vertex, paths.ranges.len(), rng, &mut each);
+            connect_whole_subpaths(self, vertex, paths, rng, connect);
             return;
         };
         let node = skeleton.node_of(vertex.si);
@@ -239,44 +224,6 @@ impl ConnectionPolicy for SkeletonResampler {
         }
         let table = node.map_or(NO_TABLE, |n| tables.anchor_table[n as usize]);
         tables.resample(vertex, table, rng, &self.occlusion, connect);
-    }
-}
-
-/// The policy shared between the integrator (for its statistics) and `bdpt`.
-struct Shared(Arc<SkeletonResampler>);
-
-impl ConnectionPolicy for Shared {
-    fn connection_count(&self, light_paths: usize) -> f32 {
-        self.0.connection_count(light_paths)
-    }
-    fn begin_iteration(
-        &self,
-        scene: &Scene,
-        paths: &LightPaths,
-        sample_index: u32,
-    ) -> Result<(Option<Box<dyn Any + Send + Sync>>, u64)> {
-        self.0.begin_iteration(scene, paths, sample_index)
-    }
-    fn layers(&self) -> Vec<String> {
-        self.0.layers()
-    }
-    fn connect(
-        &self,
-        vertex: &CameraVertex,
-        light_paths: usize,
-        rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, f32),
-    ) {
-        self.0.connect(vertex, light_paths, rng, connect)
-    }
-    fn connect_vertex(
-        &self,
-        vertex: &CameraVertex,
-        paths: &LightPaths,
-        rng: &mut Sampler,
-        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
-    ) {
-        self.0.connect_vertex(vertex, paths, rng, connect)
     }
 }
 
@@ -330,7 +277,7 @@ impl BdptSkeleton {
             bdpt = bdpt.with_light_paths(n as usize)?;
         }
         let resampler = Arc::new(SkeletonResampler::plain(settings.resampling));
-        bdpt.set_policy(Box::new(Shared(resampler.clone())));
+        bdpt.set_policy(Box::new(resampler.clone()));
         Ok(BdptSkeleton {
             settings,
             bdpt,
@@ -506,8 +453,7 @@ impl Integrator for BdptSkeleton {
             }
         }
         self.resampler = Arc::new(resampler);
-        self.bdpt
-            .set_policy(Box::new(Shared(self.resampler.clone())));
+        self.bdpt.set_policy(Box::new(self.resampler.clone()));
         self.prepared_for = Some(Fingerprint::of(scene));
         Ok(Precomputation { stages, notes })
     }

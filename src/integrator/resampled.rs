@@ -13,6 +13,19 @@ use crate::guide::resampling::{combined_distribution, sample_cdf, Origin};
 use crate::math::{luminance, Sampler, Vec3};
 use crate::scene::Scene;
 
+/// The per-distribution images (`images=true`): one layer per resampling distribution and one
+/// for the uniform fallback (002 Figure 10).
+pub(super) fn distribution_layers(images: bool) -> Vec<String> {
+    if images {
+        Origin::ALL
+            .iter()
+            .map(|o| o.layer_name().to_string())
+            .collect()
+    } else {
+        Vec::new()
+    }
+}
+
 /// No distribution: the vertex resamples uniformly.
 pub(super) const NO_TABLE: u32 = u32::MAX;
 /// Connections are tallied for occlusion at every this many pixels only (a sample that keeps
