@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::agreement::{assert_agree, load_scene, region_means, render_image};
+use common::agreement::{agree_with_path_and_bdpt, load_scene, render_image};
 use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::render::RenderSettings;
 use lacuna::scene::Scene;
@@ -14,20 +14,8 @@ use lacuna::scene::Scene;
 /// subset with many records.
 const VARIANTS: &[&str] = &["bdpt_ic", "bdpt_ic:subset=32:density=0.05"];
 
-fn agree(label: &str, scene: &Scene, (max_depth, size, spp): (u32, u32, u32)) {
-    let camera = *scene.camera().unwrap();
-    let settings = IntegratorSettings {
-        max_depth,
-        ..Default::default()
-    };
-    let path = region_means(scene, &camera, "path", settings, size, spp, 8);
-    assert!(path[0].0 > 0.0, "{label}: black image");
-    let bdpt = region_means(scene, &camera, "bdpt", settings, size, spp, 8);
-    for spec in VARIANTS {
-        let ic = region_means(scene, &camera, spec, settings, size, spp, 8);
-        assert_agree(label, ("path", &path), (spec, &ic));
-        assert_agree(label, ("bdpt", &bdpt), (spec, &ic));
-    }
+fn agree(label: &str, scene: &Scene, size: (u32, u32, u32)) {
+    agree_with_path_and_bdpt(label, scene, size, VARIANTS);
 }
 
 #[test]

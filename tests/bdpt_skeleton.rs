@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::agreement::{assert_agree, load_scene, region_means, render_image};
+use common::agreement::{agree_with_path_and_bdpt, load_scene, render_image};
 use lacuna::integrator::{self, BdptSkeleton, Integrator, IntegratorSettings};
 use lacuna::math::{Rgb, Vec3};
 use lacuna::render::RenderSettings;
@@ -33,18 +33,7 @@ fn agree(
         lacuna::render::prepare(&mut skel, scene, &camera, None, &|_, _| true).unwrap();
         assert_eq!(skel.resamples(), resamples, "{label}: {spec} resamples");
     }
-    let settings = IntegratorSettings {
-        max_depth,
-        ..Default::default()
-    };
-    let path = region_means(scene, &camera, "path", settings, size, spp, 8);
-    assert!(path[0].0 > 0.0, "{label}: black image");
-    let bdpt = region_means(scene, &camera, "bdpt", settings, size, spp, 8);
-    for spec in variants {
-        let skel = region_means(scene, &camera, spec, settings, size, spp, 8);
-        assert_agree(label, ("path", &path), (spec, &skel));
-        assert_agree(label, ("bdpt", &bdpt), (spec, &skel));
-    }
+    agree_with_path_and_bdpt(label, scene, (max_depth, size, spp), variants);
 }
 
 /// The paper's defaults (N = 1024, more than the pixels here: all subpaths), a small subset,

@@ -156,6 +156,29 @@ pub fn agree_with_path(
     }
 }
 
+/// Renders `path`, `bdpt` and each of `specs` (bidirectional variants) with the scene's camera
+/// over 8 seeds, and z-tests each variant's region means against both.
+pub fn agree_with_path_and_bdpt(
+    label: &str,
+    scene: &Scene,
+    (max_depth, size, spp): (u32, u32, u32),
+    specs: &[&str],
+) {
+    let camera = *scene.camera().unwrap();
+    let settings = IntegratorSettings {
+        max_depth,
+        ..Default::default()
+    };
+    let path = region_means(scene, &camera, "path", settings, size, spp, 8);
+    assert!(path[0].0 > 0.0, "{label}: black image");
+    let bdpt = region_means(scene, &camera, "bdpt", settings, size, spp, 8);
+    for spec in specs {
+        let other = region_means(scene, &camera, spec, settings, size, spp, 8);
+        assert_agree(label, ("path", &path), (spec, &other));
+        assert_agree(label, ("bdpt", &bdpt), (spec, &other));
+    }
+}
+
 /// A scene file of the repository (`scenes/...`), built.
 pub fn load_scene(path: &str) -> Scene {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(path);
