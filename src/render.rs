@@ -8,6 +8,8 @@
 //! The camera takes dimension slots [`FILM_DIMENSION`] and [`LENS_DIMENSION`]; integrators
 //! start at [`FIRST_INTEGRATOR_DIMENSION`].
 
+pub mod settings;
+
 use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};

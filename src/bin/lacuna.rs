@@ -9,15 +9,20 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use clap::{Args, Parser, Subcommand};
+use lacuna::analysis::Resolution;
 use lacuna::compare::{compare, render_reference, write_report, Contender};
 use lacuna::film::{ExrMetadata, Film, ImageErrors};
-use lacuna::integrator::{self, IntegratorSettings, MisHeuristic};
+use lacuna::guide::SkeletonGuideSettings;
+use lacuna::integrator::{self, MisHeuristic};
 use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
 use lacuna::math::{SamplerKind, Vec3};
-use lacuna::render::{render, Progress, RenderSettings};
+use lacuna::render::settings::{
+    resolve, resolve_camera, ResolvedSettings, SettingsOverrides, DEFAULT_INTEGRATOR,
+};
+use lacuna::render::{render, Progress};
 use lacuna::scene::{
-    auto_camera, convert_layout, load_scene_arg, two_rooms_builder, Camera, RenderSettingsFile,
-    Scene, SceneBuilder,
+    convert_layout, load_scene_arg, two_rooms_builder, Camera, RenderSettingsFile, Scene,
+    SceneBuilder,
 };
 use lacuna::{Error, Result};
 
@@ -383,11 +388,8 @@ fn check_not_empty(scene: &Scene, label: &str, allow_empty: bool) -> Result<()> 
 struct Prepared {
     scene: Scene,
     camera: Camera,
-    render: RenderSettings,
-    integrator: IntegratorSettings,
-    /// Integrator named by the scene file, if any.
-    file_integrator: Option<String>,
-    file_time: Option<f64>,
+    /// Render and integrator settings: defaults, the scene file's, then the flags.
+    settings: ResolvedSettings,
     label: String,
     /// Bytes the film may take (`--memory-budget-mib`).
     memory_budget: u64,
@@ -472,7 +474,16 @@ fn apply_environment(
     Ok(())
 }
 
-fn prepare(args: &SceneArgs) -> Result<Prepared> {
+/// What a command says about the sample budget (only `render` has both).
+#[derive(Clone, Copy, Default)]
+struct SampleBudget {
+    spp: Option<u32>,
+    time: Option<f64>,
+}
+
+/// Loads the scene and resolves its settings with the flags over the scene file's;
+/// `integrator_spec` is the command's `--integrator`.
+fn prepare(args: &SceneArgs, integrator_spec: Option<&str>, spp: SampleBudget) -> Result<Prepared> {
     let (mut builder, file, label) = match &args.scene {
         None => (
             two_rooms_builder()?,
@@ -501,58 +512,37 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     apply_environment(&mut builder, args, env)?;
     let scene = builder.build()?;
     check_not_empty(&scene, &label, args.allow_empty)?;
-    let mut render = RenderSettings::default();
-    render.width = args.width.or(file.width).unwrap_or(render.width);
-    render.height = args.height.or(file.height).unwrap_or(render.height);
-    render.spp = file.spp.unwrap_or(render.spp);
-    render.seed = args.seed.or(file.seed).unwrap_or(render.seed);
-    if let Some(name) = args.sampler.as_deref().or(file.sampler.as_deref()) {
-        render.sampler = SamplerKind::parse(name)?;
-    }
-    render.threads = args.threads;
-    let mut integrator = IntegratorSettings {
-        mis: args.mis.as_deref().map(MisHeuristic::parse).transpose()?,
-        light_paths: args.light_paths,
-        env,
-        ..Default::default()
+    let overrides = SettingsOverrides {
+        integrator: integrator_spec.map(str::to_string),
+        width: args.width,
+        height: args.height,
+        spp: spp.spp,
+        time: spp.time,
+        seed: args.seed,
+        sampler: args
+            .sampler
+            .as_deref()
+            .map(SamplerKind::parse)
+            .transpose()?,
+        threads: args.threads,
+        max_depth: args.max_depth,
     };
-    if let Some(n) = args.env_samples {
-        integrator.env_samples = n;
-    }
-    if let Some(n) = args.env_bsdf_samples {
-        integrator.env_bsdf_samples = n;
-    }
-    integrator.apply_file(&file)?;
-    lacuna::film::Film::check_budget(render.width, render.height, 0, budget)?;
-    if let Some(d) = args.max_depth {
-        integrator.max_depth = d;
-    }
-    let skel = &mut integrator.skeleton;
-    let options = [
-        ("c_skel", args.c_skel.clone()),
-        ("strength", args.skel_strength.clone()),
-        ("resolution", args.skel_resolution.map(|v| v.to_string())),
-        (
-            "voxel_budget",
-            args.skel_voxel_budget.map(|v| v.to_string()),
-        ),
-        ("light_rays", args.skel_light_rays.map(|v| v.to_string())),
-        ("lobes", args.skel_lobes.map(|v| v.to_string())),
-        (
-            "visibility",
-            args.skel_no_visibility.then(|| "false".to_string()),
-        ),
-    ];
-    for (key, value) in options {
-        if let Some(value) = value {
-            skel.set(key, &value)?;
+    let mis = args.mis.as_deref().map(MisHeuristic::parse).transpose()?;
+    let settings = resolve(&file, &overrides, |integrator| {
+        integrator.mis = mis;
+        integrator.light_paths = args.light_paths;
+        integrator.env = env;
+        if let Some(n) = args.env_samples {
+            integrator.env_samples = n;
         }
-    }
-    let aspect = render.width as f32 / render.height.max(1) as f32;
-    let mut camera = scene
-        .camera()
-        .copied()
-        .unwrap_or_else(|| auto_camera(scene.bounds(), aspect));
+        if let Some(n) = args.env_bsdf_samples {
+            integrator.env_bsdf_samples = n;
+        }
+        skeleton_overrides(&mut integrator.skeleton, args)
+    })?;
+    lacuna::film::Film::check_budget(settings.render.width, settings.render.height, 0, budget)?;
+    let (w, h) = (settings.render.width, settings.render.height);
+    let mut camera = resolve_camera(&scene, None, w, h);
     if let Some(e) = args.eye {
         camera.eye = e;
     }
@@ -599,12 +589,38 @@ fn prepare(args: &SceneArgs) -> Result<Prepared> {
     Ok(Prepared {
         scene,
         camera,
-        render,
-        integrator,
-        file_integrator: file.integrator,
-        file_time: file.time,
+        settings,
         label,
         memory_budget: budget,
+    })
+}
+
+/// The `--c-skel`, `--skel-*` flags over the scene file's skeleton options. `--c-skel` and
+/// `--skel-strength` are text (a number, `learned`, `auto:MAX`), parsed as the scene file's
+/// and an integrator name's options are; the others are typed.
+fn skeleton_overrides(skel: &mut SkeletonGuideSettings, args: &SceneArgs) -> Result<()> {
+    if let Some(c) = &args.c_skel {
+        skel.set("c_skel", c)?;
+    }
+    if let Some(s) = &args.skel_strength {
+        skel.set("strength", s)?;
+    }
+    skel.update(|skel| {
+        if let Some(n) = args.skel_resolution {
+            skel.resolution = Resolution::LongestAxis(n);
+        }
+        if let Some(n) = args.skel_voxel_budget {
+            skel.resolution = Resolution::VoxelBudget(n);
+        }
+        if let Some(n) = args.skel_light_rays {
+            skel.light_rays = n;
+        }
+        if let Some(n) = args.skel_lobes {
+            skel.max_lobes = n;
+        }
+        if args.skel_no_visibility {
+            (skel.visibility_test, skel.voxel_visibility) = (false, false);
+        }
     })
 }
 
@@ -668,41 +684,26 @@ fn run_render(args: &RenderArgs) -> Result<()> {
             args.exposure
         )));
     }
-    let mut prep = prepare(&args.scene)?;
-    if let Some(s) = args.spp {
-        prep.render.spp = s;
-    }
-    if let Some(t) = args.time.or(if args.spp.is_none() {
-        prep.file_time
-    } else {
-        None
-    }) {
-        if !(t > 0.0 && t.is_finite()) {
-            return Err(Error::invalid(format!(
-                "time budget {t} must be a positive number of seconds"
-            )));
-        }
-        prep.render.time_limit = Some(Duration::from_secs_f64(t));
-        prep.render.spp = args.spp.unwrap_or(u32::MAX);
-    }
-    let name = args
-        .integrator
-        .clone()
-        .or(prep.file_integrator.clone())
-        .unwrap_or_else(|| "path".into());
+    let budget = SampleBudget {
+        spp: args.spp,
+        time: args.time,
+    };
+    let prep = prepare(&args.scene, args.integrator.as_deref(), budget)?;
+    let name = prep.settings.integrator.clone();
     let mut integrator: Box<dyn integrator::Integrator> = if args.strategy.is_none()
         && args.strategy_images.is_none()
     {
-        integrator::create(&name, prep.integrator)?
+        integrator::create(&name, prep.settings.integrator_settings)?
     } else {
         if name != "bdpt" {
             return Err(Error::invalid(
                 "--strategy and --strategy-images need --integrator bdpt",
             ));
         }
-        let mut bdpt = match prep.integrator.light_paths {
-            Some(n) => integrator::Bdpt::new(prep.integrator).with_light_paths(n as usize)?,
-            None => integrator::Bdpt::new(prep.integrator),
+        let integrator_settings = prep.settings.integrator_settings;
+        let mut bdpt = match integrator_settings.light_paths {
+            Some(n) => integrator::Bdpt::new(integrator_settings).with_light_paths(n as usize)?,
+            None => integrator::Bdpt::new(integrator_settings),
         };
         if let Some(st) = &args.strategy {
             let parts: Vec<Option<u32>> = st.split(',').map(|p| p.trim().parse().ok()).collect();
@@ -718,14 +719,14 @@ fn run_render(args: &RenderArgs) -> Result<()> {
             })?;
         }
         if args.strategy_images.is_some() {
-            let max_len = prep.integrator.max_depth + 1;
+            let max_len = integrator_settings.max_depth + 1;
             bdpt = bdpt.with_strategy_images(args.strategy_max_length.unwrap_or(max_len))?;
         }
         Box::new(bdpt)
     };
     lacuna::film::Film::check_budget(
-        prep.render.width,
-        prep.render.height,
+        prep.settings.render.width,
+        prep.settings.render.height,
         integrator.layers().len(),
         prep.memory_budget,
     )?;
@@ -735,18 +736,13 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         &prep.scene,
         &prep.camera,
         integrator.as_ref(),
-        &prep.render,
+        &prep.settings.render,
         &|p| bar.update(p),
         &AtomicBool::new(false),
     )?;
-    let meta = ExrMetadata::default()
-        .with("spp", stats.spp)
-        .with("seed", prep.render.seed)
-        .with("sampler", prep.render.sampler.name())
-        .with("integrator", &name)
-        .with("max_depth", prep.integrator.max_depth)
-        .with("scene", &prep.label)
-        .with("seconds", format!("{:.3}", stats.seconds))
+    let meta = prep
+        .settings
+        .metadata(&prep.label, stats.spp, stats.seconds)
         .with(
             "precompute_seconds",
             format!("{:.3}", precomputation.seconds()),
@@ -765,11 +761,11 @@ fn run_render(args: &RenderArgs) -> Result<()> {
     println!(
         "{}: {}x{}, {} spp of {} (max depth {}) in {:.2} s: {:.2} M samples/s, {:.2} M rays/s -> {}",
         prep.label,
-        prep.render.width,
-        prep.render.height,
+        prep.settings.render.width,
+        prep.settings.render.height,
         stats.spp,
         name,
-        prep.integrator.max_depth,
+        prep.settings.integrator_settings.max_depth,
         stats.seconds,
         stats.samples_per_second() / 1e6,
         stats.rays_per_second() / 1e6,
@@ -846,7 +842,7 @@ fn prepare_integrator(
         integrator,
         &prep.scene,
         &prep.camera,
-        prep.render.threads,
+        prep.settings.render.threads,
         &|_, _| true,
     )?;
     if !pre.stages.is_empty() {
@@ -886,27 +882,26 @@ fn write_film(film: &Film, out: &Path, exposure: f32, meta: &ExrMetadata) -> Res
 }
 
 fn run_reference(args: &ReferenceArgs) -> Result<()> {
-    let mut prep = prepare(&args.scene)?;
-    prep.render.spp = args.spp;
-    let name = args.integrator.clone().unwrap_or_else(|| "path".into());
-    let mut integrator = integrator::create(&name, prep.integrator)?;
+    // A reference renders with `path` unless told otherwise, whatever the scene file names.
+    let name = args.integrator.as_deref().unwrap_or(DEFAULT_INTEGRATOR);
+    let budget = SampleBudget {
+        spp: Some(args.spp),
+        time: None,
+    };
+    let prep = prepare(&args.scene, Some(name), budget)?;
+    let mut integrator = integrator::create(name, prep.settings.integrator_settings)?;
     prepare_integrator(integrator.as_mut(), &prep)?;
     let bar = ProgressBar::new(args.scene.quiet);
     let reference = render_reference(
         &prep.scene,
         &prep.camera,
         integrator.as_ref(),
-        &prep.render,
+        &prep.settings.render,
         &|p| bar.update(p),
     )?;
-    let meta = ExrMetadata::default()
-        .with("spp", reference.stats.spp)
-        .with("seed", prep.render.seed)
-        .with("sampler", prep.render.sampler.name())
-        .with("integrator", &name)
-        .with("max_depth", prep.integrator.max_depth)
-        .with("scene", &prep.label)
-        .with("seconds", format!("{:.3}", reference.stats.seconds))
+    let meta = prep
+        .settings
+        .metadata(&prep.label, reference.stats.spp, reference.stats.seconds)
         .with(
             "reference_mae_estimate",
             format!("{:e}", reference.noise.mae),
@@ -931,7 +926,7 @@ fn run_reference(args: &ReferenceArgs) -> Result<()> {
         prep.label,
         reference.stats.spp,
         name,
-        prep.integrator.max_depth,
+        prep.settings.integrator_settings.max_depth,
         reference.stats.seconds,
         reference.noise.mae,
         reference.noise.rmse,
@@ -955,16 +950,21 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
             args.out.display()
         )));
     }
-    let prep = prepare(&args.scene)?;
+    // Each contender renders for `--time`: the scene file's budget does not apply.
+    let budget = SampleBudget::default();
+    let mut prep = prepare(&args.scene, None, budget)?;
+    prep.settings.render.time_limit = None;
     let reference = lacuna::film::read_exr_rgb_within(&args.reference, prep.memory_budget)?;
-    if (reference.width, reference.height) != (prep.render.width, prep.render.height) {
+    if (reference.width, reference.height)
+        != (prep.settings.render.width, prep.settings.render.height)
+    {
         return Err(Error::invalid(format!(
             "reference {} is {}x{} but the render is {}x{}: give the same --width/--height",
             args.reference.display(),
             reference.width,
             reference.height,
-            prep.render.width,
-            prep.render.height
+            prep.settings.render.width,
+            prep.settings.render.height
         )));
     }
     let noise = (|| {
@@ -983,7 +983,7 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
         .collect();
     let mut contenders = names
         .iter()
-        .map(|n| Contender::from_spec(n, prep.integrator))
+        .map(|n| Contender::from_spec(n, prep.settings.integrator_settings))
         .collect::<Result<Vec<_>>>()?;
     let runs = args
         .runs
@@ -999,7 +999,7 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
         &mut contenders,
         &reference.pixels,
         noise,
-        &prep.render,
+        &prep.settings.render,
         args.time,
         runs,
         &|p| bar.update(p),
@@ -1008,8 +1008,8 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
         &args.out,
         &cmp,
         &reference.pixels,
-        prep.render.width,
-        prep.render.height,
+        prep.settings.render.width,
+        prep.settings.render.height,
         &prep.label,
     )?;
     let summary = std::fs::read_to_string(args.out.join("summary.md"))

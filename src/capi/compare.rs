@@ -33,7 +33,7 @@ pub unsafe extern "C" fn lacuna_render_job_run_reference(
         let precompute_seconds = j.prepare(&mut p)?;
         let last = Mutex::new(0.0);
         let progress = j.progress_fn(p.settings.progress, &last);
-        let mut settings = p.settings.render.clone();
+        let mut settings = p.settings.resolved.render.clone();
         settings.time_limit = None;
         let mut reference = render_reference(
             &j.scene.scene,
@@ -109,7 +109,10 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
             return Err(CapiError::invalid("runs 0: at least 1"));
         }
         let (_guard, p) = j.start()?;
-        let (w, h) = (p.settings.render.width, p.settings.render.height);
+        let (w, h) = (
+            p.settings.resolved.render.width,
+            p.settings.resolved.render.height,
+        );
         if (r.film.width(), r.film.height()) != (w, h) {
             return Err(CapiError::invalid(format!(
                 "reference is {}x{} but the job renders {w}x{h}",
@@ -123,7 +126,10 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
             .map(|(i, &n)| {
                 // SAFETY: each entry is NULL or a NUL-terminated string.
                 let name = unsafe { str_arg(n, &format!("integrators[{i}]")) }?;
-                Ok(Contender::from_spec(name, p.settings.integrator_settings)?)
+                Ok(Contender::from_spec(
+                    name,
+                    p.settings.resolved.integrator_settings,
+                )?)
             })
             .collect::<Result<Vec<_>, CapiError>>()?;
         let get = |k: &str| r.metadata.get(k)?.parse::<f64>().ok();
@@ -137,7 +143,7 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
         let pixels = r.film.radiance();
         let last = Mutex::new(0.0);
         let progress = j.progress_fn(p.settings.progress, &last);
-        let mut settings = p.settings.render.clone();
+        let mut settings = p.settings.resolved.render.clone();
         settings.time_limit = None;
         let cmp = compare(
             &j.scene.scene,

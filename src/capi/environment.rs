@@ -419,7 +419,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_environment_strategy(
     // SAFETY: forwarded contract.
     unsafe {
         super::job::with_settings("lacuna_render_job_set_environment_strategy", job, |s| {
-            s.integrator_settings.env = strategy_from_c(strategy)?;
+            s.resolved.integrator_settings.env = strategy_from_c(strategy)?;
             Ok(())
         })
     }
@@ -441,8 +441,8 @@ pub unsafe extern "C" fn lacuna_render_job_set_environment_samples(
                     "light_samples and bsdf_samples are both 0: at least one sample is needed",
                 ));
             }
-            s.integrator_settings.env_samples = light_samples;
-            s.integrator_settings.env_bsdf_samples = bsdf_samples;
+            s.resolved.integrator_settings.env_samples = light_samples;
+            s.resolved.integrator_settings.env_bsdf_samples = bsdf_samples;
             Ok(())
         })
     }

@@ -12,12 +12,14 @@ use super::context::LACUNA_MAX_THREADS;
 use super::film::{lacuna_film, stats_to_c};
 use super::scene::lacuna_scene;
 use super::types::*;
+use crate::analysis::Resolution;
 use crate::film::{ExrMetadata, Film};
 use crate::guide::SkeletonStrength;
-use crate::integrator::{self, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter};
+use crate::integrator::{self, Bdpt, Integrator, MisHeuristic, StrategyFilter};
 use crate::math::SamplerKind;
+use crate::render::settings::{resolve, resolve_camera, ResolvedSettings, SettingsOverrides};
 use crate::render::{Progress, RenderSettings, RenderStats};
-use crate::scene::{auto_camera, Camera};
+use crate::scene::Camera;
 
 /// Progress of a render: `user_data` as registered and the fraction done in [0, 1]. Return
 /// false to cancel (the run then fails with `LACUNA_STATUS_CANCELLED`). Called on Lacuna's
@@ -53,16 +55,15 @@ pub(crate) struct ProgressCallback {
 /// Settings of a job; copied at the start of each run.
 #[derive(Clone)]
 pub(crate) struct JobSettings {
-    pub integrator: String,
-    pub render: RenderSettings,
-    pub integrator_settings: IntegratorSettings,
+    /// Integrator, render and integrator settings (`render::settings::resolve`), changed by
+    /// the setters.
+    pub resolved: ResolvedSettings,
     pub camera: Option<Camera>,
     /// Thin lens (radius, focus distance) applied to whichever camera the run uses.
     pub lens: Option<(f32, f32)>,
     /// bdpt: one strategy only, and the longest path whose strategies get images.
     pub strategy: Option<StrategyFilter>,
     pub strategy_images: Option<u32>,
-    pub spp_set: bool,
     pub progress: Option<ProgressCallback>,
 }
 
@@ -70,13 +71,16 @@ impl JobSettings {
     /// The integrator these settings describe.
     pub(crate) fn make_integrator(&self) -> crate::error::Result<Box<dyn Integrator>> {
         if self.strategy.is_none() && self.strategy_images.is_none() {
-            return integrator::create(&self.integrator, self.integrator_settings);
+            return integrator::create(
+                &self.resolved.integrator,
+                self.resolved.integrator_settings,
+            );
         }
         // Only bdpt jobs can have these (checked by their setters).
-        if let Some(mis) = self.integrator_settings.mis {
+        if let Some(mis) = self.resolved.integrator_settings.mis {
             mis.check_supported("bdpt")?;
         }
-        let mut bdpt = Bdpt::new(self.integrator_settings);
+        let mut bdpt = Bdpt::new(self.resolved.integrator_settings);
         if let Some(f) = self.strategy {
             bdpt = bdpt.with_strategy(f)?;
         }
@@ -88,7 +92,7 @@ impl JobSettings {
 
     /// The integrator's name without its options.
     pub(crate) fn integrator_name(&self) -> &str {
-        self.integrator.split(':').next().unwrap_or_default().trim()
+        self.resolved.integrator_name()
     }
 
     /// Fails unless the job's integrator traces light subpaths (`bdpt` and the resampling
@@ -98,19 +102,19 @@ impl JobSettings {
             "bdpt" | "bdpt_skeleton" | "bdpt_ic" => Ok(()),
             _ => Err(CapiError::operation(format!(
                 "{what} applies to bdpt, bdpt_skeleton and bdpt_ic; this job renders with '{}'",
-                self.integrator
+                self.resolved.integrator
             ))),
         }
     }
 
     /// Fails unless the job's integrator is plain `bdpt` (its strategy filter and images).
     fn require_bidirectional(&self, what: &str) -> CapiResult<()> {
-        if self.integrator == "bdpt" {
+        if self.resolved.integrator == "bdpt" {
             Ok(())
         } else {
             Err(CapiError::operation(format!(
                 "{what} applies to the bdpt integrator; this job renders with '{}'",
-                self.integrator
+                self.resolved.integrator
             )))
         }
     }
@@ -162,17 +166,17 @@ impl lacuna_render_job {
         }
         let guard = RunGuard(self);
         let mut settings = lock(&self.settings).clone();
-        if settings.render.threads.is_none() {
-            settings.render.threads = self.scene.ctx.threads();
+        if settings.resolved.render.threads.is_none() {
+            settings.resolved.render.threads = self.scene.ctx.threads();
         }
-        let (w, h) = (settings.render.width, settings.render.height);
+        let (w, h) = (
+            settings.resolved.render.width,
+            settings.resolved.render.height,
+        );
         let integrator = settings.make_integrator()?;
         let layers = integrator.layers().len();
         crate::film::Film::check_budget(w, h, layers, self.scene.ctx.memory_budget())?;
-        let mut camera = settings
-            .camera
-            .or_else(|| self.scene.scene.camera().copied())
-            .unwrap_or_else(|| auto_camera(self.scene.scene.bounds(), w as f32 / h as f32));
+        let mut camera = resolve_camera(&self.scene.scene, settings.camera, w, h);
         if let Some((radius, focus)) = settings.lens {
             camera = camera.with_thin_lens(radius, focus)?;
         }
@@ -225,7 +229,7 @@ impl lacuna_render_job {
             p.integrator.as_mut(),
             &self.scene.scene,
             &p.camera,
-            p.settings.render.threads,
+            p.settings.resolved.render.threads,
             &|_, _| !self.cancel.load(Ordering::Relaxed),
         )?;
         // Wall-clock time, stage bookkeeping included; none for integrators needing nothing.
@@ -242,8 +246,10 @@ impl lacuna_render_job {
     /// host is the one the job would render with.
     pub(crate) fn skeleton_settings(&self) -> CapiResult<crate::guide::SkeletonGuideSettings> {
         let settings = lock(&self.settings);
-        let (_, applied) =
-            integrator::parse_spec(&settings.integrator, settings.integrator_settings)?;
+        let (_, applied) = integrator::parse_spec(
+            &settings.resolved.integrator,
+            settings.resolved.integrator_settings,
+        )?;
         Ok(applied.skeleton)
     }
 
@@ -257,14 +263,9 @@ impl lacuna_render_job {
     }
 
     pub(crate) fn metadata(&self, p: &Prepared, stats: &RenderStats) -> ExrMetadata {
-        ExrMetadata::default()
-            .with("spp", stats.spp)
-            .with("seed", p.settings.render.seed)
-            .with("sampler", p.settings.render.sampler.name())
-            .with("integrator", &p.settings.integrator)
-            .with("max_depth", p.settings.integrator_settings.max_depth)
-            .with("scene", &self.scene.label)
-            .with("seconds", format!("{:.3}", stats.seconds))
+        p.settings
+            .resolved
+            .metadata(&self.scene.label, stats.spp, stats.seconds)
     }
 
     pub(crate) fn make_film(
@@ -303,52 +304,26 @@ pub unsafe extern "C" fn lacuna_render_job_new(
         let s = unsafe { arg(scene, "scene") }?;
         call.context(&s.ctx);
         let out = out_ptr(out_job, "out_job")?;
-        let file = &s.settings;
-        let name = if integrator.is_null() {
-            file.integrator
-                .clone()
-                .unwrap_or_else(|| "path".to_string())
-        } else {
-            // SAFETY: a NUL-terminated string per the contract.
-            unsafe { str_arg(integrator, "integrator") }?.to_string()
+        let overrides = SettingsOverrides {
+            integrator: if integrator.is_null() {
+                None
+            } else {
+                // SAFETY: a NUL-terminated string per the contract.
+                Some(unsafe { str_arg(integrator, "integrator") }?.to_string())
+            },
+            ..Default::default()
         };
-        let mut integ = IntegratorSettings::default();
-        integ.apply_file(file)?;
-        integrator::create(&name, integ)?;
-        let mut render = RenderSettings::default();
-        if let Some(w) = file.width {
-            render.width = w;
-        }
-        if let Some(h) = file.height {
-            render.height = h;
-        }
-        if let Some(spp) = file.spp {
-            render.spp = spp;
-        }
-        if let Some(seed) = file.seed {
-            render.seed = seed;
-        }
-        if let Some(name) = &file.sampler {
-            render.sampler = SamplerKind::parse(name)?;
-        }
-        if let Some(t) = file.time {
-            render.time_limit = Some(Duration::from_secs_f64(t));
-            if file.spp.is_none() {
-                render.spp = u32::MAX;
-            }
-        }
+        let resolved = resolve(&s.settings, &overrides, |_| Ok(()))?;
+        integrator::create(&resolved.integrator, resolved.integrator_settings)?;
         let job = Box::new(lacuna_render_job {
             // SAFETY: `scene` is a live handle (checked above).
             scene: unsafe { arc_clone(scene) },
             settings: Mutex::new(JobSettings {
-                integrator: name,
-                render,
-                integrator_settings: integ,
+                resolved,
                 camera: None,
                 lens: None,
                 strategy: None,
                 strategy_images: None,
-                spp_set: file.spp.is_some(),
                 progress: None,
             }),
             cancel: AtomicBool::new(false),
@@ -405,8 +380,8 @@ pub unsafe extern "C" fn lacuna_render_job_set_samples_per_pixel(
             if spp == 0 {
                 return Err(CapiError::invalid("spp 0: at least 1 sample per pixel"));
             }
-            s.render.spp = spp;
-            s.spp_set = true;
+            s.resolved.render.spp = spp;
+            s.resolved.spp_given = true;
             Ok(())
         })
     }
@@ -423,9 +398,9 @@ pub unsafe extern "C" fn lacuna_render_job_set_time_budget(
     unsafe {
         with_settings("lacuna_render_job_set_time_budget", job, |s| {
             if seconds == 0.0 {
-                s.render.time_limit = None;
-                if !s.spp_set {
-                    s.render.spp = RenderSettings::default().spp;
+                s.resolved.render.time_limit = None;
+                if !s.resolved.spp_given {
+                    s.resolved.render.spp = RenderSettings::default().spp;
                 }
                 return Ok(());
             }
@@ -434,9 +409,9 @@ pub unsafe extern "C" fn lacuna_render_job_set_time_budget(
                     "time budget {seconds} s must be positive and finite (0 removes it)"
                 )));
             }
-            s.render.time_limit = Some(Duration::from_secs_f64(seconds));
-            if !s.spp_set {
-                s.render.spp = u32::MAX;
+            s.resolved.render.time_limit = Some(Duration::from_secs_f64(seconds));
+            if !s.resolved.spp_given {
+                s.resolved.render.spp = u32::MAX;
             }
             Ok(())
         })
@@ -453,7 +428,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_seed(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_seed", job, |s| {
-            s.render.seed = seed;
+            s.resolved.render.seed = seed;
             Ok(())
         })
     }
@@ -478,7 +453,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_max_depth(
                     "max_depth {max_depth} exceeds {LACUNA_MAX_DEPTH_LIMIT}"
                 )));
             }
-            s.integrator_settings.max_depth = max_depth;
+            s.resolved.integrator_settings.max_depth = max_depth;
             Ok(())
         })
     }
@@ -500,8 +475,8 @@ pub unsafe extern "C" fn lacuna_render_job_set_resolution(
                     "resolution {width}x{height} must be within 1..=65536 each"
                 )));
             }
-            s.render.width = width;
-            s.render.height = height;
+            s.resolved.render.width = width;
+            s.resolved.render.height = height;
             Ok(())
         })
     }
@@ -522,7 +497,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_thread_count(
                     "thread_count {thread_count} exceeds {LACUNA_MAX_THREADS}"
                 )));
             }
-            s.render.threads = (thread_count > 0).then_some(thread_count as usize);
+            s.resolved.render.threads = (thread_count > 0).then_some(thread_count as usize);
             Ok(())
         })
     }
@@ -539,7 +514,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_mis_heuristic", job, |s| {
-            s.integrator_settings.mis = Some(
+            s.resolved.integrator_settings.mis = Some(
                 match lacuna_mis_heuristic::from_c(heuristic, "heuristic")? {
                     lacuna_mis_heuristic::Balance => MisHeuristic::Balance,
                     lacuna_mis_heuristic::Power => MisHeuristic::Power,
@@ -562,7 +537,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_sampler(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_sampler", job, |s| {
-            s.render.sampler = match lacuna_sampler::from_c(sampler, "sampler")? {
+            s.resolved.render.sampler = match lacuna_sampler::from_c(sampler, "sampler")? {
                 lacuna_sampler::Sobol => SamplerKind::Sobol,
                 lacuna_sampler::Independent => SamplerKind::Independent,
             };
@@ -583,9 +558,10 @@ pub unsafe extern "C" fn lacuna_render_job_set_skeleton_probability(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_skeleton_probability", job, |s| {
-            s.integrator_settings
+            s.resolved
+                .integrator_settings
                 .skeleton
-                .set("c_skel", &c_skel.to_string())?;
+                .set_c_skel(Some(c_skel))?;
             Ok(())
         })
     }
@@ -603,7 +579,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_skeleton_strength(
         with_settings("lacuna_render_job_set_skeleton_strength", job, |s| {
             let fixed = SkeletonStrength::Fixed(strength);
             fixed.validate()?;
-            s.integrator_settings.skeleton.strength = fixed;
+            s.resolved.integrator_settings.skeleton.strength = fixed;
             Ok(())
         })
     }
@@ -623,7 +599,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_skeleton_strength_auto(
         with_settings("lacuna_render_job_set_skeleton_strength_auto", job, |s| {
             let auto = SkeletonStrength::Auto { max: max_strength };
             auto.validate()?;
-            s.integrator_settings.skeleton.strength = auto;
+            s.resolved.integrator_settings.skeleton.strength = auto;
             Ok(())
         })
     }
@@ -641,12 +617,14 @@ pub unsafe extern "C" fn lacuna_render_job_set_skeleton_resolution(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_skeleton_resolution", job, |s| {
-            let sk = &mut s.integrator_settings.skeleton;
-            if longest_axis_voxels > 0 {
-                sk.set("resolution", &longest_axis_voxels.to_string())?;
-            } else {
-                sk.set("voxel_budget", &voxel_budget.to_string())?;
-            }
+            let sk = &mut s.resolved.integrator_settings.skeleton;
+            sk.update(|sk| {
+                sk.resolution = if longest_axis_voxels > 0 {
+                    Resolution::LongestAxis(longest_axis_voxels)
+                } else {
+                    Resolution::VoxelBudget(voxel_budget)
+                }
+            })?;
             Ok(())
         })
     }
@@ -665,10 +643,12 @@ pub unsafe extern "C" fn lacuna_render_job_set_skeleton_importance(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_skeleton_importance", job, |s| {
-            let sk = &mut s.integrator_settings.skeleton;
-            sk.set("light_rays", &light_rays.to_string())?;
-            sk.set("importance_nodes", &importance_nodes.to_string())?;
-            sk.set("lobes", &lobes_per_node.to_string())?;
+            let sk = &mut s.resolved.integrator_settings.skeleton;
+            sk.update(|sk| {
+                sk.light_rays = light_rays;
+                sk.max_importance_nodes = importance_nodes;
+                sk.max_lobes = lobes_per_node;
+            })?;
             Ok(())
         })
     }
@@ -687,7 +667,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_skeleton_visibility_test(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_skeleton_visibility_test", job, |s| {
-            s.integrator_settings.skeleton.visibility_test = enabled;
+            s.resolved.integrator_settings.skeleton.visibility_test = enabled;
             Ok(())
         })
     }
@@ -781,7 +761,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_light_paths(
                     "count {count} exceeds {LACUNA_MAX_LIGHT_PATHS}"
                 )));
             }
-            s.integrator_settings.light_paths = (count > 0).then_some(count);
+            s.resolved.integrator_settings.light_paths = (count > 0).then_some(count);
             Ok(())
         })
     }
@@ -902,7 +882,7 @@ pub unsafe extern "C" fn lacuna_render_job_run(
             &j.scene.scene,
             &p.camera,
             p.integrator.as_ref(),
-            &p.settings.render,
+            &p.settings.resolved.render,
             &progress,
             &j.cancel,
         )?;
@@ -942,7 +922,7 @@ pub unsafe extern "C" fn lacuna_render_job_take_partial_film(
         let settings = lock(&j.settings).clone();
         let meta = ExrMetadata::default()
             .with("spp", stats.spp)
-            .with("integrator", &settings.integrator)
+            .with("integrator", &settings.resolved.integrator)
             .with("cancelled", "true");
         // SAFETY: checked non-NULL, writable per the contract.
         unsafe { write_out(out, j.make_film(film, meta, stats)) };

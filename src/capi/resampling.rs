@@ -17,25 +17,28 @@ fn require(s: &JobSettings, what: &str, integrators: &[&str]) -> CapiResult<()> 
         Err(CapiError::operation(format!(
             "{what} applies to {}; this job renders with '{}'",
             integrators.join(" and "),
-            s.integrator
+            s.resolved.integrator
         )))
     }
 }
 
-/// Sets option `key` to `value` (validated), replacing the same option in the integrator
-/// name so that the latest setting wins.
-fn set_option(s: &mut JobSettings, key: &str, value: &str) -> CapiResult<()> {
-    let mut resampling = s.integrator_settings.resampling;
-    resampling.set(key, value)?;
-    s.integrator_settings.resampling = resampling;
+/// Sets option `key` through its typed (validating) setter, and removes the same option from
+/// the integrator name so that the latest setting wins.
+fn set_option(
+    s: &mut JobSettings,
+    key: &str,
+    set: impl FnOnce(&mut ResamplingSettings) -> crate::error::Result<()>,
+) -> CapiResult<()> {
+    set(&mut s.resolved.integrator_settings.resampling)?;
     let kept: Vec<&str> = s
+        .resolved
         .integrator
         .split(':')
         .enumerate()
         .filter(|&(i, part)| i == 0 || part.split_once('=').map(|(k, _)| k.trim()) != Some(key))
         .map(|(_, part)| part)
         .collect();
-    s.integrator = kept.join(":");
+    s.resolved.integrator = kept.join(":");
     Ok(())
 }
 
@@ -48,7 +51,8 @@ unsafe fn current(job: *const lacuna_render_job, what: &str) -> CapiResult<Resam
     let j = unsafe { arg(job, "job") }?;
     let s = j.settings();
     require(&s, what, &["bdpt_skeleton", "bdpt_ic"])?;
-    let (_, applied) = integrator::parse_spec(&s.integrator, s.integrator_settings)?;
+    let (_, applied) =
+        integrator::parse_spec(&s.resolved.integrator, s.resolved.integrator_settings)?;
     Ok(applied.resampling)
 }
 
@@ -64,7 +68,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_resampling_subset(
     unsafe {
         with_settings("lacuna_render_job_set_resampling_subset", job, |s| {
             require(s, "the resampling subset", &["bdpt_skeleton", "bdpt_ic"])?;
-            set_option(s, "subset", &subset.to_string())
+            set_option(s, "subset", |r| r.set_subset(subset))
         })
     }
 }
@@ -83,7 +87,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_resampling_accept(
     unsafe {
         with_settings("lacuna_render_job_set_resampling_accept", job, |s| {
             require(s, "node acceptance", &["bdpt_skeleton"])?;
-            set_option(s, "accept", &accept.to_string())
+            set_option(s, "accept", |r| r.set_accept(accept))
         })
     }
 }
@@ -101,7 +105,10 @@ pub unsafe extern "C" fn lacuna_render_job_set_resampling_images(
     unsafe {
         with_settings("lacuna_render_job_set_resampling_images", job, |s| {
             require(s, "resampling images", &["bdpt_skeleton", "bdpt_ic"])?;
-            set_option(s, "images", if enabled { "true" } else { "false" })
+            set_option(s, "images", |r| {
+                r.images = enabled;
+                Ok(())
+            })
         })
     }
 }
@@ -118,7 +125,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_record_density(
     unsafe {
         with_settings("lacuna_render_job_set_record_density", job, |s| {
             require(s, "the record density", &["bdpt_ic"])?;
-            set_option(s, "density", &density.to_string())
+            set_option(s, "density", |r| r.set_density(density))
         })
     }
 }

@@ -55,44 +55,23 @@ impl Default for ResamplingSettings {
 pub const RESAMPLING_KEYS: &[&str] = &["subset", "accept", "images", "density"];
 
 impl ResamplingSettings {
-    /// Sets one option: `subset=N` (N >= 1), `accept=ALPHA` (ALPHA >= 0, finite),
+    /// Sets one option from text: `subset=N` (N >= 1), `accept=ALPHA` (ALPHA >= 0, finite),
     /// `images=true|false`, `density=D` (0 < D <= 1).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         match key {
-            "subset" => {
-                let n: u32 = value.parse().map_err(|_| {
-                    Error::invalid(format!("subset={value} must be a positive integer"))
-                })?;
-                if n == 0 || n > 1 << 24 {
-                    return Err(Error::invalid(format!(
-                        "subset={value} must be within 1..=16777216 light subpaths"
-                    )));
-                }
-                self.subset = n;
-            }
-            "accept" => {
-                let a: f32 = value
+            "subset" => self.set_subset(value.parse().map_err(|_| {
+                Error::invalid(format!("subset={value} must be a positive integer"))
+            })?),
+            "accept" => self.set_accept(
+                value
                     .parse()
-                    .map_err(|_| Error::invalid(format!("accept={value} must be a number")))?;
-                if !(a.is_finite() && a >= 0.0) {
-                    return Err(Error::invalid(format!(
-                        "accept={value} must be a finite number >= 0 (002: 0..1, default 1)"
-                    )));
-                }
-                self.accept = a;
-            }
-            "density" => {
-                let d: f32 = value
+                    .map_err(|_| Error::invalid(format!("accept={value} must be a number")))?,
+            ),
+            "density" => self.set_density(
+                value
                     .parse()
-                    .map_err(|_| Error::invalid(format!("density={value} must be a number")))?;
-                if !(d > 0.0 && d <= 1.0) {
-                    return Err(Error::invalid(format!(
-                        "density={value} must be in (0, 1]: the fraction of pixels whose eye \
-                         subpaths place importance records (002: 0.001)"
-                    )));
-                }
-                self.density = d;
-            }
+                    .map_err(|_| Error::invalid(format!("density={value} must be a number")))?,
+            ),
             "images" => {
                 self.images = match value {
                     "true" | "1" | "on" => true,
@@ -102,15 +81,47 @@ impl ResamplingSettings {
                             "images={value} must be true or false"
                         )))
                     }
-                }
+                };
+                Ok(())
             }
-            other => {
-                return Err(Error::invalid(format!(
-                    "no resampling option '{other}' (bdpt_skeleton: subset, accept, images, \
-                     resolution, voxel_budget; bdpt_ic: subset, density, images)"
-                )))
-            }
+            other => Err(Error::invalid(format!(
+                "no resampling option '{other}' (bdpt_skeleton: subset, accept, images, \
+                 resolution, voxel_budget; bdpt_ic: subset, density, images)"
+            ))),
         }
+    }
+
+    /// `subset`: light subpaths resampled from, 1..=2^24.
+    pub fn set_subset(&mut self, n: u32) -> Result<()> {
+        if n == 0 || n > 1 << 24 {
+            return Err(Error::invalid(format!(
+                "subset={n} must be within 1..=16777216 light subpaths"
+            )));
+        }
+        self.subset = n;
+        Ok(())
+    }
+
+    /// `accept`: node acceptance alpha_accept, finite and >= 0.
+    pub fn set_accept(&mut self, a: f32) -> Result<()> {
+        if !(a.is_finite() && a >= 0.0) {
+            return Err(Error::invalid(format!(
+                "accept={a} must be a finite number >= 0 (002: 0..1, default 1)"
+            )));
+        }
+        self.accept = a;
+        Ok(())
+    }
+
+    /// `density`: the fraction of pixels placing importance records, in (0, 1].
+    pub fn set_density(&mut self, d: f32) -> Result<()> {
+        if !(d > 0.0 && d <= 1.0) {
+            return Err(Error::invalid(format!(
+                "density={d} must be in (0, 1]: the fraction of pixels whose eye \
+                 subpaths place importance records (002: 0.001)"
+            )));
+        }
+        self.density = d;
         Ok(())
     }
 }

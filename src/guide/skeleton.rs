@@ -648,20 +648,10 @@ impl SkeletonGuideSettings {
         }
         let mut next = *self;
         match key {
-            "c_skel" if value.trim() == "learned" => next.learned_c_skel = true,
-            "c_skel" => {
-                next.c_skel = number(key, value)?;
-                next.learned_c_skel = false;
-            }
-            "strength" | "s" if value.trim() == "learned" => {
-                next.learned_strength = true;
-                next.imply_directions();
-            }
-            "strength" | "s" => {
-                next.strength = SkeletonStrength::parse(value)?;
-                next.learned_strength = false;
-                next.imply_directions();
-            }
+            "c_skel" if value.trim() == "learned" => next.change_c_skel(None),
+            "c_skel" => next.change_c_skel(Some(number(key, value)?)),
+            "strength" | "s" if value.trim() == "learned" => next.change_strength(None),
+            "strength" | "s" => next.change_strength(Some(SkeletonStrength::parse(value)?)),
             "lobe_weights" => {
                 next.learned_lobe_weights = match value.trim() {
                     "learned" => true,
@@ -740,6 +730,49 @@ impl SkeletonGuideSettings {
         next.validate()?;
         *self = next;
         Ok(())
+    }
+
+    /// Applies `change` and validates the result; on an error nothing changes. The typed way
+    /// to set options (command line, C API); [`set`](Self::set) parses text into the same
+    /// changes.
+    pub fn update(&mut self, change: impl FnOnce(&mut Self)) -> Result<()> {
+        let mut next = *self;
+        change(&mut next);
+        next.validate()?;
+        *self = next;
+        Ok(())
+    }
+
+    /// `c_skel`: one fixed probability, or `None` for `learned`.
+    pub fn set_c_skel(&mut self, c_skel: Option<f32>) -> Result<()> {
+        self.update(|s| s.change_c_skel(c_skel))
+    }
+
+    /// `strength`: one rule for every lobe, or `None` for `learned` (the strength set before
+    /// stays the training's proposal).
+    pub fn set_strength(&mut self, strength: Option<SkeletonStrength>) -> Result<()> {
+        self.update(|s| s.change_strength(strength))
+    }
+
+    fn change_c_skel(&mut self, c_skel: Option<f32>) {
+        match c_skel {
+            Some(c) => {
+                self.c_skel = c;
+                self.learned_c_skel = false;
+            }
+            None => self.learned_c_skel = true,
+        }
+    }
+
+    fn change_strength(&mut self, strength: Option<SkeletonStrength>) {
+        match strength {
+            Some(s) => {
+                self.strength = s;
+                self.learned_strength = false;
+            }
+            None => self.learned_strength = true,
+        }
+        self.imply_directions();
     }
 
     /// `lobe_weights=learned` and `strength=learned` weigh lobes: unless `directions` was

@@ -1218,6 +1218,20 @@ impl Integrator for Bdpt {
     }
 }
 
+/// `bdpt` in the integrator registry: no options of its own (`light_paths` is typed only).
+pub(super) const REGISTRATION: super::Registration = super::Registration {
+    name: "bdpt",
+    set_option: |_, _| Ok(false),
+    create: |settings| {
+        let bdpt = Bdpt::new(settings);
+        Ok(Box::new(match settings.light_paths {
+            Some(n) => bdpt.with_light_paths(n as usize)?, // validates n >= 1
+            None => bdpt,
+        }))
+    },
+    every_mis_heuristic: false,
+};
+
 #[cfg(test)]
 #[path = "bdpt_weights_tests.rs"]
 mod weights_tests;

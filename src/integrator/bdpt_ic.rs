@@ -427,3 +427,17 @@ impl Integrator for BdptIc {
         ]
     }
 }
+
+/// `bdpt_ic` in the integrator registry: the resampling's `subset`, `density` and `images`.
+pub(super) const REGISTRATION: super::Registration = super::Registration {
+    name: "bdpt_ic",
+    set_option: |settings, option| {
+        match option.key {
+            "subset" | "density" | "images" => settings.resampling.set(option.key, option.value)?,
+            _ => return Ok(false),
+        }
+        Ok(true)
+    },
+    create: |settings| Ok(Box::new(BdptIc::new(settings)?)),
+    every_mis_heuristic: false,
+};

@@ -513,3 +513,19 @@ impl Integrator for BdptSkeleton {
         ]
     }
 }
+
+/// `bdpt_skeleton` in the integrator registry: the resampling's `subset`, `accept` and
+/// `images`, and the skeleton's `resolution` and `voxel_budget`.
+pub(super) const REGISTRATION: super::Registration = super::Registration {
+    name: "bdpt_skeleton",
+    set_option: |settings, option| {
+        match option.key {
+            "resolution" | "voxel_budget" => settings.skeleton.set(option.key, option.value)?,
+            "subset" | "accept" | "images" => settings.resampling.set(option.key, option.value)?,
+            _ => return Ok(false),
+        }
+        Ok(true)
+    },
+    create: |settings| Ok(Box::new(BdptSkeleton::new(settings)?)),
+    every_mis_heuristic: false,
+};

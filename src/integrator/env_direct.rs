@@ -454,3 +454,19 @@ impl Integrator for EnvDirect {
         out
     }
 }
+
+/// `env_direct` in the integrator registry: `samples=N` (light samples per shading point) and
+/// `bsdf=N` (BSDF samples); the only integrator taking `mis=auto` and `mis=optimal`.
+pub(super) const REGISTRATION: super::Registration = super::Registration {
+    name: "env_direct",
+    set_option: |settings, option| {
+        match option.key {
+            "samples" => settings.env_samples = option.count()?,
+            "bsdf" => settings.env_bsdf_samples = option.count()?,
+            _ => return Ok(false),
+        }
+        Ok(true)
+    },
+    create: |settings| Ok(Box::new(EnvDirect::new(settings)?)),
+    every_mis_heuristic: true,
+};

@@ -42,8 +42,9 @@ impl MisHeuristic {
     /// Fails for `auto` and `optimal` in an integrator that combines one sample per strategy
     /// (`path`, `path_skeleton`, `bdpt`): they are implemented for `env_direct` only.
     pub fn check_supported(self, integrator: &str) -> Result<()> {
+        let every_heuristic = find(integrator).is_some_and(|r| r.every_mis_heuristic);
         match self {
-            MisHeuristic::Auto | MisHeuristic::Optimal if integrator != "env_direct" => {
+            MisHeuristic::Auto | MisHeuristic::Optimal if !every_heuristic => {
                 Err(Error::invalid(format!(
                     "mis={} is implemented for env_direct only, not for {integrator} (use balance or power)",
                     self.name()
@@ -110,16 +111,29 @@ impl Default for IntegratorSettings {
 impl IntegratorSettings {
     /// Applies what a scene file says about integrators: its maximum depth, `path_skeleton`
     /// guide options and the resampling options of `bdpt_skeleton` and `bdpt_ic`.
+    /// The file keeps these options raw: they are validated here, and an invalid one is an
+    /// [`Error::Parse`] naming the scene file and the option (`render.skeleton.c_skel`).
     pub fn apply_file(&mut self, file: &RenderSettingsFile) -> Result<()> {
         if let Some(d) = file.max_depth {
             crate::limits::check_max_depth("render.max_depth", d)?;
             self.max_depth = d;
         }
+        let located = |location: String, e: Error| match (&file.source, e) {
+            (Some(path), Error::InvalidArgument(message)) => Error::parse(path, location, message),
+            (None, Error::InvalidArgument(message)) => {
+                Error::invalid(format!("{location}: {message}"))
+            }
+            (_, other) => other,
+        };
         for (key, value) in file.skeleton_options() {
-            self.skeleton.set(&key, &value)?;
+            self.skeleton
+                .set(&key, &value)
+                .map_err(|e| located(format!("render.skeleton.{key}"), e))?;
         }
         for (key, value) in file.resampling_options() {
-            self.resampling.set(&key, &value)?;
+            self.resampling
+                .set(&key, &value)
+                .map_err(|e| located(format!("render.resampling.{key}"), e))?;
         }
         Ok(())
     }
@@ -277,15 +291,60 @@ pub trait Integrator: Send + Sync {
     ) -> PixelSample;
 }
 
-/// Names of the integrators this build offers.
-pub const NAMES: &[&str] = &[
-    "path",
-    "path_skeleton",
-    "bdpt",
-    "bdpt_skeleton",
-    "bdpt_ic",
-    "env_direct",
+/// One integrator as [`create`] and [`parse_spec`] know it: registering an integrator is one
+/// entry in [`REGISTRY`], defined beside the integrator in its own file.
+pub struct Registration {
+    pub name: &'static str,
+    /// Sets one of the integrator's own `NAME:KEY=VALUE` options (the shared `max_depth`,
+    /// `mis` and `env` are set before): `Ok(true)` when it is one, `Ok(false)` when the
+    /// integrator has no such option.
+    pub set_option: fn(&mut IntegratorSettings, &SpecOption) -> Result<bool>,
+    /// Makes the integrator from its settings (validating what is its own).
+    pub create: fn(IntegratorSettings) -> Result<Box<dyn Integrator>>,
+    /// Accepts `mis=auto` and `mis=optimal` (see [`MisHeuristic::check_supported`]).
+    pub every_mis_heuristic: bool,
+}
+
+/// The integrators this build offers, in the order help texts list them.
+pub const REGISTRY: &[Registration] = &[
+    path::PATH,
+    path::PATH_SKELETON,
+    bdpt::REGISTRATION,
+    bdpt_skeleton::REGISTRATION,
+    bdpt_ic::REGISTRATION,
+    env_direct::REGISTRATION,
 ];
+
+/// The registered integrator called `name`.
+pub fn find(name: &str) -> Option<&'static Registration> {
+    REGISTRY.iter().find(|r| r.name == name)
+}
+
+/// Names of the integrators this build offers.
+pub fn names() -> impl Iterator<Item = &'static str> {
+    REGISTRY.iter().map(|r| r.name)
+}
+
+/// One `KEY=VALUE` option of an integrator specification, as its integrator's
+/// [`Registration::set_option`] receives it.
+pub struct SpecOption<'a> {
+    pub key: &'a str,
+    pub value: &'a str,
+    /// The whole specification, for error messages.
+    pub spec: &'a str,
+}
+
+impl SpecOption<'_> {
+    /// The value as a non-negative integer.
+    pub fn count(&self) -> Result<u32> {
+        self.value.parse::<u32>().map_err(|_| {
+            Error::invalid(format!(
+                "integrator option {}={} in '{}' must be a non-negative integer",
+                self.key, self.value, self.spec
+            ))
+        })
+    }
+}
 
 /// Splits an integrator specification `NAME[:KEY=VALUE]...` into the name and the settings
 /// its options change, so one comparison can race variants of an integrator:
@@ -299,12 +358,16 @@ pub const NAMES: &[&str] = &[
 /// - `bdpt_skeleton`: `subset=N`, `accept=ALPHA`, `images=true` ([`ResamplingSettings::set`])
 ///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`;
 /// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`.
+///
+/// The shared options are set here, the others by the integrator's
+/// [`Registration::set_option`].
 pub fn parse_spec(
     spec: &str,
     mut settings: IntegratorSettings,
 ) -> Result<(&str, IntegratorSettings)> {
     let mut parts = spec.split(':');
     let name = parts.next().unwrap_or_default().trim();
+    let registration = find(name);
     let mut options = parts.peekable();
     while let Some(option) = options.next() {
         // "strength=auto:64" arrives split in two: glue a bare number back to `auto`.
@@ -320,47 +383,38 @@ pub fn parse_spec(
                 "integrator option '{option}' in '{spec}' must be KEY=VALUE"
             ))
         })?;
-        let (key, value) = (key.trim(), value.trim());
-        let count = || {
-            value.parse::<u32>().map_err(|_| {
-                Error::invalid(format!(
-                    "integrator option {key}={value} in '{spec}' must be a non-negative integer"
-                ))
-            })
+        let option = SpecOption {
+            key: key.trim(),
+            value: value.trim(),
+            spec,
         };
-        match key {
+        let known = match option.key {
             "max_depth" => {
-                settings.max_depth = count()?;
+                settings.max_depth = option.count()?;
                 crate::limits::check_max_depth(
                     &format!("integrator option max_depth in '{spec}'"),
                     settings.max_depth,
                 )?;
+                true
             }
-            "rr_depth" if name == "path" || name == "path_skeleton" => {
-                settings.rr_start_depth = count()?
+            "mis" => {
+                settings.mis = Some(MisHeuristic::parse(option.value)?);
+                true
             }
-            "triangles" if name == "path" || name == "path_skeleton" => {
-                settings.triangles = TriangleSampling::parse(value)?
+            "env" => {
+                settings.env = EnvStrategy::parse(option.value)?;
+                true
             }
-            "mis" => settings.mis = Some(MisHeuristic::parse(value)?),
-            "env" => settings.env = EnvStrategy::parse(value)?,
-            "samples" if name == "env_direct" => settings.env_samples = count()?,
-            "bsdf" if name == "env_direct" => settings.env_bsdf_samples = count()?,
-            _ if name == "path_skeleton" => settings.skeleton.set(key, value)?,
-            "resolution" | "voxel_budget" if name == "bdpt_skeleton" => {
-                settings.skeleton.set(key, value)?
-            }
-            "subset" | "accept" | "images" if name == "bdpt_skeleton" => {
-                settings.resampling.set(key, value)?
-            }
-            "subset" | "density" | "images" if name == "bdpt_ic" => {
-                settings.resampling.set(key, value)?
-            }
-            other => {
-                return Err(Error::invalid(format!(
-                    "integrator '{name}' has no option '{other}' (in '{spec}')"
-                )))
-            }
+            _ => match registration {
+                Some(r) => (r.set_option)(&mut settings, &option)?,
+                None => false,
+            },
+        };
+        if !known {
+            return Err(Error::invalid(format!(
+                "integrator '{name}' has no option '{}' (in '{spec}')",
+                option.key
+            )));
         }
     }
     Ok((name, settings))
@@ -370,25 +424,14 @@ pub fn parse_spec(
 pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integrator>> {
     let (name, settings) = parse_spec(spec, settings)?;
     crate::limits::check_max_depth("max_depth", settings.max_depth)?;
-    if let (true, Some(mis)) = (NAMES.contains(&name), settings.mis) {
+    let registration = find(name).ok_or_else(|| {
+        Error::invalid(format!(
+            "unknown integrator '{name}' (available: {})",
+            names().collect::<Vec<_>>().join(", ")
+        ))
+    })?;
+    if let Some(mis) = settings.mis {
         mis.check_supported(name)?;
     }
-    match name {
-        "env_direct" => Ok(Box::new(EnvDirect::new(settings)?)),
-        "path" => Ok(Box::new(PathTracer::new(settings))),
-        "path_skeleton" => Ok(Box::new(PathTracer::skeleton_guided(settings)?)),
-        "bdpt" => {
-            let bdpt = Bdpt::new(settings);
-            Ok(Box::new(match settings.light_paths {
-                Some(n) => bdpt.with_light_paths(n as usize)?, // validates n >= 1
-                None => bdpt,
-            }))
-        }
-        "bdpt_skeleton" => Ok(Box::new(BdptSkeleton::new(settings)?)),
-        "bdpt_ic" => Ok(Box::new(BdptIc::new(settings)?)),
-        other => Err(Error::invalid(format!(
-            "unknown integrator '{other}' (available: {})",
-            NAMES.join(", ")
-        ))),
-    }
+    (registration.create)(settings)
 }

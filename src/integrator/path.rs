@@ -680,3 +680,34 @@ impl PathTracer {
         out
     }
 }
+
+/// `path` in the integrator registry.
+pub(super) const PATH: super::Registration = super::Registration {
+    name: "path",
+    set_option: set_path_option,
+    create: |settings| Ok(Box::new(PathTracer::new(settings))),
+    every_mis_heuristic: false,
+};
+
+/// `path_skeleton` in the integrator registry: `path`'s options, then the guide's.
+pub(super) const PATH_SKELETON: super::Registration = super::Registration {
+    name: "path_skeleton",
+    set_option: |settings, option| {
+        if !set_path_option(settings, option)? {
+            settings.skeleton.set(option.key, option.value)?;
+        }
+        Ok(true)
+    },
+    create: |settings| Ok(Box::new(PathTracer::skeleton_guided(settings)?)),
+    every_mis_heuristic: false,
+};
+
+/// `path`'s own options: `rr_depth=D` and `triangles=area|solid_angle`.
+fn set_path_option(settings: &mut IntegratorSettings, option: &super::SpecOption) -> Result<bool> {
+    match option.key {
+        "rr_depth" => settings.rr_start_depth = option.count()?,
+        "triangles" => settings.triangles = crate::light::TriangleSampling::parse(option.value)?,
+        _ => return Ok(false),
+    }
+    Ok(true)
+}

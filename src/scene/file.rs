@@ -40,13 +40,20 @@ pub struct RenderSettingsFile {
     /// Time budget in seconds (render until it runs out instead of a fixed spp).
     pub time: Option<f64>,
     /// Options of `path_skeleton`'s guide by name (`c_skel`, `strength`, `resolution`, ...:
-    /// see `guide::SkeletonGuideSettings::set`), numbers, strings or booleans.
+    /// see `guide::SkeletonGuideSettings::set`), numbers, strings or booleans. Kept raw: the
+    /// integrator settings validate them where they are applied
+    /// (`integrator::IntegratorSettings::apply_file`), naming this file.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub skeleton: Option<BTreeMap<String, serde_json::Value>>,
     /// Options of the vertex-connection resampling of `bdpt_skeleton` and `bdpt_ic` by name
-    /// (`subset`, `accept`, `images`, `density`: see `guide::ResamplingSettings::set`).
+    /// (`subset`, `accept`, `images`, `density`: see `guide::ResamplingSettings::set`), kept
+    /// raw as `skeleton` is.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub resampling: Option<BTreeMap<String, serde_json::Value>>,
+    /// The scene file these settings came from (none for built-in scenes), so that an error
+    /// in an option found when it is applied names the file.
+    #[serde(skip)]
+    pub source: Option<PathBuf>,
 }
 
 /// Options of an object as (key, text) pairs, in key order.
@@ -424,7 +431,8 @@ pub fn load_scene_file(path: &Path) -> Result<LoadedScene> {
         other => other,
     };
 
-    let settings = file.render;
+    let mut settings = file.render;
+    settings.source = Some(path.to_path_buf());
     check_settings(&settings).map_err(|(loc, msg)| Error::parse(path, loc, msg))?;
 
     let mut builder = SceneBuilder::new();
@@ -595,18 +603,6 @@ fn check_settings(s: &RenderSettingsFile) -> std::result::Result<(), (String, St
                 format!("time {t} must be a positive number of seconds"),
             ));
         }
-    }
-    let mut skeleton = crate::guide::SkeletonGuideSettings::default();
-    for (key, value) in s.skeleton_options() {
-        skeleton
-            .set(&key, &value)
-            .map_err(|e| (format!("render.skeleton.{key}"), e.to_string()))?;
-    }
-    let mut resampling = crate::guide::ResamplingSettings::default();
-    for (key, value) in s.resampling_options() {
-        resampling
-            .set(&key, &value)
-            .map_err(|e| (format!("render.resampling.{key}"), e.to_string()))?;
     }
     if let Some(name) = &s.sampler {
         crate::math::SamplerKind::parse(name)
@@ -1150,6 +1146,7 @@ mod tests {
                     .into_iter()
                     .collect()
                 ),
+                source: Some(path.clone()),
             }
         );
         assert_eq!(
@@ -1345,26 +1342,6 @@ mod tests {
             (r#"{"render": {"width": 0}}"#, "render.width"),
             (r#"{"render": {"time": -1}}"#, "render.time"),
             (r#"{"render": {"sampler": "halton"}}"#, "render.sampler"),
-            (
-                r#"{"render": {"skeleton": {"c_skel": 1.5}}}"#,
-                "render.skeleton.c_skel",
-            ),
-            (
-                r#"{"render": {"skeleton": {"strength": "loud"}}}"#,
-                "render.skeleton.strength",
-            ),
-            (
-                r#"{"render": {"skeleton": {"colour": 1}}}"#,
-                "render.skeleton.colour",
-            ),
-            (
-                r#"{"render": {"resampling": {"subset": 0}}}"#,
-                "render.resampling.subset",
-            ),
-            (
-                r#"{"render": {"resampling": {"density": 2}}}"#,
-                "render.resampling.density",
-            ),
         ];
         for (json, loc) in cases {
             let path = dir.write("v.json", json);
