@@ -533,10 +533,10 @@ fn prepare(args: &SceneArgs, integrator_spec: Option<&str>, spp: SampleBudget) -
         integrator.light_paths = args.light_paths;
         integrator.env = env;
         if let Some(n) = args.env_samples {
-            integrator.env_samples = n;
+            integrator.env_direct.light_samples = n;
         }
         if let Some(n) = args.env_bsdf_samples {
-            integrator.env_bsdf_samples = n;
+            integrator.env_direct.bsdf_samples = n;
         }
         skeleton_overrides(&mut integrator.skeleton, args)
     })?;

@@ -12,6 +12,7 @@ use super::builder::lacuna_scene_builder;
 use super::job::lacuna_render_job;
 use super::scene::lacuna_scene;
 use super::types::*;
+use crate::integrator::EnvDirectOptions;
 use crate::light::environment::{EnvImage, Grid};
 use crate::light::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
 use crate::math::Rgb;
@@ -441,8 +442,10 @@ pub unsafe extern "C" fn lacuna_render_job_set_environment_samples(
                     "light_samples and bsdf_samples are both 0: at least one sample is needed",
                 ));
             }
-            s.resolved.integrator_settings.env_samples = light_samples;
-            s.resolved.integrator_settings.env_bsdf_samples = bsdf_samples;
+            s.resolved.integrator_settings.env_direct = EnvDirectOptions {
+                light_samples,
+                bsdf_samples,
+            };
             Ok(())
         })
     }

@@ -40,6 +40,25 @@ use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 /// The name of the layer `mis=auto` writes (see [`EnvDirect`]'s `layers`).
 pub const ALPHA_LAYER: &str = "alpha";
 
+/// `env_direct`'s own options (`env_direct:samples=N:bsdf=N`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EnvDirectOptions {
+    /// Environment light samples per shading point (N_L, split between cube faces by the
+    /// strategy).
+    pub light_samples: u32,
+    /// BSDF samples per shading point (N_B).
+    pub bsdf_samples: u32,
+}
+
+impl Default for EnvDirectOptions {
+    fn default() -> Self {
+        EnvDirectOptions {
+            light_samples: 30,
+            bsdf_samples: 30,
+        }
+    }
+}
+
 pub struct EnvDirect {
     settings: IntegratorSettings,
 }
@@ -49,13 +68,13 @@ impl EnvDirect {
         let light = if settings.env == EnvStrategy::BsdfOnly {
             0
         } else {
-            settings.env_samples
+            settings.env_direct.light_samples
         };
-        if light + settings.env_bsdf_samples == 0 {
+        if light + settings.env_direct.bsdf_samples == 0 {
             return Err(Error::invalid(format!(
                 "env_direct needs at least one light or BSDF sample per shading point (samples={}, bsdf={}, env={})",
-                settings.env_samples,
-                settings.env_bsdf_samples,
+                settings.env_direct.light_samples,
+                settings.env_direct.bsdf_samples,
                 settings.env.name()
             )));
         }
@@ -66,7 +85,7 @@ impl EnvDirect {
         if self.settings.env == EnvStrategy::BsdfOnly {
             0
         } else {
-            self.settings.env_samples
+            self.settings.env_direct.light_samples
         }
     }
 
@@ -232,7 +251,7 @@ impl EnvDirect {
         rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> (Rgb, Option<f32>) {
-        let (n_light, n_bsdf) = (self.light_samples(), self.settings.env_bsdf_samples);
+        let (n_light, n_bsdf) = (self.light_samples(), self.settings.env_direct.bsdf_samples);
         let total = n_light + n_bsdf;
         DRAWN.with(|cell| {
             let mut drawn = cell.take();
@@ -461,8 +480,8 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
     name: "env_direct",
     set_option: |settings, option| {
         match option.key {
-            "samples" => settings.env_samples = option.count()?,
-            "bsdf" => settings.env_bsdf_samples = option.count()?,
+            "samples" => settings.env_direct.light_samples = option.count()?,
+            "bsdf" => settings.env_direct.bsdf_samples = option.count()?,
             _ => return Ok(false),
         }
         Ok(true)

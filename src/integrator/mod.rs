@@ -15,7 +15,7 @@ pub use bdpt::{
 };
 pub use bdpt_ic::BdptIc;
 pub use bdpt_skeleton::{BdptSkeleton, ResamplingStats};
-pub use env_direct::{EnvDirect, ALPHA_LAYER};
+pub use env_direct::{EnvDirect, EnvDirectOptions, ALPHA_LAYER};
 #[cfg(feature = "diagnostics")]
 pub use path::diagnostics;
 pub use path::PathTracer;
@@ -80,10 +80,8 @@ pub struct IntegratorSettings {
     /// area (default) or by solid angle (`bdpt` always samples them by area: its MIS weights
     /// assume that density).
     pub triangles: TriangleSampling,
-    /// `env_direct`: environment light samples per shading point (N_L, split between cube
-    /// faces by the strategy) and BSDF samples (N_B).
-    pub env_samples: u32,
-    pub env_bsdf_samples: u32,
+    /// `env_direct`'s light and BSDF samples per shading point.
+    pub env_direct: EnvDirectOptions,
     /// `path_skeleton`: skeleton guiding (c_skel, strength, analysis resolution ...).
     pub skeleton: SkeletonGuideSettings,
     /// `bdpt_skeleton` and `bdpt_ic`: the resampling options (N, alpha_accept, record density
@@ -100,8 +98,7 @@ impl Default for IntegratorSettings {
             light_paths: None,
             env: EnvStrategy::default(),
             triangles: TriangleSampling::default(),
-            env_samples: 30,
-            env_bsdf_samples: 30,
+            env_direct: EnvDirectOptions::default(),
             skeleton: SkeletonGuideSettings::default(),
             resampling: ResamplingSettings::default(),
         }
