@@ -537,7 +537,7 @@ typedef struct lacuna_light_sampler lacuna_light_sampler;
 typedef struct lacuna_mesh lacuna_mesh;
 
 // An intensity distribution in candela over the type C angles (gamma from the nadir, C about
-// it), read from an IES LM-63 file. Immutable and refcounted
+// it), read from an IES LM-63 or EULUMDAT file. Immutable and refcounted
 // (`lacuna_photometric_profile_retain`/`_release`); every function is thread-safe. Scenes
 // holding a light made from it keep their own reference.
 typedef struct lacuna_photometric_profile lacuna_photometric_profile;
@@ -1824,17 +1824,24 @@ lacuna_status lacuna_mesh_get_counts(const struct lacuna_mesh *mesh,
                                      size_t *out_vertex_count,
                                      size_t *out_triangle_count);
 
-// Reads an IES LM-63 file (type C photometry; see docs/scene-format.md for what is read).
+// Reads a photometric file: EULUMDAT when its name ends in `.ldt` (any case), IES LM-63
+// otherwise (type C photometry; see docs/scene-format.md for what is read).
 // `LACUNA_STATUS_IO` when it cannot be read, `LACUNA_STATUS_PARSE` (naming the file and the
 // line) when its content is malformed or unsupported. Writes a new profile (one reference) to
 // `*out_profile`. Thread-safe.
-lacuna_status lacuna_photometric_profile_new_from_ies_file(const char *path,
-                                                           struct lacuna_photometric_profile **out_profile);
+lacuna_status lacuna_photometric_profile_new_from_file(const char *path,
+                                                       struct lacuna_photometric_profile **out_profile);
 
 // Parses `size` bytes of IES LM-63 text at `data` (copied; no NUL needed; at most 64 MiB).
 // Malformed content is `LACUNA_STATUS_PARSE`, located as `<memory>:line N`. Writes a new
 // profile (one reference) to `*out_profile`. Thread-safe.
 lacuna_status lacuna_photometric_profile_new_from_ies_buffer(const uint8_t *data,
+                                                             size_t size,
+                                                             struct lacuna_photometric_profile **out_profile);
+
+// Parses `size` bytes of EULUMDAT (`.ldt`) text at `data`, as
+// `lacuna_photometric_profile_new_from_ies_buffer` does IES text. Thread-safe.
+lacuna_status lacuna_photometric_profile_new_from_ldt_buffer(const uint8_t *data,
                                                              size_t size,
                                                              struct lacuna_photometric_profile **out_profile);
 

@@ -20,7 +20,7 @@ fn root() -> PathBuf {
 }
 
 fn ies(name: &str) -> Arc<PhotometricProfile> {
-    Arc::new(PhotometricProfile::from_ies_file(&root().join("scenes/ies").join(name)).unwrap())
+    Arc::new(PhotometricProfile::from_file(&root().join("scenes/ies").join(name)).unwrap())
 }
 
 /// An open box (floor and three walls) under `light`, with a camera looking in.

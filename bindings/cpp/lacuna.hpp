@@ -203,21 +203,27 @@ private:
     detail::Owned<lacuna_environment, lacuna_environment_free> e_;
 };
 
-/// A measured luminaire's intensity distribution (IES LM-63, type C). Copyable (copy =
+/// A measured luminaire's intensity distribution (IES LM-63 type C, or EULUMDAT). Copyable (copy =
 /// retain); immutable and thread-safe.
 class PhotometricProfile
     : public detail::Shared<lacuna_photometric_profile, lacuna_photometric_profile_retain,
                             lacuna_photometric_profile_release> {
 public:
     using Shared::Shared;
-    static PhotometricProfile from_ies_file(const std::string &path) {
+    /// An IES file, or EULUMDAT when the name ends in .ldt.
+    static PhotometricProfile from_file(const std::string &path) {
         lacuna_photometric_profile *p = nullptr;
-        detail::check(lacuna_photometric_profile_new_from_ies_file(path.c_str(), &p));
+        detail::check(lacuna_photometric_profile_new_from_file(path.c_str(), &p));
         return PhotometricProfile(p);
     }
     static PhotometricProfile from_ies_buffer(const void *data, size_t size) {
         lacuna_photometric_profile *p = nullptr;
         detail::check(lacuna_photometric_profile_new_from_ies_buffer(static_cast<const uint8_t *>(data), size, &p));
+        return PhotometricProfile(p);
+    }
+    static PhotometricProfile from_ldt_buffer(const void *data, size_t size) {
+        lacuna_photometric_profile *p = nullptr;
+        detail::check(lacuna_photometric_profile_new_from_ldt_buffer(static_cast<const uint8_t *>(data), size, &p));
         return PhotometricProfile(p);
     }
     lacuna_photometric_profile_info info() const {

@@ -1,5 +1,5 @@
 //! `lacuna_photometric_profile`: a measured luminaire's intensity distribution (an IES LM-63
-//! file), loaded from a file or a host buffer, queried and sampled by hosts, and placed in
+//! or EULUMDAT file), loaded from a file or a host buffer, queried and sampled by hosts, and placed in
 //! scenes as lights (`lacuna_scene_builder_add_photometric_light`).
 
 use std::ffi::c_char;
@@ -12,11 +12,12 @@ use crate::light::photometric::HorizontalSymmetry;
 use crate::light::PhotometricProfile;
 use crate::math::Vec2;
 
-/// Largest IES text accepted from a buffer (real files are a few kilobytes to a megabyte).
-const MAX_IES_BYTES: usize = 64 << 20;
+/// Largest photometric text accepted from a buffer (real files are a few kilobytes to a
+/// megabyte).
+const MAX_TEXT_BYTES: usize = 64 << 20;
 
 /// An intensity distribution in candela over the type C angles (gamma from the nadir, C about
-/// it), read from an IES LM-63 file. Immutable and refcounted
+/// it), read from an IES LM-63 or EULUMDAT file. Immutable and refcounted
 /// (`lacuna_photometric_profile_retain`/`_release`); every function is thread-safe. Scenes
 /// holding a light made from it keep their own reference.
 pub struct lacuna_photometric_profile {
@@ -59,24 +60,42 @@ fn new_handle(profile: PhotometricProfile) -> *mut lacuna_photometric_profile {
     })
 }
 
-/// Reads an IES LM-63 file (type C photometry; see docs/scene-format.md for what is read).
+/// Reads a photometric file: EULUMDAT when its name ends in `.ldt` (any case), IES LM-63
+/// otherwise (type C photometry; see docs/scene-format.md for what is read).
 /// `LACUNA_STATUS_IO` when it cannot be read, `LACUNA_STATUS_PARSE` (naming the file and the
 /// line) when its content is malformed or unsupported. Writes a new profile (one reference) to
 /// `*out_profile`. Thread-safe.
 #[no_mangle]
-pub unsafe extern "C" fn lacuna_photometric_profile_new_from_ies_file(
+pub unsafe extern "C" fn lacuna_photometric_profile_new_from_file(
     path: *const c_char,
     out_profile: *mut *mut lacuna_photometric_profile,
 ) -> lacuna_status {
-    boundary::status("lacuna_photometric_profile_new_from_ies_file", |_| {
+    boundary::status("lacuna_photometric_profile_new_from_file", |_| {
         // SAFETY: NULL or a NUL-terminated string.
         let path = unsafe { path_arg(path, "path") }?;
         let out = out_ptr(out_profile, "out_profile")?;
-        let profile = PhotometricProfile::from_ies_file(&path)?;
+        let profile = PhotometricProfile::from_file(&path)?;
         // SAFETY: checked non-NULL, writable per the contract.
         unsafe { write_out(out, new_handle(profile)) };
         Ok(())
     })
+}
+
+/// The `size` bytes at `data` (never NULL: a profile needs text), at most 64 MiB.
+///
+/// # Safety
+/// `data` must be NULL or readable for `size` bytes.
+unsafe fn text_arg<'a>(data: *const u8, size: usize) -> Result<&'a [u8], CapiError> {
+    if data.is_null() {
+        return Err(CapiError::null("data"));
+    }
+    if size > MAX_TEXT_BYTES {
+        return Err(CapiError::range(format!(
+            "{size} bytes of photometric text exceed the limit of {MAX_TEXT_BYTES}"
+        )));
+    }
+    // SAFETY: non-NULL and readable for `size` bytes per the contract; size is bounded.
+    Ok(unsafe { std::slice::from_raw_parts(data, size) })
 }
 
 /// Parses `size` bytes of IES LM-63 text at `data` (copied; no NUL needed; at most 64 MiB).
@@ -90,17 +109,28 @@ pub unsafe extern "C" fn lacuna_photometric_profile_new_from_ies_buffer(
 ) -> lacuna_status {
     boundary::status("lacuna_photometric_profile_new_from_ies_buffer", |_| {
         let out = out_ptr(out_profile, "out_profile")?;
-        if data.is_null() {
-            return Err(CapiError::null("data"));
-        }
-        if size > MAX_IES_BYTES {
-            return Err(CapiError::range(format!(
-                "{size} bytes of IES text exceed the limit of {MAX_IES_BYTES}"
-            )));
-        }
-        // SAFETY: non-NULL and readable for `size` bytes per the contract; size is bounded.
-        let bytes = unsafe { std::slice::from_raw_parts(data, size) };
+        // SAFETY: forwarded contract.
+        let bytes = unsafe { text_arg(data, size) }?;
         let profile = PhotometricProfile::from_ies_bytes(bytes)?;
+        // SAFETY: checked non-NULL, writable per the contract.
+        unsafe { write_out(out, new_handle(profile)) };
+        Ok(())
+    })
+}
+
+/// Parses `size` bytes of EULUMDAT (`.ldt`) text at `data`, as
+/// `lacuna_photometric_profile_new_from_ies_buffer` does IES text. Thread-safe.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_photometric_profile_new_from_ldt_buffer(
+    data: *const u8,
+    size: usize,
+    out_profile: *mut *mut lacuna_photometric_profile,
+) -> lacuna_status {
+    boundary::status("lacuna_photometric_profile_new_from_ldt_buffer", |_| {
+        let out = out_ptr(out_profile, "out_profile")?;
+        // SAFETY: forwarded contract.
+        let bytes = unsafe { text_arg(data, size) }?;
+        let profile = PhotometricProfile::from_ldt_bytes(bytes)?;
         // SAFETY: checked non-NULL, writable per the contract.
         unsafe { write_out(out, new_handle(profile)) };
         Ok(())

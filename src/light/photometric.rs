@@ -63,28 +63,46 @@ pub struct PhotometricProfile {
 }
 
 impl PhotometricProfile {
-    /// Reads an IES LM-63 file (1986, 1991, 1995, 2002 or 2019 format). An unreadable file is
+    /// Reads a photometric file: IES LM-63 (`.ies`, 1986 to 2019 formats) or EULUMDAT
+    /// (`.ldt`), told apart by the extension (any other is read as IES). An unreadable file is
     /// an I/O error; malformed content a parse error naming the file and the line.
-    pub fn from_ies_file(path: &Path) -> Result<Self> {
+    pub fn from_file(path: &Path) -> Result<Self> {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        Self::parse_ies(&bytes, path)
+        let ldt = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("ldt"));
+        if ldt {
+            Self::parse(&bytes, path, LdtTable::parse)
+        } else {
+            Self::parse(&bytes, path, IesTable::parse)
+        }
     }
 
     /// Parses IES LM-63 text handed over in memory; errors are parse errors located in
     /// `<memory>`.
     pub fn from_ies_bytes(bytes: &[u8]) -> Result<Self> {
-        Self::parse_ies(bytes, Path::new("<memory>"))
+        Self::parse(bytes, Path::new("<memory>"), IesTable::parse)
     }
 
-    /// Bytes that are not UTF-8 (files are often Latin-1) only matter in keyword lines, which
+    /// Parses EULUMDAT text handed over in memory; errors are parse errors located in
+    /// `<memory>`.
+    pub fn from_ldt_bytes(bytes: &[u8]) -> Result<Self> {
+        Self::parse(bytes, Path::new("<memory>"), LdtTable::parse)
+    }
+
+    /// Bytes that are not UTF-8 (files are often Latin-1) only matter in text fields, which
     /// are not used.
-    fn parse_ies(bytes: &[u8], path: &Path) -> Result<Self> {
+    fn parse(
+        bytes: &[u8],
+        path: &Path,
+        parser: fn(&str) -> std::result::Result<Table, ParseError>,
+    ) -> Result<Self> {
         let text = String::from_utf8_lossy(bytes);
-        let ies = IesTable::parse(&text).map_err(|(line, message)| {
+        let table = parser(&text).map_err(|(line, message)| {
             let location = line.map_or(String::new(), |l| format!("line {l}"));
             Error::parse(path, location, message)
         })?;
-        Self::from_table(ies.gamma_degrees, ies.c_degrees, ies.candela).map_err(|e| match e {
+        Self::from_table(table.gamma_degrees, table.c_degrees, table.candela).map_err(|e| match e {
             Error::InvalidArgument(message) => Error::parse(path, "", message),
             other => other,
         })
@@ -365,18 +383,21 @@ fn bracket(knots: &[f32], x: f32) -> Option<(usize, usize, f32)> {
     Some((i - 1, i, ((x - a) / (b - a)).clamp(0.0, 1.0)))
 }
 
-/// The numbers of an LM-63 file that Lacuna uses, with the multipliers applied.
-struct IesTable {
+/// The angles and candela of a photometric file, with its multipliers applied.
+struct Table {
     gamma_degrees: Vec<f32>,
     c_degrees: Vec<f32>,
     candela: Vec<f32>,
 }
 
+/// IES LM-63 files.
+struct IesTable;
+
 /// A parse error: the line (1-based) where it was found, if any, and the message.
 type ParseError = (Option<usize>, String);
 
 impl IesTable {
-    fn parse(text: &str) -> std::result::Result<IesTable, ParseError> {
+    fn parse(text: &str) -> std::result::Result<Table, ParseError> {
         let mut lines = text.lines().enumerate();
         let (tilt_line, tilt) = loop {
             let Some((i, line)) = lines.next() else {
@@ -469,8 +490,189 @@ impl IesTable {
         for v in &mut candela {
             *v = (*v as f64 * scale) as f32;
         }
-        Ok(IesTable {
+        Ok(Table {
             gamma_degrees,
+            c_degrees,
+            candela,
+        })
+    }
+}
+
+/// EULUMDAT files: one value per line, intensities in cd per 1000 lm of lamp flux.
+struct LdtTable;
+
+/// The lines of an EULUMDAT file, read in order.
+struct LdtLines<'a> {
+    lines: Vec<&'a str>,
+    at: usize,
+}
+
+impl LdtLines<'_> {
+    /// The next line, trimmed, with its 1-based number.
+    fn text(&mut self, what: &str) -> std::result::Result<(usize, &str), ParseError> {
+        let line = self
+            .lines
+            .get(self.at)
+            .map(|l| l.trim())
+            .ok_or_else(|| (None, format!("the file ends before the {what}")))?;
+        self.at += 1;
+        Ok((self.at, line))
+    }
+
+    fn number(&mut self, what: &str) -> std::result::Result<f64, ParseError> {
+        let (line, text) = self.text(what)?;
+        // Some writers use a decimal comma.
+        match text.replace(',', ".").parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            _ => Err((
+                Some(line),
+                format!("{what} '{text}' is not a finite number"),
+            )),
+        }
+    }
+}
+
+impl LdtTable {
+    fn parse(text: &str) -> std::result::Result<Table, ParseError> {
+        let mut lines = LdtLines {
+            lines: text.lines().collect(),
+            at: 0,
+        };
+        let count = |v: f64, line: usize, what: &str, max: usize| {
+            if v.fract() != 0.0 || v < 1.0 || v > max as f64 {
+                Err((
+                    Some(line),
+                    format!("{what} {v} must be a whole number from 1 to {max}"),
+                ))
+            } else {
+                Ok(v as usize)
+            }
+        };
+        // Lines 1-3: company, type indicator, symmetry indicator.
+        let _ = lines.text("company identification")?;
+        let _ = lines.number("type indicator")?;
+        let symmetry = lines.number("symmetry indicator")?;
+        let symmetry_line = 3;
+        let n_c_raw = lines.number("number of C planes")?;
+        let n_c = count(n_c_raw, 4, "number of C planes", MAX_ANGLES)?;
+        let _ = lines.number("distance between C planes")?;
+        let n_g_raw = lines.number("number of gamma angles")?;
+        let n_g = count(n_g_raw, 6, "number of gamma angles", MAX_ANGLES)?;
+        let _ = lines.number("distance between gamma angles")?;
+        // Lines 8-12: report number, luminaire name and number, file name, date and user.
+        for what in [
+            "measurement report number",
+            "luminaire name",
+            "luminaire number",
+            "file name",
+            "date",
+        ] {
+            lines.text(what)?;
+        }
+        // Lines 13-25: dimensions, luminous area, downward flux fraction, light output ratio,
+        // conversion factor, tilt.
+        for what in [
+            "luminaire length",
+            "luminaire width",
+            "luminaire height",
+            "luminous area length",
+            "luminous area width",
+            "luminous area height C0",
+            "luminous area height C90",
+            "luminous area height C180",
+            "luminous area height C270",
+            "downward flux fraction",
+            "light output ratio",
+        ] {
+            lines.number(what)?;
+        }
+        let conversion = lines.number("conversion factor")?;
+        let _ = lines.number("tilt")?;
+        let sets_raw = lines.number("number of lamp sets")?;
+        let sets = count(sets_raw, 26, "number of lamp sets", 20)?;
+        // Per set: lamp count, lamp type, total flux, colour temperature, colour rendering,
+        // wattage; each field is a block of `sets` lines.
+        for _ in 0..sets {
+            lines.number("number of lamps")?;
+        }
+        for _ in 0..sets {
+            lines.text("lamp type")?;
+        }
+        let mut flux = 0.0;
+        for _ in 0..sets {
+            flux += lines.number("total lamp flux")?;
+        }
+        for _ in 0..sets {
+            lines.text("colour temperature")?;
+        }
+        for _ in 0..sets {
+            lines.text("colour rendering index")?;
+        }
+        for _ in 0..sets {
+            lines.number("wattage")?;
+        }
+        for _ in 0..10 {
+            lines.number("direct ratio")?;
+        }
+        let c_all = (0..n_c)
+            .map(|i| lines.number(&format!("C angle {} of {n_c}", i + 1)))
+            .collect::<std::result::Result<Vec<f64>, _>>()?;
+        let gamma = (0..n_g)
+            .map(|i| lines.number(&format!("gamma angle {} of {n_g}", i + 1)))
+            .collect::<std::result::Result<Vec<f64>, _>>()?;
+        // The C planes stored, by the symmetry indicator (EN 13032-1): 0 all, 1 one (about the
+        // vertical axis), 2 C0 to C180, 3 C90 to C270, 4 C0 to C90.
+        let code = if symmetry.fract() == 0.0 && (0.0..=4.0).contains(&symmetry) {
+            symmetry as u32
+        } else {
+            return Err((
+                Some(symmetry_line),
+                format!("symmetry indicator {symmetry} is not 0, 1, 2, 3 or 4"),
+            ));
+        };
+        let (first, stored) = match code {
+            0 => (0, n_c),
+            1 => (0, 1),
+            2 => (0, n_c / 2 + 1),
+            3 => (n_c / 4, n_c / 2 + 1),
+            _ => (0, n_c / 4 + 1),
+        };
+        if first + stored > n_c || n_g * stored > MAX_VALUES {
+            return Err((
+                Some(4),
+                format!("{n_c} C planes do not fit symmetry indicator {symmetry}"),
+            ));
+        }
+        let scale = flux * conversion / 1000.0;
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err((
+                None,
+                format!(
+                    "total lamp flux {flux} x conversion factor {conversion} must be finite and > 0"
+                ),
+            ));
+        }
+        let mut candela = Vec::with_capacity(n_g * stored);
+        for plane in 0..stored {
+            for i in 0..n_g {
+                let v = lines.number(&format!(
+                    "intensity {} of {n_g} in stored C plane {}",
+                    i + 1,
+                    plane + 1
+                ))?;
+                candela.push((v * scale) as f32);
+            }
+        }
+        let c_degrees = if code == 1 {
+            vec![0.0]
+        } else {
+            c_all[first..first + stored]
+                .iter()
+                .map(|&c| c as f32)
+                .collect()
+        };
+        Ok(Table {
+            gamma_degrees: gamma.iter().map(|&g| g as f32).collect(),
             c_degrees,
             candela,
         })
@@ -679,6 +881,82 @@ TILT=NONE
         assert!(chi2 < limit, "chi2 {chi2} over {dof} bins (limit {limit})");
     }
 
+    /// An EULUMDAT file of f (cd per 1000 lm, lamp flux 2000 lm) over 24 C planes and gamma
+    /// 0-180 in 10 degree steps, storing the planes `symmetry` says.
+    fn ldt(symmetry: u32, f: impl Fn(f32, f32) -> f32) -> String {
+        let mut lines: Vec<String> = vec!["Lacuna test".into(), "1".into(), symmetry.to_string()];
+        lines.extend(["24", "15", "19", "10"].map(String::from));
+        lines.extend(["report", "luminaire", "LAC-1", "test.ldt", "2026-12-05"].map(String::from));
+        lines.extend(["100", "100", "50", "90", "90", "0", "0", "0", "0"].map(String::from));
+        lines.extend(
+            [
+                "100", "85,5", "1.0", "0", "1", "1", "LED", "2000", "3000", "80", "12",
+            ]
+            .map(String::from),
+        );
+        lines.extend((0..10).map(|i| format!("0.{}", 5 + i % 5)));
+        lines.extend((0..24).map(|i| (i * 15).to_string()));
+        lines.extend((0..19).map(|i| (i * 10).to_string()));
+        let planes: Vec<usize> = match symmetry {
+            0 => (0..24).collect(),
+            1 => vec![0],
+            2 => (0..13).collect(),
+            3 => (6..19).collect(),
+            _ => (0..7).collect(),
+        };
+        for p in planes {
+            for g in 0..19 {
+                lines.push(format!("{}", f((g * 10) as f32, (p * 15) as f32)));
+            }
+        }
+        lines.join("\r\n")
+    }
+
+    #[test]
+    fn eulumdat_files_give_the_same_profile_for_every_symmetry() {
+        let f = |g: f32, c: f32| {
+            let (g, c) = (g.to_radians(), c.to_radians());
+            10.0 + 5.0 * g.cos() + 3.0 * (2.0 * c).cos() * g.sin()
+        };
+        let gamma: Vec<f32> = (0..19).map(|i| i as f32 * 10.0).collect();
+        let cs: Vec<f32> = (0..=24).map(|i| i as f32 * 15.0).collect();
+        let values = cs
+            .iter()
+            .flat_map(|&c| gamma.iter().map(move |&g| 2.0 * f(g, c)))
+            .collect();
+        let full = PhotometricProfile::from_table(gamma, cs, values).unwrap();
+        let mut rng = Rng::new(8, 0);
+        for (symmetry, expected) in [
+            (0, HorizontalSymmetry::Full),
+            (2, HorizontalSymmetry::Bilateral0To180),
+            (3, HorizontalSymmetry::Bilateral90To270),
+            (4, HorizontalSymmetry::Quadrant),
+        ] {
+            let p = PhotometricProfile::from_ldt_bytes(ldt(symmetry, f).as_bytes()).unwrap();
+            assert_eq!(p.symmetry(), expected);
+            for _ in 0..1000 {
+                let d = warp::uniform_sphere(rng.uniform2());
+                let (a, b) = (full.intensity(d), p.intensity(d));
+                assert!((a - b).abs() < 1e-3 * a, "Isym {symmetry} {d}: {a} vs {b}");
+            }
+        }
+        let round = PhotometricProfile::from_ldt_bytes(ldt(1, |g, _| 100.0 - g / 2.0).as_bytes());
+        let round = round.unwrap();
+        assert_eq!(round.symmetry(), HorizontalSymmetry::Rotational);
+        assert_eq!(round.peak(), 200.0);
+        // Errors: a bad symmetry indicator, a truncated table, a missing lamp flux.
+        let error = |text: String| {
+            PhotometricProfile::from_ldt_bytes(text.as_bytes())
+                .unwrap_err()
+                .to_string()
+        };
+        let text = ldt(4, f);
+        assert!(error(text.replacen("\r\n4\r\n", "\r\n7\r\n", 1)).contains("symmetry indicator 7"));
+        let cut = text.rfind("\r\n").unwrap();
+        assert!(error(text[..cut].to_string()).contains("ends before the intensity 19 of 19"));
+        assert!(error(text.replacen("\r\n2000\r\n", "\r\nx\r\n", 1)).contains("line 29"));
+    }
+
     #[test]
     fn bad_and_truncated_files_get_clear_errors() {
         let error = |text: &str| {
@@ -717,16 +995,24 @@ TILT=NONE
     #[test]
     fn arbitrary_bytes_never_panic() {
         let mut rng = Rng::new(21, 0);
-        let base = DOWNLIGHT.as_bytes();
+        let eulumdat = ldt(0, |g, c| 1.0 + g + c);
         for _ in 0..2000 {
-            let mut bytes = base.to_vec();
-            let cut = (rng.uniform() * bytes.len() as f32) as usize;
-            bytes.truncate(cut.max(1));
-            for _ in 0..3 {
-                let i = (rng.uniform() * bytes.len() as f32) as usize % bytes.len();
-                bytes[i] = (rng.uniform() * 256.0) as u8;
+            for (base, parse) in [
+                (
+                    DOWNLIGHT.as_bytes(),
+                    PhotometricProfile::from_ies_bytes as fn(&[u8]) -> _,
+                ),
+                (eulumdat.as_bytes(), PhotometricProfile::from_ldt_bytes),
+            ] {
+                let mut bytes = base.to_vec();
+                let cut = (rng.uniform() * bytes.len() as f32) as usize;
+                bytes.truncate(cut.max(1));
+                for _ in 0..3 {
+                    let i = (rng.uniform() * bytes.len() as f32) as usize % bytes.len();
+                    bytes[i] = (rng.uniform() * 256.0) as u8;
+                }
+                let _ = parse(&bytes);
             }
-            let _ = PhotometricProfile::from_ies_bytes(&bytes);
         }
     }
 }

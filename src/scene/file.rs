@@ -198,10 +198,11 @@ enum LightSpec {
         direction: [f32; 3],
         irradiance: Colour,
     },
-    /// A measured luminaire from an IES LM-63 file (relative to the scene file): radiant
-    /// intensity `intensity` times the file's candela. `direction` is where the profile's
-    /// nadir points, `c0` the axis of its C0 plane (optional).
-    Ies {
+    /// A measured luminaire from an IES LM-63 or EULUMDAT file (relative to the scene file):
+    /// radiant intensity `intensity` times the file's candela. `direction` is where the
+    /// profile's nadir points, `c0` the axis of its C0 plane (optional).
+    #[serde(alias = "ies")]
+    Photometric {
         file: PathBuf,
         position: [f32; 3],
         direction: [f32; 3],
@@ -731,7 +732,7 @@ impl LightSpec {
                 direction: Vec3::from(direction),
                 irradiance: irradiance.rgb(),
             },
-            LightSpec::Ies {
+            LightSpec::Photometric {
                 ref file,
                 position,
                 direction,
@@ -742,7 +743,7 @@ impl LightSpec {
                 direction: Vec3::from(direction),
                 c0: Vec3::from(c0),
                 intensity: intensity.rgb(),
-                profile: Arc::new(PhotometricProfile::from_ies_file(&dir.join(file))?),
+                profile: Arc::new(PhotometricProfile::from_file(&dir.join(file))?),
             },
         })
     }

@@ -112,8 +112,9 @@ static void test_photometric(const lacuna::Context &ctx) {
     auto [d, pdf] = p.sample(0.25f, 0.5f);
     CHECK(pdf > 0 && std::fabs(p.pdf(d) - pdf) <= 1e-3f * pdf);
     EXPECT_ERROR(lacuna::PhotometricProfile::from_ies_buffer(ies, 30), LACUNA_STATUS_PARSE, "ends before");
-    EXPECT_ERROR(lacuna::PhotometricProfile::from_ies_file("/nonexistent/lamp.ies"), LACUNA_STATUS_IO, "lamp.ies");
+    EXPECT_ERROR(lacuna::PhotometricProfile::from_file("/nonexistent/lamp.ies"), LACUNA_STATUS_IO, "lamp.ies");
     EXPECT_ERROR(p.sample(1.5f, 0), LACUNA_STATUS_OUT_OF_RANGE, "u0");
+    EXPECT_ERROR(lacuna::PhotometricProfile::from_ldt_buffer(ies, sizeof ies - 1), LACUNA_STATUS_PARSE, "line");
     lacuna::SceneBuilder b(ctx);
     EXPECT_ERROR(b.add_photometric_light(p, lacuna::vec3(0, 0, 0), lacuna::vec3(0, 0, 0), lacuna::vec3(1, 0, 0),
                                          lacuna::rgb(1, 1, 1)),

@@ -22,6 +22,14 @@ static const char IES[] =
     "100 60 10 0\n"
     "100 40 5 0\n";
 
+/* A rotationally symmetric EULUMDAT file: 100, 50, 0 cd/klm at gamma 0, 45, 90, 1000 lm. */
+static const char LDT[] =
+    "C test\n1\n1\n1\n0\n3\n45\nreport\nname\nnumber\nfile.ldt\ndate\n"
+    "0\n0\n0\n0\n0\n0\n0\n0\n0\n"
+    "100\n100\n1\n0\n1\n1\nLED\n1000\n3000\n80\n10\n"
+    "0.5\n0.5\n0.5\n0.5\n0.5\n0.5\n0.5\n0.5\n0.5\n0.5\n"
+    "0\n0\n45\n90\n100\n50\n0\n";
+
 static int close_to(float a, float b, float tolerance) { return fabsf(a - b) <= tolerance * fmaxf(1.0f, fabsf(b)); }
 
 static void test_loading(void) {
@@ -37,8 +45,8 @@ static void test_loading(void) {
     EXPECT(lacuna_photometric_profile_new_from_ies_buffer((const uint8_t *)"hello", 5, &p), LACUNA_STATUS_PARSE,
            "TILT");
     CHECK(p == NULL);
-    EXPECT(lacuna_photometric_profile_new_from_ies_file(NULL, &p), LACUNA_STATUS_NULL_POINTER, "path");
-    EXPECT(lacuna_photometric_profile_new_from_ies_file(path_in_dir("missing.ies"), &p), LACUNA_STATUS_IO,
+    EXPECT(lacuna_photometric_profile_new_from_file(NULL, &p), LACUNA_STATUS_NULL_POINTER, "path");
+    EXPECT(lacuna_photometric_profile_new_from_file(path_in_dir("missing.ies"), &p), LACUNA_STATUS_IO,
            "missing.ies");
     /* A type B file, written to disk: the error names the file and the line. */
     const char *bad_path = path_in_dir("typeb.ies");
@@ -49,7 +57,7 @@ static void test_loading(void) {
         fwrite(bad, 1, strlen(bad), f);
         fclose(f);
     }
-    EXPECT(lacuna_photometric_profile_new_from_ies_file(bad_path, &p), LACUNA_STATUS_PARSE, "typeb.ies:line 3");
+    EXPECT(lacuna_photometric_profile_new_from_file(bad_path, &p), LACUNA_STATUS_PARSE, "typeb.ies:line 3");
     CHECK(p == NULL);
 
     /* The good file from disk and from memory give the same profile. */
@@ -61,7 +69,7 @@ static void test_loading(void) {
         fclose(f);
     }
     lacuna_photometric_profile *from_file = NULL;
-    OK(lacuna_photometric_profile_new_from_ies_file(good_path, &from_file));
+    OK(lacuna_photometric_profile_new_from_file(good_path, &from_file));
     OK(lacuna_photometric_profile_new_from_ies_buffer((const uint8_t *)IES, strlen(IES), &p));
     lacuna_photometric_profile_info a, b;
     OK(lacuna_photometric_profile_get_info(p, &a));
@@ -73,6 +81,18 @@ static void test_loading(void) {
     EXPECT(lacuna_photometric_profile_get_info(NULL, &a), LACUNA_STATUS_NULL_POINTER, "profile");
     EXPECT(lacuna_photometric_profile_get_info(p, NULL), LACUNA_STATUS_NULL_POINTER, "out_info");
     lacuna_photometric_profile_release(from_file);
+
+    /* EULUMDAT from memory, and its errors. */
+    lacuna_photometric_profile *ldt = NULL;
+    OK(lacuna_photometric_profile_new_from_ldt_buffer((const uint8_t *)LDT, strlen(LDT), &ldt));
+    OK(lacuna_photometric_profile_get_info(ldt, &b));
+    CHECK(b.symmetry == LACUNA_PHOTOMETRIC_SYMMETRY_ROTATIONAL && b.peak_candela == 100.0f);
+    lacuna_photometric_profile_release(ldt);
+    EXPECT(lacuna_photometric_profile_new_from_ldt_buffer(NULL, 3, &ldt), LACUNA_STATUS_NULL_POINTER, "data");
+    EXPECT(lacuna_photometric_profile_new_from_ldt_buffer((const uint8_t *)LDT, strlen(LDT) - 4, &ldt),
+           LACUNA_STATUS_PARSE, "ends before");
+    EXPECT(lacuna_photometric_profile_new_from_ldt_buffer((const uint8_t *)LDT, 10, NULL), LACUNA_STATUS_NULL_POINTER,
+           "out_profile");
     lacuna_photometric_profile_retain(NULL);
     lacuna_photometric_profile_release(NULL);
     lacuna_photometric_profile_release(p);

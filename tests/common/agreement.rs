@@ -332,7 +332,7 @@ pub fn box_scene(delta_bsdfs: bool, area_light: bool, delta_lights: bool) -> (Sc
             c0: v(-1.0, 0.0, 0.0),
             intensity: Rgb::splat(0.004),
             profile: std::sync::Arc::new(
-                lacuna::light::PhotometricProfile::from_ies_file(&ies).unwrap(),
+                lacuna::light::PhotometricProfile::from_file(&ies).unwrap(),
             ),
         })
         .unwrap();
