@@ -423,12 +423,39 @@ enum lacuna_light_kind
     LACUNA_LIGHT_KIND_SPOT = 2,
     LACUNA_LIGHT_KIND_DIRECTIONAL = 3,
     LACUNA_LIGHT_KIND_ENVIRONMENT = 4,
+    // A measured luminaire (an IES profile) at a point.
+    LACUNA_LIGHT_KIND_PHOTOMETRIC = 5,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
 typedef enum lacuna_light_kind lacuna_light_kind;
 #else
 typedef uint32_t lacuna_light_kind;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+// `lacuna_photometric_profile_info.symmetry`: how the file's horizontal angles cover C.
+enum lacuna_photometric_symmetry
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    // One horizontal angle: the same in every C plane.
+    LACUNA_PHOTOMETRIC_SYMMETRY_ROTATIONAL = 0,
+    // C 0-90: each quadrant mirrors the first.
+    LACUNA_PHOTOMETRIC_SYMMETRY_QUADRANT = 1,
+    // C 0-180: symmetric about the C0-C180 plane.
+    LACUNA_PHOTOMETRIC_SYMMETRY_BILATERAL_C0 = 2,
+    // C 90-270: symmetric about the C90-C270 plane.
+    LACUNA_PHOTOMETRIC_SYMMETRY_BILATERAL_C90 = 3,
+    // C 0-360.
+    LACUNA_PHOTOMETRIC_SYMMETRY_FULL = 4,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum lacuna_photometric_symmetry lacuna_photometric_symmetry;
+#else
+typedef uint32_t lacuna_photometric_symmetry;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
@@ -470,9 +497,9 @@ typedef struct lacuna_film lacuna_film;
 typedef struct lacuna_guide_query lacuna_guide_query;
 
 // Lacuna's light sampling over the lights of a committed scene (emissive triangles, point,
-// spot and directional lights, the environment map), for a host that shades its own
-// surfaces. Light ids are indices in `[0, light_count)`: one per emissive triangle, one per
-// point, spot or directional light, and one for the environment map
+// spot, directional and photometric lights, the environment map), for a host that shades its
+// own surfaces. Light ids are indices in `[0, light_count)`: one per emissive triangle, one
+// per point, spot, directional or photometric light, and one for the environment map
 // (`lacuna_light_sampler_get_info`, `lacuna_light_sampler_get_light_info`).
 //
 // Refcounted (`lacuna_light_sampler_retain`/`lacuna_light_sampler_release`); it keeps its
@@ -508,6 +535,12 @@ typedef struct lacuna_light_sampler lacuna_light_sampler;
 // Single owner (`lacuna_mesh_new`/`lacuna_mesh_free`). Not thread-safe: one thread at a time
 // may use a mesh. It can be added to any number of builders, any number of times.
 typedef struct lacuna_mesh lacuna_mesh;
+
+// An intensity distribution in candela over the type C angles (gamma from the nadir, C about
+// it), read from an IES LM-63 or EULUMDAT file. Immutable and refcounted
+// (`lacuna_photometric_profile_retain`/`_release`); every function is thread-safe. Scenes
+// holding a light made from it keep their own reference.
+typedef struct lacuna_photometric_profile lacuna_photometric_profile;
 
 // A render of a scene: integrator, settings, progress callback. Runs produce films.
 //
@@ -718,8 +751,8 @@ typedef struct lacuna_light_sample {
     // Distance to the point on the light (+infinity for lights at infinity).
     float distance;
     // Incident radiance along `direction` (for delta lights, the value whose ratio to `pdf`
-    // is the contribution: intensity / distance^2 for point and spot lights, irradiance for
-    // directional ones).
+    // is the contribution: intensity / distance^2 for point, spot and photometric lights,
+    // irradiance for directional ones).
     struct lacuna_rgb radiance;
     // Solid-angle density of this direction, selection probability included (for delta
     // lights, the selection probability alone).
@@ -788,6 +821,18 @@ typedef struct lacuna_emission_sample {
     // Probability of having picked this light.
     float selection_probability;
 } lacuna_emission_sample;
+
+// What a profile holds (`lacuna_photometric_profile_get_info`).
+typedef struct lacuna_photometric_profile_info {
+    // Largest tabulated intensity, candela (multipliers applied).
+    float peak_candela;
+    // Intensity integrated over the sphere, lumen (estimated on the sampling grid).
+    float flux_lumen;
+    // A `lacuna_photometric_symmetry` value.
+    uint32_t symmetry;
+    // Memory of the table and the sampling structure.
+    uint64_t memory_bytes;
+} lacuna_photometric_profile_info;
 
 // A ray for the scene queries. The layout (32 bytes, 4-byte aligned) never changes with build
 // options. Fill it with `lacuna_ray_init()` then set the fields.
@@ -1110,6 +1155,18 @@ lacuna_status lacuna_scene_builder_add_spot_light(struct lacuna_scene_builder *b
                                                   struct lacuna_rgb intensity,
                                                   float inner_degrees,
                                                   float outer_degrees);
+
+// Adds a measured luminaire at `position` with `profile`'s intensity distribution (the
+// builder keeps a reference): radiant intensity `intensity` (>= 0, W/sr per candela) times
+// the profile's candela. The profile's nadir (gamma = 0) points along `direction` (non-zero)
+// and its C0 plane towards `c0` (made perpendicular to `direction`; zero or parallel picks an
+// arbitrary perpendicular); C90 is `direction` x `c0`.
+lacuna_status lacuna_scene_builder_add_photometric_light(struct lacuna_scene_builder *builder,
+                                                         const struct lacuna_photometric_profile *profile,
+                                                         struct lacuna_vec3 position,
+                                                         struct lacuna_vec3 direction,
+                                                         struct lacuna_vec3 c0,
+                                                         struct lacuna_rgb intensity);
 
 // Adds a distant light travelling along `direction` (non-zero) that gives irradiance
 // `irradiance` (W/m^2) on a surface facing it.
@@ -1766,6 +1823,60 @@ lacuna_status lacuna_mesh_set_material(struct lacuna_mesh *mesh, uint32_t materi
 lacuna_status lacuna_mesh_get_counts(const struct lacuna_mesh *mesh,
                                      size_t *out_vertex_count,
                                      size_t *out_triangle_count);
+
+// Reads a photometric file: EULUMDAT when its name ends in `.ldt` (any case), IES LM-63
+// otherwise (type C photometry; see docs/scene-format.md for what is read).
+// `LACUNA_STATUS_IO` when it cannot be read, `LACUNA_STATUS_PARSE` (naming the file and the
+// line) when its content is malformed or unsupported. Writes a new profile (one reference) to
+// `*out_profile`. Thread-safe.
+lacuna_status lacuna_photometric_profile_new_from_file(const char *path,
+                                                       struct lacuna_photometric_profile **out_profile);
+
+// Parses `size` bytes of IES LM-63 text at `data` (copied; no NUL needed; at most 64 MiB).
+// Malformed content is `LACUNA_STATUS_PARSE`, located as `<memory>:line N`. Writes a new
+// profile (one reference) to `*out_profile`. Thread-safe.
+lacuna_status lacuna_photometric_profile_new_from_ies_buffer(const uint8_t *data,
+                                                             size_t size,
+                                                             struct lacuna_photometric_profile **out_profile);
+
+// Parses `size` bytes of EULUMDAT (`.ldt`) text at `data`, as
+// `lacuna_photometric_profile_new_from_ies_buffer` does IES text. Thread-safe.
+lacuna_status lacuna_photometric_profile_new_from_ldt_buffer(const uint8_t *data,
+                                                             size_t size,
+                                                             struct lacuna_photometric_profile **out_profile);
+
+// Adds a reference to `profile`. NULL is a no-op. Thread-safe.
+void lacuna_photometric_profile_retain(const struct lacuna_photometric_profile *profile);
+
+// Drops a reference to `profile`; the last one destroys it (lights made from it keep
+// theirs). NULL is a no-op. Thread-safe.
+void lacuna_photometric_profile_release(const struct lacuna_photometric_profile *profile);
+
+// Writes what `profile` holds to `*out_info`. Thread-safe.
+lacuna_status lacuna_photometric_profile_get_info(const struct lacuna_photometric_profile *profile,
+                                                  struct lacuna_photometric_profile_info *out_info);
+
+// Writes the intensity (candela) towards `local_direction` (finite, non-zero; normalised
+// here), given in the profile's frame: +Z the nadir (gamma = 0), +X the C0 axis, +Y the C90
+// axis. Thread-safe.
+lacuna_status lacuna_photometric_profile_intensity(const struct lacuna_photometric_profile *profile,
+                                                   struct lacuna_vec3 local_direction,
+                                                   float *out_candela);
+
+// Samples a direction in the profile's frame (as in `lacuna_photometric_profile_intensity`)
+// roughly proportional to the intensity, from two numbers in [0, 1); writes it (unit length)
+// and its solid-angle density, which `lacuna_photometric_profile_pdf` reproduces. Thread-safe.
+lacuna_status lacuna_photometric_profile_sample(const struct lacuna_photometric_profile *profile,
+                                                float u0,
+                                                float u1,
+                                                struct lacuna_vec3 *out_local_direction,
+                                                float *out_pdf);
+
+// Writes the solid-angle density with which `lacuna_photometric_profile_sample` picks
+// `local_direction` (finite, non-zero; normalised here). Thread-safe.
+lacuna_status lacuna_photometric_profile_pdf(const struct lacuna_photometric_profile *profile,
+                                             struct lacuna_vec3 local_direction,
+                                             float *out_pdf);
 
 // `bdpt_skeleton` and `bdpt_ic`: resample from the first `subset` light subpaths of each
 // iteration (N, 1..=16777216; default 1024, 002 §5). `LACUNA_STATUS_INVALID_ARGUMENT` for 0

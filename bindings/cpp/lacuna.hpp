@@ -203,6 +203,54 @@ private:
     detail::Owned<lacuna_environment, lacuna_environment_free> e_;
 };
 
+/// A measured luminaire's intensity distribution (IES LM-63 type C, or EULUMDAT). Copyable (copy =
+/// retain); immutable and thread-safe.
+class PhotometricProfile
+    : public detail::Shared<lacuna_photometric_profile, lacuna_photometric_profile_retain,
+                            lacuna_photometric_profile_release> {
+public:
+    using Shared::Shared;
+    /// An IES file, or EULUMDAT when the name ends in .ldt.
+    static PhotometricProfile from_file(const std::string &path) {
+        lacuna_photometric_profile *p = nullptr;
+        detail::check(lacuna_photometric_profile_new_from_file(path.c_str(), &p));
+        return PhotometricProfile(p);
+    }
+    static PhotometricProfile from_ies_buffer(const void *data, size_t size) {
+        lacuna_photometric_profile *p = nullptr;
+        detail::check(lacuna_photometric_profile_new_from_ies_buffer(static_cast<const uint8_t *>(data), size, &p));
+        return PhotometricProfile(p);
+    }
+    static PhotometricProfile from_ldt_buffer(const void *data, size_t size) {
+        lacuna_photometric_profile *p = nullptr;
+        detail::check(lacuna_photometric_profile_new_from_ldt_buffer(static_cast<const uint8_t *>(data), size, &p));
+        return PhotometricProfile(p);
+    }
+    lacuna_photometric_profile_info info() const {
+        lacuna_photometric_profile_info i;
+        detail::check(lacuna_photometric_profile_get_info(p_, &i));
+        return i;
+    }
+    /// Candela towards `local_direction` (+Z nadir, +X C0, +Y C90).
+    float intensity(lacuna_vec3 local_direction) const {
+        float c = 0;
+        detail::check(lacuna_photometric_profile_intensity(p_, local_direction, &c));
+        return c;
+    }
+    /// A direction in the profile's frame and its solid-angle density.
+    std::pair<lacuna_vec3, float> sample(float u0, float u1) const {
+        lacuna_vec3 d;
+        float pdf = 0;
+        detail::check(lacuna_photometric_profile_sample(p_, u0, u1, &d, &pdf));
+        return {d, pdf};
+    }
+    float pdf(lacuna_vec3 local_direction) const {
+        float pdf = 0;
+        detail::check(lacuna_photometric_profile_pdf(p_, local_direction, &pdf));
+        return pdf;
+    }
+};
+
 class Scene : public detail::Shared<lacuna_scene, lacuna_scene_retain, lacuna_scene_release> {
 public:
     using Shared::Shared;
@@ -374,6 +422,12 @@ public:
                                  float inner_degrees, float outer_degrees) {
         detail::check(lacuna_scene_builder_add_spot_light(b_.get(), position, direction, intensity,
                                                           inner_degrees, outer_degrees));
+        return *this;
+    }
+    SceneBuilder &add_photometric_light(const PhotometricProfile &profile, lacuna_vec3 position,
+                                        lacuna_vec3 direction, lacuna_vec3 c0, lacuna_rgb intensity) {
+        detail::check(lacuna_scene_builder_add_photometric_light(b_.get(), profile.get(), position, direction, c0,
+                                                                 intensity));
         return *this;
     }
     SceneBuilder &add_directional_light(lacuna_vec3 direction, lacuna_rgb irradiance) {

@@ -12,6 +12,7 @@ use super::buffer::{
 };
 use super::context::lacuna_context;
 use super::mesh::lacuna_mesh;
+use super::photometric::lacuna_photometric_profile;
 use super::scene::lacuna_scene;
 use super::types::*;
 use crate::geometry::BvhQuality;
@@ -414,6 +415,36 @@ pub unsafe extern "C" fn lacuna_scene_builder_add_spot_light(
                 intensity: intensity.finite("intensity")?,
                 inner_degrees: finite(inner_degrees, "inner_degrees")?,
                 outer_degrees: finite(outer_degrees, "outer_degrees")?,
+            })?;
+            Ok(())
+        })
+    }
+}
+
+/// Adds a measured luminaire at `position` with `profile`'s intensity distribution (the
+/// builder keeps a reference): radiant intensity `intensity` (>= 0, W/sr per candela) times
+/// the profile's candela. The profile's nadir (gamma = 0) points along `direction` (non-zero)
+/// and its C0 plane towards `c0` (made perpendicular to `direction`; zero or parallel picks an
+/// arbitrary perpendicular); C90 is `direction` x `c0`.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_scene_builder_add_photometric_light(
+    builder: *mut lacuna_scene_builder,
+    profile: *const lacuna_photometric_profile,
+    position: lacuna_vec3,
+    direction: lacuna_vec3,
+    c0: lacuna_vec3,
+    intensity: lacuna_rgb,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_builder("lacuna_scene_builder_add_photometric_light", builder, |b| {
+            let profile = arg(profile, "profile")?.profile.clone();
+            b.builder.add_light(LightDesc::Photometric {
+                position: position.finite("position")?,
+                direction: direction.finite("direction")?,
+                c0: c0.finite("c0")?,
+                intensity: intensity.finite("intensity")?,
+                profile,
             })?;
             Ok(())
         })

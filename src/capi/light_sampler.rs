@@ -20,9 +20,9 @@ use crate::math::{Rgb, Vec2, Vec3};
 use crate::scene::Scene;
 
 /// Lacuna's light sampling over the lights of a committed scene (emissive triangles, point,
-/// spot and directional lights, the environment map), for a host that shades its own
-/// surfaces. Light ids are indices in `[0, light_count)`: one per emissive triangle, one per
-/// point, spot or directional light, and one for the environment map
+/// spot, directional and photometric lights, the environment map), for a host that shades its
+/// own surfaces. Light ids are indices in `[0, light_count)`: one per emissive triangle, one
+/// per point, spot, directional or photometric light, and one for the environment map
 /// (`lacuna_light_sampler_get_info`, `lacuna_light_sampler_get_light_info`).
 ///
 /// Refcounted (`lacuna_light_sampler_retain`/`lacuna_light_sampler_release`); it keeps its
@@ -76,6 +76,8 @@ pub enum lacuna_light_kind {
     Spot = 2,
     Directional = 3,
     Environment = 4,
+    /// A measured luminaire (an IES profile) at a point.
+    Photometric = 5,
 }
 
 /// `lacuna_light_query.flags`: the host's BSDF transmits (glass, leaves), so light may arrive
@@ -123,8 +125,8 @@ pub struct lacuna_light_sample {
     /// Distance to the point on the light (+infinity for lights at infinity).
     pub distance: f32,
     /// Incident radiance along `direction` (for delta lights, the value whose ratio to `pdf`
-    /// is the contribution: intensity / distance^2 for point and spot lights, irradiance for
-    /// directional ones).
+    /// is the contribution: intensity / distance^2 for point, spot and photometric lights,
+    /// irradiance for directional ones).
     pub radiance: lacuna_rgb,
     /// Solid-angle density of this direction, selection probability included (for delta
     /// lights, the selection probability alone).
@@ -501,7 +503,9 @@ impl lacuna_light_sampler {
 fn emission_flags(light: &Light) -> u32 {
     match light {
         Light::Area { .. } => 0,
-        Light::Point { .. } | Light::Spot { .. } => LACUNA_EMISSION_DELTA_POSITION,
+        Light::Point { .. } | Light::Spot { .. } | Light::Photometric { .. } => {
+            LACUNA_EMISSION_DELTA_POSITION
+        }
         Light::Directional { .. } => LACUNA_EMISSION_DELTA_DIRECTION | LACUNA_EMISSION_INFINITE,
         Light::Environment { .. } => LACUNA_EMISSION_INFINITE,
     }
@@ -729,6 +733,7 @@ pub unsafe extern "C" fn lacuna_light_sampler_get_light_info(
             Light::Spot { .. } => (lacuna_light_kind::Spot, LACUNA_INVALID_INDEX),
             Light::Directional { .. } => (lacuna_light_kind::Directional, LACUNA_INVALID_INDEX),
             Light::Environment { .. } => (lacuna_light_kind::Environment, LACUNA_INVALID_INDEX),
+            Light::Photometric { .. } => (lacuna_light_kind::Photometric, LACUNA_INVALID_INDEX),
         };
         let info = lacuna_light_info {
             kind: kind as u32,

@@ -337,6 +337,11 @@ impl Explicit<'_> {
                     let r = scene_radius as f64;
                     Density::finite(si.ns.dot(direction).abs() as f64 / (PI as f64 * r * r))
                 }
+                Light::Photometric {
+                    frame, ref profile, ..
+                } => Density::finite(area_factor(
+                    profile.direction_pdf(frame.to_local(to_vertex)) as f64,
+                )),
                 Light::Environment { .. } => {
                     unreachable!("the weight-test scene has no environment light")
                 }
@@ -473,6 +478,14 @@ fn test_scene() -> Scene {
     b.add_light(LightDesc::Directional {
         direction: v(0.3, -1.0, -0.2),
         irradiance: Rgb::splat(1.5),
+    })
+    .unwrap();
+    b.add_light(LightDesc::Photometric {
+        position: v(-0.6, 0.85, -0.4),
+        direction: v(0.1, -1.0, 0.2),
+        c0: v(1.0, 0.0, 0.0),
+        intensity: Rgb::splat(0.02),
+        profile: std::sync::Arc::new(crate::light::photometric::test_profile()),
     })
     .unwrap();
     b.build().unwrap()

@@ -112,6 +112,29 @@ impl Light {
                     cos_light: 1.0,
                 })
             }
+            Light::Photometric {
+                position,
+                frame,
+                intensity,
+                ref profile,
+            } => {
+                let (local, pdf) = profile.sample_direction(u_dir)?;
+                let candela = profile.intensity(local);
+                if candela <= 0.0 {
+                    return None;
+                }
+                let dir = frame.to_world(local);
+                Some(EmissionSample {
+                    origin: position,
+                    origin_error: Vec3::ZERO,
+                    dir,
+                    normal: dir,
+                    value: intensity * candela,
+                    pdf_emit: pdf,
+                    pdf_direct_area: 1.0,
+                    cos_light: 1.0,
+                })
+            }
             Light::Directional {
                 direction,
                 irradiance,
@@ -189,6 +212,9 @@ impl Light {
                 cos_outer,
                 ..
             } => warp::uniform_cone_pdf(Vec3::new(0.0, 0.0, direction.dot(dir)), cos_outer),
+            Light::Photometric {
+                frame, ref profile, ..
+            } => profile.direction_pdf(frame.to_local(dir)),
             Light::Directional { scene_radius, .. } => 1.0 / (PI * scene_radius * scene_radius),
             Light::Environment {
                 ref map,
@@ -225,7 +251,7 @@ impl Light {
     pub fn split_emission_pdf(&self, pdf_emit: f32) -> (f32, f32) {
         match *self {
             Light::Area { area, .. } => (1.0 / area, pdf_emit * area),
-            Light::Point { .. } | Light::Spot { .. } => (1.0, pdf_emit),
+            Light::Point { .. } | Light::Spot { .. } | Light::Photometric { .. } => (1.0, pdf_emit),
             Light::Directional { .. } => (pdf_emit, 1.0),
             Light::Environment { scene_radius, .. } => {
                 let disk = PI * scene_radius * scene_radius;

@@ -4,22 +4,24 @@
 
 mod emission;
 pub mod environment;
+pub mod photometric;
 mod sampler;
 pub mod triangle;
 
 pub use emission::EmissionSample;
 pub use environment::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
+pub use photometric::PhotometricProfile;
 pub use sampler::LightSampler;
 
 use std::sync::Arc;
 
 use crate::error::{Error, Result};
 use crate::geometry::{barycentric_point_error, Bounds3};
-use crate::math::{is_finite3, luminance, warp, Rgb, Vec2, Vec3, PI};
+use crate::math::{is_finite3, luminance, warp, Frame, Rgb, Vec2, Vec3, PI};
 
 /// A light as a host describes it. Area lights are not described here: they come from
 /// triangles whose material emits.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub enum LightDesc {
     /// Isotropic point light with radiant intensity `intensity` (W/sr).
     Point { position: Vec3, intensity: Rgb },
@@ -35,6 +37,17 @@ pub enum LightDesc {
     /// Distant light travelling along `direction`, giving irradiance `irradiance` (W/m^2) on a
     /// surface facing it.
     Directional { direction: Vec3, irradiance: Rgb },
+    /// A measured luminaire (an IES profile) at a point: radiant intensity `intensity` times
+    /// the profile's candela towards each direction. The profile's nadir (gamma = 0) points
+    /// along `direction` and its C0 plane towards `c0` (projected perpendicular to
+    /// `direction`; zero or parallel picks an arbitrary perpendicular axis).
+    Photometric {
+        position: Vec3,
+        direction: Vec3,
+        c0: Vec3,
+        intensity: Rgb,
+        profile: Arc<PhotometricProfile>,
+    },
 }
 
 impl LightDesc {
@@ -98,7 +111,36 @@ impl LightDesc {
                 dir(direction)?;
                 colour("irradiance", irradiance)
             }
+            LightDesc::Photometric {
+                position,
+                direction,
+                c0,
+                intensity,
+                ..
+            } => {
+                point(position)?;
+                dir(direction)?;
+                if !is_finite3(c0) {
+                    return Err(Error::invalid(format!("light c0 axis {c0} must be finite")));
+                }
+                colour("intensity", intensity)
+            }
         }
+    }
+}
+
+/// The frame of a photometric light: z its nadir `direction`, x the C0 axis (`c0` made
+/// perpendicular), y = z x x the C90 axis.
+fn photometric_frame(direction: Vec3, c0: Vec3) -> Frame {
+    let n = direction.normalize();
+    let s = (c0 - n * c0.dot(n)).try_normalize();
+    match s {
+        Some(s) => Frame {
+            s,
+            t: n.cross(s),
+            n,
+        },
+        None => Frame::from_z(n),
     }
 }
 
@@ -139,6 +181,13 @@ pub enum Light {
         scene_center: Vec3,
         scene_radius: f32,
     },
+    /// A measured luminaire; `frame` maps the profile's (C0, C90, nadir) axes to the world.
+    Photometric {
+        position: Vec3,
+        frame: Frame,
+        intensity: Rgb,
+        profile: Arc<PhotometricProfile>,
+    },
 }
 
 /// Radiance arriving at a point from a sampled point of a light.
@@ -163,6 +212,18 @@ pub struct LightSample {
 impl Light {
     pub fn from_desc(desc: &LightDesc, bounds: &Bounds3) -> Light {
         match *desc {
+            LightDesc::Photometric {
+                position,
+                direction,
+                c0,
+                intensity,
+                ref profile,
+            } => Light::Photometric {
+                position,
+                frame: photometric_frame(direction, c0),
+                intensity,
+                profile: profile.clone(),
+            },
             LightDesc::Point {
                 position,
                 intensity,
@@ -221,6 +282,11 @@ impl Light {
                 scene_radius,
                 ..
             } => PI * scene_radius * scene_radius * map.luminance_integral(),
+            Light::Photometric {
+                intensity,
+                ref profile,
+                ..
+            } => luminance(intensity) * profile.flux(),
         }
     }
 
@@ -316,6 +382,22 @@ impl Light {
                 distance: f32::INFINITY,
                 delta: true,
             }),
+            Light::Photometric {
+                position,
+                frame,
+                intensity,
+                ref profile,
+            } => {
+                let s = delta_point_sample(receiver, position, intensity)?;
+                let candela = profile.intensity(frame.to_local(-s.wi));
+                if candela <= 0.0 {
+                    return None;
+                }
+                Some(LightSample {
+                    radiance: s.radiance * candela,
+                    ..s
+                })
+            }
             Light::Environment { ref map, .. } => {
                 let s = map.sample(env, normal, u)?;
                 Some(LightSample {

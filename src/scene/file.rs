@@ -8,6 +8,7 @@
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use glam::{Mat4, Vec4};
 use serde::{Deserialize, Deserializer, Serialize};
@@ -17,7 +18,7 @@ use super::{Camera, Material, MaterialKind, MeshDesc, SceneBuilder, Texture};
 use crate::error::{Error, Result};
 use crate::geometry::Bounds3;
 use crate::light::environment::{EnvImage, Grid};
-use crate::light::{EnvSettings, EnvironmentMap, LightDesc, UpAxis};
+use crate::light::{EnvSettings, EnvironmentMap, LightDesc, PhotometricProfile, UpAxis};
 use crate::math::{Frame, Rgb, Vec2, Vec3, PI};
 
 /// Render settings a scene file may carry; every field is optional (the caller decides the
@@ -204,6 +205,23 @@ enum LightSpec {
         direction: [f32; 3],
         irradiance: Colour,
     },
+    /// A measured luminaire from an IES LM-63 or EULUMDAT file (relative to the scene file):
+    /// radiant intensity `intensity` times the file's candela. `direction` is where the
+    /// profile's nadir points, `c0` the axis of its C0 plane (optional).
+    #[serde(alias = "ies")]
+    Photometric {
+        file: PathBuf,
+        position: [f32; 3],
+        direction: [f32; 3],
+        #[serde(default)]
+        c0: [f32; 3],
+        #[serde(default = "white")]
+        intensity: Colour,
+    },
+}
+
+fn white() -> Colour {
+    Colour::Grey(1.0)
 }
 
 /// An environment map: `file` (.exr or .hdr, 2:1 lat-long or 4:3 horizontal cross).
@@ -527,8 +545,9 @@ pub fn load_scene_file(path: &Path) -> Result<LoadedScene> {
     }
 
     for (i, l) in file.lights.iter().enumerate() {
+        let desc = l.desc(&dir).map_err(|e| fail(format!("lights[{i}]"), e))?;
         builder
-            .add_light(l.desc())
+            .add_light(desc)
             .map_err(|e| fail(format!("lights[{i}]"), e))?;
     }
 
@@ -679,8 +698,9 @@ impl CameraSpec {
 }
 
 impl LightSpec {
-    fn desc(&self) -> LightDesc {
-        match *self {
+    /// The light, with any file it names read relative to `dir`.
+    fn desc(&self, dir: &Path) -> Result<LightDesc> {
+        Ok(match *self {
             LightSpec::Point {
                 position,
                 intensity,
@@ -708,7 +728,20 @@ impl LightSpec {
                 direction: Vec3::from(direction),
                 irradiance: irradiance.rgb(),
             },
-        }
+            LightSpec::Photometric {
+                ref file,
+                position,
+                direction,
+                c0,
+                intensity,
+            } => LightDesc::Photometric {
+                position: Vec3::from(position),
+                direction: Vec3::from(direction),
+                c0: Vec3::from(c0),
+                intensity: intensity.rgb(),
+                profile: Arc::new(PhotometricProfile::from_file(&dir.join(file))?),
+            },
+        })
     }
 }
 

@@ -100,6 +100,32 @@ static void test_environment(const lacuna::Context &ctx) {
     CHECK(lacuna::RenderJob(scene.with_environment(nullptr), "path").resolution(4, 4).samples_per_pixel(1).run().read()[0] == 0.0f);
 }
 
+// Photometric profiles: loading from memory, errors as exceptions, queries, a light in a scene.
+static void test_photometric(const lacuna::Context &ctx) {
+    static const char ies[] =
+        "IESNA:LM-63-2002\nTILT=NONE\n1 -1 1 3 1 1 2 0 0 0\n1 1 10\n0 45 90\n0\n100 50 0\n";
+    lacuna::PhotometricProfile p = lacuna::PhotometricProfile::from_ies_buffer(ies, sizeof ies - 1);
+    lacuna::PhotometricProfile copy = p;
+    CHECK(copy.get() == p.get());
+    CHECK(p.info().symmetry == LACUNA_PHOTOMETRIC_SYMMETRY_ROTATIONAL && p.info().peak_candela == 100.0f);
+    CHECK(p.intensity(lacuna::vec3(0, 0, 1)) == 100.0f);
+    auto [d, pdf] = p.sample(0.25f, 0.5f);
+    CHECK(pdf > 0 && std::fabs(p.pdf(d) - pdf) <= 1e-3f * pdf);
+    EXPECT_ERROR(lacuna::PhotometricProfile::from_ies_buffer(ies, 30), LACUNA_STATUS_PARSE, "ends before");
+    EXPECT_ERROR(lacuna::PhotometricProfile::from_file("/nonexistent/lamp.ies"), LACUNA_STATUS_IO, "lamp.ies");
+    EXPECT_ERROR(p.sample(1.5f, 0), LACUNA_STATUS_OUT_OF_RANGE, "u0");
+    EXPECT_ERROR(lacuna::PhotometricProfile::from_ldt_buffer(ies, sizeof ies - 1), LACUNA_STATUS_PARSE, "line");
+    lacuna::SceneBuilder b(ctx);
+    EXPECT_ERROR(b.add_photometric_light(p, lacuna::vec3(0, 0, 0), lacuna::vec3(0, 0, 0), lacuna::vec3(1, 0, 0),
+                                         lacuna::rgb(1, 1, 1)),
+                 LACUNA_STATUS_INVALID_ARGUMENT, "direction");
+    b.add_photometric_light(p, lacuna::vec3(0, 1, 0), lacuna::vec3(0, -1, 0), lacuna::vec3(1, 0, 0),
+                            lacuna::rgb(1, 1, 1));
+    b.set_camera(lacuna::vec3(0, 0, 2), lacuna::vec3(0, 0, 0), lacuna::vec3(0, 1, 0), 40);
+    lacuna::LightSampler lights(b.build());
+    CHECK(lights.info().light_count == 1);
+}
+
 // The light sampler's wrapper on the built-in two-room scene (area lights only).
 static void test_light_sampler(const lacuna::Context &ctx) {
     lacuna::Scene scene = lacuna::SceneBuilder::builtin(ctx, "two-rooms").build();
@@ -146,6 +172,7 @@ int main(int argc, char **argv) {
 
     lacuna::Context ctx = lacuna::Context::create();
     test_light_sampler(ctx);
+    test_photometric(ctx);
     ctx.set_thread_count(2);
     CHECK(ctx.thread_count() == 2);
     EXPECT_ERROR(ctx.set_thread_count(1u << 20), LACUNA_STATUS_OUT_OF_RANGE, "thread_count");

@@ -1,6 +1,6 @@
 //! Agreement of integrators: the image mean and region means of a renderer against another's,
 //! by a z-test on their measured standard errors over seeds, and the small box scene with
-//! every BSDF and light kind that several agreement tests render.
+//! every BSDF and light kind (an IES profile among them) that several agreement tests render.
 
 use std::sync::atomic::AtomicBool;
 
@@ -320,6 +320,20 @@ pub fn box_scene(delta_bsdfs: bool, area_light: bool, delta_lights: bool) -> (Sc
         b.add_light(LightDesc::Directional {
             direction: v(0.3, -1.0, -0.2),
             irradiance: Rgb::splat(1.5),
+        })
+        .unwrap();
+        // An asymmetric measured profile, so that light tracing's emission sampling and
+        // next-event estimation must agree on its orientation.
+        let ies =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/ies/wallwasher.ies");
+        b.add_light(LightDesc::Photometric {
+            position: v(0.55, 0.85, -0.5),
+            direction: v(-0.2, -1.0, 0.1),
+            c0: v(-1.0, 0.0, 0.0),
+            intensity: Rgb::splat(0.004),
+            profile: std::sync::Arc::new(
+                lacuna::light::PhotometricProfile::from_file(&ies).unwrap(),
+            ),
         })
         .unwrap();
     }
