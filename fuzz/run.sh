@@ -12,7 +12,7 @@ seconds="${1:-60}"
 shift || true
 targets=("$@")
 if [ "${#targets[@]}" -eq 0 ]; then
-    targets=(obj scene_file environment capi_sequence)
+    targets=(obj scene_file environment photometric capi_sequence)
 fi
 host="$(rustc -vV | sed -n 's/^host: //p')"
 # SanitizerCoverage as cargo-fuzz sets it up, minus its nightly-only sanitizer flags. The
