@@ -354,7 +354,7 @@ impl Bvh {
     /// shadow ray first, and traverses only when that block does not stop this one. The same
     /// answer as [`Bvh::occluded`] (any triangle the ray hits is an answer); fewer
     /// instructions when most shadow rays are blocked by the same few triangles (a light in
-    /// another room: 23 % fewer shadow-ray instructions on `rooms:3`, BENCHMARKS.md), a few
+    /// another room: 25 % fewer shadow-ray instructions on `rooms:3`, BENCHMARKS.md), a few
     /// more when they are blocked by ever different ones. After an unoccluded ray the next
     /// one traverses directly.
     #[inline]
