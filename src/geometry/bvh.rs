@@ -350,11 +350,11 @@ impl Bvh {
     }
 
     /// [`Bvh::occluded`] for a succession of related shadow rays, such as a path's
-    /// next-event estimation: tests the triangle block that stopped this thread's previous
-    /// shadow ray first, and traverses only when that block does not stop this one. The same
+    /// next-event estimation: tests the triangle blocks that stopped this thread's last two
+    /// occluded shadow rays first, and traverses only when neither stops this one. The same
     /// answer as [`Bvh::occluded`] (any triangle the ray hits is an answer); fewer
     /// instructions when most shadow rays are blocked by the same few triangles (a light in
-    /// another room: 25 % fewer shadow-ray instructions on `rooms:3`, BENCHMARKS.md), a few
+    /// another room: 27 % fewer shadow-ray instructions on `rooms:3`, BENCHMARKS.md), a few
     /// more when they are blocked by ever different ones. After an unoccluded ray the next
     /// one traverses directly.
     #[inline]
@@ -437,11 +437,21 @@ impl Bvh {
         // mostly stopped by the same few triangles. Any triangle the ray hits is an answer,
         // so this changes no result (empty lanes hold degenerate triangles, which never hit,
         // and an index left by another BVH is only used when in range).
+        let [first, second] = if COHERENT {
+            LAST_OCCLUDER.with(Cell::get)
+        } else {
+            [u32::MAX; 2]
+        };
         if COHERENT {
-            let last = LAST_OCCLUDER.with(Cell::get) as usize;
-            if let Some(block) = self.blocks.get(last) {
+            if let Some(block) = self.blocks.get(first as usize) {
                 if intersect_triangle_block(&q.tri, &q.lanes, block, 0xf, ray.t_max).mask != 0 {
                     return true;
+                }
+                if let Some(block) = self.blocks.get(second as usize) {
+                    if intersect_triangle_block(&q.tri, &q.lanes, block, 0xf, ray.t_max).mask != 0 {
+                        LAST_OCCLUDER.with(|c| c.set([second, first]));
+                        return true;
+                    }
                 }
             }
         }
@@ -464,7 +474,13 @@ impl Bvh {
             },
         );
         if COHERENT {
-            LAST_OCCLUDER.with(|c| c.set(occluder));
+            LAST_OCCLUDER.with(|c| {
+                c.set(if occluder == u32::MAX {
+                    [u32::MAX; 2]
+                } else {
+                    [occluder, first]
+                })
+            });
         }
         occluder != u32::MAX
     }
@@ -695,10 +711,11 @@ fn detect_x86_64_v3() -> bool {
 }
 
 thread_local! {
-    /// Index in [`Bvh::blocks`] of the triangle block that stopped this thread's last
-    /// [`Bvh::occluded_coherent`] ray, or `u32::MAX` after an unoccluded one. Only an index: a
+    /// Indices in [`Bvh::blocks`] of the triangle blocks that stopped this thread's last two
+    /// occluded [`Bvh::occluded_coherent`] rays, the latest first; `u32::MAX` after an
+    /// unoccluded one. Only an index: a
     /// stale value from another BVH is harmless, any block in range is a valid first test.
-    static LAST_OCCLUDER: Cell<u32> = const { Cell::new(u32::MAX) };
+    static LAST_OCCLUDER: Cell<[u32; 2]> = const { Cell::new([u32::MAX; 2]) };
 }
 
 /// Entries of the traversal stack (as obvhs's `traverse!`).
