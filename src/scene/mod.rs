@@ -362,7 +362,8 @@ impl Scene {
         } else {
             si.spawn_ray_to(sample.point, sample.point_error, sample.normal)
         };
-        !self.occluded(&ray)
+        // Next-event shadow rays of one path come one after another on one thread.
+        !self.bvh.occluded_coherent(&ray)
     }
 }
 
