@@ -459,3 +459,66 @@ fn probe_prediction() {
         }
     }
 }
+
+/// FNV-1a of a string: a short, stable fingerprint of exact values.
+fn fingerprint(text: &str) -> u64 {
+    text.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// The bits of a 24x16, 4 spp render of `spec` on rooms:SEED at max depth 65 (2 threads).
+fn image_fingerprint(seed: u64, spec: &str) -> (u64, Option<lacuna::guide::TrainingReport>) {
+    let family = FamilyScene::generate(seed);
+    let scene = family.builder().unwrap().build().unwrap();
+    let settings = IntegratorSettings {
+        max_depth: 65,
+        ..Default::default()
+    };
+    let (_, settings) = integrator::parse_spec(spec, settings).unwrap();
+    let mut pt = if spec.starts_with("path_skeleton") {
+        lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap()
+    } else {
+        lacuna::integrator::PathTracer::new(settings)
+    };
+    prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+    let rs = RenderSettings {
+        width: 24,
+        height: 16,
+        spp: 4,
+        threads: Some(2),
+        ..Default::default()
+    };
+    let (film, _) = lacuna::render::render(
+        &scene,
+        &family.camera,
+        &pt,
+        &rs,
+        &|_| true,
+        &std::sync::atomic::AtomicBool::new(false),
+    )
+    .unwrap();
+    let bits: String = film
+        .radiance()
+        .iter()
+        .map(|p| format!("{:08x}{:08x}{:08x}", p.x.to_bits(), p.y.to_bits(), p.z.to_bits()))
+        .collect();
+    let training = pt.guide().and_then(|g| g.training().cloned());
+    (fingerprint(&bits), training)
+}
+
+/// The path tracer and the training share one estimator (`guide::estimator`): pinned
+/// fingerprints of `path`'s and the guided render's pixels and of the training's report (every
+/// node's choice and the scene-level prediction, exact values) on a family scene, taken before
+/// the two were made to share it. A change to either estimator's arithmetic or random
+/// numbers fails here; update the pins only for an intended change of behaviour.
+#[test]
+fn path_images_and_training_reports_are_pinned() {
+    let (path, _) = image_fingerprint(30, "path");
+    let (guided, training) = image_fingerprint(30, "path_skeleton:pilot_paths=0");
+    let report = fingerprint(&format!("{:?}", training.unwrap()));
+    println!("pins: path {path:#018x} guided {guided:#018x} report {report:#018x}");
+    assert_eq!(path, 0xea47_0cab_a65d_9f81);
+    assert_eq!(guided, 0xda63_c17a_929d_b81d);
+    assert_eq!(report, 0x50d3_dc6c_f70d_65c4);
+}
