@@ -501,7 +501,14 @@ fn image_fingerprint(seed: u64, spec: &str) -> (u64, Option<lacuna::guide::Train
     let bits: String = film
         .radiance()
         .iter()
-        .map(|p| format!("{:08x}{:08x}{:08x}", p.x.to_bits(), p.y.to_bits(), p.z.to_bits()))
+        .map(|p| {
+            format!(
+                "{:08x}{:08x}{:08x}",
+                p.x.to_bits(),
+                p.y.to_bits(),
+                p.z.to_bits()
+            )
+        })
         .collect();
     let training = pt.guide().and_then(|g| g.training().cloned());
     (fingerprint(&bits), training)

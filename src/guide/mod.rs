@@ -12,6 +12,7 @@
 //! (eq. 168-170, [`GuideQuery::mixture_pdf`]).
 
 pub mod directional;
+pub mod estimator;
 mod mixture;
 pub mod resampling;
 mod skeleton;

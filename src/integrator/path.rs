@@ -39,7 +39,9 @@ use super::{Integrator, IntegratorSettings, Precomputation, SampleContext, Trace
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::{sample_bsdf_or_guide, GuideQuery, Pilot, RenderEstimator, SkeletonGuide};
+use crate::guide::{
+    estimator, sample_bsdf_or_guide, GuideQuery, Pilot, RenderEstimator, SkeletonGuide,
+};
 use crate::math::FIRST_INTEGRATOR_DIMENSION;
 use crate::math::{luminance, Frame, Rgb, Rng, Sampler, Vec3};
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction};
@@ -90,9 +92,19 @@ impl PathTracer {
         self.guiding.as_ref().and_then(|g| g.as_ref())
     }
 
-    /// Next-event estimation: radiance from one light sample, MIS-weighted against direction
-    /// sampling (the BSDF, mixed with the guide's lobes where `query` is guided). `wo` is
-    /// local to the shading frame.
+    /// The render's light sampling and MIS heuristic, as the shared estimator
+    /// (`guide::estimator`) and the training take them.
+    fn estimator(&self) -> RenderEstimator {
+        RenderEstimator {
+            mis: self.settings.mis.unwrap_or_default(),
+            triangles: self.settings.triangles,
+            env: self.settings.env,
+        }
+    }
+
+    /// Next-event estimation ([`estimator::sample_direct_light`]): radiance from one light
+    /// sample, MIS-weighted against direction sampling (the BSDF, mixed with the guide's lobes
+    /// where `query` is guided). `wo` is local to the shading frame.
     #[allow(clippy::too_many_arguments)]
     fn sample_light(
         &self,
@@ -106,33 +118,25 @@ impl PathTracer {
         counters: &mut TraceCounters,
     ) -> Rgb {
         let u = rng.uniform2();
-        let Some(toward) = scene.sample_light_toward(
+        let estimator = self.estimator();
+        let Some(light) = estimator::sample_direct_light(
+            scene,
             si,
             frame,
             bsdf,
             wo_local,
-            self.settings.env,
-            self.settings.triangles,
+            &estimator,
             u,
+            &mut counters.rays,
         ) else {
             return Rgb::ZERO;
         };
-        let (ls, pmf, wi_local, f) = (toward.sample, toward.pmf, toward.wi_local, toward.f_cos);
-        counters.rays += 1;
-        if !scene.unoccluded(si, &ls) {
-            return Rgb::ZERO;
-        }
-        let light_pdf = pmf * ls.pdf;
-        let weight = if ls.delta {
-            1.0
+        let direction_pdf = if light.delta {
+            0.0
         } else {
-            let direction_pdf = query.mixture_pdf(ls.wi, bsdf.pdf(wo_local, wi_local));
-            self.settings
-                .mis
-                .unwrap_or_default()
-                .weight(light_pdf, direction_pdf)
+            query.mixture_pdf(light.wi, bsdf.pdf(wo_local, light.wi_local))
         };
-        f * ls.radiance * (weight / light_pdf)
+        light.weighted(light.weight(estimator.mis, direction_pdf))
     }
 
     /// Radiance of the environment along a ray that left the scene, MIS-weighted against
@@ -147,23 +151,22 @@ impl PathTracer {
         prev_pdf: f32,
         prev_normal: Vec3,
     ) -> Rgb {
-        let Some((index, env)) = scene.environment() else {
+        let Some((_, env)) = scene.environment() else {
             return Rgb::ZERO;
         };
         if depth == 0 && !env.visible_to_camera() {
             return Rgb::ZERO;
         }
-        let le = env.radiance(dir);
+        let estimator = self.estimator();
+        let Some((le, light_pdf)) =
+            estimator::environment_along(scene, prev_normal, dir, &estimator)
+        else {
+            return Rgb::ZERO;
+        };
         if prev_delta || le == Rgb::ZERO {
             return le;
         }
-        let pmf = scene.light_sampler().map_or(0.0, |s| s.pmf(index));
-        let light_pdf = pmf * env.pdf(self.settings.env, prev_normal, dir);
-        le * self
-            .settings
-            .mis
-            .unwrap_or_default()
-            .weight(prev_pdf, light_pdf)
+        le * estimator.mis.weight(prev_pdf, light_pdf)
     }
 }
 
@@ -274,11 +277,7 @@ impl Integrator for PathTracer {
         self.guiding = Some(None);
         // The training scores its candidates with this render's light sampling and MIS.
         let mut skeleton = self.settings.skeleton;
-        skeleton.render_estimator = RenderEstimator {
-            mis: self.settings.mis.unwrap_or_default(),
-            triangles: self.settings.triangles,
-            env: self.settings.env,
-        };
+        skeleton.render_estimator = self.estimator();
         let mut guide = SkeletonGuide::build(scene, Some(camera), &skeleton, progress)?;
         let pilot_started = std::time::Instant::now();
         let pilot = self.pilot(scene, camera, &guide);
@@ -584,16 +583,10 @@ impl PathTracer {
                 let weight = if prev_delta {
                     1.0
                 } else {
-                    let light = scene
-                        .triangle_light(si.triangle)
-                        .expect("emitting triangle is a light");
-                    let pmf = scene.light_sampler().map_or(0.0, |s| s.pmf(light));
-                    let light_pdf = pmf
-                        * scene.lights()[light].pdf_with(prev_point, si.p, self.settings.triangles);
-                    self.settings
-                        .mis
-                        .unwrap_or_default()
-                        .weight(prev_pdf, light_pdf)
+                    let estimator = self.estimator();
+                    let light_pdf =
+                        estimator::emitter_light_pdf(scene, prev_point, &si, &estimator);
+                    estimator.mis.weight(prev_pdf, light_pdf)
                 };
                 #[cfg(feature = "diagnostics")]
                 diagnostics::contribution(depth, diagnostics::Kind::Hit, beta * le * weight);
