@@ -308,6 +308,9 @@ pub struct SkeletonGuideSettings {
     /// that checks the scene-level switch's prediction with the render's own estimator
     /// (`integrator::path`, "The pilot"), each traced twice guided and twice unguided.
     pub pilot_paths: u32,
+    /// `pilot_cost=time` (the default) or `work`: what the pilot takes as the guided
+    /// sample's cost against the unguided one's (`integrator::path`, "The pilot").
+    pub pilot_cost: PilotCost,
     /// Camera paths of the training pass (`training_paths`).
     pub training_paths: u32,
     /// `training_passes=N` (with `directions=learned`; default 1): training passes of
@@ -483,6 +486,29 @@ pub const DEFAULT_TRAINING_DEPTH: u32 = 8;
 /// second on the family scenes.
 pub const DEFAULT_PILOT_PATHS: u32 = 32768;
 
+/// What the pilot takes as a sample's cost (`pilot_cost`; `integrator::path`, "The pilot").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PilotCost {
+    /// `time`: the measured time of the guided samples against the unguided ones, traced
+    /// interleaved (what the render pays; the verdict then varies a little between runs).
+    Time,
+    /// `work`: rays traced per sample times the training's overhead ratio (a deterministic
+    /// count, which underestimates the guided queries' cost).
+    Work,
+}
+
+impl PilotCost {
+    pub fn parse(text: &str) -> Result<Self> {
+        match text.trim() {
+            "time" => Ok(PilotCost::Time),
+            "work" => Ok(PilotCost::Work),
+            other => Err(Error::invalid(format!(
+                "skeleton pilot_cost '{other}' must be 'time' or 'work'"
+            ))),
+        }
+    }
+}
+
 /// Where a lobe points from a surface point x.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LobeAim {
@@ -564,6 +590,7 @@ impl Default for SkeletonGuideSettings {
             cost_model: CostModel::Paths,
             training_depth: DEFAULT_TRAINING_DEPTH,
             pilot_paths: DEFAULT_PILOT_PATHS,
+            pilot_cost: PilotCost::Time,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_passes: 1,
             training_history: false,
@@ -611,6 +638,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "cost_model",
     "directions",
     "pilot_paths",
+    "pilot_cost",
 ];
 
 impl SkeletonGuideSettings {
@@ -688,6 +716,7 @@ impl SkeletonGuideSettings {
             }
             "training_depth" => next.training_depth = number(key, value)?,
             "pilot_paths" => next.pilot_paths = number(key, value)?,
+            "pilot_cost" => next.pilot_cost = PilotCost::parse(value)?,
             "training_paths" => next.training_paths = number(key, value)?,
             "training_passes" => next.training_passes = number(key, value)?,
             "histogram_floor" => next.histogram_floor = number(key, value)?,

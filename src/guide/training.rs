@@ -272,8 +272,13 @@ pub struct Pilot {
     /// Rays traced (closest hits and shadow rays) per sample, unguided and guided.
     pub rays_per_sample_path: f64,
     pub rays_per_sample_guided: f64,
-    /// Guided cost per sample relative to unguided: the ray ratio times the training's
-    /// overhead ratio (the guided queries and node mapping per vertex).
+    /// Time spent tracing the unguided and the guided samples (interleaved ray by ray, so
+    /// that the machine's load weighs on both alike).
+    pub seconds_path: f64,
+    pub seconds_guided: f64,
+    /// Guided cost per sample relative to unguided: with `pilot_cost=time` the ratio of the
+    /// measured times, with `work` the ray ratio times the training's overhead ratio (the
+    /// guided queries and node mapping per vertex).
     pub cost_ratio: f64,
 }
 
