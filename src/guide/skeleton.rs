@@ -643,6 +643,17 @@ pub const OPTION_NAMES: &[&str] = &[
 
 impl SkeletonGuideSettings {
     /// Whether the guide runs the training pass (something is learned).
+    /// Whether the training starts with a scout (`guide::training`, "The scout"): where the
+    /// choices are learned and checked by the scene-level switch and the pilot, in one pass.
+    pub fn scouts(&self) -> bool {
+        self.learned_c_skel
+            && self.cost_model.switches()
+            && self.pilot_paths > 0
+            && self.training_passes == 1
+            && !self.training_history
+            && self.training_paths >= training::SCOUT_FRACTION
+    }
+
     pub fn trains(&self) -> bool {
         self.learned_c_skel
             || self.learned_strength
@@ -1271,8 +1282,24 @@ impl SkeletonGuide {
                     0
                 }
             ];
-            let mut report =
-                training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history);
+            // The scout (`guide::training`, "The scout"): a fraction of the training paths
+            // first, and the full training only if their choices guide anything.
+            let scout = if settings.scouts() && camera.is_some() {
+                let full = guide.settings.training_paths;
+                guide.settings.training_paths = (full / training::SCOUT_FRACTION).max(1);
+                let report =
+                    training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history);
+                guide.settings.training_paths = full;
+                Some(report).filter(|r| r.paths > 0 && r.probabilities.iter().all(|&c| c <= 0.0))
+            } else {
+                None
+            };
+            let mut report = match scout {
+                Some(report) => report,
+                None => {
+                    training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history)
+                }
+            };
             // Iterative training (`training_passes`): each later pass samples every node from
             // the previous pass's distributions (a uniform one where it had none) and learns
             // them again from its own samples; only the last pass's choices are kept.

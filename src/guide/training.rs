@@ -65,6 +65,16 @@
 //! judged ([`SceneChoice`]): below 1 + `SCENE_MARGIN` predicted efficiency nothing is guided
 //! ([`SkeletonGuide::guides_nothing`]) and `path_skeleton` renders `path`'s image exactly.
 //!
+//! # The scout
+//!
+//! Where the choices face the scene-level switch and the pilot (`c_skel=learned`, a switching
+//! cost model, `pilot_paths` > 0, one training pass), the training first traces
+//! 1 / [`SCOUT_FRACTION`] of its paths. If the choices from those guide no node (none beats
+//! c = 0 by the significance rule on so few samples, or the scene-level switch turns them
+//! off), the training stops there and nothing is guided: the full training's cost is paid
+//! only where the scout saw something to gain. The scout's paths are the first of the full
+//! training's, so a scene that goes on learns exactly what it learned without the scout.
+//!
 //! # The path-level prediction
 //!
 //! `cost_model=paths` (the default) takes the variance ratio from whole training paths, as a
@@ -96,6 +106,8 @@ pub const TRAINING_C: f32 = 0.5;
 pub const CANDIDATES: [f32; 11] = [0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9];
 /// Most strengths a training pass compares.
 const MAX_STRENGTHS: usize = STRENGTH_CANDIDATES.len();
+/// The scout's share of the training paths is 1 / this (module docs, "The scout").
+pub(super) const SCOUT_FRACTION: u32 = 8;
 /// Camera paths per chunk (the fixed work partition).
 const CHUNK: u32 = 1024;
 /// Training samples a node needs before it may be guided (how many must be non-zero is the
