@@ -372,7 +372,16 @@ pub struct SkeletonGuideSettings {
     /// its own settings; a host's guide keeps the defaults (power heuristic, area-sampled
     /// triangles, the default environment strategy). Not an option key.
     pub render_estimator: RenderEstimator,
+    /// The wall-clock seconds the whole run (precomputation and render) may take, where the
+    /// host gave a budget (`lacuna compare`; `Integrator::set_time_budget`): the scout then
+    /// also stops the training where the full training would take more than
+    /// [`BUDGET_SHARE`] of it. Not an option key.
+    pub time_budget: Option<f64>,
 }
+
+/// The largest share of a time budget the training may take after its scout (a guide that
+/// gains E per sample then still ends at E (1 - share) of `path`).
+pub const BUDGET_SHARE: f64 = 0.2;
 
 /// The render's light sampling and MIS heuristic, as the training must reproduce them.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -607,6 +616,7 @@ impl Default for SkeletonGuideSettings {
             aim: LobeAim::Portal,
             fallback: LobeFallback::Point,
             render_estimator: RenderEstimator::default(),
+            time_budget: None,
         }
     }
 }
@@ -1148,6 +1158,7 @@ impl SkeletonGuide {
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<SkeletonGuide> {
         settings.validate()?;
+        let started = Instant::now();
         if !progress("start", 0.0) {
             return Err(Error::Cancelled);
         }
@@ -1287,9 +1298,20 @@ impl SkeletonGuide {
             let scout = if settings.scouts() && camera.is_some() {
                 let full = guide.settings.training_paths;
                 guide.settings.training_paths = (full / training::SCOUT_FRACTION).max(1);
-                let report =
+                let scout_started = Instant::now();
+                let mut report =
                     training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history);
                 guide.settings.training_paths = full;
+                // With a time budget: the rest of the training, at the scout's pace, must fit
+                // in BUDGET_SHARE of it with what the precomputation has spent already.
+                let rest =
+                    scout_started.elapsed().as_secs_f64() * (training::SCOUT_FRACTION - 1) as f64;
+                let over_budget = settings
+                    .time_budget
+                    .is_some_and(|b| started.elapsed().as_secs_f64() + rest > BUDGET_SHARE * b);
+                if over_budget && report.paths > 0 {
+                    report.turn_off(settings);
+                }
                 Some(report).filter(|r| r.paths > 0 && r.probabilities.iter().all(|&c| c <= 0.0))
             } else {
                 None

@@ -202,6 +202,16 @@ pub struct TrainingReport {
 }
 
 impl TrainingReport {
+    /// Every node set to c = 0, as the scene-level switch does (the scout's time-budget
+    /// stop, `guide::skeleton`'s `BUDGET_SHARE`).
+    pub(super) fn turn_off(&mut self, settings: &super::SkeletonGuideSettings) {
+        self.scene.switched_off = true;
+        self.probabilities.fill(0.0);
+        self.strengths.fill(settings.strength);
+        self.relative_cost.fill(1.0);
+        self.lobe_weights.fill(None);
+    }
+
     /// Nothing learned: the fixed `c_skel` and strength at every node (no camera, no path).
     fn untrained(settings: &super::SkeletonGuideSettings, nodes: usize) -> TrainingReport {
         TrainingReport {

@@ -70,6 +70,8 @@ pub struct PathTracer {
     settings: IntegratorSettings,
     /// `path_skeleton`: `Some`, holding the guide once `prepare` has built it.
     guiding: Option<Option<Arc<SkeletonGuide>>>,
+    /// [`Integrator::set_time_budget`]'s seconds, for the skeleton guide's scout.
+    time_budget: Option<f64>,
 }
 
 impl PathTracer {
@@ -77,6 +79,7 @@ impl PathTracer {
         PathTracer {
             settings,
             guiding: None,
+            time_budget: None,
         }
     }
 
@@ -88,6 +91,7 @@ impl PathTracer {
         Ok(PathTracer {
             settings,
             guiding: Some(None),
+            time_budget: None,
         })
     }
 
@@ -304,6 +308,7 @@ impl Integrator for PathTracer {
         // The training scores its candidates with this render's light sampling and MIS.
         let mut skeleton = self.settings.skeleton;
         skeleton.render_estimator = self.estimator();
+        skeleton.time_budget = self.time_budget;
         let mut guide = SkeletonGuide::build(scene, Some(camera), &skeleton, progress)?;
         let pilot_started = std::time::Instant::now();
         let pilot = self.pilot(scene, camera, &guide);
@@ -401,6 +406,10 @@ impl Integrator for PathTracer {
         }
         self.guiding = Some(Some(Arc::new(guide)));
         Ok(Precomputation { stages, notes })
+    }
+
+    fn set_time_budget(&mut self, seconds: Option<f64>) {
+        self.time_budget = seconds;
     }
 
     fn check_prepared(&self, scene: &Scene) -> Result<()> {
