@@ -199,6 +199,14 @@ fn the_switch_turns_guiding_off_on_open_scenes_lit_in_the_camera_room() {
             family.description(),
             t.scene.efficiency()
         );
+        // The scout stopped the training (`guide::training`, "The scout"): the switch-off
+        // did not pay for the full training.
+        assert_eq!(
+            t.paths,
+            lacuna::guide::DEFAULT_TRAINING_PATHS / 8,
+            "{}",
+            family.description()
+        );
     }
 }
 
@@ -277,13 +285,13 @@ fn per_sample(
 /// switches off a scene that gains (rooms:30).
 #[test]
 fn the_pilot_agrees_with_the_measured_per_sample_efficiency() {
-    let forced =
-        "path_skeleton:training_significance=0:training_min_nonzero=1:training_guided_cost=0";
+    // The pilot's cost as a work count (`pilot_cost=work`), which this test measures too.
+    let forced = "path_skeleton:training_significance=0:training_min_nonzero=1:training_guided_cost=0:pilot_cost=work";
     // Unbounded (`ratio_max=off`) the forced choices lose on rooms:3; bounded they gain.
     let forced_unbounded = format!("{forced}:ratio_max=off");
     let cases = [
-        (30, "path_skeleton"),
-        (33, "path_skeleton"),
+        (30, "path_skeleton:pilot_cost=work"),
+        (33, "path_skeleton:pilot_cost=work"),
         (3, forced),
         (3, forced_unbounded.as_str()),
     ];
@@ -458,4 +466,119 @@ fn probe_prediction() {
             );
         }
     }
+}
+
+/// FNV-1a of a string: a short, stable fingerprint of exact values.
+fn fingerprint(text: &str) -> u64 {
+    text.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// The bits of a 24x16, 4 spp render of `spec` on rooms:SEED at max depth 65 (2 threads).
+fn image_fingerprint(seed: u64, spec: &str) -> (u64, Option<lacuna::guide::TrainingReport>) {
+    let family = FamilyScene::generate(seed);
+    let scene = family.builder().unwrap().build().unwrap();
+    let settings = IntegratorSettings {
+        max_depth: 65,
+        ..Default::default()
+    };
+    let (_, settings) = integrator::parse_spec(spec, settings).unwrap();
+    let mut pt = if spec.starts_with("path_skeleton") {
+        lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap()
+    } else {
+        lacuna::integrator::PathTracer::new(settings)
+    };
+    prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+    let rs = RenderSettings {
+        width: 24,
+        height: 16,
+        spp: 4,
+        threads: Some(2),
+        ..Default::default()
+    };
+    let (film, _) = lacuna::render::render(
+        &scene,
+        &family.camera,
+        &pt,
+        &rs,
+        &|_| true,
+        &std::sync::atomic::AtomicBool::new(false),
+    )
+    .unwrap();
+    let bits: String = film
+        .radiance()
+        .iter()
+        .map(|p| {
+            format!(
+                "{:08x}{:08x}{:08x}",
+                p.x.to_bits(),
+                p.y.to_bits(),
+                p.z.to_bits()
+            )
+        })
+        .collect();
+    let training = pt.guide().and_then(|g| g.training().cloned());
+    (fingerprint(&bits), training)
+}
+
+/// The path tracer and the training share one estimator (`guide::estimator`): pinned
+/// fingerprints of `path`'s and the guided render's pixels and of the training's report (every
+/// node's choice and the scene-level prediction, exact values) on a family scene, taken before
+/// the two were made to share it. A change to either estimator's arithmetic or random
+/// numbers fails here; update the pins only for an intended change of behaviour.
+#[test]
+fn path_images_and_training_reports_are_pinned() {
+    let (path, _) = image_fingerprint(30, "path");
+    let (guided, training) = image_fingerprint(30, "path_skeleton:pilot_paths=0");
+    let report = fingerprint(&format!("{:?}", training.unwrap()));
+    println!("pins: path {path:#018x} guided {guided:#018x} report {report:#018x}");
+    assert_eq!(path, 0xea47_0cab_a65d_9f81);
+    assert_eq!(guided, 0xda63_c17a_929d_b81d);
+    assert_eq!(report, 0x50d3_dc6c_f70d_65c4);
+    // A scene the scout lets through learns what it learns without the scout and pilot (the
+    // scout's paths are the full training's first; the pilot here keeps guiding).
+    let (_, piloted) = image_fingerprint(30, "path_skeleton:pilot_cost=work");
+    let mut piloted = piloted.unwrap();
+    assert_eq!(piloted.paths, lacuna::guide::DEFAULT_TRAINING_PATHS);
+    assert!(piloted.scene.pilot.take().unwrap().pays());
+    assert_eq!(fingerprint(&format!("{piloted:?}")), report);
+}
+
+/// The pilot's verdict weighs the variance ratio by the measured cost: with the default
+/// `pilot_cost=time`, the guided samples' time over the unguided ones' (traced interleaved);
+/// with `work`, the ray ratio times the training's overhead ratio. Both pilots see the same
+/// training and the same variances (no timing is asserted, only which cost decides).
+#[test]
+fn the_pilot_decides_with_the_measured_cost() {
+    let forced =
+        "path_skeleton:training_significance=0:training_min_nonzero=1:training_guided_cost=0";
+    let pilot_of = |spec: &str| {
+        let family = FamilyScene::generate(3);
+        let scene = family.builder().unwrap().build().unwrap();
+        let settings = IntegratorSettings {
+            max_depth: 65,
+            ..Default::default()
+        };
+        let (_, settings) = integrator::parse_spec(spec, settings).unwrap();
+        let mut pt = lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap();
+        prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+        let guide = pt.guide().unwrap();
+        let t = guide.training().unwrap();
+        let pilot = t.scene.pilot.expect("the forced choices are piloted");
+        assert_eq!(guide.guides_nothing(), !pilot.pays());
+        (pilot, t.scene.cost_ratio)
+    };
+    let (timed, _) = pilot_of(forced);
+    let (counted, training_cost) = pilot_of(&format!("{forced}:pilot_cost=work"));
+    assert!(timed.seconds_path > 0.0 && timed.seconds_guided > 0.0);
+    assert_eq!(timed.cost_ratio, timed.seconds_guided / timed.seconds_path);
+    let rays = counted.rays_per_sample_guided / counted.rays_per_sample_path;
+    assert_eq!(counted.cost_ratio, rays * training_cost);
+    assert_eq!(timed.variance_path, counted.variance_path);
+    assert_eq!(timed.variance_guided, counted.variance_guided);
+    assert_eq!(
+        timed.pays(),
+        1.0 / (timed.variance_ratio() * timed.cost_ratio) > 1.1
+    );
 }

@@ -20,6 +20,12 @@ fn family_files(seed: u64, test: &str) -> (FamilyScene, PathBuf) {
     (family, json)
 }
 
+/// The training ran: all of `SPEC`'s 4096 paths, or the scout's eighth of them where the
+/// scout found nothing to guide (`guide::training`, "The scout").
+fn reached_training(paths: u32) -> bool {
+    paths == 4096 || paths == 4096 / 8
+}
+
 /// Prepares `path_skeleton` for `camera` and returns (training paths, nodes the training
 /// reached).
 fn trained(scene: &Scene, camera: &Camera) -> (u32, Vec<u32>) {
@@ -43,7 +49,7 @@ fn a_camera_given_apart_from_the_scene_reaches_the_training() {
     let scene = loaded.builder.build().unwrap();
     assert!(scene.camera().is_none(), "an OBJ has no camera");
     let (paths, samples) = trained(&scene, &family.camera);
-    assert_eq!(paths, 4096);
+    assert!(reached_training(paths), "{paths} training paths");
     assert!(samples.iter().any(|&n| n > 0), "no node reached");
 
     // The view trained from is the one given, not some other: a camera in the other room
@@ -69,7 +75,7 @@ fn the_scene_files_camera_and_the_automatic_framing_reach_the_training() {
     let camera = *scene.camera().expect("the scene file's camera");
     assert_eq!(camera.eye, family.camera.eye);
     let (paths, samples) = trained(&scene, &camera);
-    assert_eq!(paths, 4096);
+    assert!(reached_training(paths), "{paths} training paths");
     assert!(samples.iter().any(|&n| n > 0));
 
     // Automatic framing, on a roofless scene so the view from outside sees in.
@@ -81,7 +87,7 @@ fn the_scene_files_camera_and_the_automatic_framing_reach_the_training() {
     let scene = loaded.builder.build().unwrap();
     let camera = auto_camera(scene.bounds(), 4.0 / 3.0);
     let (paths, samples) = trained(&scene, &camera);
-    assert_eq!(paths, 4096);
+    assert!(reached_training(paths), "{paths} training paths");
     assert!(samples.iter().any(|&n| n > 0));
 }
 
@@ -130,7 +136,11 @@ fn command_line_camera_flags_reach_the_training() {
         .lines()
         .find(|l| l.contains("training paths"))
         .unwrap_or_else(|| panic!("no training note in {stdout}"));
-    assert!(note.contains("reached by 4096 training paths"), "{note}");
+    assert!(
+        note.contains("reached by 4096 training paths")
+            || note.contains("reached by 512 training paths"),
+        "{note}"
+    );
     assert!(!note.contains("(0 reached"), "{note}");
     assert!(Path::new(&out_file).exists());
 }

@@ -1399,7 +1399,8 @@ fn a_guide_that_guides_nothing_renders_paths_image() {
 /// guiding pays several times over, `paths` keeps the same choices as `vertices`.
 #[test]
 fn the_path_level_switch_drops_forced_choices_and_keeps_the_corridor() {
-    let options = "c_skel=learned:aim=portal:visibility=voxel:training_paths=16384:training_significance=0:training_guided_cost=0:training_min_nonzero=1";
+    // No pilot and so no scout: the full training's prediction is what is tested.
+    let options = "c_skel=learned:aim=portal:visibility=voxel:training_paths=16384:training_significance=0:training_guided_cost=0:training_min_nonzero=1:pilot_paths=0";
     let spec = |model: &str| format!("{options}:cost_model={model}");
     let settings = |model: &str| {
         let mut settings = SkeletonGuideSettings::default();

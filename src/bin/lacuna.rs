@@ -277,7 +277,7 @@ struct CompareArgs {
     /// `training_guided_cost`, `cost_model`, `lobe_weights`, `c_max`, `directions`
     /// (`learned`, the default: learned histograms replace the lobes; `lobes`; a learned
     /// `lobe_weights` or `strength` implies `lobes`), `training_passes`, `training_history`,
-    /// `histogram_floor`, `ratio_max`, `pilot_paths`
+    /// `histogram_floor`, `ratio_max`, `pilot_paths`, `pilot_cost`
     /// (e.g. `path,path:rr_depth=3,path_skeleton`); for bdpt_skeleton `subset`, `accept`,
     /// `images`, `resolution`, `voxel_budget` and for bdpt_ic `subset`, `density`, `images`
     /// (e.g. `bdpt,bdpt_skeleton:subset=1024:accept=1,bdpt_ic`);

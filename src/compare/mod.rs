@@ -324,6 +324,9 @@ pub fn compare(
             let c = (k + run as usize) % n;
             let start = Instant::now();
             let offset = done;
+            contenders[c]
+                .integrator
+                .set_time_budget(Some(seconds_per_run));
             let prepare_progress = |_: &str, _: f64| {
                 progress(Progress {
                     fraction: offset / total,

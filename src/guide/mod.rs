@@ -12,6 +12,7 @@
 //! (eq. 168-170, [`GuideQuery::mixture_pdf`]).
 
 pub mod directional;
+pub mod estimator;
 mod mixture;
 pub mod resampling;
 mod skeleton;
@@ -21,9 +22,9 @@ pub use directional::DirectionalTable;
 pub use mixture::{sample_bsdf_or_guide, MixtureSample};
 pub use resampling::ResamplingSettings;
 pub use skeleton::{
-    CostModel, GuideLobe, GuideQuery, ImportanceNode, LobeAim, LobeFallback, RenderEstimator,
-    SkeletonGuide, SkeletonGuideSettings, SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX,
-    DEFAULT_TRAINING_DEPTH, DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET, MAX_LOBES, MAX_STRENGTH,
-    OPTION_NAMES, STRENGTH_CANDIDATES,
+    CostModel, GuideLobe, GuideQuery, ImportanceNode, LobeAim, LobeFallback, PilotCost,
+    RenderEstimator, SkeletonGuide, SkeletonGuideSettings, SkeletonStrength, TrainingCost,
+    DEFAULT_AUTO_MAX, DEFAULT_TRAINING_DEPTH, DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET,
+    MAX_LOBES, MAX_STRENGTH, OPTION_NAMES, STRENGTH_CANDIDATES,
 };
 pub use training::{Pilot, SceneChoice, TrainingReport, CANDIDATES, TRAINING_C};

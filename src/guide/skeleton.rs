@@ -308,6 +308,9 @@ pub struct SkeletonGuideSettings {
     /// that checks the scene-level switch's prediction with the render's own estimator
     /// (`integrator::path`, "The pilot"), each traced twice guided and twice unguided.
     pub pilot_paths: u32,
+    /// `pilot_cost=time` (the default) or `work`: what the pilot takes as the guided
+    /// sample's cost against the unguided one's (`integrator::path`, "The pilot").
+    pub pilot_cost: PilotCost,
     /// Camera paths of the training pass (`training_paths`).
     pub training_paths: u32,
     /// `training_passes=N` (with `directions=learned`; default 1): training passes of
@@ -369,7 +372,16 @@ pub struct SkeletonGuideSettings {
     /// its own settings; a host's guide keeps the defaults (power heuristic, area-sampled
     /// triangles, the default environment strategy). Not an option key.
     pub render_estimator: RenderEstimator,
+    /// The wall-clock seconds the whole run (precomputation and render) may take, where the
+    /// host gave a budget (`lacuna compare`; `Integrator::set_time_budget`): the scout then
+    /// also stops the training where the full training would take more than
+    /// [`BUDGET_SHARE`] of it. Not an option key.
+    pub time_budget: Option<f64>,
 }
+
+/// The largest share of a time budget the training may take after its scout (a guide that
+/// gains E per sample then still ends at E (1 - share) of `path`).
+pub const BUDGET_SHARE: f64 = 0.2;
 
 /// The render's light sampling and MIS heuristic, as the training must reproduce them.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -483,6 +495,29 @@ pub const DEFAULT_TRAINING_DEPTH: u32 = 8;
 /// second on the family scenes.
 pub const DEFAULT_PILOT_PATHS: u32 = 32768;
 
+/// What the pilot takes as a sample's cost (`pilot_cost`; `integrator::path`, "The pilot").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PilotCost {
+    /// `time`: the measured time of the guided samples against the unguided ones, traced
+    /// interleaved (what the render pays; the verdict then varies a little between runs).
+    Time,
+    /// `work`: rays traced per sample times the training's overhead ratio (a deterministic
+    /// count, which underestimates the guided queries' cost).
+    Work,
+}
+
+impl PilotCost {
+    pub fn parse(text: &str) -> Result<Self> {
+        match text.trim() {
+            "time" => Ok(PilotCost::Time),
+            "work" => Ok(PilotCost::Work),
+            other => Err(Error::invalid(format!(
+                "skeleton pilot_cost '{other}' must be 'time' or 'work'"
+            ))),
+        }
+    }
+}
+
 /// Where a lobe points from a surface point x.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LobeAim {
@@ -564,6 +599,7 @@ impl Default for SkeletonGuideSettings {
             cost_model: CostModel::Paths,
             training_depth: DEFAULT_TRAINING_DEPTH,
             pilot_paths: DEFAULT_PILOT_PATHS,
+            pilot_cost: PilotCost::Time,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_passes: 1,
             training_history: false,
@@ -580,6 +616,7 @@ impl Default for SkeletonGuideSettings {
             aim: LobeAim::Portal,
             fallback: LobeFallback::Point,
             render_estimator: RenderEstimator::default(),
+            time_budget: None,
         }
     }
 }
@@ -611,10 +648,22 @@ pub const OPTION_NAMES: &[&str] = &[
     "cost_model",
     "directions",
     "pilot_paths",
+    "pilot_cost",
 ];
 
 impl SkeletonGuideSettings {
     /// Whether the guide runs the training pass (something is learned).
+    /// Whether the training starts with a scout (`guide::training`, "The scout"): where the
+    /// choices are learned and checked by the scene-level switch and the pilot, in one pass.
+    pub fn scouts(&self) -> bool {
+        self.learned_c_skel
+            && self.cost_model.switches()
+            && self.pilot_paths > 0
+            && self.training_passes == 1
+            && !self.training_history
+            && self.training_paths >= training::SCOUT_FRACTION
+    }
+
     pub fn trains(&self) -> bool {
         self.learned_c_skel
             || self.learned_strength
@@ -678,6 +727,7 @@ impl SkeletonGuideSettings {
             }
             "training_depth" => next.training_depth = number(key, value)?,
             "pilot_paths" => next.pilot_paths = number(key, value)?,
+            "pilot_cost" => next.pilot_cost = PilotCost::parse(value)?,
             "training_paths" => next.training_paths = number(key, value)?,
             "training_passes" => next.training_passes = number(key, value)?,
             "histogram_floor" => next.histogram_floor = number(key, value)?,
@@ -1141,6 +1191,7 @@ impl SkeletonGuide {
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<SkeletonGuide> {
         settings.validate()?;
+        let started = Instant::now();
         if !progress("start", 0.0) {
             return Err(Error::Cancelled);
         }
@@ -1275,8 +1326,35 @@ impl SkeletonGuide {
                     0
                 }
             ];
-            let mut report =
-                training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history);
+            // The scout (`guide::training`, "The scout"): a fraction of the training paths
+            // first, and the full training only if their choices guide anything.
+            let scout = if settings.scouts() && camera.is_some() {
+                let full = guide.settings.training_paths;
+                guide.settings.training_paths = (full / training::SCOUT_FRACTION).max(1);
+                let scout_started = Instant::now();
+                let mut report =
+                    training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history);
+                guide.settings.training_paths = full;
+                // With a time budget: the rest of the training, at the scout's pace, must fit
+                // in BUDGET_SHARE of it with what the precomputation has spent already.
+                let rest =
+                    scout_started.elapsed().as_secs_f64() * (training::SCOUT_FRACTION - 1) as f64;
+                let over_budget = settings
+                    .time_budget
+                    .is_some_and(|b| started.elapsed().as_secs_f64() + rest > BUDGET_SHARE * b);
+                if over_budget && report.paths > 0 {
+                    report.turn_off(settings);
+                }
+                Some(report).filter(|r| r.paths > 0 && r.probabilities.iter().all(|&c| c <= 0.0))
+            } else {
+                None
+            };
+            let mut report = match scout {
+                Some(report) => report,
+                None => {
+                    training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history)
+                }
+            };
             // Iterative training (`training_passes`): each later pass samples every node from
             // the previous pass's distributions (a uniform one where it had none) and learns
             // them again from its own samples; only the last pass's choices are kept.

@@ -23,7 +23,9 @@
 //! The render MIS-weights its direction sample against a light sample, so a candidate is
 //! judged by that estimate, w_l n + (w_e e + r) / q_c,s, with the render's heuristic and light
 //! sampling (`SkeletonGuideSettings::render_estimator`): f / q alone would credit guiding
-//! toward lamps that next-event estimation already finds ([`Sample::terms`]).
+//! toward lamps that next-event estimation already finds ([`Sample::terms`]). The light
+//! samples and the light densities of emitters hit are the render's own
+//! (`guide::estimator`, which `integrator::path` renders with).
 //!
 //! # Cost
 //!
@@ -63,6 +65,16 @@
 //! judged ([`SceneChoice`]): below 1 + `SCENE_MARGIN` predicted efficiency nothing is guided
 //! ([`SkeletonGuide::guides_nothing`]) and `path_skeleton` renders `path`'s image exactly.
 //!
+//! # The scout
+//!
+//! Where the choices face the scene-level switch and the pilot (`c_skel=learned`, a switching
+//! cost model, `pilot_paths` > 0, one training pass), the training first traces
+//! 1 / [`SCOUT_FRACTION`] of its paths. If the choices from those guide no node (none beats
+//! c = 0 by the significance rule on so few samples, or the scene-level switch turns them
+//! off), the training stops there and nothing is guided: the full training's cost is paid
+//! only where the scout saw something to gain. The scout's paths are the first of the full
+//! training's, so a scene that goes on learns exactly what it learned without the scout.
+//!
 //! # The path-level prediction
 //!
 //! `cost_model=paths` (the default) takes the variance ratio from whole training paths, as a
@@ -78,6 +90,7 @@ use std::sync::atomic::{AtomicU32, Ordering as AtomicOrdering};
 use rayon::prelude::*;
 
 use super::directional::{self, DirectionalTable};
+use super::estimator::{self, DirectLight};
 use super::{
     sample_bsdf_or_guide, CostModel, GuideQuery, RenderEstimator, SkeletonGuide, SkeletonStrength,
     TrainingCost,
@@ -93,6 +106,8 @@ pub const TRAINING_C: f32 = 0.5;
 pub const CANDIDATES: [f32; 11] = [0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9];
 /// Most strengths a training pass compares.
 const MAX_STRENGTHS: usize = STRENGTH_CANDIDATES.len();
+/// The scout's share of the training paths is 1 / this (module docs, "The scout").
+pub(super) const SCOUT_FRACTION: u32 = 8;
 /// Camera paths per chunk (the fixed work partition).
 const CHUNK: u32 = 1024;
 /// Training samples a node needs before it may be guided (how many must be non-zero is the
@@ -187,6 +202,16 @@ pub struct TrainingReport {
 }
 
 impl TrainingReport {
+    /// Every node set to c = 0, as the scene-level switch does (the scout's time-budget
+    /// stop, `guide::skeleton`'s `BUDGET_SHARE`).
+    pub(super) fn turn_off(&mut self, settings: &super::SkeletonGuideSettings) {
+        self.scene.switched_off = true;
+        self.probabilities.fill(0.0);
+        self.strengths.fill(settings.strength);
+        self.relative_cost.fill(1.0);
+        self.lobe_weights.fill(None);
+    }
+
     /// Nothing learned: the fixed `c_skel` and strength at every node (no camera, no path).
     fn untrained(settings: &super::SkeletonGuideSettings, nodes: usize) -> TrainingReport {
         TrainingReport {
@@ -269,8 +294,13 @@ pub struct Pilot {
     /// Rays traced (closest hits and shadow rays) per sample, unguided and guided.
     pub rays_per_sample_path: f64,
     pub rays_per_sample_guided: f64,
-    /// Guided cost per sample relative to unguided: the ray ratio times the training's
-    /// overhead ratio (the guided queries and node mapping per vertex).
+    /// Time spent tracing the unguided and the guided samples (interleaved ray by ray, so
+    /// that the machine's load weighs on both alike).
+    pub seconds_path: f64,
+    pub seconds_guided: f64,
+    /// Guided cost per sample relative to unguided: with `pilot_cost=time` the ratio of the
+    /// measured times, with `work` the ray ratio times the training's overhead ratio (the
+    /// guided queries and node mapping per vertex).
     pub cost_ratio: f64,
 }
 
@@ -1269,13 +1299,13 @@ fn train_path(
 ) {
     let mut beta = Rgb::ONE;
     let depth = guide.settings().training_depth;
-    let estimator = &guide.settings().render_estimator;
+    let render = &guide.settings().render_estimator;
     let lobe_weights = guide.settings().learned_lobe_weights;
     let mut path: Vec<TrainingVertex> = Vec::with_capacity(depth as usize);
-    let mut own_light = light_sample(scene, &si, rng, estimator);
+    let mut own_light = light_sample(scene, &si, rng, render);
     let first = own_light
         .as_ref()
-        .map_or(0.0, |l| finite_luminance(l.value));
+        .map_or(0.0, |l| finite_luminance(l.unweighted()));
     for _ in 0..depth {
         let bsdf = scene.bsdf(&si);
         let frame = si.shading_frame();
@@ -1290,11 +1320,11 @@ fn train_path(
         let guided = query.guiding_probability() > 0.0;
         let mut nee = NeeTerms::default();
         if let (true, Some(l)) = (guided, &own_light) {
-            let value = luminance(beta * l.value);
+            let value = luminance(beta * l.unweighted());
             if value.is_finite() && value > 0.0 {
                 nee = NeeTerms {
                     value,
-                    p_light: l.p_light,
+                    p_light: l.mis_pdf(),
                     wi: l.wi,
                     p_bsdf: bsdf.pdf(wo_local, l.wi_local),
                     p_skel: query.pdf(l.wi),
@@ -1366,11 +1396,11 @@ fn train_path(
         let f_cos = bs.f * bs.wi.z.abs();
         let weight = f_cos / bs.pdf;
         let next = scene.intersect(&si.spawn_ray(wi));
-        let (emitted, p_light) = arriving_emission(scene, &si, wi, next.as_ref(), estimator);
+        let (emitted, p_light) = arriving_emission(scene, &si, wi, next.as_ref(), render);
         let next_light = next
             .as_ref()
-            .and_then(|n| light_sample(scene, n, rng, estimator));
-        let direct = next_light.as_ref().map_or(Rgb::ZERO, |l| l.value);
+            .and_then(|n| light_sample(scene, n, rng, render));
+        let direct = next_light.as_ref().map_or(Rgb::ZERO, |l| l.unweighted());
         path.push(TrainingVertex {
             sample: guided.then(|| {
                 let f_emitted = luminance(beta * f_cos * emitted);
@@ -1518,54 +1548,36 @@ fn strength_pdfs(
 
 /// Emitted radiance arriving at `si` along `wi` (L_e of the next vertex `next`, or the
 /// environment's), and the density with which the render's light sampling at `si` draws
-/// that direction (pmf x pdf, as `path` weighs a BSDF-sampled hit; 0 if it is no light).
+/// that direction (pmf x pdf, as `path` weighs a BSDF-sampled hit; 0 if it is no light): the
+/// render's own densities ([`estimator::emitter_light_pdf`], [`estimator::environment_along`]).
 fn arriving_emission(
     scene: &Scene,
     si: &SurfaceInteraction,
     wi: Vec3,
     next: Option<&SurfaceInteraction>,
-    estimator: &RenderEstimator,
+    render: &RenderEstimator,
 ) -> (Rgb, f32) {
-    let pmf = |light: usize| scene.light_sampler().map_or(0.0, |s| s.pmf(light));
     match next {
         Some(n) => {
             let le = scene.emitted(n);
             if le == Rgb::ZERO {
                 return (le, 0.0);
             }
-            let p_light = scene.triangle_light(n.triangle).map_or(0.0, |light| {
-                pmf(light) * scene.lights()[light].pdf_with(si.p, n.p, estimator.triangles)
-            });
-            (le, p_light)
+            (le, estimator::emitter_light_pdf(scene, si.p, n, render))
         }
-        None => match scene.environment() {
-            Some((index, env)) => {
-                let le = env.radiance(wi);
-                let pdf = env.pdf(estimator.env, si.facing_normal(), wi);
-                (le, pmf(index) * pdf)
-            }
-            None => (Rgb::ZERO, 0.0),
-        },
+        None => estimator::environment_along(scene, si.facing_normal(), wi, render)
+            .unwrap_or((Rgb::ZERO, 0.0)),
     }
 }
 
-/// One light sample at a vertex: its unweighted estimate of the reflected direct light
-/// (f_s |cos| L / p_light toward `si.wo`), its direction and its light density.
-struct LightSampleAt {
-    value: Rgb,
-    wi: Vec3,
-    wi_local: Vec3,
-    /// pmf x pdf; infinite for a delta light (MIS weight 1 against any direction density).
-    p_light: f32,
-}
-
-/// One light sample at `si` (None where it carries nothing: a delta BSDF, no light, occluded).
+/// The render's light sample at `si` ([`estimator::sample_direct_light`]; None where it
+/// carries nothing: a delta BSDF, no light, occluded).
 fn light_sample(
     scene: &Scene,
     si: &SurfaceInteraction,
     rng: &mut Sampler,
-    estimator: &RenderEstimator,
-) -> Option<LightSampleAt> {
+    render: &RenderEstimator,
+) -> Option<DirectLight> {
     let bsdf = scene.bsdf(si);
     if bsdf.is_delta() {
         return None;
@@ -1573,26 +1585,17 @@ fn light_sample(
     let frame = si.shading_frame();
     let u = rng.uniform2();
     let wo_local = frame.to_local(si.wo);
-    let t = scene.sample_light_toward(
+    let mut shadow_rays = 0;
+    estimator::sample_direct_light(
+        scene,
         si,
         &frame,
         &bsdf,
         wo_local,
-        estimator.env,
-        estimator.triangles,
+        render,
         u,
-    )?;
-    let (ls, pmf, f) = (t.sample, t.pmf, t.f_cos);
-    if !(ls.pdf > 0.0) || !scene.unoccluded(si, &ls) {
-        return None;
-    }
-    let p_light = pmf * ls.pdf;
-    Some(LightSampleAt {
-        value: f * ls.radiance / p_light,
-        wi: ls.wi,
-        wi_local: t.wi_local,
-        p_light: if ls.delta { f32::INFINITY } else { p_light },
-    })
+        &mut shadow_rays,
+    )
 }
 #[cfg(test)]
 mod tests {

@@ -251,6 +251,11 @@ pub trait Integrator: Send + Sync {
         Ok(Precomputation::default())
     }
 
+    /// The wall-clock seconds the next `prepare` and render may take together, where the host
+    /// gave a budget (`lacuna compare`): a precomputation may then stop early rather than
+    /// spend the render's time (`path_skeleton`'s scout). Most integrators ignore it.
+    fn set_time_budget(&mut self, _seconds: Option<f64>) {}
+
     /// Fails when rendering `scene` needs a `prepare` for it that has not run.
     fn check_prepared(&self, _scene: &Scene) -> Result<()> {
         Ok(())
