@@ -144,3 +144,43 @@ fn command_line_camera_flags_reach_the_training() {
     assert!(!note.contains("(0 reached"), "{note}");
     assert!(Path::new(&out_file).exists());
 }
+
+/// `lacuna render --time` hands its budget to the integrator as `lacuna compare` does: on the
+/// corridor, where the scout's choices guide something and the full training runs without a
+/// budget, a 0.2 s budget stops the training after the scout (its eighth of the paths), since
+/// the rest would take more than a fifth of the budget.
+#[test]
+fn a_time_budget_on_the_command_line_reaches_the_scout() {
+    let spec = "path_skeleton:training_paths=65536";
+    let dir = std::env::temp_dir().join(format!("lacuna-guide-budget-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let training_note = |budget: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_lacuna"))
+            .args(["render", "corridor", "--integrator", spec, "--quiet"])
+            .args(["--width", "16", "--height", "12", "--threads", "2"])
+            .args(budget)
+            .arg("--out")
+            .arg(dir.join("budget.exr"))
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+        stdout
+            .lines()
+            .find(|l| l.contains("training paths"))
+            .unwrap_or_else(|| panic!("no training note in {stdout}"))
+            .to_string()
+    };
+    let unbudgeted = training_note(&["--spp", "1"]);
+    assert!(
+        unbudgeted.contains("by 65536 training paths"),
+        "{unbudgeted}"
+    );
+    let budgeted = training_note(&["--time", "0.2"]);
+    assert!(budgeted.contains("by 8192 training paths"), "{budgeted}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -724,6 +724,8 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         }
         Box::new(bdpt)
     };
+    // `--time`: a precomputation may stop early rather than spend the render's time.
+    integrator.set_time_budget(prep.settings.render.time_limit.map(|t| t.as_secs_f64()));
     lacuna::film::Film::check_budget(
         prep.settings.render.width,
         prep.settings.render.height,

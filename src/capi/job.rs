@@ -68,8 +68,15 @@ pub(crate) struct JobSettings {
 }
 
 impl JobSettings {
-    /// The integrator these settings describe.
+    /// The integrator these settings describe, told the job's time budget (a precomputation
+    /// may stop early rather than spend the render's time).
     pub(crate) fn make_integrator(&self) -> crate::error::Result<Box<dyn Integrator>> {
+        let mut integrator = self.make_integrator_unbudgeted()?;
+        integrator.set_time_budget(self.resolved.render.time_limit.map(|t| t.as_secs_f64()));
+        Ok(integrator)
+    }
+
+    fn make_integrator_unbudgeted(&self) -> crate::error::Result<Box<dyn Integrator>> {
         if self.strategy.is_none() && self.strategy_images.is_none() {
             return integrator::create(
                 &self.resolved.integrator,

@@ -252,8 +252,9 @@ pub trait Integrator: Send + Sync {
     }
 
     /// The wall-clock seconds the next `prepare` and render may take together, where the host
-    /// gave a budget (`lacuna compare`): a precomputation may then stop early rather than
-    /// spend the render's time (`path_skeleton`'s scout). Most integrators ignore it.
+    /// gave a budget (`lacuna compare`, `lacuna render --time`, a C API job's time budget): a
+    /// precomputation may then stop early rather than spend the render's time
+    /// (`path_skeleton`'s scout). Most integrators ignore it.
     fn set_time_budget(&mut self, _seconds: Option<f64>) {}
 
     /// Fails when rendering `scene` needs a `prepare` for it that has not run.
