@@ -111,7 +111,7 @@ static void test_photometric(const lacuna::Context &ctx) {
     CHECK(p.intensity(lacuna::vec3(0, 0, 1)) == 100.0f);
     auto [d, pdf] = p.sample(0.25f, 0.5f);
     CHECK(pdf > 0 && std::fabs(p.pdf(d) - pdf) <= 1e-3f * pdf);
-    EXPECT_ERROR(lacuna::PhotometricProfile::from_ies_buffer(ies, 30), LACUNA_STATUS_PARSE, "ends before");
+    EXPECT_ERROR(lacuna::PhotometricProfile::from_ies_buffer(ies, 28), LACUNA_STATUS_PARSE, "ends before the lumens");
     EXPECT_ERROR(lacuna::PhotometricProfile::from_file("/nonexistent/lamp.ies"), LACUNA_STATUS_IO, "lamp.ies");
     EXPECT_ERROR(p.sample(1.5f, 0), LACUNA_STATUS_OUT_OF_RANGE, "u0");
     EXPECT_ERROR(lacuna::PhotometricProfile::from_ldt_buffer(ies, sizeof ies - 1), LACUNA_STATUS_PARSE, "line");
