@@ -5,7 +5,7 @@ mod common;
 use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::math::luminance;
 use lacuna::render::{prepare, RenderSettings};
-use lacuna::scene::FamilyScene;
+use lacuna::scene::{FamilyScene, Scene};
 
 /// The largest single-sample luminance of `spec` over `seeds` one-sample renders, the mean,
 /// and the render's largest guided path weight against `path`'s.
@@ -210,13 +210,9 @@ fn the_switch_turns_guiding_off_on_open_scenes_lit_in_the_camera_room() {
     }
 }
 
-/// Per-sample variance (pixel variance over independent renders, averaged over the image) and
-/// rays per sample of `spec` on a family scene, and its guide's training report.
-fn per_sample(
-    seed: u64,
-    spec: &str,
-    renders: u64,
-) -> (f64, f64, Option<lacuna::guide::TrainingReport>) {
+/// rooms:SEED, its scene, and `spec` (`path` or `path_skeleton[:options]`) at max depth 65,
+/// prepared for the family's camera on 2 threads.
+fn prepared(seed: u64, spec: &str) -> (FamilyScene, Scene, lacuna::integrator::PathTracer) {
     let family = FamilyScene::generate(seed);
     let scene = family.builder().unwrap().build().unwrap();
     let settings = IntegratorSettings {
@@ -230,6 +226,17 @@ fn per_sample(
         lacuna::integrator::PathTracer::new(settings)
     };
     prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+    (family, scene, pt)
+}
+
+/// Per-sample variance (pixel variance over independent renders, averaged over the image) and
+/// rays per sample of `spec` on a family scene, and its guide's training report.
+fn per_sample(
+    seed: u64,
+    spec: &str,
+    renders: u64,
+) -> (f64, f64, Option<lacuna::guide::TrainingReport>) {
+    let (family, scene, pt) = prepared(seed, spec);
     let (w, h, spp) = (32u32, 16u32, 8u32);
     let n = (w * h) as usize;
     let (mut sum, mut sum2, mut rays) = (vec![0f64; n], vec![0f64; n], 0u64);
@@ -477,19 +484,7 @@ fn fingerprint(text: &str) -> u64 {
 
 /// The bits of a 24x16, 4 spp render of `spec` on rooms:SEED at max depth 65 (2 threads).
 fn image_fingerprint(seed: u64, spec: &str) -> (u64, Option<lacuna::guide::TrainingReport>) {
-    let family = FamilyScene::generate(seed);
-    let scene = family.builder().unwrap().build().unwrap();
-    let settings = IntegratorSettings {
-        max_depth: 65,
-        ..Default::default()
-    };
-    let (_, settings) = integrator::parse_spec(spec, settings).unwrap();
-    let mut pt = if spec.starts_with("path_skeleton") {
-        lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap()
-    } else {
-        lacuna::integrator::PathTracer::new(settings)
-    };
-    prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+    let (family, scene, pt) = prepared(seed, spec);
     let rs = RenderSettings {
         width: 24,
         height: 16,

@@ -21,7 +21,9 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::bdpt::{CameraVertex, Connection, ConnectionPolicy, LightPaths, PathObserver};
+use super::bdpt::{
+    CameraVertex, Connection, ConnectionPolicy, LightPaths, PathObserver, UniformPerPixel,
+};
 use super::resampled::{
     build_tables, distribution_layers, Anchor, OcclusionTally, Tables, NO_TABLE,
 };
@@ -242,12 +244,10 @@ impl ConnectionPolicy for IcResampler {
         &self,
         vertex: &CameraVertex,
         light_paths: usize,
-        _rng: &mut Sampler,
+        rng: &mut Sampler,
         connect: &mut dyn FnMut(usize, f32),
     ) {
-        if light_paths > 0 {
-            connect((vertex.pixel_index % light_paths as u64) as usize, 1.0);
-        }
+        UniformPerPixel.connect(vertex, light_paths, rng, connect);
     }
 
     fn connect_vertex(

@@ -30,7 +30,9 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::bdpt::{connect_whole_subpaths, CameraVertex, Connection, ConnectionPolicy, LightPaths};
+use super::bdpt::{
+    connect_whole_subpaths, CameraVertex, Connection, ConnectionPolicy, LightPaths, UniformPerPixel,
+};
 use super::resampled::{
     build_tables, distribution_layers, Anchor, OcclusionTally, Tables, NO_TABLE,
 };
@@ -192,12 +194,10 @@ impl ConnectionPolicy for SkeletonResampler {
         &self,
         vertex: &CameraVertex,
         light_paths: usize,
-        _rng: &mut Sampler,
+        rng: &mut Sampler,
         connect: &mut dyn FnMut(usize, f32),
     ) {
-        if light_paths > 0 {
-            connect((vertex.pixel_index % light_paths as u64) as usize, 1.0);
-        }
+        UniformPerPixel.connect(vertex, light_paths, rng, connect);
     }
 
     fn connect_vertex(

@@ -1606,36 +1606,29 @@ mod tests {
             }));
             assert!(seq.complex().is_closed());
             assert_eq!(seq.complex().betti(), before);
+            // A parallel thinning on two threads goes through the sequential one's steps.
+            let matches_sequential = |mut t: Thinning| {
+                let mut k = 0;
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(2)
+                    .build()
+                    .unwrap()
+                    .install(|| {
+                        t.run(Some(&mut |c, _| {
+                            assert_eq!(c.bytes(), &steps_seq[k][..]);
+                            k += 1;
+                        }))
+                    });
+                assert_eq!(k, steps_seq.len());
+            };
             let mut par = Thinning::new(cx.clone(), constraint, true, false);
             par.set_chunk_size(7);
-            let mut k = 0;
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(2)
-                .build()
-                .unwrap()
-                .install(|| {
-                    par.run(Some(&mut |c, _| {
-                        assert_eq!(c.bytes(), &steps_seq[k][..]);
-                        k += 1;
-                    }))
-                });
-            assert_eq!(k, steps_seq.len());
+            matches_sequential(par);
             // One part per thread, every pass split (the default split, without its
             // work threshold).
             let mut per_thread = Thinning::new(cx.clone(), constraint, true, false);
             per_thread.split_every_pass_per_thread();
-            let mut k = 0;
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(2)
-                .build()
-                .unwrap()
-                .install(|| {
-                    per_thread.run(Some(&mut |c, _| {
-                        assert_eq!(c.bytes(), &steps_seq[k][..]);
-                        k += 1;
-                    }))
-                });
-            assert_eq!(k, steps_seq.len());
+            matches_sequential(per_thread);
             // Idempotent: nothing left to collapse with the same W.
             let before_rerun = seq.complex().clone();
             assert_eq!(seq.run(None), 0);
