@@ -18,13 +18,15 @@
 //! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, "Procedural family"), and guided scenes lost
 //! to `path`. So before a trained guide is used, `prepare` traces a pilot with this file's own
 //! estimator at the render's depth: `pilot_paths` camera rays (drawn over the training's
-//! image), each traced twice unguided and twice guided with the same random numbers for both
-//! policies. Half the squared difference of a ray's two samples is an unbiased estimate of the
-//! variance along that ray (the pixel's variance less the part from where in the pixel the
-//! ray goes, which guiding does not change); their means give the measured variance ratio.
-//! The cost ratio is the time of the guided samples over the unguided ones' (`pilot_cost=time`,
-//! the default), traced interleaved ray by ray with the order alternating, so that load on the
-//! machine and warm caches weigh on both alike. A work count (`pilot_cost=work`: rays traced
+//! image), each traced twice unguided and twice guided with the
+//! same random numbers for both policies. Half the squared difference of a ray's two samples
+//! is an unbiased estimate of the variance along that ray (the pixel's variance less the part
+//! from where in the pixel the ray goes, which guiding does not change); their means give the
+//! measured variance ratio. The cost ratio is the time of the guided samples over the
+//! unguided ones' (`pilot_cost=time`, the default), in this thread's CPU time, timed in
+//! batches of 16 rays, the two policies in turn with the order alternating: time slices given
+//! to other processes do not enter it (wall time read 1.2-1.8x on one scene under a changing
+//! load), and neither policy is timed on warmer caches. A work count (`pilot_cost=work`: rays traced
 //! per sample times the training's overhead ratio for the queries and the node mapping,
 //! `guide::training`, "Cost") read 0.90-1.18x on family scenes whose measured cost was
 //! 1.12-1.46x. Unless 1 / (variance ratio x cost ratio) exceeds the switch's margin (1.1),
@@ -49,6 +51,7 @@ use crate::guide::{
 use crate::math::FIRST_INTEGRATOR_DIMENSION;
 use crate::math::{luminance, Frame, Rgb, Rng, Sampler, Vec3};
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction};
+use crate::timing::thread_cpu_seconds;
 
 /// Sampler dimension slots of one bounce, so that each slot means the same thing in every
 /// sample of a pixel (and a stratified sampler stratifies that one integral): the light 2-D
@@ -180,6 +183,9 @@ impl PathTracer {
 
 /// Camera rays per chunk of the pilot (the fixed work partition).
 const PILOT_CHUNK: u32 = 256;
+/// Rays timed together (one row of a pilot tile): the thread CPU clock is a system call,
+/// too slow to time a single sample against.
+const PILOT_BATCH: usize = 16;
 const PILOT_SEED: u64 = 0x9170_7a11;
 /// Width / height of the pilot's image: the training's (the render's is not known yet).
 const PILOT_ASPECT: f32 = 2.0;
@@ -210,38 +216,50 @@ impl PathTracer {
             return None;
         }
         let frame = camera.frame(PILOT_ASPECT);
-        let chunks: Vec<[f64; 6]> = (0..rays.div_ceil(PILOT_CHUNK))
+        let chunk_count = rays.div_ceil(PILOT_CHUNK);
+        let chunks: Vec<[f64; 6]> = (0..chunk_count)
             .into_par_iter()
             .map(|c| {
                 let mut query = GuideQuery::new();
                 let mut counters = [TraceCounters::default(), TraceCounters::default()];
                 let mut variance = [0f64; 2];
                 let mut seconds = [0f64; 2];
-                for i in c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(rays) {
-                    let mut pick = Rng::new(PILOT_SEED, i as u64);
-                    let ray = frame.generate_ray(pick.uniform2(), pick.uniform2());
-                    // Unguided and guided interleaved, first one then the other, so that
-                    // neither is timed on a warmer cache or a quieter machine.
+                let chunk_rays = c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(rays);
+                let chunk_rays: Vec<u32> = chunk_rays.collect();
+                for (b, batch) in chunk_rays.chunks(PILOT_BATCH).enumerate() {
+                    let batch_rays: Vec<Ray> = batch
+                        .iter()
+                        .map(|&i| {
+                            let mut pick = Rng::new(PILOT_SEED, i as u64);
+                            frame.generate_ray(pick.uniform2(), pick.uniform2())
+                        })
+                        .collect();
+                    // Unguided and guided in turn, which goes first alternating, so that
+                    // neither is timed on warmer caches.
                     for step in 0..2 {
-                        let k = (step + i as usize) % 2;
-                        let started = std::time::Instant::now();
-                        let mut l = [Rgb::ZERO; 2];
-                        for (j, lj) in l.iter_mut().enumerate() {
-                            // The same numbers for both policies: their difference is less
-                            // noisy than either.
-                            let mut rng =
-                                Sampler::independent(Rng::new(PILOT_SEED + 1 + j as u64, i as u64));
-                            let guided = if k == 1 {
-                                Some((guide, &mut query))
-                            } else {
-                                None
-                            };
-                            *lj = self
-                                .trace(scene, ray, &mut rng, &mut counters[k], guided)
-                                .radiance;
+                        let k = (step + b + c as usize) % 2;
+                        let started = thread_cpu_seconds();
+                        for (&i, &ray) in batch.iter().zip(&batch_rays) {
+                            let mut l = [Rgb::ZERO; 2];
+                            for (j, lj) in l.iter_mut().enumerate() {
+                                // The same numbers for both policies: their difference is
+                                // less noisy than either.
+                                let mut rng = Sampler::independent(Rng::new(
+                                    PILOT_SEED + 1 + j as u64,
+                                    i as u64,
+                                ));
+                                let guided = if k == 1 {
+                                    Some((guide, &mut query))
+                                } else {
+                                    None
+                                };
+                                *lj = self
+                                    .trace(scene, ray, &mut rng, &mut counters[k], guided)
+                                    .radiance;
+                            }
+                            variance[k] += half_squared_difference(l[0], l[1]);
                         }
-                        seconds[k] += started.elapsed().as_secs_f64();
-                        variance[k] += half_squared_difference(l[0], l[1]);
+                        seconds[k] += thread_cpu_seconds() - started;
                     }
                 }
                 [
