@@ -1,5 +1,6 @@
 //! The speed-against-error tool must be trustworthy: an integrator compared with itself shows
-//! no speedup, a biased one is caught by its error plateau, and the outputs are well formed.
+//! no speedup, a biased one is caught by its error plateau (and named when it says it is
+//! biased), and the outputs are well formed.
 
 use lacuna::compare::{compare, render_reference, write_report, Contender};
 use lacuna::integrator::{self, IntegratorSettings};
@@ -130,6 +131,15 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
             .unwrap(),
             sampler: None,
         },
+        // Through the registry, as `lacuna compare --integrators` makes contenders.
+        Contender::from_spec(
+            "vpl:clamp=0.5:count=8",
+            IntegratorSettings {
+                max_depth: depth,
+                ..Default::default()
+            },
+        )
+        .unwrap(),
     ];
     let ref_pixels = reference.film.radiance();
     let cmp = compare(
@@ -162,12 +172,18 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
     let svg = std::fs::read_to_string(dir.join("convergence.svg")).unwrap();
     let doc = roxmltree::Document::parse(&svg).expect("convergence.svg is well-formed XML");
     let paths = doc.descendants().filter(|n| n.has_tag_name("path")).count();
-    assert_eq!(paths, 3, "one path per integrator");
+    assert_eq!(paths, 4, "one path per integrator");
     let csv = std::fs::read_to_string(dir.join("curves.csv")).unwrap();
     assert!(csv.starts_with("integrator,run,seconds,spp,mae,rmse,rel_mse\n"));
     assert_eq!(csv.lines().count() - 1, cmp.points.len());
     let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
     assert!(summary.contains("within run-to-run spread") && summary.contains("plateau"));
+    // The summary says which contender is biased by construction, and why.
+    assert!(
+        summary.contains("\nvpl:clamp=0.5:count=8 is biased: VPL geometry term clamped"),
+        "{summary}"
+    );
+    assert!(!summary.contains("\npath is biased"), "{summary}");
     for name in ["path", "path_again", "path_dropping_a_bounce"] {
         for suffix in [".exr", ".png", "_error.png"] {
             assert!(

@@ -208,13 +208,15 @@ struct SceneArgs {
 struct RenderArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Integrator (available: path, path_skeleton, bdpt, bdpt_skeleton, bdpt_ic, env_direct),
+    /// Integrator (available: path, path_skeleton, bdpt, bdpt_skeleton, bdpt_ic, env_direct, vpl),
     /// with options as NAME:KEY=VALUE... (max_depth, mis, env=STRATEGY; path and path_skeleton
     /// also rr_depth=D, the bounces before Russian roulette, and triangles=area|solid_angle, how
     /// next-event estimation samples emissive triangles; env_direct also samples=N, bsdf=N;
     /// path_skeleton its guide options, see `compare --integrators`; bdpt_skeleton subset=N,
     /// accept=ALPHA, images=true, resolution=N, voxel_budget=N; bdpt_ic subset=N, density=D,
-    /// images=true) [default: path, or the scene file's].
+    /// images=true; vpl count=N light subpaths per pass, clamp=R (fraction of the scene
+    /// diagonal, 0 = off), compensate=true|false, visibility=exact) [default: path, or the
+    /// scene file's].
     #[arg(long)]
     integrator: Option<String>,
     /// Samples per pixel [default: 16, or the scene file's].
@@ -280,7 +282,8 @@ struct CompareArgs {
     /// `histogram_floor`, `ratio_max`, `pilot_paths`, `pilot_cost`
     /// (e.g. `path,path:rr_depth=3,path_skeleton`); for bdpt_skeleton `subset`, `accept`,
     /// `images`, `resolution`, `voxel_budget` and for bdpt_ic `subset`, `density`, `images`
-    /// (e.g. `bdpt,bdpt_skeleton:subset=1024:accept=1,bdpt_ic`);
+    /// (e.g. `bdpt,bdpt_skeleton:subset=1024:accept=1,bdpt_ic`); for vpl `count`, `clamp`,
+    /// `compensate`, `visibility` (e.g. `vpl:clamp=0.05:compensate=true`);
     /// any of them also `sampler=sobol|independent` (e.g. `path:sampler=independent,path`).
     #[arg(long, default_value = "path")]
     integrators: String,
@@ -773,6 +776,9 @@ fn run_render(args: &RenderArgs) -> Result<()> {
         stats.rays_per_second() / 1e6,
         args.out.display()
     );
+    if let Some(bias) = integrator.bias() {
+        println!("{}: {bias}", integrator.name());
+    }
     for note in integrator.render_notes() {
         println!("{}: {note}", integrator.name());
     }

@@ -275,6 +275,8 @@ pub struct Comparison {
     /// The last run's film of each contender.
     pub films: Vec<Film>,
     pub reference_noise: Option<ImageErrors>,
+    /// Each contender's [`Integrator::bias`]: why its error has a floor, when it has one.
+    pub biases: Vec<Option<String>>,
 }
 
 /// Runs every contender for the same wall-clock time, `runs` times, in one process, rotating
@@ -414,6 +416,7 @@ pub fn compare(
             .map(|f| f.expect("every contender ran"))
             .collect(),
         reference_noise,
+        biases: contenders.iter().map(|c| c.integrator.bias()).collect(),
     })
 }
 

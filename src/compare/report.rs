@@ -225,6 +225,11 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
             above
         );
     }
+    for (label, bias) in cmp.labels.iter().zip(&cmp.biases) {
+        if let Some(bias) = bias {
+            let _ = writeln!(s, "\n{label} is {bias}");
+        }
+    }
     let _ = writeln!(s, "\nFiles: `curves.csv` (every pass of every run), `convergence.svg` (MAE against time, log-log, the median run of each integrator), `<integrator>.exr/.png` (last run), `<integrator>_error.png` (absolute error, black = 0, white = the baseline's 99th percentile).");
     s
 }

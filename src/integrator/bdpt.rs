@@ -251,6 +251,13 @@ pub(crate) struct LightTracingOutput {
     counters: TraceCounters,
 }
 
+impl LightTracingOutput {
+    /// Rays traced.
+    pub(crate) fn rays(&self) -> u64 {
+        self.counters.rays
+    }
+}
+
 /// What one parallel task of light tracing produced: vertices, per-path ranges (relative to
 /// the chunk) and the rest.
 type LightPathChunk = (Vec<LightVertex>, Vec<(u32, u32)>, LightTracingOutput);
@@ -377,6 +384,9 @@ pub struct Bdpt {
     strategy_images: Option<u32>,
     /// Light subpaths per iteration; `None` = one per pixel.
     light_paths: Option<usize>,
+    /// Light subpaths connect to the camera (t = 1, splatted); `vpl` traces them only for
+    /// their vertices and turns this off.
+    light_tracing: bool,
     policy: Box<dyn ConnectionPolicy>,
 }
 
@@ -396,6 +406,7 @@ impl Bdpt {
             filtered: false,
             strategy_images: None,
             light_paths: settings.light_paths.map(|n| n as usize),
+            light_tracing: true,
             policy: Box::new(UniformPerPixel),
         }
     }
@@ -405,6 +416,13 @@ impl Bdpt {
         crate::limits::check_light_paths("bdpt: light subpaths per iteration", count as u64)?;
         self.light_paths = Some(count);
         Ok(self)
+    }
+
+    /// Traces light subpaths for their stored vertices only, without connecting them to the
+    /// camera (no splats, no shadow rays to the lens): what instant radiosity (`vpl`) needs.
+    pub(crate) fn without_light_tracing(mut self) -> Self {
+        self.light_tracing = false;
+        self
     }
 
     /// Keeps only the contributions of one strategy (see [`StrategyFilter::validate`]).
@@ -612,7 +630,7 @@ impl Bdpt {
                     d_vcm: state.d_vcm,
                     d_vc: state.d_vc,
                 };
-                if state.path_len < self.max_len() {
+                if self.light_tracing && state.path_len < self.max_len() {
                     if let Some((pixel, e, lens)) = self.connect_to_camera(
                         scene,
                         view,
@@ -941,7 +959,7 @@ fn eta_ratio_squared(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
 
 /// Adjoint correction for shading normals in importance transport (Veach 1997 §5.3):
 /// |wo.ns| |wi.ng| / (|wo.ng| |wi.ns|), with `wo` towards the light side and `wi` onward.
-fn shading_correction(si: &SurfaceInteraction, wo: Vec3, wi: Vec3) -> f32 {
+pub(super) fn shading_correction(si: &SurfaceInteraction, wo: Vec3, wi: Vec3) -> f32 {
     let num = wo.dot(si.ns).abs() * wi.dot(si.ng).abs();
     let den = wo.dot(si.ng).abs() * wi.dot(si.ns).abs();
     if den == 0.0 {

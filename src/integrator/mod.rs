@@ -8,6 +8,7 @@ mod env_direct;
 pub mod mis_auto;
 mod path;
 mod resampled;
+mod vpl;
 
 pub use bdpt::{
     strategy_layer_name, AllLightPaths, Bdpt, CameraVertex, Connection, ConnectionPolicy,
@@ -19,6 +20,7 @@ pub use env_direct::{EnvDirect, EnvDirectOptions, ALPHA_LAYER};
 #[cfg(feature = "diagnostics")]
 pub use path::diagnostics;
 pub use path::PathTracer;
+pub use vpl::{VplIntegrator, VplOptions, VplVisibility};
 
 /// Re-exported: the heuristic lives in [`crate::math`], below the guides that weigh with it.
 pub use crate::math::MisHeuristic;
@@ -87,6 +89,8 @@ pub struct IntegratorSettings {
     /// `bdpt_skeleton` and `bdpt_ic`: the resampling options (N, alpha_accept, record density
     /// d, contribution images).
     pub resampling: ResamplingSettings,
+    /// `vpl`: VPL count, clamping, compensation, visibility.
+    pub vpl: VplOptions,
 }
 
 impl Default for IntegratorSettings {
@@ -101,6 +105,7 @@ impl Default for IntegratorSettings {
             env_direct: EnvDirectOptions::default(),
             skeleton: SkeletonGuideSettings::default(),
             resampling: ResamplingSettings::default(),
+            vpl: VplOptions::default(),
         }
     }
 }
@@ -278,6 +283,13 @@ pub trait Integrator: Send + Sync {
         Ok(Iteration::default())
     }
 
+    /// Why this integrator's images are biased (they converge to something other than the
+    /// rendering equation's solution), in a sentence for the render summary and the EXR
+    /// metadata; None for a consistent, unbiased estimator.
+    fn bias(&self) -> Option<String> {
+        None
+    }
+
     /// Lines for the render summary about the last render (statistics the integrator kept).
     fn render_notes(&self) -> Vec<String> {
         Vec::new()
@@ -316,6 +328,7 @@ pub const REGISTRY: &[Registration] = &[
     bdpt_skeleton::REGISTRATION,
     bdpt_ic::REGISTRATION,
     env_direct::REGISTRATION,
+    vpl::REGISTRATION,
 ];
 
 /// The registered integrator called `name`.
@@ -360,7 +373,9 @@ impl SpecOption<'_> {
 ///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`;
 /// - `bdpt_skeleton`: `subset=N`, `accept=ALPHA`, `images=true` ([`ResamplingSettings::set`])
 ///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`;
-/// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`.
+/// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`;
+/// - `vpl`: `count=N` (light subpaths per pass), `clamp=R` (0 = off), `compensate=true|false`,
+///   `visibility=exact` ([`VplOptions::set`]), e.g. `vpl:count=128:clamp=0.05:compensate=true`.
 ///
 /// The shared options are set here, the others by the integrator's
 /// [`Registration::set_option`].

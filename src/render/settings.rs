@@ -126,9 +126,18 @@ impl ResolvedSettings {
         self.integrator.split(':').next().unwrap_or_default().trim()
     }
 
+    /// Why the integrator's images are biased ([`crate::integrator::Integrator::bias`]), or
+    /// None when they are not (or the specification is invalid).
+    pub fn bias(&self) -> Option<String> {
+        crate::integrator::create(&self.integrator, self.integrator_settings)
+            .ok()
+            .and_then(|i| i.bias())
+    }
+
     /// The EXR metadata of a finished render of scene `label`: what reproduces it (sample
-    /// count, seed, sampler, integrator, max depth, scene) and its time. Callers append their
-    /// own figures (precomputation time, a reference's error estimate).
+    /// count, seed, sampler, integrator, max depth, scene), its time, and `biased` ("no", or
+    /// why it is). Callers append their own figures (precomputation time, a reference's error
+    /// estimate).
     pub fn metadata(&self, label: &str, spp: u32, seconds: f64) -> ExrMetadata {
         ExrMetadata::default()
             .with("spp", spp)
@@ -138,6 +147,7 @@ impl ResolvedSettings {
             .with("max_depth", self.integrator_settings.max_depth)
             .with("scene", label)
             .with("seconds", format!("{seconds:.3}"))
+            .with("biased", self.bias().unwrap_or_else(|| "no".to_string()))
     }
 }
 
@@ -393,8 +403,28 @@ mod tests {
             ("max_depth", "5"),
             ("scene", "scene.json"),
             ("seconds", "1.235"),
+            ("biased", "no"),
         ] {
             assert_eq!(m.get(key), Some(value), "{key}");
         }
+    }
+
+    #[test]
+    fn metadata_says_when_the_image_is_biased() {
+        let with = |spec: &str| {
+            let overrides = SettingsOverrides {
+                integrator: Some(spec.into()),
+                ..Default::default()
+            };
+            let r = resolve(&file(), &overrides, no_integrator_overrides).unwrap();
+            r.metadata("scene.json", 1, 0.0)
+                .get("biased")
+                .unwrap()
+                .to_string()
+        };
+        assert_eq!(with("vpl:compensate=true"), "no");
+        assert!(with("vpl:clamp=0.1").starts_with("biased: "));
+        assert!(with("vpl").starts_with("biased: "));
+        assert_eq!(with("path"), "no");
     }
 }

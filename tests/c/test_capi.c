@@ -1495,6 +1495,38 @@ static void test_resampling(lacuna_context *ctx) {
     lacuna_render_job_free(ic);
 }
 
+/* Instant radiosity (vpl): options in the integrator name, refused when wrong; a small
+ * compensated render, finite and not black. */
+static void test_vpl(lacuna_context *ctx) {
+    lacuna_scene *scene = build_box_scene(ctx);
+    lacuna_render_job *job = NULL, *bad = NULL;
+    EXPECT(lacuna_render_job_new(scene, "vpl:count=0", &bad), LACUNA_STATUS_INVALID_ARGUMENT, "count");
+    EXPECT(lacuna_render_job_new(scene, "vpl:clamp=-1", &bad), LACUNA_STATUS_INVALID_ARGUMENT, "clamp");
+    EXPECT(lacuna_render_job_new(scene, "vpl:visibility=skeleton", &bad), LACUNA_STATUS_INVALID_ARGUMENT,
+           "not implemented");
+    CHECK(bad == NULL);
+    OK(lacuna_render_job_new(scene, "vpl:count=8:clamp=0.2:compensate=true", &job));
+    lacuna_scene_release(scene);
+    enum { W = 10, H = 8, N = W * H * 3 };
+    OK(lacuna_render_job_set_resolution(job, W, H));
+    OK(lacuna_render_job_set_samples_per_pixel(job, 2));
+    OK(lacuna_render_job_set_max_depth(job, 3));
+    lacuna_film *film = NULL;
+    OK(lacuna_render_job_run(job, &film));
+    static float radiance[N];
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, radiance, W, H, 0, 0));
+    double sum = 0;
+    int finite = 1;
+    for (int i = 0; i < N; i++) {
+        sum += radiance[i];
+        finite &= isfinite(radiance[i]) && radiance[i] >= 0;
+    }
+    CHECK(finite && sum > 0);
+    OK(lacuna_film_write_exr(film, path_in_dir("vpl.exr")));
+    lacuna_film_release(film);
+    lacuna_render_job_free(job);
+}
+
 int main(int argc, char **argv) {
     if (argc < 2) {
         fprintf(stderr, "usage: %s SCRATCH_DIR\n", argv[0]);
@@ -1512,6 +1544,7 @@ int main(int argc, char **argv) {
     test_render(ctx);
     test_bdpt(ctx);
     test_resampling(ctx);
+    test_vpl(ctx);
     test_analysis(ctx);
     test_skeleton_guide(ctx);
     test_skeleton(ctx);
