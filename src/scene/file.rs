@@ -381,6 +381,10 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
                 let scene = builtin(super::two_rooms_builder()?, RenderSettingsFile::default());
                 return Ok((scene, "two-rooms".into()));
             }
+            Some("interior") => {
+                let scene = builtin(super::interior_builder()?, RenderSettingsFile::default());
+                return Ok((scene, "interior".into()));
+            }
             Some("corridor") => {
                 let scene = builtin(
                     super::corridor_builder()?,
@@ -417,7 +421,7 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
         }
         Some("json") => Ok((load_scene_file(path)?, label)),
         _ => Err(Error::invalid(format!(
-            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor, rooms:SEED)"
+            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor, interior, rooms:SEED)"
         ))),
     }
 }
