@@ -341,7 +341,7 @@ fn fit(analysis: &Analysis, scene: &Scene, cluster: &[WindowFace]) -> Option<Por
             }
         }
         let area = (reach[0] + reach[1]) * (reach[2] + reach[3]);
-        if bounded && best.is_none_or(|(a, _, _)| area < a) {
+        if bounded && best.map_or(true, |(a, _, _)| area < a) {
             best = Some((area, c, reach));
         }
     }
