@@ -85,3 +85,64 @@ fn env_portals_is_refused_by_other_integrators() {
         assert!(err.to_string().contains("env=portals"), "{err}");
     }
 }
+
+/// scenes/interior/ is what `write_interior_files` writes (`LACUNA_BLESS=1` rewrites it), and
+/// the scene file finds the same window portals as the built-in.
+#[test]
+fn the_interior_scene_file_is_the_built_in() {
+    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/interior");
+    if std::env::var_os("LACUNA_BLESS").is_some() {
+        lacuna::scene::write_interior_files(&repo).unwrap();
+    }
+    let dir = std::env::temp_dir().join(format!("lacuna-interior-{}", std::process::id()));
+    lacuna::scene::write_interior_files(&dir).unwrap();
+    for name in ["interior.obj", "interior.mtl", "interior.json"] {
+        let written = std::fs::read_to_string(dir.join(name)).unwrap();
+        let stored = std::fs::read_to_string(repo.join(name)).unwrap();
+        assert!(
+            written == stored,
+            "scenes/interior/{name} differs from the built-in (LACUNA_BLESS=1)"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+    let scene = common::agreement::load_scene("scenes/interior/interior.json");
+    let found = lacuna::analysis::window_portals(&scene, &Default::default()).unwrap();
+    assert_eq!(found.portals.len(), 4);
+}
+
+/// Portals listed in a scene file replace the automatic ones; bad ones are refused.
+#[test]
+fn scene_files_list_portals_or_turn_them_off() {
+    let dir = std::env::temp_dir().join(format!("lacuna-portals-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let shapes = r#""shapes": [{ "type": "quad", "corners": [[0,0,0],[1,0,0],[1,0,1],[0,0,1]] }]"#;
+    let write = |name: &str, extra: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, format!("{{ {shapes}, {extra} }}")).unwrap();
+        path
+    };
+    let listed = write(
+        "listed.json",
+        r#""portals": [{ "corner": [0,1,0], "edge_u": [1,0,0], "edge_v": [0,0,1], "outward": [0,1,0] }], "auto_portals": false"#,
+    );
+    let loaded = lacuna::scene::load_scene_file(&listed)
+        .unwrap()
+        .builder
+        .build()
+        .unwrap();
+    assert_eq!(loaded.portal_settings().listed.len(), 1);
+    assert!(!loaded.portal_settings().automatic);
+    let bad = write(
+        "bad.json",
+        r#""portals": [{ "corner": [0,1,0], "edge_u": [1,0,0], "edge_v": [1,0,1], "outward": [0,1,0] }]"#,
+    );
+    let err = lacuna::scene::load_scene_file(&bad)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("portals[0]") && err.contains("orthogonal"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

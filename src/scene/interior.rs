@@ -322,3 +322,55 @@ pub fn interior_builder() -> Result<SceneBuilder> {
     )?)?;
     Ok(b)
 }
+
+/// Writes the interior as `interior.obj`, `interior.mtl` and `interior.json` (a scene file
+/// with the camera and the sky map, `../envmaps/sky.hdr`) into `dir`, so that the scene file
+/// in `scenes/interior/` is this code's output (tests/portals.rs checks it is). Returns the
+/// scene file's path.
+pub fn write_interior_files(dir: &std::path::Path) -> Result<std::path::PathBuf> {
+    use std::fmt::Write as _;
+    let scene = interior_builder()?.build()?;
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let header = "# Lacuna's built-in interior (src/scene/interior.rs, write_interior_files)\n";
+    let mut mtl = String::from(header);
+    for m in scene.materials() {
+        let d = m.diffuse;
+        let _ = writeln!(mtl, "newmtl {}\nKd {} {} {}", m.name, d.x, d.y, d.z);
+    }
+    let mut obj = format!("{header}mtllib interior.mtl\n");
+    let mut base = 1;
+    for mesh in scene.meshes() {
+        let _ = writeln!(obj, "o {}", mesh.name);
+        for p in &mesh.positions {
+            let _ = writeln!(obj, "v {} {} {}", p.x, p.y, p.z);
+        }
+        let _ = writeln!(
+            obj,
+            "usemtl {}",
+            scene.materials()[mesh.materials[0] as usize].name
+        );
+        for t in &mesh.indices {
+            let _ = writeln!(
+                obj,
+                "f {} {} {}",
+                t[0] as usize + base,
+                t[1] as usize + base,
+                t[2] as usize + base
+            );
+        }
+        base += mesh.positions.len();
+    }
+    let c = scene.camera().expect("the interior has a camera");
+    let json = format!(
+        "{{\n  \"comment\": \"Lacuna's built-in interior (lacuna render interior), written by src/scene/interior.rs (write_interior_files): a house lit by the sky through four windows; the back room is reached only through the inner door. Window portals for path:env=portals are found automatically; list them under portals to set them by hand.\",\n  \"objects\": [{{ \"obj\": \"interior.obj\" }}],\n  \"environment\": {{ \"file\": \"../envmaps/sky.hdr\", \"rotate\": {INTERIOR_SKY_ROTATION} }},\n  \"camera\": {{ \"eye\": [{}, {}, {}], \"target\": [{}, {}, {}], \"up\": [0, 1, 0], \"fov\": {} }}\n}}\n",
+        c.eye.x, c.eye.y, c.eye.z, c.target.x, c.target.y, c.target.z, c.vfov_degrees
+    );
+    let write = |name: &str, text: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).map_err(|e| Error::io(&path, e))?;
+        Ok::<std::path::PathBuf, Error>(path)
+    };
+    write("interior.obj", &obj)?;
+    write("interior.mtl", &mtl)?;
+    write("interior.json", &json)
+}

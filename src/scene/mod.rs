@@ -27,7 +27,9 @@ pub use file::{
     auto_camera, convert_layout, load_scene_arg, load_scene_file, LoadedScene, RenderSettingsFile,
 };
 pub use interaction::SurfaceInteraction;
-pub use interior::{interior_builder, interior_sky, interior_windows, WindowAperture};
+pub use interior::{
+    interior_builder, interior_sky, interior_windows, write_interior_files, WindowAperture,
+};
 pub use material::{
     fresnel_dielectric, Bsdf, BsdfSample, Material, MaterialKind, TextureId, Transport,
 };
