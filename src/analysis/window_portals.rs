@@ -33,7 +33,7 @@ use super::pipeline::{Analysis, AnalysisSettings};
 use super::regions::NO_REGION;
 use crate::error::{Error, Result};
 use crate::geometry::Ray;
-use crate::light::environment::Portal;
+use crate::light::environment::{InteriorMask, Portal};
 use crate::math::Vec3;
 use crate::scene::Scene;
 
@@ -69,6 +69,9 @@ impl Default for WindowPortalSettings {
 #[derive(Clone, Debug)]
 pub struct WindowPortals {
     pub portals: Vec<Portal>,
+    /// The voxels of the interior regions and their 26-neighbours (the surfaces around the
+    /// rooms lie in occupied voxels), where the portals apply; None without portals.
+    pub interior: Option<InteriorMask>,
     pub voxel_size: f32,
     pub analysis_seconds: f64,
     pub fit_seconds: f64,
@@ -96,12 +99,45 @@ pub fn window_portals(scene: &Scene, settings: &WindowPortalSettings) -> Result<
     let analysis_seconds = started.elapsed().as_secs_f64();
     let fitted = Instant::now();
     let portals = window_portals_in(&analysis, scene, settings.min_faces);
+    let interior = (!portals.is_empty()).then(|| interior_mask(&analysis, scene));
     Ok(WindowPortals {
         portals,
+        interior,
         voxel_size: analysis.grid.voxel_size as f32,
         analysis_seconds,
         fit_seconds: fitted.elapsed().as_secs_f64(),
     })
+}
+
+/// The interior regions' voxels, dilated by one voxel (26-neighbours).
+fn interior_mask(analysis: &Analysis, scene: &Scene) -> InteriorMask {
+    let interior = interior_regions(analysis, scene);
+    let grid = &analysis.grid;
+    let [nx, ny, nz] = grid.dims;
+    let mut inside = vec![false; grid.len()];
+    for (i, &label) in analysis.labels.iter().enumerate() {
+        if label == NO_REGION || !interior[label as usize] {
+            continue;
+        }
+        let [x, y, z] = grid.coords(i);
+        for zz in z.saturating_sub(1)..(z + 2).min(nz) {
+            for yy in y.saturating_sub(1)..(y + 2).min(ny) {
+                for xx in x.saturating_sub(1)..(x + 2).min(nx) {
+                    inside[xx + nx * (yy + ny * zz)] = true;
+                }
+            }
+        }
+    }
+    InteriorMask {
+        origin: Vec3::new(
+            grid.origin[0] as f32,
+            grid.origin[1] as f32,
+            grid.origin[2] as f32,
+        ),
+        voxel_size: grid.voxel_size as f32,
+        dims: grid.dims,
+        inside,
+    }
 }
 
 /// A Fibonacci-sphere direction `i` of `n`.

@@ -39,7 +39,7 @@ pub use texture::{srgb_to_linear, Texture};
 use std::sync::{Arc, OnceLock};
 
 use crate::geometry::{barycentric_point_error, Bounds3, Bvh, Hit, Ray};
-use crate::light::environment::{Portal, PortalSampler};
+use crate::light::environment::{InteriorMask, Portal, PortalSampler};
 use crate::light::{
     EnvStrategy, EnvironmentMap, Light, LightSample, LightSampler, TriangleSampling,
 };
@@ -213,25 +213,27 @@ impl Scene {
 
     /// The environment's portal sampler, built on the first call: from the portals listed by
     /// hand, or when there are none and automatic portals are allowed, from those `find`
-    /// returns (the analysis lives above the scene, so the integrator hands it in).
+    /// returns with the interior they apply in (the analysis lives above the scene, so the
+    /// integrator hands it in).
     pub fn env_portals_or_init(
         &self,
-        find: impl FnOnce(&Scene) -> crate::error::Result<Vec<Portal>>,
+        find: impl FnOnce(&Scene) -> crate::error::Result<(Vec<Portal>, Option<InteriorMask>)>,
     ) -> crate::error::Result<&EnvPortals> {
         if let Some(p) = self.env_portals.get() {
             return Ok(p);
         }
-        let (portals, automatic) = if !self.portals.listed.is_empty() {
-            (self.portals.listed.clone(), false)
+        let (portals, interior, automatic) = if !self.portals.listed.is_empty() {
+            (self.portals.listed.clone(), None, false)
         } else if self.portals.automatic && self.environment().is_some() {
-            (find(self)?, true)
+            let (portals, interior) = find(self)?;
+            (portals, interior, true)
         } else {
-            (Vec::new(), false)
+            (Vec::new(), None, false)
         };
         let sampler = match self.environment() {
-            Some((_, map)) if !portals.is_empty() => {
-                Some(Arc::new(PortalSampler::build(map, &portals)?))
-            }
+            Some((_, map)) if !portals.is_empty() => Some(Arc::new(PortalSampler::build_masked(
+                map, &portals, interior,
+            )?)),
             _ => None,
         };
         Ok(self

@@ -17,7 +17,7 @@ mod sampler;
 
 pub use grid::Grid;
 pub use image::{describe, EnvImage, MAX_TEXELS};
-pub use portal::{Portal, PortalSampler, FALLBACK as PORTAL_FALLBACK, MAX_PORTALS};
+pub use portal::{InteriorMask, Portal, PortalSampler, FALLBACK as PORTAL_FALLBACK, MAX_PORTALS};
 pub use sampler::{Balancing, CubeSampler, LatLongSampler};
 
 use std::path::Path;

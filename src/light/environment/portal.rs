@@ -36,9 +36,10 @@ pub const FALLBACK: EnvStrategy = EnvStrategy::CubeDynamic;
 
 /// Share of the samples drawn by [`FALLBACK`] where portals are visible. The portals a point
 /// sees are decided by the side of their planes alone, so a point outdoors sees the windows
-/// of the far walls "from inside", through the house: without this share the sunlit ground
-/// outside, which lights the rooms, would find the sun only by BSDF sampling (unbiased, but
-/// so heavy-tailed that renders of the interior read 17 % low at 8 x 16 x 16 x 32 samples).
+/// of the far walls "from inside", through the house: without this share (and without an
+/// [`InteriorMask`], which hand-listed portals lack) the sunlit ground outside, which lights
+/// the rooms, would find the sun only by BSDF sampling (unbiased, but so heavy-tailed that
+/// renders of the interior read 17 % low at 8 seeds x 16 x 16 pixels x 32 samples).
 pub const FALLBACK_SHARE: f32 = 0.25;
 
 /// Cells per side of each portal's rectified image (0.7 degrees a cell, the sky map's texel
@@ -315,17 +316,54 @@ fn invert(range: [f32; 2], target: f64, f: impl Fn(f32) -> f64) -> f32 {
     (start + t.clamp(0.0, 1.0) * (end - start)).clamp(lo, hi)
 }
 
+/// Where portals apply: a voxel grid of the points inside (rooms, and the surfaces around
+/// them). Elsewhere, outdoors, light sampling uses [`FALLBACK`] alone: a point outdoors is on
+/// the inner side of the far walls' windows and would waste portal samples on the house.
+#[derive(Clone, Debug)]
+pub struct InteriorMask {
+    pub origin: Vec3,
+    pub voxel_size: f32,
+    pub dims: [usize; 3],
+    /// One flag per voxel, x fastest.
+    pub inside: Vec<bool>,
+}
+
+impl InteriorMask {
+    fn contains(&self, p: Vec3) -> bool {
+        let g = (p - self.origin) / self.voxel_size;
+        if !(g.min_element() >= 0.0) {
+            return false;
+        }
+        let c = [g.x as usize, g.y as usize, g.z as usize];
+        if c[0] >= self.dims[0] || c[1] >= self.dims[1] || c[2] >= self.dims[2] {
+            return false;
+        }
+        self.inside[c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])]
+    }
+}
+
 /// The rectified images of a set of portals, for one environment map.
 #[derive(Clone, Debug)]
 pub struct PortalSampler {
     portals: Vec<Portal>,
     tables: Vec<PortalTable>,
+    interior: Option<InteriorMask>,
     build_seconds: f64,
 }
 
 impl PortalSampler {
     /// Builds the rectified image of each portal (in parallel).
     pub fn build(map: &EnvironmentMap, portals: &[Portal]) -> Result<Self> {
+        Self::build_masked(map, portals, None)
+    }
+
+    /// [`build`](Self::build), the portals applying only inside `interior` (all points
+    /// without).
+    pub fn build_masked(
+        map: &EnvironmentMap,
+        portals: &[Portal],
+        interior: Option<InteriorMask>,
+    ) -> Result<Self> {
         if portals.len() > MAX_PORTALS {
             return Err(Error::invalid(format!(
                 "{} environment portals: at most {MAX_PORTALS} are supported",
@@ -337,6 +375,7 @@ impl PortalSampler {
         Ok(PortalSampler {
             portals: portals.to_vec(),
             tables,
+            interior,
             build_seconds: started.elapsed().as_secs_f64(),
         })
     }
@@ -360,6 +399,9 @@ impl PortalSampler {
     fn masses(&self, p: Vec3) -> ([Option<(Window, f64)>; MAX_PORTALS], f64) {
         let mut out = [None; MAX_PORTALS];
         let mut total = 0.0;
+        if self.interior.as_ref().is_some_and(|m| !m.contains(p)) {
+            return (out, total);
+        }
         for (k, t) in self.tables.iter().enumerate() {
             if let Some(w) = t.window(p) {
                 let m = t.mass(&w);
