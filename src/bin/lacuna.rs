@@ -33,7 +33,8 @@ use lacuna::{Error, Result};
     about = "Lacuna: a physically based renderer that reads the empty space of a scene",
     after_help = "SCENE is an .obj file (framed automatically when no camera is given), a .json scene \
                   file (docs/scene-format.md), or a built-in scene: two-rooms (the default: two rooms \
-                  joined by an ajar door, lit from the far room), corridor, or rooms:SEED (a procedural \
+                  joined by an ajar door, lit from the far room), corridor, interior (a house lit by the sky through \
+                  windows), or rooms:SEED (a procedural \
                   family of interiors, see `lacuna family`)."
 )]
 struct Cli {
@@ -83,7 +84,7 @@ fn run_family(args: &FamilyArgs) -> Result<()> {
 /// Scene, camera, image and path options shared by every command.
 #[derive(Args, Clone, Debug)]
 struct SceneArgs {
-    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, rooms:SEED). Default: two-rooms.
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, interior, rooms:SEED). Default: two-rooms.
     scene: Option<PathBuf>,
     /// Maximum number of bounces (1 = direct lighting only) [default: 8, or the scene file's].
     #[arg(long)]
@@ -144,7 +145,9 @@ struct SceneArgs {
     #[arg(long)]
     env_layout: Option<String>,
     /// How light sampling picks environment directions: latlong, cube-uniform, cube-power,
-    /// cube-dynamic (per-normal face balancing, the default) or bsdf (no light sampling). An
+    /// cube-dynamic (per-normal face balancing, the default), bsdf (no light sampling) or portals
+    /// (path and path_skeleton: through the window portals a point sees, found automatically or
+    /// listed in the scene file). An
     /// integrator option such as `path:env=latlong` overrides it for that integrator.
     #[arg(long)]
     env_strategy: Option<String>,
@@ -303,7 +306,7 @@ struct CompareArgs {
 
 #[derive(Args, Clone, Debug)]
 struct AnalyzeArgs {
-    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, rooms:SEED). Default: two-rooms.
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, interior, rooms:SEED). Default: two-rooms.
     scene: Option<PathBuf>,
     /// Voxels along the longest axis of the scene bounds.
     #[arg(long, default_value_t = 128, conflicts_with_all = ["voxel_size", "voxel_budget"])]
@@ -338,6 +341,12 @@ struct AnalyzeArgs {
     /// With --skeleton: skip skeleton.png and node_map.png.
     #[arg(long)]
     no_images: bool,
+    /// Also find the window portals for environment light (`path:env=portals`): openings
+    /// between enclosed regions and the outside, fitted with rectangles (an analysis of its
+    /// own, 192 voxels along the longest axis, insides of closed objects filled); listed as
+    /// window_portals in the JSON summary.
+    #[arg(long)]
+    window_portals: bool,
     /// Refuse grids needing more memory than this many MiB.
     #[arg(long, default_value_t = 4096)]
     memory_budget_mib: u64,
@@ -1084,11 +1093,37 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
     };
     let mut summary: serde_json::Value = serde_json::from_str(&summary_json(&analysis))
         .map_err(|e| Error::invalid(format!("summary JSON: {e}")))?;
-    if let Some(s) = &skeleton {
-        if let (Some(obj), serde_json::Value::Object(extra)) =
-            (summary.as_object_mut(), s.summary_json())
-        {
-            obj.extend(extra);
+    let windows = if args.window_portals {
+        let settings = lacuna::analysis::WindowPortalSettings::default();
+        Some(pool.install(|| lacuna::analysis::window_portals(&scene, &settings))?)
+    } else {
+        None
+    };
+    if let (Some(w), Some(obj)) = (&windows, summary.as_object_mut()) {
+        let v = |a: lacuna::math::Vec3| serde_json::json!([a.x, a.y, a.z]);
+        let list: Vec<serde_json::Value> = w
+            .portals
+            .iter()
+            .map(|p| {
+                serde_json::json!({
+                    "corner": v(p.corner), "edge_u": v(p.edge_u), "edge_v": v(p.edge_v),
+                    "outward": v(p.outward), "center": v(p.center()), "area": p.area(),
+                })
+            })
+            .collect();
+        obj.insert("window_portals".into(), serde_json::Value::Array(list));
+        obj.insert(
+            "window_portals_seconds".into(),
+            serde_json::json!({ "analysis": w.analysis_seconds, "fit": w.fit_seconds, "voxel_size": w.voxel_size }),
+        );
+    }
+    if skeleton.is_some() || windows.is_some() {
+        if let Some(s) = &skeleton {
+            if let (Some(obj), serde_json::Value::Object(extra)) =
+                (summary.as_object_mut(), s.summary_json())
+            {
+                obj.extend(extra);
+            }
         }
         std::fs::write(
             args.out.join("summary.json"),
@@ -1117,6 +1152,29 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
         );
         for t in &analysis.timings {
             println!("  {:<22} {:.4} s", t.stage, t.seconds);
+        }
+        if let Some(w) = &windows {
+            println!(
+                "window portals: {} (analysis {:.3} s at voxel {:.4}, fit {:.3} s)",
+                w.portals.len(),
+                w.analysis_seconds,
+                w.voxel_size,
+                w.fit_seconds
+            );
+            for p in &w.portals {
+                let c = p.center();
+                println!(
+                    "  centre ({:.3}, {:.3}, {:.3}), {:.3} x {:.3}, outward ({}, {}, {})",
+                    c.x,
+                    c.y,
+                    c.z,
+                    p.edge_u.length(),
+                    p.edge_v.length(),
+                    p.outward.x,
+                    p.outward.y,
+                    p.outward.z
+                );
+            }
         }
         if let Some(s) = &skeleton {
             let f = &s.filtered.graph;

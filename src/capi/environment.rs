@@ -67,6 +67,8 @@ pub(crate) fn strategy_to_c(strategy: EnvStrategy) -> u32 {
         EnvStrategy::CubePower => lacuna_environment_strategy::CubePower,
         EnvStrategy::CubeDynamic => lacuna_environment_strategy::CubeDynamic,
         EnvStrategy::BsdfOnly => lacuna_environment_strategy::Bsdf,
+        // Not settable through the C API; without a shading point it samples as its fallback.
+        EnvStrategy::Portals => lacuna_environment_strategy::CubeDynamic,
     }) as u32
 }
 

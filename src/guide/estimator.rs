@@ -129,3 +129,18 @@ pub fn environment_along(
     let pmf = scene.light_sampler().map_or(0.0, |s| s.pmf(index));
     Some((env.radiance(dir), pmf * env.pdf(estimator.env, normal, dir)))
 }
+
+/// [`environment_along`] for a ray leaving `point`: the density of light sampling at that
+/// point, which `env=portals` needs (the portals a point sees depend on where it is).
+pub fn environment_along_from(
+    scene: &Scene,
+    point: Vec3,
+    normal: Vec3,
+    dir: Vec3,
+    estimator: &RenderEstimator,
+) -> Option<(Rgb, f32)> {
+    let (index, env) = scene.environment()?;
+    let pmf = scene.light_sampler().map_or(0.0, |s| s.pmf(index));
+    let pdf = scene.environment_pdf_at(estimator.env, point, normal, dir);
+    Some((env.radiance(dir), pmf * pdf))
+}

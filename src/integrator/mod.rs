@@ -451,5 +451,11 @@ pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integr
     if let Some(mis) = settings.mis {
         mis.check_supported(name)?;
     }
+    // Only the path tracer's estimator knows the shading point where it weighs an escaped ray.
+    if settings.env == EnvStrategy::Portals && !matches!(name, "path" | "path_skeleton") {
+        return Err(Error::invalid(format!(
+            "env=portals is implemented for path and path_skeleton only, not for {name}"
+        )));
+    }
     (registration.create)(settings)
 }

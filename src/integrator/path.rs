@@ -151,8 +151,9 @@ impl PathTracer {
     }
 
     /// Radiance of the environment along a ray that left the scene, MIS-weighted against
-    /// the environment's light sampling at the vertex the ray left (normal `prev_normal`);
-    /// camera rays see it unless it is hidden.
+    /// the environment's light sampling at the vertex the ray left (point `prev_point`, normal
+    /// `prev_normal`); camera rays see it unless it is hidden.
+    #[allow(clippy::too_many_arguments)]
     fn escaped(
         &self,
         scene: &Scene,
@@ -160,6 +161,7 @@ impl PathTracer {
         depth: u32,
         prev_delta: bool,
         prev_pdf: f32,
+        prev_point: Vec3,
         prev_normal: Vec3,
     ) -> Rgb {
         let Some((_, env)) = scene.environment() else {
@@ -170,7 +172,7 @@ impl PathTracer {
         }
         let estimator = self.estimator();
         let Some((le, light_pdf)) =
-            estimator::environment_along(scene, prev_normal, dir, &estimator)
+            estimator::environment_along_from(scene, prev_point, prev_normal, dir, &estimator)
         else {
             return Rgb::ZERO;
         };
@@ -319,8 +321,9 @@ impl Integrator for PathTracer {
         camera: &Camera,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Precomputation> {
+        let portals = prepare_env_portals(scene, &self.settings)?;
         if self.guiding.is_none() {
-            return Ok(Precomputation::default());
+            return Ok(portals);
         }
         self.guiding = Some(None);
         // The training scores its candidates with this render's light sampling and MIS.
@@ -345,6 +348,7 @@ impl Integrator for PathTracer {
             guide.memory_bytes() as f64 / (1024.0 * 1024.0)
         )];
         let mut notes = notes;
+        notes.extend(portals.notes);
         if let Some(p) = pilot {
             notes.push(format!(
                 "pilot ({} rays, {:.2} s): variance {:.3}x, cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x{}",
@@ -415,7 +419,8 @@ impl Integrator for PathTracer {
                 ));
             }
         }
-        let mut stages = guide.timings().to_vec();
+        let mut stages = portals.stages;
+        stages.extend_from_slice(guide.timings());
         if pilot.is_some() {
             stages.push(crate::analysis::StageTime {
                 stage: "pilot (guided against unguided samples)",
@@ -617,8 +622,16 @@ impl PathTracer {
         loop {
             counters.rays += 1;
             let Some(si) = scene.intersect(&ray) else {
-                let e =
-                    beta * self.escaped(scene, ray.dir, depth, prev_delta, prev_pdf, prev_normal);
+                let e = beta
+                    * self.escaped(
+                        scene,
+                        ray.dir,
+                        depth,
+                        prev_delta,
+                        prev_pdf,
+                        prev_point,
+                        prev_normal,
+                    );
                 #[cfg(feature = "diagnostics")]
                 diagnostics::contribution(depth, diagnostics::Kind::Escaped, e);
                 radiance += e;
@@ -727,6 +740,45 @@ impl PathTracer {
         out.radiance = radiance;
         out
     }
+}
+
+/// `env=portals`: the scene's window portals, found by the analysis unless listed by hand
+/// (once per scene), with its time and a note saying which they are.
+fn prepare_env_portals(scene: &Scene, settings: &IntegratorSettings) -> Result<Precomputation> {
+    if settings.env != crate::light::EnvStrategy::Portals || scene.environment().is_none() {
+        return Ok(Precomputation::default());
+    }
+    let started = std::time::Instant::now();
+    let portals = scene.env_portals_or_init(|scene| {
+        crate::analysis::window_portals(scene, &crate::analysis::WindowPortalSettings::default())
+            .map(|found| (found.portals, found.interior))
+    })?;
+    let seconds = started.elapsed().as_secs_f64();
+    let note = match &portals.sampler {
+        Some(s) => format!(
+            "env=portals: {} {} portals ({:.3} s, rectified images {:.3} s, {:.1} MiB)",
+            s.portals().len(),
+            if portals.automatic {
+                "window"
+            } else {
+                "listed"
+            },
+            seconds,
+            s.build_seconds(),
+            s.memory_bytes() as f64 / (1024.0 * 1024.0)
+        ),
+        None => format!(
+            "env=portals: no portals ({seconds:.3} s): the environment is sampled by {}",
+            crate::light::environment::PORTAL_FALLBACK.name()
+        ),
+    };
+    Ok(Precomputation {
+        stages: vec![crate::analysis::StageTime {
+            stage: "environment portals (window detection, rectified images)",
+            seconds,
+        }],
+        notes: vec![note],
+    })
 }
 
 /// `path` in the integrator registry.

@@ -49,6 +49,7 @@ pub struct SceneBuilder {
     lights: Vec<LightDesc>,
     environment: Option<Arc<EnvironmentMap>>,
     camera: Option<Camera>,
+    portals: super::PortalSettings,
     degenerate_policy: DegeneratePolicy,
     bvh_quality: BvhQuality,
     degenerate_skipped: usize,
@@ -127,6 +128,12 @@ impl SceneBuilder {
     /// Sets (or with `None` removes) the environment map lighting the scene from infinity.
     pub fn set_environment(&mut self, map: Option<Arc<EnvironmentMap>>) {
         self.environment = map;
+    }
+
+    /// The window portals for environment light (`env=portals`): listed by hand, and whether
+    /// the analysis may find them when none is listed.
+    pub fn set_portals(&mut self, portals: super::PortalSettings) {
+        self.portals = portals;
     }
 
     pub fn environment(&self) -> Option<&Arc<EnvironmentMap>> {
@@ -340,6 +347,8 @@ impl SceneBuilder {
             environment,
             triangle_light: Arc::new(triangle_light),
             camera: self.camera,
+            portals: Arc::new(self.portals),
+            env_portals: Default::default(),
             bounds,
             stats,
         })

@@ -111,6 +111,12 @@ struct SceneFile {
     #[serde(default)]
     lights: Vec<LightSpec>,
     environment: Option<EnvironmentSpec>,
+    /// Window portals for `env=portals`, listed by hand (then none is searched for).
+    #[serde(default)]
+    portals: Vec<PortalSpec>,
+    /// Whether `env=portals` may find window portals from the analysis when none is listed.
+    #[serde(default = "yes")]
+    auto_portals: bool,
     #[serde(default)]
     materials: BTreeMap<String, MaterialSpec>,
     #[serde(default)]
@@ -168,6 +174,17 @@ impl Colour {
             Colour::Rgb(c) => Rgb::from(c),
         }
     }
+}
+
+/// A window portal: `corner` + s `edge_u` + t `edge_v` (s, t in [0, 1]), the environment on
+/// its `outward` side.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PortalSpec {
+    corner: [f32; 3],
+    edge_u: [f32; 3],
+    edge_v: [f32; 3],
+    outward: [f32; 3],
 }
 
 #[derive(Deserialize)]
@@ -381,6 +398,10 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
                 let scene = builtin(super::two_rooms_builder()?, RenderSettingsFile::default());
                 return Ok((scene, "two-rooms".into()));
             }
+            Some("interior") => {
+                let scene = builtin(super::interior_builder()?, RenderSettingsFile::default());
+                return Ok((scene, "interior".into()));
+            }
             Some("corridor") => {
                 let scene = builtin(
                     super::corridor_builder()?,
@@ -417,7 +438,7 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
         }
         Some("json") => Ok((load_scene_file(path)?, label)),
         _ => Err(Error::invalid(format!(
-            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor, rooms:SEED)"
+            "scene {label}: expected an .obj or .json file, or a built-in scene (two-rooms, corridor, interior, rooms:SEED)"
         ))),
     }
 }
@@ -550,6 +571,33 @@ pub fn load_scene_file(path: &Path) -> Result<LoadedScene> {
             .add_light(desc)
             .map_err(|e| fail(format!("lights[{i}]"), e))?;
     }
+
+    let mut listed = Vec::with_capacity(file.portals.len());
+    for (i, p) in file.portals.iter().enumerate() {
+        let v = |a: [f32; 3]| Vec3::new(a[0], a[1], a[2]);
+        let portal = crate::light::environment::Portal::new(
+            v(p.corner),
+            v(p.edge_u),
+            v(p.edge_v),
+            v(p.outward),
+        )
+        .map_err(|e| fail(format!("portals[{i}]"), e))?;
+        listed.push(portal);
+    }
+    if listed.len() > crate::light::environment::MAX_PORTALS {
+        return Err(fail(
+            "portals".into(),
+            Error::invalid(format!(
+                "{} portals: at most {} are supported",
+                listed.len(),
+                crate::light::environment::MAX_PORTALS
+            )),
+        ));
+    }
+    builder.set_portals(super::PortalSettings {
+        listed,
+        automatic: file.auto_portals,
+    });
 
     if let Some(e) = &file.environment {
         let map = e.load(&dir).map_err(|e| fail("environment".into(), e))?;

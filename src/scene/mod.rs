@@ -13,6 +13,7 @@ mod corridor;
 mod family;
 mod file;
 mod interaction;
+mod interior;
 mod material;
 mod obj;
 mod texture;
@@ -26,15 +27,19 @@ pub use file::{
     auto_camera, convert_layout, load_scene_arg, load_scene_file, LoadedScene, RenderSettingsFile,
 };
 pub use interaction::SurfaceInteraction;
+pub use interior::{
+    interior_builder, interior_sky, interior_windows, write_interior_files, WindowAperture,
+};
 pub use material::{
     fresnel_dielectric, Bsdf, BsdfSample, Material, MaterialKind, TextureId, Transport,
 };
 pub use obj::{load_obj, ObjReport, DEFAULT_MATERIAL_NAME};
 pub use texture::{srgb_to_linear, Texture};
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use crate::geometry::{barycentric_point_error, Bounds3, Bvh, Hit, Ray};
+use crate::light::environment::{InteriorMask, Portal, PortalSampler};
 use crate::light::{
     EnvStrategy, EnvironmentMap, Light, LightSample, LightSampler, TriangleSampling,
 };
@@ -83,6 +88,32 @@ pub struct BuildStats {
     pub bvh_nodes: usize,
 }
 
+/// Where the window portals of `env=portals` come from: those listed by hand (scene file
+/// `portals`), or, when none is, those the analysis finds if `automatic`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PortalSettings {
+    pub listed: Vec<Portal>,
+    pub automatic: bool,
+}
+
+impl Default for PortalSettings {
+    fn default() -> Self {
+        PortalSettings {
+            listed: Vec::new(),
+            automatic: true,
+        }
+    }
+}
+
+/// The portal sampler a scene settled on (see [`Scene::env_portals_or_init`]).
+#[derive(Clone, Debug)]
+pub struct EnvPortals {
+    /// None when there are no portals (or no environment): light sampling uses the fallback.
+    pub sampler: Option<Arc<PortalSampler>>,
+    /// Whether the portals came from the analysis (else from the scene's list).
+    pub automatic: bool,
+}
+
 /// An immutable, committed scene. `Send + Sync`: any number of threads may query it.
 ///
 /// Geometry, materials and the BVH are shared (`Arc`) so that [`Scene::with_environment`] can
@@ -103,6 +134,10 @@ pub struct Scene {
     /// scene has no area lights.
     triangle_light: Arc<Vec<u32>>,
     camera: Option<Camera>,
+    portals: Arc<PortalSettings>,
+    /// Built once, by the first integrator that asks (`env=portals`), for this scene's
+    /// environment map.
+    env_portals: OnceLock<EnvPortals>,
     bounds: Bounds3,
     stats: BuildStats,
 }
@@ -154,6 +189,8 @@ impl Scene {
             environment,
             triangle_light: self.triangle_light.clone(),
             camera: self.camera,
+            portals: self.portals.clone(),
+            env_portals: OnceLock::new(),
             bounds: self.bounds,
             stats: self.stats.clone(),
         }
@@ -166,6 +203,67 @@ impl Scene {
         match &self.lights[i] {
             Light::Environment { map, .. } => Some((i, map)),
             _ => None,
+        }
+    }
+
+    /// The window portals listed by hand, and whether automatic ones are allowed.
+    pub fn portal_settings(&self) -> &PortalSettings {
+        &self.portals
+    }
+
+    /// The environment's portal sampler, built on the first call: from the portals listed by
+    /// hand, or when there are none and automatic portals are allowed, from those `find`
+    /// returns with the interior they apply in (the analysis lives above the scene, so the
+    /// integrator hands it in).
+    pub fn env_portals_or_init(
+        &self,
+        find: impl FnOnce(&Scene) -> crate::error::Result<(Vec<Portal>, Option<InteriorMask>)>,
+    ) -> crate::error::Result<&EnvPortals> {
+        if let Some(p) = self.env_portals.get() {
+            return Ok(p);
+        }
+        let (portals, interior, automatic) = if !self.portals.listed.is_empty() {
+            (self.portals.listed.clone(), None, false)
+        } else if self.portals.automatic && self.environment().is_some() {
+            let (portals, interior) = find(self)?;
+            (portals, interior, true)
+        } else {
+            (Vec::new(), None, false)
+        };
+        let sampler = match self.environment() {
+            Some((_, map)) if !portals.is_empty() => Some(Arc::new(PortalSampler::build_masked(
+                map, &portals, interior,
+            )?)),
+            _ => None,
+        };
+        Ok(self
+            .env_portals
+            .get_or_init(|| EnvPortals { sampler, automatic }))
+    }
+
+    /// The portal sampler, once [`env_portals_or_init`](Self::env_portals_or_init) built one.
+    #[inline]
+    pub fn env_portals(&self) -> Option<&PortalSampler> {
+        self.env_portals.get()?.sampler.as_deref()
+    }
+
+    /// The density with which light sampling with strategy `env` at `point` (facing normal
+    /// `normal`) draws environment direction `dir`, the light's pmf excluded; 0 without an
+    /// environment.
+    #[inline]
+    pub fn environment_pdf_at(
+        &self,
+        env: EnvStrategy,
+        point: Vec3,
+        normal: Vec3,
+        dir: Vec3,
+    ) -> f32 {
+        let Some((_, map)) = self.environment() else {
+            return 0.0;
+        };
+        match (env, self.env_portals()) {
+            (EnvStrategy::Portals, Some(portals)) => portals.pdf(map, point, normal, dir),
+            _ => map.pdf(env, normal, dir),
         }
     }
 
@@ -341,7 +439,23 @@ impl Scene {
     ) -> Option<LightTowardSample> {
         let (index, pmf, u_light) = self.light_sampler()?.sample_reuse(u.x);
         let u = Vec2::new(u_light, u.y);
-        let sample = self.lights[index].sample_with(si.p, si.facing_normal(), env, triangles, u)?;
+        let sample = match (env, self.env_portals()) {
+            (EnvStrategy::Portals, Some(portals)) if Some(index as u32) == self.environment => {
+                let (_, map) = self.environment()?;
+                let s = portals.sample(map, si.p, si.facing_normal(), u)?;
+                LightSample {
+                    wi: s.wi,
+                    radiance: s.radiance,
+                    pdf: s.pdf,
+                    point: si.p,
+                    point_error: Vec3::ZERO,
+                    normal: -s.wi,
+                    distance: f32::INFINITY,
+                    delta: false,
+                }
+            }
+            _ => self.lights[index].sample_with(si.p, si.facing_normal(), env, triangles, u)?,
+        };
         if sample.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
             return None;
         }

@@ -12,10 +12,12 @@
 
 mod grid;
 mod image;
+mod portal;
 mod sampler;
 
 pub use grid::Grid;
 pub use image::{describe, EnvImage, MAX_TEXELS};
+pub use portal::{InteriorMask, Portal, PortalSampler, FALLBACK as PORTAL_FALLBACK, MAX_PORTALS};
 pub use sampler::{Balancing, CubeSampler, LatLongSampler};
 
 use std::path::Path;
@@ -41,6 +43,10 @@ pub enum EnvStrategy {
     CubeDynamic,
     /// Never sample the environment: only BSDF sampling finds it (for validation).
     BsdfOnly,
+    /// Only directions through the window portals a point sees (`portal.rs`, Bitterli et al.
+    /// 2015), where the scene has portals and the integrator knows the point; `cube-dynamic`
+    /// elsewhere (and in [`EnvironmentMap::sample`], which has no point).
+    Portals,
 }
 
 impl EnvStrategy {
@@ -50,6 +56,7 @@ impl EnvStrategy {
         "cube-power",
         "cube-dynamic",
         "bsdf",
+        "portals",
     ];
 
     pub fn parse(name: &str) -> Result<Self> {
@@ -59,6 +66,7 @@ impl EnvStrategy {
             "cube-power" => EnvStrategy::CubePower,
             "cube-dynamic" => EnvStrategy::CubeDynamic,
             "bsdf" => EnvStrategy::BsdfOnly,
+            "portals" => EnvStrategy::Portals,
             other => {
                 return Err(Error::invalid(format!(
                     "unknown environment sampling strategy '{other}' (expected one of {})",
@@ -75,6 +83,7 @@ impl EnvStrategy {
             EnvStrategy::CubePower => "cube-power",
             EnvStrategy::CubeDynamic => "cube-dynamic",
             EnvStrategy::BsdfOnly => "bsdf",
+            EnvStrategy::Portals => "portals",
         }
     }
 
@@ -85,6 +94,7 @@ impl EnvStrategy {
             EnvStrategy::CubePower => Some(Balancing::Power),
             EnvStrategy::CubeDynamic => Some(Balancing::Dynamic),
             EnvStrategy::LatLong | EnvStrategy::BsdfOnly => None,
+            EnvStrategy::Portals => PORTAL_FALLBACK.balancing(),
         }
     }
 
@@ -300,7 +310,10 @@ impl EnvironmentMap {
                     self.build_seconds[0] = t.elapsed().as_secs_f64();
                     let _ = self.latlong.set(built);
                 }
-                EnvStrategy::CubeUniform | EnvStrategy::CubePower | EnvStrategy::CubeDynamic
+                EnvStrategy::CubeUniform
+                | EnvStrategy::CubePower
+                | EnvStrategy::CubeDynamic
+                | EnvStrategy::Portals
                     if self.cube.get().is_none() =>
                 {
                     let t = Instant::now();
