@@ -203,7 +203,7 @@ pub struct TrainingReport {
 
 impl TrainingReport {
     /// Every node set to c = 0, as the scene-level switch does (the scout's time-budget
-    /// stop, `guide::skeleton`'s `BUDGET_SHARE`).
+    /// stop, `guide::settings`'s `BUDGET_SHARE`).
     pub(super) fn turn_off(&mut self, settings: &super::SkeletonGuideSettings) {
         self.scene.switched_off = true;
         self.probabilities.fill(0.0);
@@ -1600,7 +1600,7 @@ fn light_sample(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::guide::skeleton::DEFAULT_TRAINING_MIN_NONZERO as FLOOR;
+    use crate::guide::settings::DEFAULT_TRAINING_MIN_NONZERO as FLOOR;
     use crate::math::{warp, Frame, Vec3};
 
     /// The reweighted estimate of M(c, s) from samples of the training proposal (c0, s0)
@@ -1871,7 +1871,7 @@ mod tests {
             strengths: vec![SkeletonStrength::Fixed(64.0)],
             may_turn_off: true,
             lobe_weights: false,
-            guided_cost: crate::guide::skeleton::DEFAULT_TRAINING_GUIDED_COST as f64,
+            guided_cost: crate::guide::settings::DEFAULT_TRAINING_GUIDED_COST as f64,
             measured: LOBE_COSTS,
         }
     }
