@@ -940,7 +940,7 @@ fn settings_and_specs_are_validated() {
         integrator::create(good, base).unwrap_or_else(|e| panic!("{good}: {e}"));
     }
     let (name, s) = integrator::parse_spec("path:rr_depth=4:max_depth=7", base).unwrap();
-    assert_eq!((name, s.rr_start_depth, s.max_depth), ("path", 4, 7));
+    assert_eq!((name, s.path.rr_start_depth, s.max_depth), ("path", 4, 7));
     assert_eq!(
         lacuna::capi::LACUNA_SKELETON_MAX_STRENGTH,
         lacuna::guide::MAX_STRENGTH
