@@ -391,7 +391,7 @@ fn voxel_visibility_cache_gives_the_direct_answers() {
 type LobeDensity = Box<dyn Fn(Vec3) -> f32>;
 
 /// The query's mixture, with its shared shadow rays and merged lobes, is the mixture written
-/// out lobe by lobe from the guide's lobes (module docs of `guide::skeleton`): the opening
+/// out lobe by lobe from the guide's lobes (module docs of `guide::importance`): the opening
 /// where p sees it (the portal's rectangle with `aim=portal`, a round lobe as wide as the
 /// opening otherwise), else the importance point where p sees it, else no lobe; one shadow
 /// ray from p per lobe and target, probabilities renormalised over the lobes kept. On the
@@ -940,7 +940,7 @@ fn settings_and_specs_are_validated() {
         integrator::create(good, base).unwrap_or_else(|e| panic!("{good}: {e}"));
     }
     let (name, s) = integrator::parse_spec("path:rr_depth=4:max_depth=7", base).unwrap();
-    assert_eq!((name, s.rr_start_depth, s.max_depth), ("path", 4, 7));
+    assert_eq!((name, s.path.rr_start_depth, s.max_depth), ("path", 4, 7));
     assert_eq!(
         lacuna::capi::LACUNA_SKELETON_MAX_STRENGTH,
         lacuna::guide::MAX_STRENGTH

@@ -211,16 +211,7 @@ struct SceneArgs {
 struct RenderArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Integrator (available: path, path_skeleton, bdpt, bdpt_skeleton, bdpt_ic, env_direct, vpl),
-    /// with options as NAME:KEY=VALUE... (max_depth, mis, env=STRATEGY; path and path_skeleton
-    /// also rr_depth=D, the bounces before Russian roulette, and triangles=area|solid_angle, how
-    /// next-event estimation samples emissive triangles; env_direct also samples=N, bsdf=N;
-    /// path_skeleton its guide options, see `compare --integrators`; bdpt_skeleton subset=N,
-    /// accept=ALPHA, images=true, resolution=N, voxel_budget=N; bdpt_ic subset=N, density=D,
-    /// images=true; vpl count=N light subpaths per pass, clamp=R (fraction of the scene
-    /// diagonal, 0 = off), compensate=true|false, visibility=exact) [default: path, or the
-    /// scene file's].
-    #[arg(long)]
+    #[arg(long, help = integrator_help())]
     integrator: Option<String>,
     /// Samples per pixel [default: 16, or the scene file's].
     #[arg(long, conflicts_with = "time")]
@@ -272,23 +263,7 @@ struct ReferenceArgs {
 struct CompareArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Comma-separated integrator names; the first is the baseline. A name may carry options
-    /// that override the command line's for that contender, as `name:key=value:...`: `max_depth`,
-    /// `mis`, for path and path_skeleton `rr_depth` (bounces before Russian roulette) and
-    /// `triangles=area|solid_angle` (next-event estimation of emissive triangles), and for
-    /// path_skeleton `c_skel`, `strength`, `resolution`, `voxel_budget`, `light_rays`,
-    /// `importance_nodes`, `lobes`, `visibility`, `aim`, `fallback`, `training_depth`,
-    /// `training_paths`, `training_cost`, `training_significance`, `training_min_nonzero`,
-    /// `training_guided_cost`, `cost_model`, `lobe_weights`, `c_max`, `directions`
-    /// (`learned`, the default: learned histograms replace the lobes; `lobes`; a learned
-    /// `lobe_weights` or `strength` implies `lobes`), `training_passes`, `training_history`,
-    /// `histogram_floor`, `ratio_max`, `pilot_paths`, `pilot_cost`
-    /// (e.g. `path,path:rr_depth=3,path_skeleton`); for bdpt_skeleton `subset`, `accept`,
-    /// `images`, `resolution`, `voxel_budget` and for bdpt_ic `subset`, `density`, `images`
-    /// (e.g. `bdpt,bdpt_skeleton:subset=1024:accept=1,bdpt_ic`); for vpl `count`, `clamp`,
-    /// `compensate`, `visibility` (e.g. `vpl:clamp=0.05:compensate=true`);
-    /// any of them also `sampler=sobol|independent` (e.g. `path:sampler=independent,path`).
-    #[arg(long, default_value = "path")]
+    #[arg(long, default_value = "path", help = contenders_help())]
     integrators: String,
     /// Seconds per integrator per run.
     #[arg(long)]
@@ -605,6 +580,33 @@ fn prepare(args: &SceneArgs, integrator_spec: Option<&str>, spp: SampleBudget) -
         label,
         memory_budget: budget,
     })
+}
+
+/// The names of the registered integrators, for the help texts: read from
+/// `integrator::REGISTRY`, so an integrator is listed as soon as it is registered.
+fn integrator_names() -> String {
+    let names: Vec<&str> = integrator::REGISTRY.iter().map(|r| r.name).collect();
+    names.join(", ")
+}
+
+/// `render --integrator`'s help.
+fn integrator_help() -> String {
+    format!(
+        "Integrator, one of {}, with options as NAME:KEY=VALUE:... (every integrator's keys: \
+         docs/integrator-options.md) [default: path, or the scene file's]",
+        integrator_names()
+    )
+}
+
+/// `compare --integrators`'s help.
+fn contenders_help() -> String {
+    format!(
+        "Comma-separated integrators, the first the baseline: any of {}, each with its own \
+         options as NAME:KEY=VALUE:... (docs/integrator-options.md), which override the \
+         command line's for that contender, and also sampler=sobol|independent \
+         (e.g. path,path:rr_depth=3,path_skeleton or path:sampler=independent,path)",
+        integrator_names()
+    )
 }
 
 /// The `--c-skel`, `--skel-*` flags over the scene file's skeleton options. `--c-skel` and

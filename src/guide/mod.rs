@@ -13,18 +13,24 @@
 
 pub mod directional;
 pub mod estimator;
+mod importance;
+mod lobes;
 mod mixture;
+mod query;
 pub mod resampling;
-mod skeleton;
+mod settings;
+mod skeleton_guide;
 mod training;
 
 pub use directional::DirectionalTable;
+pub use lobes::{GuideLobe, ImportanceNode, MAX_LOBES};
 pub use mixture::{sample_bsdf_or_guide, MixtureSample};
+pub use query::GuideQuery;
 pub use resampling::ResamplingSettings;
-pub use skeleton::{
-    CostModel, GuideLobe, GuideQuery, ImportanceNode, LobeAim, LobeFallback, PilotCost,
-    RenderEstimator, SkeletonGuide, SkeletonGuideSettings, SkeletonStrength, TrainingCost,
-    DEFAULT_AUTO_MAX, DEFAULT_TRAINING_DEPTH, DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET,
-    MAX_LOBES, MAX_STRENGTH, OPTION_NAMES, STRENGTH_CANDIDATES,
+pub use settings::{
+    CostModel, LobeAim, LobeFallback, PilotCost, RenderEstimator, SkeletonGuideSettings,
+    SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX, DEFAULT_TRAINING_DEPTH,
+    DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET, MAX_STRENGTH, OPTION_NAMES, STRENGTH_CANDIDATES,
 };
+pub use skeleton_guide::SkeletonGuide;
 pub use training::{Pilot, SceneChoice, TrainingReport, CANDIDATES, TRAINING_C};

@@ -19,6 +19,7 @@ pub use bdpt_skeleton::{BdptSkeleton, ResamplingStats};
 pub use env_direct::{EnvDirect, EnvDirectOptions, ALPHA_LAYER};
 #[cfg(feature = "diagnostics")]
 pub use path::diagnostics;
+pub use path::PathOptions;
 pub use path::PathTracer;
 pub use vpl::{VplIntegrator, VplOptions, VplVisibility};
 
@@ -32,7 +33,7 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::{ResamplingSettings, SkeletonGuideSettings};
-use crate::light::{EnvStrategy, TriangleSampling};
+use crate::light::EnvStrategy;
 use crate::math::Rgb;
 use crate::math::Sampler;
 use crate::scene::{Camera, CameraFrame, RenderSettingsFile, Scene};
@@ -68,20 +69,13 @@ pub struct IntegratorSettings {
     /// `bdpt`), [`MisHeuristic::Balance`] for `env_direct`, whose many samples per strategy
     /// the balance heuristic over the counts combines as the thesis's estimator does.
     pub mis: Option<MisHeuristic>,
-    /// Russian roulette (`path`, `path_skeleton`): a path that has made this many bounces may
-    /// be ended before the next one, surviving with probability `min(max(throughput), 0.95)`
-    /// (see `path.rs`). Lower starts make samples cheaper and noisier. The default is 5 (as
-    /// Mitsuba's): by instructions x MAE^2 per sample, a start at 5 against 3 wins on most test
-    /// scenes and loses little on the one where it loses (BENCHMARKS.md).
-    pub rr_start_depth: u32,
     /// Bidirectional integrators: light subpaths traced per iteration (`None` = one per pixel).
     pub light_paths: Option<u32>,
     /// How light sampling picks environment-map directions.
     pub env: EnvStrategy,
-    /// How next-event estimation of `path` and `path_skeleton` samples emissive triangles: by
-    /// area (default) or by solid angle (`bdpt` always samples them by area: its MIS weights
-    /// assume that density).
-    pub triangles: TriangleSampling,
+    /// `path` and `path_skeleton`: Russian roulette and how next-event estimation samples
+    /// emissive triangles.
+    pub path: PathOptions,
     /// `env_direct`'s light and BSDF samples per shading point.
     pub env_direct: EnvDirectOptions,
     /// `path_skeleton`: skeleton guiding (c_skel, strength, analysis resolution ...).
@@ -98,10 +92,9 @@ impl Default for IntegratorSettings {
         IntegratorSettings {
             max_depth: 8,
             mis: None,
-            rr_start_depth: 5,
             light_paths: None,
             env: EnvStrategy::default(),
-            triangles: TriangleSampling::default(),
+            path: PathOptions::default(),
             env_direct: EnvDirectOptions::default(),
             skeleton: SkeletonGuideSettings::default(),
             resampling: ResamplingSettings::default(),

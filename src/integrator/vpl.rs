@@ -226,7 +226,8 @@ impl VplIntegrator {
     fn estimator(&self) -> RenderEstimator {
         RenderEstimator {
             mis: self.settings.mis.unwrap_or_default(),
-            triangles: self.settings.triangles,
+            // `triangles=` is `path`'s option; `vpl` samples emissive triangles by area.
+            triangles: crate::light::TriangleSampling::default(),
             env: self.settings.env,
         }
     }

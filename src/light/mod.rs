@@ -5,13 +5,13 @@
 mod emission;
 pub mod environment;
 pub mod photometric;
-mod sampler;
+mod selection;
 pub mod triangle;
 
 pub use emission::EmissionSample;
 pub use environment::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
 pub use photometric::PhotometricProfile;
-pub use sampler::LightSampler;
+pub use selection::LightSampler;
 
 use std::sync::Arc;
 

@@ -5,17 +5,17 @@
 mod distribution;
 mod frame;
 mod mis;
+mod pixel_sampler;
 mod rng;
-mod sampler;
 pub mod warp;
 
 pub use distribution::{AliasTable, Distribution1D, Distribution2D};
 pub use frame::Frame;
 pub use mis::{balance_heuristic, power_heuristic, MisHeuristic};
-pub use rng::{mix64, Rng};
-pub use sampler::{
+pub use pixel_sampler::{
     PixelSampler, Sampler, SamplerKind, FILM_DIMENSION, FIRST_INTEGRATOR_DIMENSION, LENS_DIMENSION,
 };
+pub use rng::{mix64, Rng};
 
 pub use glam::{Vec2, Vec3};
 

@@ -10,15 +10,15 @@
 //! sampling structures depend only on the image: they are built lazily, for the strategies a
 //! render uses, and rebuilt in place when the host hands over a new image of the same layout.
 
+mod direction_sampling;
 mod grid;
 mod image;
 mod portal;
-mod sampler;
 
+pub use direction_sampling::{Balancing, CubeSampler, LatLongSampler};
 pub use grid::Grid;
 pub use image::{describe, EnvImage, MAX_TEXELS};
 pub use portal::{InteriorMask, Portal, PortalSampler, FALLBACK as PORTAL_FALLBACK, MAX_PORTALS};
-pub use sampler::{Balancing, CubeSampler, LatLongSampler};
 
 use std::path::Path;
 use std::sync::OnceLock;

@@ -66,11 +66,12 @@ impl SamplerKind {
 /// which have no slots).
 #[derive(Clone, Debug)]
 pub struct Sampler {
-    kind: Kind,
+    sequence: Sequence,
 }
 
+/// Where a sampler's numbers come from: a PCG stream, or the Sobol sequence at one sample.
 #[derive(Clone, Debug)]
-enum Kind {
+enum Sequence {
     Independent(Rng),
     Sobol {
         /// Hash of (seed, pixel): the key of every slot's shuffle and scrambles.
@@ -124,7 +125,7 @@ impl PixelSampler {
                 sample_index as u64,
             )),
             SamplerKind::Sobol => Sampler {
-                kind: Kind::Sobol {
+                sequence: Sequence::Sobol {
                     pixel_key: self.pixel_key,
                     reversed_index: sample_index.reverse_bits(),
                     dimension: 0,
@@ -145,7 +146,7 @@ impl Sampler {
     /// subpaths).
     pub fn independent(rng: Rng) -> Self {
         Sampler {
-            kind: Kind::Independent(rng),
+            sequence: Sequence::Independent(rng),
         }
     }
 
@@ -154,7 +155,7 @@ impl Sampler {
     /// thing in every sample of a pixel and its stratification helps that one integral.
     #[inline]
     pub fn set_dimension(&mut self, dimension: u32) {
-        if let Kind::Sobol { dimension: d, .. } = &mut self.kind {
+        if let Sequence::Sobol { dimension: d, .. } = &mut self.sequence {
             *d = dimension;
         }
     }
@@ -165,32 +166,32 @@ impl Sampler {
     /// number been drawn, so skipping changes no image.
     #[inline]
     pub fn skip_uniform(&mut self) {
-        match &mut self.kind {
-            Kind::Independent(rng) => {
+        match &mut self.sequence {
+            Sequence::Independent(rng) => {
                 rng.next_u32();
             }
-            Kind::Sobol { dimension, .. } => *dimension += 1,
+            Sequence::Sobol { dimension, .. } => *dimension += 1,
         }
     }
 
     /// Passes over the request [`Sampler::uniform2`] would answer (see [`Sampler::skip_uniform`]).
     #[inline]
     pub fn skip_uniform2(&mut self) {
-        match &mut self.kind {
-            Kind::Independent(rng) => {
+        match &mut self.sequence {
+            Sequence::Independent(rng) => {
                 rng.next_u32();
                 rng.next_u32();
             }
-            Kind::Sobol { dimension, .. } => *dimension += 1,
+            Sequence::Sobol { dimension, .. } => *dimension += 1,
         }
     }
 
     /// Uniform float in [0, 1).
     #[inline]
     pub fn uniform(&mut self) -> f32 {
-        match &mut self.kind {
-            Kind::Independent(rng) => rng.uniform(),
-            Kind::Sobol {
+        match &mut self.sequence {
+            Sequence::Independent(rng) => rng.uniform(),
+            Sequence::Sobol {
                 pixel_key,
                 reversed_index,
                 dimension,
@@ -206,9 +207,9 @@ impl Sampler {
     /// pixel's samples.
     #[inline]
     pub fn uniform2(&mut self) -> Vec2 {
-        match &mut self.kind {
-            Kind::Independent(rng) => rng.uniform2(),
-            Kind::Sobol {
+        match &mut self.sequence {
+            Sequence::Independent(rng) => rng.uniform2(),
+            Sequence::Sobol {
                 pixel_key,
                 reversed_index,
                 dimension,
@@ -224,10 +225,10 @@ impl Sampler {
     /// Uniform integer in [0, n).
     pub fn below(&mut self, n: u32) -> u32 {
         assert!(n > 0);
-        match &mut self.kind {
-            Kind::Independent(rng) => rng.below(n),
+        match &mut self.sequence {
+            Sequence::Independent(rng) => rng.below(n),
             // 32 scrambled bits times n: a bias below n / 2^32, stratified like `uniform`.
-            Kind::Sobol { .. } => {
+            Sequence::Sobol { .. } => {
                 let u = self.uniform_bits();
                 ((u as u64 * n as u64) >> 32) as u32
             }
@@ -236,9 +237,9 @@ impl Sampler {
 
     /// 32 bits of the next 1-D slot (Sobol only).
     fn uniform_bits(&mut self) -> u32 {
-        match &mut self.kind {
-            Kind::Independent(rng) => rng.next_u32(),
-            Kind::Sobol {
+        match &mut self.sequence {
+            Sequence::Independent(rng) => rng.next_u32(),
+            Sequence::Sobol {
                 pixel_key,
                 reversed_index,
                 dimension,
