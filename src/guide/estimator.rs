@@ -117,22 +117,11 @@ pub fn emitter_light_pdf(
     })
 }
 
-/// The environment's radiance along `dir`, leaving a vertex of facing normal `normal`, and the
-/// density with which light sampling there draws `dir` (None without an environment).
+/// The environment's radiance along `dir`, leaving a vertex at `point` of facing normal
+/// `normal`, and the density with which light sampling there draws `dir` (None without an
+/// environment). The point matters for `env=portals` (the portals a point sees depend on
+/// where it is).
 pub fn environment_along(
-    scene: &Scene,
-    normal: Vec3,
-    dir: Vec3,
-    estimator: &RenderEstimator,
-) -> Option<(Rgb, f32)> {
-    let (index, env) = scene.environment()?;
-    let pmf = scene.light_sampler().map_or(0.0, |s| s.pmf(index));
-    Some((env.radiance(dir), pmf * env.pdf(estimator.env, normal, dir)))
-}
-
-/// [`environment_along`] for a ray leaving `point`: the density of light sampling at that
-/// point, which `env=portals` needs (the portals a point sees depend on where it is).
-pub fn environment_along_from(
     scene: &Scene,
     point: Vec3,
     normal: Vec3,

@@ -173,7 +173,7 @@ impl PathTracer {
         }
         let estimator = self.estimator();
         let Some((le, light_pdf)) =
-            estimator::environment_along_from(scene, prev_point, prev_normal, dir, &estimator)
+            estimator::environment_along(scene, prev_point, prev_normal, dir, &estimator)
         else {
             return Rgb::ZERO;
         };

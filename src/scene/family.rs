@@ -20,6 +20,7 @@ use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use super::quad_mesh::QuadMesh;
 use super::{Camera, Material, MeshDesc, SceneBuilder};
 use crate::error::{Error, Result};
 use crate::math::{Rgb, Rng, Vec3};
@@ -434,7 +435,7 @@ impl FamilyScene {
     fn meshes(&self) -> Vec<NamedMesh> {
         let (xmax, zmax) = (*self.xs.last().unwrap(), *self.zs.last().unwrap());
         let h = WALL / 2.0;
-        let mut walls = Triangles::default();
+        let mut walls = QuadMesh::default();
         let (fx0, fx1, fz0, fz1) = if self.openness == Openness::OpenSide {
             (-OUTSIDE, xmax + OUTSIDE, -OUTSIDE, zmax + OUTSIDE)
         } else {
@@ -450,7 +451,7 @@ impl FamilyScene {
         for &(a, b) in &self.boxes {
             walls.cuboid(a, b);
         }
-        let mut lights = Triangles::default();
+        let mut lights = QuadMesh::default();
         for l in &self.lights {
             let s = l.size / 2.0;
             let c = l.center;
@@ -599,64 +600,6 @@ fn wall_segment(
                 boxes.push(make((a, b), height, top));
             }
         }
-    }
-}
-
-/// Quads and boxes as triangles.
-#[derive(Default)]
-struct Triangles {
-    positions: Vec<Vec3>,
-    indices: Vec<[u32; 3]>,
-}
-
-impl Triangles {
-    /// Quad a-b-c-d, counter-clockwise seen from its front.
-    fn quad(&mut self, a: Vec3, b: Vec3, c: Vec3, d: Vec3) {
-        let i = self.positions.len() as u32;
-        self.positions.extend([a, b, c, d]);
-        self.indices.push([i, i + 1, i + 2]);
-        self.indices.push([i, i + 2, i + 3]);
-    }
-
-    /// An axis-aligned box with outward-facing sides.
-    fn cuboid(&mut self, a: Vec3, b: Vec3) {
-        let p = Vec3::new;
-        self.quad(
-            p(a.x, a.y, b.z),
-            p(b.x, a.y, b.z),
-            p(b.x, b.y, b.z),
-            p(a.x, b.y, b.z),
-        );
-        self.quad(
-            p(b.x, a.y, a.z),
-            p(a.x, a.y, a.z),
-            p(a.x, b.y, a.z),
-            p(b.x, b.y, a.z),
-        );
-        self.quad(
-            p(b.x, a.y, b.z),
-            p(b.x, a.y, a.z),
-            p(b.x, b.y, a.z),
-            p(b.x, b.y, b.z),
-        );
-        self.quad(
-            p(a.x, a.y, a.z),
-            p(a.x, a.y, b.z),
-            p(a.x, b.y, b.z),
-            p(a.x, b.y, a.z),
-        );
-        self.quad(
-            p(a.x, b.y, b.z),
-            p(b.x, b.y, b.z),
-            p(b.x, b.y, a.z),
-            p(a.x, b.y, a.z),
-        );
-        self.quad(
-            p(a.x, a.y, a.z),
-            p(b.x, a.y, a.z),
-            p(b.x, a.y, b.z),
-            p(a.x, a.y, b.z),
-        );
     }
 }
 

@@ -13,6 +13,7 @@
 
 use std::sync::Arc;
 
+use super::quad_mesh::QuadMesh;
 use super::{Camera, Material, MeshDesc, SceneBuilder};
 use crate::error::{Error, Result};
 use crate::light::environment::EnvImage;
@@ -77,69 +78,26 @@ pub fn interior_windows() -> Vec<WindowAperture> {
 
 /// Axis-aligned boxes of one material.
 struct Boxes {
-    positions: Vec<Vec3>,
-    indices: Vec<[u32; 3]>,
+    mesh: QuadMesh,
 }
 
 impl Boxes {
     fn new() -> Self {
         Boxes {
-            positions: Vec::new(),
-            indices: Vec::new(),
+            mesh: QuadMesh::default(),
         }
     }
 
     /// Quad a-b-c-d, counter-clockwise seen from its front.
     fn quad(&mut self, a: Vec3, b: Vec3, c: Vec3, d: Vec3) {
-        let i = self.positions.len() as u32;
-        self.positions.extend([a, b, c, d]);
-        self.indices.push([i, i + 1, i + 2]);
-        self.indices.push([i, i + 2, i + 3]);
+        self.mesh.quad(a, b, c, d);
     }
 
     /// A closed box with outward-facing sides; empty boxes are skipped.
     fn cuboid(&mut self, min: Vec3, max: Vec3) {
-        if (max - min).min_element() <= 0.0 {
-            return;
+        if (max - min).min_element() > 0.0 {
+            self.mesh.cuboid(min, max);
         }
-        let p = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
-        let (a, b) = (min, max);
-        self.quad(
-            p(a.x, a.y, b.z),
-            p(b.x, a.y, b.z),
-            p(b.x, b.y, b.z),
-            p(a.x, b.y, b.z),
-        );
-        self.quad(
-            p(b.x, a.y, a.z),
-            p(a.x, a.y, a.z),
-            p(a.x, b.y, a.z),
-            p(b.x, b.y, a.z),
-        );
-        self.quad(
-            p(b.x, a.y, b.z),
-            p(b.x, a.y, a.z),
-            p(b.x, b.y, a.z),
-            p(b.x, b.y, b.z),
-        );
-        self.quad(
-            p(a.x, a.y, a.z),
-            p(a.x, a.y, b.z),
-            p(a.x, b.y, b.z),
-            p(a.x, b.y, a.z),
-        );
-        self.quad(
-            p(a.x, b.y, b.z),
-            p(b.x, b.y, b.z),
-            p(b.x, b.y, a.z),
-            p(a.x, b.y, a.z),
-        );
-        self.quad(
-            p(a.x, a.y, a.z),
-            p(b.x, a.y, a.z),
-            p(b.x, a.y, b.z),
-            p(a.x, a.y, b.z),
-        );
     }
 
     /// A wall slab from `min` to `max` with rectangular holes through its thin axis `normal`
@@ -184,8 +142,8 @@ impl Boxes {
         builder
             .add_mesh(MeshDesc {
                 name: name.into(),
-                positions: self.positions,
-                indices: self.indices,
+                positions: self.mesh.positions,
+                indices: self.mesh.indices,
                 materials: vec![material],
                 ..Default::default()
             })

@@ -16,6 +16,7 @@ mod interaction;
 mod interior;
 mod material;
 mod obj;
+mod quad_mesh;
 mod texture;
 
 pub use builder::{DegeneratePolicy, MeshDesc, SceneBuilder};

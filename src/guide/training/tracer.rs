@@ -278,7 +278,7 @@ pub(super) fn arriving_emission(
             }
             (le, estimator::emitter_light_pdf(scene, si.p, n, render))
         }
-        None => estimator::environment_along(scene, si.facing_normal(), wi, render)
+        None => estimator::environment_along(scene, si.p, si.facing_normal(), wi, render)
             .unwrap_or((Rgb::ZERO, 0.0)),
     }
 }
