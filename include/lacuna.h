@@ -22,6 +22,15 @@
  * - Buffers are (pointer, byte stride, count); a stride of 0 means packed, a count of 0
  *   accepts NULL. Input data is copied. Enumerations are passed as uint32_t and validated.
  * - Each type's documentation states its thread-safety contract.
+ *
+ * Comments cite the source texts of the methods by number (docs/references.md):
+ * 000: L. Noel, "Discrete shape analysis for global illumination", PhD thesis, 2015
+ *      (skeleton, skeleton-guided path tracing, portals, skeleton vertex-connection resampling);
+ * 001: H. Lu, "Importance sampling of realistic light sources", PhD thesis, 2014
+ *      (environment-map sampling, light-field luminaires, automatic MIS balancing);
+ * 002: L. Noel and V. Biri, "Skeleton based vertex connection resampling for bidirectional
+ *      path tracing", Pacific Graphics 2015.
+ * "The thesis" is 000 unless a comment names 001.
  */
 
 #ifndef LACUNA_H

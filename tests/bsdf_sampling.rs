@@ -1,4 +1,4 @@
-//! Correctness of BSDF sampling (see shared/TESTING.md, "Sampling routines"):
+//! Correctness of BSDF sampling (see docs/testing.md, "Sampling routines"):
 //!
 //! - chi-square goodness of fit of sampled directions against the pdf integrated over cells of
 //!   the sphere, for Lambert, modified Phong (exponents 1 to 10^4, several diffuse/specular

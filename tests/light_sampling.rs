@@ -1,4 +1,4 @@
-//! Correctness of light sampling (see shared/TESTING.md, "Sampling routines"):
+//! Correctness of light sampling (see docs/testing.md, "Sampling routines"):
 //!
 //! - area lights sampled by area: points are uniform on the triangle (chi-square over K^2
 //!   congruent sub-triangles); `pdf_with(receiver, point, Area)` equals the sample's pdf and the

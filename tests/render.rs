@@ -1,5 +1,5 @@
 //! End-to-end tests of the path tracer against closed-form answers, and its robustness on the
-//! hard cases of TESTING.md: scale, grazing light, near-specular lobes, thread count.
+//! hard cases of docs/testing.md: scale, grazing light, near-specular lobes, thread count.
 
 use std::sync::atomic::AtomicBool;
 

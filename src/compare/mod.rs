@@ -1,5 +1,5 @@
 //! Speed against error: reference renders with an estimate of their own remaining error, and
-//! equal-time comparisons of integrators with convergence logs (TESTING.md, "Measuring speed
+//! equal-time comparisons of integrators with convergence logs (docs/testing.md, "Measuring speed
 //! against error"). The command line (`lacuna reference`, `lacuna compare`) and the C API are
 //! thin layers over this module.
 
