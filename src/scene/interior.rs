@@ -158,14 +158,8 @@ const SKY_HDR: &[u8] = include_bytes!("../../scenes/envmaps/sky.hdr");
 /// through the large south window (rotation about Y).
 pub fn interior_sky() -> Result<EnvironmentMap> {
     let img = image::load_from_memory_with_format(SKY_HDR, image::ImageFormat::Hdr)
-        .map_err(|e| Error::invalid(format!("built-in sky map: {e}")))?
-        .into_rgb32f();
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let pixels = img
-        .pixels()
-        .map(|p| Rgb::new(p.0[0], p.0[1], p.0[2]))
-        .collect();
-    let image = EnvImage::from_pixels(w, h, pixels)?;
+        .map_err(|e| Error::invalid(format!("built-in sky map: {e}")))?;
+    let image = EnvImage::from_decoded(img)?;
     EnvironmentMap::new(
         image,
         EnvSettings {

@@ -73,6 +73,13 @@ impl EnvImage {
         )))
     }
 
+    /// An environment image from a decoded image (an `.hdr` file, or one compiled in; layout
+    /// from the aspect ratio).
+    pub fn from_decoded(img: image::DynamicImage) -> Result<Self> {
+        let (w, h, pixels) = rgb_texels(img);
+        EnvImage::from_pixels(w, h, pixels)
+    }
+
     /// Loads an `.exr` or `.hdr` file (layout from the aspect ratio).
     pub fn load(path: &Path) -> Result<Self> {
         Self::load_within(
@@ -103,14 +110,8 @@ impl EnvImage {
                     budget,
                 )?
                 .decode()
-                .map_err(|e| Error::parse(path, "", e.to_string()))?
-                .into_rgb32f();
-                let (w, h) = (img.width() as usize, img.height() as usize);
-                let pixels = img
-                    .pixels()
-                    .map(|p| Rgb::new(p.0[0], p.0[1], p.0[2]))
-                    .collect();
-                (w, h, pixels)
+                .map_err(|e| Error::parse(path, "", e.to_string()))?;
+                rgb_texels(img)
             }
             _ => {
                 return Err(Error::invalid(format!(
@@ -276,6 +277,17 @@ fn texel_name(grid: Grid, i: usize) -> String {
             (i / face) % face
         ),
     }
+}
+
+/// Width, height and linear RGB texels of a decoded image.
+fn rgb_texels(img: image::DynamicImage) -> (usize, usize, Vec<Rgb>) {
+    let img = img.into_rgb32f();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let pixels = img
+        .pixels()
+        .map(|p| Rgb::new(p.0[0], p.0[1], p.0[2]))
+        .collect();
+    (w, h, pixels)
 }
 
 #[cfg(test)]
