@@ -166,6 +166,15 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
     assert!(biased.plateaued(), "biased slope {:?}", biased.slope);
     assert!(!base.plateaued(), "unbiased slope {:?}", base.slope);
     assert!(biased.time_to_baseline_error.is_none());
+    // Fireflies show as the brightest pixel against the reference's: near 1 for `path`.
+    for s in &cmp.summaries[..2] {
+        assert!(
+            (0.7..1.5).contains(&s.largest_pixel.median),
+            "{}: largest pixel {:?}",
+            s.label,
+            s.largest_pixel
+        );
+    }
 
     let dir = std::env::temp_dir().join(format!("lacuna-compare-{}", std::process::id()));
     write_report(&dir, &cmp, &ref_pixels, 16, 16, "test room").unwrap();
@@ -178,6 +187,10 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
     assert_eq!(csv.lines().count() - 1, cmp.points.len());
     let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
     assert!(summary.contains("within run-to-run spread") && summary.contains("plateau"));
+    assert!(
+        summary.contains("| largest pixel / reference's |"),
+        "{summary}"
+    );
     // The summary says which contender is biased by construction, and why.
     assert!(
         summary.contains("\nvpl:clamp=0.5:count=8 is biased: VPL geometry term clamped"),

@@ -11,7 +11,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use crate::error::{Error, Result};
-use crate::film::{image_errors, Film, ImageErrors};
+use crate::film::{image_errors, largest_pixel_ratio, Film, ImageErrors};
 use crate::integrator::{self, Integrator, IntegratorSettings};
 use crate::math::{Rgb, SamplerKind};
 use crate::render::{prepare, render, render_observed, Progress, RenderSettings, RenderStats};
@@ -149,6 +149,9 @@ pub struct RunResult {
     pub precompute_seconds: f64,
     pub stats: RenderStats,
     pub errors: ImageErrors,
+    /// The run's brightest pixel against the reference's (`film::largest_pixel_ratio`; NaN
+    /// where undefined): fireflies.
+    pub largest_pixel: f64,
 }
 
 /// Median and range of a figure over runs.
@@ -195,6 +198,8 @@ pub struct Summary {
     pub spp: Spread,
     /// Per-scene precomputation time (included in the budget and in every time below).
     pub precompute_seconds: Spread,
+    /// Each run's brightest pixel over the reference's ([`RunResult::largest_pixel`]).
+    pub largest_pixel: Spread,
     /// Time at which this contender reached the baseline's final MAE (median over runs);
     /// `None` when no run reached it.
     pub time_to_baseline_error: Option<Spread>,
@@ -389,7 +394,9 @@ pub fn compare(
             if stats.cancelled {
                 return Err(Error::Cancelled);
             }
-            let errors = image_errors(&film.radiance(), reference)?;
+            let radiance = film.radiance();
+            let errors = image_errors(&radiance, reference)?;
+            let largest_pixel = largest_pixel_ratio(&radiance, reference).unwrap_or(f64::NAN);
             points.extend(run_points);
             results.push(RunResult {
                 contender: c,
@@ -397,6 +404,7 @@ pub fn compare(
                 precompute_seconds,
                 stats,
                 errors,
+                largest_pixel,
             });
             films[c] = Some(film);
             done += 1.0;
@@ -560,6 +568,7 @@ fn summarize(
                 rel_mse: of(c, &|r| r.errors.rel_mse),
                 spp: of(c, &|r| r.stats.spp as f64),
                 precompute_seconds: of(c, &|r| r.precompute_seconds),
+                largest_pixel: of(c, &|r| r.largest_pixel),
                 time_to_baseline_error,
                 speedup,
                 indistinguishable,
@@ -617,6 +626,7 @@ mod tests {
                 rmse,
                 rel_mse: rmse,
             },
+            largest_pixel: 1.0,
         }
     }
 

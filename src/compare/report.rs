@@ -155,13 +155,13 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
             s,
             "Reference's own estimated error (from two half-sample renders): MAE {:.3e}, RMSE {:.3e}, relMSE {:.3e}. \
              Errors near these values are limited by the reference, not by the integrator: \
-             the last column compares MSE above the reference's own (RMSE² - {:.3e}), whose ratio is the speedup \
+             the column \"MSE above the reference's\" compares MSE above the reference's own (RMSE² - {:.3e}), whose ratio is the speedup \
              at equal time without that floor.\n",
             n.mae, n.rmse, n.rel_mse, n.rmse * n.rmse
         );
     }
-    let _ = writeln!(s, "| integrator | MAE | RMSE | relMSE | spp reached | precomputation (s) | time to baseline's MAE (s) | speedup | log-log slope | MSE above the reference's (speedup) |");
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "| integrator | MAE | RMSE | relMSE | spp reached | precomputation (s) | time to baseline's MAE (s) | speedup | log-log slope | MSE above the reference's (speedup) | largest pixel / reference's |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
     for (c, sm) in cmp.summaries.iter().enumerate() {
         let time = sm
             .time_to_baseline_error
@@ -210,9 +210,15 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
             ),
             (Some(e), None) => format!("{} (within the reference's noise)", fmt_spread(&e, 3)),
         };
+        let lp = &sm.largest_pixel;
+        let largest = if lp.min == lp.max {
+            format!("{:.3}", lp.median)
+        } else {
+            format!("{:.3} [{:.3}, {:.3}]", lp.median, lp.min, lp.max)
+        };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {:.0} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {:.0} | {} | {} | {} | {} | {} | {} |",
             sm.label,
             fmt_spread(&sm.mae, 3),
             fmt_spread(&sm.rmse, 3),
@@ -222,7 +228,8 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
             time,
             speedup,
             slope,
-            above
+            above,
+            largest
         );
     }
     for (label, bias) in cmp.labels.iter().zip(&cmp.biases) {

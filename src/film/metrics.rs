@@ -51,6 +51,20 @@ pub fn image_errors(image: &[Rgb], reference: &[Rgb]) -> Result<ImageErrors> {
     })
 }
 
+/// The brightest pixel of `image` against the brightest of `reference`, by luminance: a
+/// firefly shows as a ratio well above 1 long before it moves the mean errors. None when the
+/// reference is black (or either image is empty or not finite).
+pub fn largest_pixel_ratio(image: &[Rgb], reference: &[Rgb]) -> Option<f64> {
+    let largest = |img: &[Rgb]| {
+        img.iter()
+            .map(|&p| crate::math::luminance(p) as f64)
+            .fold(None, |m: Option<f64>, l| Some(m.map_or(l, |m| m.max(l))))
+    };
+    let (a, b) = (largest(image)?, largest(reference)?);
+    let ratio = a / b;
+    (b > 0.0 && ratio.is_finite()).then_some(ratio)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -71,5 +85,18 @@ mod tests {
         );
         assert!(image_errors(&image[..1], &reference).is_err());
         assert!(image_errors(&[Rgb::splat(f32::NAN)], &[Rgb::ZERO]).is_err());
+    }
+
+    #[test]
+    fn largest_pixel_ratio_compares_the_brightest_pixels_by_luminance() {
+        let reference = [Rgb::splat(2.0), Rgb::splat(0.5)];
+        let image = [Rgb::splat(1.0), Rgb::splat(6.0)];
+        assert_eq!(largest_pixel_ratio(&image, &reference), Some(3.0));
+        assert_eq!(largest_pixel_ratio(&image, &[Rgb::ZERO; 2]), None);
+        assert_eq!(largest_pixel_ratio(&[], &reference), None);
+        assert_eq!(
+            largest_pixel_ratio(&[Rgb::splat(f32::INFINITY)], &reference),
+            None
+        );
     }
 }

@@ -14,7 +14,7 @@ pub use crate::image_file::{
     encode_srgb, read_exr_rgb, read_exr_rgb_within, write_exr_rgb, write_png_rgb, ExrImage,
     ExrMetadata,
 };
-pub use metrics::{image_errors, ImageErrors};
+pub use metrics::{image_errors, largest_pixel_ratio, ImageErrors};
 
 use crate::error::Result;
 use crate::limits;
