@@ -374,6 +374,12 @@ enum lacuna_environment_strategy
     LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC = 3,
     // No light sampling of the environment: only BSDF sampling finds it.
     LACUNA_ENVIRONMENT_STRATEGY_BSDF = 4,
+    // Only directions through the window portals the shading point sees (portal-masked
+    // sampling, Bitterli et al. 2015), with a quarter of the samples by `CubeDynamic`; the
+    // portals are those the scene lists, or else those the analysis finds (built on first
+    // use). Where the point sees no portal (outdoors, or behind every window), as
+    // `CubeDynamic`. Renders: `path` and `path_skeleton` only (others refuse the job).
+    LACUNA_ENVIRONMENT_STRATEGY_PORTALS = 5,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -1670,8 +1676,10 @@ void lacuna_light_query_init(struct lacuna_light_query *query);
 // emissive triangles by `triangle_strategy` (a `lacuna_triangle_strategy` value) and
 // environment directions by `environment_strategy` (a `lacuna_environment_strategy` value;
 // `LACUNA_ENVIRONMENT_STRATEGY_BSDF` never samples the map, which BSDF sampling must then
-// find). Builds the environment map's sampling structures now, so that no later call
-// allocates. Writes the sampler (reference count 1) to `*out_sampler`. Thread-safe.
+// find; `LACUNA_ENVIRONMENT_STRATEGY_PORTALS` samples through the window portals the query's
+// position sees, and weighs hits by the same). Builds the environment map's sampling
+// structures now (for portals, the scene's window portals: an analysis of the scene the
+// first time), so that no later call allocates. Writes the sampler (reference count 1) to `*out_sampler`. Thread-safe.
 lacuna_status lacuna_light_sampler_new(const struct lacuna_scene *scene,
                                        uint32_t triangle_strategy,
                                        uint32_t environment_strategy,
@@ -2075,7 +2083,7 @@ lacuna_status lacuna_surface_spawn_shadow_ray(const struct lacuna_surface *surfa
 
 // Creates a scene builder filled with one of Lacuna's built-in scenes (camera included), as
 // `lacuna render` names them: `"two-rooms"` (two rooms joined by a doorway, lit from the far
-// one) or `"corridor"`. `LACUNA_STATUS_INVALID_ARGUMENT` for another name. Thread-safe.
+// one), `"corridor"` or `"interior"` (a house lit by a sky map through windows). `LACUNA_STATUS_INVALID_ARGUMENT` for another name. Thread-safe.
 lacuna_status lacuna_scene_builder_new_builtin(const struct lacuna_context *context,
                                                const char *name,
                                                struct lacuna_scene_builder **out_builder);

@@ -3,12 +3,14 @@
 //! built-in interior with its window portals found automatically, and on the same house with
 //! a hand-listed set that misses two windows and covers a third only in part (directions
 //! through no portal must stay reachable by BSDF sampling). No pixel is NaN or negative
-//! (`region_means` checks every pixel). The sampler's pdf is chi-square tested in
+//! (`region_means` checks every pixel). The door, the ajar door and the built-in two rooms have
+//! no environment light (emitters only): there `env=portals` must change nothing, which is
+//! tested bit for bit. The sampler's pdf is chi-square tested in
 //! `light::environment::portal`, the portal detection in `analysis::window_portals`.
 
 mod common;
 
-use common::agreement::agree_with_path;
+use common::agreement::{agree_with_path, load_scene, render_image};
 use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::light::environment::Portal;
 use lacuna::math::Vec3;
@@ -145,4 +147,52 @@ fn scene_files_list_portals_or_turn_them_off() {
         "{err}"
     );
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Without an environment light `env=portals` is a no-op: the same image, bit for bit, and no
+/// portal sampler (no analysis run) on the door, the ajar door and the built-in two rooms.
+#[test]
+fn env_portals_changes_nothing_without_an_environment() {
+    let scenes = [
+        (
+            "veach door",
+            load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json"),
+        ),
+        (
+            "veach ajar",
+            load_scene("scenes/veach-ajar-bitterli/veach-ajar-bitterli.json"),
+        ),
+        (
+            "two rooms",
+            lacuna::scene::two_rooms_builder().unwrap().build().unwrap(),
+        ),
+    ];
+    for (label, scene) in &scenes {
+        assert!(scene.environment().is_none(), "{label} has an environment");
+        let camera = *scene.camera().unwrap();
+        let settings = lacuna::render::RenderSettings {
+            width: 24,
+            height: 16,
+            spp: 4,
+            seed: 5,
+            ..Default::default()
+        };
+        let image = |spec: &str| {
+            let mut integrator = integrator::create(
+                spec,
+                IntegratorSettings {
+                    max_depth: 6,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            lacuna::render::prepare(integrator.as_mut(), scene, &camera, None, &|_, _| true)
+                .unwrap();
+            render_image(scene, &camera, integrator.as_ref(), &settings).radiance()
+        };
+        let (path, portals) = (image("path"), image("path:env=portals"));
+        assert!(path.iter().any(|p| p.max_element() > 0.0), "{label}: black");
+        assert!(path == portals, "{label}: env=portals changed the image");
+        assert!(scene.env_portals().is_none(), "{label}: portals built");
+    }
 }

@@ -48,4 +48,4 @@ pub use skeleton::{
 pub use skeleton_report::{skeleton_obj, skeleton_ply, write_skeleton, write_skeleton_images};
 pub use thinning::{Constraint, SubStep, Thinning, ThinningStats};
 mod window_portals;
-pub use window_portals::{window_portals, WindowPortalSettings, WindowPortals};
+pub use window_portals::{scene_env_portals, window_portals, WindowPortalSettings, WindowPortals};

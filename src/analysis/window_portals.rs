@@ -77,6 +77,16 @@ pub struct WindowPortals {
     pub fit_seconds: f64,
 }
 
+/// The portal sampler of `env=portals` for `scene`, built on the first call (by a render or
+/// a C light sampler, whichever comes first): from the portals the scene lists, or else from
+/// those [`window_portals`] finds with its default settings.
+pub fn scene_env_portals(scene: &Scene) -> Result<&crate::scene::EnvPortals> {
+    scene.env_portals_or_init(|scene| {
+        window_portals(scene, &WindowPortalSettings::default())
+            .map(|found| (found.portals, found.interior))
+    })
+}
+
 /// Runs the analysis (regions only) and finds the window portals of `scene`.
 pub fn window_portals(scene: &Scene, settings: &WindowPortalSettings) -> Result<WindowPortals> {
     if settings.resolution < 8 {

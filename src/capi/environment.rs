@@ -56,6 +56,7 @@ pub(crate) fn strategy_from_c(value: u32) -> CapiResult<EnvStrategy> {
             lacuna_environment_strategy::CubePower => EnvStrategy::CubePower,
             lacuna_environment_strategy::CubeDynamic => EnvStrategy::CubeDynamic,
             lacuna_environment_strategy::Bsdf => EnvStrategy::BsdfOnly,
+            lacuna_environment_strategy::Portals => EnvStrategy::Portals,
         },
     )
 }
@@ -67,8 +68,7 @@ pub(crate) fn strategy_to_c(strategy: EnvStrategy) -> u32 {
         EnvStrategy::CubePower => lacuna_environment_strategy::CubePower,
         EnvStrategy::CubeDynamic => lacuna_environment_strategy::CubeDynamic,
         EnvStrategy::BsdfOnly => lacuna_environment_strategy::Bsdf,
-        // Not settable through the C API; without a shading point it samples as its fallback.
-        EnvStrategy::Portals => lacuna_environment_strategy::CubeDynamic,
+        EnvStrategy::Portals => lacuna_environment_strategy::Portals,
     }) as u32
 }
 

@@ -415,8 +415,8 @@ impl lacuna_light_sampler {
             return NO_SAMPLE;
         };
         let (index, pmf, u_light) = selector.sample_reuse(q.u.x);
-        let light = &scene.lights()[index];
-        let Some(s) = light.sample_with(
+        let Some(s) = scene.sample_light_at(
+            index,
             q.position,
             q.env_normal,
             self.env,
@@ -461,9 +461,10 @@ impl lacuna_light_sampler {
                     l.pdf_with(q.position, point, self.triangles),
                 )
             }
-            Light::Environment { map, .. } => {
-                (map.radiance(dir), map.pdf(self.env, q.env_normal, dir))
-            }
+            Light::Environment { map, .. } => (
+                map.radiance(dir),
+                scene.environment_pdf_at(self.env, q.position, q.env_normal, dir),
+            ),
             _ => (Rgb::ZERO, 0.0),
         };
         lacuna_light_eval {
@@ -609,8 +610,10 @@ pub unsafe extern "C" fn lacuna_light_query_init(query: *mut lacuna_light_query)
 /// emissive triangles by `triangle_strategy` (a `lacuna_triangle_strategy` value) and
 /// environment directions by `environment_strategy` (a `lacuna_environment_strategy` value;
 /// `LACUNA_ENVIRONMENT_STRATEGY_BSDF` never samples the map, which BSDF sampling must then
-/// find). Builds the environment map's sampling structures now, so that no later call
-/// allocates. Writes the sampler (reference count 1) to `*out_sampler`. Thread-safe.
+/// find; `LACUNA_ENVIRONMENT_STRATEGY_PORTALS` samples through the window portals the query's
+/// position sees, and weighs hits by the same). Builds the environment map's sampling
+/// structures now (for portals, the scene's window portals: an analysis of the scene the
+/// first time), so that no later call allocates. Writes the sampler (reference count 1) to `*out_sampler`. Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_light_sampler_new(
     scene: *const lacuna_scene,
@@ -625,6 +628,9 @@ pub unsafe extern "C" fn lacuna_light_sampler_new(
         let triangles = lacuna_triangle_strategy::from_c(triangle_strategy, "triangle_strategy")?;
         let env = super::environment::strategy_from_c(environment_strategy)?;
         let out = out_ptr(out_sampler, "out_sampler")?;
+        if env == EnvStrategy::Portals && s.scene.environment().is_some() {
+            crate::analysis::scene_env_portals(&s.scene)?;
+        }
         if let Some((_, map)) = s.scene.environment() {
             for strategy in [env, env.for_emission()] {
                 match strategy {

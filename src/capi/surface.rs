@@ -295,7 +295,7 @@ pub unsafe extern "C" fn lacuna_surface_spawn_shadow_ray(
 
 /// Creates a scene builder filled with one of Lacuna's built-in scenes (camera included), as
 /// `lacuna render` names them: `"two-rooms"` (two rooms joined by a doorway, lit from the far
-/// one) or `"corridor"`. `LACUNA_STATUS_INVALID_ARGUMENT` for another name. Thread-safe.
+/// one), `"corridor"` or `"interior"` (a house lit by a sky map through windows). `LACUNA_STATUS_INVALID_ARGUMENT` for another name. Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_scene_builder_new_builtin(
     context: *const super::context::lacuna_context,
@@ -318,9 +318,13 @@ pub unsafe extern "C" fn lacuna_scene_builder_new_builtin(
                 crate::scene::corridor_builder()?,
                 crate::scene::corridor_render_settings(),
             ),
+            "interior" => (
+                crate::scene::interior_builder()?,
+                crate::scene::RenderSettingsFile::default(),
+            ),
             other => {
                 return Err(CapiError::invalid(format!(
-                    "unknown built-in scene '{other}' (expected two-rooms or corridor)"
+                    "unknown built-in scene '{other}' (expected two-rooms, corridor or interior)"
                 )))
             }
         };

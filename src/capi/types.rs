@@ -293,6 +293,12 @@ pub enum lacuna_environment_strategy {
     CubeDynamic = 3,
     /// No light sampling of the environment: only BSDF sampling finds it.
     Bsdf = 4,
+    /// Only directions through the window portals the shading point sees (portal-masked
+    /// sampling, Bitterli et al. 2015), with a quarter of the samples by `CubeDynamic`; the
+    /// portals are those the scene lists, or else those the analysis finds (built on first
+    /// use). Where the point sees no portal (outdoors, or behind every window), as
+    /// `CubeDynamic`. Renders: `path` and `path_skeleton` only (others refuse the job).
+    Portals = 5,
 }
 
 /// The world axis that is up for an environment map.
@@ -354,7 +360,8 @@ c_enum!(lacuna_environment_strategy {
     CubeUniform,
     CubePower,
     CubeDynamic,
-    Bsdf
+    Bsdf,
+    Portals
 });
 c_enum!(lacuna_up_axis { Y, Z });
 c_enum!(lacuna_film_channel {

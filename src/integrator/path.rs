@@ -750,10 +750,7 @@ fn prepare_env_portals(scene: &Scene, settings: &IntegratorSettings) -> Result<P
         return Ok(Precomputation::default());
     }
     let started = std::time::Instant::now();
-    let portals = scene.env_portals_or_init(|scene| {
-        crate::analysis::window_portals(scene, &crate::analysis::WindowPortalSettings::default())
-            .map(|found| (found.portals, found.interior))
-    })?;
+    let portals = crate::analysis::scene_env_portals(scene)?;
     let seconds = started.elapsed().as_secs_f64();
     let note = match &portals.sampler {
         Some(s) => format!(

@@ -209,6 +209,22 @@ pub struct LightSample {
     pub delta: bool,
 }
 
+impl LightSample {
+    /// An environment direction sampled for `receiver` (infinitely far, no delta).
+    pub fn from_environment(s: environment::EnvSample, receiver: Vec3) -> Self {
+        LightSample {
+            wi: s.wi,
+            radiance: s.radiance,
+            pdf: s.pdf,
+            point: receiver,
+            point_error: Vec3::ZERO,
+            normal: -s.wi,
+            distance: f32::INFINITY,
+            delta: false,
+        }
+    }
+}
+
 impl Light {
     pub fn from_desc(desc: &LightDesc, bounds: &Bounds3) -> Light {
         match *desc {
@@ -398,19 +414,10 @@ impl Light {
                     ..s
                 })
             }
-            Light::Environment { ref map, .. } => {
-                let s = map.sample(env, normal, u)?;
-                Some(LightSample {
-                    wi: s.wi,
-                    radiance: s.radiance,
-                    pdf: s.pdf,
-                    point: receiver,
-                    point_error: Vec3::ZERO,
-                    normal: -s.wi,
-                    distance: f32::INFINITY,
-                    delta: false,
-                })
-            }
+            Light::Environment { ref map, .. } => Some(LightSample::from_environment(
+                map.sample(env, normal, u)?,
+                receiver,
+            )),
         }
     }
 

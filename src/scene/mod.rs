@@ -440,23 +440,7 @@ impl Scene {
     ) -> Option<LightTowardSample> {
         let (index, pmf, u_light) = self.light_sampler()?.sample_reuse(u.x);
         let u = Vec2::new(u_light, u.y);
-        let sample = match (env, self.env_portals()) {
-            (EnvStrategy::Portals, Some(portals)) if Some(index as u32) == self.environment => {
-                let (_, map) = self.environment()?;
-                let s = portals.sample(map, si.p, si.facing_normal(), u)?;
-                LightSample {
-                    wi: s.wi,
-                    radiance: s.radiance,
-                    pdf: s.pdf,
-                    point: si.p,
-                    point_error: Vec3::ZERO,
-                    normal: -s.wi,
-                    distance: f32::INFINITY,
-                    delta: false,
-                }
-            }
-            _ => self.lights[index].sample_with(si.p, si.facing_normal(), env, triangles, u)?,
-        };
+        let sample = self.sample_light_at(index, si.p, si.facing_normal(), env, triangles, u)?;
         if sample.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
             return None;
         }
@@ -468,6 +452,30 @@ impl Scene {
             wi_local,
             f_cos,
         })
+    }
+
+    /// Samples light `index` for a receiver at `point` (facing normal `normal`, zero when
+    /// unknown): [`Light::sample_with`], except that with `env=portals` the environment is
+    /// drawn through the window portals `point` sees, once they are built
+    /// ([`env_portals_or_init`](Self::env_portals_or_init)).
+    #[inline]
+    pub fn sample_light_at(
+        &self,
+        index: usize,
+        point: Vec3,
+        normal: Vec3,
+        env: EnvStrategy,
+        triangles: TriangleSampling,
+        u: Vec2,
+    ) -> Option<LightSample> {
+        match (env, self.env_portals()) {
+            (EnvStrategy::Portals, Some(portals)) if Some(index as u32) == self.environment => {
+                let (_, map) = self.environment()?;
+                let s = portals.sample(map, point, normal, u)?;
+                Some(LightSample::from_environment(s, point))
+            }
+            _ => self.lights[index].sample_with(point, normal, env, triangles, u),
+        }
     }
 
     /// Whether nothing blocks the segment from a surface point to a sampled light point.

@@ -215,7 +215,7 @@ static void test_rendering(lacuna_context *ctx) {
     /* Job settings. */
     lacuna_render_job *job = NULL;
     OK(lacuna_render_job_new(scene, "env_direct", &job));
-    EXPECT(lacuna_render_job_set_environment_strategy(job, 5), LACUNA_STATUS_INVALID_ARGUMENT, "strategy");
+    EXPECT(lacuna_render_job_set_environment_strategy(job, 6), LACUNA_STATUS_INVALID_ARGUMENT, "strategy");
     EXPECT(lacuna_render_job_set_environment_strategy(NULL, 0), LACUNA_STATUS_NULL_POINTER, "job");
     EXPECT(lacuna_render_job_set_environment_samples(job, 0, 0), LACUNA_STATUS_INVALID_ARGUMENT, "both 0");
     EXPECT(lacuna_render_job_set_environment_samples(NULL, 1, 1), LACUNA_STATUS_NULL_POINTER, "job");

@@ -134,6 +134,40 @@ struct Window {
 
 const RES: usize = RECTIFIED_RESOLUTION;
 
+/// The cell a cell coordinate in [0, RES] falls in (the last for RES itself).
+#[inline]
+fn cell_index(x: f32) -> usize {
+    // x >= 0, so truncation is the floor (and NaN becomes 0).
+    (x as usize).min(RES - 1)
+}
+
+/// The arctangent to within 2.5e-7 rad (Cephes' `atanf`: reduction to |x| <= tan(pi/8) and a
+/// degree-9 odd polynomial). libm's `atanf` took a quarter of a portal render's
+/// instructions (four per portal for each point's windows, one per portal for each pdf); the
+/// sampler uses this one everywhere it maps directions to cells, so windows, samples and
+/// densities agree with each other as before.
+#[inline]
+fn atan(x: f32) -> f32 {
+    const TAN_3PI_8: f32 = 2.414_213_5;
+    const TAN_PI_8: f32 = 0.414_213_57;
+    let t = x.abs();
+    let (offset, r) = if t > TAN_3PI_8 {
+        (0.5 * PI, -1.0 / t)
+    } else if t > TAN_PI_8 {
+        (0.25 * PI, (t - 1.0) / (t + 1.0))
+    } else {
+        (0.0, t)
+    };
+    let z = r * r;
+    let poly = ((8.053_744_5e-2 * z - 1.387_768_6e-1) * z + 1.997_771_1e-1) * z - 3.333_295e-1;
+    let y = offset + (poly * z * r + r);
+    if x < 0.0 {
+        -y
+    } else {
+        y
+    }
+}
+
 /// Cell coordinate of an angle in (-pi/2, pi/2).
 fn to_cell(angle: f32) -> f32 {
     ((angle / PI + 0.5) * RES as f32).clamp(0.0, RES as f32)
@@ -201,17 +235,22 @@ impl PortalTable {
         }
     }
 
-    /// The integral of the (continuous, piecewise-constant) image over [0, a] x [0, b].
-    fn integral(&self, a: f32, b: f32) -> f64 {
+    /// The integral of the image over [0, i] x [0, b] for a whole number of columns `i`
+    /// (two table reads: the marginal's binary search only evaluates these).
+    #[inline]
+    fn column_prefix(&self, i: usize, b: f32) -> f64 {
         let stride = RES + 1;
-        let i = (a.floor() as usize).min(RES - 1);
-        let j = (b.floor() as usize).min(RES - 1);
-        let (fa, fb) = ((a - i as f32) as f64, (b - j as f32) as f64);
-        let s = |ii: usize, jj: usize| self.sat[jj * stride + ii];
-        (1.0 - fa) * (1.0 - fb) * s(i, j)
-            + fa * (1.0 - fb) * s(i + 1, j)
-            + (1.0 - fa) * fb * s(i, j + 1)
-            + fa * fb * s(i + 1, j + 1)
+        let j = cell_index(b);
+        let fb = (b - j as f32) as f64;
+        (1.0 - fb) * self.sat[j * stride + i] + fb * self.sat[(j + 1) * stride + i]
+    }
+
+    /// The integral of the (continuous, piecewise-constant) image over [0, a] x [0, b].
+    #[inline]
+    fn integral(&self, a: f32, b: f32) -> f64 {
+        let i = cell_index(a);
+        let fa = (a - i as f32) as f64;
+        (1.0 - fa) * self.column_prefix(i, b) + fa * self.column_prefix(i + 1, b)
     }
 
     fn mass(&self, w: &Window) -> f64 {
@@ -229,45 +268,37 @@ impl PortalTable {
             return None;
         }
         let (pu, pv) = (q.dot(self.eu), q.dot(self.ev));
-        let a = [
-            to_cell((-pu / d).atan()),
-            to_cell(((self.lu - pu) / d).atan()),
-        ];
-        let b = [
-            to_cell((-pv / d).atan()),
-            to_cell(((self.lv - pv) / d).atan()),
-        ];
+        let a = [to_cell(atan(-pu / d)), to_cell(atan((self.lu - pu) / d))];
+        let b = [to_cell(atan(-pv / d)), to_cell(atan((self.lv - pv) / d))];
         (a[1] > a[0] && b[1] > b[0]).then_some(Window { a, b })
     }
 
     /// Draws cell coordinates (a, b) in the window with density cell / mass.
     fn sample(&self, w: &Window, mass: f64, u: Vec2) -> (f32, f32) {
-        // Marginal in a: G(a) = integral over [b0, b1] of columns up to a.
-        let g = |a: f32| self.integral(a, w.b[1]) - self.integral(a, w.b[0]);
+        // Marginal in a: G(a) = integral over [b0, b1] of columns up to a. The binary search
+        // evaluates it at whole columns only (`column_prefix`), the ends by `integral`.
+        let g = |a: f32| {
+            let i = a as usize;
+            if a == i as f32 {
+                self.column_prefix(i, w.b[1]) - self.column_prefix(i, w.b[0])
+            } else {
+                self.integral(a, w.b[1]) - self.integral(a, w.b[0])
+            }
+        };
         let target = g(w.a[0]) + u.x as f64 * mass;
         let a = invert(w.a, target, g);
-        let i = (a.floor() as usize).min(RES - 1);
+        let i = cell_index(a);
         // Conditional in b within column i: C(b) = the column's integral up to b.
-        let column = |b: f32| {
-            let s = |bb: f32| {
-                let j = (bb.floor() as usize).min(RES - 1);
-                let fb = (bb - j as f32) as f64;
-                let stride = RES + 1;
-                let at = |jj: usize| self.sat[jj * stride + i + 1] - self.sat[jj * stride + i];
-                (1.0 - fb) * at(j) + fb * at(j + 1)
-            };
-            s(b)
-        };
+        let column = |b: f32| self.column_prefix(i + 1, b) - self.column_prefix(i, b);
         let c0 = column(w.b[0]);
         let target_b = c0 + u.y as f64 * (column(w.b[1]) - c0);
         let b = invert(w.b, target_b, column);
         (a, b)
     }
 
+    #[inline]
     fn cell(&self, a: f32, b: f32) -> f32 {
-        let i = (a.floor() as usize).min(RES - 1);
-        let j = (b.floor() as usize).min(RES - 1);
-        self.cells[j * RES + i]
+        self.cells[cell_index(b) * RES + cell_index(a)]
     }
 
     /// Angles of world direction `dir` in the portal's frame, with its Jacobian; None on the
@@ -277,9 +308,10 @@ impl PortalTable {
         if !(wn > 0.0) {
             return None;
         }
+        // atan2(wu, wn) with wn > 0.
         Some((
-            to_cell(wu.atan2(wn)),
-            to_cell(wv.atan2(wn)),
+            to_cell(atan(wu / wn)),
+            to_cell(atan(wv / wn)),
             jacobian(wu, wv, wn),
         ))
     }
@@ -295,7 +327,13 @@ impl PortalTable {
 fn invert(range: [f32; 2], target: f64, f: impl Fn(f32) -> f64) -> f32 {
     let (lo, hi) = (range[0], range[1]);
     // Integer breakpoints strictly inside the range; binary search the last with f <= target.
-    let (mut first, mut last) = (lo.floor() as i64 + 1, hi.ceil() as i64 - 1);
+    // lo, hi >= 0: truncation is the floor (no libm call).
+    let hi_ceil = if hi == (hi as i64) as f32 {
+        hi as i64
+    } else {
+        hi as i64 + 1
+    };
+    let (mut first, mut last) = (lo as i64 + 1, hi_ceil - 1);
     let mut start = lo;
     while first <= last {
         let mid = (first + last) / 2;
@@ -306,7 +344,7 @@ fn invert(range: [f32; 2], target: f64, f: impl Fn(f32) -> f64) -> f32 {
             last = mid - 1;
         }
     }
-    let end = (start.floor() + 1.0).min(hi);
+    let end = ((start as i64) as f32 + 1.0).min(hi);
     let (f0, f1) = (f(start), f(end));
     let t = if f1 > f0 {
         ((target - f0) / (f1 - f0)) as f32
@@ -342,6 +380,49 @@ impl InteriorMask {
     }
 }
 
+/// The portals one point sees: their indices, windows and masses, and the total mass (0 when
+/// none is visible). Light sampling at a vertex and the density of a BSDF-sampled ray that
+/// leaves it need the same, so the last point's is kept per thread ([`SEEN`]).
+#[derive(Clone, Copy)]
+struct Seen {
+    /// The sampler ([`PortalSampler::id`]) and the point (bit patterns) it is for.
+    sampler: u64,
+    point: [u32; 3],
+    len: usize,
+    index: [u8; MAX_PORTALS],
+    window: [Window; MAX_PORTALS],
+    mass: [f64; MAX_PORTALS],
+    total: f64,
+}
+
+impl Seen {
+    const EMPTY: Seen = Seen {
+        sampler: 0,
+        point: [0; 3],
+        len: 0,
+        index: [0; MAX_PORTALS],
+        window: [Window {
+            a: [0.0; 2],
+            b: [0.0; 2],
+        }; MAX_PORTALS],
+        mass: [0.0; MAX_PORTALS],
+        total: 0.0,
+    };
+
+    fn visible(&self) -> impl Iterator<Item = (usize, &Window, f64)> {
+        (0..self.len).map(|k| (self.index[k] as usize, &self.window[k], self.mass[k]))
+    }
+}
+
+thread_local! {
+    /// The portals seen from the last point queried on this thread (keyed by sampler and
+    /// point, so a hit is exactly what recomputing would give).
+    static SEEN: std::cell::RefCell<Seen> = const { std::cell::RefCell::new(Seen::EMPTY) };
+}
+
+/// Identifiers of built samplers (0 is the empty cache's).
+static NEXT_SAMPLER_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
 /// The rectified images of a set of portals, for one environment map.
 #[derive(Clone, Debug)]
 pub struct PortalSampler {
@@ -349,6 +430,8 @@ pub struct PortalSampler {
     tables: Vec<PortalTable>,
     interior: Option<InteriorMask>,
     build_seconds: f64,
+    /// Distinguishes this sampler's entries in [`SEEN`] (a clone has the same tables).
+    id: u64,
 }
 
 impl PortalSampler {
@@ -377,6 +460,7 @@ impl PortalSampler {
             tables,
             interior,
             build_seconds: started.elapsed().as_secs_f64(),
+            id: NEXT_SAMPLER_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         })
     }
 
@@ -395,56 +479,82 @@ impl PortalSampler {
             .sum()
     }
 
-    /// Each portal's window and mass seen from `p`; the total (0 when none is visible).
-    fn masses(&self, p: Vec3) -> ([Option<(Window, f64)>; MAX_PORTALS], f64) {
-        let mut out = [None; MAX_PORTALS];
-        let mut total = 0.0;
+    /// Calls `f` with the portals seen from `p`, computed unless this thread's last query
+    /// was the same point of this sampler.
+    fn with_seen<R>(&self, p: Vec3, f: impl FnOnce(&Seen) -> R) -> R {
+        let point = p.to_array().map(f32::to_bits);
+        SEEN.with(|cell| {
+            let mut seen = cell.borrow_mut();
+            if seen.sampler != self.id || seen.point != point {
+                self.compute_seen(p, &mut seen);
+                seen.sampler = self.id;
+                seen.point = point;
+            }
+            f(&seen)
+        })
+    }
+
+    /// Each visible portal's window and mass seen from `p`, and their total.
+    fn compute_seen(&self, p: Vec3, seen: &mut Seen) {
+        seen.len = 0;
+        seen.total = 0.0;
         if self.interior.as_ref().is_some_and(|m| !m.contains(p)) {
-            return (out, total);
+            return;
         }
         for (k, t) in self.tables.iter().enumerate() {
             if let Some(w) = t.window(p) {
                 let m = t.mass(&w);
                 if m > 0.0 {
-                    out[k] = Some((w, m));
-                    total += m;
+                    let slot = seen.len;
+                    seen.index[slot] = k as u8;
+                    seen.window[slot] = w;
+                    seen.mass[slot] = m;
+                    seen.len += 1;
+                    seen.total += m;
                 }
             }
         }
-        (out, total)
     }
 
     /// Samples a direction at point `p` (facing normal `n`, for the fallback).
     pub fn sample(&self, map: &EnvironmentMap, p: Vec3, n: Vec3, u: Vec2) -> Option<EnvSample> {
-        let (masses, total) = self.masses(p);
-        if !(total > 0.0) {
+        self.with_seen(p, |seen| self.sample_seen(seen, map, n, u))
+    }
+
+    fn sample_seen(
+        &self,
+        seen: &Seen,
+        map: &EnvironmentMap,
+        n: Vec3,
+        u: Vec2,
+    ) -> Option<EnvSample> {
+        if !(seen.total > 0.0) {
             return map.sample(FALLBACK, n, u);
         }
         // One-sample mixture: the fallback with probability FALLBACK_SHARE (u.x rescaled).
         if u.x < FALLBACK_SHARE {
             let ux = (u.x / FALLBACK_SHARE).min(1.0 - f32::EPSILON / 2.0);
             let s = map.sample(FALLBACK, n, Vec2::new(ux, u.y))?;
-            let pdf = self.mixture_pdf(&masses, total, map, n, s.wi);
+            let pdf = FALLBACK_SHARE * s.pdf + (1.0 - FALLBACK_SHARE) * self.pdf_given(seen, s.wi);
             return (pdf > 0.0 && pdf.is_finite()).then_some(EnvSample { pdf, ..s });
         }
         let ux = ((u.x - FALLBACK_SHARE) / (1.0 - FALLBACK_SHARE)).min(1.0 - f32::EPSILON / 2.0);
         // Pick a portal by mass with u.x, reusing the rest of u.x for the sample.
-        let mut target = ux as f64 * total;
+        let mut target = ux as f64 * seen.total;
         let mut chosen = None;
-        for (k, entry) in masses.iter().enumerate().take(self.tables.len()) {
-            if let Some((w, m)) = entry {
-                chosen = Some((k, *w, *m));
-                if target < *m {
-                    break;
-                }
-                target -= m;
+        for (k, window, mass) in seen.visible() {
+            chosen = Some((k, window, mass));
+            if target < mass {
+                break;
             }
+            target -= mass;
         }
         let (k, window, mass) = chosen?;
         let ux = ((target / mass) as f32).clamp(0.0, 1.0 - f32::EPSILON / 2.0);
-        let (a, b) = self.tables[k].sample(&window, mass, Vec2::new(ux, u.y));
+        let (a, b) = self.tables[k].sample(window, mass, Vec2::new(ux, u.y));
         let wi = self.tables[k].world(a, b);
-        let pdf = self.mixture_pdf(&masses, total, map, n, wi);
+        let pdf = FALLBACK_SHARE * map.pdf(FALLBACK, n, wi)
+            + (1.0 - FALLBACK_SHARE) * self.pdf_given(seen, wi);
         (pdf > 0.0 && pdf.is_finite()).then(|| EnvSample {
             wi,
             radiance: map.radiance(wi),
@@ -454,31 +564,23 @@ impl PortalSampler {
 
     /// Solid-angle density of [`sample`](Self::sample) at `p` drawing world direction `w`.
     pub fn pdf(&self, map: &EnvironmentMap, p: Vec3, n: Vec3, w: Vec3) -> f32 {
-        let (masses, total) = self.masses(p);
-        if !(total > 0.0) {
-            return map.pdf(FALLBACK, n, w);
+        let portal_pdf = self.with_seen(p, |seen| {
+            (seen.total > 0.0).then(|| self.pdf_given(seen, w))
+        });
+        match portal_pdf {
+            None => map.pdf(FALLBACK, n, w),
+            Some(pdf) => FALLBACK_SHARE * map.pdf(FALLBACK, n, w) + (1.0 - FALLBACK_SHARE) * pdf,
         }
-        self.mixture_pdf(&masses, total, map, n, w)
     }
 
-    fn mixture_pdf(
-        &self,
-        masses: &[Option<(Window, f64)>; MAX_PORTALS],
-        total: f64,
-        map: &EnvironmentMap,
-        n: Vec3,
-        w: Vec3,
-    ) -> f32 {
-        FALLBACK_SHARE * map.pdf(FALLBACK, n, w)
-            + (1.0 - FALLBACK_SHARE) * self.pdf_given(masses, total, w)
-    }
-
-    fn pdf_given(&self, masses: &[Option<(Window, f64)>; MAX_PORTALS], total: f64, w: Vec3) -> f32 {
+    /// The density of the portal part of the mixture (all its samples through a visible
+    /// portal) at world direction `w`.
+    fn pdf_given(&self, seen: &Seen, w: Vec3) -> f32 {
         // Density in (a, b) cell units -> (alpha, beta): times (RES / pi)^2.
         let cell_scale = (RES as f64 / PI as f64).powi(2);
         let mut pdf = 0f64;
-        for (t, entry) in self.tables.iter().zip(masses.iter()) {
-            let Some((window, _)) = entry else { continue };
+        for (k, window, _) in seen.visible() {
+            let t = &self.tables[k];
             let Some((a, b, jac)) = t.angles(w) else {
                 continue;
             };
@@ -486,7 +588,7 @@ impl PortalSampler {
                 continue;
             }
             // The portal's share m / total times its density cell / m.
-            pdf += t.cell(a, b) as f64 / total * cell_scale / jac as f64;
+            pdf += t.cell(a, b) as f64 / seen.total * cell_scale / jac as f64;
         }
         pdf as f32
     }
@@ -688,6 +790,31 @@ mod tests {
             .unwrap();
         let expected = map.pdf(FALLBACK, Vec3::ZERO, s.wi);
         assert!((sampler.pdf(&map, outside, Vec3::ZERO, s.wi) - expected).abs() <= 1e-6 * expected);
+    }
+
+    #[test]
+    fn the_arctangent_is_within_float_precision() {
+        let mut worst = 0f64;
+        for k in -200_000..=200_000 {
+            // Dense near 0 and tan(pi/8), tan(3 pi/8), out to 1e4 and beyond.
+            let x = (k as f64 / 2_000.0).powi(3) as f32;
+            let err = (atan(x) as f64 - (x as f64).atan()).abs();
+            worst = worst.max(err);
+        }
+        for x in [
+            f32::MAX,
+            f32::INFINITY,
+            1e-30,
+            0.0,
+            -0.0,
+            0.414_213_57,
+            2.414_213_5,
+        ] {
+            worst = worst.max((atan(x) as f64 - (x as f64).atan()).abs());
+            worst = worst.max((atan(-x) as f64 + (x as f64).atan()).abs());
+        }
+        assert!(worst < 2.5e-7, "worst error {worst:e} rad");
+        assert!(atan(f32::NAN).is_nan());
     }
 
     #[test]
