@@ -89,12 +89,20 @@ impl EnvStrategy {
 
     /// The face balancing of a cube strategy.
     pub fn balancing(self) -> Option<Balancing> {
-        match self {
+        match self.map_strategy() {
             EnvStrategy::CubeUniform => Some(Balancing::Uniform),
             EnvStrategy::CubePower => Some(Balancing::Power),
             EnvStrategy::CubeDynamic => Some(Balancing::Dynamic),
-            EnvStrategy::LatLong | EnvStrategy::BsdfOnly => None,
-            EnvStrategy::Portals => PORTAL_FALLBACK.balancing(),
+            _ => None,
+        }
+    }
+
+    /// The whole-map strategy behind this one: itself, or for `Portals` the portal
+    /// sampler's fallback (what the map alone samples with; the portals are the scene's).
+    pub fn map_strategy(self) -> EnvStrategy {
+        match self {
+            EnvStrategy::Portals => PORTAL_FALLBACK,
+            other => other,
         }
     }
 
@@ -302,7 +310,7 @@ impl EnvironmentMap {
     /// Builds the structures `strategy` needs now rather than during the first samples,
     /// timing the build.
     pub fn prepare(&mut self, strategy: EnvStrategy) {
-        for s in [strategy, strategy.for_emission()] {
+        for s in [strategy.map_strategy(), strategy.for_emission()] {
             match s {
                 EnvStrategy::LatLong if self.latlong.get().is_none() => {
                     let t = Instant::now();
@@ -313,7 +321,6 @@ impl EnvironmentMap {
                 EnvStrategy::CubeUniform
                 | EnvStrategy::CubePower
                 | EnvStrategy::CubeDynamic
-                | EnvStrategy::Portals
                     if self.cube.get().is_none() =>
                 {
                     let t = Instant::now();
@@ -369,7 +376,7 @@ impl EnvironmentMap {
     /// Samples a direction for a receiver whose shading normal (facing the outgoing
     /// direction) is `n`, or zero when there is none.
     pub fn sample(&self, strategy: EnvStrategy, n: Vec3, u: Vec2) -> Option<EnvSample> {
-        let (local, pdf) = match strategy {
+        let (local, pdf) = match strategy.map_strategy() {
             EnvStrategy::BsdfOnly => return None,
             EnvStrategy::LatLong => self.latlong().sample(u)?,
             cube => {
@@ -387,7 +394,7 @@ impl EnvironmentMap {
     /// Solid-angle pdf of `sample(strategy, n, ..)` producing world direction `w`.
     pub fn pdf(&self, strategy: EnvStrategy, n: Vec3, w: Vec3) -> f32 {
         let local = self.to_local * w;
-        match strategy {
+        match strategy.map_strategy() {
             EnvStrategy::BsdfOnly => 0.0,
             EnvStrategy::LatLong => self.latlong().pdf(local),
             cube => {

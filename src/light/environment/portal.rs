@@ -32,7 +32,7 @@ use crate::error::{Error, Result};
 use crate::math::{luminance, Vec2, Vec3, PI};
 
 /// What light sampling uses where no portal is visible.
-pub const FALLBACK: EnvStrategy = EnvStrategy::CubeDynamic;
+pub const FALLBACK: EnvStrategy = EnvStrategy::LatLong;
 
 /// Share of the samples drawn by [`FALLBACK`] where portals are visible. The portals a point
 /// sees are decided by the side of their planes alone, so a point outdoors sees the windows
@@ -770,10 +770,11 @@ mod tests {
             if through {
                 crossing += 1;
             } else {
-                // Drawn by the fallback share, and only its density there.
+                // Drawn by the fallback share, and only its density there (to the lat-long
+                // density's own f32 precision near the poles, where 1 / sin(theta) is large).
                 let fallback = FALLBACK_SHARE * map.pdf(FALLBACK, Vec3::ZERO, s.wi);
                 assert!(
-                    (s.pdf - fallback).abs() <= 1e-4 * fallback,
+                    (s.pdf - fallback).abs() <= 5e-3 * fallback,
                     "{s:?}: {fallback}"
                 );
             }
