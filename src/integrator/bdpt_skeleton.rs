@@ -33,6 +33,7 @@ use rayon::prelude::*;
 use super::bdpt::{
     connect_whole_subpaths, CameraVertex, Connection, ConnectionPolicy, LightPaths, UniformPerPixel,
 };
+use super::node_skeleton::{Fingerprint, NodeSkeleton};
 use super::resampled::{
     build_tables, distribution_layers, Anchor, OcclusionTally, Tables, NO_TABLE,
 };
@@ -40,9 +41,7 @@ use super::{
     Bdpt, Integrator, IntegratorSettings, Iteration, Precomputation, SampleContext, TraceCounters,
     View,
 };
-use crate::analysis::{
-    Analysis, AnalysisSettings, NeighbourMasks, Skeleton, SkeletonSettings, StageTime, VoxelGrid,
-};
+use crate::analysis::StageTime;
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
@@ -58,23 +57,6 @@ const PILOT_SEED: u64 = 0x5ce1_b9d7;
 const OPENNESS_RAYS: usize = 64;
 /// A node is enclosed when fewer than this fraction of its rays leave the scene.
 const ENCLOSED_ESCAPE_FRACTION: f32 = 0.25;
-
-/// The filtered skeleton and its node map.
-struct NodeSkeleton {
-    grid: VoxelGrid,
-    node_map: Vec<u32>,
-    masks: NeighbourMasks,
-    positions: Vec<Vec3>,
-}
-
-impl NodeSkeleton {
-    #[inline]
-    fn node_of(&self, si: &crate::scene::SurfaceInteraction) -> Option<u32> {
-        self.masks
-            .map_point(&self.grid, &self.node_map, si.p, si.ng, si.wo)
-            .filter(|&n| (n as usize) < self.positions.len())
-    }
-}
 
 /// Accumulated over a render, for the render notes (002 Table 4 and the resampling cost).
 #[derive(Clone, Copy, Debug, Default)]
@@ -243,25 +225,6 @@ fn escape_fraction(scene: &Scene, p: Vec3) -> f32 {
     escaped as f32 / OPENNESS_RAYS as f32
 }
 
-/// What a scene was prepared from, to refuse rendering another one.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Fingerprint {
-    triangles: usize,
-    lights: usize,
-    bounds: [u32; 6],
-}
-
-impl Fingerprint {
-    fn of(scene: &Scene) -> Self {
-        let b = scene.bounds();
-        Fingerprint {
-            triangles: scene.triangle_count(),
-            lights: scene.lights().len(),
-            bounds: [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z].map(f32::to_bits),
-        }
-    }
-}
-
 /// The `bdpt_skeleton` integrator (module docs).
 pub struct BdptSkeleton {
     settings: IntegratorSettings,
@@ -303,70 +266,29 @@ impl BdptSkeleton {
         progress: &dyn Fn(&str, f64) -> bool,
         stages: &mut Vec<StageTime>,
     ) -> Result<std::result::Result<NodeSkeleton, String>> {
-        let t = Instant::now();
-        let analysis_settings = AnalysisSettings {
-            resolution: self.settings.skeleton.resolution,
-            all_maps: true,
-            euclidean: false,
-            regions: false,
-            ..Default::default()
-        };
-        let analysis = match Analysis::build(scene, &analysis_settings, &|_, _| true) {
-            Ok(a) => a,
-            Err(Error::Cancelled) => return Err(Error::Cancelled),
-            Err(e) => return Ok(Err(format!("the empty-space analysis failed ({e})"))),
-        };
-        stages.push(StageTime {
-            stage: "analysis (voxels, maps)",
-            seconds: t.elapsed().as_secs_f64(),
-        });
-        if !progress("analysis", 0.4) {
-            return Err(Error::Cancelled);
-        }
-        let t = Instant::now();
-        let skeleton_settings = SkeletonSettings {
-            parallel: true,
-            topology: false,
-        };
-        let skeleton = match Skeleton::build(&analysis, &skeleton_settings, &|_, _| true) {
+        let skeleton = match NodeSkeleton::build(
+            scene,
+            self.settings.skeleton.resolution,
+            progress,
+            stages,
+        )? {
             Ok(s) => s,
-            Err(Error::Cancelled) => return Err(Error::Cancelled),
-            Err(e) => return Ok(Err(format!("the skeleton failed ({e})"))),
+            Err(why) => return Ok(Err(why)),
         };
-        drop(analysis);
-        stages.push(StageTime {
-            stage: "skeleton (thinning, filter, node map)",
-            seconds: t.elapsed().as_secs_f64(),
-        });
-        let Skeleton {
-            grid,
-            filtered,
-            node_map,
-            ..
-        } = skeleton;
-        if filtered.graph.nodes.is_empty() {
-            return Ok(Err("the skeleton has no node".into()));
-        }
-        let enclosed = filtered
-            .graph
-            .nodes
+        let enclosed = skeleton
+            .positions
             .par_iter()
-            .filter(|n| escape_fraction(scene, n.position) < ENCLOSED_ESCAPE_FRACTION)
+            .filter(|&&p| escape_fraction(scene, p) < ENCLOSED_ESCAPE_FRACTION)
             .count();
         if enclosed == 0 {
             return Ok(Err(format!(
                 "an open scene: every one of its {} nodes sees the outside in at least {:.0} % \
                  of its directions",
-                filtered.graph.nodes.len(),
+                skeleton.positions.len(),
                 100.0 * ENCLOSED_ESCAPE_FRACTION
             )));
         }
-        Ok(Ok(NodeSkeleton {
-            masks: NeighbourMasks::new(&grid, &node_map),
-            grid,
-            node_map,
-            positions: filtered.graph.nodes.iter().map(|n| n.position).collect(),
-        }))
+        Ok(Ok(skeleton))
     }
 
     /// Nodes that see at least one vertex of a pilot set of light subpaths.

@@ -6,8 +6,10 @@ mod bdpt_ic;
 mod bdpt_skeleton;
 mod env_direct;
 pub mod mis_auto;
+mod node_skeleton;
 mod path;
 mod resampled;
+mod skeleton_shadow;
 mod vpl;
 
 pub use bdpt::{
@@ -21,7 +23,8 @@ pub use env_direct::{EnvDirect, EnvDirectOptions, ALPHA_LAYER};
 pub use path::diagnostics;
 pub use path::PathOptions;
 pub use path::PathTracer;
-pub use vpl::{VplIntegrator, VplOptions, VplVisibility};
+pub use skeleton_shadow::{CubeShadowMap, ShadowMapStats, SkeletonShadowMaps};
+pub use vpl::{VisibilityAgreement, VplIntegrator, VplOptions, VplVisibility};
 
 /// Re-exported: the heuristic lives in [`crate::math`], below the guides that weigh with it.
 pub use crate::math::MisHeuristic;
@@ -368,7 +371,10 @@ impl SpecOption<'_> {
 ///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`;
 /// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`;
 /// - `vpl`: `count=N` (light subpaths per pass), `clamp=R` (0 = off), `compensate=true|false`,
-///   `visibility=exact` ([`VplOptions::set`]), e.g. `vpl:count=128:clamp=0.05:compensate=true`.
+///   `visibility=exact|skeleton`, with skeleton visibility `shadow_res=N` and
+///   `shadow_budget_mb=M` and the skeleton's `resolution=N` / `voxel_budget=N`
+///   ([`VplOptions::set`]), e.g. `vpl:count=128:clamp=0.05:compensate=true` or
+///   `vpl:visibility=skeleton:shadow_res=32`.
 ///
 /// The shared options are set here, the others by the integrator's
 /// [`Registration::set_option`].

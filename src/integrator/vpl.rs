@@ -35,36 +35,69 @@
 //! unbiased only with compensation (or with `clamp=0` on scenes without delta surfaces);
 //! [`VplOptions::bias`] says which.
 //!
+//! # Skeleton visibility (`visibility=skeleton`; 000 chapter 8, eq. 158-161)
+//!
+//! Eq. 158 sums `I(y) M(y, z) V(y, z) G*(y, z)` over the VPLs y (G* the geometry term without
+//! visibility); eq. 159 replaces `V(y, z)` by `V_f(n_y, z)`, the filtered visibility between
+//! the VPL's skeleton node n_y (the filtered node its surface point maps to, eq. 151-155) and
+//! z, read with PCF from n_y's cube shadow map (`skeleton_shadow`). Grouping the VPLs by node
+//! (eq. 160) factors it out of each group's sum (eq. 161): at a shading point, a group whose
+//! `V_f` is 0 is skipped whole, and the others add `V_f` times their unshadowed sum, with no
+//! shadow ray at all. This is the thesis's approximation, kept as it is: the node sits in
+//! the middle of the empty space, not at the VPL, so a VPL that sees z from behind an
+//! obstacle the node sees past (or the reverse) is lit (or shadowed) wrongly; and the map's
+//! PCF softens the shadow edges. The image is biased whatever the clamp and the
+//! compensation (whose continuation is unchanged). VPLs mapped to no node, and those of
+//! nodes the memory budget left without a map, keep exact shadow rays. The maps are built
+//! when a node first carries VPLs (in `begin_iteration`, in parallel; their time counts in
+//! the render's) and kept for later passes and renders of the same scene.
+//!
 //! Every pass draws new VPLs from the seed and the sample index, so the image converges as
 //! passes accumulate, and the light subpaths are traced in fixed chunks: the same image for
-//! any thread count.
+//! any thread count (the shadow maps are a function of the geometry alone).
+
+use std::sync::Arc;
 
 use super::bdpt::{shading_correction, Bdpt};
+use super::node_skeleton::{Fingerprint, NodeSkeleton};
+use super::skeleton_shadow::{SkeletonShadowMaps, MIN_SHADOW_RESOLUTION};
 use super::{Integrator, IntegratorSettings, Iteration, SampleContext, SpecOption, TraceCounters};
-use super::{Registration, View};
+use super::{Precomputation, Registration, View};
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::{estimator, RenderEstimator};
 use crate::math::{Frame, Rgb, Sampler, Vec3, FIRST_INTEGRATOR_DIMENSION};
-use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
+use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction, Transport};
+
+/// Default texels per face edge of a skeleton shadow map (the thesis used 128; 64 costs a
+/// quarter of the rays to build, which a one-second preview needs).
+pub const DEFAULT_SHADOW_RESOLUTION: u32 = 64;
+/// Largest `shadow_res`: one map of 2048^2 per face is 96 MiB.
+pub const MAX_SHADOW_RESOLUTION: u32 = 2048;
+/// Default memory for the shadow maps (MiB): 680 maps of 64^2 per face.
+pub const DEFAULT_SHADOW_BUDGET_MB: u32 = 64;
 
 /// Which shadow test the VPL term uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum VplVisibility {
     /// A shadow ray per VPL and shading point: the reference.
     Exact,
+    /// The filtered visibility of the VPL's skeleton node read from its cube shadow map
+    /// (000 chapter 8, eq. 159-161; module docs): no shadow ray, biased.
+    Skeleton,
 }
 
 impl VplVisibility {
     pub fn parse(value: &str) -> Result<Self> {
         match value {
             "exact" => Ok(VplVisibility::Exact),
-            "skeleton" | "clusters" => Err(Error::invalid(format!(
-                "vpl: visibility={value} is not implemented (only visibility=exact)"
-            ))),
+            "skeleton" => Ok(VplVisibility::Skeleton),
+            "clusters" => Err(Error::invalid(
+                "vpl: visibility=clusters is not implemented (exact or skeleton)",
+            )),
             _ => Err(Error::invalid(format!(
-                "vpl: visibility={value} is not one of: exact"
+                "vpl: visibility={value} is not one of: exact, skeleton"
             ))),
         }
     }
@@ -72,11 +105,14 @@ impl VplVisibility {
     pub fn name(self) -> &'static str {
         match self {
             VplVisibility::Exact => "exact",
+            VplVisibility::Skeleton => "skeleton",
         }
     }
 }
 
-/// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact`).
+/// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact|skeleton`,
+/// with skeleton visibility `shadow_res=N:shadow_budget_mb=M`; the skeleton's `resolution` and
+/// `voxel_budget` are the skeleton guide's options).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VplOptions {
     /// Light subpaths per pass; each leaves a VPL at every non-delta surface it reaches.
@@ -87,6 +123,11 @@ pub struct VplOptions {
     /// Adds back what clamping removed with a path-traced continuation (module docs): unbiased.
     pub compensate: bool,
     pub visibility: VplVisibility,
+    /// `visibility=skeleton`: texels per face edge of each node's cube shadow map, at most.
+    pub shadow_res: u32,
+    /// `visibility=skeleton`: memory for the shadow maps, in MiB; lowers the resolution, then
+    /// the number of maps ([`SkeletonShadowMaps`]).
+    pub shadow_budget_mb: u32,
 }
 
 impl Default for VplOptions {
@@ -96,6 +137,8 @@ impl Default for VplOptions {
             clamp: 0.1,
             compensate: false,
             visibility: VplVisibility::Exact,
+            shadow_res: DEFAULT_SHADOW_RESOLUTION,
+            shadow_budget_mb: DEFAULT_SHADOW_BUDGET_MB,
         }
     }
 }
@@ -132,6 +175,20 @@ impl VplOptions {
                 }
             }
             "visibility" => self.visibility = VplVisibility::parse(value)?,
+            "shadow_res" => {
+                self.shadow_res = value.parse::<u32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: shadow_res={value} must be an integer (texels per cube face edge)"
+                    ))
+                })?;
+            }
+            "shadow_budget_mb" => {
+                self.shadow_budget_mb = value.parse::<u32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: shadow_budget_mb={value} must be an integer (MiB for the shadow maps)"
+                    ))
+                })?;
+            }
             _ => return Ok(false),
         }
         self.validate()?;
@@ -154,12 +211,32 @@ impl VplOptions {
                 self.clamp
             )));
         }
+        if !(MIN_SHADOW_RESOLUTION..=MAX_SHADOW_RESOLUTION).contains(&self.shadow_res) {
+            return Err(Error::invalid(format!(
+                "vpl: shadow_res={} must be within {MIN_SHADOW_RESOLUTION}..={MAX_SHADOW_RESOLUTION} texels per cube face edge",
+                self.shadow_res
+            )));
+        }
+        crate::limits::check_memory_budget(
+            "vpl: shadow_budget_mb",
+            (self.shadow_budget_mb as u64) << 20,
+        )?;
         Ok(())
     }
 
     /// Why an image rendered with these options is biased, or None when it is not (for the
     /// render summary and the EXR metadata).
     pub fn bias(&self) -> Option<String> {
+        if self.visibility == VplVisibility::Skeleton {
+            return Some(format!(
+                "biased: skeleton visibility (each VPL's shadow ray replaced by the filtered visibility of its skeleton node's cube shadow map, 000 eq. 159){}",
+                if self.compensate || self.clamp == 0.0 {
+                    String::new()
+                } else {
+                    format!("; VPL geometry term clamped at distance {} of the scene diagonal", self.clamp)
+                }
+            ));
+        }
         if self.compensate {
             return None;
         }
@@ -196,18 +273,74 @@ struct Vpl {
     path_len: u32,
 }
 
-/// The VPLs of one pass, sorted by subpath length so that a vertex that may use only the
-/// shorter ones stops early.
+/// VPLs `start..end` of a pass, all of skeleton node `node` (or [`EXACT_GROUP`]).
+struct VplGroup {
+    node: u32,
+    start: usize,
+    end: usize,
+}
+
+/// The group of the VPLs tested with exact shadow rays.
+const EXACT_GROUP: u32 = u32::MAX;
+
+/// The VPLs of one pass, grouped by skeleton node (one group with exact visibility), sorted
+/// by subpath length within a group so that a vertex that may use only the shorter ones
+/// stops early.
 struct VplSet {
     vpls: Vec<Vpl>,
+    groups: Vec<VplGroup>,
     /// The cap on the geometry term (infinite without clamping).
     bound: f32,
+}
+
+/// VPL v's light at x without visibility, `T f_y f_x min(G, bound)` (module docs), None when
+/// it is zero or the two do not face each other.
+#[inline]
+fn unshadowed(
+    bound: f32,
+    si: &SurfaceInteraction,
+    bsdf: &Bsdf,
+    frame: &Frame,
+    wo_local: Vec3,
+    v: &Vpl,
+) -> Option<Rgb> {
+    let d = v.si.p - si.p;
+    let dist2 = d.length_squared();
+    if !(dist2 > 0.0) {
+        return None;
+    }
+    let dir = d / dist2.sqrt();
+    // Both ends must scatter on the side the connection leaves from.
+    if dir.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 || (-dir).dot(v.si.ng) * v.si.wo.dot(v.si.ng) <= 0.0
+    {
+        return None;
+    }
+    let wi_x = frame.to_local(dir);
+    let f_x = bsdf.eval(wo_local, wi_x);
+    let wi_y = v.frame.to_local(-dir);
+    let f_y = v.bsdf.eval(v.wo_local, wi_y) * shading_correction(&v.si, v.si.wo, -dir);
+    let cosines = wi_x.z.abs() * wi_y.z.abs();
+    if f_x == Rgb::ZERO || f_y == Rgb::ZERO || cosines == 0.0 {
+        return None;
+    }
+    // min(G, b) without dividing by a tiny distance when the cap applies.
+    let g = if cosines >= bound * dist2 {
+        bound
+    } else {
+        cosines / dist2
+    };
+    let value = v.throughput * f_x * f_y * g;
+    (crate::math::is_finite3(value) && value != Rgb::ZERO).then_some(value)
 }
 
 pub struct VplIntegrator {
     settings: IntegratorSettings,
     options: VplOptions,
     light: Bdpt,
+    /// `visibility=skeleton`: the shadow maps (None: exact rays, for want of a skeleton).
+    shadow: Option<Arc<SkeletonShadowMaps>>,
+    /// The scene `prepare` ran for (skeleton visibility needs it).
+    prepared_for: Option<Fingerprint>,
 }
 
 impl VplIntegrator {
@@ -220,6 +353,8 @@ impl VplIntegrator {
             settings,
             options: settings.vpl,
             light,
+            shadow: None,
+            prepared_for: None,
         })
     }
 
@@ -243,6 +378,59 @@ impl VplIntegrator {
         }
     }
 
+    /// Sorts `vpls` into groups (module docs): by skeleton node with skeleton visibility
+    /// (building the maps of nodes that carry VPLs for the first time), the VPLs of no node
+    /// or no map in one exact group; by subpath length within a group. Stable: the order
+    /// stays a function of the seed alone.
+    fn group(&self, scene: &Scene, vpls: &mut Vec<Vpl>) -> Vec<VplGroup> {
+        let Some(shadow) = &self.shadow else {
+            vpls.sort_by_key(|v| v.path_len);
+            return vec![VplGroup {
+                node: EXACT_GROUP,
+                start: 0,
+                end: vpls.len(),
+            }];
+        };
+        let nodes: Vec<u32> = vpls
+            .iter()
+            .map(|v| shadow.node_of(&v.si).unwrap_or(EXACT_GROUP))
+            .collect();
+        let mut carrying: Vec<u32> = nodes
+            .iter()
+            .copied()
+            .filter(|&n| n != EXACT_GROUP)
+            .collect();
+        carrying.sort_unstable();
+        carrying.dedup();
+        shadow.ensure(scene, &carrying);
+        let key = |n: u32| {
+            if shadow.map(n).is_some() {
+                n
+            } else {
+                EXACT_GROUP
+            }
+        };
+        let mut keyed: Vec<(u32, Vpl)> = nodes
+            .into_iter()
+            .map(key)
+            .zip(std::mem::take(vpls))
+            .collect();
+        keyed.sort_by_key(|(node, v)| (*node, v.path_len));
+        let mut groups: Vec<VplGroup> = Vec::new();
+        for (i, (node, v)) in keyed.into_iter().enumerate() {
+            match groups.last_mut() {
+                Some(g) if g.node == node => g.end = i + 1,
+                _ => groups.push(VplGroup {
+                    node,
+                    start: i,
+                    end: i + 1,
+                }),
+            }
+            vpls.push(v);
+        }
+        groups
+    }
+
     /// Light from every VPL of at most `max_len` segments at x (shading `frame`, `wo_local`).
     #[allow(clippy::too_many_arguments)]
     fn gather(
@@ -257,42 +445,32 @@ impl VplIntegrator {
         counters: &mut TraceCounters,
     ) -> Rgb {
         let mut sum = Rgb::ZERO;
-        for v in set.vpls.iter().take_while(|v| v.path_len <= max_len) {
-            let d = v.si.p - si.p;
-            let dist2 = d.length_squared();
-            if !(dist2 > 0.0) {
+        for group in &set.groups {
+            // eq. 161: the node's filtered visibility, and the whole group skipped at 0.
+            let map = self.shadow.as_ref().and_then(|s| s.map(group.node));
+            let node_visibility = map.map(|m| m.visibility(si.p, si.ng));
+            if node_visibility == Some(0.0) {
                 continue;
             }
-            let dir = d / dist2.sqrt();
-            // Both ends must scatter on the side the connection leaves from.
-            if dir.dot(si.ng) * si.wo.dot(si.ng) <= 0.0
-                || (-dir).dot(v.si.ng) * v.si.wo.dot(v.si.ng) <= 0.0
-            {
-                continue;
+            let vpls = set.vpls[group.start..group.end]
+                .iter()
+                .take_while(|v| v.path_len <= max_len);
+            let mut group_sum = Rgb::ZERO;
+            for v in vpls {
+                let Some(value) = unshadowed(set.bound, si, bsdf, frame, wo_local, v) else {
+                    continue;
+                };
+                if node_visibility.is_some() {
+                    group_sum += value;
+                } else {
+                    counters.rays += 1;
+                    let shadow = si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng);
+                    if !scene.occluded(&shadow) {
+                        group_sum += value;
+                    }
+                }
             }
-            let wi_x = frame.to_local(dir);
-            let f_x = bsdf.eval(wo_local, wi_x);
-            let wi_y = v.frame.to_local(-dir);
-            let f_y = v.bsdf.eval(v.wo_local, wi_y) * shading_correction(&v.si, v.si.wo, -dir);
-            let cosines = wi_x.z.abs() * wi_y.z.abs();
-            if f_x == Rgb::ZERO || f_y == Rgb::ZERO || cosines == 0.0 {
-                continue;
-            }
-            // min(G, b) without dividing by a tiny distance when the cap applies.
-            let g = if cosines >= set.bound * dist2 {
-                set.bound
-            } else {
-                cosines / dist2
-            };
-            let value = v.throughput * f_x * f_y * g;
-            if !crate::math::is_finite3(value) || value == Rgb::ZERO {
-                continue;
-            }
-            counters.rays += 1;
-            let shadow = si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng);
-            if !scene.occluded(&shadow) {
-                sum += value;
-            }
+            sum += group_sum * node_visibility.unwrap_or(1.0);
         }
         sum
     }
@@ -440,6 +618,55 @@ impl Integrator for VplIntegrator {
         true
     }
 
+    fn prepare(
+        &mut self,
+        scene: &Scene,
+        _camera: &Camera,
+        progress: &dyn Fn(&str, f64) -> bool,
+    ) -> Result<Precomputation> {
+        self.shadow = None;
+        self.prepared_for = None;
+        let mut pre = Precomputation::default();
+        if self.options.visibility == VplVisibility::Skeleton {
+            match NodeSkeleton::build(
+                scene,
+                self.settings.skeleton.resolution,
+                progress,
+                &mut pre.stages,
+            )? {
+                Ok(skeleton) => {
+                    let budget = crate::limits::effective_memory_budget(
+                        (self.options.shadow_budget_mb as u64) << 20,
+                    );
+                    let maps = SkeletonShadowMaps::new(skeleton, self.options.shadow_res, budget);
+                    pre.notes.push(maps.budget_note());
+                    self.shadow = Some(Arc::new(maps));
+                }
+                Err(why) => pre
+                    .notes
+                    .push(format!("exact shadow rays: no usable skeleton ({why})")),
+            }
+        }
+        self.prepared_for = Some(Fingerprint::of(scene));
+        Ok(pre)
+    }
+
+    fn check_prepared(&self, scene: &Scene) -> Result<()> {
+        if self.options.visibility != VplVisibility::Skeleton
+            || self.prepared_for == Some(Fingerprint::of(scene))
+        {
+            Ok(())
+        } else {
+            Err(Error::invalid(
+                "vpl:visibility=skeleton must be prepared for this scene before rendering it",
+            ))
+        }
+    }
+
+    fn render_notes(&self) -> Vec<String> {
+        self.shadow.iter().map(|s| s.cost_note()).collect()
+    }
+
     fn begin_iteration(
         &self,
         scene: &Scene,
@@ -466,11 +693,11 @@ impl Integrator for VplIntegrator {
                 }
             })
             .collect();
-        // Stable: the order stays a function of the seed alone.
-        vpls.sort_by_key(|v| v.path_len);
+        let groups = self.group(scene, &mut vpls);
         Ok(Iteration {
             data: Some(Box::new(VplSet {
                 vpls,
+                groups,
                 bound: self.bound(scene),
             })),
             rays: out.rays(),
@@ -488,6 +715,7 @@ impl Integrator for VplIntegrator {
     ) -> PixelSample {
         let empty = VplSet {
             vpls: Vec::new(),
+            groups: Vec::new(),
             bound: f32::INFINITY,
         };
         let set = ctx
@@ -498,10 +726,140 @@ impl Integrator for VplIntegrator {
     }
 }
 
+/// How often skeleton visibility agrees with exact visibility over VPL / shading point pairs
+/// ([`VplIntegrator::visibility_agreement`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct VisibilityAgreement {
+    /// Pairs that face each other (a non-zero unshadowed term) with the VPL's node mapped.
+    pub pairs: u64,
+    /// Pairs where `V_f > 1/2` is the shadow ray's verdict.
+    pub agreeing: u64,
+    /// Pairs a shadow ray finds unoccluded, and those of them with `V_f > 1/2`.
+    pub visible: u64,
+    pub visible_agreeing: u64,
+    /// VPLs of the pass, and those whose node has a shadow map.
+    pub vpls: u64,
+    pub mapped_vpls: u64,
+    /// Mean of |V_f - V| over the pairs.
+    pub mean_abs_difference: f64,
+}
+
+impl VisibilityAgreement {
+    pub fn rate(&self) -> f64 {
+        self.agreeing as f64 / self.pairs.max(1) as f64
+    }
+
+    /// The rate a constant map (every pair visible, or every one occluded) would score.
+    pub fn constant_rate(&self) -> f64 {
+        let v = self.visible as f64 / self.pairs.max(1) as f64;
+        v.max(1.0 - v)
+    }
+
+    /// The mean of the agreement rates over the visible pairs and over the occluded ones:
+    /// 1/2 for any constant map however unbalanced the pairs (on the door, 94 % of the facing
+    /// pairs are occluded, so the plain rate of an all-occluded map is 0.94).
+    pub fn balanced_rate(&self) -> f64 {
+        let occluded = self.pairs - self.visible;
+        let occluded_agreeing = self.agreeing - self.visible_agreeing;
+        0.5 * (self.visible_agreeing as f64 / self.visible.max(1) as f64
+            + occluded_agreeing as f64 / occluded.max(1) as f64)
+    }
+}
+
+impl VplIntegrator {
+    /// Compares skeleton visibility with a shadow ray over every pair of a VPL of pass
+    /// `sample_index` (whose node has a map) and the first non-delta surface point of a pixel
+    /// centre of `view`, among the pairs with a non-zero unshadowed term. Needs `prepare`
+    /// with `visibility=skeleton`.
+    pub fn visibility_agreement(
+        &self,
+        scene: &Scene,
+        view: &View,
+        seed: u64,
+        sample_index: u32,
+    ) -> Result<VisibilityAgreement> {
+        use rayon::prelude::*;
+        self.check_prepared(scene)?;
+        let Some(shadow) = &self.shadow else {
+            return Err(Error::invalid(
+                "vpl: visibility agreement needs visibility=skeleton with a usable skeleton",
+            ));
+        };
+        let iteration = self.begin_iteration(scene, view, seed, sample_index)?;
+        let set = iteration
+            .data
+            .as_ref()
+            .and_then(|d| d.downcast_ref::<VplSet>())
+            .ok_or_else(|| Error::invalid("vpl: no VPL set"))?;
+        let mapped: Vec<(&Vpl, &super::CubeShadowMap)> = set
+            .groups
+            .iter()
+            .filter_map(|g| shadow.map(g.node).map(|m| (g, m)))
+            .flat_map(|(g, m)| set.vpls[g.start..g.end].iter().map(move |v| (v, m)))
+            .collect();
+        let (w, h) = (view.width, view.height);
+        let per_pixel: Vec<(u64, u64, u64, u64, f64)> = (0..w * h)
+            .into_par_iter()
+            .map(|k| {
+                let film = crate::math::Vec2::new(
+                    ((k % w) as f32 + 0.5) / w as f32,
+                    ((k / w) as f32 + 0.5) / h as f32,
+                );
+                let ray = view.frame.generate_ray(film, crate::math::Vec2::ZERO);
+                let mut tally = (0u64, 0u64, 0u64, 0u64, 0f64);
+                let Some(si) = scene.intersect(&ray) else {
+                    return tally;
+                };
+                let bsdf = scene.bsdf(&si);
+                if bsdf.is_delta() {
+                    return tally;
+                }
+                let frame = si.shading_frame();
+                let wo_local = frame.to_local(si.wo);
+                for &(v, map) in &mapped {
+                    if unshadowed(f32::INFINITY, &si, &bsdf, &frame, wo_local, v).is_none() {
+                        continue;
+                    }
+                    let exact = !scene.occluded(&si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng));
+                    let filtered = map.visibility(si.p, si.ng);
+                    tally.0 += 1;
+                    tally.1 += u64::from((filtered > 0.5) == exact);
+                    tally.2 += u64::from(exact);
+                    tally.3 += u64::from(exact && filtered > 0.5);
+                    tally.4 += (filtered as f64 - f64::from(u8::from(exact))).abs();
+                }
+                tally
+            })
+            .collect();
+        let mut out = VisibilityAgreement {
+            vpls: set.vpls.len() as u64,
+            mapped_vpls: mapped.len() as u64,
+            ..Default::default()
+        };
+        let mut difference = 0.0;
+        for (pairs, agreeing, visible, visible_agreeing, diff) in per_pixel {
+            out.pairs += pairs;
+            out.agreeing += agreeing;
+            out.visible += visible;
+            out.visible_agreeing += visible_agreeing;
+            difference += diff;
+        }
+        out.mean_abs_difference = difference / out.pairs.max(1) as f64;
+        Ok(out)
+    }
+}
+
 /// `vpl` in the integrator registry.
 pub(super) const REGISTRATION: Registration = Registration {
     name: "vpl",
-    set_option: |settings, option: &SpecOption| settings.vpl.set(option.key, option.value),
+    set_option: |settings, option: &SpecOption| match option.key {
+        // The skeleton of `visibility=skeleton`, at the skeleton guide's resolution options.
+        "resolution" | "voxel_budget" => settings
+            .skeleton
+            .set(option.key, option.value)
+            .map(|()| true),
+        _ => settings.vpl.set(option.key, option.value),
+    },
     create: |settings| Ok(Box::new(VplIntegrator::new(settings)?)),
     every_mis_heuristic: false,
 };

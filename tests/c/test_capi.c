@@ -1502,9 +1502,31 @@ static void test_vpl(lacuna_context *ctx) {
     lacuna_render_job *job = NULL, *bad = NULL;
     EXPECT(lacuna_render_job_new(scene, "vpl:count=0", &bad), LACUNA_STATUS_INVALID_ARGUMENT, "count");
     EXPECT(lacuna_render_job_new(scene, "vpl:clamp=-1", &bad), LACUNA_STATUS_INVALID_ARGUMENT, "clamp");
-    EXPECT(lacuna_render_job_new(scene, "vpl:visibility=skeleton", &bad), LACUNA_STATUS_INVALID_ARGUMENT,
+    EXPECT(lacuna_render_job_new(scene, "vpl:visibility=clusters", &bad), LACUNA_STATUS_INVALID_ARGUMENT,
            "not implemented");
+    EXPECT(lacuna_render_job_new(scene, "vpl:visibility=skeleton:shadow_res=2", &bad),
+           LACUNA_STATUS_INVALID_ARGUMENT, "shadow_res");
     CHECK(bad == NULL);
+    /* Skeleton visibility through the same option string: a finite, lit image. */
+    lacuna_render_job *skeleton_job = NULL;
+    OK(lacuna_render_job_new(scene, "vpl:count=8:visibility=skeleton:shadow_res=16:shadow_budget_mb=4",
+                             &skeleton_job));
+    OK(lacuna_render_job_set_resolution(skeleton_job, 10, 8));
+    OK(lacuna_render_job_set_samples_per_pixel(skeleton_job, 2));
+    OK(lacuna_render_job_set_max_depth(skeleton_job, 3));
+    lacuna_film *skeleton_film = NULL;
+    OK(lacuna_render_job_run(skeleton_job, &skeleton_film));
+    static float skeleton_radiance[10 * 8 * 3];
+    OK(lacuna_film_read(skeleton_film, LACUNA_FILM_CHANNEL_RADIANCE, skeleton_radiance, 10, 8, 0, 0));
+    double skeleton_sum = 0;
+    int skeleton_finite = 1;
+    for (int i = 0; i < 10 * 8 * 3; i++) {
+        skeleton_sum += skeleton_radiance[i];
+        skeleton_finite &= isfinite(skeleton_radiance[i]) && skeleton_radiance[i] >= 0;
+    }
+    CHECK(skeleton_finite && skeleton_sum > 0);
+    lacuna_film_release(skeleton_film);
+    lacuna_render_job_free(skeleton_job);
     OK(lacuna_render_job_new(scene, "vpl:count=8:clamp=0.2:compensate=true", &job));
     lacuna_scene_release(scene);
     enum { W = 10, H = 8, N = W * H * 3 };

@@ -1,0 +1,115 @@
+//! The filtered skeleton of the empty space with its node map, as the integrators that map
+//! surface points to skeleton nodes use it (`bdpt_skeleton`, `vpl:visibility=skeleton`): one
+//! build (empty-space analysis, then thinning, filtering and the node map of
+//! `analysis::Skeleton`) and one mapping of a surface point to its node (eq. 151-155).
+
+use std::time::Instant;
+
+use crate::analysis::{
+    Analysis, AnalysisSettings, NeighbourMasks, Resolution, Skeleton, SkeletonSettings, StageTime,
+    VoxelGrid,
+};
+use crate::error::{Error, Result};
+use crate::math::Vec3;
+use crate::scene::{Scene, SurfaceInteraction};
+
+/// The filtered skeleton and its node map.
+pub(super) struct NodeSkeleton {
+    pub grid: VoxelGrid,
+    pub node_map: Vec<u32>,
+    pub masks: NeighbourMasks,
+    /// Position of each filtered node.
+    pub positions: Vec<Vec3>,
+}
+
+impl NodeSkeleton {
+    /// The filtered node of a surface point (eq. 151-155), None where no node maps.
+    #[inline]
+    pub fn node_of(&self, si: &SurfaceInteraction) -> Option<u32> {
+        self.masks
+            .map_point(&self.grid, &self.node_map, si.p, si.ng, si.wo)
+            .filter(|&n| (n as usize) < self.positions.len())
+    }
+
+    /// Builds the analysis and the skeleton of `scene` at `resolution`, pushing their stage
+    /// times onto `stages`. `Ok(Err(why))` when there is no skeleton to use (the analysis or
+    /// the thinning failed, or it has no node); `Err` only when cancelled.
+    pub fn build(
+        scene: &Scene,
+        resolution: Resolution,
+        progress: &dyn Fn(&str, f64) -> bool,
+        stages: &mut Vec<StageTime>,
+    ) -> Result<std::result::Result<NodeSkeleton, String>> {
+        let t = Instant::now();
+        // Only what the skeleton uses: its maps, not the regions and portals.
+        let analysis_settings = AnalysisSettings {
+            resolution,
+            all_maps: true,
+            // Computed by the skeleton beside its thinning.
+            euclidean: false,
+            regions: false,
+            ..Default::default()
+        };
+        let analysis = match Analysis::build(scene, &analysis_settings, &|_, _| true) {
+            Ok(a) => a,
+            Err(Error::Cancelled) => return Err(Error::Cancelled),
+            Err(e) => return Ok(Err(format!("the empty-space analysis failed ({e})"))),
+        };
+        stages.push(StageTime {
+            stage: "analysis (voxels, maps)",
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        if !progress("analysis", 0.4) {
+            return Err(Error::Cancelled);
+        }
+        let t = Instant::now();
+        let skeleton_settings = SkeletonSettings {
+            parallel: true,
+            topology: false,
+        };
+        let skeleton = match Skeleton::build(&analysis, &skeleton_settings, &|_, _| true) {
+            Ok(s) => s,
+            Err(Error::Cancelled) => return Err(Error::Cancelled),
+            Err(e) => return Ok(Err(format!("the skeleton failed ({e})"))),
+        };
+        drop(analysis);
+        stages.push(StageTime {
+            stage: "skeleton (thinning, filter, node map)",
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        let Skeleton {
+            grid,
+            filtered,
+            node_map,
+            ..
+        } = skeleton;
+        if filtered.graph.nodes.is_empty() {
+            return Ok(Err("the skeleton has no node".into()));
+        }
+        Ok(Ok(NodeSkeleton {
+            masks: NeighbourMasks::new(&grid, &node_map),
+            grid,
+            node_map,
+            positions: filtered.graph.nodes.iter().map(|n| n.position).collect(),
+        }))
+    }
+}
+
+/// What a scene was prepared from, to refuse rendering another one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct Fingerprint {
+    triangles: usize,
+    lights: usize,
+    bounds: [u32; 6],
+}
+
+impl Fingerprint {
+    pub fn of(scene: &Scene) -> Self {
+        let b = scene.bounds();
+        Fingerprint {
+            triangles: scene.triangle_count(),
+            lights: scene.lights().len(),
+            bounds: [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z].map(f32::to_bits),
+        }
+    }
+}
