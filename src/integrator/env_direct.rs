@@ -487,5 +487,5 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
         Ok(true)
     },
     create: |settings| Ok(Box::new(EnvDirect::new(settings)?)),
-    every_mis_heuristic: true,
+    adaptive_mis: &[MisHeuristic::Auto, MisHeuristic::Optimal],
 };

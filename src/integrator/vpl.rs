@@ -503,5 +503,5 @@ pub(super) const REGISTRATION: Registration = Registration {
     name: "vpl",
     set_option: |settings, option: &SpecOption| settings.vpl.set(option.key, option.value),
     create: |settings| Ok(Box::new(VplIntegrator::new(settings)?)),
-    every_mis_heuristic: false,
+    adaptive_mis: &[],
 };
