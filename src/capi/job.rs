@@ -535,6 +535,34 @@ pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
     }
 }
 
+/// Writes the `lacuna_mis_heuristic` the job renders with: the one set (by
+/// `lacuna_render_job_set_mis_heuristic` or the integrator specification's `mis=`), else the
+/// integrator's own default. `LACUNA_STATUS_INVALID_ARGUMENT` for an invalid specification.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_get_mis_heuristic(
+    job: *const lacuna_render_job,
+    out_heuristic: *mut u32,
+) -> lacuna_status {
+    boundary::status("lacuna_render_job_get_mis_heuristic", |call| {
+        // SAFETY: NULL or a live job.
+        let j = unsafe { arg(job, "job") }?;
+        call.context(&j.scene.ctx);
+        let out = out_ptr(out_heuristic, "out_heuristic")?;
+        let resolved = lock(&j.settings).resolved.clone();
+        let (name, settings) =
+            integrator::parse_spec(&resolved.integrator, resolved.integrator_settings)?;
+        let heuristic = match integrator::mis_in_use(name, &settings) {
+            MisHeuristic::Balance => lacuna_mis_heuristic::Balance,
+            MisHeuristic::Power => lacuna_mis_heuristic::Power,
+            MisHeuristic::Auto => lacuna_mis_heuristic::Auto,
+            MisHeuristic::Optimal => lacuna_mis_heuristic::Optimal,
+        };
+        // SAFETY: checked non-NULL, writable per the contract.
+        unsafe { write_out(out, heuristic as u32) };
+        Ok(())
+    })
+}
+
 /// Sets the numbers pixel samples draw: a `lacuna_sampler` value (default
 /// `LACUNA_SAMPLER_SOBOL`, or the scene file's `render.sampler`).
 #[no_mangle]

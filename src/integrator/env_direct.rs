@@ -387,7 +387,7 @@ impl EnvDirect {
     /// The weighting in use: balance unless the settings name another (see
     /// [`IntegratorSettings::mis`]).
     fn mis(&self) -> MisHeuristic {
-        self.settings.mis.unwrap_or(MisHeuristic::Balance)
+        super::mis_in_use("env_direct", &self.settings)
     }
 }
 

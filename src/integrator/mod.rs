@@ -63,6 +63,16 @@ impl MisHeuristic {
     }
 }
 
+/// The heuristic integrator `name` weighs with under `settings`: the one set, else its own
+/// default (see [`IntegratorSettings::mis`]).
+pub fn mis_in_use(name: &str, settings: &IntegratorSettings) -> MisHeuristic {
+    settings.mis.unwrap_or(if name == "env_direct" {
+        MisHeuristic::Balance
+    } else {
+        MisHeuristic::Power
+    })
+}
+
 /// Settings shared by the integrators.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IntegratorSettings {

@@ -555,7 +555,7 @@ impl Integrator for PathTracer {
 
 impl PathTracer {
     fn mis(&self) -> MisHeuristic {
-        self.settings.mis.unwrap_or_default()
+        super::mis_in_use(self.name(), &self.settings)
     }
 
     /// `path:mis=auto`'s sample (see [`super::mis_auto::DEPTH_CLASSES`]): the pixel's alpha
