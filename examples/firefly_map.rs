@@ -69,6 +69,7 @@ fn main() {
             let ray = view.primary_ray(x, y, &mut rng);
             let ctx = SampleContext {
                 pixel_index: pixel,
+                sample_index: s,
                 view: &view,
                 iteration: None,
                 layers: &[],

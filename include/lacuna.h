@@ -276,12 +276,14 @@ enum lacuna_mis_heuristic
     LACUNA_MIS_HEURISTIC_BALANCE = 0,
     // Power heuristic, exponent 2 (the default).
     LACUNA_MIS_HEURISTIC_POWER = 1,
-    // `env_direct` only: the per-shading-point split of light and BSDF samples of thesis 001
-    // chapter 5 (a warm-up half, then the rest split by the estimated fraction). Other
-    // integrators refuse it when the render starts (`LACUNA_STATUS_INVALID_ARGUMENT`).
+    // `env_direct` and `path`: the split of light and BSDF samples of thesis 001 chapter 5
+    // (a warm-up, then the rest split by the estimated fraction; per shading point in
+    // `env_direct`, per pixel in `path`). Other integrators refuse it when the render starts
+    // (`LACUNA_STATUS_INVALID_ARGUMENT`).
     LACUNA_MIS_HEURISTIC_AUTO = 2,
     // `env_direct` only: optimal MIS weights (Kondapaneni et al. 2019), estimated on a
-    // warm-up half of the samples. Other integrators refuse it as for `Auto`.
+    // warm-up half of the samples. Other integrators (`path` among them) refuse it as for
+    // `Auto`.
     LACUNA_MIS_HEURISTIC_OPTIMAL = 3,
 };
 #ifndef __cplusplus
@@ -1546,9 +1548,16 @@ lacuna_status lacuna_render_job_set_thread_count(struct lacuna_render_job *job,
 
 // Sets the MIS heuristic: a `lacuna_mis_heuristic` value. Unset, each integrator uses its
 // own default: `LACUNA_MIS_HEURISTIC_POWER` for `path`, `path_skeleton` and `bdpt`,
-// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`.
+// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`. `AUTO` is taken by `path` and
+// `env_direct`, `OPTIMAL` by `env_direct`; another integrator refuses them when the job runs.
 lacuna_status lacuna_render_job_set_mis_heuristic(struct lacuna_render_job *job,
                                                   uint32_t heuristic);
+
+// Writes the `lacuna_mis_heuristic` the job renders with: the one set (by
+// `lacuna_render_job_set_mis_heuristic` or the integrator specification's `mis=`), else the
+// integrator's own default. `LACUNA_STATUS_INVALID_ARGUMENT` for an invalid specification.
+lacuna_status lacuna_render_job_get_mis_heuristic(const struct lacuna_render_job *job,
+                                                  uint32_t *out_heuristic);
 
 // Sets the numbers pixel samples draw: a `lacuna_sampler` value (default
 // `LACUNA_SAMPLER_SOBOL`, or the scene file's `render.sampler`).

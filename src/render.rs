@@ -287,15 +287,16 @@ fn render_in_pool(
                         for tx in 0..tw {
                             let (x, y) = (x0 + tx, y0 + ty);
                             let pixel_index = y as u64 * w as u64 + x as u64;
-                            let ctx = SampleContext {
-                                pixel_index,
-                                view: &view,
-                                iteration: data,
-                                layers: &layers,
-                            };
                             let pixel_sampler =
                                 PixelSampler::new(settings.sampler, settings.seed, pixel_index);
                             for s in first..first + count {
+                                let ctx = SampleContext {
+                                    pixel_index,
+                                    sample_index: s,
+                                    view: &view,
+                                    iteration: data,
+                                    layers: &layers,
+                                };
                                 let mut rng = pixel_sampler.sample(s);
                                 let ray = view.primary_ray(x, y, &mut rng);
                                 let sample =

@@ -659,6 +659,93 @@ fn mis_weightings_of_env_direct_agree_with_balance() {
     }
 }
 
+/// `path:mis=auto` (one light and one BSDF sample per vertex, `integrator::mis_auto`) against
+/// `mis=balance` at the image and quadrant means, under the sky with a sun and the studio map:
+/// a glossy sphere over a diffuse floor, and a perfect mirror sphere (no MIS at the mirror
+/// itself). With light sampling off (`env=bsdf`: light samples have density zero) alpha goes
+/// to the upper clamp, and the image is `mis=balance`'s bit for bit: the light samples it
+/// skips find nothing, and the BSDF directions weigh 1 either way.
+#[test]
+fn path_auto_agrees_with_balance_under_environment_maps() {
+    let glossy = Material::glossy(Rgb::splat(0.2), Rgb::splat(0.5), 200.0);
+    let mirror = Material::mirror(Rgb::splat(0.9));
+    let with = |mis| IntegratorSettings {
+        max_depth: 3,
+        mis: Some(mis),
+        ..Default::default()
+    };
+    for (name, map, material) in [
+        ("sky", load("sky.exr"), glossy.clone()),
+        ("studio", load("studio.exr"), glossy),
+        ("sky, mirror sphere", load("sky.exr"), mirror),
+    ] {
+        let (scene, camera) = sphere_scene(map, material, true);
+        let balance = region_means(
+            &scene,
+            &camera,
+            "path",
+            with(MisHeuristic::Balance),
+            16,
+            16,
+            8,
+        );
+        let auto = region_means(
+            &scene,
+            &camera,
+            "path:mis_warmup=2",
+            with(MisHeuristic::Auto),
+            16,
+            16,
+            8,
+        );
+        assert_agree(&format!("{name}: path balance vs auto"), &balance, &auto);
+    }
+    let (scene, camera) = sphere_scene(load("sky.exr"), Material::diffuse(Rgb::splat(0.5)), true);
+    let rs = RenderSettings {
+        width: 12,
+        height: 12,
+        spp: 9,
+        seed: 3,
+        ..Default::default()
+    };
+    let film = |spec: &str, mis| {
+        let integrator = integrator::create(spec, with(mis)).unwrap();
+        render_image(&scene, &camera, integrator.as_ref(), &rs)
+    };
+    let balance = film("path:env=bsdf", MisHeuristic::Balance);
+    let auto = film("path:env=bsdf:mis_warmup=4", MisHeuristic::Auto);
+    assert_eq!(balance.radiance(), auto.radiance());
+    let index = auto
+        .layer_names()
+        .iter()
+        .position(|n| n == integrator::ALPHA_LAYER)
+        .unwrap();
+    // Four warm-up samples at 1/2, then five at the clamp (at 1/2 where no warm-up direction
+    // of the pixel reached the sky).
+    let clamped = (4.0 * 0.5 + 5.0 * integrator::mis_auto::ALPHA_MAX) / 9.0;
+    let shaded: Vec<f32> = auto
+        .layer(index)
+        .iter()
+        .filter(|p| p.y > 0.999)
+        .map(|p| p.x / p.y)
+        .collect();
+    let at_clamp = shaded
+        .iter()
+        .filter(|&&a| (a - clamped).abs() < 1e-4)
+        .count();
+    assert!(
+        shaded
+            .iter()
+            .all(|&a| (a - clamped).abs() < 1e-4 || a == 0.5),
+        "{shaded:?}"
+    );
+    assert!(
+        at_clamp * 4 > shaded.len() * 3,
+        "{at_clamp} of {}",
+        shaded.len()
+    );
+}
+
 /// Unset, `mis` is each integrator's own default: env_direct's is the balance heuristic over
 /// the counts (bit-identical images), `path`'s the power heuristic.
 #[test]

@@ -543,6 +543,12 @@ public:
     RenderJob &resolution(uint32_t w, uint32_t h) { return set(lacuna_render_job_set_resolution(j_.get(), w, h)); }
     RenderJob &threads(uint32_t n) { return set(lacuna_render_job_set_thread_count(j_.get(), n)); }
     RenderJob &mis_heuristic(uint32_t h) { return set(lacuna_render_job_set_mis_heuristic(j_.get(), h)); }
+    /// The heuristic the job renders with (set, or the integrator's default).
+    uint32_t mis_heuristic() const {
+        uint32_t h = 0;
+        detail::check(lacuna_render_job_get_mis_heuristic(j_.get(), &h));
+        return h;
+    }
     RenderJob &environment_strategy(uint32_t s) {
         return set(lacuna_render_job_set_environment_strategy(j_.get(), s));
     }

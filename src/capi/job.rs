@@ -512,7 +512,8 @@ pub unsafe extern "C" fn lacuna_render_job_set_thread_count(
 
 /// Sets the MIS heuristic: a `lacuna_mis_heuristic` value. Unset, each integrator uses its
 /// own default: `LACUNA_MIS_HEURISTIC_POWER` for `path`, `path_skeleton` and `bdpt`,
-/// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`.
+/// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`. `AUTO` is taken by `path` and
+/// `env_direct`, `OPTIMAL` by `env_direct`; another integrator refuses them when the job runs.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
     job: *mut lacuna_render_job,
@@ -532,6 +533,34 @@ pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
             Ok(())
         })
     }
+}
+
+/// Writes the `lacuna_mis_heuristic` the job renders with: the one set (by
+/// `lacuna_render_job_set_mis_heuristic` or the integrator specification's `mis=`), else the
+/// integrator's own default. `LACUNA_STATUS_INVALID_ARGUMENT` for an invalid specification.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_get_mis_heuristic(
+    job: *const lacuna_render_job,
+    out_heuristic: *mut u32,
+) -> lacuna_status {
+    boundary::status("lacuna_render_job_get_mis_heuristic", |call| {
+        // SAFETY: NULL or a live job.
+        let j = unsafe { arg(job, "job") }?;
+        call.context(&j.scene.ctx);
+        let out = out_ptr(out_heuristic, "out_heuristic")?;
+        let resolved = lock(&j.settings).resolved.clone();
+        let (name, settings) =
+            integrator::parse_spec(&resolved.integrator, resolved.integrator_settings)?;
+        let heuristic = match integrator::mis_in_use(name, &settings) {
+            MisHeuristic::Balance => lacuna_mis_heuristic::Balance,
+            MisHeuristic::Power => lacuna_mis_heuristic::Power,
+            MisHeuristic::Auto => lacuna_mis_heuristic::Auto,
+            MisHeuristic::Optimal => lacuna_mis_heuristic::Optimal,
+        };
+        // SAFETY: checked non-NULL, writable per the contract.
+        unsafe { write_out(out, heuristic as u32) };
+        Ok(())
+    })
 }
 
 /// Sets the numbers pixel samples draw: a `lacuna_sampler` value (default

@@ -231,12 +231,14 @@ pub enum lacuna_mis_heuristic {
     Balance = 0,
     /// Power heuristic, exponent 2 (the default).
     Power = 1,
-    /// `env_direct` only: the per-shading-point split of light and BSDF samples of thesis 001
-    /// chapter 5 (a warm-up half, then the rest split by the estimated fraction). Other
-    /// integrators refuse it when the render starts (`LACUNA_STATUS_INVALID_ARGUMENT`).
+    /// `env_direct` and `path`: the split of light and BSDF samples of thesis 001 chapter 5
+    /// (a warm-up, then the rest split by the estimated fraction; per shading point in
+    /// `env_direct`, per pixel in `path`). Other integrators refuse it when the render starts
+    /// (`LACUNA_STATUS_INVALID_ARGUMENT`).
     Auto = 2,
     /// `env_direct` only: optimal MIS weights (Kondapaneni et al. 2019), estimated on a
-    /// warm-up half of the samples. Other integrators refuse it as for `Auto`.
+    /// warm-up half of the samples. Other integrators (`path` among them) refuse it as for
+    /// `Auto`.
     Optimal = 3,
 }
 

@@ -1247,7 +1247,7 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
             None => bdpt,
         }))
     },
-    every_mis_heuristic: false,
+    adaptive_mis: &[],
 };
 
 #[cfg(test)]

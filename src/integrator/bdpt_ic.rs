@@ -333,6 +333,7 @@ impl BdptIc {
                 };
                 let ctx = SampleContext {
                     pixel_index: pixel,
+                    sample_index: 0,
                     view,
                     iteration: None,
                     layers: &[],
@@ -439,5 +440,5 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
         Ok(true)
     },
     create: |settings| Ok(Box::new(BdptIc::new(settings)?)),
-    every_mis_heuristic: false,
+    adaptive_mis: &[],
 };

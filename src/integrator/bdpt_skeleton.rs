@@ -449,5 +449,5 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
         Ok(true)
     },
     create: |settings| Ok(Box::new(BdptSkeleton::new(settings)?)),
-    every_mis_heuristic: false,
+    adaptive_mis: &[],
 };

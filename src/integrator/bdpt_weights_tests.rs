@@ -545,6 +545,7 @@ fn record(
         rec.camera.clear();
         let ctx = SampleContext {
             pixel_index,
+            sample_index: 0,
             view: &view,
             iteration: Some(&paths),
             layers: &[],

@@ -387,7 +387,7 @@ impl EnvDirect {
     /// The weighting in use: balance unless the settings name another (see
     /// [`IntegratorSettings::mis`]).
     fn mis(&self) -> MisHeuristic {
-        self.settings.mis.unwrap_or(MisHeuristic::Balance)
+        super::mis_in_use("env_direct", &self.settings)
     }
 }
 
@@ -487,5 +487,5 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
         Ok(true)
     },
     create: |settings| Ok(Box::new(EnvDirect::new(settings)?)),
-    every_mis_heuristic: true,
+    adaptive_mis: &[MisHeuristic::Auto, MisHeuristic::Optimal],
 };

@@ -1,6 +1,7 @@
 //! Automatic balancing of light and BSDF samples (`mis=auto`, thesis 001 chapter 5, Lu et al.
 //! 2013) and optimal MIS weights (`mis=optimal`, Kondapaneni et al. 2019), for estimators that
-//! draw many light and BSDF samples of one integral (`env_direct`).
+//! draw many light and BSDF samples of one integral (`env_direct`), and the per-pixel alpha of
+//! `path`'s one light and one BSDF sample per vertex ([`PixelAlphas`], [`VertexAlphas`]).
 //!
 //! **Second-order balancing.** With a fraction alpha of N samples drawn from pdf_B and the rest
 //! from pdf_L, the balance heuristic over the counts is the one-mixture estimator (eq. 5.3)
@@ -32,7 +33,9 @@
 //! the horizon) has `c_i < 1`; counting `a_i / n_i` for each sample it did return estimates
 //! `a_i c_i` without knowing `c_i`.
 
-use crate::math::Rgb;
+use std::sync::{Mutex, RwLock};
+
+use crate::math::{balance_heuristic, Rgb};
 
 /// The clamp of alpha (thesis 001 section 5.4.3).
 pub const ALPHA_MIN: f32 = 0.025;
@@ -73,6 +76,15 @@ impl AlphaEstimate {
         self.bsdf_zero += (pdf_bsdf == 0.0) as u32;
     }
 
+    /// Adds the sums of `other` (the same integrals from other samples).
+    pub fn merge(&mut self, other: &AlphaEstimate) {
+        self.first += other.first;
+        self.second += other.second;
+        self.nonzero += other.nonzero;
+        self.light_zero += other.light_zero;
+        self.bsdf_zero += other.bsdf_zero;
+    }
+
     /// The fraction of BSDF samples, eq. 5.4 clamped; 1/2 (the balance heuristic's even split)
     /// when no sample saw the integrand or both techniques had the same density everywhere.
     pub fn alpha(&self) -> f32 {
@@ -101,6 +113,175 @@ pub fn split(total: u32, alpha: f32) -> (u32, u32) {
     }
     let bsdf = ((alpha * total as f32).round() as u32).clamp(1, total - 1);
     (total - bsdf, bsdf)
+}
+
+/// **`path`'s adaptation.** `path` draws at every non-delta vertex one BSDF direction (which it
+/// needs anyway to continue the path: a free sample) and one light sample (which costs a
+/// shadow ray). Its balance heuristic is the estimator of eq. 5.3 with counts (n_L, n_B) =
+/// (1, 1), alpha = 1/2. With `mis=auto` the light sample is taken with probability
+/// `pi` = min(1, (1 - alpha) / alpha) (expected counts (pi, 1)) and both samples are weighed
+/// by the balance heuristic over the expected counts, q = pi pdf_L + pdf_B: the light sample,
+/// when taken, contributes f / q, the BSDF direction f / q where it finds an emitter. The
+/// expectation is pi int f pdf_L / q + int f pdf_B / q = int f for any pi in (0, 1], so the
+/// estimator is unbiased, and at pi = 1 it is `mis=balance` exactly. For alpha >= 1/2 this is
+/// the thesis's split, alpha = n_B / (n_L + n_B) = 1 / (1 + pi), with shadow rays saved where
+/// BSDF sampling does better. For alpha < 1/2 the split would need more than one light
+/// sample per vertex; `path` keeps one (pi = 1, the even split): more shadow rays per vertex
+/// are a different cost than the thesis's fixed sample budget.
+///
+/// alpha is estimated per pixel (eq. 5.5) from the first `warmup` samples of the pixel, which
+/// are `mis=balance` samples: each vertex's light sample and BSDF direction are one sample of
+/// each technique, the half-half mixture eq. 5.5 needs. The integrand of a vertex is scaled by
+/// the path throughput before it (its share of the pixel's variance). Vertices at depth 0 and
+/// deeper ones keep separate estimates. The later samples use the frozen alpha: each sample is
+/// unbiased given the earlier ones, so the pixel's mean (the count-weighted combination of
+/// eq. 5.6) is unbiased. A light sample from a delta light counts as a sample the BSDF cannot
+/// draw (pdf_B = 0), so a scene lit by point lights only keeps alpha at the lower clamp and
+/// renders exactly as `mis=balance`.
+pub const DEPTH_CLASSES: usize = 2;
+
+/// The probability of taking the light sample at a vertex for the thesis's `alpha`
+/// (see [`DEPTH_CLASSES`]): (1 - alpha) / alpha light samples per BSDF sample, at most one.
+pub fn light_sample_probability(alpha: f32) -> f32 {
+    if alpha > 0.5 {
+        ((1.0 - alpha) / alpha).min(1.0)
+    } else {
+        1.0
+    }
+}
+
+/// One pixel sample's `mis=auto` state in `path` (see [`DEPTH_CLASSES`]).
+#[derive(Clone, Copy, Debug)]
+pub struct VertexAlphas {
+    /// alpha per depth class (0.5 during the warm-up).
+    alpha: [f32; DEPTH_CLASSES],
+    /// The light-sample probability per depth class.
+    light_probability: [f32; DEPTH_CLASSES],
+    /// During the warm-up: this sample's contribution to the pixel's estimates.
+    warmup: Option<[AlphaEstimate; DEPTH_CLASSES]>,
+    /// False for the other heuristics: the caller's own weights, no light sample skipped.
+    active: bool,
+}
+
+impl VertexAlphas {
+    /// Not `mis=auto`: every light sample taken, nothing recorded.
+    pub const OFF: VertexAlphas = VertexAlphas {
+        alpha: [0.5; DEPTH_CLASSES],
+        light_probability: [1.0; DEPTH_CLASSES],
+        warmup: None,
+        active: false,
+    };
+
+    pub fn is_active(&self) -> bool {
+        self.active
+    }
+
+    fn class(depth: u32) -> usize {
+        (depth as usize).min(DEPTH_CLASSES - 1)
+    }
+
+    /// The alpha used at vertices of depth `depth`.
+    pub fn alpha(&self, depth: u32) -> f32 {
+        self.alpha[Self::class(depth)]
+    }
+
+    /// The probability of taking the light sample at a vertex of depth `depth`.
+    pub fn light_probability(&self, depth: u32) -> f32 {
+        self.light_probability[Self::class(depth)]
+    }
+
+    /// Records, during the warm-up, one sample of the vertex at depth `depth`: `f` the
+    /// integrand (scaled by the throughput), and both densities.
+    #[inline]
+    pub fn record(&mut self, depth: u32, f: Rgb, pdf_bsdf: f32, pdf_light: f32) {
+        if let Some(estimates) = &mut self.warmup {
+            estimates[Self::class(depth)].add(1.0, crate::math::luminance(f), pdf_bsdf, pdf_light);
+        }
+    }
+
+    /// The MIS weight of a light sample of density `pdf_light`, taken with probability `pi`,
+    /// against direction density `pdf_direction`, including the 1 / pi of having taken it:
+    /// pdf_L / (pi pdf_L + pdf_B).
+    #[inline]
+    pub fn light_weight(pi: f32, pdf_light: f32, pdf_direction: f32) -> f32 {
+        balance_heuristic(pi * pdf_light, pdf_direction) / pi
+    }
+
+    /// The MIS weight of a sampled direction of density `pdf_direction` that found an emitter
+    /// light sampling draws with density `pdf_light` with probability `pi`.
+    #[inline]
+    pub fn direction_weight(pi: f32, pdf_direction: f32, pdf_light: f32) -> f32 {
+        balance_heuristic(pdf_direction, pi * pdf_light)
+    }
+}
+
+/// `path`'s per-pixel alpha estimates (see [`DEPTH_CLASSES`]), shared by the render's threads:
+/// a pixel's samples run in order on one thread at a time, so its state depends only on the
+/// pixel's earlier samples, whatever the thread count or the split into passes. Sample 0 of a
+/// pixel resets it, so every render starts afresh.
+#[derive(Debug, Default)]
+pub struct PixelAlphas {
+    pixels: RwLock<Vec<Mutex<[AlphaEstimate; DEPTH_CLASSES]>>>,
+}
+
+impl PixelAlphas {
+    /// Bytes per pixel of the state.
+    pub const BYTES_PER_PIXEL: usize = std::mem::size_of::<Mutex<[AlphaEstimate; DEPTH_CLASSES]>>();
+
+    /// The state for sample `sample_index` of pixel `pixel` of an image of `pixel_count`
+    /// pixels: a warm-up sample (balance, recording) for the first `warmup` samples, then the
+    /// estimated alphas.
+    pub fn begin(
+        &self,
+        pixel_count: usize,
+        pixel: usize,
+        sample_index: u32,
+        warmup: u32,
+    ) -> VertexAlphas {
+        if self.pixels.read().map_or(true, |p| p.len() != pixel_count) {
+            let mut pixels = self.pixels.write().unwrap_or_else(|e| e.into_inner());
+            if pixels.len() != pixel_count {
+                pixels.clear();
+                pixels.resize_with(pixel_count, Default::default);
+            }
+        }
+        let pixels = self.pixels.read().unwrap_or_else(|e| e.into_inner());
+        let Some(cell) = pixels.get(pixel) else {
+            return VertexAlphas::OFF;
+        };
+        let mut state = cell.lock().unwrap_or_else(|e| e.into_inner());
+        if sample_index == 0 {
+            *state = Default::default();
+        }
+        if sample_index < warmup {
+            return VertexAlphas {
+                warmup: Some(Default::default()),
+                active: true,
+                ..VertexAlphas::OFF
+            };
+        }
+        let alpha = state.map(|e| e.alpha());
+        VertexAlphas {
+            alpha,
+            light_probability: alpha.map(light_sample_probability),
+            warmup: None,
+            active: true,
+        }
+    }
+
+    /// Adds a warm-up sample's records to its pixel's estimates.
+    pub fn finish(&self, pixel: usize, sample: &VertexAlphas) {
+        let Some(recorded) = &sample.warmup else {
+            return;
+        };
+        let pixels = self.pixels.read().unwrap_or_else(|e| e.into_inner());
+        if let Some(cell) = pixels.get(pixel) {
+            let mut state = cell.lock().unwrap_or_else(|e| e.into_inner());
+            for (s, r) in state.iter_mut().zip(recorded) {
+                s.merge(r);
+            }
+        }
+    }
 }
 
 /// Kondapaneni et al.'s linear system for two techniques (light, BSDF), estimated from
@@ -315,6 +496,33 @@ mod tests {
         assert_eq!(a, OptimalCoefficients::default());
         let t = optimal_term(&a, true, (1.0, 1.0), Rgb::ONE, 0.0, 0.0);
         assert!(crate::math::is_finite3(t));
+    }
+
+    /// `path`'s weights with the light sample taken with probability pi: pi w_L + w_B = 1
+    /// wherever both techniques can draw the point (so the estimate is unbiased), each
+    /// weight alone is right where the other density is zero, and no weight is NaN for zero
+    /// or infinite densities.
+    #[test]
+    fn one_sample_weights_sum_to_one_and_stay_finite() {
+        for alpha in [0.3f32, 0.5, 0.6, 0.9, ALPHA_MAX] {
+            let pi = light_sample_probability(alpha);
+            assert!(pi > 0.0 && pi <= 1.0);
+            if alpha > 0.5 {
+                assert!((1.0 / (1.0 + pi) - alpha).abs() < 1e-6, "alpha {alpha}");
+            }
+            for (pl, pb) in [(1.0f32, 1.0f32), (0.01, 40.0), (300.0, 0.2), (1e-30, 1e30)] {
+                let sum = pi * VertexAlphas::light_weight(pi, pl, pb)
+                    + VertexAlphas::direction_weight(pi, pb, pl);
+                assert!((sum - 1.0).abs() < 1e-5, "alpha {alpha}: {pl} {pb}: {sum}");
+            }
+            assert!((pi * VertexAlphas::light_weight(pi, 2.0, 0.0) - 1.0).abs() < 1e-6);
+            assert_eq!(VertexAlphas::direction_weight(pi, 2.0, 0.0), 1.0);
+            for (a, b) in [(0.0, 0.0), (f32::INFINITY, 1.0), (1.0, f32::INFINITY)] {
+                assert!(VertexAlphas::light_weight(pi, a, b).is_finite());
+                assert!(VertexAlphas::direction_weight(pi, a, b).is_finite());
+            }
+        }
+        assert_eq!(light_sample_probability(ALPHA_MIN), 1.0);
     }
 
     #[test]

@@ -45,20 +45,35 @@ use crate::timing::StageTime;
 /// Which integrators may use which heuristic: integrator knowledge, so it lives here rather
 /// than beside the heuristic in [`crate::math`].
 impl MisHeuristic {
-    /// Fails for `auto` and `optimal` in an integrator that combines one sample per strategy
-    /// (`path`, `path_skeleton`, `bdpt`): they are implemented for `env_direct` only.
+    /// Fails for `auto` and `optimal` in an integrator whose [`Registration::adaptive_mis`]
+    /// does not list it (`auto`: `env_direct` and `path`; `optimal`: `env_direct`).
     pub fn check_supported(self, integrator: &str) -> Result<()> {
-        let every_heuristic = find(integrator).is_some_and(|r| r.every_mis_heuristic);
-        match self {
-            MisHeuristic::Auto | MisHeuristic::Optimal if !every_heuristic => {
-                Err(Error::invalid(format!(
-                    "mis={} is implemented for env_direct only, not for {integrator} (use balance or power)",
-                    self.name()
-                )))
-            }
-            _ => Ok(()),
+        let adaptive = matches!(self, MisHeuristic::Auto | MisHeuristic::Optimal);
+        let supported = find(integrator).is_some_and(|r| r.adaptive_mis.contains(&self));
+        if adaptive && !supported {
+            let takers: Vec<&str> = REGISTRY
+                .iter()
+                .filter(|r| r.adaptive_mis.contains(&self))
+                .map(|r| r.name)
+                .collect();
+            return Err(Error::invalid(format!(
+                "mis={} is implemented for {} only, not for {integrator} (use balance or power)",
+                self.name(),
+                takers.join(" and ")
+            )));
         }
+        Ok(())
     }
+}
+
+/// The heuristic integrator `name` weighs with under `settings`: the one set, else its own
+/// default (see [`IntegratorSettings::mis`]).
+pub fn mis_in_use(name: &str, settings: &IntegratorSettings) -> MisHeuristic {
+    settings.mis.unwrap_or(if name == "env_direct" {
+        MisHeuristic::Balance
+    } else {
+        MisHeuristic::Power
+    })
 }
 
 /// Settings shared by the integrators.
@@ -217,6 +232,8 @@ pub struct Iteration {
 #[derive(Clone, Copy)]
 pub struct SampleContext<'a> {
     pub pixel_index: u64,
+    /// The index of this sample among the pixel's (a pixel's samples run in this order).
+    pub sample_index: u32,
     pub view: &'a View,
     pub iteration: Option<&'a (dyn Any + Send + Sync)>,
     /// This sample's values of the integrator's layers (see [`Integrator::layers`]), zero on
@@ -312,8 +329,9 @@ pub struct Registration {
     pub set_option: fn(&mut IntegratorSettings, &SpecOption) -> Result<bool>,
     /// Makes the integrator from its settings (validating what is its own).
     pub create: fn(IntegratorSettings) -> Result<Box<dyn Integrator>>,
-    /// Accepts `mis=auto` and `mis=optimal` (see [`MisHeuristic::check_supported`]).
-    pub every_mis_heuristic: bool,
+    /// The heuristics beyond `balance` and `power` it takes (`auto`, `optimal`; see
+    /// [`MisHeuristic::check_supported`]).
+    pub adaptive_mis: &'static [MisHeuristic],
 }
 
 /// The integrators this build offers, in the order help texts list them.
@@ -360,7 +378,7 @@ impl SpecOption<'_> {
 
 /// Splits an integrator specification `NAME[:KEY=VALUE]...` into the name and the settings
 /// its options change, so one comparison can race variants of an integrator:
-/// - any integrator: `max_depth=D`, `mis=power|balance` (`env_direct` also `auto|optimal`), `env=STRATEGY` (environment
+/// - any integrator: `max_depth=D`, `mis=power|balance` (`path` also `auto`, `env_direct` also `auto|optimal`), `env=STRATEGY` (environment
 ///   sampling: latlong, cube-uniform, cube-power, cube-dynamic, bsdf);
 /// - `path` and `path_skeleton`: `rr_depth=D` (bounces before Russian roulette starts),
 ///   `triangles=area|solid_angle` (how next-event estimation samples emissive triangles);

@@ -41,7 +41,11 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
-use super::{Integrator, IntegratorSettings, Precomputation, SampleContext, TraceCounters};
+use super::mis_auto::{PixelAlphas, VertexAlphas};
+use super::{
+    Integrator, IntegratorSettings, MisHeuristic, Precomputation, SampleContext, TraceCounters,
+    ALPHA_LAYER,
+};
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
@@ -76,6 +80,8 @@ pub struct PathTracer {
     guiding: Option<Option<Arc<SkeletonGuide>>>,
     /// [`Integrator::set_time_budget`]'s seconds, for the skeleton guide's scout.
     time_budget: Option<f64>,
+    /// `mis=auto`: the per-pixel alpha estimates (see [`super::mis_auto::DEPTH_CLASSES`]).
+    alphas: PixelAlphas,
 }
 
 impl PathTracer {
@@ -84,6 +90,7 @@ impl PathTracer {
             settings,
             guiding: None,
             time_budget: None,
+            alphas: PixelAlphas::default(),
         }
     }
 
@@ -96,6 +103,7 @@ impl PathTracer {
             settings,
             guiding: Some(None),
             time_budget: None,
+            alphas: PixelAlphas::default(),
         })
     }
 
@@ -114,9 +122,12 @@ impl PathTracer {
         }
     }
 
-    /// Next-event estimation ([`estimator::sample_direct_light`]): radiance from one light
-    /// sample, MIS-weighted against direction sampling (the BSDF, mixed with the guide's lobes
-    /// where `query` is guided). `wo` is local to the shading frame.
+    /// Next-event estimation ([`estimator::sample_direct_light`]) from the sampler's 2-D `u`:
+    /// radiance from one light sample, MIS-weighted against direction sampling (the BSDF,
+    /// mixed with the guide's lobes where `query` is guided). `wo` is local to the shading
+    /// frame. With `mis=auto` the sample is taken with probability `alphas`' light
+    /// probability at `depth` (the first coordinate of `u` decides, then is rescaled) and
+    /// recorded during the warm-up, its integrand scaled by `beta`.
     #[allow(clippy::too_many_arguments)]
     fn sample_light(
         &self,
@@ -126,10 +137,17 @@ impl PathTracer {
         bsdf: &Bsdf,
         wo_local: Vec3,
         query: &GuideQuery,
-        rng: &mut Sampler,
+        mut u: crate::math::Vec2,
+        (alphas, depth, beta): (&mut VertexAlphas, u32, Rgb),
         counters: &mut TraceCounters,
     ) -> Rgb {
-        let u = rng.uniform2();
+        let pi = alphas.light_probability(depth);
+        if pi < 1.0 {
+            if u.x >= pi {
+                return Rgb::ZERO;
+            }
+            u.x = (u.x / pi).min(1.0 - f32::EPSILON / 2.0);
+        }
         let estimator = self.estimator();
         let Some(light) = estimator::sample_direct_light(
             scene,
@@ -148,12 +166,50 @@ impl PathTracer {
         } else {
             query.mixture_pdf(light.wi, bsdf.pdf(wo_local, light.wi_local))
         };
-        light.weighted(light.weight(estimator.mis, direction_pdf))
+        if !alphas.is_active() {
+            return light.weighted(light.weight(estimator.mis, direction_pdf));
+        }
+        alphas.record(
+            depth,
+            beta * light.f_cos * light.radiance,
+            direction_pdf,
+            light.light_pdf,
+        );
+        if light.delta {
+            light.weighted(1.0 / pi)
+        } else {
+            light.weighted(VertexAlphas::light_weight(
+                pi,
+                light.light_pdf,
+                direction_pdf,
+            ))
+        }
+    }
+
+    /// The MIS weight of a sampled direction (density `direction_pdf`, from the vertex of
+    /// depth `depth`) that found an emitter light sampling draws with density `light_pdf`.
+    fn direction_weight(
+        &self,
+        alphas: &VertexAlphas,
+        depth: u32,
+        direction_pdf: f32,
+        light_pdf: f32,
+    ) -> f32 {
+        if alphas.is_active() {
+            VertexAlphas::direction_weight(
+                alphas.light_probability(depth),
+                direction_pdf,
+                light_pdf,
+            )
+        } else {
+            self.estimator().mis.weight(direction_pdf, light_pdf)
+        }
     }
 
     /// Radiance of the environment along a ray that left the scene, MIS-weighted against
     /// the environment's light sampling at the vertex the ray left (point `prev_point`, normal
-    /// `prev_normal`); camera rays see it unless it is hidden.
+    /// `prev_normal`); camera rays see it unless it is hidden. `prev_scale`: the throughput
+    /// before the vertex times f |cos| there, the integrand's scale `mis=auto` records.
     #[allow(clippy::too_many_arguments)]
     fn escaped(
         &self,
@@ -164,6 +220,7 @@ impl PathTracer {
         prev_pdf: f32,
         prev_point: Vec3,
         prev_normal: Vec3,
+        (alphas, prev_scale): (&mut VertexAlphas, Rgb),
     ) -> Rgb {
         let Some((_, env)) = scene.environment() else {
             return Rgb::ZERO;
@@ -180,7 +237,8 @@ impl PathTracer {
         if prev_delta || le == Rgb::ZERO {
             return le;
         }
-        le * estimator.mis.weight(prev_pdf, light_pdf)
+        alphas.record(depth - 1, prev_scale * le, prev_pdf, light_pdf);
+        le * self.direction_weight(alphas, depth - 1, prev_pdf, light_pdf)
     }
 }
 
@@ -257,7 +315,9 @@ impl PathTracer {
                                     None
                                 };
                                 *lj = self
-                                    .trace(scene, ray, &mut rng, &mut counters[k], guided)
+                                    .trace(scene, ray, &mut rng, &mut counters[k], guided, &mut {
+                                        VertexAlphas::OFF
+                                    })
                                     .radiance;
                             }
                             variance[k] += half_squared_difference(l[0], l[1]);
@@ -313,6 +373,17 @@ impl Integrator for PathTracer {
             "path_skeleton"
         } else {
             "path"
+        }
+    }
+
+    /// `mis=auto`: the `alpha` layer, R the depth-0 alpha of the pixel's sample (0.5 in the
+    /// warm-up; zero where the camera ray hit nothing) and G the fraction of samples that hit
+    /// a surface, as `env_direct` writes it.
+    fn layers(&self) -> Vec<String> {
+        if self.mis() == MisHeuristic::Auto {
+            vec![ALPHA_LAYER.to_string()]
+        } else {
+            Vec::new()
         }
     }
 
@@ -455,16 +526,20 @@ impl Integrator for PathTracer {
         ray: Ray,
         rng: &mut Sampler,
         counters: &mut TraceCounters,
-        _ctx: &SampleContext,
+        ctx: &SampleContext,
     ) -> PixelSample {
+        if self.mis() == MisHeuristic::Auto {
+            return self.sample_auto(scene, ray, rng, counters, ctx);
+        }
         // A guide that guides no node (every node learned c = 0, or the scene-level switch of
         // `cost_model=switch|measured`): `path`'s sample exactly, without node mapping or
         // query set-up.
+        let off = &mut { VertexAlphas::OFF };
         let Some(guide) = self.guide().filter(|g| !g.guides_nothing()) else {
-            return self.trace(scene, ray, rng, counters, None);
+            return self.trace(scene, ray, rng, counters, None, off);
         };
         THREAD_QUERY.with(|cell| match cell.try_borrow_mut() {
-            Ok(mut query) => self.trace(scene, ray, rng, counters, Some((guide, &mut query))),
+            Ok(mut query) => self.trace(scene, ray, rng, counters, Some((guide, &mut query)), off),
             // Only if a host re-entered the renderer from inside a sample on this thread.
             Err(_) => self.trace(
                 scene,
@@ -472,8 +547,44 @@ impl Integrator for PathTracer {
                 rng,
                 counters,
                 Some((guide, &mut GuideQuery::new())),
+                off,
             ),
         })
+    }
+}
+
+impl PathTracer {
+    fn mis(&self) -> MisHeuristic {
+        super::mis_in_use(self.name(), &self.settings)
+    }
+
+    /// `path:mis=auto`'s sample (see [`super::mis_auto::DEPTH_CLASSES`]): the pixel's alpha
+    /// state, the sample, the warm-up's records back to the pixel, and the depth-0 alpha to
+    /// the `alpha` layer (R alpha, G 1) where the camera ray hit a surface.
+    fn sample_auto(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        ctx: &SampleContext,
+    ) -> PixelSample {
+        let pixel_count = ctx.view.width as usize * ctx.view.height as usize;
+        let pixel = ctx.pixel_index as usize;
+        let mut alphas = self.alphas.begin(
+            pixel_count,
+            pixel,
+            ctx.sample_index,
+            self.settings.path.mis_warmup,
+        );
+        let sample = self.trace(scene, ray, rng, counters, None, &mut alphas);
+        self.alphas.finish(pixel, &alphas);
+        if let Some(layer) = ctx.layers.first() {
+            if sample.hit {
+                layer.set(Rgb::new(alphas.alpha(0), 1.0, 0.0));
+            }
+        }
+        sample
     }
 }
 
@@ -602,6 +713,7 @@ impl PathTracer {
         rng: &mut Sampler,
         counters: &mut TraceCounters,
         mut guided: Option<(&SkeletonGuide, &mut GuideQuery)>,
+        alphas: &mut VertexAlphas,
     ) -> PixelSample {
         let mut out = PixelSample::default();
         let mut radiance = Rgb::ZERO;
@@ -619,6 +731,8 @@ impl PathTracer {
         let mut prev_pdf = 0.0f32;
         let mut prev_point = ray.origin;
         let mut prev_normal = Vec3::ZERO;
+        // `mis=auto`: the throughput before the previous vertex times f |cos| there.
+        let mut prev_scale = Rgb::ZERO;
         let mut depth = 0u32;
         loop {
             counters.rays += 1;
@@ -632,6 +746,7 @@ impl PathTracer {
                         prev_pdf,
                         prev_point,
                         prev_normal,
+                        (alphas, prev_scale),
                     );
                 #[cfg(feature = "diagnostics")]
                 diagnostics::contribution(depth, diagnostics::Kind::Escaped, e);
@@ -655,7 +770,8 @@ impl PathTracer {
                     let estimator = self.estimator();
                     let light_pdf =
                         estimator::emitter_light_pdf(scene, prev_point, &si, &estimator);
-                    estimator.mis.weight(prev_pdf, light_pdf)
+                    alphas.record(depth - 1, prev_scale * le, prev_pdf, light_pdf);
+                    self.direction_weight(alphas, depth - 1, prev_pdf, light_pdf)
                 };
                 #[cfg(feature = "diagnostics")]
                 diagnostics::contribution(depth, diagnostics::Kind::Hit, beta * le * weight);
@@ -690,8 +806,19 @@ impl PathTracer {
             };
             if !bsdf.is_delta() {
                 rng.set_dimension(slot(depth, LIGHT_SLOT));
+                let u = rng.uniform2();
                 let nee = beta
-                    * self.sample_light(scene, &si, &frame, &bsdf, wo_local, query, rng, counters);
+                    * self.sample_light(
+                        scene,
+                        &si,
+                        &frame,
+                        &bsdf,
+                        wo_local,
+                        query,
+                        u,
+                        (alphas, depth, beta),
+                        counters,
+                    );
                 #[cfg(feature = "diagnostics")]
                 diagnostics::contribution(depth, diagnostics::Kind::Nee, nee);
                 radiance += nee;
@@ -712,6 +839,9 @@ impl PathTracer {
             }
             #[cfg(feature = "diagnostics")]
             diagnostics::record(query, depth, ms.bsdf_pdf, bs.pdf, radiance, ms.from_guide);
+            if alphas.is_active() {
+                prev_scale = beta * bs.f * bs.wi.z.abs();
+            }
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
             rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
             ratio *= ms.bsdf_pdf / bs.pdf;
@@ -784,7 +914,7 @@ pub(super) const PATH: super::Registration = super::Registration {
     name: "path",
     set_option: set_path_option,
     create: |settings| Ok(Box::new(PathTracer::new(settings))),
-    every_mis_heuristic: false,
+    adaptive_mis: &[MisHeuristic::Auto],
 };
 
 /// `path_skeleton` in the integrator registry: `path`'s options, then the guide's.
@@ -797,10 +927,11 @@ pub(super) const PATH_SKELETON: super::Registration = super::Registration {
         Ok(true)
     },
     create: |settings| Ok(Box::new(PathTracer::skeleton_guided(settings)?)),
-    every_mis_heuristic: false,
+    adaptive_mis: &[],
 };
 
-/// `path`'s and `path_skeleton`'s own options (`path:rr_depth=D:triangles=area|solid_angle`).
+/// `path`'s and `path_skeleton`'s own options
+/// (`path:rr_depth=D:triangles=area|solid_angle:mis_warmup=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PathOptions {
     /// Russian roulette: a path that has made this many bounces may be ended before the next
@@ -811,6 +942,9 @@ pub struct PathOptions {
     /// How next-event estimation samples emissive triangles: by area (default) or by solid
     /// angle (`bdpt` always samples them by area: its MIS weights assume that density).
     pub triangles: TriangleSampling,
+    /// `mis=auto`: the samples of each pixel that estimate its alpha (rendered with the
+    /// balance heuristic) before the others use it (see [`super::mis_auto::DEPTH_CLASSES`]).
+    pub mis_warmup: u32,
 }
 
 impl Default for PathOptions {
@@ -818,6 +952,7 @@ impl Default for PathOptions {
         PathOptions {
             rr_start_depth: 5,
             triangles: TriangleSampling::default(),
+            mis_warmup: 16,
         }
     }
 }
@@ -828,6 +963,7 @@ fn set_path_option(settings: &mut IntegratorSettings, option: &super::SpecOption
     match option.key {
         "rr_depth" => options.rr_start_depth = option.count()?,
         "triangles" => options.triangles = TriangleSampling::parse(option.value)?,
+        "mis_warmup" => options.mis_warmup = option.count()?,
         _ => return Ok(false),
     }
     Ok(true)

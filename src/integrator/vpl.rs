@@ -861,5 +861,5 @@ pub(super) const REGISTRATION: Registration = Registration {
         _ => settings.vpl.set(option.key, option.value),
     },
     create: |settings| Ok(Box::new(VplIntegrator::new(settings)?)),
-    every_mis_heuristic: false,
+    adaptive_mis: &[],
 };

@@ -43,10 +43,11 @@ pub enum MisHeuristic {
     /// Power heuristic with exponent 2 (Veach): the usual better choice.
     #[default]
     Power,
-    /// `env_direct` only: the balance heuristic with the split of light and BSDF samples
-    /// chosen per shading point by the second-order variance approximation of thesis 001
-    /// chapter 5 (a warm-up half, then the rest split by the estimated alpha, eq. 5.6); see
-    /// the integrator's `mis_auto` module.
+    /// `env_direct` and `path`: the balance heuristic with the split of light and BSDF
+    /// samples chosen by the second-order variance approximation of thesis 001 chapter 5
+    /// (a warm-up, then the rest split by the estimated alpha, eq. 5.6): per shading point in
+    /// `env_direct`, per pixel in `path` (the light sample taken with a probability); see the
+    /// integrator's `mis_auto` module.
     Auto,
     /// `env_direct` only: Kondapaneni et al.'s optimal weights, their coefficients estimated
     /// on a warm-up half of the samples; see the integrator's `mis_auto` module.

@@ -619,10 +619,19 @@ static void test_render(lacuna_context *ctx) {
     EXPECT(lacuna_render_job_set_thread_count(job, LACUNA_MAX_THREADS + 1), LACUNA_STATUS_OUT_OF_RANGE,
            "thread_count");
     EXPECT(lacuna_render_job_set_mis_heuristic(job, 4), LACUNA_STATUS_INVALID_ARGUMENT, "heuristic");
-    OK(lacuna_render_job_set_mis_heuristic(job, LACUNA_MIS_HEURISTIC_AUTO));
+    {
+        uint32_t heuristic = 99;
+        EXPECT(lacuna_render_job_get_mis_heuristic(job, NULL), LACUNA_STATUS_NULL_POINTER, "out_heuristic");
+        EXPECT(lacuna_render_job_get_mis_heuristic(NULL, &heuristic), LACUNA_STATUS_NULL_POINTER, "job");
+        OK(lacuna_render_job_get_mis_heuristic(job, &heuristic)); /* path's default */
+        CHECK(heuristic == LACUNA_MIS_HEURISTIC_POWER);
+        OK(lacuna_render_job_set_mis_heuristic(job, LACUNA_MIS_HEURISTIC_AUTO));
+        OK(lacuna_render_job_get_mis_heuristic(job, &heuristic));
+        CHECK(heuristic == LACUNA_MIS_HEURISTIC_AUTO);
+    }
     OK(lacuna_render_job_set_mis_heuristic(job, LACUNA_MIS_HEURISTIC_OPTIMAL));
     {
-        /* path takes balance and power only: the run is refused and writes no film. */
+        /* path takes balance, power and auto: optimal is refused and writes no film. */
         lacuna_film *refused = NULL;
         EXPECT(lacuna_render_job_run(job, &refused), LACUNA_STATUS_INVALID_ARGUMENT, "env_direct");
         CHECK(refused == NULL);

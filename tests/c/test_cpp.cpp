@@ -224,6 +224,7 @@ int main(int argc, char **argv) {
     // Render with a progress callback.
     lacuna::RenderJob job(scene);
     job.mis_heuristic(LACUNA_MIS_HEURISTIC_AUTO).mis_heuristic(LACUNA_MIS_HEURISTIC_OPTIMAL);
+    CHECK(job.mis_heuristic() == LACUNA_MIS_HEURISTIC_OPTIMAL);
     EXPECT_ERROR(job.mis_heuristic(4), LACUNA_STATUS_INVALID_ARGUMENT, "heuristic");
     job.resolution(12, 8).samples_per_pixel(2).seed(3).max_depth(2).threads(2).mis_heuristic(LACUNA_MIS_HEURISTIC_POWER);
     std::atomic<int> calls{0};

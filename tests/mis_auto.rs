@@ -1,0 +1,166 @@
+//! `path:mis=auto` (thesis 001 chapter 5 adapted to one light and one BSDF sample per vertex,
+//! `integrator::mis_auto`): unbiased against `mis=balance` on the test scenes (z-tests of
+//! region means); a scene lit by delta lights only keeps alpha at the lower clamp and renders
+//! exactly as `mis=balance`; the same seed gives the same image whatever the thread count and
+//! the split into passes. The environment cases (a glossy sphere, a perfect mirror, light
+//! sampling switched off) are in tests/environment.rs.
+
+mod common;
+
+use common::agreement::{assert_agree, box_scene, load_scene, region_means, render_image};
+use lacuna::integrator::{self, mis_auto, IntegratorSettings, MisHeuristic};
+use lacuna::math::SamplerKind;
+use lacuna::render::RenderSettings;
+use lacuna::scene::{Camera, Scene};
+
+fn settings(mis: MisHeuristic, max_depth: u32) -> IntegratorSettings {
+    IntegratorSettings {
+        max_depth,
+        mis: Some(mis),
+        ..Default::default()
+    }
+}
+
+/// A short warm-up, so that most samples of the test renders use the estimated alpha.
+const AUTO: &str = "path:mis_warmup=2";
+
+fn agree_with_balance(label: &str, scene: &Scene, camera: &Camera, depth: u32, spp: u32) {
+    let balance = region_means(
+        scene,
+        camera,
+        "path",
+        settings(MisHeuristic::Balance, depth),
+        16,
+        spp,
+        8,
+    );
+    assert!(balance[0].0 > 0.0, "{label}: black image");
+    let auto = region_means(
+        scene,
+        camera,
+        AUTO,
+        settings(MisHeuristic::Auto, depth),
+        16,
+        spp,
+        8,
+    );
+    assert_agree(label, ("balance", &balance), ("auto", &auto));
+}
+
+#[test]
+fn auto_agrees_with_balance_on_the_test_scenes() {
+    // Every BSDF (diffuse, glossy 50 and 1e4, mirror, glass) and light kind (area, point,
+    // spot, directional, IES).
+    let (scene, camera) = box_scene(true, true, true);
+    agree_with_balance("box, every kind", &scene, &camera, 5, 32);
+    let (scene, camera) = box_scene(false, true, false);
+    agree_with_balance("box, area light", &scene, &camera, 1, 32);
+    let scene = lacuna::scene::two_rooms_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    agree_with_balance("two rooms", &scene, &camera, 6, 16);
+    let scene = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let camera = *scene.camera().unwrap();
+    agree_with_balance("veach door", &scene, &camera, 6, 16);
+}
+
+/// Renders at 12 x 12, 9 spp (one warm-up sample), Sobol numbers.
+fn render(scene: &Scene, camera: &Camera, spec: &str, mis: MisHeuristic) -> lacuna::film::Film {
+    render_with(scene, camera, spec, mis, None, 4)
+}
+
+fn render_with(
+    scene: &Scene,
+    camera: &Camera,
+    spec: &str,
+    mis: MisHeuristic,
+    threads: Option<usize>,
+    pass_spp: u32,
+) -> lacuna::film::Film {
+    let integrator = integrator::create(spec, settings(mis, 4)).unwrap();
+    let rs = RenderSettings {
+        width: 12,
+        height: 12,
+        spp: 9,
+        seed: 5,
+        threads,
+        pass_spp,
+        sampler: SamplerKind::Sobol,
+        ..Default::default()
+    };
+    render_image(scene, camera, integrator.as_ref(), &rs)
+}
+
+/// Point, spot, directional and IES lights only: BSDF sampling never finds them, every light
+/// sample has BSDF density zero against them, so alpha goes to the lower clamp, the light
+/// sample is always taken and the weights are the balance heuristic's: the same image, bit
+/// for bit (mirror and glass included).
+#[test]
+fn delta_lights_put_alpha_at_the_clamp_and_leave_the_image_unchanged() {
+    let (scene, camera) = box_scene(true, false, true);
+    let balance = render(&scene, &camera, "path", MisHeuristic::Balance);
+    let auto = render(&scene, &camera, "path:mis_warmup=1", MisHeuristic::Auto);
+    assert_eq!(balance.radiance(), auto.radiance());
+    let layer = auto
+        .layer_names()
+        .iter()
+        .position(|n| n == integrator::ALPHA_LAYER)
+        .expect("mis=auto writes the alpha layer");
+    // Where all nine samples hit a surface: one warm-up sample at 1/2, then eight at the
+    // clamp (or at 1/2 where the pixel's first sample saw no light: a mirror, a shadow).
+    let clamped = (0.5 + 8.0 * mis_auto::ALPHA_MIN) / 9.0;
+    let mut at_clamp = 0;
+    for p in auto.layer(layer) {
+        assert!(p.is_finite(), "alpha {p}");
+        if p.y > 0.999 {
+            let alpha = p.x / p.y;
+            assert!(
+                (alpha - clamped).abs() < 1e-4 || (alpha - 0.5).abs() < 1e-4,
+                "alpha {alpha}"
+            );
+            at_clamp += ((alpha - clamped).abs() < 1e-4) as usize;
+        }
+    }
+    assert!(at_clamp > 72, "{at_clamp} of 144 pixels at the clamp");
+}
+
+/// The same seed, the same image: one thread or two, passes of 1, 4 or 9 samples.
+#[test]
+fn auto_is_deterministic_for_any_thread_count_and_pass_split() {
+    let (scene, camera) = box_scene(true, true, true);
+    let reference = render_with(&scene, &camera, AUTO, MisHeuristic::Auto, Some(1), 9);
+    for (threads, pass) in [(Some(2), 1), (Some(2), 4), (None, 9)] {
+        let other = render_with(&scene, &camera, AUTO, MisHeuristic::Auto, threads, pass);
+        assert_eq!(reference.radiance(), other.radiance(), "{threads:?} {pass}");
+    }
+    // Rendering again with the same integrator starts afresh.
+    let integrator = integrator::create(AUTO, settings(MisHeuristic::Auto, 4)).unwrap();
+    let rs = RenderSettings {
+        width: 12,
+        height: 12,
+        spp: 9,
+        seed: 5,
+        threads: Some(1),
+        pass_spp: 9,
+        sampler: SamplerKind::Sobol,
+        ..Default::default()
+    };
+    let first = render_image(&scene, &camera, integrator.as_ref(), &rs);
+    let second = render_image(&scene, &camera, integrator.as_ref(), &rs);
+    assert_eq!(first.radiance(), second.radiance());
+    assert_eq!(first.radiance(), reference.radiance());
+}
+
+#[test]
+fn path_refuses_optimal_and_path_skeleton_refuses_auto() {
+    let e = integrator::create("path:mis=optimal", IntegratorSettings::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("optimal") && e.contains("env_direct"), "{e}");
+    let e = integrator::create("path_skeleton:mis=auto", IntegratorSettings::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("path_skeleton") && e.contains("auto"), "{e}");
+    assert!(integrator::create("path:mis=auto", IntegratorSettings::default()).is_ok());
+}
