@@ -376,7 +376,7 @@ static void test_portals(lacuna_context *ctx) {
     lacuna_scene_builder_free(b);
     lacuna_light_sampler *portals = NULL, *cube = NULL;
     OK(lacuna_light_sampler_new(scene, LACUNA_TRIANGLE_STRATEGY_AREA, LACUNA_ENVIRONMENT_STRATEGY_PORTALS, &portals));
-    OK(lacuna_light_sampler_new(scene, LACUNA_TRIANGLE_STRATEGY_AREA, LACUNA_ENVIRONMENT_STRATEGY_LATLONG, &cube));
+    OK(lacuna_light_sampler_new(scene, LACUNA_TRIANGLE_STRATEGY_AREA, LACUNA_ENVIRONMENT_STRATEGY_LAT_LONG, &cube));
     lacuna_light_sampler_info info;
     OK(lacuna_light_sampler_get_info(portals, &info));
     CHECK(info.environment_strategy == LACUNA_ENVIRONMENT_STRATEGY_PORTALS);

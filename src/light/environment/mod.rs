@@ -318,9 +318,7 @@ impl EnvironmentMap {
                     self.build_seconds[0] = t.elapsed().as_secs_f64();
                     let _ = self.latlong.set(built);
                 }
-                EnvStrategy::CubeUniform
-                | EnvStrategy::CubePower
-                | EnvStrategy::CubeDynamic
+                EnvStrategy::CubeUniform | EnvStrategy::CubePower | EnvStrategy::CubeDynamic
                     if self.cube.get().is_none() =>
                 {
                     let t = Instant::now();
