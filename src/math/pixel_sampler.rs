@@ -191,15 +191,7 @@ impl Sampler {
     pub fn uniform(&mut self) -> f32 {
         match &mut self.sequence {
             Sequence::Independent(rng) => rng.uniform(),
-            Sequence::Sobol {
-                pixel_key,
-                reversed_index,
-                dimension,
-            } => {
-                let keys = slot_keys(*pixel_key, *dimension);
-                *dimension += 1;
-                to_unit(sobol_owen_1d(*reversed_index, keys))
-            }
+            Sequence::Sobol { .. } => to_unit(self.uniform_bits()),
         }
     }
 
@@ -236,6 +228,7 @@ impl Sampler {
     }
 
     /// 32 bits of the next 1-D slot (Sobol only).
+    #[inline]
     fn uniform_bits(&mut self) -> u32 {
         match &mut self.sequence {
             Sequence::Independent(rng) => rng.next_u32(),
