@@ -2,7 +2,9 @@
 //! no speedup, a biased one is caught by its error plateau (and named when it says it is
 //! biased), and the outputs are well formed.
 
-use lacuna::compare::{compare, render_reference, write_report, Contender};
+use lacuna::compare::{
+    compare, compare_scheduled, render_reference, write_report, Contender, Schedule,
+};
 use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::math::{Rgb, Vec3};
 use lacuna::render::RenderSettings;
@@ -205,5 +207,89 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
             );
         }
     }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// `Schedule::Concurrent` runs the contenders of a run at the same time, each on its own
+/// threads: every contender still gets its runs, its film and its summary, an integrator raced
+/// against itself stays indistinguishable, a dropped bounce is still caught, and the summary
+/// says how the machine was shared.
+#[test]
+fn concurrent_contenders_share_the_machine_and_keep_their_ratios() {
+    let (scene, camera) = room();
+    let depth = 3;
+    let settings = RenderSettings {
+        width: 16,
+        height: 16,
+        spp: 4096,
+        seed: 7,
+        threads: Some(1),
+        ..Default::default()
+    };
+    let path = |max_depth| {
+        integrator::create(
+            "path",
+            IntegratorSettings {
+                max_depth,
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    };
+    let reference =
+        render_reference(&scene, &camera, path(depth).as_ref(), &settings, &|_| true).unwrap();
+    let contender = |label: &str, max_depth| Contender {
+        label: label.into(),
+        integrator: path(max_depth),
+        sampler: None,
+    };
+    let mut contenders = vec![
+        contender("path", depth),
+        contender("path again", depth),
+        contender("path dropping a bounce", depth - 1),
+    ];
+    let ref_pixels = reference.film.radiance();
+    let runs = 4;
+    let cmp = compare_scheduled(
+        &scene,
+        &camera,
+        &mut contenders,
+        &ref_pixels,
+        Some(reference.noise),
+        &settings,
+        0.3,
+        runs,
+        Schedule::Concurrent,
+        &|_| true,
+    )
+    .unwrap();
+    assert_eq!(cmp.schedule, Schedule::Concurrent);
+    assert_eq!(cmp.results.len(), 3 * runs as usize);
+    for c in 0..3 {
+        let mut seen: Vec<u32> = cmp
+            .results
+            .iter()
+            .filter(|r| r.contender == c)
+            .map(|r| r.run)
+            .collect();
+        seen.sort();
+        assert_eq!(seen, (0..runs).collect::<Vec<_>>(), "contender {c}");
+        assert!(cmp.points.iter().any(|p| p.contender == c));
+    }
+    assert_eq!(cmp.films.len(), 3);
+    let [base, again, biased] = [&cmp.summaries[0], &cmp.summaries[1], &cmp.summaries[2]];
+    assert!(
+        again.indistinguishable && again.speedup.is_none(),
+        "self comparison: {again:?}"
+    );
+    assert!(
+        !biased.indistinguishable && biased.mae.min > base.mae.max,
+        "bias not detected: {biased:?}"
+    );
+    let dir =
+        std::env::temp_dir().join(format!("lacuna-compare-concurrent-{}", std::process::id()));
+    write_report(&dir, &cmp, &ref_pixels, 16, 16, "test room").unwrap();
+    let summary = std::fs::read_to_string(dir.join("summary.md")).unwrap();
+    assert!(summary.contains("at the same time"), "{summary}");
     std::fs::remove_dir_all(&dir).ok();
 }

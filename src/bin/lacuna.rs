@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, Parser, Subcommand};
 use lacuna::analysis::Resolution;
-use lacuna::compare::{compare, render_reference, write_report, Contender};
+use lacuna::compare::{compare_scheduled, render_reference, write_report, Contender, Schedule};
 use lacuna::film::{ExrMetadata, Film, ImageErrors};
 use lacuna::guide::SkeletonGuideSettings;
 use lacuna::integrator::{self, MisHeuristic};
@@ -274,9 +274,14 @@ struct CompareArgs {
     /// Output directory (curves.csv, convergence.svg, summary.md, images).
     #[arg(long, short)]
     out: PathBuf,
-    /// Runs per integrator [default: 3 when the budget allows (time x integrators x 3 <= 30 min), else 1].
+    /// Runs per integrator [default: 3 when the budget allows (three runs' wall-clock time <= 30 min), else 1].
     #[arg(long)]
     runs: Option<u32>,
+    /// Run the integrators of each run at the same time, each with --threads workers, instead
+    /// of one after the other: on a shared machine whose load swings, all meet the same load,
+    /// so their ratios hold (each gets about 1 / (integrators) of the machine).
+    #[arg(long)]
+    concurrent: bool,
 }
 
 #[derive(Args, Clone, Debug)]
@@ -1004,15 +1009,20 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
         .iter()
         .map(|n| Contender::from_spec(n, prep.settings.integrator_settings))
         .collect::<Result<Vec<_>>>()?;
+    let (schedule, wall_per_second) = if args.concurrent {
+        (Schedule::Concurrent, 1.0)
+    } else {
+        (Schedule::Sequential, names.len() as f64)
+    };
     let runs = args
         .runs
-        .unwrap_or(if args.time * names.len() as f64 * 3.0 <= 1800.0 {
+        .unwrap_or(if args.time * wall_per_second * 3.0 <= 1800.0 {
             3
         } else {
             1
         });
     let bar = ProgressBar::new(args.scene.quiet);
-    let cmp = compare(
+    let cmp = compare_scheduled(
         &prep.scene,
         &prep.camera,
         &mut contenders,
@@ -1021,6 +1031,7 @@ fn run_compare(args: &CompareArgs) -> Result<()> {
         &prep.settings.render,
         args.time,
         runs,
+        schedule,
         &|p| bar.update(p),
     )?;
     write_report(

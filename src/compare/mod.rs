@@ -274,6 +274,7 @@ pub struct Comparison {
     pub labels: Vec<String>,
     pub seconds_per_run: f64,
     pub runs: u32,
+    pub schedule: Schedule,
     pub points: Vec<CurvePoint>,
     pub results: Vec<RunResult>,
     pub summaries: Vec<Summary>,
@@ -284,12 +285,22 @@ pub struct Comparison {
     pub biases: Vec<Option<String>>,
 }
 
-/// Runs every contender for the same wall-clock time, `runs` times, in one process, rotating
-/// the order each run so that no contender always goes first; logs errors against `reference`
-/// after every pass. Each run starts with the contender's per-scene precomputation
-/// ([`Integrator::prepare`], built afresh), which is timed and spent from the same budget: the
-/// render gets what is left, and curve times count from the start of the precomputation. The
-/// first contender is the baseline.
+/// How the contenders of one run share the machine.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Schedule {
+    /// One after the other, each with the whole machine; the order rotates each run so that
+    /// no contender always goes first.
+    #[default]
+    Sequential,
+    /// All at once, each with its own worker threads, for the same wall-clock time: on a
+    /// shared machine whose load swings, every contender meets the same load, so their ratios
+    /// hold where one-after-the-other runs can be moved by a swing between them. Each gets
+    /// about 1 / (contenders) of the machine, so absolute figures drop and ratios stay.
+    Concurrent,
+}
+
+/// Runs every contender for the same wall-clock time, `runs` times, in one process, one after
+/// the other ([`Schedule::Sequential`]); see [`compare_scheduled`].
 #[allow(clippy::too_many_arguments)]
 pub fn compare(
     scene: &Scene,
@@ -300,6 +311,38 @@ pub fn compare(
     settings: &RenderSettings,
     seconds_per_run: f64,
     runs: u32,
+    progress: &(dyn Fn(Progress) -> bool + Sync),
+) -> Result<Comparison> {
+    compare_scheduled(
+        scene,
+        camera,
+        contenders,
+        reference,
+        reference_noise,
+        settings,
+        seconds_per_run,
+        runs,
+        Schedule::Sequential,
+        progress,
+    )
+}
+
+/// Runs every contender for the same wall-clock time, `runs` times, in one process, as
+/// `schedule` says; logs errors against `reference` after every pass. Each run starts with
+/// the contender's per-scene precomputation ([`Integrator::prepare`], built afresh), which is
+/// timed and spent from the same budget: the render gets what is left, and curve times count
+/// from the start of the precomputation. The first contender is the baseline.
+#[allow(clippy::too_many_arguments)]
+pub fn compare_scheduled(
+    scene: &Scene,
+    camera: &Camera,
+    contenders: &mut [Contender],
+    reference: &[Rgb],
+    reference_noise: Option<ImageErrors>,
+    settings: &RenderSettings,
+    seconds_per_run: f64,
+    runs: u32,
+    schedule: Schedule,
     progress: &(dyn Fn(Progress) -> bool + Sync),
 ) -> Result<Comparison> {
     if contenders.is_empty() {
@@ -325,89 +368,64 @@ pub fn compare(
     let mut results = Vec::new();
     let mut films: Vec<Option<Film>> = (0..n).map(|_| None).collect();
     let cancel = AtomicBool::new(false);
-    let mut done = 0.0f64;
-    for run in 0..runs {
-        for k in 0..n {
-            let c = (k + run as usize) % n;
-            let start = Instant::now();
-            let offset = done;
-            contenders[c]
-                .integrator
-                .set_time_budget(Some(seconds_per_run));
-            let prepare_progress = |_: &str, _: f64| {
+    let job = |contender: &mut Contender, c: usize, run: u32, offset: f64, share: f64| {
+        run_contender(
+            scene,
+            camera,
+            contender,
+            c,
+            run,
+            reference,
+            settings,
+            seconds_per_run,
+            &cancel,
+            &|p: Progress| {
                 progress(Progress {
-                    fraction: offset / total,
-                    spp_done: 0,
-                    elapsed: start.elapsed(),
-                })
-            };
-            prepare(
-                contenders[c].integrator.as_mut(),
-                scene,
-                camera,
-                settings.threads,
-                &prepare_progress,
-            )?;
-            let precompute_seconds = start.elapsed().as_secs_f64();
-            let render_seconds = seconds_per_run - precompute_seconds;
-            if render_seconds <= 0.0 {
-                return Err(Error::invalid(format!(
-                    "{}: its precomputation took {precompute_seconds:.3} s, the whole budget of {seconds_per_run} s",
-                    contenders[c].label
-                )));
-            }
-            let rs = RenderSettings {
-                spp: u32::MAX,
-                time_limit: Some(Duration::from_secs_f64(render_seconds)),
-                seed: run_seed(settings.seed, run, c),
-                sampler: contenders[c].sampler.unwrap_or(settings.sampler),
-                ..settings.clone()
-            };
-            let mut run_points = Vec::new();
-            let mut on_pass = |film: &Film, pass: crate::render::PassReport| {
-                if let Ok(errors) = image_errors(&film.radiance(), reference) {
-                    run_points.push(CurvePoint {
-                        contender: c,
-                        run,
-                        seconds: precompute_seconds + pass.seconds,
-                        spp: pass.spp,
-                        errors,
-                    });
-                }
-            };
-            let offset = done;
-            let step = |p: Progress| {
-                progress(Progress {
-                    fraction: (offset + p.fraction) / total,
+                    fraction: (offset + share * p.fraction) / total,
                     ..p
                 })
-            };
-            let (film, stats) = render_observed(
-                scene,
-                camera,
-                contenders[c].integrator.as_ref(),
-                &rs,
-                &step,
-                &cancel,
-                &mut on_pass,
-            )?;
-            if stats.cancelled {
-                return Err(Error::Cancelled);
+            },
+        )
+    };
+    for run in 0..runs {
+        let done = (run * n as u32) as f64;
+        let outcomes: Vec<Result<ContenderRun>> = match schedule {
+            Schedule::Sequential => {
+                let mut outcomes: Vec<Option<Result<ContenderRun>>> =
+                    (0..n).map(|_| None).collect();
+                for k in 0..n {
+                    let c = (k + run as usize) % n;
+                    let outcome = job(&mut contenders[c], c, run, done + k as f64, 1.0);
+                    let failed = outcome.is_err();
+                    outcomes[c] = Some(outcome);
+                    if failed {
+                        break;
+                    }
+                }
+                outcomes.into_iter().flatten().collect()
             }
-            let radiance = film.radiance();
-            let errors = image_errors(&radiance, reference)?;
-            let largest_pixel = largest_pixel_ratio(&radiance, reference).unwrap_or(f64::NAN);
-            points.extend(run_points);
-            results.push(RunResult {
-                contender: c,
-                run,
-                precompute_seconds,
-                stats,
-                errors,
-                largest_pixel,
-            });
-            films[c] = Some(film);
-            done += 1.0;
+            // Every contender of the run on its own thread (each makes its own worker pool);
+            // each one's progress stands for the whole run's.
+            Schedule::Concurrent => std::thread::scope(|s| {
+                let handles: Vec<_> = contenders
+                    .iter_mut()
+                    .enumerate()
+                    .map(|(c, contender)| {
+                        let job = &job;
+                        s.spawn(move || job(contender, c, run, done, n as f64))
+                    })
+                    .collect();
+                handles
+                    .into_iter()
+                    .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+                    .collect()
+            }),
+        };
+        for outcome in outcomes {
+            let outcome = outcome?;
+            points.extend(outcome.points);
+            films[outcome.result.contender] = Some(outcome.film);
+            results.push(outcome.result);
         }
     }
     let labels: Vec<String> = contenders.iter().map(|c| c.label.clone()).collect();
@@ -416,6 +434,7 @@ pub fn compare(
         labels,
         seconds_per_run,
         runs,
+        schedule,
         points,
         results,
         summaries,
@@ -425,6 +444,100 @@ pub fn compare(
             .collect(),
         reference_noise,
         biases: contenders.iter().map(|c| c.integrator.bias()).collect(),
+    })
+}
+
+/// What one run of one contender measured.
+struct ContenderRun {
+    result: RunResult,
+    points: Vec<CurvePoint>,
+    film: Film,
+}
+
+/// One run of contender `c`: its precomputation, then its render for what is left of
+/// `seconds_per_run`, logging errors against `reference` after every pass.
+#[allow(clippy::too_many_arguments)]
+fn run_contender(
+    scene: &Scene,
+    camera: &Camera,
+    contender: &mut Contender,
+    c: usize,
+    run: u32,
+    reference: &[Rgb],
+    settings: &RenderSettings,
+    seconds_per_run: f64,
+    cancel: &AtomicBool,
+    progress: &(dyn Fn(Progress) -> bool + Sync),
+) -> Result<ContenderRun> {
+    let start = Instant::now();
+    contender.integrator.set_time_budget(Some(seconds_per_run));
+    let prepare_progress = |_: &str, _: f64| {
+        progress(Progress {
+            fraction: 0.0,
+            spp_done: 0,
+            elapsed: start.elapsed(),
+        })
+    };
+    prepare(
+        contender.integrator.as_mut(),
+        scene,
+        camera,
+        settings.threads,
+        &prepare_progress,
+    )?;
+    let precompute_seconds = start.elapsed().as_secs_f64();
+    let render_seconds = seconds_per_run - precompute_seconds;
+    if render_seconds <= 0.0 {
+        return Err(Error::invalid(format!(
+            "{}: its precomputation took {precompute_seconds:.3} s, the whole budget of {seconds_per_run} s",
+            contender.label
+        )));
+    }
+    let rs = RenderSettings {
+        spp: u32::MAX,
+        time_limit: Some(Duration::from_secs_f64(render_seconds)),
+        seed: run_seed(settings.seed, run, c),
+        sampler: contender.sampler.unwrap_or(settings.sampler),
+        ..settings.clone()
+    };
+    let mut points = Vec::new();
+    let mut on_pass = |film: &Film, pass: crate::render::PassReport| {
+        if let Ok(errors) = image_errors(&film.radiance(), reference) {
+            points.push(CurvePoint {
+                contender: c,
+                run,
+                seconds: precompute_seconds + pass.seconds,
+                spp: pass.spp,
+                errors,
+            });
+        }
+    };
+    let (film, stats) = render_observed(
+        scene,
+        camera,
+        contender.integrator.as_ref(),
+        &rs,
+        progress,
+        cancel,
+        &mut on_pass,
+    )?;
+    if stats.cancelled {
+        return Err(Error::Cancelled);
+    }
+    let radiance = film.radiance();
+    let errors = image_errors(&radiance, reference)?;
+    let largest_pixel = largest_pixel_ratio(&radiance, reference).unwrap_or(f64::NAN);
+    Ok(ContenderRun {
+        result: RunResult {
+            contender: c,
+            run,
+            precompute_seconds,
+            stats,
+            errors,
+            largest_pixel,
+        },
+        points,
+        film,
     })
 }
 

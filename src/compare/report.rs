@@ -4,7 +4,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use super::{Comparison, Spread};
+use super::{Comparison, Schedule, Spread};
 use crate::error::{Error, Result};
 use crate::film::{write_png_rgb, ExrMetadata};
 use crate::math::Rgb;
@@ -145,10 +145,16 @@ fn summary_md(cmp: &Comparison, scene: &str) -> String {
     let _ = writeln!(s, "# Equal-time comparison: {scene}\n");
     let _ = writeln!(
         s,
-        "{} s per run, {} run(s) per integrator, errors against the reference as median [min, max] over runs. \
+        "{} s per run, {} run(s) per integrator, {}, errors against the reference as median [min, max] over runs. \
          Each run's per-scene precomputation is spent from its budget and counted in every time below. \
          The first integrator is the baseline.\n",
-        cmp.seconds_per_run, cmp.runs
+        cmp.seconds_per_run,
+        cmp.runs,
+        match cmp.schedule {
+            Schedule::Sequential => "the integrators one after the other",
+            Schedule::Concurrent =>
+                "the integrators of a run at the same time (each with its own threads, sharing the machine)",
+        }
     );
     if let Some(n) = cmp.reference_noise {
         let _ = writeln!(
