@@ -39,7 +39,7 @@ pub mod thinning;
 mod thinning_oracle;
 
 pub use complex::{diagonal_contacts, Betti, Complex};
-pub use reach::may_map_to;
+pub use reach::{may_map_to, may_map_to_where};
 pub use skeleton::{
     filter_skeleton, graph_from_complex, map_point, node_map, node_map_seeds, Filtered, Graph,
     NeighbourMasks, Node, Skeleton, SkeletonMaps, SkeletonSettings, EUCLIDEAN_BESIDE_THINNING,

@@ -29,38 +29,72 @@ use super::{VoxelGrid, UNDEFINED_NODE};
 /// voxels whose searches along n⁺ lead away from it (and, to stay a superset under rounding,
 /// allows centres 4 voxels away inside thick walls).
 pub fn may_map_to(grid: &VoxelGrid, map: &[u32], wanted: impl Fn(u32) -> bool + Sync) -> Vec<bool> {
+    may_map_to_where(grid, map, wanted, |_| true)
+}
+
+/// [`may_map_to`] at the voxels where `asked` holds, false elsewhere: the costly search test
+/// runs only where the answer is wanted (the training asks only where its vertices fell).
+pub fn may_map_to_where(
+    grid: &VoxelGrid,
+    map: &[u32],
+    wanted: impl Fn(u32) -> bool + Sync,
+    asked: impl Fn(usize) -> bool + Sync,
+) -> Vec<bool> {
     let wanted_voxel: Vec<bool> = map
         .par_iter()
         .map(|&m| m != UNDEFINED_NODE && wanted(m))
         .collect();
+    // No wanted node (a guide switched off): nothing to search from.
+    if !wanted_voxel.par_iter().any(|&w| w) {
+        return wanted_voxel;
+    }
     let near = dilate(grid, &wanted_voxel, 1);
     // A search's centre lies within 3 voxels of v_x (4 with a unit normal rounded above 1),
     // so `far` bounds where the cone test can succeed and skips it far from every wanted node.
     let far = dilate(grid, &near, 4);
     (0..map.len())
         .into_par_iter()
-        .map(|k| near[k] || (far[k] && searches_along_normal_reach(grid, map, &near, k)))
+        .map(|k| {
+            asked(k) && (near[k] || (far[k] && searches_along_normal_reach(grid, map, &near, k)))
+        })
         .collect()
 }
 
-/// Box dilation by `radius` voxels per axis (separable, one pass per axis).
+/// Box dilation by `radius` voxels per axis (separable, one pass per axis): a voxel is set
+/// when a set voxel lies within `radius` of it along the axis. Each pass sweeps the lines of
+/// its axis once in each direction, counting the steps since the last set voxel, so its cost
+/// does not grow with the radius.
 fn dilate(grid: &VoxelGrid, flags: &[bool], radius: usize) -> Vec<bool> {
     let dims = grid.dims;
     let mut flags = flags.to_vec();
     for axis in 0..3 {
-        let stride = [1, dims[0], dims[0] * dims[1]][axis];
+        // The grid as blocks of `len` slices of `inner` voxels: a line of the axis is one
+        // voxel of each slice of a block.
         let len = dims[axis];
+        let inner: usize = dims[..axis].iter().product();
         let input = flags.clone();
-        flags.par_iter_mut().enumerate().for_each(|(k, out)| {
-            if *out {
-                return;
-            }
-            let c = grid.coords(k)[axis];
-            let lo = c.saturating_sub(radius);
-            let hi = (c + radius).min(len - 1);
-            let base = k - c * stride;
-            *out = (lo..=hi).any(|i| input[base + i * stride]);
-        });
+        flags
+            .par_chunks_mut(len * inner)
+            .zip(input.par_chunks(len * inner))
+            .for_each(|(out, input)| {
+                // Steps since the last set voxel of each line (radius + 1: none within reach).
+                let mut since = vec![radius + 1; inner];
+                let lines = (0..len).chain((0..len).rev());
+                for (pass, i) in lines.enumerate() {
+                    if pass == len {
+                        since.fill(radius + 1);
+                    }
+                    let slice = i * inner..(i + 1) * inner;
+                    for ((s, o), &f) in since
+                        .iter_mut()
+                        .zip(&mut out[slice.clone()])
+                        .zip(&input[slice])
+                    {
+                        *s = if f { 0 } else { (*s + 1).min(radius + 1) };
+                        *o |= *s <= radius;
+                    }
+                }
+            });
     }
     flags
 }
@@ -76,7 +110,9 @@ fn searches_along_normal_reach(grid: &VoxelGrid, map: &[u32], near: &[bool], k: 
     let v = grid.coords(k).map(|c| c as i64);
     let inside = |p: [i64; 3]| (0..3).all(|a| p[a] >= 0 && p[a] < dims[a]);
     // The mapped neighbours of v_x (out-of-grid voxels are never mapped).
-    let mut mapped: Vec<[i64; 3]> = Vec::with_capacity(26);
+    // At most 26, on the stack: this runs for every voxel near a wanted node.
+    let mut mapped_storage = [[0i64; 3]; 26];
+    let mut mapped_count = 0;
     for dz in -1..=1i64 {
         for dy in -1..=1i64 {
             for dx in -1..=1i64 {
@@ -87,16 +123,18 @@ fn searches_along_normal_reach(grid: &VoxelGrid, map: &[u32], near: &[bool], k: 
                     && map[grid.index(w[0] as usize, w[1] as usize, w[2] as usize)]
                         != UNDEFINED_NODE
                 {
-                    mapped.push(o);
+                    mapped_storage[mapped_count] = o;
+                    mapped_count += 1;
                 }
             }
         }
     }
+    let mapped = &mapped_storage[..mapped_count];
     // Per axis, the range of x = s n⁺ the face neighbours allow: a mapped +e_a means
     // n⁺_a <= 0 (else it would have been found facing; its score is n⁺_a, exact in f32),
     // a mapped -e_a means n⁺_a >= 0. Then floor(g_a + s n⁺_a) <= v_a exactly.
     let mut limit = [[-3.0 - SLACK, 3.0 + SLACK]; 3];
-    for o in &mapped {
+    for o in mapped {
         if o.iter().filter(|&&c| c != 0).count() == 1 {
             let a = (0..3).find(|&a| o[a] != 0).expect("a face offset");
             if o[a] > 0 {
@@ -180,6 +218,36 @@ mod tests {
     use crate::analysis::map_point;
     use crate::math::{Rng, Vec3};
 
+    /// The sweeping dilation against its definition: set where a set voxel lies within the
+    /// radius along every axis (a box), on random flags of every density.
+    #[test]
+    fn dilate_matches_a_brute_force_box() {
+        let dims = [7usize, 5, 6];
+        let grid = VoxelGrid {
+            dims,
+            origin: [0.0, 0.0, 0.0],
+            voxel_size: 1.0,
+        };
+        let mut rng = Rng::new(3, 0);
+        for density in [0.0, 0.02, 0.1, 0.5] {
+            let flags: Vec<bool> = (0..dims.iter().product::<usize>())
+                .map(|_| rng.uniform() < density)
+                .collect();
+            for radius in [0, 1, 2, 4] {
+                let fast = dilate(&grid, &flags, radius);
+                for (k, &f) in fast.iter().enumerate() {
+                    let v = grid.coords(k);
+                    let mut any = false;
+                    for (j, &set) in flags.iter().enumerate() {
+                        let w = grid.coords(j);
+                        any |= set && (0..3).all(|a| v[a].abs_diff(w[a]) <= radius);
+                    }
+                    assert_eq!(f, any, "voxel {v:?}, radius {radius}, density {density}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn may_map_to_covers_every_point_that_reaches_a_node() {
         let grid = VoxelGrid {
@@ -202,6 +270,13 @@ mod tests {
             .collect();
         let reach = may_map_to(&grid, &map, |n| n == 2);
         assert!(reach.iter().any(|&r| !r) && reach.iter().any(|&r| r));
+        // Asked at every third voxel: the same answer there, false elsewhere.
+        let asked = may_map_to_where(&grid, &map, |n| n == 2, |k| k % 3 == 0);
+        for (k, (&a, &r)) in asked.iter().zip(&reach).enumerate() {
+            assert_eq!(a, k % 3 == 0 && r, "voxel {k}");
+        }
+        // No wanted node: nothing may map to one.
+        assert!(may_map_to(&grid, &map, |_| false).iter().all(|&r| !r));
         let lo = Vec3::splat(-0.5);
         let hi = Vec3::new(15.5, 10.5, 6.5);
         let mut hits = 0;

@@ -623,18 +623,70 @@ pub struct NeighbourMasks {
 }
 
 impl NeighbourMasks {
-    /// The masks of every voxel of `grid` for node map `map` (in parallel over z-slices).
+    /// The masks of every voxel of `grid` for node map `map`: [`neighbour_mask`] of each
+    /// voxel, built separably (bit = dx + 3 dy + 9 dz, [`NEIGHBOUR_OFFSETS`]): the 3 bits of
+    /// the x-neighbours per voxel, then 9 from three of those along y, then 27 from three of
+    /// those along z, so each voxel costs a few operations instead of 27 bounds-checked reads.
     pub fn new(grid: &VoxelGrid, map: &[u32]) -> NeighbourMasks {
         let [nx, ny, _] = grid.dims;
-        let mut masks = vec![0u32; grid.len()];
-        masks
-            .par_chunks_mut((nx * ny).max(1))
-            .enumerate()
-            .for_each(|(z, slice)| {
+        let slice_len = (nx * ny).max(1);
+        // Along x: bit 0 the voxel at x - 1, bit 1 the voxel itself, bit 2 the voxel at x + 1.
+        let mut along_x = vec![0u32; grid.len()];
+        along_x
+            .par_chunks_mut(nx.max(1))
+            .zip(map.par_chunks(nx.max(1)))
+            .for_each(|(out, row)| {
+                for (x, o) in out.iter_mut().enumerate() {
+                    let mapped = |i: usize| u32::from(row[i] != UNDEFINED_NODE);
+                    *o = mapped(x) << 1;
+                    if x > 0 {
+                        *o |= mapped(x - 1);
+                    }
+                    if x + 1 < nx {
+                        *o |= mapped(x + 1) << 2;
+                    }
+                }
+            });
+        // Along y, within each z-slice: three x-masks at y - 1, y, y + 1.
+        let mut along_xy = vec![0u32; grid.len()];
+        along_xy
+            .par_chunks_mut(slice_len)
+            .zip(along_x.par_chunks(slice_len))
+            .for_each(|(out, slice)| {
                 for y in 0..ny {
                     for x in 0..nx {
-                        slice[x + nx * y] =
-                            neighbour_mask(grid, map, [x as i64, y as i64, z as i64]);
+                        let at = |y: usize| slice[x + nx * y];
+                        let mut m = at(y) << 3;
+                        if y > 0 {
+                            m |= at(y - 1);
+                        }
+                        if y + 1 < ny {
+                            m |= at(y + 1) << 6;
+                        }
+                        out[x + nx * y] = m;
+                    }
+                }
+            });
+        // Along z: three xy-masks of the slices z - 1, z, z + 1.
+        let slices = along_xy.len() / slice_len;
+        let mut masks = vec![0u32; grid.len()];
+        masks
+            .par_chunks_mut(slice_len)
+            .enumerate()
+            .for_each(|(z, out)| {
+                let slice = |z: usize| &along_xy[z * slice_len..(z + 1) * slice_len];
+                let mid = slice(z);
+                for (k, o) in out.iter_mut().enumerate() {
+                    *o = mid[k] << 9;
+                }
+                if z > 0 {
+                    for (o, &m) in out.iter_mut().zip(slice(z - 1)) {
+                        *o |= m;
+                    }
+                }
+                if z + 1 < slices {
+                    for (o, &m) in out.iter_mut().zip(slice(z + 1)) {
+                        *o |= m << 18;
                     }
                 }
             });
@@ -1411,6 +1463,15 @@ mod tests {
                 };
                 let map = random_node_map(&mut rng, grid.len(), solid, 7);
                 let masks = NeighbourMasks::new(&grid, &map);
+                // The separable build gives every voxel its mask by definition.
+                for (k, &mask) in masks.masks.iter().enumerate() {
+                    let v = grid.coords(k).map(|c| c as i64);
+                    assert_eq!(
+                        mask,
+                        neighbour_mask(&grid, &map, v),
+                        "voxel {v:?} of {dims:?}"
+                    );
+                }
                 for i in 0..4000 {
                     // A little beyond the grid on every side.
                     let g = [0, 1, 2].map(|a| (rng.uniform() as f64 * 1.4 - 0.2) * dims[a] as f64);

@@ -517,10 +517,13 @@ pub(super) fn learn_guiding_probabilities(
     let samples: Vec<u32> = by_node.iter().map(|s| s.len() as u32).collect();
     let scene_choice = {
         // The vertices that pay the node mapping under these choices: those in voxels that
-        // may map to a guided node (the render's `may_guide`).
-        let may_guide = crate::analysis::may_map_to(guide.grid(), guide.node_map(), |n| {
-            probabilities[n as usize] > 0.0
-        });
+        // may map to a guided node (the render's `may_guide`), asked where vertices fell.
+        let may_guide = crate::analysis::may_map_to_where(
+            guide.grid(),
+            guide.node_map(),
+            |n| probabilities[n as usize] > 0.0,
+            |k| per_voxel[k].load(AtomicOrdering::Relaxed) > 0,
+        );
         let mapped_vertices = per_voxel
             .iter()
             .zip(&may_guide)
