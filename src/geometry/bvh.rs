@@ -435,8 +435,8 @@ impl Bvh {
         // Coherent queries test the block of this thread's last occluder first: consecutive
         // shadow rays of a path (and of neighbouring pixels) toward a light behind a wall are
         // mostly stopped by the same few triangles. Any triangle the ray hits is an answer,
-        // so this changes no result (empty lanes hold degenerate triangles, which never hit,
-        // and an index left by another BVH is only used when in range).
+        // so this changes no result (only the block's occupied lanes are tested, and an
+        // index left by another BVH is only used when in range).
         let [first, second] = if COHERENT {
             LAST_OCCLUDER.with(Cell::get)
         } else {
@@ -444,11 +444,14 @@ impl Bvh {
         };
         if COHERENT {
             if let Some(block) = self.blocks.get(first as usize) {
-                if intersect_triangle_block(&q.tri, &q.lanes, block, 0xf, ray.t_max).mask != 0 {
+                let lanes = block.lanes();
+                if intersect_triangle_block(&q.tri, &q.lanes, block, lanes, ray.t_max).mask != 0 {
                     return true;
                 }
                 if let Some(block) = self.blocks.get(second as usize) {
-                    if intersect_triangle_block(&q.tri, &q.lanes, block, 0xf, ray.t_max).mask != 0 {
+                    let lanes = block.lanes();
+                    if intersect_triangle_block(&q.tri, &q.lanes, block, lanes, ray.t_max).mask != 0
+                    {
                         LAST_OCCLUDER.with(|c| c.set([second, first]));
                         return true;
                     }
@@ -1065,7 +1068,8 @@ mod tests {
     use crate::math::{warp, Rng};
 
     /// `triangle_blocks`: every triangle in exactly one lane, with its vertices; node bases
-    /// on block boundaries; leaves in one block wherever the node's leaves fit that way.
+    /// on block boundaries; leaves in one block wherever the node's leaves fit that way;
+    /// each block's lane mask marks exactly its triangles.
     #[test]
     fn triangle_blocks_hold_every_triangle_once() {
         let mut rng = Rng::new(5, 1);
@@ -1091,6 +1095,7 @@ mod tests {
                     for k in 0..count {
                         let slot = (node.primitive_base_idx + offset + k) as usize;
                         let block = &bvh.blocks[slot / 4];
+                        assert!(block.lanes() & (1 << (slot % 4)) != 0);
                         let id = block.id(slot % 4) as usize;
                         assert_eq!(block.triangle(slot % 4), tris[id]);
                         seen[id] += 1;
@@ -1098,6 +1103,9 @@ mod tests {
                 }
             }
             assert!(seen.iter().all(|&s| s == 1), "n = {n}");
+            // The occupied-lane masks mark exactly the lanes that hold a triangle.
+            let marked: u32 = bvh.blocks.iter().map(|b| b.lanes().count_ones()).sum();
+            assert_eq!(marked as usize, n);
         }
     }
 
