@@ -435,8 +435,8 @@ impl Bvh {
         // Coherent queries test the block of this thread's last occluder first: consecutive
         // shadow rays of a path (and of neighbouring pixels) toward a light behind a wall are
         // mostly stopped by the same few triangles. Any triangle the ray hits is an answer,
-        // so this changes no result (empty lanes hold degenerate triangles, which never hit,
-        // and an index left by another BVH is only used when in range).
+        // so this changes no result (only the block's occupied lanes are tested, and an
+        // index left by another BVH is only used when in range).
         let [first, second] = if COHERENT {
             LAST_OCCLUDER.with(Cell::get)
         } else {
@@ -444,11 +444,14 @@ impl Bvh {
         };
         if COHERENT {
             if let Some(block) = self.blocks.get(first as usize) {
-                if intersect_triangle_block(&q.tri, &q.lanes, block, 0xf, ray.t_max).mask != 0 {
+                let lanes = block.lanes();
+                if intersect_triangle_block(&q.tri, &q.lanes, block, lanes, ray.t_max).mask != 0 {
                     return true;
                 }
                 if let Some(block) = self.blocks.get(second as usize) {
-                    if intersect_triangle_block(&q.tri, &q.lanes, block, 0xf, ray.t_max).mask != 0 {
+                    let lanes = block.lanes();
+                    if intersect_triangle_block(&q.tri, &q.lanes, block, lanes, ray.t_max).mask != 0
+                    {
                         LAST_OCCLUDER.with(|c| c.set([second, first]));
                         return true;
                     }
@@ -1065,7 +1068,8 @@ mod tests {
     use crate::math::{warp, Rng};
 
     /// `triangle_blocks`: every triangle in exactly one lane, with its vertices; node bases
-    /// on block boundaries; leaves in one block wherever the node's leaves fit that way.
+    /// on block boundaries; leaves in one block wherever the node's leaves fit that way;
+    /// each block's lane mask marks exactly its triangles.
     #[test]
     fn triangle_blocks_hold_every_triangle_once() {
         let mut rng = Rng::new(5, 1);
@@ -1091,6 +1095,7 @@ mod tests {
                     for k in 0..count {
                         let slot = (node.primitive_base_idx + offset + k) as usize;
                         let block = &bvh.blocks[slot / 4];
+                        assert!(block.lanes() & (1 << (slot % 4)) != 0);
                         let id = block.id(slot % 4) as usize;
                         assert_eq!(block.triangle(slot % 4), tris[id]);
                         seen[id] += 1;
@@ -1098,6 +1103,9 @@ mod tests {
                 }
             }
             assert!(seen.iter().all(|&s| s == 1), "n = {n}");
+            // The occupied-lane masks mark exactly the lanes that hold a triangle.
+            let marked: u32 = bvh.blocks.iter().map(|b| b.lanes().count_ones()).sum();
+            assert_eq!(marked as usize, n);
         }
     }
 
@@ -1345,6 +1353,115 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Both compiled copies of the traversal (baseline and x86-64-v3, the one x86-64 CPUs
+    /// with AVX2 run) answer bit for bit alike: closest hits (distance, triangle, barycentrics
+    /// as bits), occlusion and coherent occlusion, on random triangles at three scales and
+    /// on a closed room of axis-aligned quads (shared edges and vertices, where the zero-edge
+    /// rule of the triangle test runs), with rays from inside the room, just off its walls,
+    /// axis-aligned ones with signed zeros, and finite and infinite t_max. The dispatched
+    /// entry points are one of these copies; `bvh_matches_brute_force` checks them against
+    /// brute force. On a CPU without x86-64-v3 only the baseline runs (said on stderr).
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn baseline_and_avx2_copies_agree() {
+        use std::arch::is_x86_feature_detected as has;
+        let v3 = has!("avx2")
+            && has!("fma")
+            && has!("bmi1")
+            && has!("bmi2")
+            && has!("lzcnt")
+            && has!("popcnt");
+        if !v3 {
+            eprintln!("CPU without x86-64-v3: the AVX2 copy is not compared");
+        }
+        let bits =
+            |h: Option<Hit>| h.map(|h| (h.t.to_bits(), h.triangle, h.b1.to_bits(), h.b2.to_bits()));
+        let mut rng = Rng::new(41, 3);
+        let mut scenes: Vec<(Vec<[Vec3; 3]>, f32)> = [1e-4f32, 1.0, 1e4]
+            .iter()
+            .map(|&scale| {
+                let tris = random_triangles(2000, &mut rng);
+                (
+                    tris.into_iter().map(|t| t.map(|p| p * scale)).collect(),
+                    scale,
+                )
+            })
+            .collect();
+        // A closed room: each wall 8 x 8 quads.
+        let n = 8;
+        let mut room = Vec::new();
+        for axis in 0..3 {
+            for side in [-1.0f32, 1.0] {
+                let p = |i: usize, j: usize| {
+                    let mut c = Vec3::ZERO;
+                    c[axis] = side;
+                    c[(axis + 1) % 3] = 2.0 * i as f32 / n as f32 - 1.0;
+                    c[(axis + 2) % 3] = 2.0 * j as f32 / n as f32 - 1.0;
+                    c
+                };
+                for i in 0..n {
+                    for j in 0..n {
+                        room.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
+                        room.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
+                    }
+                }
+            }
+        }
+        scenes.push((room, 1.0));
+        let (mut compared, mut hits, mut occluded) = (0usize, 0usize, 0usize);
+        for (tris, scale) in &scenes {
+            let bvh = Bvh::build(tris, BvhQuality::Medium);
+            for i in 0..4000 {
+                let o = match i % 3 {
+                    0 => {
+                        (Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 2.4 - 1.2)
+                            * *scale
+                    }
+                    1 => {
+                        // Just off a triangle.
+                        let t = tris[rng.below(tris.len() as u32) as usize];
+                        let (b0, b1) = warp::uniform_triangle(rng.uniform2());
+                        t[0] * b0
+                            + t[1] * b1
+                            + t[2] * (1.0 - b0 - b1)
+                            + warp::uniform_sphere(rng.uniform2()) * (1e-4 * scale)
+                    }
+                    _ => {
+                        (Vec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 12.0 - Vec3::ONE)
+                            * *scale
+                    }
+                };
+                let d = node_test_direction(&mut rng, i % 4);
+                let t_max = if i % 2 == 0 {
+                    f32::INFINITY
+                } else {
+                    rng.uniform() * 3.0 * scale
+                };
+                let ray = Ray::new(o, d, t_max);
+                let hit = bits(bvh.intersect_impl(&ray, Baseline));
+                let occ = bvh.occluded_impl::<false>(&ray, Baseline);
+                let coherent = bvh.occluded_impl::<true>(&ray, Baseline);
+                assert_eq!(coherent, occ, "{ray:?}");
+                if v3 {
+                    // SAFETY: x86-64-v3 detected above.
+                    unsafe {
+                        assert_eq!(bits(bvh.intersect_v3(&ray)), hit, "{ray:?}");
+                        assert_eq!(bvh.occluded_v3::<false>(&ray), occ, "{ray:?}");
+                        assert_eq!(bvh.occluded_v3::<true>(&ray), occ, "{ray:?}");
+                    }
+                }
+                compared += 1;
+                hits += hit.is_some() as usize;
+                occluded += occ as usize;
+            }
+        }
+        // Both answers are common, else the comparison would say little.
+        assert!(
+            compared == 16_000 && hits > 4000 && occluded > 4000,
+            "{hits} {occluded}"
+        );
     }
 
     /// Coherent shadow rays: a wall of 2 x 200 quads with a gap between two sources and their
