@@ -77,6 +77,20 @@ fn dilate(grid: &VoxelGrid, flags: &[bool], radius: usize) -> Vec<bool> {
             .par_chunks_mut(len * inner)
             .zip(input.par_chunks(len * inner))
             .for_each(|(out, input)| {
+                if inner == 1 {
+                    // Along x a line is contiguous: one counter.
+                    let mut since = radius + 1;
+                    for (o, &f) in out.iter_mut().zip(input) {
+                        since = if f { 0 } else { (since + 1).min(radius + 1) };
+                        *o |= since <= radius;
+                    }
+                    since = radius + 1;
+                    for (o, &f) in out.iter_mut().zip(input).rev() {
+                        since = if f { 0 } else { (since + 1).min(radius + 1) };
+                        *o |= since <= radius;
+                    }
+                    return;
+                }
                 // Steps since the last set voxel of each line (radius + 1: none within reach).
                 let mut since = vec![radius + 1; inner];
                 let lines = (0..len).chain((0..len).rev());
