@@ -95,6 +95,14 @@ pub struct PortalGuideSettings {
     pub resolution: u32,
     /// Radius of the smoothing window, in voxels (> 0).
     pub smoothing: f32,
+    /// A bound on how much more than `path` a guided path may weigh (infinite: none). At each
+    /// vertex the render lowers c to `1 - rho / ratio_max`, rho the product of p_bsdf / p over
+    /// the path's earlier directions, as `path_skeleton` does (its
+    /// `SkeletonGuideSettings::ratio_max` says why: without it, the directions the BSDF draws
+    /// where the portals are not weigh up to 1 / (1 - c) of `path`'s at every vertex, and the
+    /// product makes a heavy tail at large c). c then depends on the path's prefix only, and
+    /// every density of the vertex is the mixture at that c: unbiased.
+    pub ratio_max: f32,
 }
 
 impl Default for PortalGuideSettings {
@@ -104,32 +112,49 @@ impl Default for PortalGuideSettings {
             c_portal: 0.5,
             resolution: 96,
             smoothing: 2.0,
+            ratio_max: super::settings::AUTO_RATIO_MAX,
         }
     }
 }
 
 /// The option names [`PortalGuideSettings::set`] takes.
-pub const PORTAL_OPTION_NAMES: &[&str] = &["strategy", "c_portal", "resolution", "smoothing"];
+pub const PORTAL_OPTION_NAMES: &[&str] = &[
+    "strategy",
+    "c_portal",
+    "resolution",
+    "smoothing",
+    "ratio_max",
+];
 
 impl PortalGuideSettings {
-    /// Sets one option by name; `Ok(false)` for a key it does not take.
+    /// Sets one option by name; `Ok(false)` for a key it does not take. An invalid value
+    /// leaves the settings as they were.
     pub fn set(&mut self, key: &str, value: &str) -> Result<bool> {
+        let mut next = *self;
         let number = |v: &str| {
             v.parse::<f32>()
                 .map_err(|_| Error::invalid(format!("path_portal: {key}={v} is not a number")))
         };
         match key {
-            "strategy" => self.strategy = PortalStrategy::parse(value)?,
-            "c_portal" => self.c_portal = number(value)?,
+            "strategy" => next.strategy = PortalStrategy::parse(value)?,
+            "c_portal" => next.c_portal = number(value)?,
             "resolution" => {
-                self.resolution = value.parse::<u32>().map_err(|_| {
+                next.resolution = value.parse::<u32>().map_err(|_| {
                     Error::invalid(format!("path_portal: resolution={value} is not an integer"))
                 })?
             }
-            "smoothing" => self.smoothing = number(value)?,
+            "smoothing" => next.smoothing = number(value)?,
+            "ratio_max" => {
+                next.ratio_max = if value == "none" {
+                    f32::INFINITY
+                } else {
+                    number(value)?
+                }
+            }
             _ => return Ok(false),
         }
-        self.validate()?;
+        next.validate()?;
+        *self = next;
         Ok(true)
     }
 
@@ -150,6 +175,12 @@ impl PortalGuideSettings {
             return Err(Error::invalid(format!(
                 "path_portal: smoothing={} must be in [0.5, 8] voxels",
                 self.smoothing
+            )));
+        }
+        if !(self.ratio_max >= 1.0) {
+            return Err(Error::invalid(format!(
+                "path_portal: ratio_max={} must be at least 1 (or none)",
+                self.ratio_max
             )));
         }
         if self.strategy == PortalStrategy::Irradiance {
@@ -207,16 +238,30 @@ pub enum Unguided {
     NoLightRegion,
     /// Every region holds a light or reaches none through portals (one room, an open scene).
     NoPortalPath,
+    /// The regions guided toward a light hold less than [`OPEN_SCENE_FRACTION`] of the empty
+    /// voxels (this share, in %): pockets of an open scene, not rooms.
+    Open(f32),
 }
+
+/// Below this share of the empty voxels in guided regions a scene is open
+/// ([`Unguided::Open`]): guiding its pockets costs more per sample than it can gain.
+pub const OPEN_SCENE_FRACTION: f32 = 0.05;
 
 impl std::fmt::Display for Unguided {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Unguided::NoLightRegion => "no light lies in an empty region of the analysis",
-            Unguided::NoPortalPath => {
-                "every region holds a light or reaches none through a portal (one room or an open scene)"
+        match self {
+            Unguided::NoLightRegion => {
+                f.write_str("no light lies in an empty region of the analysis")
             }
-        })
+            Unguided::NoPortalPath => f.write_str(
+                "every region holds a light or reaches none through a portal (one room or an open scene)",
+            ),
+            Unguided::Open(percent) => write!(
+                f,
+                "the regions guided toward a light hold {percent:.1} % of the empty space, under {} %: an open scene",
+                OPEN_SCENE_FRACTION * 100.0
+            ),
+        }
     }
 }
 
@@ -230,6 +275,8 @@ pub struct PortalGuide {
     rectangles: Vec<Option<PortalRectangle>>,
     light_regions: usize,
     guided_regions: usize,
+    /// Share of the empty voxels in guided regions.
+    guided_fraction: f32,
     timings: Vec<StageTime>,
     /// Which scene it was built for (its address and triangle count).
     scene_key: (usize, usize),
@@ -265,7 +312,16 @@ impl PortalGuide {
             stage: "portal guide (light regions, shortest paths, rectangles)",
             seconds: started.elapsed().as_secs_f64(),
         });
+        let empty: u64 = analysis.regions.iter().map(|r| r.voxels).sum();
+        let guided: u64 = analysis
+            .regions
+            .iter()
+            .zip(&next)
+            .filter(|(_, n)| n.is_some())
+            .map(|(r, _)| r.voxels)
+            .sum();
         Ok(PortalGuide {
+            guided_fraction: guided as f32 / empty.max(1) as f32,
             guided_regions: next.iter().filter(|n| n.is_some()).count(),
             light_regions: light_regions.iter().filter(|&&l| l).count(),
             analysis,
@@ -287,9 +343,15 @@ impl PortalGuide {
             Some(Unguided::NoLightRegion)
         } else if self.guided_regions == 0 {
             Some(Unguided::NoPortalPath)
+        } else if self.guided_fraction < OPEN_SCENE_FRACTION {
+            Some(Unguided::Open(100.0 * self.guided_fraction))
         } else {
             None
         }
+    }
+
+    pub fn settings(&self) -> &PortalGuideSettings {
+        &self.settings
     }
 
     pub fn timings(&self) -> &[StageTime] {
@@ -304,7 +366,7 @@ impl PortalGuide {
     pub fn note(&self) -> String {
         let g = &self.analysis.grid;
         format!(
-            "portal guide ({}): grid {}x{}x{}, {} regions, {} portals, {} light regions, {} regions guided toward a light, c_portal {}, smoothing {} voxels",
+            "portal guide ({}): grid {}x{}x{}, {} regions, {} portals, {} light regions, {} regions guided toward a light ({:.1} % of the empty space), c_portal {}, smoothing {} voxels, ratio_max {}",
             self.settings.strategy.name(),
             g.dims[0],
             g.dims[1],
@@ -313,9 +375,16 @@ impl PortalGuide {
             self.analysis.portals.len(),
             self.light_regions,
             self.guided_regions,
+            100.0 * self.guided_fraction,
             self.settings.c_portal,
-            self.settings.smoothing
+            self.settings.smoothing,
+            self.settings.ratio_max
         )
+    }
+
+    /// The rectangle of portal `portal` of the analysis (None where none was fitted).
+    pub fn rectangle(&self, portal: u32) -> Option<&PortalRectangle> {
+        self.rectangles.get(portal as usize)?.as_ref()
     }
 
     /// The next portal's rectangle of `region` (None for a light region or one with no path).
@@ -454,6 +523,13 @@ impl PortalQuery {
     pub fn clear(&mut self) {
         self.count = 0;
         self.c = 0.0;
+    }
+
+    /// Lowers the guiding probability to at most `c` (`ratio_max`).
+    pub fn cap_guiding_probability(&mut self, c: f32) {
+        if self.c > c {
+            self.c = c.max(0.0);
+        }
     }
 
     /// The active lobes: (portal index in the analysis, selection probability).

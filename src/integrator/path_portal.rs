@@ -80,7 +80,9 @@ impl PortalPathTracer {
         let mut beta = Rgb::ONE;
         // The throughput BSDF sampling alone would carry, for Russian roulette.
         let mut rr_beta = Rgb::ONE;
+        // The product of p_bsdf / pdf over the directions so far (`ratio_max`).
         let mut ratio = 1.0f32;
+        let ratio_max = guide.settings().ratio_max;
         let mut prev_delta = true;
         let mut prev_pdf = 0.0f32;
         let mut prev_point = ray.origin;
@@ -139,6 +141,8 @@ impl PortalPathTracer {
                 query.clear();
             } else {
                 guide.init_query(query, si.p, si.facing_normal());
+                // Worst case after this vertex: ratio / (1 - c) <= ratio_max.
+                query.cap_guiding_probability(1.0 - ratio / ratio_max);
                 rng.set_dimension(slot(depth, LIGHT_SLOT));
                 let u = rng.uniform2();
                 if let Some(light) = estimator::sample_direct_light(
