@@ -203,14 +203,22 @@ fn path_portal_agrees_with_path_on_the_veach_door() {
 fn path_portal_agrees_with_path_on_the_two_rooms() {
     agree_on_two_rooms(&["path_portal", "path_portal:c_portal=0.9:smoothing=1"]);
     // Without the bound the same guide is unbiased too, with a heavier tail.
-    agree_on_two_rooms(&["path_portal:ratio_max=none"]);
+    agree_on_two_rooms(&["path_portal:ratio_max=none", "path_portal:aim=narrowest"]);
 }
 
 #[test]
 fn path_portal_agrees_with_path_on_the_ajar_door() {
     let scene = load_scene("scenes/veach-ajar-bitterli/veach-ajar-bitterli.json");
     let camera = *scene.camera().unwrap();
-    agree_with_path("ajar door", &scene, &camera, 6, 16, 16, &["path_portal"]);
+    agree_with_path(
+        "ajar door",
+        &scene,
+        &camera,
+        6,
+        16,
+        16,
+        &["path_portal", "path_portal:aim=last"],
+    );
 }
 
 #[test]
@@ -269,6 +277,7 @@ fn options_are_validated_and_rendering_needs_the_precomputation() {
         ("path_portal:smoothing=0", "smoothing"),
         ("path_portal:resolution=2", "resolution"),
         ("path_portal:ratio_max=0.5", "ratio_max"),
+        ("path_portal:aim=first", "aim"),
         ("path_portal:strength=2", "no option"),
         ("path_portal:mis=auto", "mis=auto"),
     ] {

@@ -27,8 +27,8 @@ pub use directional::DirectionalTable;
 pub use lobes::{GuideLobe, ImportanceNode, MAX_LOBES};
 pub use mixture::{sample_bsdf_or_guide, DirectionGuide, MixtureSample};
 pub use portal_guide::{
-    PortalGuide, PortalGuideSettings, PortalQuery, PortalRectangle, PortalStrategy, Unguided,
-    MAX_PORTAL_LOBES, OPEN_SCENE_FRACTION, PORTAL_OPTION_NAMES,
+    PortalAim, PortalGuide, PortalGuideSettings, PortalQuery, PortalRectangle, PortalStrategy,
+    Unguided, MAX_PORTAL_LOBES, OPEN_SCENE_FRACTION, PORTAL_OPTION_NAMES,
 };
 pub use query::GuideQuery;
 pub use resampling::ResamplingSettings;

@@ -103,6 +103,20 @@ pub struct PortalGuideSettings {
     /// product makes a heavy tail at large c). c then depends on the path's prefix only, and
     /// every density of the vertex is the mixture at that c: unbiased.
     pub ratio_max: f32,
+    /// Which portal of a region's shortest path a point aims at: the next one (the thesis),
+    /// or the last one, the portal into the light's region (the thesis's SIS3-SIS4 forced the
+    /// door's portal everywhere and saw the least noise; a region's next portal is often an
+    /// internal border of the same room that leads no light).
+    pub aim: PortalAim,
+}
+
+/// [`PortalGuideSettings::aim`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PortalAim {
+    Next,
+    Last,
+    /// The portal of least area on the shortest path (the bottleneck: a door's gap).
+    Narrowest,
 }
 
 impl Default for PortalGuideSettings {
@@ -113,6 +127,7 @@ impl Default for PortalGuideSettings {
             resolution: 96,
             smoothing: 2.0,
             ratio_max: super::settings::AUTO_RATIO_MAX,
+            aim: PortalAim::Next,
         }
     }
 }
@@ -124,6 +139,7 @@ pub const PORTAL_OPTION_NAMES: &[&str] = &[
     "resolution",
     "smoothing",
     "ratio_max",
+    "aim",
 ];
 
 impl PortalGuideSettings {
@@ -149,6 +165,18 @@ impl PortalGuideSettings {
                     f32::INFINITY
                 } else {
                     number(value)?
+                }
+            }
+            "aim" => {
+                next.aim = match value {
+                    "next" => PortalAim::Next,
+                    "last" => PortalAim::Last,
+                    "narrowest" => PortalAim::Narrowest,
+                    _ => {
+                        return Err(Error::invalid(format!(
+                            "path_portal: aim={value} must be next, last or narrowest"
+                        )))
+                    }
                 }
             }
             _ => return Ok(false),
@@ -306,7 +334,10 @@ impl PortalGuide {
             .iter()
             .map(|p| portal_rectangle(&analysis, p))
             .collect();
-        let next = next_portals(&analysis, &light_regions, &rectangles);
+        let mut next = next_portals(&analysis, &light_regions, &rectangles);
+        if settings.aim != PortalAim::Next {
+            next = chain_portals(&analysis, &next, settings.aim);
+        }
         let mut timings = analysis.timings.clone();
         timings.push(StageTime {
             stage: "portal guide (light regions, shortest paths, rectangles)",
@@ -366,7 +397,7 @@ impl PortalGuide {
     pub fn note(&self) -> String {
         let g = &self.analysis.grid;
         format!(
-            "portal guide ({}): grid {}x{}x{}, {} regions, {} portals, {} light regions, {} regions guided toward a light ({:.1} % of the empty space), c_portal {}, smoothing {} voxels, ratio_max {}",
+            "portal guide ({}): grid {}x{}x{}, {} regions, {} portals, {} light regions, {} regions guided toward a light ({:.1} % of the empty space), c_portal {}, smoothing {} voxels, ratio_max {}, aim {:?}",
             self.settings.strategy.name(),
             g.dims[0],
             g.dims[1],
@@ -378,7 +409,8 @@ impl PortalGuide {
             100.0 * self.guided_fraction,
             self.settings.c_portal,
             self.settings.smoothing,
-            self.settings.ratio_max
+            self.settings.ratio_max,
+            self.settings.aim
         )
     }
 
@@ -742,6 +774,27 @@ fn next_portals(
         }
     }
     next
+}
+
+/// Per region, the portal of its shortest path (following the next portals) that `aim`
+/// names: the last one (into the light's region) or the one of least area.
+fn chain_portals(analysis: &Analysis, next: &[Option<u32>], aim: PortalAim) -> Vec<Option<u32>> {
+    (0..next.len() as u32)
+        .map(|r| {
+            let (mut at, mut last) = (r, None::<u32>);
+            // The tree has no cycle; the bound only guards against a broken one.
+            for _ in 0..next.len() {
+                let Some(k) = next[at as usize] else { break };
+                let area = |k: u32| analysis.portals[k as usize].area;
+                if aim == PortalAim::Last || last.map_or(true, |l| area(k) < area(l)) {
+                    last = Some(k);
+                }
+                let (a, b) = analysis.portals[k as usize].regions;
+                at = if a == at { b } else { a };
+            }
+            last
+        })
+        .collect()
 }
 
 #[cfg(test)]
