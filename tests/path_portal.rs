@@ -301,16 +301,16 @@ fn options_are_validated_and_rendering_needs_the_precomputation() {
         spp: 1,
         ..Default::default()
     };
-    let e = render(
+    let e = match render(
         &scene,
         &camera,
         unprepared.as_ref(),
         &rs,
         &|_| true,
         &AtomicBool::new(false),
-    )
-    .err()
-    .expect("rendering without prepare must fail")
-    .to_string();
+    ) {
+        Ok(_) => panic!("rendering without prepare must fail"),
+        Err(e) => e.to_string(),
+    };
     assert!(e.contains("prepare"), "{e}");
 }

@@ -539,13 +539,14 @@ impl Default for PortalQuery {
 
 impl PortalQuery {
     pub const fn new() -> Self {
-        const EMPTY: PortalLobe = PortalLobe {
-            rect: warp::SphericalRectangle::empty(),
-            weight: 0.0,
-            portal: u32::MAX,
-        };
         PortalQuery {
-            lobes: [EMPTY; MAX_PORTAL_LOBES],
+            lobes: [const {
+                PortalLobe {
+                    rect: warp::SphericalRectangle::empty(),
+                    weight: 0.0,
+                    portal: u32::MAX,
+                }
+            }; MAX_PORTAL_LOBES],
             count: 0,
             c: 0.0,
         }
