@@ -19,7 +19,7 @@ use std::sync::atomic::AtomicBool;
 
 use common::agreement::{agree_on_corridor, agree_with_path, box_scene, load_scene};
 use common::chi2::{assert_chi2, assert_z, Stats};
-use common::directions::{chi2_directions, to32, to64, SAMPLES};
+use common::directions::{chi2_directions, surface_points, to32, to64, SAMPLES};
 use common::sphere::SphereGrid;
 use lacuna::compare::{compare, Contender};
 use lacuna::guide::{
@@ -194,25 +194,6 @@ fn fixed() -> SkeletonGuideSettings {
 
 fn guide_of(scene: &Scene, settings: SkeletonGuideSettings) -> SkeletonGuide {
     SkeletonGuide::build(scene, scene.camera(), &settings, &|_, _| true).unwrap()
-}
-
-/// Random surface points of a scene with their geometric normal and a random incident
-/// direction on the normal's side (or the other side, half of the time).
-fn surface_points(scene: &Scene, count: usize, seed: u64) -> Vec<(Vec3, Vec3, Vec3, Vec3)> {
-    let mut rng = Rng::new(seed, 3);
-    let bounds = scene.bounds();
-    let mut out = Vec::new();
-    while out.len() < count {
-        // A random ray from a random point inside the bounds.
-        let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
-        let o = bounds.min + (bounds.max - bounds.min) * u;
-        let d = lacuna::math::warp::uniform_sphere(rng.uniform2());
-        let ray = lacuna::geometry::Ray::new(o, d, f32::INFINITY);
-        if let Some(si) = scene.intersect(&ray) {
-            out.push((si.p, si.p_error, si.ng, si.wo));
-        }
-    }
-    out
 }
 
 /// Lobes pointing below the surface are dropped, hidden importance points too (with the

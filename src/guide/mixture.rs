@@ -4,8 +4,66 @@
 //! so the estimator `f |cos| / pdf` is the balance-heuristic combination of both.
 
 use super::GuideQuery;
-use crate::math::{Frame, Rgb, Sampler, Vec3};
+use crate::math::{Frame, Rgb, Sampler, Vec2, Vec3};
 use crate::scene::{Bsdf, BsdfSample, Transport};
+
+/// A distribution of directions at one point that one-sample MIS mixes with BSDF sampling:
+/// the skeleton's [`GuideQuery`] and the portals' `PortalQuery`.
+pub trait DirectionGuide {
+    /// Probability of sampling the guide rather than the BSDF here (0: not guided).
+    fn guiding_probability(&self) -> f32;
+    /// A unit world direction from `u_select` (which lobe) and `u`, with the guide's
+    /// solid-angle pdf there; None when not guided.
+    fn sample(&self, u_select: f32, u: Vec2) -> Option<(Vec3, f32)>;
+    /// The guide's solid-angle pdf at unit world direction `w` (0 when not guided).
+    fn pdf(&self, w: Vec3) -> f32;
+
+    /// The mixture's density `c p_guide(w) + (1 - c) p_bsdf(w)` (the BSDF's alone where
+    /// `c = 0`).
+    #[inline]
+    fn mixture_pdf(&self, w: Vec3, bsdf_pdf: f32) -> f32 {
+        let c = self.guiding_probability();
+        if c > 0.0 {
+            c * self.pdf(w) + (1.0 - c) * bsdf_pdf
+        } else {
+            bsdf_pdf
+        }
+    }
+
+    /// [`mixture_pdf`](Self::mixture_pdf) where the guide's density is known.
+    #[inline]
+    fn mixture_pdf_given(&self, guide_pdf: f32, bsdf_pdf: f32) -> f32 {
+        let c = self.guiding_probability();
+        if c > 0.0 {
+            c * guide_pdf + (1.0 - c) * bsdf_pdf
+        } else {
+            bsdf_pdf
+        }
+    }
+}
+
+impl DirectionGuide for GuideQuery {
+    #[inline]
+    fn guiding_probability(&self) -> f32 {
+        GuideQuery::guiding_probability(self)
+    }
+    #[inline]
+    fn sample(&self, u_select: f32, u: Vec2) -> Option<(Vec3, f32)> {
+        GuideQuery::sample(self, u_select, u)
+    }
+    #[inline]
+    fn pdf(&self, w: Vec3) -> f32 {
+        GuideQuery::pdf(self, w)
+    }
+    #[inline]
+    fn mixture_pdf(&self, w: Vec3, bsdf_pdf: f32) -> f32 {
+        GuideQuery::mixture_pdf(self, w, bsdf_pdf)
+    }
+    #[inline]
+    fn mixture_pdf_given(&self, guide_pdf: f32, bsdf_pdf: f32) -> f32 {
+        GuideQuery::mixture_pdf_given(self, guide_pdf, bsdf_pdf)
+    }
+}
 
 /// A direction sampled by [`sample_bsdf_or_guide`].
 #[derive(Clone, Copy, Debug)]
@@ -28,11 +86,11 @@ pub struct MixtureSample {
 /// the BSDF's own: no guided point has a delta BSDF, see the module docs of `guide`). With an
 /// unguided query this is exactly `bsdf.sample` and draws the same random numbers. `None` when
 /// the sample carries nothing (absorbed, or a guided direction the BSDF does not reflect into).
-pub fn sample_bsdf_or_guide(
+pub fn sample_bsdf_or_guide<G: DirectionGuide + ?Sized>(
     bsdf: &Bsdf,
     wo_local: Vec3,
     frame: &Frame,
-    query: &GuideQuery,
+    query: &G,
     rng: &mut Sampler,
 ) -> Option<MixtureSample> {
     let c = query.guiding_probability();

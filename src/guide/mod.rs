@@ -16,6 +16,7 @@ pub mod estimator;
 mod importance;
 mod lobes;
 mod mixture;
+mod portal_guide;
 mod query;
 pub mod resampling;
 mod settings;
@@ -24,7 +25,11 @@ mod training;
 
 pub use directional::DirectionalTable;
 pub use lobes::{GuideLobe, ImportanceNode, MAX_LOBES};
-pub use mixture::{sample_bsdf_or_guide, MixtureSample};
+pub use mixture::{sample_bsdf_or_guide, DirectionGuide, MixtureSample};
+pub use portal_guide::{
+    PortalAim, PortalGuide, PortalGuideSettings, PortalQuery, PortalRectangle, PortalStrategy,
+    Unguided, MAX_PORTAL_LOBES, OPEN_SCENE_FRACTION, PORTAL_OPTION_NAMES,
+};
 pub use query::GuideQuery;
 pub use resampling::ResamplingSettings;
 pub use settings::{

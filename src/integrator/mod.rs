@@ -8,6 +8,7 @@ mod env_direct;
 pub mod mis_auto;
 mod node_skeleton;
 mod path;
+mod path_portal;
 mod resampled;
 mod skeleton_shadow;
 mod vpl;
@@ -23,6 +24,7 @@ pub use env_direct::{EnvDirect, EnvDirectOptions, ALPHA_LAYER};
 pub use path::diagnostics;
 pub use path::PathOptions;
 pub use path::PathTracer;
+pub use path_portal::PortalPathTracer;
 pub use skeleton_shadow::{CubeShadowMap, ShadowMapStats, SkeletonShadowMaps};
 pub use vpl::{VisibilityAgreement, VplIntegrator, VplOptions, VplVisibility};
 
@@ -35,7 +37,7 @@ use std::cell::Cell;
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::{ResamplingSettings, SkeletonGuideSettings};
+use crate::guide::{PortalGuideSettings, ResamplingSettings, SkeletonGuideSettings};
 use crate::light::EnvStrategy;
 use crate::math::Rgb;
 use crate::math::Sampler;
@@ -98,6 +100,8 @@ pub struct IntegratorSettings {
     pub env_direct: EnvDirectOptions,
     /// `path_skeleton`: skeleton guiding (c_skel, strength, analysis resolution ...).
     pub skeleton: SkeletonGuideSettings,
+    /// `path_portal`: the portal guide's strategy, c_portal, analysis resolution, smoothing.
+    pub portal: PortalGuideSettings,
     /// `bdpt_skeleton` and `bdpt_ic`: the resampling options (N, alpha_accept, record density
     /// d, contribution images).
     pub resampling: ResamplingSettings,
@@ -115,6 +119,7 @@ impl Default for IntegratorSettings {
             path: PathOptions::default(),
             env_direct: EnvDirectOptions::default(),
             skeleton: SkeletonGuideSettings::default(),
+            portal: PortalGuideSettings::default(),
             resampling: ResamplingSettings::default(),
             vpl: VplOptions::default(),
         }
@@ -338,6 +343,7 @@ pub struct Registration {
 pub const REGISTRY: &[Registration] = &[
     path::PATH,
     path::PATH_SKELETON,
+    path_portal::REGISTRATION,
     bdpt::REGISTRATION,
     bdpt_skeleton::REGISTRATION,
     bdpt_ic::REGISTRATION,
@@ -385,6 +391,10 @@ impl SpecOption<'_> {
 /// - `env_direct`: `samples=N` (light samples per shading point) and `bsdf=N` (BSDF samples);
 /// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
 ///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`;
+/// - `path_portal`: `path`'s options and the portal guide's ([`PortalGuideSettings::set`]):
+///   `strategy=shortest` (`irradiance` is refused: not implemented), `c_portal=C` in [0, 1),
+///   `resolution=N` (analysis voxels on the longest axis), `smoothing=R` (voxels), e.g.
+///   `path_portal:c_portal=0.3:resolution=128`;
 /// - `bdpt_skeleton`: `subset=N`, `accept=ALPHA`, `images=true` ([`ResamplingSettings::set`])
 ///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`;
 /// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`;
@@ -469,9 +479,11 @@ pub fn create(spec: &str, settings: IntegratorSettings) -> Result<Box<dyn Integr
         mis.check_supported(name)?;
     }
     // Only the path tracer's estimator knows the shading point where it weighs an escaped ray.
-    if settings.env == EnvStrategy::Portals && !matches!(name, "path" | "path_skeleton") {
+    if settings.env == EnvStrategy::Portals
+        && !matches!(name, "path" | "path_skeleton" | "path_portal")
+    {
         return Err(Error::invalid(format!(
-            "env=portals is implemented for path and path_skeleton only, not for {name}"
+            "env=portals is implemented for path, path_skeleton and path_portal only, not for {name}"
         )));
     }
     (registration.create)(settings)

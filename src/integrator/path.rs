@@ -66,11 +66,11 @@ use crate::timing::thread_cpu_seconds;
 /// the guide/BSDF choice followed by the chosen one's 1-D and 2-D (there the slots are padded
 /// dimensions whose meaning varies).
 const SLOTS_PER_BOUNCE: u32 = 5;
-const LIGHT_SLOT: u32 = 0;
-const ROULETTE_SLOT: u32 = 1;
-const DIRECTION_SLOT: u32 = 2;
+pub(super) const LIGHT_SLOT: u32 = 0;
+pub(super) const ROULETTE_SLOT: u32 = 1;
+pub(super) const DIRECTION_SLOT: u32 = 2;
 
-fn slot(depth: u32, k: u32) -> u32 {
+pub(super) fn slot(depth: u32, k: u32) -> u32 {
     FIRST_INTEGRATOR_DIMENSION + depth * SLOTS_PER_BOUNCE + k
 }
 
@@ -875,7 +875,10 @@ impl PathTracer {
 
 /// `env=portals`: the scene's window portals, found by the analysis unless listed by hand
 /// (once per scene), with its time and a note saying which they are.
-fn prepare_env_portals(scene: &Scene, settings: &IntegratorSettings) -> Result<Precomputation> {
+pub(super) fn prepare_env_portals(
+    scene: &Scene,
+    settings: &IntegratorSettings,
+) -> Result<Precomputation> {
     if settings.env != crate::light::EnvStrategy::Portals || scene.environment().is_none() {
         return Ok(Precomputation::default());
     }
@@ -958,7 +961,10 @@ impl Default for PathOptions {
 }
 
 /// Sets one of [`PathOptions`] from `path:KEY=VALUE`; `Ok(false)` for a key it does not take.
-fn set_path_option(settings: &mut IntegratorSettings, option: &super::SpecOption) -> Result<bool> {
+pub(super) fn set_path_option(
+    settings: &mut IntegratorSettings,
+    option: &super::SpecOption,
+) -> Result<bool> {
     let options = &mut settings.path;
     match option.key {
         "rr_depth" => options.rr_start_depth = option.count()?,

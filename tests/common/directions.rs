@@ -47,3 +47,26 @@ pub fn chi2_directions<R>(
     assert_chi2(name, &observed, &expected);
     integral
 }
+
+/// Random surface points of a scene with their geometric normal and a random incident
+/// direction on the normal's side (or the other side, half of the time).
+pub fn surface_points(
+    scene: &lacuna::scene::Scene,
+    count: usize,
+    seed: u64,
+) -> Vec<(Vec3, Vec3, Vec3, Vec3)> {
+    let mut rng = lacuna::math::Rng::new(seed, 3);
+    let bounds = scene.bounds();
+    let mut out = Vec::new();
+    while out.len() < count {
+        // A random ray from a random point inside the bounds.
+        let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
+        let o = bounds.min + (bounds.max - bounds.min) * u;
+        let d = lacuna::math::warp::uniform_sphere(rng.uniform2());
+        let ray = lacuna::geometry::Ray::new(o, d, f32::INFINITY);
+        if let Some(si) = scene.intersect(&ray) {
+            out.push((si.p, si.p_error, si.ng, si.wo));
+        }
+    }
+    out
+}
