@@ -15,7 +15,7 @@ use super::types::*;
 use crate::analysis::Resolution;
 use crate::film::{ExrMetadata, Film};
 use crate::guide::SkeletonStrength;
-use crate::integrator::{self, Bdpt, Integrator, MisHeuristic, StrategyFilter};
+use crate::integrator::{self, Bdpt, Integrator, StrategyFilter};
 use crate::math::SamplerKind;
 use crate::render::settings::{resolve, resolve_camera, ResolvedSettings, SettingsOverrides};
 use crate::render::{Progress, RenderSettings, RenderStats};
@@ -522,14 +522,8 @@ pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
     // SAFETY: forwarded contract.
     unsafe {
         with_settings("lacuna_render_job_set_mis_heuristic", job, |s| {
-            s.resolved.integrator_settings.mis = Some(
-                match lacuna_mis_heuristic::from_c(heuristic, "heuristic")? {
-                    lacuna_mis_heuristic::Balance => MisHeuristic::Balance,
-                    lacuna_mis_heuristic::Power => MisHeuristic::Power,
-                    lacuna_mis_heuristic::Auto => MisHeuristic::Auto,
-                    lacuna_mis_heuristic::Optimal => MisHeuristic::Optimal,
-                },
-            );
+            s.resolved.integrator_settings.mis =
+                Some(lacuna_mis_heuristic::from_c(heuristic, "heuristic")?.into());
             Ok(())
         })
     }
@@ -551,12 +545,7 @@ pub unsafe extern "C" fn lacuna_render_job_get_mis_heuristic(
         let resolved = lock(&j.settings).resolved.clone();
         let (name, settings) =
             integrator::parse_spec(&resolved.integrator, resolved.integrator_settings)?;
-        let heuristic = match integrator::mis_in_use(name, &settings) {
-            MisHeuristic::Balance => lacuna_mis_heuristic::Balance,
-            MisHeuristic::Power => lacuna_mis_heuristic::Power,
-            MisHeuristic::Auto => lacuna_mis_heuristic::Auto,
-            MisHeuristic::Optimal => lacuna_mis_heuristic::Optimal,
-        };
+        let heuristic = lacuna_mis_heuristic::from(integrator::mis_in_use(name, &settings));
         // SAFETY: checked non-NULL, writable per the contract.
         unsafe { write_out(out, heuristic as u32) };
         Ok(())

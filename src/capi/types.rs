@@ -242,6 +242,30 @@ pub enum lacuna_mis_heuristic {
     Optimal = 3,
 }
 
+/// The one mapping between the C values and the Rust heuristics, both ways.
+impl From<lacuna_mis_heuristic> for crate::integrator::MisHeuristic {
+    fn from(h: lacuna_mis_heuristic) -> Self {
+        match h {
+            lacuna_mis_heuristic::Balance => Self::Balance,
+            lacuna_mis_heuristic::Power => Self::Power,
+            lacuna_mis_heuristic::Auto => Self::Auto,
+            lacuna_mis_heuristic::Optimal => Self::Optimal,
+        }
+    }
+}
+
+impl From<crate::integrator::MisHeuristic> for lacuna_mis_heuristic {
+    fn from(h: crate::integrator::MisHeuristic) -> Self {
+        use crate::integrator::MisHeuristic;
+        match h {
+            MisHeuristic::Balance => Self::Balance,
+            MisHeuristic::Power => Self::Power,
+            MisHeuristic::Auto => Self::Auto,
+            MisHeuristic::Optimal => Self::Optimal,
+        }
+    }
+}
+
 /// Numbers of the pixel samples (`lacuna_render_job_set_sampler`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
