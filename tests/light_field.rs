@@ -445,3 +445,98 @@ fn files_round_trip_and_truncated_files_are_refused() {
     assert!(LightField::from_file(&dir.join("missing.exr")).is_err());
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn scene_files_load_light_fields_with_clear_errors() {
+    let dir = std::env::temp_dir().join(format!("lacuna-lf-scene-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    structured_field(FilterBasis::Quadratic)
+        .write(&dir.join("lamp.exr"))
+        .unwrap();
+    let scene_with = |light: &str| {
+        format!(
+            r#"{{ "shapes": [ {{ "type": "quad", "corners": [[-2,0,-2],[2,0,-2],[2,0,2],[-2,0,2]] }} ],
+                 "lights": [ {light} ],
+                 "camera": {{ "eye": [0, 1.5, 3], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 50 }} }}"#
+        )
+    };
+    let write = |name: &str, text: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let good = write(
+        "good.json",
+        &scene_with(
+            r#"{ "type": "light_field", "file": "lamp.exr", "position": [0,1.6,0], "direction": [0,-1,0], "x_axis": [1,0,0], "scale": 2 }"#,
+        ),
+    );
+    let loaded = lacuna::scene::load_scene_file(&good).unwrap();
+    let scene = loaded.builder.build().unwrap();
+    assert!(
+        matches!(scene.lights()[0], Light::LightField { scale, .. } if scale == Rgb::splat(2.0))
+    );
+    let camera = *scene.camera().unwrap();
+    let integrator = lacuna::integrator::create("path", IntegratorSettings::default()).unwrap();
+    let film = common::agreement::render_image(
+        &scene,
+        &camera,
+        integrator.as_ref(),
+        &lacuna::render::RenderSettings {
+            width: 16,
+            height: 12,
+            spp: 4,
+            ..Default::default()
+        },
+    );
+    let px = film.radiance();
+    assert!(px.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
+    assert!(px.iter().any(|p| p.x > 0.0), "the floor is lit");
+
+    let missing = write(
+        "missing.json",
+        &scene_with(
+            r#"{ "type": "light_field", "file": "nope.exr", "position": [0,1,0], "direction": [0,-1,0] }"#,
+        ),
+    );
+    let e = lacuna::scene::load_scene_file(&missing)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("nope.exr"), "{e}");
+    std::fs::write(dir.join("plain.exr"), []).unwrap();
+    lacuna::image_file::write_exr_rgb(
+        &dir.join("plain.exr"),
+        2,
+        2,
+        &[Rgb::ONE; 4],
+        &Default::default(),
+    )
+    .unwrap();
+    let plain = write(
+        "plain.json",
+        &scene_with(
+            r#"{ "type": "light_field", "file": "plain.exr", "position": [0,1,0], "direction": [0,-1,0] }"#,
+        ),
+    );
+    let e = lacuna::scene::load_scene_file(&plain)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("plain.exr") && e.contains("lacuna:light_field"),
+        "{e}"
+    );
+    let zero = write(
+        "zero.json",
+        &scene_with(
+            r#"{ "type": "light_field", "file": "lamp.exr", "position": [0,1,0], "direction": [0,0,0] }"#,
+        ),
+    );
+    let e = match lacuna::scene::load_scene_file(&zero) {
+        Err(e) => e.to_string(),
+        Ok(l) => l.builder.build().err().unwrap().to_string(),
+    };
+    assert!(e.contains("direction"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}
