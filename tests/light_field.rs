@@ -540,3 +540,88 @@ fn scene_files_load_light_fields_with_clear_errors() {
     assert!(e.contains("direction"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The figure of BENCHMARKS.md ("Light-field luminaires"): samples needed for equal error,
+/// restricted sampling with per-image balancing against uniform sampling of the restricted
+/// boxes (the thesis's Figure 4.14 baseline), for next-event estimates of the irradiance a
+/// headlight-like field gives a grid of receivers. For unbiased estimators the squared error of
+/// K samples is variance / K, so the ratio of the summed per-sample variances is the ratio of
+/// samples at equal RMS error. Run with
+/// `cargo test --release --test light_field -- --ignored --nocapture equal_error`.
+#[test]
+#[ignore]
+fn equal_error_sample_ratio_restricted_against_uniform() {
+    let delta = 0.5;
+    let nodes = 9u32;
+    let half = 0.2f32;
+    let layout = LightFieldLayout {
+        nodes: [nodes, nodes],
+        node_min: Vec2::splat(-half),
+        node_spacing: Vec2::splat(2.0 * half / (nodes - 1) as f32),
+        basis: FilterBasis::Quadratic,
+        plane_distance: delta,
+        image_min: Vec2::splat(-1.0),
+        image_max: Vec2::splat(1.0),
+        resolution: [64, 64],
+    };
+    // A beam 10 degrees off axis with a ring pattern across the lens, over a dim background.
+    let field = LightField::bake(layout, 3, |u, s| {
+        let d = (s - u) / delta;
+        let beam = (-((d.x - 0.18).powi(2) + d.y.powi(2)) / (2.0 * 0.12f32.powi(2))).exp();
+        let rings = 0.5 + 0.5 * (30.0 * u.length()).cos();
+        if u.length() <= half {
+            Rgb::splat(50.0 * beam * rings + 0.2)
+        } else {
+            Rgb::ZERO
+        }
+    })
+    .unwrap();
+    let n = 12usize;
+    let per_point = 4000usize;
+    let mut sums = [0f64; 2];
+    let mut ratios = Vec::new();
+    for k in 0..n * n {
+        let p = Vec3::new(
+            -1.5 + 3.0 * ((k % n) as f32 + 0.5) / n as f32,
+            -1.5 + 3.0 * ((k / n) as f32 + 0.5) / n as f32,
+            delta + 1.0,
+        );
+        let mut variances = [0f64; 2];
+        for (i, strategy) in [LightFieldSampling::Restricted, LightFieldSampling::Uniform]
+            .into_iter()
+            .enumerate()
+        {
+            let mut stats = Stats::default();
+            let mut rng = Rng::new(17, k as u64);
+            for _ in 0..per_point {
+                let e = match field.sample_image_point(p, strategy, rng.uniform2()) {
+                    Some((s, pdf)) => {
+                        let to = Vec3::new(s.x, s.y, delta) - p;
+                        let d2 = to.length_squared();
+                        let cos = -to.z / d2.sqrt();
+                        let radiance = field.radiance(field.filter_point(p, s), s).y as f64;
+                        radiance * (cos * cos / d2) as f64 / pdf as f64
+                    }
+                    None => 0.0,
+                };
+                stats.add(e);
+            }
+            variances[i] = stats.variance();
+            sums[i] += stats.variance();
+        }
+        if variances[0] > 0.0 {
+            ratios.push(variances[1] / variances[0]);
+        }
+    }
+    ratios.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    let median = ratios[ratios.len() / 2];
+    println!(
+        "equal-error sample ratio uniform / restricted: {:.2} (summed variance over {} receivers), per-receiver median {:.2}, min {:.2}, max {:.2}",
+        sums[1] / sums[0],
+        n * n,
+        median,
+        ratios[0],
+        ratios[ratios.len() - 1]
+    );
+    assert!(sums[1] > sums[0], "restricted sampling must beat uniform");
+}
