@@ -464,7 +464,7 @@ impl LightField {
         )
     }
 
-    fn from_pixels(&self, x: f64, y: f64) -> Vec2 {
+    fn pixels_to_plane(&self, x: f64, y: f64) -> Vec2 {
         let l = &self.layout;
         let p = l.pixel_size();
         Vec2::new(
@@ -594,7 +594,7 @@ impl LightField {
                 (b.x0 + ux * (b.x1 - b.x0), b.y0 + u.y as f64 * (b.y1 - b.y0))
             }
         };
-        let s = self.from_pixels(x, y);
+        let s = self.pixels_to_plane(x, y);
         let pdf = self.image_point_pdf(p, strategy, s);
         (pdf > 0.0 && pdf.is_finite()).then_some((s, pdf))
     }
@@ -668,7 +668,7 @@ impl LightField {
             y1: l.resolution[1] as f64,
         };
         let (x, y) = self.sample_in_box(m, &whole, ux as f64, u_pos.y as f64)?;
-        let s = self.from_pixels(x, y);
+        let s = self.pixels_to_plane(x, y);
         let (i, j) = (m % l.nodes[0] as usize, m / l.nodes[0] as usize);
         let t = Vec2::new(l.basis.sample(u_dir.x), l.basis.sample(u_dir.y));
         let u = l.node(i, j) + l.node_spacing * t;
