@@ -442,6 +442,9 @@ enum lacuna_light_kind
     LACUNA_LIGHT_KIND_ENVIRONMENT = 4,
     // A measured luminaire (an IES profile) at a point.
     LACUNA_LIGHT_KIND_PHOTOMETRIC = 5,
+    // A light-field luminaire (two planes of images). Rays never hit it: its light samples
+    // carry `LACUNA_LIGHT_SAMPLE_DELTA` (MIS weight 1) with their true solid-angle density.
+    LACUNA_LIGHT_KIND_LIGHT_FIELD = 6,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -473,6 +476,25 @@ enum lacuna_photometric_symmetry
 typedef enum lacuna_photometric_symmetry lacuna_photometric_symmetry;
 #else
 typedef uint32_t lacuna_photometric_symmetry;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+// `lacuna_light_field_layout.basis`: the reconstruction basis on the filter plane.
+enum lacuna_light_field_basis
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    // Tensor tent functions (bilinear), half-width one node spacing.
+    LACUNA_LIGHT_FIELD_BASIS_LINEAR = 0,
+    // Tensor quadratic B-splines, half-width 1.5 node spacings.
+    LACUNA_LIGHT_FIELD_BASIS_QUADRATIC = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum lacuna_light_field_basis lacuna_light_field_basis;
+#else
+typedef uint32_t lacuna_light_field_basis;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
@@ -512,6 +534,11 @@ typedef struct lacuna_film lacuna_film;
 // Single owner (`lacuna_guide_query_new`/`lacuna_guide_query_free`); keeps its guide alive.
 // Not thread-safe: give each worker thread its own query and reuse it from point to point.
 typedef struct lacuna_guide_query lacuna_guide_query;
+
+// Two planes of images emitting light toward +z of its own frame (docs/light-field.md).
+// Immutable and refcounted (`lacuna_light_field_retain`/`_release`); every function is
+// thread-safe. Scenes holding a light made from it keep their own reference.
+typedef struct lacuna_light_field lacuna_light_field;
 
 // Lacuna's light sampling over the lights of a committed scene (emissive triangles, point,
 // spot, directional and photometric lights, the environment map), for a host that shades its
@@ -712,6 +739,33 @@ typedef struct lacuna_skeleton_guide_info {
     // Wall-clock time of the whole precomputation.
     double seconds;
 } lacuna_skeleton_guide_info;
+
+// Where the planes and images of a light field are, in its frame (metres): the filter plane
+// z = 0 with `nodes_x` x `nodes_y` basis functions, the first at `node_min`, spaced by
+// `node_spacing`; the image plane z = `plane_distance` with one image per basis function,
+// `resolution_x` x `resolution_y` pixels covering [`image_min`, `image_max`].
+typedef struct lacuna_light_field_layout {
+    uint32_t nodes_x;
+    uint32_t nodes_y;
+    float node_min[2];
+    float node_spacing[2];
+    // A `lacuna_light_field_basis` value.
+    uint32_t basis;
+    float plane_distance;
+    float image_min[2];
+    float image_max[2];
+    uint32_t resolution_x;
+    uint32_t resolution_y;
+} lacuna_light_field_layout;
+
+// What a light field holds (`lacuna_light_field_get_info`).
+typedef struct lacuna_light_field_info {
+    struct lacuna_light_field_layout layout;
+    // Emitted power (luminance, W) through the image rectangle.
+    float power;
+    // Memory of the images and their summed-area tables.
+    uint64_t memory_bytes;
+} lacuna_light_field_info;
 
 // A shading point asking for light. The layout (36 bytes, 4-byte aligned) never changes with
 // build options; fill it with `lacuna_light_query_init` then set the fields.
@@ -1184,6 +1238,18 @@ lacuna_status lacuna_scene_builder_add_photometric_light(struct lacuna_scene_bui
                                                          struct lacuna_vec3 direction,
                                                          struct lacuna_vec3 c0,
                                                          struct lacuna_rgb intensity);
+
+// Adds a light-field luminaire with `field`'s light (the builder keeps a reference): its
+// frame's origin at `position`, its +z (where light travels) along `direction` (non-zero),
+// its +x toward `x_axis` (made perpendicular to `direction`; zero or parallel picks an
+// arbitrary perpendicular); radiance times `scale` (>= 0). Rendered by `path` and
+// `path_skeleton`; bidirectional integrators refuse scenes with it when rendering.
+lacuna_status lacuna_scene_builder_add_light_field_light(struct lacuna_scene_builder *builder,
+                                                         const struct lacuna_light_field *field,
+                                                         struct lacuna_vec3 position,
+                                                         struct lacuna_vec3 direction,
+                                                         struct lacuna_vec3 x_axis,
+                                                         struct lacuna_rgb scale);
 
 // Adds a distant light travelling along `direction` (non-zero) that gives irradiance
 // `irradiance` (W/m^2) on a surface facing it.
@@ -1676,6 +1742,58 @@ lacuna_status lacuna_render_job_take_partial_film(struct lacuna_render_job *job,
 // `LACUNA_STATUS_INVALID_OPERATION` before the first run.
 lacuna_status lacuna_render_job_get_stats(const struct lacuna_render_job *job,
                                           struct lacuna_render_stats *out_stats);
+
+// Reads a light field stored as an EXR mosaic (docs/light-field.md). `LACUNA_STATUS_IO` when
+// it cannot be read; `LACUNA_STATUS_PARSE` (naming the file and the attribute) when it is
+// truncated, corrupt, not a light field or inconsistent; `LACUNA_STATUS_OVER_BUDGET` when its
+// header claims more memory than the budget. Writes a new light field (one reference) to
+// `*out_field`. Thread-safe.
+lacuna_status lacuna_light_field_new_from_file(const char *path,
+                                               struct lacuna_light_field **out_field);
+
+// Builds a light field from `*layout` and `float_count` floats at `rgb` (copied): R, G, B
+// per pixel, image after image (image m = j * nodes_x + i for basis function (i, j)), each
+// row-major from the image rectangle's smallest y; `float_count` must be
+// 3 * nodes_x * nodes_y * resolution_x * resolution_y. Values must be finite and >= 0, one
+// positive; an invalid layout or value is `LACUNA_STATUS_INVALID_ARGUMENT` naming it. Writes a
+// new light field (one reference) to `*out_field`. Thread-safe.
+lacuna_status lacuna_light_field_new_from_buffer(const struct lacuna_light_field_layout *layout,
+                                                 const float *rgb,
+                                                 size_t float_count,
+                                                 struct lacuna_light_field **out_field);
+
+// Adds a reference to `field`. NULL is a no-op. Thread-safe.
+void lacuna_light_field_retain(const struct lacuna_light_field *field);
+
+// Drops a reference to `field`; the last one destroys it (lights made from it keep theirs).
+// NULL is a no-op. Thread-safe.
+void lacuna_light_field_release(const struct lacuna_light_field *field);
+
+// Writes what `field` holds to `*out_info`. Thread-safe.
+lacuna_status lacuna_light_field_get_info(const struct lacuna_light_field *field,
+                                          struct lacuna_light_field_info *out_info);
+
+// Samples a point of the image plane as seen from `receiver` (in the field's frame) by
+// restricted sampling with per-image balancing (docs/light-field.md), from two numbers in
+// [0, 1). Writes the point (z = plane distance), the radiance arriving at `receiver` from it,
+// and the solid-angle density at `receiver` (`lacuna_light_field_pdf` reproduces it). A
+// receiver that the field does not light (not beyond the image plane, or outside every
+// projected support) gets density 0 and radiance 0: that is not an error. Thread-safe.
+lacuna_status lacuna_light_field_sample(const struct lacuna_light_field *field,
+                                        struct lacuna_vec3 receiver,
+                                        float u0,
+                                        float u1,
+                                        struct lacuna_vec3 *out_point,
+                                        struct lacuna_rgb *out_radiance,
+                                        float *out_pdf);
+
+// Writes the solid-angle density at `receiver` with which `lacuna_light_field_sample` picks
+// `point` (both in the field's frame; `point` is projected on the image plane along its x and
+// y). Thread-safe.
+lacuna_status lacuna_light_field_pdf(const struct lacuna_light_field *field,
+                                     struct lacuna_vec3 receiver,
+                                     struct lacuna_vec3 point,
+                                     float *out_pdf);
 
 // Fills `*query` with defaults: position and normal 0 (normal unknown), flags 0, u = (0, 0).
 // NULL is a no-op. Thread-safe.

@@ -209,6 +209,17 @@ fn render_in_pool(
     on_pass: &mut (dyn FnMut(&Film, PassReport) + Send),
 ) -> Result<(Film, RenderStats)> {
     integrator.check_prepared(scene)?;
+    if !integrator.renders_light_fields()
+        && scene
+            .lights()
+            .iter()
+            .any(|l| matches!(l, crate::light::Light::LightField { .. }))
+    {
+        return Err(Error::invalid(format!(
+            "{} cannot render light-field luminaires (its MIS weights assume light sampling that does not depend on the receiver); use path or path_skeleton",
+            integrator.name()
+        )));
+    }
     let (w, h) = (settings.width, settings.height);
     let view = View {
         frame: camera.frame(w as f32 / h as f32),

@@ -11,7 +11,12 @@ use std::sync::OnceLock;
 mod common;
 
 /// C test programs besides `test_capi.c`, run the same ways (one program per part of the API).
-const MORE_C_TESTS: &[&str] = &["test_environment", "test_light_sampler", "test_photometric"];
+const MORE_C_TESTS: &[&str] = &[
+    "test_environment",
+    "test_light_sampler",
+    "test_photometric",
+    "test_light_field",
+];
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

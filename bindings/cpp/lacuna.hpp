@@ -251,6 +251,48 @@ public:
     }
 };
 
+/// A light-field luminaire (two planes of images; docs/light-field.md). Copyable (copy =
+/// retain); immutable and thread-safe.
+class LightField
+    : public detail::Shared<lacuna_light_field, lacuna_light_field_retain, lacuna_light_field_release> {
+public:
+    using Shared::Shared;
+    /// An EXR mosaic with `lacuna:light_field.*` attributes.
+    static LightField from_file(const std::string &path) {
+        lacuna_light_field *f = nullptr;
+        detail::check(lacuna_light_field_new_from_file(path.c_str(), &f));
+        return LightField(f);
+    }
+    /// `rgb`: 3 floats per pixel, image after image (see lacuna_light_field_new_from_buffer).
+    static LightField from_buffer(const lacuna_light_field_layout &layout, const float *rgb, size_t float_count) {
+        lacuna_light_field *f = nullptr;
+        detail::check(lacuna_light_field_new_from_buffer(&layout, rgb, float_count, &f));
+        return LightField(f);
+    }
+    lacuna_light_field_info info() const {
+        lacuna_light_field_info i;
+        detail::check(lacuna_light_field_get_info(p_, &i));
+        return i;
+    }
+    struct Sample {
+        lacuna_vec3 point;
+        lacuna_rgb radiance;
+        /// Solid angle at the receiver; 0 when the receiver is not lit.
+        float pdf;
+    };
+    /// A point of the image plane toward `receiver` (the field's frame).
+    Sample sample(lacuna_vec3 receiver, float u0, float u1) const {
+        Sample s{};
+        detail::check(lacuna_light_field_sample(p_, receiver, u0, u1, &s.point, &s.radiance, &s.pdf));
+        return s;
+    }
+    float pdf(lacuna_vec3 receiver, lacuna_vec3 point) const {
+        float pdf = 0;
+        detail::check(lacuna_light_field_pdf(p_, receiver, point, &pdf));
+        return pdf;
+    }
+};
+
 class Scene : public detail::Shared<lacuna_scene, lacuna_scene_retain, lacuna_scene_release> {
 public:
     using Shared::Shared;
@@ -428,6 +470,12 @@ public:
                                         lacuna_vec3 direction, lacuna_vec3 c0, lacuna_rgb intensity) {
         detail::check(lacuna_scene_builder_add_photometric_light(b_.get(), profile.get(), position, direction, c0,
                                                                  intensity));
+        return *this;
+    }
+    SceneBuilder &add_light_field_light(const LightField &field, lacuna_vec3 position, lacuna_vec3 direction,
+                                        lacuna_vec3 x_axis, lacuna_rgb scale) {
+        detail::check(lacuna_scene_builder_add_light_field_light(b_.get(), field.get(), position, direction, x_axis,
+                                                                 scale));
         return *this;
     }
     SceneBuilder &add_directional_light(lacuna_vec3 direction, lacuna_rgb irradiance) {

@@ -11,6 +11,7 @@ use super::buffer::{
     write_out,
 };
 use super::context::lacuna_context;
+use super::light_field::lacuna_light_field;
 use super::mesh::lacuna_mesh;
 use super::photometric::lacuna_photometric_profile;
 use super::scene::lacuna_scene;
@@ -445,6 +446,36 @@ pub unsafe extern "C" fn lacuna_scene_builder_add_photometric_light(
                 c0: c0.finite("c0")?,
                 intensity: intensity.finite("intensity")?,
                 profile,
+            })?;
+            Ok(())
+        })
+    }
+}
+
+/// Adds a light-field luminaire with `field`'s light (the builder keeps a reference): its
+/// frame's origin at `position`, its +z (where light travels) along `direction` (non-zero),
+/// its +x toward `x_axis` (made perpendicular to `direction`; zero or parallel picks an
+/// arbitrary perpendicular); radiance times `scale` (>= 0). Rendered by `path` and
+/// `path_skeleton`; bidirectional integrators refuse scenes with it when rendering.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_scene_builder_add_light_field_light(
+    builder: *mut lacuna_scene_builder,
+    field: *const lacuna_light_field,
+    position: lacuna_vec3,
+    direction: lacuna_vec3,
+    x_axis: lacuna_vec3,
+    scale: lacuna_rgb,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_builder("lacuna_scene_builder_add_light_field_light", builder, |b| {
+            let field = arg(field, "field")?.field.clone();
+            b.builder.add_light(LightDesc::LightField {
+                position: position.finite("position")?,
+                direction: direction.finite("direction")?,
+                x_axis: x_axis.finite("x_axis")?,
+                scale: scale.finite("scale")?,
+                field,
             })?;
             Ok(())
         })

@@ -78,6 +78,9 @@ pub enum lacuna_light_kind {
     Environment = 4,
     /// A measured luminaire (an IES profile) at a point.
     Photometric = 5,
+    /// A light-field luminaire (two planes of images). Rays never hit it: its light samples
+    /// carry `LACUNA_LIGHT_SAMPLE_DELTA` (MIS weight 1) with their true solid-angle density.
+    LightField = 6,
 }
 
 /// `lacuna_light_query.flags`: the host's BSDF transmits (glass, leaves), so light may arrive
@@ -486,7 +489,7 @@ impl lacuna_light_sampler {
         else {
             return NO_EMISSION;
         };
-        let (pdf_position, pdf_direction) = light.split_emission_pdf(s.pdf_emit);
+        let (pdf_position, pdf_direction) = light.split_emission_pdf(s.origin, s.pdf_emit);
         lacuna_emission_sample {
             origin: s.origin.to_array(),
             light: index as u32,
@@ -509,6 +512,7 @@ fn emission_flags(light: &Light) -> u32 {
         }
         Light::Directional { .. } => LACUNA_EMISSION_DELTA_DIRECTION | LACUNA_EMISSION_INFINITE,
         Light::Environment { .. } => LACUNA_EMISSION_INFINITE,
+        Light::LightField { .. } => 0,
     }
 }
 
@@ -740,6 +744,7 @@ pub unsafe extern "C" fn lacuna_light_sampler_get_light_info(
             Light::Directional { .. } => (lacuna_light_kind::Directional, LACUNA_INVALID_INDEX),
             Light::Environment { .. } => (lacuna_light_kind::Environment, LACUNA_INVALID_INDEX),
             Light::Photometric { .. } => (lacuna_light_kind::Photometric, LACUNA_INVALID_INDEX),
+            Light::LightField { .. } => (lacuna_light_kind::LightField, LACUNA_INVALID_INDEX),
         };
         let info = lacuna_light_info {
             kind: kind as u32,
@@ -905,7 +910,8 @@ pub unsafe extern "C" fn lacuna_light_sampler_emission_pdf(
         }
         let out_pos = out_ptr(out_pdf_position, "out_pdf_position")?;
         let out_dir = out_ptr(out_pdf_direction, "out_pdf_direction")?;
-        let (pos, dir) = l.split_emission_pdf(l.emission_pdf_with(s.env, d.normalize()));
+        let (pos, dir) =
+            l.split_emission_pdf(Vec3::ZERO, l.emission_pdf_with(s.env, d.normalize()));
         // SAFETY: checked non-NULL, writable per the contract.
         unsafe {
             write_out(out_pos, pos);

@@ -1179,6 +1179,10 @@ impl Bdpt {
 }
 
 impl Integrator for Bdpt {
+    fn renders_light_fields(&self) -> bool {
+        false
+    }
+
     fn name(&self) -> &'static str {
         "bdpt"
     }

@@ -363,6 +363,10 @@ impl BdptIc {
 }
 
 impl Integrator for BdptIc {
+    fn renders_light_fields(&self) -> bool {
+        false
+    }
+
     fn name(&self) -> &'static str {
         "bdpt_ic"
     }

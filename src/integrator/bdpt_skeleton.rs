@@ -330,6 +330,10 @@ impl BdptSkeleton {
 }
 
 impl Integrator for BdptSkeleton {
+    fn renders_light_fields(&self) -> bool {
+        false
+    }
+
     fn name(&self) -> &'static str {
         "bdpt_skeleton"
     }

@@ -345,6 +345,9 @@ impl Explicit<'_> {
                 Light::Environment { .. } => {
                     unreachable!("the weight-test scene has no environment light")
                 }
+                Light::LightField { .. } => {
+                    unreachable!("bdpt refuses light fields")
+                }
             };
         }
         self.scatter_density(i + 2, i + 1, i)

@@ -280,6 +280,13 @@ pub trait Integrator: Send + Sync {
     /// (`path_skeleton`'s scout). Most integrators ignore it.
     fn set_time_budget(&mut self, _seconds: Option<f64>) {}
 
+    /// False when the integrator cannot render light-field luminaires: bidirectional methods,
+    /// whose MIS weights assume a light point's direct-sampling density does not depend on
+    /// the receiver (a light field's restricted sampling does). Rendering refuses such scenes.
+    fn renders_light_fields(&self) -> bool {
+        true
+    }
+
     /// Fails when rendering `scene` needs a `prepare` for it that has not run.
     fn check_prepared(&self, _scene: &Scene) -> Result<()> {
         Ok(())

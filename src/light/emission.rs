@@ -158,6 +158,32 @@ impl Light {
                     cos_light: 1.0,
                 })
             }
+            Light::LightField {
+                position,
+                frame,
+                scale,
+                ref field,
+            } => {
+                let (s, u, pdf_emit) = field.sample_emission(u_pos, u_dir)?;
+                let delta = field.layout().plane_distance;
+                let local = (Vec3::new(s.x, s.y, delta) - Vec3::new(u.x, u.y, 0.0)).normalize();
+                let radiance = field.radiance(u, s) * scale;
+                if radiance == Rgb::ZERO {
+                    return None;
+                }
+                Some(EmissionSample {
+                    origin: position + frame.to_world(Vec3::new(s.x, s.y, delta)),
+                    origin_error: Vec3::ZERO,
+                    dir: frame.to_world(local),
+                    normal: frame.n,
+                    value: radiance * local.z,
+                    pdf_emit,
+                    // Direct sampling's density depends on the receiver (restricted CDFs):
+                    // bidirectional methods refuse light fields (see `LightSampler`).
+                    pdf_direct_area: 1.0,
+                    cos_light: local.z,
+                })
+            }
             Light::Environment {
                 ref map,
                 scene_center,
@@ -221,6 +247,9 @@ impl Light {
                 scene_radius,
                 ..
             } => map.pdf(env.for_emission(), Vec3::ZERO, -dir) / (PI * scene_radius * scene_radius),
+            // The density depends on where the ray leaves, not only on its direction:
+            // `LightField::emission_pdf` gives it from both planes' points.
+            Light::LightField { .. } => 0.0,
         }
     }
 
@@ -247,11 +276,26 @@ impl Light {
     /// split into the density of the origin (area measure; 1 for the delta positions of point
     /// and spot lights) and of the direction (solid angle; 1 for the delta direction of a
     /// directional light), as light tracers that weight by MIS keep them apart. Their product
-    /// is `pdf_emit`.
-    pub fn split_emission_pdf(&self, pdf_emit: f32) -> (f32, f32) {
+    /// is `pdf_emit`. `origin` is where the ray leaves (only a light field's split depends on
+    /// it).
+    pub fn split_emission_pdf(&self, origin: Vec3, pdf_emit: f32) -> (f32, f32) {
         match *self {
             Light::Area { area, .. } => (1.0 / area, pdf_emit * area),
             Light::Point { .. } | Light::Spot { .. } | Light::Photometric { .. } => (1.0, pdf_emit),
+            Light::LightField {
+                position,
+                frame,
+                ref field,
+                ..
+            } => {
+                let local = frame.to_local(origin - position);
+                let area = field.emission_origin_pdf(crate::math::Vec2::new(local.x, local.y));
+                if area > 0.0 {
+                    (area, pdf_emit / area)
+                } else {
+                    (0.0, 0.0)
+                }
+            }
             Light::Directional { .. } => (pdf_emit, 1.0),
             Light::Environment { scene_radius, .. } => {
                 let disk = PI * scene_radius * scene_radius;

@@ -4,12 +4,14 @@
 
 mod emission;
 pub mod environment;
+pub mod light_field;
 pub mod photometric;
 mod selection;
 pub mod triangle;
 
 pub use emission::EmissionSample;
 pub use environment::{EnvSettings, EnvStrategy, EnvironmentMap, UpAxis};
+pub use light_field::{FilterBasis, LightField, LightFieldLayout, LightFieldSampling};
 pub use photometric::PhotometricProfile;
 pub use selection::LightSampler;
 
@@ -47,6 +49,17 @@ pub enum LightDesc {
         c0: Vec3,
         intensity: Rgb,
         profile: Arc<PhotometricProfile>,
+    },
+    /// A light-field luminaire (docs/light-field.md), its local origin (on the filter plane)
+    /// at `position`, light travelling along `direction` (its +z), its local
+    /// +x toward `x_axis` (projected perpendicular to `direction`; zero or parallel picks an
+    /// arbitrary perpendicular axis); the field's radiance times `scale`.
+    LightField {
+        position: Vec3,
+        direction: Vec3,
+        x_axis: Vec3,
+        scale: Rgb,
+        field: Arc<LightField>,
     },
 }
 
@@ -125,6 +138,22 @@ impl LightDesc {
                 }
                 colour("intensity", intensity)
             }
+            LightDesc::LightField {
+                position,
+                direction,
+                x_axis,
+                scale,
+                ..
+            } => {
+                point(position)?;
+                dir(direction)?;
+                if !is_finite3(x_axis) {
+                    return Err(Error::invalid(format!(
+                        "light x axis {x_axis} must be finite"
+                    )));
+                }
+                colour("scale", scale)
+            }
         }
     }
 }
@@ -188,6 +217,14 @@ pub enum Light {
         intensity: Rgb,
         profile: Arc<PhotometricProfile>,
     },
+    /// A light-field luminaire; `frame` maps its local axes (z: where light travels) to the
+    /// world, `position` is its local origin (on the filter plane).
+    LightField {
+        position: Vec3,
+        frame: Frame,
+        scale: Rgb,
+        field: Arc<LightField>,
+    },
 }
 
 /// Radiance arriving at a point from a sampled point of a light.
@@ -198,7 +235,8 @@ pub struct LightSample {
     /// Incident radiance (or, for delta lights, the value whose ratio to `pdf` is the
     /// contribution).
     pub radiance: Rgb,
-    /// Solid-angle density (not including the light selection probability); 1 for delta lights.
+    /// Solid-angle density (not including the light selection probability); 1 for delta lights
+    /// (a light-field luminaire has its true density, though its samples are `delta`).
     pub pdf: f32,
     /// The point on the light (for the shadow ray) with its error bound and normal.
     /// `distance` is infinite for directional lights.
@@ -206,6 +244,8 @@ pub struct LightSample {
     pub point_error: Vec3,
     pub normal: Vec3,
     pub distance: f32,
+    /// No other strategy finds this point (a delta light, or a light-field luminaire, which
+    /// rays never hit): its MIS weight is 1.
     pub delta: bool,
 }
 
@@ -239,6 +279,18 @@ impl Light {
                 frame: photometric_frame(direction, c0),
                 intensity,
                 profile: profile.clone(),
+            },
+            LightDesc::LightField {
+                position,
+                direction,
+                x_axis,
+                scale,
+                ref field,
+            } => Light::LightField {
+                position,
+                frame: photometric_frame(direction, x_axis),
+                scale,
+                field: field.clone(),
             },
             LightDesc::Point {
                 position,
@@ -303,6 +355,9 @@ impl Light {
                 ref profile,
                 ..
             } => luminance(intensity) * profile.flux(),
+            Light::LightField {
+                scale, ref field, ..
+            } => luminance(scale) * field.power(),
         }
     }
 
@@ -418,6 +473,12 @@ impl Light {
                 map.sample(env, normal, u)?,
                 receiver,
             )),
+            Light::LightField {
+                position,
+                frame,
+                scale,
+                ref field,
+            } => light_field_sample(position, frame, scale, field, receiver, u),
         }
     }
 
@@ -570,6 +631,45 @@ fn area_light_sample(
         normal,
         distance,
         delta: false,
+    })
+}
+
+/// A light-field luminaire's sample seen from `receiver`: a point of its image plane by
+/// restricted sampling, the radiance along the ray from the filter plane through it, and the
+/// solid-angle density (area density times d^2 / cos at the image plane).
+fn light_field_sample(
+    position: Vec3,
+    frame: Frame,
+    scale: Rgb,
+    field: &LightField,
+    receiver: Vec3,
+    u: Vec2,
+) -> Option<LightSample> {
+    let p = frame.to_local(receiver - position);
+    let (s, pdf_area) = field.sample_image_point(p, LightFieldSampling::Restricted, u)?;
+    let delta = field.layout().plane_distance;
+    let point_local = Vec3::new(s.x, s.y, delta);
+    let to_light = point_local - p;
+    let dist2 = to_light.length_squared();
+    let distance = dist2.sqrt();
+    let cos = -to_light.z / distance;
+    if !(cos > 0.0) {
+        return None;
+    }
+    let radiance = field.radiance(field.filter_point(p, s), s) * scale;
+    let pdf = pdf_area * dist2 / cos;
+    if !(pdf.is_finite() && pdf > 0.0) || radiance == Rgb::ZERO || !is_finite3(radiance) {
+        return None;
+    }
+    Some(LightSample {
+        wi: frame.to_world(to_light / distance),
+        radiance,
+        pdf,
+        point: position + frame.to_world(point_local),
+        point_error: Vec3::ZERO,
+        normal: frame.n,
+        distance,
+        delta: true,
     })
 }
 

@@ -18,7 +18,9 @@ use super::{Camera, Material, MaterialKind, MeshDesc, SceneBuilder, Texture};
 use crate::error::{Error, Result};
 use crate::geometry::Bounds3;
 use crate::light::environment::{EnvImage, Grid};
-use crate::light::{EnvSettings, EnvironmentMap, LightDesc, PhotometricProfile, UpAxis};
+use crate::light::{
+    EnvSettings, EnvironmentMap, LightDesc, LightField, PhotometricProfile, UpAxis,
+};
 use crate::math::{Frame, Rgb, Vec2, Vec3, PI};
 
 /// Render settings a scene file may carry; every field is optional (the caller decides the
@@ -234,6 +236,19 @@ enum LightSpec {
         c0: [f32; 3],
         #[serde(default = "white")]
         intensity: Colour,
+    },
+    /// A light-field luminaire from an EXR mosaic (docs/light-field.md; relative to the scene
+    /// file): its local origin at `position`, light travelling along `direction`, its local x
+    /// axis toward `x_axis` (optional), radiance times `scale`.
+    #[serde(rename = "light_field")]
+    LightField {
+        file: PathBuf,
+        position: [f32; 3],
+        direction: [f32; 3],
+        #[serde(default)]
+        x_axis: [f32; 3],
+        #[serde(default = "white")]
+        scale: Colour,
     },
 }
 
@@ -788,6 +803,19 @@ impl LightSpec {
                 c0: Vec3::from(c0),
                 intensity: intensity.rgb(),
                 profile: Arc::new(PhotometricProfile::from_file(&dir.join(file))?),
+            },
+            LightSpec::LightField {
+                ref file,
+                position,
+                direction,
+                x_axis,
+                scale,
+            } => LightDesc::LightField {
+                position: Vec3::from(position),
+                direction: Vec3::from(direction),
+                x_axis: Vec3::from(x_axis),
+                scale: scale.rgb(),
+                field: Arc::new(LightField::from_file(&dir.join(file))?),
             },
         })
     }

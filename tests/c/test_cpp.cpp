@@ -126,6 +126,39 @@ static void test_photometric(const lacuna::Context &ctx) {
     CHECK(lights.info().light_count == 1);
 }
 
+// Light fields: built from a host buffer, errors as exceptions, sampling, a light in a scene.
+static void test_light_field(const lacuna::Context &ctx) {
+    lacuna_light_field_layout l{};
+    l.nodes_x = l.nodes_y = 2;
+    l.node_min[0] = l.node_min[1] = -0.1f;
+    l.node_spacing[0] = l.node_spacing[1] = 0.2f;
+    l.basis = LACUNA_LIGHT_FIELD_BASIS_QUADRATIC;
+    l.plane_distance = 0.5f;
+    l.image_min[0] = l.image_min[1] = -1.0f;
+    l.image_max[0] = l.image_max[1] = 1.0f;
+    l.resolution_x = l.resolution_y = 2;
+    std::vector<float> rgb(3 * 2 * 2 * 2 * 2, 1.0f);
+    lacuna::LightField f = lacuna::LightField::from_buffer(l, rgb.data(), rgb.size());
+    lacuna::LightField copy = f;
+    CHECK(copy.get() == f.get());
+    CHECK(f.info().layout.nodes_x == 2 && f.info().power > 0.0f);
+    lacuna::LightField::Sample s = f.sample(lacuna::vec3(0, 0, 2), 0.3f, 0.6f);
+    CHECK(s.pdf > 0 && std::fabs(f.pdf(lacuna::vec3(0, 0, 2), s.point) - s.pdf) <= 1e-4f * s.pdf);
+    EXPECT_ERROR(lacuna::LightField::from_buffer(l, rgb.data(), rgb.size() - 1), LACUNA_STATUS_INVALID_ARGUMENT,
+                 "float_count");
+    EXPECT_ERROR(lacuna::LightField::from_file("/nonexistent/lamp.exr"), LACUNA_STATUS_IO, "lamp.exr");
+    EXPECT_ERROR(f.sample(lacuna::vec3(0, 0, 2), 1.5f, 0), LACUNA_STATUS_OUT_OF_RANGE, "u0");
+    lacuna::SceneBuilder b(ctx);
+    EXPECT_ERROR(b.add_light_field_light(f, lacuna::vec3(0, 0, 0), lacuna::vec3(0, 0, 0), lacuna::vec3(1, 0, 0),
+                                         lacuna::rgb(1, 1, 1)),
+                 LACUNA_STATUS_INVALID_ARGUMENT, "direction");
+    b.add_light_field_light(f, lacuna::vec3(0, 1, 0), lacuna::vec3(0, -1, 0), lacuna::vec3(1, 0, 0),
+                            lacuna::rgb(1, 1, 1));
+    b.set_camera(lacuna::vec3(0, 0, 2), lacuna::vec3(0, 0, 0), lacuna::vec3(0, 1, 0), 40);
+    lacuna::LightSampler lights(b.build());
+    CHECK(lights.info().light_count == 1);
+}
+
 // The light sampler's wrapper on the built-in two-room scene (area lights only).
 static void test_light_sampler(const lacuna::Context &ctx) {
     lacuna::Scene scene = lacuna::SceneBuilder::builtin(ctx, "two-rooms").build();
@@ -173,6 +206,7 @@ int main(int argc, char **argv) {
     lacuna::Context ctx = lacuna::Context::create();
     test_light_sampler(ctx);
     test_photometric(ctx);
+    test_light_field(ctx);
     ctx.set_thread_count(2);
     CHECK(ctx.thread_count() == 2);
     EXPECT_ERROR(ctx.set_thread_count(1u << 20), LACUNA_STATUS_OUT_OF_RANGE, "thread_count");

@@ -1,0 +1,990 @@
+//! Light-field luminaires: the near field of a real lamp recorded on two parallel planes
+//! (Goesele et al. 2003), sampled toward a shading point with restricted CDFs and per-image
+//! balancing (H. Lu, *Importance sampling of realistic light sources*, 2014, chapter 4; thesis
+//! 001 in docs/references.md).
+//!
+//! In the light's frame the *filter plane* F is z = 0 and carries the reconstruction basis
+//! Phi_m (tensor B-splines on a regular grid of nodes); the *image plane* I is z = delta and
+//! carries one image C_m per basis function. Light travels toward +z. The radiance along the
+//! ray through u on F and s on I is (thesis eq. 2.18 and 4.1)
+//!
+//!   L(u -> s) = |s - u|^4 / delta^2 * sum_m C_m(s) Phi_m(u),
+//!
+//! so that C_m(s) = <E(. -> s), Phi_m> / (h_x h_y) for the differential irradiance
+//! E(u -> s) = L cos^2 / d^2 (eq. 2.19-2.20 with the basis as its own filter, eq. 4.19, and the
+//! Gram matrix of eq. 4.20 lumped to its row sums: B-splines are a partition of unity, so the
+//! lumped projection keeps the emitted power exactly; see [`LightField::bake`]).
+//!
+//! The light is seen from receivers beyond the image plane (z > delta); it is not an object
+//! rays can hit, so light sampling is the only strategy that finds it (its samples carry
+//! `delta: true`, MIS weight 1) while the density stays the exact solid-angle pdf.
+
+use std::path::Path;
+
+use crate::error::{Error, Result};
+use crate::image_file::{self, ExrMetadata};
+use crate::math::{luminance, AliasTable, Rgb, Vec2, Vec3};
+
+/// The reconstruction basis on the filter plane: tensor products of centred cardinal
+/// B-splines. The thesis uses quadratic B-splines (section 4.6); the linear one (a tent,
+/// bilinear in 2-D) is Heidrich et al.'s canned light source and is cheaper to bake.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FilterBasis {
+    Linear,
+    Quadratic,
+}
+
+impl FilterBasis {
+    pub const NAMES: &'static [&'static str] = &["linear", "quadratic"];
+
+    pub fn parse(name: &str) -> Result<Self> {
+        match name {
+            "linear" => Ok(FilterBasis::Linear),
+            "quadratic" => Ok(FilterBasis::Quadratic),
+            other => Err(Error::invalid(format!(
+                "unknown light-field basis '{other}' (expected linear or quadratic)"
+            ))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            FilterBasis::Linear => "linear",
+            FilterBasis::Quadratic => "quadratic",
+        }
+    }
+
+    /// Half-width of the support, in node spacings.
+    pub fn radius(self) -> f32 {
+        match self {
+            FilterBasis::Linear => 1.0,
+            FilterBasis::Quadratic => 1.5,
+        }
+    }
+
+    /// The 1-D basis at `t` node spacings from its node (integral 1).
+    #[inline]
+    pub fn eval(self, t: f32) -> f32 {
+        let a = t.abs();
+        match self {
+            FilterBasis::Linear => (1.0 - a).max(0.0),
+            FilterBasis::Quadratic => {
+                if a < 0.5 {
+                    0.75 - a * a
+                } else if a < 1.5 {
+                    0.5 * (1.5 - a) * (1.5 - a)
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+
+    /// Integral of the 1-D basis from -radius to `t`.
+    fn cdf(self, t: f32) -> f32 {
+        let r = self.radius();
+        let t = t.clamp(-r, r);
+        match self {
+            FilterBasis::Linear => {
+                if t <= 0.0 {
+                    0.5 * (1.0 + t) * (1.0 + t)
+                } else {
+                    1.0 - 0.5 * (1.0 - t) * (1.0 - t)
+                }
+            }
+            FilterBasis::Quadratic => {
+                if t <= -0.5 {
+                    (t + 1.5).powi(3) / 6.0
+                } else if t <= 0.5 {
+                    // 1/6 at -0.5, plus the integral of 0.75 - x^2 from -0.5.
+                    1.0 / 6.0 + 0.75 * (t + 0.5) - (t.powi(3) + 0.125) / 3.0
+                } else {
+                    1.0 - (1.5 - t).powi(3) / 6.0
+                }
+            }
+        }
+    }
+
+    /// Inverts [`cdf`](Self::cdf): `t` with density `eval(t)` from `u` in [0, 1).
+    fn sample(self, u: f32) -> f32 {
+        match self {
+            FilterBasis::Linear => {
+                if u < 0.5 {
+                    (2.0 * u).sqrt() - 1.0
+                } else {
+                    1.0 - (2.0 * (1.0 - u)).sqrt()
+                }
+            }
+            FilterBasis::Quadratic => {
+                // Bisection on the monotone piecewise cubic: 30 halvings of [-1.5, 1.5] reach
+                // f32 resolution; only emission sampling uses it.
+                let (mut lo, mut hi) = (-1.5f32, 1.5f32);
+                for _ in 0..30 {
+                    let mid = 0.5 * (lo + hi);
+                    if self.cdf(mid) < u {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                0.5 * (lo + hi)
+            }
+        }
+    }
+}
+
+/// Where the two planes and the images are, in the light's frame (metres).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LightFieldLayout {
+    /// Basis functions (and images) along x and y of the filter plane.
+    pub nodes: [u32; 2],
+    /// The node of the first basis function, and the spacing h of the grid.
+    pub node_min: Vec2,
+    pub node_spacing: Vec2,
+    pub basis: FilterBasis,
+    /// delta: the distance from the filter plane to the image plane.
+    pub plane_distance: f32,
+    /// The rectangle on the image plane every image covers.
+    pub image_min: Vec2,
+    pub image_max: Vec2,
+    /// Pixels of each image along x and y.
+    pub resolution: [u32; 2],
+}
+
+/// Largest number of basis functions along one axis.
+pub const MAX_NODES: u32 = 1024;
+
+impl LightFieldLayout {
+    pub fn validate(&self) -> Result<()> {
+        let [nx, ny] = self.nodes;
+        let [rx, ry] = self.resolution;
+        if !(1..=MAX_NODES).contains(&nx) || !(1..=MAX_NODES).contains(&ny) {
+            return Err(Error::invalid(format!(
+                "light-field nodes {nx}x{ny} must be 1 to {MAX_NODES} per axis"
+            )));
+        }
+        if rx == 0 || ry == 0 {
+            return Err(Error::invalid(format!(
+                "light-field image resolution {rx}x{ry} must be at least 1x1"
+            )));
+        }
+        let pixels = nx as u64 * ny as u64 * rx as u64 * ry as u64;
+        if pixels > crate::limits::MAX_ENV_TEXELS as u64 {
+            return Err(Error::invalid(format!(
+                "a light field of {pixels} pixels is over the limit of {}",
+                crate::limits::MAX_ENV_TEXELS
+            )));
+        }
+        let finite2 = |v: Vec2| v.x.is_finite() && v.y.is_finite();
+        if !finite2(self.node_min) || !finite2(self.image_min) || !finite2(self.image_max) {
+            return Err(Error::invalid("light-field corners must be finite"));
+        }
+        if !(self.node_spacing.x > 0.0 && self.node_spacing.y > 0.0 && finite2(self.node_spacing)) {
+            return Err(Error::invalid(format!(
+                "light-field node spacing {} must be finite and > 0",
+                self.node_spacing
+            )));
+        }
+        if !(self.plane_distance > 0.0 && self.plane_distance.is_finite()) {
+            return Err(Error::invalid(format!(
+                "light-field plane distance {} must be finite and > 0",
+                self.plane_distance
+            )));
+        }
+        if !(self.image_max.x > self.image_min.x && self.image_max.y > self.image_min.y) {
+            return Err(Error::invalid(format!(
+                "light-field image rectangle {} to {} is empty",
+                self.image_min, self.image_max
+            )));
+        }
+        Ok(())
+    }
+
+    pub fn image_count(&self) -> usize {
+        self.nodes[0] as usize * self.nodes[1] as usize
+    }
+
+    pub fn pixels_per_image(&self) -> usize {
+        self.resolution[0] as usize * self.resolution[1] as usize
+    }
+
+    fn pixel_size(&self) -> Vec2 {
+        (self.image_max - self.image_min)
+            / Vec2::new(self.resolution[0] as f32, self.resolution[1] as f32)
+    }
+
+    /// The node of basis function (`i`, `j`).
+    fn node(&self, i: usize, j: usize) -> Vec2 {
+        self.node_min + self.node_spacing * Vec2::new(i as f32, j as f32)
+    }
+
+    /// The point of the image plane at the centre of pixel (`x`, `y`).
+    pub fn pixel_centre(&self, x: u32, y: u32) -> Vec2 {
+        self.image_min + self.pixel_size() * Vec2::new(x as f32 + 0.5, y as f32 + 0.5)
+    }
+
+    /// The filter-plane point at the centre of basis function (`i`, `j`).
+    pub fn node_point(&self, i: u32, j: u32) -> Vec2 {
+        self.node(i as usize, j as usize)
+    }
+}
+
+/// How [`LightField::sample_image_point`] picks a point of the image plane.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LightFieldSampling {
+    /// An image with probability A_m(p) / A(p), then a point proportional to C_m within the
+    /// image's restricted box (thesis eq. 4.12, 4.14, 4.16).
+    #[default]
+    Restricted,
+    /// Every image whose restricted box is not empty with the same probability, then a point
+    /// uniformly in that box: the thesis's baseline of Figure 4.14.
+    Uniform,
+}
+
+/// A light field ready for sampling: the images, their luminance and a summed-area table of
+/// the luminance per image.
+#[derive(Clone, Debug)]
+pub struct LightField {
+    layout: LightFieldLayout,
+    /// Image m = j * nodes[0] + i, each row-major with y rows.
+    colour: Vec<Rgb>,
+    weight: Vec<f32>,
+    /// Per image, (resolution[0] + 1) x (resolution[1] + 1) sums of `weight` over
+    /// [0, x) x [0, y) pixels, row-major with y rows (f64: a sum over a megapixel image keeps
+    /// the precision of its small differences).
+    sat: Vec<f64>,
+    /// Emission: an image with probability proportional to its luminance sum.
+    image_choice: AliasTable,
+    /// Sum of `weight` over every pixel of every image.
+    weight_sum: f64,
+}
+
+/// Rectangle [x0, x1] x [y0, y1] in pixel coordinates of one image.
+#[derive(Clone, Copy, Debug)]
+struct PixelBox {
+    x0: f64,
+    x1: f64,
+    y0: f64,
+    y1: f64,
+}
+
+impl PixelBox {
+    fn contains(&self, x: f64, y: f64) -> bool {
+        (self.x0..=self.x1).contains(&x) && (self.y0..=self.y1).contains(&y)
+    }
+
+    fn area(&self) -> f64 {
+        (self.x1 - self.x0) * (self.y1 - self.y0)
+    }
+}
+
+impl LightField {
+    /// A light field from its layout and its images' pixels: image m = j * nodes[0] + i
+    /// (basis function (i, j)), each `resolution[0]` x `resolution[1]` row-major with row y at
+    /// the image plane's y. Every value must be finite and >= 0, and one positive.
+    pub fn new(layout: LightFieldLayout, pixels: Vec<Rgb>) -> Result<Self> {
+        layout.validate()?;
+        let expected = layout.image_count() * layout.pixels_per_image();
+        if pixels.len() != expected {
+            return Err(Error::invalid(format!(
+                "a {}x{} light field of {}x{} images needs {expected} pixels, got {}",
+                layout.nodes[0],
+                layout.nodes[1],
+                layout.resolution[0],
+                layout.resolution[1],
+                pixels.len()
+            )));
+        }
+        if let Some(i) = pixels
+            .iter()
+            .position(|c| !(c.is_finite() && c.min_element() >= 0.0))
+        {
+            return Err(Error::invalid(format!(
+                "light-field pixel {i} is {} (must be finite and >= 0)",
+                pixels[i]
+            )));
+        }
+        let weight: Vec<f32> = pixels.iter().map(|&c| luminance(c)).collect();
+        let (rx, ry) = (layout.resolution[0] as usize, layout.resolution[1] as usize);
+        let per_image = (rx + 1) * (ry + 1);
+        let mut sat = vec![0f64; layout.image_count() * per_image];
+        let mut sums = Vec::with_capacity(layout.image_count());
+        for m in 0..layout.image_count() {
+            let w = &weight[m * rx * ry..(m + 1) * rx * ry];
+            let t = &mut sat[m * per_image..(m + 1) * per_image];
+            for y in 0..ry {
+                let mut row = 0f64;
+                for x in 0..rx {
+                    row += w[y * rx + x] as f64;
+                    t[(y + 1) * (rx + 1) + x + 1] = t[y * (rx + 1) + x + 1] + row;
+                }
+            }
+            sums.push(t[per_image - 1]);
+        }
+        let weight_sum: f64 = sums.iter().sum();
+        let image_choice = AliasTable::new(&sums.iter().map(|&s| s as f32).collect::<Vec<_>>())
+            .filter(|_| weight_sum > 0.0)
+            .ok_or_else(|| Error::invalid("every light-field pixel is zero"))?;
+        Ok(LightField {
+            layout,
+            colour: pixels,
+            weight,
+            sat,
+            image_choice,
+            weight_sum,
+        })
+    }
+
+    /// Bakes a light field from the radiance `radiance(u, s)` of the ray from filter-plane
+    /// point u to image-plane point s: C_m(s) = <E(. -> s), Phi_m> / (h_x h_y) with
+    /// E = L delta^2 / d^4 (eq. 4.19, Gram matrix lumped), at each pixel centre, the inner
+    /// product by the midpoint rule with `per_spacing` points per node spacing and axis.
+    pub fn bake(
+        layout: LightFieldLayout,
+        per_spacing: u32,
+        radiance: impl Fn(Vec2, Vec2) -> Rgb,
+    ) -> Result<Self> {
+        layout.validate()?;
+        let per_spacing = per_spacing.max(1) as usize;
+        let basis = layout.basis;
+        let r = basis.radius();
+        let steps = (2.0 * r * per_spacing as f32).round() as usize;
+        // Offsets (in node spacings) of the quadrature points and their basis weights.
+        let taps: Vec<(f32, f32)> = (0..steps)
+            .map(|k| {
+                let t = -r + (k as f32 + 0.5) / per_spacing as f32;
+                (t, basis.eval(t) / per_spacing as f32)
+            })
+            .collect();
+        let delta = layout.plane_distance;
+        let h = layout.node_spacing;
+        let (rx, ry) = (layout.resolution[0], layout.resolution[1]);
+        let mut pixels = Vec::with_capacity(layout.image_count() * layout.pixels_per_image());
+        for j in 0..layout.nodes[1] as usize {
+            for i in 0..layout.nodes[0] as usize {
+                let node = layout.node(i, j);
+                for y in 0..ry {
+                    for x in 0..rx {
+                        let s = layout.pixel_centre(x, y);
+                        let mut c = Rgb::ZERO;
+                        for &(ty, wy) in &taps {
+                            for &(tx, wx) in &taps {
+                                let u = node + h * Vec2::new(tx, ty);
+                                let d2 = (s - u).length_squared() + delta * delta;
+                                c += radiance(u, s) * (wx * wy * delta * delta / (d2 * d2));
+                            }
+                        }
+                        pixels.push(c);
+                    }
+                }
+            }
+        }
+        Self::new(layout, pixels)
+    }
+
+    pub fn layout(&self) -> &LightFieldLayout {
+        &self.layout
+    }
+
+    pub fn pixels(&self) -> &[Rgb] {
+        &self.colour
+    }
+
+    pub fn memory_bytes(&self) -> usize {
+        self.colour.len() * 12 + self.weight.len() * 4 + self.sat.len() * 8
+    }
+
+    /// Emitted power (luminance): the integral of E over both planes,
+    /// h_x h_y sum_m integral C_m (each B-spline integrates to h_x h_y).
+    pub fn power(&self) -> f32 {
+        let h = self.layout.node_spacing;
+        let pixel = self.layout.pixel_size();
+        (self.weight_sum * (h.x * h.y * pixel.x * pixel.y) as f64) as f32
+    }
+
+    /// Radiance along the ray from `u` on the filter plane to `s` on the image plane
+    /// (eq. 4.1).
+    pub fn radiance(&self, u: Vec2, s: Vec2) -> Rgb {
+        let Some(pixel) = self.pixel_index(s) else {
+            return Rgb::ZERO;
+        };
+        let l = &self.layout;
+        let mut sum = Rgb::ZERO;
+        self.for_each_basis(u, |m, phi| {
+            sum += self.colour[m * l.pixels_per_image() + pixel] * phi;
+        });
+        let d2 = (s - u).length_squared() + l.plane_distance * l.plane_distance;
+        sum * (d2 * d2 / (l.plane_distance * l.plane_distance))
+    }
+
+    /// Calls `f(m, Phi_m(u))` for every basis function not zero at `u`.
+    fn for_each_basis(&self, u: Vec2, mut f: impl FnMut(usize, f32)) {
+        let l = &self.layout;
+        let r = l.basis.radius();
+        let t = (u - l.node_min) / l.node_spacing;
+        let range = |t: f32, n: u32| {
+            let lo = (t - r).ceil().max(0.0);
+            let hi = (t + r).floor().min(n as f32 - 1.0);
+            (lo as i64, hi as i64)
+        };
+        let (i0, i1) = range(t.x, l.nodes[0]);
+        let (j0, j1) = range(t.y, l.nodes[1]);
+        for j in j0..=j1 {
+            let py = l.basis.eval(t.y - j as f32);
+            if py <= 0.0 {
+                continue;
+            }
+            for i in i0..=i1 {
+                let px = l.basis.eval(t.x - i as f32);
+                if px > 0.0 {
+                    f(j as usize * l.nodes[0] as usize + i as usize, px * py);
+                }
+            }
+        }
+    }
+
+    /// Index of the pixel holding image-plane point `s` (the same in every image).
+    fn pixel_index(&self, s: Vec2) -> Option<usize> {
+        let (x, y) = self.to_pixels(s);
+        let (rx, ry) = (self.layout.resolution[0], self.layout.resolution[1]);
+        if !(0.0..=rx as f64).contains(&x) || !(0.0..=ry as f64).contains(&y) {
+            return None;
+        }
+        let xi = (x as usize).min(rx as usize - 1);
+        let yi = (y as usize).min(ry as usize - 1);
+        Some(yi * rx as usize + xi)
+    }
+
+    fn to_pixels(&self, s: Vec2) -> (f64, f64) {
+        let l = &self.layout;
+        let p = l.pixel_size();
+        (
+            (s.x - l.image_min.x) as f64 / p.x as f64,
+            (s.y - l.image_min.y) as f64 / p.y as f64,
+        )
+    }
+
+    fn pixels_to_plane(&self, x: f64, y: f64) -> Vec2 {
+        let l = &self.layout;
+        let p = l.pixel_size();
+        Vec2::new(
+            (l.image_min.x as f64 + x * p.x as f64) as f32,
+            (l.image_min.y as f64 + y * p.y as f64) as f32,
+        )
+    }
+
+    /// The point of the filter plane on the line from receiver `p` (local, z > delta) through
+    /// image-plane point `s`.
+    pub fn filter_point(&self, p: Vec3, s: Vec2) -> Vec2 {
+        let delta = self.layout.plane_distance;
+        let k = p.z / (p.z - delta);
+        let pxy = Vec2::new(p.x, p.y);
+        pxy + (s - pxy) * k
+    }
+
+    /// The box of image `m` whose points s see the support of Phi_m from `p` (eq. 4.11),
+    /// clipped to the image; `None` when empty.
+    ///
+    /// Eq. 4.11 as extracted reads s = delta / (delta + Delta) (p - u), which drops a term:
+    /// with F at z = 0, I at z = delta and p at z = delta + Delta, the line from u to p meets I
+    /// at s = u + (p - u) delta / (delta + Delta). The map is increasing in u, so the support's
+    /// corners give the box's corners.
+    fn restricted_box(&self, p: Vec3, m: usize) -> Option<PixelBox> {
+        let l = &self.layout;
+        let (i, j) = (m % l.nodes[0] as usize, m / l.nodes[0] as usize);
+        let half = l.node_spacing * l.basis.radius();
+        let (lo, hi) = (l.node(i, j) - half, l.node(i, j) + half);
+        let k = l.plane_distance / p.z;
+        let pxy = Vec2::new(p.x, p.y);
+        let (s_lo, s_hi) = (lo + (pxy - lo) * k, hi + (pxy - hi) * k);
+        let (x0, y0) = self.to_pixels(s_lo);
+        let (x1, y1) = self.to_pixels(s_hi);
+        let (rx, ry) = (l.resolution[0] as f64, l.resolution[1] as f64);
+        let b = PixelBox {
+            x0: x0.clamp(0.0, rx),
+            x1: x1.clamp(0.0, rx),
+            y0: y0.clamp(0.0, ry),
+            y1: y1.clamp(0.0, ry),
+        };
+        (b.x1 > b.x0 && b.y1 > b.y0).then_some(b)
+    }
+
+    /// The summed-area table of image `m` at the continuous pixel point (`x`, `y`): the
+    /// integral of the luminance over [0, x) x [0, y). Exact by bilinear interpolation, as the
+    /// integral of a piecewise-constant function is bilinear within each pixel.
+    fn sat_at(&self, m: usize, x: f64, y: f64) -> f64 {
+        let (rx, ry) = (
+            self.layout.resolution[0] as usize,
+            self.layout.resolution[1] as usize,
+        );
+        let t = &self.sat[m * (rx + 1) * (ry + 1)..];
+        let xi = (x.max(0.0) as usize).min(rx - 1);
+        let yi = (y.max(0.0) as usize).min(ry - 1);
+        let (fx, fy) = (x - xi as f64, y - yi as f64);
+        let at = |a: usize, b: usize| t[b * (rx + 1) + a];
+        let bottom = at(xi, yi) * (1.0 - fx) + at(xi + 1, yi) * fx;
+        let top = at(xi, yi + 1) * (1.0 - fx) + at(xi + 1, yi + 1) * fx;
+        bottom * (1.0 - fy) + top * fy
+    }
+
+    /// A_m(p) in pixel units: the luminance of image `m` integrated over box `b` (eq. 4.14).
+    fn box_integral(&self, m: usize, b: &PixelBox) -> f64 {
+        self.sat_at(m, b.x1, b.y1) - self.sat_at(m, b.x0, b.y1) - self.sat_at(m, b.x1, b.y0)
+            + self.sat_at(m, b.x0, b.y0)
+    }
+
+    /// The weight of each image for `strategy` from `p`: A_m(p) (restricted) or the box's
+    /// presence (uniform), with its box.
+    fn image_weight(
+        &self,
+        p: Vec3,
+        m: usize,
+        strategy: LightFieldSampling,
+    ) -> Option<(f64, PixelBox)> {
+        let b = self.restricted_box(p, m)?;
+        let w = match strategy {
+            LightFieldSampling::Restricted => self.box_integral(m, &b),
+            LightFieldSampling::Uniform => 1.0,
+        };
+        (w > 0.0).then_some((w, b))
+    }
+
+    /// Samples a point of the image plane as seen from receiver `p` (light-local, beyond the
+    /// image plane: z > delta) with `strategy`; returns it with its density in area measure
+    /// on the image plane (the one [`image_point_pdf`](Self::image_point_pdf) gives).
+    ///
+    /// Per-image balancing (eq. 4.16) gives image m K_m = round(K A_m / A) of K samples; with
+    /// one sample at a time (a path tracer's next-event estimate) its unbiased form is picking
+    /// m with probability A_m / A. (Rounding K_m to an integer, as eq. 4.16 does, would drop
+    /// images with K A_m / A < 1/2 and bias the estimate.)
+    pub fn sample_image_point(
+        &self,
+        p: Vec3,
+        strategy: LightFieldSampling,
+        u: Vec2,
+    ) -> Option<(Vec2, f32)> {
+        if !(p.z > self.layout.plane_distance) || !p.is_finite() {
+            return None;
+        }
+        let images = self.layout.image_count();
+        let total: f64 = (0..images)
+            .filter_map(|m| self.image_weight(p, m, strategy))
+            .map(|(w, _)| w)
+            .sum();
+        if !(total > 0.0) {
+            return None;
+        }
+        // The image whose share of [0, total) holds u.x, and u.x stretched within it.
+        let target = u.x as f64 * total;
+        let mut acc = 0.0;
+        let mut chosen = None;
+        for m in 0..images {
+            if let Some((w, b)) = self.image_weight(p, m, strategy) {
+                chosen = Some((m, b, ((target - acc) / w).clamp(0.0, 1.0)));
+                if target < acc + w {
+                    break;
+                }
+                acc += w;
+            }
+        }
+        let (m, b, ux) = chosen?;
+        let (x, y) = match strategy {
+            LightFieldSampling::Restricted => self.sample_in_box(m, &b, ux, u.y as f64)?,
+            LightFieldSampling::Uniform => {
+                (b.x0 + ux * (b.x1 - b.x0), b.y0 + u.y as f64 * (b.y1 - b.y0))
+            }
+        };
+        let s = self.pixels_to_plane(x, y);
+        let pdf = self.image_point_pdf(p, strategy, s);
+        (pdf > 0.0 && pdf.is_finite()).then_some((s, pdf))
+    }
+
+    /// Area density on the image plane with which [`sample_image_point`](Self::sample_image_point)
+    /// picks `s` from `p`: sum over the images whose box holds s of C_m(s) / A(p) (restricted;
+    /// the mixture of eq. 4.14 over the choice of eq. 4.16), or of 1 / (n |box_m|) (uniform).
+    pub fn image_point_pdf(&self, p: Vec3, strategy: LightFieldSampling, s: Vec2) -> f32 {
+        if !(p.z > self.layout.plane_distance) || !p.is_finite() {
+            return 0.0;
+        }
+        let Some(pixel) = self.pixel_index(s) else {
+            return 0.0;
+        };
+        let (x, y) = self.to_pixels(s);
+        let (mut total, mut count, mut density) = (0.0f64, 0usize, 0.0f64);
+        for m in 0..self.layout.image_count() {
+            let Some((w, b)) = self.image_weight(p, m, strategy) else {
+                continue;
+            };
+            total += w;
+            count += 1;
+            if b.contains(x, y) {
+                density += match strategy {
+                    LightFieldSampling::Restricted => {
+                        self.weight[m * self.layout.pixels_per_image() + pixel] as f64
+                    }
+                    LightFieldSampling::Uniform => 1.0 / b.area(),
+                };
+            }
+        }
+        let pixel_area = {
+            let ps = self.layout.pixel_size();
+            ps.x as f64 * ps.y as f64
+        };
+        let pdf = match strategy {
+            LightFieldSampling::Restricted if total > 0.0 => density / total,
+            LightFieldSampling::Uniform if count > 0 => density / count as f64,
+            _ => 0.0,
+        };
+        (pdf / pixel_area) as f32
+    }
+
+    /// Samples (x, y) in pixel units proportionally to image `m`'s luminance within `b`
+    /// (eq. 4.12 re-derived): the marginal in x must be the luminance integrated over
+    /// [y0, y1] only, not over the whole column as eq. 4.10's cdf_m(s) is, or the density
+    /// would not be C_m / A_m as eq. 4.14 states. Both 1-D inversions read the summed-area
+    /// table: G(x) = S(x, y1) - S(x, y0) is the restricted marginal's CDF (up to G(x0)), linear
+    /// within a pixel column; given the column, S(c + 1, y) - S(c, y) is the conditional's.
+    fn sample_in_box(&self, m: usize, b: &PixelBox, ux: f64, uy: f64) -> Option<(f64, f64)> {
+        let g = |x: f64| self.sat_at(m, x, b.y1) - self.sat_at(m, x, b.y0);
+        let x = invert_piecewise_linear(g, b.x0, b.x1, ux)?;
+        let column = (x.floor().max(0.0) as usize).min(self.layout.resolution[0] as usize - 1);
+        let (c0, c1) = (column as f64, column as f64 + 1.0);
+        let h = |y: f64| self.sat_at(m, c1, y) - self.sat_at(m, c0, y);
+        let y = invert_piecewise_linear(h, b.y0, b.y1, uy)?;
+        Some((x, y))
+    }
+
+    /// Samples a ray leaving the light: an image with probability proportional to its
+    /// luminance sum, s on the image plane proportional to it (`u_pos`), u on the filter plane
+    /// proportional to the image's basis function (`u_dir`). Returns (s, u, density in area on
+    /// the image plane times solid angle at s).
+    pub fn sample_emission(&self, u_pos: Vec2, u_dir: Vec2) -> Option<(Vec2, Vec2, f32)> {
+        let l = &self.layout;
+        let (m, ux) = self.image_choice.sample_reuse(u_pos.x);
+        let whole = PixelBox {
+            x0: 0.0,
+            x1: l.resolution[0] as f64,
+            y0: 0.0,
+            y1: l.resolution[1] as f64,
+        };
+        let (x, y) = self.sample_in_box(m, &whole, ux as f64, u_pos.y as f64)?;
+        let s = self.pixels_to_plane(x, y);
+        let (i, j) = (m % l.nodes[0] as usize, m / l.nodes[0] as usize);
+        let t = Vec2::new(l.basis.sample(u_dir.x), l.basis.sample(u_dir.y));
+        let u = l.node(i, j) + l.node_spacing * t;
+        let pdf = self.emission_pdf(s, u);
+        (pdf > 0.0 && pdf.is_finite()).then_some((s, u, pdf))
+    }
+
+    /// Density of [`sample_emission`](Self::sample_emission) choosing the ray from `u` through
+    /// `s`: sum_m C_m(s) Phi_m(u) / (h_x h_y sum_m integral C_m) in area x area, times
+    /// d^2 / cos (a patch du at u subtends du cos / d^2 at s).
+    pub fn emission_pdf(&self, s: Vec2, u: Vec2) -> f32 {
+        let l = &self.layout;
+        let Some(pixel) = self.pixel_index(s) else {
+            return 0.0;
+        };
+        let mut sum = 0f64;
+        self.for_each_basis(u, |m, phi| {
+            sum += (self.weight[m * l.pixels_per_image() + pixel] * phi) as f64;
+        });
+        let h = l.node_spacing;
+        let ps = l.pixel_size();
+        let area_area = sum / (self.weight_sum * (h.x * h.y * ps.x * ps.y) as f64);
+        let d2 = (s - u).length_squared() + l.plane_distance * l.plane_distance;
+        let cos = l.plane_distance / d2.sqrt();
+        (area_area * (d2 / cos) as f64) as f32
+    }
+
+    /// Area density on the image plane of the origin `s` of [`sample_emission`](Self::sample_emission)'s
+    /// rays: sum_m C_m(s) / sum_m integral C_m.
+    pub fn emission_origin_pdf(&self, s: Vec2) -> f32 {
+        let l = &self.layout;
+        let Some(pixel) = self.pixel_index(s) else {
+            return 0.0;
+        };
+        let sum: f64 = (0..l.image_count())
+            .map(|m| self.weight[m * l.pixels_per_image() + pixel] as f64)
+            .sum();
+        let ps = l.pixel_size();
+        (sum / (self.weight_sum * (ps.x * ps.y) as f64)) as f32
+    }
+
+    /// Reads a light field stored as one EXR mosaic (docs/light-field.md): I/O errors name
+    /// the file, malformed content is a parse error naming the attribute.
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let image = image_file::read_exr_rgb(path)?;
+        let parse_error = |e: Error| match e {
+            Error::InvalidArgument(message) => Error::parse(path, "", message),
+            other => other,
+        };
+        let layout = layout_from_metadata(&image.metadata)
+            .map_err(|(key, message)| Error::parse(path, key, message))?;
+        let (nx, ny) = (layout.nodes[0] as usize, layout.nodes[1] as usize);
+        let (rx, ry) = (layout.resolution[0] as usize, layout.resolution[1] as usize);
+        if image.width as usize != nx * rx || image.height as usize != ny * ry {
+            return Err(Error::parse(
+                path,
+                "",
+                format!(
+                    "a mosaic of {nx}x{ny} images of {rx}x{ry} pixels must be {}x{}, the file is {}x{}",
+                    nx * rx,
+                    ny * ry,
+                    image.width,
+                    image.height
+                ),
+            ));
+        }
+        let mut pixels = Vec::with_capacity(image.pixels.len());
+        for j in 0..ny {
+            for i in 0..nx {
+                for y in 0..ry {
+                    let row = (j * ry + y) * nx * rx + i * rx;
+                    pixels.extend_from_slice(&image.pixels[row..row + rx]);
+                }
+            }
+        }
+        Self::new(layout, pixels).map_err(parse_error)
+    }
+
+    /// Writes the light field as an EXR mosaic readable by [`from_file`](Self::from_file).
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let l = &self.layout;
+        let (nx, ny) = (l.nodes[0] as usize, l.nodes[1] as usize);
+        let (rx, ry) = (l.resolution[0] as usize, l.resolution[1] as usize);
+        let mut mosaic = vec![Rgb::ZERO; self.colour.len()];
+        for j in 0..ny {
+            for i in 0..nx {
+                let m = j * nx + i;
+                for y in 0..ry {
+                    let row = (j * ry + y) * nx * rx + i * rx;
+                    let from = m * rx * ry + y * rx;
+                    mosaic[row..row + rx].copy_from_slice(&self.colour[from..from + rx]);
+                }
+            }
+        }
+        let pair = |v: Vec2| format!("{} {}", v.x, v.y);
+        let metadata = ExrMetadata::default()
+            .with("light_field", FORMAT_VERSION)
+            .with("light_field.nodes", format!("{nx} {ny}"))
+            .with("light_field.node_min", pair(l.node_min))
+            .with("light_field.node_spacing", pair(l.node_spacing))
+            .with("light_field.basis", l.basis.name())
+            .with("light_field.plane_distance", l.plane_distance)
+            .with("light_field.image_min", pair(l.image_min))
+            .with("light_field.image_max", pair(l.image_max))
+            .with("light_field.resolution", format!("{rx} {ry}"));
+        image_file::write_exr_rgb(path, (nx * rx) as u32, (ny * ry) as u32, &mosaic, &metadata)
+    }
+}
+
+/// The value of the `lacuna:light_field` attribute this version writes and reads.
+pub const FORMAT_VERSION: &str = "1";
+
+/// The layout from a mosaic's `lacuna:light_field.*` attributes; errors name the attribute.
+fn layout_from_metadata(
+    meta: &ExrMetadata,
+) -> std::result::Result<LightFieldLayout, (String, String)> {
+    let get = |key: &str| {
+        meta.get(key).ok_or_else(|| {
+            (
+                format!("lacuna:{key}"),
+                "missing: not a Lacuna light field".to_string(),
+            )
+        })
+    };
+    let version = get("light_field")?;
+    if version != FORMAT_VERSION {
+        return Err((
+            "lacuna:light_field".into(),
+            format!("version {version} is not supported (expected {FORMAT_VERSION})"),
+        ));
+    }
+    fn numbers<T: std::str::FromStr>(
+        key: &str,
+        text: &str,
+    ) -> std::result::Result<[T; 2], (String, String)> {
+        let bad = || {
+            (
+                format!("lacuna:{key}"),
+                format!("'{text}' is not two numbers"),
+            )
+        };
+        let mut it = text.split_whitespace().map(|w| w.parse::<T>());
+        match (it.next(), it.next(), it.next()) {
+            (Some(Ok(a)), Some(Ok(b)), None) => Ok([a, b]),
+            _ => Err(bad()),
+        }
+    }
+    let vec2 = |key: &str| -> std::result::Result<Vec2, (String, String)> {
+        let [x, y] = numbers::<f32>(key, get(key)?)?;
+        Ok(Vec2::new(x, y))
+    };
+    let distance_text = get("light_field.plane_distance")?;
+    let plane_distance = distance_text.trim().parse::<f32>().map_err(|_| {
+        (
+            "lacuna:light_field.plane_distance".to_string(),
+            format!("'{distance_text}' is not a number"),
+        )
+    })?;
+    let basis = FilterBasis::parse(get("light_field.basis")?)
+        .map_err(|e| ("lacuna:light_field.basis".to_string(), e.to_string()))?;
+    let layout = LightFieldLayout {
+        nodes: numbers::<u32>("light_field.nodes", get("light_field.nodes")?)?,
+        node_min: vec2("light_field.node_min")?,
+        node_spacing: vec2("light_field.node_spacing")?,
+        basis,
+        plane_distance,
+        image_min: vec2("light_field.image_min")?,
+        image_max: vec2("light_field.image_max")?,
+        resolution: numbers::<u32>("light_field.resolution", get("light_field.resolution")?)?,
+    };
+    layout
+        .validate()
+        .map_err(|e| ("lacuna:light_field".to_string(), e.to_string()))?;
+    Ok(layout)
+}
+
+/// Inverts a non-decreasing, piecewise-linear (between integers) function `f` on [a, b]:
+/// the x with f(x) - f(a) = u (f(b) - f(a)), found by bisection on the integer knots and then
+/// linearly. `None` when f does not increase on [a, b].
+fn invert_piecewise_linear(f: impl Fn(f64) -> f64, a: f64, b: f64, u: f64) -> Option<f64> {
+    let (fa, fb) = (f(a), f(b));
+    if !(fb > fa) {
+        return None;
+    }
+    let target = fa + u.clamp(0.0, 1.0) * (fb - fa);
+    // The last knot k in [floor(a), ceil(b) - 1] with f(max(k, a)) < target: the piece from
+    // max(k, a) to min(k + 1, b) holds the target and rises.
+    let (mut lo, mut hi) = (
+        a.floor() as i64,
+        (b.ceil() as i64 - 1).max(a.floor() as i64),
+    );
+    while lo < hi {
+        let mid = (lo + hi + 1) / 2;
+        if f((mid as f64).max(a)) < target {
+            lo = mid;
+        } else {
+            hi = mid - 1;
+        }
+    }
+    let x0 = (lo as f64).max(a);
+    let x1 = (lo as f64 + 1.0).min(b);
+    let (f0, f1) = (f(x0), f(x1));
+    let x = if f1 > f0 {
+        x0 + (target - f0) / (f1 - f0) * (x1 - x0)
+    } else {
+        0.5 * (x0 + x1)
+    };
+    Some(x.clamp(x0, x1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Rng;
+
+    #[test]
+    fn basis_integrates_to_one_and_sampling_inverts_its_cdf() {
+        for basis in [FilterBasis::Linear, FilterBasis::Quadratic] {
+            let r = basis.radius();
+            let n = 30_000;
+            let integral: f32 = (0..n)
+                .map(|k| {
+                    basis.eval(-r + 2.0 * r * (k as f32 + 0.5) / n as f32) * 2.0 * r / n as f32
+                })
+                .sum();
+            assert!((integral - 1.0).abs() < 1e-4, "{basis:?}: {integral}");
+            assert!((basis.cdf(r) - 1.0).abs() < 1e-6 && basis.cdf(-r).abs() < 1e-6);
+            for k in 0..100 {
+                let u = (k as f32 + 0.5) / 100.0;
+                let t = basis.sample(u);
+                assert!(
+                    (basis.cdf(t) - u).abs() < 1e-4,
+                    "{basis:?}: cdf({t}) vs {u}"
+                );
+            }
+        }
+        // The quadratic cdf's pieces meet.
+        let q = FilterBasis::Quadratic;
+        assert!((q.cdf(-0.5) - 1.0 / 6.0).abs() < 1e-6);
+        assert!((q.cdf(0.5) - 5.0 / 6.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn summed_area_table_integrates_boxes_exactly() {
+        let layout = LightFieldLayout {
+            nodes: [1, 1],
+            node_min: Vec2::ZERO,
+            node_spacing: Vec2::ONE,
+            basis: FilterBasis::Linear,
+            plane_distance: 1.0,
+            image_min: Vec2::ZERO,
+            image_max: Vec2::new(4.0, 3.0),
+            resolution: [4, 3],
+        };
+        let pixels: Vec<Rgb> = (0..12).map(|i| Rgb::splat(i as f32)).collect();
+        let f = LightField::new(layout, pixels).unwrap();
+        // [0.5, 2.25] x [0.5, 2.5]: rows 0 (values 0-3) and 2 (8-11) half, row 1 (4-7) whole.
+        let b = PixelBox {
+            x0: 0.5,
+            x1: 2.25,
+            y0: 0.5,
+            y1: 2.5,
+        };
+        let row = |v: [f64; 3]| 0.5 * v[0] + v[1] + 0.25 * v[2];
+        let expected =
+            0.5 * row([0.0, 1.0, 2.0]) + row([4.0, 5.0, 6.0]) + 0.5 * row([8.0, 9.0, 10.0]);
+        let lum = luminance(Rgb::ONE) as f64;
+        assert!((f.box_integral(0, &b) - expected * lum).abs() < 1e-5);
+        let mut rng = Rng::new(1, 0);
+        for _ in 0..1000 {
+            let (x, y) = f
+                .sample_in_box(0, &b, rng.uniform() as f64, rng.uniform() as f64)
+                .unwrap();
+            assert!(b.contains(x, y), "({x}, {y}) outside the box");
+            assert!(x >= 1.0 || y >= 1.0, "({x}, {y}) in the zero pixel");
+        }
+    }
+
+    #[test]
+    fn invalid_layouts_and_pixels_are_refused() {
+        let good = LightFieldLayout {
+            nodes: [2, 2],
+            node_min: Vec2::ZERO,
+            node_spacing: Vec2::ONE,
+            basis: FilterBasis::Quadratic,
+            plane_distance: 1.0,
+            image_min: Vec2::ZERO,
+            image_max: Vec2::ONE,
+            resolution: [2, 2],
+        };
+        let pixels = || vec![Rgb::ONE; 16];
+        assert!(LightField::new(good.clone(), pixels()).is_ok());
+        assert!(LightField::new(good.clone(), vec![Rgb::ONE; 15]).is_err());
+        assert!(LightField::new(good.clone(), vec![Rgb::ZERO; 16]).is_err());
+        let mut nan = pixels();
+        nan[3] = Rgb::new(f32::NAN, 0.0, 0.0);
+        assert!(LightField::new(good.clone(), nan).is_err());
+        for bad in [
+            LightFieldLayout {
+                plane_distance: 0.0,
+                ..good.clone()
+            },
+            LightFieldLayout {
+                nodes: [0, 2],
+                ..good.clone()
+            },
+            LightFieldLayout {
+                node_spacing: Vec2::new(1.0, -1.0),
+                ..good.clone()
+            },
+            LightFieldLayout {
+                image_max: Vec2::new(0.0, 1.0),
+                ..good.clone()
+            },
+        ] {
+            assert!(LightField::new(bad, pixels()).is_err());
+        }
+    }
+}
