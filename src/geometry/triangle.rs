@@ -221,7 +221,9 @@ impl TriangleBlock {
     /// The id given to [`TriangleBlock::set`] for `lane`.
     #[inline(always)]
     pub fn id(&self, lane: usize) -> u32 {
-        self.v[0][3].to_array()[lane & 3].to_bits()
+        // Read in place (`to_array` copied the four ids on the stack first).
+        let ids: &[f32; 4] = self.v[0][3].as_ref();
+        ids[lane & 3].to_bits()
     }
 }
 
