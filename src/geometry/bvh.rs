@@ -20,7 +20,9 @@ use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 
-use super::triangle::{intersect_triangle_block, RayLanes, TriangleBlock};
+use super::triangle::{
+    intersect_triangle_block, intersect_triangle_block_into, BlockHits, RayLanes, TriangleBlock,
+};
 use super::{Hit, Ray, RayPrecomp};
 use crate::math::Vec3;
 
@@ -393,7 +395,9 @@ impl Bvh {
             return None;
         }
         let q = QueryRay::new(ray);
+        let ray_lanes = RayLanes::new(&q.tri);
         let mut best: Option<Hit> = None;
+        let mut hits = BlockHits::MISS;
         self.traverse(
             isa,
             &q,
@@ -403,12 +407,14 @@ impl Bvh {
             #[inline(always)]
             |index, lanes, t_max| {
                 let block = &self.blocks[index as usize];
-                let hits = intersect_triangle_block(&q.tri, &q.lanes, block, lanes, *t_max);
+                let mut mask = intersect_triangle_block_into(
+                    &q.tri, &ray_lanes, block, lanes, *t_max, &mut hits,
+                );
                 // Highest lane first, keeping a hit only if strictly nearer: the order and
                 // rule of testing the triangles one by one.
-                let mut mask = hits.mask;
                 while mask != 0 {
-                    let lane = (31 - mask.leading_zeros()) as usize;
+                    // `& 3`: the mask has four bits; no bounds checks.
+                    let lane = (31 - mask.leading_zeros()) as usize & 3;
                     mask &= !(1 << lane);
                     if hits.t[lane] < *t_max {
                         *t_max = hits.t[lane];
@@ -432,6 +438,7 @@ impl Bvh {
             return false;
         }
         let q = QueryRay::new(ray);
+        let ray_lanes = RayLanes::new(&q.tri);
         // Coherent queries test the block of this thread's last occluder first: consecutive
         // shadow rays of a path (and of neighbouring pixels) toward a light behind a wall are
         // mostly stopped by the same few triangles. Any triangle the ray hits is an answer,
@@ -445,12 +452,13 @@ impl Bvh {
         if COHERENT {
             if let Some(block) = self.blocks.get(first as usize) {
                 let lanes = block.lanes();
-                if intersect_triangle_block(&q.tri, &q.lanes, block, lanes, ray.t_max).mask != 0 {
+                if intersect_triangle_block(&q.tri, &ray_lanes, block, lanes, ray.t_max).mask != 0 {
                     return true;
                 }
                 if let Some(block) = self.blocks.get(second as usize) {
                     let lanes = block.lanes();
-                    if intersect_triangle_block(&q.tri, &q.lanes, block, lanes, ray.t_max).mask != 0
+                    if intersect_triangle_block(&q.tri, &ray_lanes, block, lanes, ray.t_max).mask
+                        != 0
                     {
                         LAST_OCCLUDER.with(|c| c.set([second, first]));
                         return true;
@@ -469,7 +477,7 @@ impl Bvh {
             |index, lanes, t_max| {
                 let block = &self.blocks[index as usize];
                 let hit =
-                    intersect_triangle_block(&q.tri, &q.lanes, block, lanes, *t_max).mask != 0;
+                    intersect_triangle_block(&q.tri, &ray_lanes, block, lanes, *t_max).mask != 0;
                 if hit {
                     occluder = index;
                 }
@@ -507,6 +515,7 @@ impl Bvh {
             return (0, 0);
         }
         let q = QueryRay::new(ray);
+        let ray_lanes = RayLanes::new(&q.tri);
         let (mut nodes, mut tris) = (0u32, 0u32);
         self.traverse(
             Baseline,
@@ -518,7 +527,7 @@ impl Bvh {
             |index, lanes, t_max| {
                 tris += lanes.count_ones();
                 let block = &self.blocks[index as usize];
-                let hits = intersect_triangle_block(&q.tri, &q.lanes, block, lanes, *t_max);
+                let hits = intersect_triangle_block(&q.tri, &ray_lanes, block, lanes, *t_max);
                 for lane in 0..4 {
                     if hits.mask & (1 << lane) != 0 && hits.t[lane] < *t_max {
                         *t_max = hits.t[lane];
@@ -730,7 +739,6 @@ const TRAVERSAL_STACK: usize = 32;
 struct QueryRay {
     node: NodeRay,
     tri: RayPrecomp,
-    lanes: RayLanes,
     /// obvhs's `ray_get_octant_inv4`: in every byte, bit 2 / 1 / 0 set where the direction's
     /// x / y / z is not negative.
     oct_inv4: u32,
@@ -746,7 +754,6 @@ impl QueryRay {
         let tri = RayPrecomp::with_reciprocal(ray.origin, ray.dir, recip.into());
         QueryRay {
             node: NodeRay::from_reciprocal(ray.origin, recip),
-            lanes: RayLanes::new(&tri),
             tri,
             oct_inv4: (positive(0) * 0x0404_0404)
                 | (positive(1) * 0x0202_0202)

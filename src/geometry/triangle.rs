@@ -221,7 +221,9 @@ impl TriangleBlock {
     /// The id given to [`TriangleBlock::set`] for `lane`.
     #[inline(always)]
     pub fn id(&self, lane: usize) -> u32 {
-        self.v[0][3].to_array()[lane & 3].to_bits()
+        // Read in place (`to_array` copied the four ids on the stack first).
+        let ids: &[f32; 4] = self.v[0][3].as_ref();
+        ids[lane & 3].to_bits()
     }
 }
 
@@ -263,7 +265,7 @@ pub struct BlockHits {
 }
 
 impl BlockHits {
-    const MISS: BlockHits = BlockHits {
+    pub const MISS: BlockHits = BlockHits {
         mask: 0,
         t: [0.0; 4],
         b1: [0.0; 4],
@@ -284,6 +286,25 @@ pub fn intersect_triangle_block(
     lanes: u32,
     t_max: f32,
 ) -> BlockHits {
+    let mut hits = BlockHits::MISS;
+    hits.mask = intersect_triangle_block_into(r, l, block, lanes, t_max, &mut hits);
+    hits
+}
+
+/// [`intersect_triangle_block`] writing the distances and barycentrics into the caller's
+/// `hits` (left as they were when no lane passes the edge test) and returning the hit mask
+/// (`hits.mask` is not written). A closest-hit query keeps one `BlockHits` for all its
+/// blocks: a returned one was copied once more on the stack per block (about 12
+/// instructions).
+#[inline(always)]
+pub fn intersect_triangle_block_into(
+    r: &RayPrecomp,
+    l: &RayLanes,
+    block: &TriangleBlock,
+    lanes: u32,
+    t_max: f32,
+    hits: &mut BlockHits,
+) -> u32 {
     let (kx, ky, kz) = (r.kx & 3, r.ky & 3, r.kz & 3);
     let v = &block.v;
     let zero = Vec4::ZERO;
@@ -310,7 +331,7 @@ pub fn intersect_triangle_block(
     // Most blocks a ray reaches have no triangle it passes through: stop before the
     // distances.
     if !(negative & positive).bitmask() & lanes == 0 {
-        return BlockHits::MISS;
+        return 0;
     }
     let det = e0 + e1 + e2;
     let az = l.sz * a[2];
@@ -325,14 +346,11 @@ pub fn intersect_triangle_block(
     let t = t_scaled * inv_det;
     let rejected = (negative & positive) | det.cmpeq(zero) | out_negative | out_positive;
     let mut mask = !rejected.bitmask() & t.cmplt(t_max4).bitmask() & lanes;
-    let mut hits = BlockHits {
-        mask: 0,
-        t: t.to_array(),
-        b1: (e1 * inv_det).to_array(),
-        b2: (e2 * inv_det).to_array(),
-    };
+    hits.t = t.to_array();
+    hits.b1 = (e1 * inv_det).to_array();
+    hits.b2 = (e2 * inv_det).to_array();
     if mask == 0 {
-        return hits;
+        return 0;
     }
 
     // The conservative bound on t of `intersect_triangle`, lane by lane.
@@ -357,10 +375,9 @@ pub fn intersect_triangle_block(
     let close = t.cmple(delta_t).bitmask() & mask;
     if close != 0 {
         mask &= !close;
-        mask |= retest_f64(r, block, close, t_max, &mut hits);
+        mask |= retest_f64(r, block, close, t_max, hits);
     }
-    hits.mask = mask;
-    hits
+    mask
 }
 
 /// The zero-edge rule of [`intersect_triangle`] for the lanes in `lanes`: all three edge
