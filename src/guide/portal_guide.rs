@@ -653,7 +653,9 @@ fn light_regions(analysis: &Analysis, scene: &Scene) -> Vec<bool> {
             }
             Light::Point { position, .. }
             | Light::Spot { position, .. }
-            | Light::Photometric { position, .. } => {
+            | Light::Photometric { position, .. }
+            // A light-field luminaire's origin lies on its filter plane, in the room it lights.
+            | Light::LightField { position, .. } => {
                 if let Some(l) = label_near(analysis, *position) {
                     lit[l as usize] = true;
                 }
