@@ -1397,26 +1397,7 @@ mod tests {
             })
             .collect();
         // A closed room: each wall 8 x 8 quads.
-        let n = 8;
-        let mut room = Vec::new();
-        for axis in 0..3 {
-            for side in [-1.0f32, 1.0] {
-                let p = |i: usize, j: usize| {
-                    let mut c = Vec3::ZERO;
-                    c[axis] = side;
-                    c[(axis + 1) % 3] = 2.0 * i as f32 / n as f32 - 1.0;
-                    c[(axis + 2) % 3] = 2.0 * j as f32 / n as f32 - 1.0;
-                    c
-                };
-                for i in 0..n {
-                    for j in 0..n {
-                        room.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
-                        room.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
-                    }
-                }
-            }
-        }
-        scenes.push((room, 1.0));
+        scenes.push((closed_room(8), 1.0));
         let (mut compared, mut hits, mut occluded) = (0usize, 0usize, 0usize);
         for (tris, scale) in &scenes {
             let bvh = Bvh::build(tris, BvhQuality::Medium);
@@ -1526,6 +1507,30 @@ mod tests {
         assert!(occluded > 10_000 && occluded < 19_900, "{occluded}");
     }
 
+    /// A closed room, the cube [-1, 1]^3, each wall `n` x `n` axis-aligned quads: shared
+    /// edges and axis-aligned faces, where watertightness and tree quality are tested.
+    fn closed_room(n: usize) -> Vec<[Vec3; 3]> {
+        let mut tris = Vec::new();
+        for axis in 0..3 {
+            for side in [-1.0f32, 1.0] {
+                let p = |i: usize, j: usize| {
+                    let mut c = Vec3::ZERO;
+                    c[axis] = side;
+                    c[(axis + 1) % 3] = 2.0 * i as f32 / n as f32 - 1.0;
+                    c[(axis + 2) % 3] = 2.0 * j as f32 / n as f32 - 1.0;
+                    c
+                };
+                for i in 0..n {
+                    for j in 0..n {
+                        tris.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
+                        tris.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
+                    }
+                }
+            }
+        }
+        tris
+    }
+
     fn brute_force(tris: &[[Vec3; 3]], ray: &Ray) -> Option<(usize, f32)> {
         let pre = RayPrecomp::new(ray.origin, ray.dir);
         tris.iter()
@@ -1631,24 +1636,7 @@ mod tests {
     #[test]
     fn closed_room_tree_separates_the_walls() {
         let n = 16;
-        let mut tris = Vec::new();
-        for axis in 0..3 {
-            for side in [-1.0f32, 1.0] {
-                let p = |i: usize, j: usize| {
-                    let mut c = Vec3::ZERO;
-                    c[axis] = side;
-                    c[(axis + 1) % 3] = 2.0 * i as f32 / n as f32 - 1.0;
-                    c[(axis + 2) % 3] = 2.0 * j as f32 / n as f32 - 1.0;
-                    c
-                };
-                for i in 0..n {
-                    for j in 0..n {
-                        tris.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
-                        tris.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
-                    }
-                }
-            }
-        }
+        let tris = closed_room(n);
         let mut rng = Rng::new(2, 2);
         let rays: Vec<Ray> = (0..4000)
             .map(|_| {
