@@ -146,9 +146,9 @@ struct SceneArgs {
     env_layout: Option<String>,
     /// How light sampling picks environment directions: latlong, cube-uniform, cube-power,
     /// cube-dynamic (per-normal face balancing, the default), bsdf (no light sampling) or portals
-    /// (path and path_skeleton: through the window portals a point sees, found automatically or
-    /// listed in the scene file). An
-    /// integrator option such as `path:env=latlong` overrides it for that integrator.
+    /// (path, path_skeleton and path_portal: through the window portals a point sees, found
+    /// automatically or listed in the scene file). An integrator option such as
+    /// `path:env=latlong` overrides it for that integrator.
     #[arg(long)]
     env_strategy: Option<String>,
     /// env_direct: environment light samples per shading point [default: 30].
