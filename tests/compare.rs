@@ -5,7 +5,7 @@
 use lacuna::compare::{
     compare, compare_scheduled, render_reference, write_report, Contender, Schedule,
 };
-use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::integrator::{self, Integrator, IntegratorSettings};
 use lacuna::math::{Rgb, Vec3};
 use lacuna::render::RenderSettings;
 use lacuna::scene::{Camera, Material, MeshDesc, Scene, SceneBuilder};
@@ -86,6 +86,18 @@ fn room() -> (Scene, Camera) {
     (b.build().unwrap(), camera)
 }
 
+/// `path` at `max_depth`, as a comparison's contender or reference.
+fn path_of_depth(max_depth: u32) -> Box<dyn Integrator> {
+    integrator::create(
+        "path",
+        IntegratorSettings {
+            max_depth,
+            ..Default::default()
+        },
+    )
+    .unwrap()
+}
+
 #[test]
 fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
     let (scene, camera) = room();
@@ -97,16 +109,7 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
         seed: 99,
         ..Default::default()
     };
-    let path = || {
-        integrator::create(
-            "path",
-            IntegratorSettings {
-                max_depth: depth,
-                ..Default::default()
-            },
-        )
-        .unwrap()
-    };
+    let path = || path_of_depth(depth);
     let reference =
         render_reference(&scene, &camera, path().as_ref(), &settings, &|_| true).unwrap();
     assert!(reference.noise.mae > 0.0);
@@ -123,14 +126,7 @@ fn self_comparison_is_neutral_and_a_dropped_bounce_plateaus() {
         },
         Contender {
             label: "path dropping a bounce".into(),
-            integrator: integrator::create(
-                "path",
-                IntegratorSettings {
-                    max_depth: depth - 1,
-                    ..Default::default()
-                },
-            )
-            .unwrap(),
+            integrator: path_of_depth(depth - 1),
             sampler: None,
         },
         // Through the registry, as `lacuna compare --integrators` makes contenders.
@@ -226,21 +222,17 @@ fn concurrent_contenders_share_the_machine_and_keep_their_ratios() {
         threads: Some(1),
         ..Default::default()
     };
-    let path = |max_depth| {
-        integrator::create(
-            "path",
-            IntegratorSettings {
-                max_depth,
-                ..Default::default()
-            },
-        )
-        .unwrap()
-    };
-    let reference =
-        render_reference(&scene, &camera, path(depth).as_ref(), &settings, &|_| true).unwrap();
+    let reference = render_reference(
+        &scene,
+        &camera,
+        path_of_depth(depth).as_ref(),
+        &settings,
+        &|_| true,
+    )
+    .unwrap();
     let contender = |label: &str, max_depth| Contender {
         label: label.into(),
-        integrator: path(max_depth),
+        integrator: path_of_depth(max_depth),
         sampler: None,
     };
     let mut contenders = vec![
