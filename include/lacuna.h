@@ -294,6 +294,29 @@ typedef uint32_t lacuna_mis_heuristic;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
+// How `lacuna_render_job_compare` runs its contenders
+// (`lacuna_render_job_set_compare_schedule`).
+enum lacuna_compare_schedule
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    // One after the other, each with all of the job's threads (the default); the order
+    // rotates each run.
+    LACUNA_COMPARE_SCHEDULE_SEQUENTIAL = 0,
+    // All at once, each with the job's thread count, for the same wall-clock time: on a
+    // shared machine whose load changes, every contender meets the same load, so their
+    // ratios hold where one-after-the-other runs can be moved by a change between them.
+    LACUNA_COMPARE_SCHEDULE_CONCURRENT = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum lacuna_compare_schedule lacuna_compare_schedule;
+#else
+typedef uint32_t lacuna_compare_schedule;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
 // Numbers of the pixel samples (`lacuna_render_job_set_sampler`).
 enum lacuna_sampler
 #if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
@@ -1308,7 +1331,8 @@ lacuna_status lacuna_render_job_run_reference(struct lacuna_render_job *job,
 // of the job's resolution) after every pass; then writes the report into directory `out_dir`
 // (created if needed): curves.csv, convergence.svg, summary.md, each integrator's final image
 // (EXR and PNG) and false-colour error images. The first integrator is the baseline.
-// Progress and cancellation work as for `lacuna_render_job_run`.
+// Progress and cancellation work as for `lacuna_render_job_run`. The contenders run one after
+// the other unless `lacuna_render_job_set_compare_schedule` says otherwise.
 lacuna_status lacuna_render_job_compare(struct lacuna_render_job *job,
                                         const char *const *integrators,
                                         size_t integrator_count,
@@ -1316,6 +1340,18 @@ lacuna_status lacuna_render_job_compare(struct lacuna_render_job *job,
                                         double seconds_per_run,
                                         uint32_t runs,
                                         const char *out_dir);
+
+// Sets how `lacuna_render_job_compare` runs its contenders: a `lacuna_compare_schedule`
+// value. `LACUNA_COMPARE_SCHEDULE_SEQUENTIAL` (the default) gives each run all of the job's
+// threads in turn; `LACUNA_COMPARE_SCHEDULE_CONCURRENT` starts the contenders of a run
+// together, each with the job's thread count, so that on a shared machine all meet the same
+// load (absolute figures drop, ratios hold).
+lacuna_status lacuna_render_job_set_compare_schedule(struct lacuna_render_job *job,
+                                                     uint32_t schedule);
+
+// Writes the job's `lacuna_compare_schedule` to `*out_schedule`.
+lacuna_status lacuna_render_job_get_compare_schedule(const struct lacuna_render_job *job,
+                                                     uint32_t *out_schedule);
 
 // Creates a context (reference count 1) with all cores as worker threads, the default memory
 // budget and no error callback. Writes it to `*out_context` on success. Thread-safe.

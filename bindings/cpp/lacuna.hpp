@@ -683,6 +683,13 @@ public:
         finish(lacuna_render_job_run_reference(j_.get(), &f, noise));
         return Film(f);
     }
+    /// How `compare` runs its contenders: a `lacuna_compare_schedule` value.
+    RenderJob &compare_schedule(uint32_t s) { return set(lacuna_render_job_set_compare_schedule(j_.get(), s)); }
+    uint32_t compare_schedule() const {
+        uint32_t s = 0;
+        detail::check(lacuna_render_job_get_compare_schedule(j_.get(), &s));
+        return s;
+    }
     void compare(const std::vector<std::string> &integrators, const Film &reference, double seconds_per_run,
                  uint32_t runs, const std::string &out_dir) {
         std::vector<const char *> names;

@@ -9,8 +9,9 @@ use super::boundary::{self, lacuna_status, CapiError};
 use super::buffer::{arg, out_ptr, path_arg, read_strided, str_arg, write_out};
 use super::film::lacuna_film;
 use super::job::lacuna_render_job;
+use super::job::with_settings;
 use super::types::*;
-use crate::compare::{compare, render_reference, write_report, Contender};
+use crate::compare::{compare_scheduled, render_reference, write_report, Contender};
 use crate::film::ImageErrors;
 
 /// Renders a reference image with the job's settings (its samples per pixel, at least 2; no
@@ -75,7 +76,8 @@ pub unsafe extern "C" fn lacuna_render_job_run_reference(
 /// of the job's resolution) after every pass; then writes the report into directory `out_dir`
 /// (created if needed): curves.csv, convergence.svg, summary.md, each integrator's final image
 /// (EXR and PNG) and false-colour error images. The first integrator is the baseline.
-/// Progress and cancellation work as for `lacuna_render_job_run`.
+/// Progress and cancellation work as for `lacuna_render_job_run`. The contenders run one after
+/// the other unless `lacuna_render_job_set_compare_schedule` says otherwise.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_compare(
     job: *mut lacuna_render_job,
@@ -145,7 +147,7 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
         let progress = j.progress_fn(p.settings.progress, &last);
         let mut settings = p.settings.resolved.render.clone();
         settings.time_limit = None;
-        let cmp = compare(
+        let cmp = compare_scheduled(
             &j.scene.scene,
             &p.camera,
             &mut contenders,
@@ -154,9 +156,47 @@ pub unsafe extern "C" fn lacuna_render_job_compare(
             &settings,
             seconds_per_run,
             runs,
+            p.settings.compare_schedule,
             &progress,
         )?;
         write_report(&dir, &cmp, &pixels, w, h, &j.scene.label)?;
+        Ok(())
+    })
+}
+
+/// Sets how `lacuna_render_job_compare` runs its contenders: a `lacuna_compare_schedule`
+/// value. `LACUNA_COMPARE_SCHEDULE_SEQUENTIAL` (the default) gives each run all of the job's
+/// threads in turn; `LACUNA_COMPARE_SCHEDULE_CONCURRENT` starts the contenders of a run
+/// together, each with the job's thread count, so that on a shared machine all meet the same
+/// load (absolute figures drop, ratios hold).
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_set_compare_schedule(
+    job: *mut lacuna_render_job,
+    schedule: u32,
+) -> lacuna_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        with_settings("lacuna_render_job_set_compare_schedule", job, |s| {
+            s.compare_schedule = lacuna_compare_schedule::from_c(schedule, "schedule")?.into();
+            Ok(())
+        })
+    }
+}
+
+/// Writes the job's `lacuna_compare_schedule` to `*out_schedule`.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_render_job_get_compare_schedule(
+    job: *const lacuna_render_job,
+    out_schedule: *mut u32,
+) -> lacuna_status {
+    boundary::status("lacuna_render_job_get_compare_schedule", |call| {
+        // SAFETY: NULL or a live job.
+        let j = unsafe { arg(job, "job") }?;
+        call.context(&j.scene.ctx);
+        let out = out_ptr(out_schedule, "out_schedule")?;
+        let schedule = j.settings().compare_schedule;
+        // SAFETY: checked non-NULL, writable per the contract.
+        unsafe { write_out(out, lacuna_compare_schedule::from(schedule) as u32) };
         Ok(())
     })
 }

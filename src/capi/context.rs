@@ -46,7 +46,9 @@ pub const LACUNA_MAX_THREADS: u32 = 4096;
 const _: () = assert!(LACUNA_DEFAULT_MEMORY_BUDGET == crate::limits::DEFAULT_MEMORY_BUDGET);
 const _: () = assert!(LACUNA_MAX_THREADS == crate::limits::MAX_THREADS);
 
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+/// The C API's one way to lock: a lock whose holder panicked stays usable, so a panic caught
+/// at the boundary does not turn every later call on the handle into another panic.
+pub(super) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 

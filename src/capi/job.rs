@@ -3,12 +3,12 @@
 
 use std::ffi::{c_char, c_void};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::boundary::{self, lacuna_status, CapiError, CapiResult};
 use super::buffer::{arc_clone, arc_into_handle, arg, box_free, out_ptr, str_arg, write_out};
-use super::context::LACUNA_MAX_THREADS;
+use super::context::{lock, LACUNA_MAX_THREADS};
 use super::film::{lacuna_film, stats_to_c};
 use super::scene::lacuna_scene;
 use super::types::*;
@@ -65,6 +65,8 @@ pub(crate) struct JobSettings {
     pub strategy: Option<StrategyFilter>,
     pub strategy_images: Option<u32>,
     pub progress: Option<ProgressCallback>,
+    /// How `lacuna_render_job_compare` runs its contenders.
+    pub compare_schedule: crate::compare::Schedule,
 }
 
 impl JobSettings {
@@ -142,10 +144,6 @@ pub struct lacuna_render_job {
     running: AtomicBool,
     last_stats: Mutex<Option<RenderStats>>,
     partial: Mutex<Option<Film>>,
-}
-
-fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Clears the running flag (and consumes a cancel request) when a run ends, however it ends.
@@ -332,6 +330,7 @@ pub unsafe extern "C" fn lacuna_render_job_new(
                 strategy: None,
                 strategy_images: None,
                 progress: None,
+                compare_schedule: Default::default(),
             }),
             cancel: AtomicBool::new(false),
             running: AtomicBool::new(false),

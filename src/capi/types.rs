@@ -266,6 +266,40 @@ impl From<crate::integrator::MisHeuristic> for lacuna_mis_heuristic {
     }
 }
 
+/// How `lacuna_render_job_compare` runs its contenders
+/// (`lacuna_render_job_set_compare_schedule`).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum lacuna_compare_schedule {
+    /// One after the other, each with all of the job's threads (the default); the order
+    /// rotates each run.
+    Sequential = 0,
+    /// All at once, each with the job's thread count, for the same wall-clock time: on a
+    /// shared machine whose load changes, every contender meets the same load, so their
+    /// ratios hold where one-after-the-other runs can be moved by a change between them.
+    Concurrent = 1,
+}
+
+/// The one mapping between the C values and the Rust schedules, both ways.
+impl From<lacuna_compare_schedule> for crate::compare::Schedule {
+    fn from(s: lacuna_compare_schedule) -> Self {
+        match s {
+            lacuna_compare_schedule::Sequential => Self::Sequential,
+            lacuna_compare_schedule::Concurrent => Self::Concurrent,
+        }
+    }
+}
+
+impl From<crate::compare::Schedule> for lacuna_compare_schedule {
+    fn from(s: crate::compare::Schedule) -> Self {
+        use crate::compare::Schedule;
+        match s {
+            Schedule::Sequential => Self::Sequential,
+            Schedule::Concurrent => Self::Concurrent,
+        }
+    }
+}
+
 /// Numbers of the pixel samples (`lacuna_render_job_set_sampler`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -380,6 +414,10 @@ c_enum!(lacuna_mis_heuristic {
     Optimal
 });
 c_enum!(lacuna_sampler { Sobol, Independent });
+c_enum!(lacuna_compare_schedule {
+    Sequential,
+    Concurrent
+});
 c_enum!(lacuna_environment_layout { LatLong, CubeCross });
 c_enum!(lacuna_environment_strategy {
     LatLong,

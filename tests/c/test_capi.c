@@ -23,6 +23,17 @@ static void write_file(const char *name, const char *text) {
 
 static bool file_exists(const char *path) { return access(path, F_OK) == 0; }
 
+/* Whether the text file at `path` contains `needle` (files of this test are small). */
+static bool file_contains(const char *path, const char *needle) {
+    FILE *f = fopen(path, "r");
+    if (!f) return false;
+    static char text[1 << 16];
+    size_t n = fread(text, 1, sizeof text - 1, f);
+    fclose(f);
+    text[n] = 0;
+    return strstr(text, needle) != NULL;
+}
+
 /* ---------------------------------------------------------------------------------------- */
 
 static void test_version_and_status(void) {
@@ -822,6 +833,20 @@ static void test_render(lacuna_context *ctx) {
     OK(lacuna_render_job_compare(job, names, 2, ref, 0.1, 1, path_in_dir("cmp")));
     CHECK(file_exists(path_in_dir("cmp/summary.md")) && file_exists(path_in_dir("cmp/curves.csv")) &&
           file_exists(path_in_dir("cmp/convergence.svg")));
+    {
+        uint32_t schedule = 99;
+        OK(lacuna_render_job_get_compare_schedule(job, &schedule));
+        CHECK(schedule == LACUNA_COMPARE_SCHEDULE_SEQUENTIAL);
+        EXPECT(lacuna_render_job_set_compare_schedule(job, 2), LACUNA_STATUS_INVALID_ARGUMENT, "schedule");
+        EXPECT(lacuna_render_job_set_compare_schedule(NULL, 0), LACUNA_STATUS_NULL_POINTER, "job");
+        EXPECT(lacuna_render_job_get_compare_schedule(job, NULL), LACUNA_STATUS_NULL_POINTER, "out_schedule");
+        OK(lacuna_render_job_set_compare_schedule(job, LACUNA_COMPARE_SCHEDULE_CONCURRENT));
+        OK(lacuna_render_job_get_compare_schedule(job, &schedule));
+        CHECK(schedule == LACUNA_COMPARE_SCHEDULE_CONCURRENT);
+        OK(lacuna_render_job_compare(job, names, 2, ref, 0.1, 1, path_in_dir("cmp_concurrent")));
+        CHECK(file_contains(path_in_dir("cmp_concurrent/summary.md"), "at the same time"));
+        OK(lacuna_render_job_set_compare_schedule(job, LACUNA_COMPARE_SCHEDULE_SEQUENTIAL));
+    }
     const char *bad_names[2] = {"path", "nonesuch"};
     EXPECT(lacuna_render_job_compare(job, bad_names, 2, ref, 0.1, 1, path_in_dir("cmp2")),
            LACUNA_STATUS_INVALID_ARGUMENT, "nonesuch");

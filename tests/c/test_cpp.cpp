@@ -260,6 +260,10 @@ int main(int argc, char **argv) {
     job.mis_heuristic(LACUNA_MIS_HEURISTIC_AUTO).mis_heuristic(LACUNA_MIS_HEURISTIC_OPTIMAL);
     CHECK(job.mis_heuristic() == LACUNA_MIS_HEURISTIC_OPTIMAL);
     EXPECT_ERROR(job.mis_heuristic(4), LACUNA_STATUS_INVALID_ARGUMENT, "heuristic");
+    CHECK(job.compare_schedule() == LACUNA_COMPARE_SCHEDULE_SEQUENTIAL);
+    CHECK(job.compare_schedule(LACUNA_COMPARE_SCHEDULE_CONCURRENT).compare_schedule() ==
+          LACUNA_COMPARE_SCHEDULE_CONCURRENT);
+    EXPECT_ERROR(job.compare_schedule(2), LACUNA_STATUS_INVALID_ARGUMENT, "schedule");
     job.resolution(12, 8).samples_per_pixel(2).seed(3).max_depth(2).threads(2).mis_heuristic(LACUNA_MIS_HEURISTIC_POWER);
     std::atomic<int> calls{0};
     double last = 0;
