@@ -1116,6 +1116,37 @@ fn measured_with_solid_outside(dims: [usize; 3], map: &[u32]) -> bool {
 }
 
 impl Skeleton {
+    /// The skeleton of `scene` as the integrators that map points to its nodes build it
+    /// (skeleton guiding, SkelBPT, the VPL shadow maps): an analysis of only what the skeleton
+    /// uses (its maps, not the regions and portals; the Euclidean map computed beside the
+    /// thinning), then the thinning in parallel without the topology checks. `stage(name,
+    /// started)` is told of each of the two stages as it ends, and may cancel with an error.
+    pub fn of_scene(
+        scene: &crate::scene::Scene,
+        resolution: super::Resolution,
+        stage: &mut dyn FnMut(&'static str, Instant) -> Result<()>,
+    ) -> Result<Skeleton> {
+        let t = Instant::now();
+        let analysis_settings = super::AnalysisSettings {
+            resolution,
+            all_maps: true,
+            euclidean: false,
+            regions: false,
+            ..Default::default()
+        };
+        let analysis = Analysis::build(scene, &analysis_settings, &|_, _| true)?;
+        stage("analysis (voxels, maps)", t)?;
+        let t = Instant::now();
+        let skeleton_settings = SkeletonSettings {
+            parallel: true,
+            topology: false,
+        };
+        let skeleton = Skeleton::build(&analysis, &skeleton_settings, &|_, _| true)?;
+        drop(analysis);
+        stage("skeleton (thinning, filter, node map)", t)?;
+        Ok(skeleton)
+    }
+
     /// The skeleton of an analysis. Uses its L1 distance and L1 decenterness maps when present
     /// (`all_maps`) and measured with a solid outside, computes them otherwise; likewise its
     /// squared Euclidean distance, which is otherwise computed beside the thinning.

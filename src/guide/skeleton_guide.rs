@@ -53,10 +53,7 @@ use super::importance::{
 use super::lobes::{plan_lobes, GuideLobe, ImportanceNode, LobePlan, MAX_LOBES};
 use super::settings::{SkeletonGuideSettings, SkeletonStrength, AUTO_RATIO_MAX, BUDGET_SHARE};
 use super::training::{self, TrainingReport};
-use crate::analysis::{
-    may_map_to, Analysis, AnalysisSettings, NeighbourMasks, Skeleton, SkeletonSettings, StageTime,
-    VoxelGrid, VoxelSet,
-};
+use crate::analysis::{may_map_to, NeighbourMasks, Skeleton, StageTime, VoxelGrid, VoxelSet};
 use crate::error::{Error, Result};
 use crate::math::Vec3;
 use crate::scene::{Camera, Scene};
@@ -166,26 +163,11 @@ impl SkeletonGuide {
             }
         };
 
-        let t = Instant::now();
-        // Only what the skeleton uses: its maps, not the regions and portals.
-        let analysis_settings = AnalysisSettings {
-            resolution: settings.resolution,
-            all_maps: true,
-            // Computed by the skeleton beside its thinning.
-            euclidean: false,
-            regions: false,
-            ..Default::default()
-        };
-        let analysis = Analysis::build(scene, &analysis_settings, &|_, _| true)?;
-        stage("analysis (voxels, maps)", t, 0.3)?;
-
-        let t = Instant::now();
-        let skeleton_settings = SkeletonSettings {
-            parallel: true,
-            topology: false,
-        };
-        let skeleton = Skeleton::build(&analysis, &skeleton_settings, &|_, _| true)?;
-        drop(analysis);
+        let mut fraction = 0.0;
+        let skeleton = Skeleton::of_scene(scene, settings.resolution, &mut |name, t| {
+            fraction += 0.35;
+            stage(name, t, fraction)
+        })?;
         let Skeleton {
             grid,
             raw,
@@ -194,7 +176,6 @@ impl SkeletonGuide {
             ..
         } = skeleton;
         let graph = filtered.graph;
-        stage("skeleton (thinning, filter, node map)", t, 0.7)?;
 
         let t = Instant::now();
         let power = trace_light_power(scene, &grid, &node_map, graph.nodes.len(), settings);

@@ -3,12 +3,7 @@
 //! build (empty-space analysis, then thinning, filtering and the node map of
 //! `analysis::Skeleton`) and one mapping of a surface point to its node (eq. 151-155).
 
-use std::time::Instant;
-
-use crate::analysis::{
-    Analysis, AnalysisSettings, NeighbourMasks, Resolution, Skeleton, SkeletonSettings, StageTime,
-    VoxelGrid,
-};
+use crate::analysis::{NeighbourMasks, Resolution, Skeleton, StageTime, VoxelGrid};
 use crate::error::{Error, Result};
 use crate::math::Vec3;
 use crate::scene::{Scene, SurfaceInteraction};
@@ -40,43 +35,24 @@ impl NodeSkeleton {
         progress: &dyn Fn(&str, f64) -> bool,
         stages: &mut Vec<StageTime>,
     ) -> Result<std::result::Result<NodeSkeleton, String>> {
-        let t = Instant::now();
-        // Only what the skeleton uses: its maps, not the regions and portals.
-        let analysis_settings = AnalysisSettings {
-            resolution,
-            all_maps: true,
-            // Computed by the skeleton beside its thinning.
-            euclidean: false,
-            regions: false,
-            ..Default::default()
-        };
-        let analysis = match Analysis::build(scene, &analysis_settings, &|_, _| true) {
-            Ok(a) => a,
-            Err(Error::Cancelled) => return Err(Error::Cancelled),
-            Err(e) => return Ok(Err(format!("the empty-space analysis failed ({e})"))),
-        };
-        stages.push(StageTime {
-            stage: "analysis (voxels, maps)",
-            seconds: t.elapsed().as_secs_f64(),
+        let mut fraction = 0.0;
+        let built = Skeleton::of_scene(scene, resolution, &mut |stage, t| {
+            stages.push(StageTime {
+                stage,
+                seconds: t.elapsed().as_secs_f64(),
+            });
+            fraction += 0.4;
+            if progress(stage, fraction) {
+                Ok(())
+            } else {
+                Err(Error::Cancelled)
+            }
         });
-        if !progress("analysis", 0.4) {
-            return Err(Error::Cancelled);
-        }
-        let t = Instant::now();
-        let skeleton_settings = SkeletonSettings {
-            parallel: true,
-            topology: false,
-        };
-        let skeleton = match Skeleton::build(&analysis, &skeleton_settings, &|_, _| true) {
+        let skeleton = match built {
             Ok(s) => s,
             Err(Error::Cancelled) => return Err(Error::Cancelled),
-            Err(e) => return Ok(Err(format!("the skeleton failed ({e})"))),
+            Err(e) => return Ok(Err(format!("the skeleton could not be built ({e})"))),
         };
-        drop(analysis);
-        stages.push(StageTime {
-            stage: "skeleton (thinning, filter, node map)",
-            seconds: t.elapsed().as_secs_f64(),
-        });
         let Skeleton {
             grid,
             filtered,
