@@ -106,7 +106,7 @@ impl FilterBasis {
     }
 
     /// Inverts [`cdf`](Self::cdf): `t` with density `eval(t)` from `u` in [0, 1).
-    fn sample(self, u: f32) -> f32 {
+    pub fn sample(self, u: f32) -> f32 {
         match self {
             FilterBasis::Linear => {
                 if u < 0.5 {
@@ -117,7 +117,7 @@ impl FilterBasis {
             }
             FilterBasis::Quadratic => {
                 // Bisection on the monotone piecewise cubic: 30 halvings of [-1.5, 1.5] reach
-                // f32 resolution; only emission sampling uses it.
+                // f32 resolution; only emission sampling and the capture use it.
                 let (mut lo, mut hi) = (-1.5f32, 1.5f32);
                 for _ in 0..30 {
                     let mid = 0.5 * (lo + hi);
