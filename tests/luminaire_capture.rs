@@ -258,7 +258,7 @@ fn bad_luminaire_files_get_clear_errors() {
         ),
         (
             "geometry past the image plane",
-            luminaire_text(QUAD, &QUAD_CAPTURE.replace("\"plane_distance\": 0.5", "\"plane_distance\": 0.5").replace("\"position\": [0, 0, 0]", "\"position\": [0, 0.6, 0]")),
+            luminaire_text(QUAD, &QUAD_CAPTURE.replace("\"position\": [0, 0, 0]", "\"position\": [0, 0.6, 0]")),
             &["past the image plane"],
         ),
         (
