@@ -1,7 +1,8 @@
 //! `lacuna capture-luminaire`: a captured emissive quad is the light field `LightField::bake`
 //! projects from its radiance; the shipped mirror downlight rendered as its captured light
 //! field matches the render of its geometry under `path`, in the far field and in the near
-//! field (the differences printed); bad luminaire files get clear errors.
+//! field (the differences printed); bad luminaire files get clear errors; the command writes
+//! a field the light reads and prints its time and memory.
 
 mod common;
 
@@ -379,4 +380,60 @@ fn fewer_nodes_keep_the_span_of_the_grid() {
     assert_eq!(l.nodes, [5, 3]);
     let last = l.node_point(4, 2);
     assert!((last - Vec2::new(0.3, 0.2)).length() < 1e-6, "{last}");
+}
+
+#[test]
+fn the_command_writes_a_field_and_reports_time_and_memory() {
+    let dir = temp_dir("command");
+    let luminaire = dir.join("quad.json");
+    std::fs::write(&luminaire, luminaire_text(QUAD, QUAD_CAPTURE)).unwrap();
+    let out = dir.join("quad.exr");
+    let run = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_lacuna"))
+            .arg("capture-luminaire")
+            .arg(&luminaire)
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let ok = run(&[
+        "--out",
+        out.to_str().unwrap(),
+        "--nodes",
+        "5",
+        "--resolution",
+        "6x4",
+        "--samples",
+        "2",
+        "--threads",
+        "1",
+    ]);
+    let stdout = String::from_utf8_lossy(&ok.stdout);
+    assert!(
+        ok.status.success(),
+        "{stdout} {}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    assert!(
+        stdout.contains("captured in") && stdout.contains("peak resident"),
+        "{stdout}"
+    );
+    let field = lacuna::light::LightField::from_file(&out).unwrap();
+    assert_eq!(field.layout().nodes, [5, 5]);
+    assert_eq!(field.layout().resolution, [6, 4]);
+    assert!(field.power() > 0.0);
+    for bad in [
+        vec!["--out", "field.png"],
+        vec!["--out", out.to_str().unwrap(), "--samples", "0"],
+        vec!["--out", out.to_str().unwrap(), "--nodes", "5y5"],
+    ] {
+        let e = run(&bad);
+        let stderr = String::from_utf8_lossy(&e.stderr);
+        assert!(
+            !e.status.success() && !stderr.is_empty(),
+            "{bad:?} accepted"
+        );
+        assert!(!stderr.contains("panicked"), "{bad:?}: {stderr}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }
