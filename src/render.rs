@@ -8,6 +8,7 @@
 //! The camera takes dimension slots [`FILM_DIMENSION`] and [`LENS_DIMENSION`]; integrators
 //! start at [`FIRST_INTEGRATOR_DIMENSION`].
 
+pub mod capture;
 pub mod settings;
 
 use std::cell::Cell;

@@ -55,6 +55,111 @@ enum Command {
     /// Describe scenes of the procedural family `rooms:SEED` (one line each), and optionally
     /// write them as OBJ + MTL + scene file for other renderers.
     Family(FamilyArgs),
+    /// Bake the light field of a modelled luminaire (a scene file with a "capture" block,
+    /// docs/light-field.md) by path tracing its geometry, into an EXR a scene's light_field
+    /// light reads.
+    CaptureLuminaire(CaptureArgs),
+}
+
+#[derive(Args, Clone, Debug)]
+struct CaptureArgs {
+    /// The luminaire file (.json).
+    luminaire: PathBuf,
+    /// The light field to write (.exr).
+    #[arg(long)]
+    out: PathBuf,
+    /// Paths per texel (per pixel of each basis function's image) [default: the file's, or 64].
+    #[arg(long)]
+    samples: Option<u32>,
+    /// Pixels per image, as RX or RXxRY [default: the file's].
+    #[arg(long, value_parser = parse_pair)]
+    resolution: Option<[u32; 2]>,
+    /// Basis functions on the filter plane, as NX or NXxNY, spanning the file's first to last
+    /// node [default: the file's].
+    #[arg(long, value_parser = parse_pair)]
+    nodes: Option<[u32; 2]>,
+    /// Seed of the random sequences.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads [default: all cores].
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+/// "N" or "AxB" as a pair of counts.
+fn parse_pair(text: &str) -> std::result::Result<[u32; 2], String> {
+    let number = |t: &str| {
+        t.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("'{text}' is not N or NxM"))
+    };
+    match text.split_once(['x', 'X']) {
+        Some((a, b)) => Ok([number(a)?, number(b)?]),
+        None => {
+            let n = number(text)?;
+            Ok([n, n])
+        }
+    }
+}
+
+/// Peak resident memory of this process in bytes (Linux `VmHWM`), when the system says.
+fn peak_resident_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+fn run_capture(args: &CaptureArgs) -> Result<()> {
+    if args.out.extension().and_then(|e| e.to_str()) != Some("exr") {
+        return Err(Error::invalid(format!(
+            "--out {}: a light field is written as .exr",
+            args.out.display()
+        )));
+    }
+    let luminaire = lacuna::render::capture::load_luminaire(&args.luminaire)?;
+    let mut settings = luminaire.settings;
+    if let Some(nodes) = args.nodes {
+        settings = settings.with_nodes(nodes);
+    }
+    if let Some(resolution) = args.resolution {
+        settings.layout.resolution = resolution;
+    }
+    if let Some(samples) = args.samples {
+        settings.samples = samples;
+    }
+    settings.seed = args.seed;
+    settings.threads = args.threads;
+    let l = &settings.layout;
+    println!(
+        "capturing {}: {}x{} {} basis functions, {}x{} pixels per image, {} paths per texel",
+        args.luminaire.display(),
+        l.nodes[0],
+        l.nodes[1],
+        l.basis.name(),
+        l.resolution[0],
+        l.resolution[1],
+        settings.samples
+    );
+    let (field, stats) = lacuna::render::capture::capture(&luminaire.scene, &settings)?;
+    field.write(&args.out)?;
+    let mib = |b: f64| b / (1024.0 * 1024.0);
+    println!(
+        "captured in {:.2} s: {:.2} M paths ({:.2} M paths/s, {:.2} M rays); light field {:.2} MiB in memory, luminaire scene {:.2} MiB, peak resident {}",
+        stats.seconds,
+        stats.paths as f64 * 1e-6,
+        stats.paths as f64 * 1e-6 / stats.seconds.max(1e-9),
+        stats.rays as f64 * 1e-6,
+        mib(stats.field_bytes as f64),
+        mib(stats.scene_bytes as f64),
+        peak_resident_bytes().map_or("unknown".to_string(), |b| format!("{:.1} MiB", mib(b as f64)))
+    );
+    println!(
+        "wrote {} (power {:.4} W in luminance)",
+        args.out.display(),
+        field.power()
+    );
+    Ok(())
 }
 
 #[derive(Args, Clone, Debug)]
@@ -1223,6 +1328,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => run_compare(args),
         Command::Analyze(args) => run_analyze(args),
         Command::Family(args) => run_family(args),
+        Command::CaptureLuminaire(args) => run_capture(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -106,7 +106,7 @@ impl FilterBasis {
     }
 
     /// Inverts [`cdf`](Self::cdf): `t` with density `eval(t)` from `u` in [0, 1).
-    fn sample(self, u: f32) -> f32 {
+    pub fn sample(self, u: f32) -> f32 {
         match self {
             FilterBasis::Linear => {
                 if u < 0.5 {
@@ -117,7 +117,7 @@ impl FilterBasis {
             }
             FilterBasis::Quadratic => {
                 // Bisection on the monotone piecewise cubic: 30 halvings of [-1.5, 1.5] reach
-                // f32 resolution; only emission sampling uses it.
+                // f32 resolution; only emission sampling and the capture use it.
                 let (mut lo, mut hi) = (-1.5f32, 1.5f32);
                 for _ in 0..30 {
                     let mid = 0.5 * (lo + hi);
@@ -549,6 +549,17 @@ impl LightField {
         (w > 0.0).then_some((w, b))
     }
 
+    /// Every image's weight from `p` for `strategy`, with its box (images with none left
+    /// out): the one pass over the images a sample and its pdf share.
+    fn image_weights(&self, p: Vec3, strategy: LightFieldSampling) -> Vec<(usize, f64, PixelBox)> {
+        if !(p.z > self.layout.plane_distance) || !p.is_finite() {
+            return Vec::new();
+        }
+        (0..self.layout.image_count())
+            .filter_map(|m| self.image_weight(p, m, strategy).map(|(w, b)| (m, w, b)))
+            .collect()
+    }
+
     /// Samples a point of the image plane as seen from receiver `p` (light-local, beyond the
     /// image plane: z > delta) with `strategy`; returns it with its density in area measure
     /// on the image plane (the one [`image_point_pdf`](Self::image_point_pdf) gives).
@@ -563,14 +574,8 @@ impl LightField {
         strategy: LightFieldSampling,
         u: Vec2,
     ) -> Option<(Vec2, f32)> {
-        if !(p.z > self.layout.plane_distance) || !p.is_finite() {
-            return None;
-        }
-        let images = self.layout.image_count();
-        let total: f64 = (0..images)
-            .filter_map(|m| self.image_weight(p, m, strategy))
-            .map(|(w, _)| w)
-            .sum();
+        let weights = self.image_weights(p, strategy);
+        let total: f64 = weights.iter().map(|&(_, w, _)| w).sum();
         if !(total > 0.0) {
             return None;
         }
@@ -578,14 +583,12 @@ impl LightField {
         let target = u.x as f64 * total;
         let mut acc = 0.0;
         let mut chosen = None;
-        for m in 0..images {
-            if let Some((w, b)) = self.image_weight(p, m, strategy) {
-                chosen = Some((m, b, ((target - acc) / w).clamp(0.0, 1.0)));
-                if target < acc + w {
-                    break;
-                }
-                acc += w;
+        for &(m, w, b) in &weights {
+            chosen = Some((m, b, ((target - acc) / w).clamp(0.0, 1.0)));
+            if target < acc + w {
+                break;
             }
+            acc += w;
         }
         let (m, b, ux) = chosen?;
         let (x, y) = match strategy {
@@ -595,7 +598,7 @@ impl LightField {
             }
         };
         let s = self.pixels_to_plane(x, y);
-        let pdf = self.image_point_pdf(p, strategy, s);
+        let pdf = self.pdf_from_weights(&weights, strategy, s);
         (pdf > 0.0 && pdf.is_finite()).then_some((s, pdf))
     }
 
@@ -603,20 +606,23 @@ impl LightField {
     /// picks `s` from `p`: sum over the images whose box holds s of C_m(s) / A(p) (restricted;
     /// the mixture of eq. 4.14 over the choice of eq. 4.16), or of 1 / (n |box_m|) (uniform).
     pub fn image_point_pdf(&self, p: Vec3, strategy: LightFieldSampling, s: Vec2) -> f32 {
-        if !(p.z > self.layout.plane_distance) || !p.is_finite() {
-            return 0.0;
-        }
+        self.pdf_from_weights(&self.image_weights(p, strategy), strategy, s)
+    }
+
+    /// [`image_point_pdf`](Self::image_point_pdf) from the images' weights.
+    fn pdf_from_weights(
+        &self,
+        weights: &[(usize, f64, PixelBox)],
+        strategy: LightFieldSampling,
+        s: Vec2,
+    ) -> f32 {
         let Some(pixel) = self.pixel_index(s) else {
             return 0.0;
         };
         let (x, y) = self.to_pixels(s);
-        let (mut total, mut count, mut density) = (0.0f64, 0usize, 0.0f64);
-        for m in 0..self.layout.image_count() {
-            let Some((w, b)) = self.image_weight(p, m, strategy) else {
-                continue;
-            };
+        let (mut total, mut density) = (0.0f64, 0.0f64);
+        for &(m, w, b) in weights {
             total += w;
-            count += 1;
             if b.contains(x, y) {
                 density += match strategy {
                     LightFieldSampling::Restricted => {
@@ -632,7 +638,7 @@ impl LightField {
         };
         let pdf = match strategy {
             LightFieldSampling::Restricted if total > 0.0 => density / total,
-            LightFieldSampling::Uniform if count > 0 => density / count as f64,
+            LightFieldSampling::Uniform if !weights.is_empty() => density / weights.len() as f64,
             _ => 0.0,
         };
         (pdf / pixel_area) as f32

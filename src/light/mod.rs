@@ -158,6 +158,12 @@ impl LightDesc {
     }
 }
 
+/// The frame of a light-field luminaire from its `direction` and `x_axis` (as the light and
+/// the luminaire capture place it): the photometric light's frame.
+pub fn light_field_frame(direction: Vec3, x_axis: Vec3) -> Frame {
+    photometric_frame(direction, x_axis)
+}
+
 /// The frame of a photometric light: z its nadir `direction`, x the C0 axis (`c0` made
 /// perpendicular), y = z x x the C90 axis.
 fn photometric_frame(direction: Vec3, c0: Vec3) -> Frame {
@@ -288,7 +294,7 @@ impl Light {
                 ref field,
             } => Light::LightField {
                 position,
-                frame: photometric_frame(direction, x_axis),
+                frame: light_field_frame(direction, x_axis),
                 scale,
                 field: field.clone(),
             },

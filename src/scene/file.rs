@@ -123,6 +123,12 @@ struct SceneFile {
     materials: BTreeMap<String, MaterialSpec>,
     #[serde(default)]
     render: RenderSettingsFile,
+    /// A luminaire file's placement of its light field's planes, read by
+    /// `lacuna capture-luminaire` (docs/light-field.md); rendering ignores it, so a luminaire
+    /// file renders as a scene.
+    #[serde(default)]
+    #[allow(dead_code)]
+    capture: Option<serde_json::Value>,
 }
 
 #[derive(Deserialize)]
@@ -656,7 +662,7 @@ pub fn load_scene_file(path: &Path) -> Result<LoadedScene> {
 }
 
 /// A serde_json error as `Error::Parse` with "line L column C" and the message alone.
-fn json_error(path: &Path, e: &serde_json::Error) -> Error {
+pub(crate) fn json_error(path: &Path, e: &serde_json::Error) -> Error {
     let full = e.to_string();
     let suffix = format!(" at line {} column {}", e.line(), e.column());
     let message = full.strip_suffix(&suffix).unwrap_or(&full).to_string();

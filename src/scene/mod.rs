@@ -24,6 +24,7 @@ pub use builtin::two_rooms_builder;
 pub use camera::{Camera, CameraFrame};
 pub use corridor::{corridor_builder, corridor_render_settings};
 pub use family::{parse_family_name, FamilyLight, FamilyScene, Opening, Openness};
+pub(crate) use file::json_error;
 pub use file::{
     auto_camera, convert_layout, load_scene_arg, load_scene_file, LoadedScene, RenderSettingsFile,
 };
