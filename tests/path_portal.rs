@@ -204,6 +204,8 @@ fn path_portal_agrees_with_path_on_the_two_rooms() {
     agree_on_two_rooms(&["path_portal", "path_portal:c_portal=0.9:smoothing=1"]);
     // Without the bound the same guide is unbiased too, with a heavier tail.
     agree_on_two_rooms(&["path_portal:ratio_max=none", "path_portal:aim=narrowest"]);
+    // `path`'s trace loop gives `path_portal` `mis=auto` too.
+    agree_on_two_rooms(&["path_portal:mis=auto"]);
 }
 
 #[test]
@@ -279,7 +281,6 @@ fn options_are_validated_and_rendering_needs_the_precomputation() {
         ("path_portal:ratio_max=0.5", "ratio_max"),
         ("path_portal:aim=first", "aim"),
         ("path_portal:strength=2", "no option"),
-        ("path_portal:mis=auto", "mis=auto"),
     ] {
         let e = match integrator::create(spec, settings) {
             Ok(_) => panic!("{spec} accepted"),
