@@ -10,7 +10,9 @@
 //!
 //! Where the guide guides nothing (no light in an empty region, no portal path: one room, an
 //! open scene) every sample is `path`'s own sample, and the render summary says why.
-//! `strategy=irradiance` (000 §10.4.2) is not implemented and refused.
+//! `strategy=irradiance` (000 §10.4.2): the same loop with the regions' face distributions
+//! ([`crate::guide::FaceIrradiance`], whose module docs give the density) instead of the
+//! portals' rectangles.
 
 use std::cell::RefCell;
 use std::sync::Arc;
@@ -22,7 +24,7 @@ use super::{
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::{PortalGuide, PortalQuery};
+use crate::guide::{FaceQuery, PortalGuide, PortalQuery, RenderEstimator};
 use crate::math::Sampler;
 use crate::scene::{Camera, Scene, SurfaceInteraction};
 
@@ -79,6 +81,32 @@ impl VertexGuide for PortalVertexGuide<'_> {
     }
 }
 
+/// `strategy=irradiance`: the guide and its face query (a few dozen bytes, on the stack).
+struct FaceVertexGuide<'a> {
+    guide: &'a PortalGuide,
+    query: FaceQuery<'a>,
+}
+
+impl<'a> VertexGuide for FaceVertexGuide<'a> {
+    type Query = FaceQuery<'a>;
+    const GUIDED: bool = true;
+    fn ratio_max(&self) -> f32 {
+        self.guide.settings().ratio_max
+    }
+    fn init(&mut self, _: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
+        self.guide
+            .init_face_query(&mut self.query, si.p, si.facing_normal());
+        self.query.cap_guiding_probability(c_max);
+        0
+    }
+    fn clear(&mut self) {
+        self.query.clear();
+    }
+    fn query(&self) -> &FaceQuery<'a> {
+        &self.query
+    }
+}
+
 impl Integrator for PortalPathTracer {
     fn name(&self) -> &'static str {
         "path_portal"
@@ -97,8 +125,17 @@ impl Integrator for PortalPathTracer {
     ) -> Result<Precomputation> {
         self.guide = None;
         let mut pre = prepare_env_portals(scene, &self.settings)?;
-        let _ = camera;
-        let guide = PortalGuide::build(scene, &self.settings.portal, progress)?;
+        let estimator = RenderEstimator {
+            mis: self.settings.mis.unwrap_or_default(),
+            triangles: self.settings.path.triangles,
+            env: self.settings.env,
+        };
+        let guide = PortalGuide::build(
+            scene,
+            &self.settings.portal,
+            Some((camera, estimator, self.settings.max_depth)),
+            progress,
+        )?;
         pre.stages.extend_from_slice(guide.timings());
         pre.notes.push(guide.note());
         if let Some(why) = guide.unguided() {
@@ -133,6 +170,12 @@ impl Integrator for PortalPathTracer {
         let Some(guide) = self.guide.as_deref().filter(|g| g.unguided().is_none()) else {
             return self.path.sample(scene, ray, rng, counters, ctx);
         };
+        if let Some(query) = guide.face_query() {
+            let guided = &mut FaceVertexGuide { guide, query };
+            return self
+                .path
+                .sample_with(scene, ray, rng, counters, ctx, guided);
+        }
         THREAD_QUERY.with(|cell| match cell.try_borrow_mut() {
             Ok(mut query) => {
                 let guided = &mut PortalVertexGuide {
