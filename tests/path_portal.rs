@@ -319,6 +319,7 @@ fn face_irradiance_agrees_with_path_on_the_two_rooms() {
     agree_on_two_rooms(&[
         "path_portal:strategy=irradiance",
         "path_portal:strategy=irradiance:d_t=0.01:o_t=0.5:smoothing=1:c_portal=0.8",
+        "path_portal:strategy=irradiance:face_score=radiance:mis=auto",
     ]);
 }
 
@@ -402,6 +403,10 @@ fn options_are_validated_and_rendering_needs_the_precomputation() {
     for (spec, needle) in [
         ("path_portal:strategy=irradiance:face_mix=2", "face_mix"),
         ("path_portal:strategy=irradiance:o_t=1", "o_t"),
+        (
+            "path_portal:strategy=irradiance:face_score=sum",
+            "face_score",
+        ),
         ("path_portal:strategy=nearest", "unknown portal strategy"),
         ("path_portal:c_portal=1", "c_portal"),
         ("path_portal:smoothing=0", "smoothing"),

@@ -20,7 +20,8 @@
 //!   border face the segment crosses out of a region. A region's distribution is that sum per
 //!   face, mixed with `1 - face_mix` of uniform over its faces; a region no training segment
 //!   left has none (unguided). The sum is a flux through the face, the thesis's "irradiance"
-//!   up to the face's fixed area.
+//!   up to the face's fixed area (`face_score=radiance` scores the mean radiance by the
+//!   face's solid angle from the region's centroid instead, [`FaceScore`]).
 //! - *Exact density.* A direction w from x is drawn from region R's border through the first
 //!   border face of R the ray x + t w crosses *out of* R ([`first exits`](FaceIrradiance::march)):
 //!   the face chosen and the point on it give w, and the sample is kept only if the ray's first
@@ -73,6 +74,21 @@ pub struct FaceTraining<'a> {
     pub paths: u32,
     /// The learned share of a region's distribution (the rest is uniform over its faces).
     pub face_mix: f32,
+    pub score: FaceScore,
+}
+
+/// What a face's probability in its region's distribution is proportional to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaceScore {
+    /// The radiance the training carried through it, summed (the thesis's irradiance: faces
+    /// the BSDF samples cross often weigh more).
+    Flux,
+    /// The mean radiance of its crossings times its projected solid angle seen from the
+    /// region's centroid: the density a point near the centroid then gets is about the
+    /// radiance it sees, where `flux` over-weights distant faces by their squared distance
+    /// (their solid angle is small, the density through them large). Measured no better than
+    /// `flux` on the door scenes (BENCHMARKS.md), so not the default.
+    Radiance,
 }
 
 /// The per-region face distributions of a scene (module docs).
@@ -127,7 +143,7 @@ impl FaceIrradiance {
             training_paths: training.paths,
             guided_regions: 0,
         };
-        let flux = guide.train(analysis, scene, training);
+        let (flux, crossings) = guide.train(analysis, scene, training);
         guide.face_probability = vec![0.0; guide.border_voxels.len() * 6];
         for (slot, &v) in guide.border_voxels.iter().enumerate() {
             let l = labels[v as usize];
@@ -137,6 +153,27 @@ impl FaceIrradiance {
                 }
             }
         }
+        let mut score = flux;
+        if training.score == FaceScore::Radiance {
+            for (r, faces) in guide.region_faces.iter().enumerate() {
+                let centroid = grid.to_grid(analysis.regions[r].centroid);
+                for &f in faces {
+                    let n = crossings[f as usize];
+                    if n == 0 {
+                        continue;
+                    }
+                    let c = grid.coords(guide.border_voxels[(f / 6) as usize] as usize);
+                    let d = (f % 6) as usize;
+                    let mut centre = [c[0] as f64 + 0.5, c[1] as f64 + 0.5, c[2] as f64 + 0.5];
+                    centre[d / 2] += if d % 2 == 1 { 0.5 } else { -0.5 };
+                    let to: [f64; 3] = std::array::from_fn(|k| centre[k] - centroid[k]);
+                    let distance2 = (to[0] * to[0] + to[1] * to[1] + to[2] * to[2]).max(1.0);
+                    let cos = (to[d / 2].abs() / distance2.sqrt()).max(0.1);
+                    score[f as usize] = score[f as usize] / n as f64 * cos / distance2;
+                }
+            }
+        }
+        let flux = score;
         for r in 0..analysis.regions.len() {
             let faces = &guide.region_faces[r];
             let mass: f64 = faces.iter().map(|&f| flux[f as usize]).sum();
@@ -205,14 +242,19 @@ impl FaceIrradiance {
 
     /// The training (module docs): per face, the flux the training segments carried out of a
     /// region through it.
-    fn train(&self, analysis: &Analysis, scene: &Scene, training: &FaceTraining) -> Vec<f64> {
+    fn train(
+        &self,
+        analysis: &Analysis,
+        scene: &Scene,
+        training: &FaceTraining,
+    ) -> (Vec<f64>, Vec<u32>) {
         use rayon::prelude::*;
         let frame = training.camera.frame(TRAINING_ASPECT);
         let chunks = training.paths.div_ceil(TRAINING_CHUNK);
-        let per_chunk: Vec<Vec<(u32, f64)>> = (0..chunks)
+        let per_chunk: Vec<Vec<(u32, (f64, u32))>> = (0..chunks)
             .into_par_iter()
             .map(|c| {
-                let mut sums: std::collections::HashMap<u32, f64> = Default::default();
+                let mut sums: std::collections::HashMap<u32, (f64, u32)> = Default::default();
                 let mut segments = Vec::new();
                 let mut contributions = Vec::new();
                 for i in c * TRAINING_CHUNK..((c + 1) * TRAINING_CHUNK).min(training.paths) {
@@ -244,22 +286,26 @@ impl FaceIrradiance {
                             continue;
                         }
                         self.crossings(analysis, s.origin, s.dir, s.length, |face| {
-                            *sums.entry(face).or_insert(0.0) += radiance;
+                            let e = sums.entry(face).or_insert((0.0, 0));
+                            e.0 += radiance;
+                            e.1 += 1;
                         });
                     }
                 }
-                let mut list: Vec<(u32, f64)> = sums.into_iter().collect();
+                let mut list: Vec<(u32, (f64, u32))> = sums.into_iter().collect();
                 list.sort_unstable_by_key(|e| e.0);
                 list
             })
             .collect();
         let mut flux = vec![0f64; self.border_voxels.len() * 6];
+        let mut crossings = vec![0u32; self.border_voxels.len() * 6];
         for list in per_chunk {
-            for (f, s) in list {
+            for (f, (s, n)) in list {
                 flux[f as usize] += s;
+                crossings[f as usize] += n;
             }
         }
-        flux
+        (flux, crossings)
     }
 
     /// Calls `each` with every border face the segment from `origin` along unit `dir` (world

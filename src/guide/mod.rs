@@ -25,7 +25,7 @@ mod skeleton_guide;
 mod training;
 
 pub use directional::DirectionalTable;
-pub use face_irradiance::{FaceIrradiance, FaceQuery, MAX_FACE_LOBES};
+pub use face_irradiance::{FaceIrradiance, FaceQuery, FaceScore, MAX_FACE_LOBES};
 pub use lobes::{GuideLobe, ImportanceNode, MAX_LOBES};
 pub use mixture::{sample_bsdf_or_guide, DirectionGuide, MixtureSample};
 pub use portal_guide::{

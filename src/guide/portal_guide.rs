@@ -44,7 +44,7 @@
 
 use std::collections::BinaryHeap;
 
-use super::face_irradiance::{FaceIrradiance, FaceQuery, FaceTraining, MAX_FACE_LOBES};
+use super::face_irradiance::{FaceIrradiance, FaceQuery, FaceScore, FaceTraining, MAX_FACE_LOBES};
 use super::mixture::DirectionGuide;
 use super::settings::RenderEstimator;
 use crate::analysis::{Analysis, AnalysisSettings, Resolution, NO_REGION};
@@ -136,6 +136,8 @@ pub struct FaceSettings {
     /// Orientation threshold o_t: faces crossed at |cos| below it are left to BSDF sampling
     /// (the thesis used 0.5).
     pub o_t: f32,
+    /// What a face's probability is proportional to.
+    pub score: FaceScore,
 }
 
 impl Default for FaceSettings {
@@ -145,6 +147,7 @@ impl Default for FaceSettings {
             face_mix: 0.8,
             d_t: 0.0,
             o_t: 0.0,
+            score: FaceScore::Flux,
         }
     }
 }
@@ -175,6 +178,7 @@ pub const PORTAL_OPTION_NAMES: &[&str] = &[
     "face_mix",
     "d_t",
     "o_t",
+    "face_score",
 ];
 
 impl PortalGuideSettings {
@@ -224,6 +228,17 @@ impl PortalGuideSettings {
             "face_mix" => next.faces.face_mix = number(value)?,
             "d_t" => next.faces.d_t = number(value)?,
             "o_t" => next.faces.o_t = number(value)?,
+            "face_score" => {
+                next.faces.score = match value {
+                    "flux" => FaceScore::Flux,
+                    "radiance" => FaceScore::Radiance,
+                    _ => {
+                        return Err(Error::invalid(format!(
+                            "path_portal: face_score={value} must be flux or radiance"
+                        )))
+                    }
+                }
+            }
             _ => return Ok(false),
         }
         next.validate()?;
@@ -440,6 +455,7 @@ impl PortalGuide {
                         max_depth,
                         paths: f.training_paths,
                         face_mix: f.face_mix,
+                        score: f.score,
                     },
                     f.d_t * diagonal,
                     f.o_t,
@@ -1015,6 +1031,8 @@ mod tests {
         assert!(s.set("o_t", "1").is_err());
         assert!(s.set("d_t", "-0.1").is_err());
         assert!(s.set("training_paths", "0").is_err());
+        assert!(s.set("face_score", "radiance").unwrap());
+        assert!(s.set("face_score", "power").is_err());
         assert!(s.set("strategy", "nearest").is_err());
         assert!(!s.set("strength", "2").unwrap());
     }
