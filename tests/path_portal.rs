@@ -1,5 +1,8 @@
-//! Portal-guided path tracing (`path_portal:strategy=shortest`, 000 §10.4.1, issue 35):
+//! Portal-guided path tracing (`path_portal`, 000 §10.4, issue 35), both strategies
+//! (`shortest`, the portals' rectangles; `irradiance`, the regions' face distributions):
 //!
+//! - the face sampler of `strategy=irradiance`: chi-square against its density integrated
+//!   over the faces, its pdf on every sample, and the albedo through the one-sample mixture;
 //! - the one-sample MIS of BSDF sampling and the portal rectangles as `path_portal` draws it, at
 //!   surface points of the Veach door: chi-square of the sampled directions against the
 //!   mixture's pdf (directions that miss every portal included: they keep the BSDF's density),
@@ -19,10 +22,11 @@ use common::agreement::{
     agree_on_two_rooms, agree_on_veach_door, agree_with_path, load_scene, render_image,
 };
 use common::chi2::{assert_chi2, assert_z, Stats};
-use common::directions::{surface_points, SAMPLES};
+use common::directions::{chi2_direction_counts, surface_points, to64, SAMPLES};
+use common::sphere::SphereGrid;
 use lacuna::guide::{
     sample_bsdf_or_guide, DirectionGuide, PortalGuide, PortalGuideSettings, PortalQuery,
-    PortalRectangle,
+    PortalRectangle, RenderEstimator,
 };
 use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::math::warp::SphericalRectangle;
@@ -55,7 +59,8 @@ fn hit(rect: &PortalRectangle, origin: Vec3, w: Vec3) -> Option<(f32, f32)> {
 #[test]
 fn chi2_of_the_portal_sampler_and_albedo_of_the_mixture() {
     let scene = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
-    let guide = PortalGuide::build(&scene, &PortalGuideSettings::default(), &|_, _| true).unwrap();
+    let guide =
+        PortalGuide::build(&scene, &PortalGuideSettings::default(), None, &|_, _| true).unwrap();
     assert!(guide.unguided().is_none(), "{}", guide.note());
     let bsdf = Material::diffuse(Rgb::splat(0.8)).bsdf(Rgb::splat(0.8));
     let mut query = PortalQuery::new();
@@ -194,9 +199,128 @@ fn chi2_of_the_portal_sampler_and_albedo_of_the_mixture() {
     assert!(tested >= 3, "{tested} points tested");
 }
 
+/// `strategy=irradiance`'s face sampler ([`lacuna::guide::FaceIrradiance`]) at surface
+/// points of the Veach door: chi-square of its directions over a sphere grid against the
+/// probabilities its density implies, integrated over the faces' areas (each face's
+/// probability times the share of its area, on a grid of points finer on near faces, whose direction
+/// lies in the cell and leaves the lobe's region first through that face; integrating the
+/// density over directions instead meets its peaks at faces seen edge-on); rejected draws are
+/// their own cell. Every sample's pdf is the pdf's value there, and the one-sample mixture
+/// with a Lambertian BSDF (c = 0.9: mostly the faces) estimates the albedo without bias, which
+/// holds only if the density is the sampler's.
+#[test]
+fn chi2_of_the_face_sampler_and_albedo_of_the_mixture() {
+    let scene = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let camera = *scene.camera().unwrap();
+    let mut settings = PortalGuideSettings::default();
+    settings.set("strategy", "irradiance").unwrap();
+    settings.set("training_paths", "4096").unwrap();
+    settings.set("c_portal", "0.9").unwrap();
+    let guide = PortalGuide::build(
+        &scene,
+        &settings,
+        Some((&camera, RenderEstimator::default(), 6)),
+        &|_, _| true,
+    )
+    .unwrap();
+    assert!(guide.unguided().is_none(), "{}", guide.note());
+    let faces = guide.faces().unwrap();
+    let bsdf = Material::diffuse(Rgb::splat(0.8)).bsdf(Rgb::splat(0.8));
+    let mut query = guide.face_query().unwrap();
+    let grid = SphereGrid::uniform(8, 16);
+    let (mut tested, mut multi) = (0, 0);
+    for (k, (p, _, ng, wo)) in surface_points(&scene, 3000, 43).into_iter().enumerate() {
+        let n = if ng.dot(wo) < 0.0 { -ng } else { ng };
+        guide.init_face_query(&mut query, p, n);
+        let c = query.guiding_probability();
+        if c == 0.0 {
+            continue;
+        }
+        let lobes: Vec<(u32, f32)> = query.lobes().collect();
+        if (lobes.len() > 1 && multi >= 2) || (lobes.len() == 1 && tested - multi >= 2) {
+            continue;
+        }
+        let name = format!("face sampler at point {k} ({} regions)", lobes.len());
+        let mut probs = vec![0f64; grid.cells()];
+        for (j, &(region, a)) in lobes.iter().enumerate() {
+            for &face in faces.region_faces(region) {
+                let (corner, eu, ev) = faces.face_rectangle(guide.analysis(), face);
+                // Finer on near faces, which span more directions (and more cell borders).
+                let voxels = (corner + 0.5 * (eu + ev) - p).length() / eu.length();
+                let points = (96.0 / voxels.max(1.0)).clamp(8.0, 96.0) as usize;
+                let share = (a * faces.face_probability(face)) as f64 / (points * points) as f64;
+                for s in 0..points {
+                    for t in 0..points {
+                        let y = corner
+                            + eu * ((s as f32 + 0.5) / points as f32)
+                            + ev * ((t as f32 + 0.5) / points as f32);
+                        let w = (y - p).normalize();
+                        if query.exit_faces(w)[j] == face {
+                            probs[grid.cell_of(to64(w))] += share;
+                        }
+                    }
+                }
+            }
+        }
+        let mut mismatches = 0;
+        let integral =
+            chi2_direction_counts(&name, &grid, probs, Rng::new(300 + k as u64, 9), |rng| {
+                let (w, pdf) = query.sample(rng.uniform(), rng.uniform2())?;
+                let again = query.pdf(w);
+                mismatches += ((pdf - again).abs() > 1e-4 * again) as u32;
+                Some(w)
+            });
+        assert!(mismatches == 0, "{name}: {mismatches} samples off the pdf");
+        assert!(integral > 0.3, "{name}: only {integral} of the draws kept");
+
+        let frame = Frame::from_z(n);
+        let wo_local = frame.to_local(wo);
+        let mut sampler = Sampler::independent(Rng::new(800 + k as u64, 3));
+        let mut estimate = Stats::default();
+        for _ in 0..SAMPLES {
+            let Some(m) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &query, &mut sampler)
+            else {
+                estimate.add(0.0);
+                continue;
+            };
+            let s = m.sample;
+            let expected =
+                c * query.pdf(frame.to_world(s.wi)) + (1.0 - c) * bsdf.pdf(wo_local, s.wi);
+            assert!(
+                (s.pdf - expected).abs() <= 1e-3 * expected,
+                "{name}: pdf {} against the mixture's {expected}",
+                s.pdf
+            );
+            estimate.add((s.f.x * s.wi.z.abs() / s.pdf) as f64);
+        }
+        assert_z(
+            &format!("{name}: albedo"),
+            estimate.mean(),
+            0.8,
+            estimate.std_err(),
+        );
+        tested += 1;
+        multi += (lobes.len() > 1) as usize;
+        if tested >= 4 {
+            break;
+        }
+    }
+    assert!(multi >= 1, "no point mixes the borders of several regions");
+    assert!(tested >= 3, "{tested} points tested");
+}
+
 #[test]
 fn path_portal_agrees_with_path_on_the_veach_door() {
-    agree_on_veach_door(&["path_portal"]);
+    agree_on_veach_door(&["path_portal", "path_portal:strategy=irradiance"]);
+}
+
+#[test]
+fn face_irradiance_agrees_with_path_on_the_two_rooms() {
+    agree_on_two_rooms(&[
+        "path_portal:strategy=irradiance",
+        "path_portal:strategy=irradiance:d_t=0.01:o_t=0.5:smoothing=1:c_portal=0.8",
+        "path_portal:strategy=irradiance:face_score=radiance:mis=auto",
+    ]);
 }
 
 #[test]
@@ -204,6 +328,8 @@ fn path_portal_agrees_with_path_on_the_two_rooms() {
     agree_on_two_rooms(&["path_portal", "path_portal:c_portal=0.9:smoothing=1"]);
     // Without the bound the same guide is unbiased too, with a heavier tail.
     agree_on_two_rooms(&["path_portal:ratio_max=none", "path_portal:aim=narrowest"]);
+    // `path`'s trace loop gives `path_portal` `mis=auto` too.
+    agree_on_two_rooms(&["path_portal:mis=auto"]);
 }
 
 #[test]
@@ -217,7 +343,11 @@ fn path_portal_agrees_with_path_on_the_ajar_door() {
         6,
         16,
         16,
-        &["path_portal", "path_portal:aim=last"],
+        &[
+            "path_portal",
+            "path_portal:aim=last",
+            "path_portal:strategy=irradiance",
+        ],
     );
 }
 
@@ -271,7 +401,12 @@ fn an_open_scene_renders_paths_image() {
 fn options_are_validated_and_rendering_needs_the_precomputation() {
     let settings = IntegratorSettings::default();
     for (spec, needle) in [
-        ("path_portal:strategy=irradiance", "not implemented"),
+        ("path_portal:strategy=irradiance:face_mix=2", "face_mix"),
+        ("path_portal:strategy=irradiance:o_t=1", "o_t"),
+        (
+            "path_portal:strategy=irradiance:face_score=sum",
+            "face_score",
+        ),
         ("path_portal:strategy=nearest", "unknown portal strategy"),
         ("path_portal:c_portal=1", "c_portal"),
         ("path_portal:smoothing=0", "smoothing"),
@@ -279,7 +414,6 @@ fn options_are_validated_and_rendering_needs_the_precomputation() {
         ("path_portal:ratio_max=0.5", "ratio_max"),
         ("path_portal:aim=first", "aim"),
         ("path_portal:strength=2", "no option"),
-        ("path_portal:mis=auto", "mis=auto"),
     ] {
         let e = match integrator::create(spec, settings) {
             Ok(_) => panic!("{spec} accepted"),

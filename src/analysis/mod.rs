@@ -45,7 +45,10 @@ pub use skeleton::{
     NeighbourMasks, Node, Skeleton, SkeletonMaps, SkeletonSettings, EUCLIDEAN_BESIDE_THINNING,
     UNDEFINED_NODE,
 };
-pub use skeleton_report::{skeleton_obj, skeleton_ply, write_skeleton, write_skeleton_images};
+pub use skeleton_report::{
+    skeleton_obj, skeleton_ply, window_portal_overlay, write_skeleton, write_skeleton_images,
+    write_window_portal_image, PORTAL_OUTLINE,
+};
 pub use thinning::{Constraint, SubStep, Thinning, ThinningStats};
 mod window_portals;
 pub use window_portals::{scene_env_portals, window_portals, WindowPortalSettings, WindowPortals};

@@ -11,6 +11,7 @@ use super::skeleton::{Graph, Skeleton};
 use crate::error::{Error, Result};
 use crate::film::write_png_rgb;
 use crate::geometry::Ray;
+use crate::light::environment::Portal;
 use crate::math::{Rgb, Vec2, Vec3};
 use crate::scene::{auto_camera, CameraFrame, Scene};
 
@@ -89,7 +90,8 @@ struct View {
     node: Vec<Option<u32>>,
 }
 
-fn cast(scene: &Scene, skeleton: &Skeleton) -> View {
+/// The scene from its camera (pinhole), per pixel; with `skeleton`, the node each hit maps to.
+fn cast(scene: &Scene, skeleton: Option<&Skeleton>) -> View {
     let aspect = WIDTH as f32 / HEIGHT as f32;
     let camera = scene
         .camera()
@@ -110,7 +112,7 @@ fn cast(scene: &Scene, skeleton: &Skeleton) -> View {
             match scene.intersect(&ray) {
                 Some(si) => {
                     let cos = si.ng.dot(si.wo).abs();
-                    let node = skeleton.map_point(si.p, si.ng, si.wo);
+                    let node = skeleton.and_then(|s| s.map_point(si.p, si.ng, si.wo));
                     (si.t * ray.dir.length(), 0.2 + 0.7 * cos, node)
                 }
                 None => (f32::INFINITY, 0.0, None),
@@ -144,7 +146,7 @@ impl View {
 /// size and colour follow their radius) and `node_map.png` (each visible surface point
 /// coloured by the filtered node it maps to through eq. 151-155; black = no node).
 pub fn write_skeleton_images(dir: &Path, scene: &Scene, skeleton: &Skeleton) -> Result<()> {
-    let view = cast(scene, skeleton);
+    let view = cast(scene, Some(skeleton));
     let (w, h) = (WIDTH as usize, HEIGHT as usize);
     let mut img: Vec<Rgb> = view.shade.iter().map(|&s| Rgb::splat(s * 0.6)).collect();
     let blend = |img: &mut Vec<Rgb>, i: usize, c: Rgb, a: f32| {
@@ -213,6 +215,68 @@ pub fn write_skeleton_images(dir: &Path, scene: &Scene, skeleton: &Skeleton) -> 
     write_png_rgb(&dir.join("node_map.png"), WIDTH, HEIGHT, &map, 0.0)
 }
 
+/// Colour of the window portals' outlines in [`window_portal_overlay`].
+pub const PORTAL_OUTLINE: Rgb = Rgb::new(0.1, 0.9, 1.0);
+
+/// The scene seen from its camera (grey by facing ratio) with each window portal's rectangle
+/// over it: its inside tinted where no surface hides it, its outline in [`PORTAL_OUTLINE`]
+/// everywhere (a window portal lies mid-way through the wall, where the reveal hides its
+/// edges); `WIDTH` x `HEIGHT` pixels, row by row.
+pub fn window_portal_overlay(scene: &Scene, portals: &[Portal]) -> Vec<Rgb> {
+    let view = cast(scene, None);
+    let mut img: Vec<Rgb> = view.shade.iter().map(|&s| Rgb::splat(s * 0.6)).collect();
+    let frame = &view.frame;
+    for (k, px) in img.iter_mut().enumerate() {
+        let ndc = Vec2::new(
+            2.0 * ((k as u32 % WIDTH) as f32 + 0.5) / WIDTH as f32 - 1.0,
+            1.0 - 2.0 * ((k as u32 / WIDTH) as f32 + 0.5) / HEIGHT as f32,
+        );
+        let dir = (frame.forward + frame.right * ndc.x + frame.up * ndc.y).normalize();
+        let seen = portals.iter().any(|p| {
+            let n = p.edge_u.cross(p.edge_v);
+            let t = (p.corner - frame.eye).dot(n) / dir.dot(n);
+            let q = frame.eye + dir * t - p.corner;
+            let (a, b) = (
+                q.dot(p.edge_u) / p.edge_u.length_squared(),
+                q.dot(p.edge_v) / p.edge_v.length_squared(),
+            );
+            t > 0.0 && t <= view.depth[k] && (0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b)
+        });
+        if seen {
+            *px = *px * 0.55 + PORTAL_OUTLINE * 0.45;
+        }
+    }
+    let size = Vec2::new(WIDTH as f32, HEIGHT as f32);
+    for p in portals {
+        let c = [
+            p.corner,
+            p.corner + p.edge_u,
+            p.corner + p.edge_u + p.edge_v,
+            p.corner + p.edge_v,
+        ];
+        for e in 0..4 {
+            let (a, b) = (c[e], c[(e + 1) % 4]);
+            let n = match (frame.project(a), frame.project(b)) {
+                (Some((fa, _)), Some((fb, _))) => (((fa - fb) * size).length() * 1.5) as usize + 2,
+                _ => 64,
+            };
+            for k in 0..=n {
+                if let Some((i, _)) = view.pixel(a.lerp(b, k as f32 / n as f32)) {
+                    img[i] = PORTAL_OUTLINE;
+                }
+            }
+        }
+    }
+    img
+}
+
+/// Writes `window_portals.png` ([`window_portal_overlay`]) into `dir`.
+pub fn write_window_portal_image(dir: &Path, scene: &Scene, portals: &[Portal]) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let img = window_portal_overlay(scene, portals);
+    write_png_rgb(&dir.join("window_portals.png"), WIDTH, HEIGHT, &img, 0.0)
+}
+
 /// Writes `skeleton.obj`, `skeleton_filtered.obj`, `skeleton.ply` and `skeleton_filtered.ply`
 /// into `dir`, and the two images when a scene is given.
 pub fn write_skeleton(dir: &Path, scene: Option<&Scene>, skeleton: &Skeleton) -> Result<()> {
@@ -238,4 +302,25 @@ pub fn write_skeleton(dir: &Path, scene: Option<&Scene>, skeleton: &Skeleton) ->
         write_skeleton_images(dir, scene, skeleton)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The interior's four windows show in the overlay, in the outline colour; without
+    /// portals no pixel has it.
+    #[test]
+    fn the_window_portals_are_drawn_over_the_view() {
+        let scene = crate::scene::interior_builder().unwrap().build().unwrap();
+        let found =
+            super::super::window_portals(&scene, &super::super::WindowPortalSettings::default())
+                .unwrap();
+        assert_eq!(found.portals.len(), 4);
+        let outlined = |img: &[Rgb]| img.iter().filter(|&&c| c == PORTAL_OUTLINE).count();
+        let with = window_portal_overlay(&scene, &found.portals);
+        assert_eq!(with.len(), (WIDTH * HEIGHT) as usize);
+        assert!(outlined(&with) > 100, "{} outline pixels", outlined(&with));
+        assert_eq!(outlined(&window_portal_overlay(&scene, &[])), 0);
+    }
 }

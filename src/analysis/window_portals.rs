@@ -446,6 +446,43 @@ mod tests {
         }
     }
 
+    /// `interior:windows=48`: windows of 0.3 m, about three voxels of the detection grid.
+    /// Every portal found is a modelled window (centre within a voxel, one portal per window),
+    /// and most windows are found (44 of 48 when this was written; the figure is in
+    /// BENCHMARKS.md).
+    #[test]
+    fn many_small_windows_are_found_where_they_are() {
+        let n = 48;
+        let scene = crate::scene::interior_many_windows_builder(n)
+            .unwrap()
+            .build()
+            .unwrap();
+        let found = window_portals(&scene, &WindowPortalSettings::default()).unwrap();
+        let h = found.voxel_size;
+        let windows = crate::scene::interior_small_windows(n);
+        assert_eq!(windows.len(), n);
+        let mut matched = vec![false; n];
+        for p in &found.portals {
+            let k = windows
+                .iter()
+                .position(|w| (p.center() - w.center).abs().max_element() <= h)
+                .unwrap_or_else(|| panic!("portal {p:?} is no window (voxel {h})"));
+            assert!(!matched[k], "two portals on window {:?}", windows[k]);
+            assert_eq!(p.outward, windows[k].outward, "{p:?}");
+            matched[k] = true;
+        }
+        let count = matched.iter().filter(|&&m| m).count();
+        assert!(count * 10 >= n * 8, "{count} of {n} windows found");
+        // Counts out of range and names that are no count are refused.
+        for bad in [0, crate::scene::MAX_SMALL_WINDOWS + 1] {
+            assert!(crate::scene::interior_many_windows_builder(bad).is_err());
+        }
+        for name in ["interior:windows=x", "interior:windows=0"] {
+            let e = crate::scene::load_scene_file(std::path::Path::new(name));
+            assert!(e.is_err(), "{name} accepted");
+        }
+    }
+
     #[test]
     fn an_open_scene_has_no_window_portals() {
         let scene = crate::scene::load_scene_file(std::path::Path::new(concat!(

@@ -429,7 +429,8 @@ struct AnalyzeArgs {
     /// Also find the window portals for environment light (`path:env=portals`): openings
     /// between enclosed regions and the outside, fitted with rectangles (an analysis of its
     /// own, 192 voxels along the longest axis, insides of closed objects filled); listed as
-    /// window_portals in the JSON summary.
+    /// window_portals in the JSON summary and drawn over the camera's view in
+    /// window_portals.png.
     #[arg(long)]
     window_portals: bool,
     /// Refuse grids needing more memory than this many MiB.
@@ -1217,6 +1218,11 @@ fn run_analyze(args: &AnalyzeArgs) -> Result<()> {
     } else {
         None
     };
+    if let Some(w) = &windows {
+        pool.install(|| {
+            lacuna::analysis::write_window_portal_image(&args.out, &scene, &w.portals)
+        })?;
+    }
     if let (Some(w), Some(obj)) = (&windows, summary.as_object_mut()) {
         let v = |a: lacuna::math::Vec3| serde_json::json!([a.x, a.y, a.z]);
         let list: Vec<serde_json::Value> = w

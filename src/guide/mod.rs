@@ -13,6 +13,7 @@
 
 pub mod directional;
 pub mod estimator;
+mod face_irradiance;
 mod importance;
 mod lobes;
 mod mixture;
@@ -24,11 +25,12 @@ mod skeleton_guide;
 mod training;
 
 pub use directional::DirectionalTable;
+pub use face_irradiance::{FaceIrradiance, FaceQuery, FaceScore, MAX_FACE_LOBES};
 pub use lobes::{GuideLobe, ImportanceNode, MAX_LOBES};
 pub use mixture::{sample_bsdf_or_guide, DirectionGuide, MixtureSample};
 pub use portal_guide::{
-    PortalAim, PortalGuide, PortalGuideSettings, PortalQuery, PortalRectangle, PortalStrategy,
-    Unguided, MAX_PORTAL_LOBES, OPEN_SCENE_FRACTION, PORTAL_OPTION_NAMES,
+    FaceSettings, PortalAim, PortalGuide, PortalGuideSettings, PortalQuery, PortalRectangle,
+    PortalStrategy, Unguided, MAX_PORTAL_LOBES, OPEN_SCENE_FRACTION, PORTAL_OPTION_NAMES,
 };
 pub use query::GuideQuery;
 pub use resampling::ResamplingSettings;

@@ -44,12 +44,14 @@
 
 use std::collections::BinaryHeap;
 
+use super::face_irradiance::{FaceIrradiance, FaceQuery, FaceScore, FaceTraining, MAX_FACE_LOBES};
 use super::mixture::DirectionGuide;
+use super::settings::RenderEstimator;
 use crate::analysis::{Analysis, AnalysisSettings, Resolution, NO_REGION};
 use crate::error::{Error, Result};
 use crate::light::Light;
 use crate::math::{warp, Vec2, Vec3};
-use crate::scene::Scene;
+use crate::scene::{Camera, Scene};
 use crate::timing::StageTime;
 
 /// Most portal lobes a query holds (a window of radius 2 voxels rarely meets more regions).
@@ -60,8 +62,8 @@ pub const MAX_PORTAL_LOBES: usize = 8;
 pub enum PortalStrategy {
     /// The portal toward the light along the region graph's shortest-path tree (000 §10.4.1).
     Shortest,
-    /// Per-region distributions over the faces of the opening border learned from earlier
-    /// paths (000 §10.4.2): not implemented, refused with a clear error.
+    /// Per-region distributions over the faces of the opening border learned from training
+    /// paths (000 §10.4.2; [`super::face_irradiance`]).
     Irradiance,
 }
 
@@ -108,6 +110,8 @@ pub struct PortalGuideSettings {
     /// door's portal everywhere and saw the least noise; a region's next portal is often an
     /// internal border of the same room that leads no light).
     pub aim: PortalAim,
+    /// `strategy=irradiance`'s options.
+    pub faces: FaceSettings,
 }
 
 /// [`PortalGuideSettings::aim`].
@@ -119,6 +123,35 @@ pub enum PortalAim {
     Narrowest,
 }
 
+/// `strategy=irradiance`'s own options ([`super::face_irradiance`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FaceSettings {
+    /// Camera paths of the training.
+    pub training_paths: u32,
+    /// The learned share of a region's face distribution (the rest is uniform), in [0, 1].
+    pub face_mix: f32,
+    /// Distance threshold d_t as a fraction of the scene's diagonal: faces nearer than that
+    /// along the direction are left to BSDF sampling (the thesis used 0.01).
+    pub d_t: f32,
+    /// Orientation threshold o_t: faces crossed at |cos| below it are left to BSDF sampling
+    /// (the thesis used 0.5).
+    pub o_t: f32,
+    /// What a face's probability is proportional to.
+    pub score: FaceScore,
+}
+
+impl Default for FaceSettings {
+    fn default() -> Self {
+        FaceSettings {
+            training_paths: 16384,
+            face_mix: 0.8,
+            d_t: 0.0,
+            o_t: 0.0,
+            score: FaceScore::Flux,
+        }
+    }
+}
+
 impl Default for PortalGuideSettings {
     fn default() -> Self {
         PortalGuideSettings {
@@ -128,6 +161,7 @@ impl Default for PortalGuideSettings {
             smoothing: 2.0,
             ratio_max: super::settings::AUTO_RATIO_MAX,
             aim: PortalAim::Next,
+            faces: FaceSettings::default(),
         }
     }
 }
@@ -140,6 +174,11 @@ pub const PORTAL_OPTION_NAMES: &[&str] = &[
     "smoothing",
     "ratio_max",
     "aim",
+    "training_paths",
+    "face_mix",
+    "d_t",
+    "o_t",
+    "face_score",
 ];
 
 impl PortalGuideSettings {
@@ -179,6 +218,27 @@ impl PortalGuideSettings {
                     }
                 }
             }
+            "training_paths" => {
+                next.faces.training_paths = value.parse::<u32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "path_portal: training_paths={value} is not an integer"
+                    ))
+                })?
+            }
+            "face_mix" => next.faces.face_mix = number(value)?,
+            "d_t" => next.faces.d_t = number(value)?,
+            "o_t" => next.faces.o_t = number(value)?,
+            "face_score" => {
+                next.faces.score = match value {
+                    "flux" => FaceScore::Flux,
+                    "radiance" => FaceScore::Radiance,
+                    _ => {
+                        return Err(Error::invalid(format!(
+                            "path_portal: face_score={value} must be flux or radiance"
+                        )))
+                    }
+                }
+            }
             _ => return Ok(false),
         }
         next.validate()?;
@@ -211,10 +271,30 @@ impl PortalGuideSettings {
                 self.ratio_max
             )));
         }
-        if self.strategy == PortalStrategy::Irradiance {
-            return Err(Error::invalid(
-                "path_portal: strategy=irradiance (face irradiance, 000 §10.4.2) is not implemented; use strategy=shortest",
-            ));
+        let f = &self.faces;
+        if !(1..=1 << 24).contains(&f.training_paths) {
+            return Err(Error::invalid(format!(
+                "path_portal: training_paths={} must be in [1, 16777216]",
+                f.training_paths
+            )));
+        }
+        if !(f.face_mix.is_finite() && (0.0..=1.0).contains(&f.face_mix)) {
+            return Err(Error::invalid(format!(
+                "path_portal: face_mix={} must be in [0, 1]",
+                f.face_mix
+            )));
+        }
+        if !(f.d_t.is_finite() && (0.0..=1.0).contains(&f.d_t)) {
+            return Err(Error::invalid(format!(
+                "path_portal: d_t={} must be in [0, 1] (a fraction of the scene's diagonal)",
+                f.d_t
+            )));
+        }
+        if !(f.o_t.is_finite() && (0.0..1.0).contains(&f.o_t)) {
+            return Err(Error::invalid(format!(
+                "path_portal: o_t={} must be in [0, 1) (a cosine)",
+                f.o_t
+            )));
         }
         Ok(())
     }
@@ -269,6 +349,8 @@ pub enum Unguided {
     /// The regions guided toward a light hold less than [`OPEN_SCENE_FRACTION`] of the empty
     /// voxels (this share, in %): pockets of an open scene, not rooms.
     Open(f32),
+    /// `strategy=irradiance`: no training path left any region through its border.
+    NoTrainedFace,
 }
 
 /// Below this share of the empty voxels in guided regions a scene is open
@@ -283,6 +365,9 @@ impl std::fmt::Display for Unguided {
             }
             Unguided::NoPortalPath => f.write_str(
                 "every region holds a light or reaches none through a portal (one room or an open scene)",
+            ),
+            Unguided::NoTrainedFace => f.write_str(
+                "no training path carried light out of a region through its border",
             ),
             Unguided::Open(percent) => write!(
                 f,
@@ -306,18 +391,28 @@ pub struct PortalGuide {
     /// Share of the empty voxels in guided regions.
     guided_fraction: f32,
     timings: Vec<StageTime>,
+    /// `strategy=irradiance`: the regions' face distributions.
+    faces: Option<FaceIrradiance>,
     /// Which scene it was built for (its address and triangle count).
     scene_key: (usize, usize),
 }
 
 impl PortalGuide {
     /// Runs the analysis (regions only) and builds the shortest-path tree of its regions.
+    /// `strategy=irradiance` trains its face distributions with camera paths: `training`
+    /// gives the camera and the render's light sampling and depth (required there).
     pub fn build(
         scene: &Scene,
         settings: &PortalGuideSettings,
+        training: Option<(&Camera, RenderEstimator, u32)>,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<PortalGuide> {
         settings.validate()?;
+        if settings.strategy == PortalStrategy::Irradiance && training.is_none() {
+            return Err(Error::invalid(
+                "path_portal: strategy=irradiance trains with camera paths: it needs the camera",
+            ));
+        }
         let analysis = Analysis::build(
             scene,
             &AnalysisSettings {
@@ -343,6 +438,36 @@ impl PortalGuide {
             stage: "portal guide (light regions, shortest paths, rectangles)",
             seconds: started.elapsed().as_secs_f64(),
         });
+        let faces = match training {
+            Some((camera, estimator, max_depth))
+                if settings.strategy == PortalStrategy::Irradiance =>
+            {
+                let started = std::time::Instant::now();
+                let f = &settings.faces;
+                let bounds = scene.bounds();
+                let diagonal = (bounds.max - bounds.min).length();
+                let faces = FaceIrradiance::build(
+                    &analysis,
+                    scene,
+                    &FaceTraining {
+                        camera,
+                        estimator,
+                        max_depth,
+                        paths: f.training_paths,
+                        face_mix: f.face_mix,
+                        score: f.score,
+                    },
+                    f.d_t * diagonal,
+                    f.o_t,
+                )?;
+                timings.push(StageTime {
+                    stage: "face irradiance (borders, training paths, distributions)",
+                    seconds: started.elapsed().as_secs_f64(),
+                });
+                Some(faces)
+            }
+            _ => None,
+        };
         let empty: u64 = analysis.regions.iter().map(|r| r.voxels).sum();
         let guided: u64 = analysis
             .regions
@@ -360,6 +485,7 @@ impl PortalGuide {
             next,
             rectangles,
             timings,
+            faces,
             scene_key: scene_key(scene),
         })
     }
@@ -370,6 +496,9 @@ impl PortalGuide {
 
     /// None when some point is guided; else why none is.
     pub fn unguided(&self) -> Option<Unguided> {
+        if let Some(faces) = &self.faces {
+            return (faces.guided_regions == 0).then_some(Unguided::NoTrainedFace);
+        }
         if self.light_regions == 0 {
             Some(Unguided::NoLightRegion)
         } else if self.guided_regions == 0 {
@@ -396,8 +525,19 @@ impl PortalGuide {
     /// A line for the render summary.
     pub fn note(&self) -> String {
         let g = &self.analysis.grid;
+        let faces = self.faces.as_ref().map_or(String::new(), |f| {
+            format!(
+                "; face irradiance: {} regions trained by {} paths, face_mix {}, d_t {}, o_t {}, {:.1} MiB",
+                f.guided_regions,
+                f.training_paths,
+                self.settings.faces.face_mix,
+                self.settings.faces.d_t,
+                self.settings.faces.o_t,
+                f.memory_bytes() as f64 / (1024.0 * 1024.0)
+            )
+        });
         format!(
-            "portal guide ({}): grid {}x{}x{}, {} regions, {} portals, {} light regions, {} regions guided toward a light ({:.1} % of the empty space), c_portal {}, smoothing {} voxels, ratio_max {}, aim {:?}",
+            "portal guide ({}): grid {}x{}x{}, {} regions, {} portals, {} light regions, {} regions guided toward a light ({:.1} % of the empty space), c_portal {}, smoothing {} voxels, ratio_max {}, aim {:?}{}",
             self.settings.strategy.name(),
             g.dims[0],
             g.dims[1],
@@ -410,7 +550,8 @@ impl PortalGuide {
             self.settings.c_portal,
             self.settings.smoothing,
             self.settings.ratio_max,
-            self.settings.aim
+            self.settings.aim,
+            faces
         )
     }
 
@@ -425,9 +566,10 @@ impl PortalGuide {
         self.rectangles[k as usize].as_ref()
     }
 
-    /// Sets `query` up at surface point `p` with facing normal `n` (module docs, "Query").
-    pub fn init_query(&self, query: &mut PortalQuery, p: Vec3, n: Vec3) {
-        query.clear();
+    /// Calls `each(region, weight)` for the empty voxels of the smoothing window around
+    /// surface point `p` (facing normal `n`) in front of its surface, with their tent weights
+    /// (module docs, "Query"); returns the weights' sum.
+    fn window(&self, p: Vec3, n: Vec3, mut each: impl FnMut(u32, f32)) -> f32 {
         let grid = &self.analysis.grid;
         let h = grid.voxel_size as f32;
         let x = p + 0.5 * h * n;
@@ -435,9 +577,6 @@ impl PortalGuide {
         let g = grid.to_grid(x);
         let lo = g.map(|c| (c - r as f64 - 0.5).ceil() as i64);
         let hi = g.map(|c| (c + r as f64 - 0.5).floor() as i64);
-        // (portal index, weight) of the guided regions, and the window's total weight.
-        let mut lobes: [(u32, f32); MAX_PORTAL_LOBES] = [(u32::MAX, 0.0); MAX_PORTAL_LOBES];
-        let mut count = 0usize;
         let mut total = 0.0f32;
         for k in lo[2].max(0)..=hi[2].min(grid.dims[2] as i64 - 1) {
             let wz = 1.0 - ((g[2] - (k as f64 + 0.5)).abs() as f32 / r);
@@ -465,18 +604,75 @@ impl PortalGuide {
                     }
                     let w = wx * wy * wz;
                     total += w;
-                    let Some(portal) = self.next[label as usize] else {
-                        continue;
-                    };
-                    if let Some(slot) = lobes[..count].iter_mut().find(|l| l.0 == portal) {
-                        slot.1 += w;
-                    } else if count < MAX_PORTAL_LOBES {
-                        lobes[count] = (portal, w);
-                        count += 1;
-                    }
+                    each(label, w);
                 }
             }
         }
+        total
+    }
+
+    /// The face distributions of `strategy=irradiance` (None for `shortest`).
+    pub fn faces(&self) -> Option<&FaceIrradiance> {
+        self.faces.as_ref()
+    }
+
+    /// An unguided face query of this guide (`strategy=irradiance`; None for `shortest`).
+    pub fn face_query(&self) -> Option<FaceQuery<'_>> {
+        Some(FaceQuery::new(self.faces.as_ref()?, &self.analysis))
+    }
+
+    /// Sets a face query up at surface point `p` with facing normal `n`
+    /// (`strategy=irradiance`): the trained regions of the smoothing window, by weight;
+    /// c = c_portal times their share of the window's weight.
+    pub fn init_face_query(&self, query: &mut FaceQuery, p: Vec3, n: Vec3) {
+        query.clear();
+        let Some(faces) = self.faces.as_ref() else {
+            return;
+        };
+        query.x = p;
+        let mut guided = 0.0f32;
+        let (regions, weights, count) = (&mut query.regions, &mut query.weights, &mut query.count);
+        let total = self.window(p, n, |label, w| {
+            if !faces.guides(label) {
+                return;
+            }
+            if let Some(j) = regions[..*count].iter().position(|&r| r == label) {
+                weights[j] += w;
+                guided += w;
+            } else if *count < MAX_FACE_LOBES {
+                regions[*count] = label;
+                weights[*count] = w;
+                *count += 1;
+                guided += w;
+            }
+        });
+        if !(total > 0.0 && guided > 0.0) {
+            query.clear();
+            return;
+        }
+        for w in &mut query.weights[..query.count] {
+            *w /= guided;
+        }
+        query.c = self.settings.c_portal * (guided / total).min(1.0);
+    }
+
+    /// Sets `query` up at surface point `p` with facing normal `n` (module docs, "Query").
+    pub fn init_query(&self, query: &mut PortalQuery, p: Vec3, n: Vec3) {
+        query.clear();
+        // (portal index, weight) of the guided regions, and the window's total weight.
+        let mut lobes: [(u32, f32); MAX_PORTAL_LOBES] = [(u32::MAX, 0.0); MAX_PORTAL_LOBES];
+        let mut count = 0usize;
+        let total = self.window(p, n, |label, w| {
+            let Some(portal) = self.next[label as usize] else {
+                return;
+            };
+            if let Some(slot) = lobes[..count].iter_mut().find(|l| l.0 == portal) {
+                slot.1 += w;
+            } else if count < MAX_PORTAL_LOBES {
+                lobes[count] = (portal, w);
+                count += 1;
+            }
+        });
         if !(total > 0.0) {
             return;
         }
@@ -807,8 +1003,8 @@ mod tests {
     #[test]
     fn the_two_rooms_are_guided_toward_the_lit_room() {
         let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
-        let guide =
-            PortalGuide::build(&scene, &PortalGuideSettings::default(), &|_, _| true).unwrap();
+        let guide = PortalGuide::build(&scene, &PortalGuideSettings::default(), None, &|_, _| true)
+            .unwrap();
         assert!(guide.unguided().is_none(), "{}", guide.note());
         // Every region with a next portal leads, step by step, to a light region.
         for r in 0..guide.analysis.regions.len() as u32 {
@@ -830,8 +1026,13 @@ mod tests {
         assert!(s.set("c_portal", "0.3").unwrap());
         assert!(s.set("smoothing", "0").is_err());
         assert!(s.set("resolution", "4").is_err());
-        let e = s.set("strategy", "irradiance").unwrap_err().to_string();
-        assert!(e.contains("not implemented"), "{e}");
+        assert!(s.set("strategy", "irradiance").unwrap());
+        assert!(s.set("face_mix", "1.5").is_err());
+        assert!(s.set("o_t", "1").is_err());
+        assert!(s.set("d_t", "-0.1").is_err());
+        assert!(s.set("training_paths", "0").is_err());
+        assert!(s.set("face_score", "radiance").unwrap());
+        assert!(s.set("face_score", "power").is_err());
         assert!(s.set("strategy", "nearest").is_err());
         assert!(!s.set("strength", "2").unwrap());
     }

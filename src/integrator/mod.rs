@@ -399,9 +399,9 @@ impl SpecOption<'_> {
 /// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
 ///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`;
 /// - `path_portal`: `path`'s options and the portal guide's ([`PortalGuideSettings::set`]):
-///   `strategy=shortest` (`irradiance` is refused: not implemented), `c_portal=C` in [0, 1),
-///   `resolution=N` (analysis voxels on the longest axis), `smoothing=R` (voxels), e.g.
-///   `path_portal:c_portal=0.3:resolution=128`;
+///   `strategy=shortest|irradiance`, `c_portal=C` in [0, 1), `resolution=N` (analysis voxels
+///   on the longest axis), `smoothing=R` (voxels), with `irradiance` `training_paths=N`,
+///   `face_mix=F`, `d_t=D`, `o_t=O`, e.g. `path_portal:c_portal=0.3:resolution=128`;
 /// - `bdpt_skeleton`: `subset=N`, `accept=ALPHA`, `images=true` ([`ResamplingSettings::set`])
 ///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`;
 /// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`;

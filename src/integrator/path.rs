@@ -7,7 +7,8 @@
 //! next direction comes from them with probability `c_skel`, from the BSDF otherwise. Every
 //! density this file uses for a direction (the throughput's denominator, the MIS weights of
 //! next-event estimation and of emitters hit) is then the density of that one-sample mixture,
-//! so both integrators estimate the same image.
+//! so both integrators estimate the same image. `path_portal` traces with the same loop
+//! ([`PathTracer::trace`]), its guide behind the same [`VertexGuide`] trait.
 //!
 //! # The pilot
 //!
@@ -50,7 +51,8 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::{
-    estimator, sample_bsdf_or_guide, GuideQuery, Pilot, PilotCost, RenderEstimator, SkeletonGuide,
+    estimator, sample_bsdf_or_guide, DirectionGuide, GuideQuery, Pilot, PilotCost, RenderEstimator,
+    SkeletonGuide,
 };
 use crate::light::TriangleSampling;
 use crate::math::FIRST_INTEGRATOR_DIMENSION;
@@ -136,7 +138,7 @@ impl PathTracer {
         frame: &Frame,
         bsdf: &Bsdf,
         wo_local: Vec3,
-        query: &GuideQuery,
+        query: &impl DirectionGuide,
         mut u: crate::math::Vec2,
         (alphas, depth, beta): (&mut VertexAlphas, u32, Rgb),
         counters: &mut TraceCounters,
@@ -309,16 +311,24 @@ impl PathTracer {
                                     PILOT_SEED + 1 + j as u64,
                                     i as u64,
                                 ));
-                                let guided = if k == 1 {
-                                    Some((guide, &mut query))
+                                let off = &mut { VertexAlphas::OFF };
+                                let sample = if k == 1 {
+                                    let guided = &mut SkeletonVertexGuide {
+                                        guide,
+                                        query: &mut query,
+                                    };
+                                    self.trace(scene, ray, &mut rng, &mut counters[k], guided, off)
                                 } else {
-                                    None
+                                    self.trace(
+                                        scene,
+                                        ray,
+                                        &mut rng,
+                                        &mut counters[k],
+                                        &mut Unguided,
+                                        off,
+                                    )
                                 };
-                                *lj = self
-                                    .trace(scene, ray, &mut rng, &mut counters[k], guided, &mut {
-                                        VertexAlphas::OFF
-                                    })
-                                    .radiance;
+                                *lj = sample.radiance;
                             }
                             variance[k] += half_squared_difference(l[0], l[1]);
                         }
@@ -528,46 +538,65 @@ impl Integrator for PathTracer {
         counters: &mut TraceCounters,
         ctx: &SampleContext,
     ) -> PixelSample {
-        if self.mis() == MisHeuristic::Auto {
-            return self.sample_auto(scene, ray, rng, counters, ctx);
-        }
         // A guide that guides no node (every node learned c = 0, or the scene-level switch of
         // `cost_model=switch|measured`): `path`'s sample exactly, without node mapping or
         // query set-up.
-        let off = &mut { VertexAlphas::OFF };
         let Some(guide) = self.guide().filter(|g| !g.guides_nothing()) else {
-            return self.trace(scene, ray, rng, counters, None, off);
+            return self.sample_with(scene, ray, rng, counters, ctx, &mut Unguided);
         };
         THREAD_QUERY.with(|cell| match cell.try_borrow_mut() {
-            Ok(mut query) => self.trace(scene, ray, rng, counters, Some((guide, &mut query)), off),
+            Ok(mut query) => {
+                let guided = &mut SkeletonVertexGuide {
+                    guide,
+                    query: &mut query,
+                };
+                self.sample_with(scene, ray, rng, counters, ctx, guided)
+            }
             // Only if a host re-entered the renderer from inside a sample on this thread.
-            Err(_) => self.trace(
-                scene,
-                ray,
-                rng,
-                counters,
-                Some((guide, &mut GuideQuery::new())),
-                off,
-            ),
+            Err(_) => {
+                let guided = &mut SkeletonVertexGuide {
+                    guide,
+                    query: &mut GuideQuery::new(),
+                };
+                self.sample_with(scene, ray, rng, counters, ctx, guided)
+            }
         })
     }
 }
 
 impl PathTracer {
-    fn mis(&self) -> MisHeuristic {
+    pub(super) fn mis(&self) -> MisHeuristic {
         super::mis_in_use(self.name(), &self.settings)
     }
 
-    /// `path:mis=auto`'s sample (see [`super::mis_auto::DEPTH_CLASSES`]): the pixel's alpha
-    /// state, the sample, the warm-up's records back to the pixel, and the depth-0 alpha to
-    /// the `alpha` layer (R alpha, G 1) where the camera ray hit a surface.
-    fn sample_auto(
+    /// One camera sample guided by `guide` (see [`Integrator::sample`]), with `mis=auto`'s
+    /// per-pixel alphas where the render uses them.
+    pub(super) fn sample_with<G: VertexGuide>(
         &self,
         scene: &Scene,
         ray: Ray,
         rng: &mut Sampler,
         counters: &mut TraceCounters,
         ctx: &SampleContext,
+        guide: &mut G,
+    ) -> PixelSample {
+        if self.mis() == MisHeuristic::Auto {
+            return self.sample_auto(scene, ray, rng, counters, ctx, guide);
+        }
+        self.trace(scene, ray, rng, counters, guide, &mut { VertexAlphas::OFF })
+    }
+
+    /// `mis=auto`'s sample (see [`super::mis_auto::DEPTH_CLASSES`]): the pixel's alpha
+    /// state, the sample, the warm-up's records back to the pixel, and the depth-0 alpha to
+    /// the `alpha` layer (R alpha, G 1) where the camera ray hit a surface.
+    fn sample_auto<G: VertexGuide>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        ctx: &SampleContext,
+        guide: &mut G,
     ) -> PixelSample {
         let pixel_count = ctx.view.width as usize * ctx.view.height as usize;
         let pixel = ctx.pixel_index as usize;
@@ -577,7 +606,7 @@ impl PathTracer {
             ctx.sample_index,
             self.settings.path.mis_warmup,
         );
-        let sample = self.trace(scene, ray, rng, counters, None, &mut alphas);
+        let sample = self.trace(scene, ray, rng, counters, guide, &mut alphas);
         self.alphas.finish(pixel, &alphas);
         if let Some(layer) = ctx.layers.first() {
             if sample.hit {
@@ -703,16 +732,105 @@ thread_local! {
     static THREAD_QUERY: RefCell<GuideQuery> = const { RefCell::new(GuideQuery::new()) };
 }
 
+/// The direction guide of the shared trace loop ([`PathTracer::trace`]): `path` has none
+/// ([`Unguided`]), `path_skeleton` the skeleton's lobes ([`SkeletonVertexGuide`]),
+/// `path_portal` the portals (integrator/path_portal.rs). At each non-delta vertex the loop
+/// sets the query up and draws the next direction from it or the BSDF by one-sample MIS, and
+/// every density of a direction (the throughput's denominator, the MIS weights of next-event
+/// estimation and of emitters or the environment found) is that mixture's; so one loop, one
+/// estimator, whatever the guide.
+pub(super) trait VertexGuide {
+    type Query: DirectionGuide;
+    /// Whether any vertex may be guided (false: `path`'s own samples, no query work).
+    const GUIDED: bool;
+    /// The bound on the product of p_bsdf / p along a path (`ratio_max`; infinite: none).
+    fn ratio_max(&self) -> f32 {
+        f32::INFINITY
+    }
+    /// Called at every surface hit before its BSDF is built (a guide may start loading what
+    /// the vertex will read).
+    fn prefetch(&self, _si: &SurfaceInteraction) {}
+    /// Sets the query up at non-delta vertex `si`, its guiding probability at most `c_max`;
+    /// returns the rays it traced.
+    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64;
+    /// Makes the query unguided (a delta vertex: no mixture with a Dirac lobe has a density).
+    fn clear(&mut self);
+    fn query(&self) -> &Self::Query;
+    /// Feature `diagnostics`: the skeleton query the vertex records show, if this is one.
+    #[cfg(feature = "diagnostics")]
+    fn skeleton_query(&self) -> Option<&GuideQuery> {
+        None
+    }
+}
+
+/// `path`: no guide.
+pub(super) struct Unguided;
+
+impl VertexGuide for Unguided {
+    type Query = GuideQuery;
+    const GUIDED: bool = false;
+    #[inline]
+    fn init(&mut self, _: &Scene, _: &SurfaceInteraction, _: f32) -> u64 {
+        0
+    }
+    #[inline]
+    fn clear(&mut self) {}
+    #[inline]
+    fn query(&self) -> &GuideQuery {
+        GuideQuery::unguided()
+    }
+    #[cfg(feature = "diagnostics")]
+    fn skeleton_query(&self) -> Option<&GuideQuery> {
+        Some(GuideQuery::unguided())
+    }
+}
+
+/// `path_skeleton`: the skeleton guide and the query it initialises at each vertex.
+struct SkeletonVertexGuide<'a> {
+    guide: &'a SkeletonGuide,
+    query: &'a mut GuideQuery,
+}
+
+impl VertexGuide for SkeletonVertexGuide<'_> {
+    type Query = GuideQuery;
+    const GUIDED: bool = true;
+    fn ratio_max(&self) -> f32 {
+        self.guide.ratio_max()
+    }
+    fn prefetch(&self, si: &SurfaceInteraction) {
+        self.guide.prefetch(si.p, si.ng, si.wo);
+    }
+    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
+        self.query.clear();
+        let rays = self
+            .query
+            .init(self.guide, scene, si.p, si.p_error, si.ng, si.wo);
+        self.query.cap_guiding_probability(c_max);
+        self.query.prefetch_directions();
+        rays as u64
+    }
+    fn clear(&mut self) {
+        self.query.clear();
+    }
+    fn query(&self) -> &GuideQuery {
+        self.query
+    }
+    #[cfg(feature = "diagnostics")]
+    fn skeleton_query(&self) -> Option<&GuideQuery> {
+        Some(self.query)
+    }
+}
+
 impl PathTracer {
-    /// One camera path (see [`Integrator::sample`]); `guided`: the guide and the query to
-    /// initialise at each vertex.
-    fn trace(
+    /// One camera path (see [`Integrator::sample`]), its directions drawn by one-sample MIS of
+    /// the BSDF and `guide` (the BSDF's alone where the guide does not guide).
+    pub(super) fn trace<G: VertexGuide>(
         &self,
         scene: &Scene,
         mut ray: Ray,
         rng: &mut Sampler,
         counters: &mut TraceCounters,
-        mut guided: Option<(&SkeletonGuide, &mut GuideQuery)>,
+        guide: &mut G,
         alphas: &mut VertexAlphas,
     ) -> PixelSample {
         let mut out = PixelSample::default();
@@ -723,9 +841,7 @@ impl PathTracer {
         let mut rr_beta = Rgb::ONE;
         // The product of p_bsdf / pdf over the directions so far (`ratio_max`).
         let mut ratio = 1.0f32;
-        let ratio_max = guided
-            .as_ref()
-            .map_or(f32::INFINITY, |(g, _)| g.ratio_max());
+        let ratio_max = guide.ratio_max();
         // State of the previous vertex, for MIS when a BSDF-sampled ray hits an emitter.
         let mut prev_delta = true;
         let mut prev_pdf = 0.0f32;
@@ -753,9 +869,7 @@ impl PathTracer {
                 radiance += e;
                 break;
             };
-            if let Some((guide, _)) = &guided {
-                guide.prefetch(si.p, si.ng, si.wo);
-            }
+            guide.prefetch(&si);
             if depth == 0 {
                 out.hit = true;
                 out.depth = si.t;
@@ -787,23 +901,21 @@ impl PathTracer {
             }
             let frame = si.shading_frame();
             let wo_local = frame.to_local(si.wo);
-            let query: &GuideQuery = match guided.as_mut() {
-                Some((guide, query)) => {
-                    query.clear();
-                    // No guiding at delta BSDFs: no mixture with a Dirac lobe has a density.
-                    if !bsdf.is_delta() {
-                        counters.rays +=
-                            query.init(guide, scene, si.p, si.p_error, si.ng, si.wo) as u64;
-                        if ratio_max.is_finite() {
-                            // Worst case after this vertex: ratio / (1 - c) <= ratio_max.
-                            query.cap_guiding_probability(1.0 - ratio / ratio_max);
-                        }
-                        query.prefetch_directions();
-                    }
-                    query
+            if G::GUIDED {
+                // No guiding at delta BSDFs: no mixture with a Dirac lobe has a density.
+                if bsdf.is_delta() {
+                    guide.clear();
+                } else {
+                    // Worst case after this vertex: ratio / (1 - c) <= ratio_max.
+                    let c_max = if ratio_max.is_finite() {
+                        1.0 - ratio / ratio_max
+                    } else {
+                        f32::INFINITY
+                    };
+                    counters.rays += guide.init(scene, &si, c_max);
                 }
-                None => GuideQuery::unguided(),
-            };
+            }
+            let query = guide.query();
             if !bsdf.is_delta() {
                 rng.set_dimension(slot(depth, LIGHT_SLOT));
                 let u = rng.uniform2();
@@ -838,14 +950,16 @@ impl PathTracer {
                 break;
             }
             #[cfg(feature = "diagnostics")]
-            diagnostics::record(query, depth, ms.bsdf_pdf, bs.pdf, radiance, ms.from_guide);
+            if let Some(query) = guide.skeleton_query() {
+                diagnostics::record(query, depth, ms.bsdf_pdf, bs.pdf, radiance, ms.from_guide);
+            }
             if alphas.is_active() {
                 prev_scale = beta * bs.f * bs.wi.z.abs();
             }
             beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
             rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
             ratio *= ms.bsdf_pdf / bs.pdf;
-            if guided.is_some() {
+            if G::GUIDED {
                 counters.largest_guided_ratio = counters.largest_guided_ratio.max(ratio);
             }
             if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {

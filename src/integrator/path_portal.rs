@@ -2,31 +2,31 @@
 //! (000 §10.4, lines 3033-3090), `strategy=shortest`: at every non-delta vertex the portal
 //! guide ([`PortalGuide`], whose module docs give the mixture) proposes the rectangles of the
 //! portals leading toward a light, and the next direction comes from them with the query's
-//! guiding probability, from the BSDF otherwise. Every density of a direction (the
+//! guiding probability, from the BSDF otherwise. The samples are traced by `path`'s own loop
+//! ([`PathTracer::trace`], through [`VertexGuide`]), so every density of a direction (the
 //! throughput's denominator, the MIS weights of next-event estimation and of emitters or the
-//! environment found) is that one-sample mixture's, exactly as in `path_skeleton`
-//! (integrator/path.rs), so the estimator is `path`'s with another direction density.
+//! environment found) is that one-sample mixture's, and `path`'s options, `mis=auto` included,
+//! apply unchanged: the estimator is `path`'s with another direction density.
 //!
 //! Where the guide guides nothing (no light in an empty region, no portal path: one room, an
 //! open scene) every sample is `path`'s own sample, and the render summary says why.
-//! `strategy=irradiance` (000 §10.4.2) is not implemented and refused.
+//! `strategy=irradiance` (000 §10.4.2): the same loop with the regions' face distributions
+//! ([`crate::guide::FaceIrradiance`], whose module docs give the density) instead of the
+//! portals' rectangles.
 
 use std::cell::RefCell;
 use std::sync::Arc;
 
-use super::path::{
-    prepare_env_portals, set_path_option, slot, PathTracer, DIRECTION_SLOT, LIGHT_SLOT,
-    ROULETTE_SLOT,
+use super::path::{prepare_env_portals, set_path_option, PathTracer, VertexGuide};
+use super::{
+    Integrator, IntegratorSettings, MisHeuristic, Precomputation, SampleContext, TraceCounters,
 };
-use super::{Integrator, IntegratorSettings, Precomputation, SampleContext, TraceCounters};
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::guide::{
-    estimator, sample_bsdf_or_guide, DirectionGuide, PortalGuide, PortalQuery, RenderEstimator,
-};
-use crate::math::{Rgb, Sampler, Vec3};
-use crate::scene::{Camera, Scene};
+use crate::guide::{FaceQuery, PortalGuide, PortalQuery, RenderEstimator};
+use crate::math::Sampler;
+use crate::scene::{Camera, Scene, SurfaceInteraction};
 
 pub struct PortalPathTracer {
     settings: IntegratorSettings,
@@ -54,159 +54,67 @@ impl PortalPathTracer {
     pub fn guide(&self) -> Option<&Arc<PortalGuide>> {
         self.guide.as_ref()
     }
+}
 
-    fn estimator(&self) -> RenderEstimator {
-        RenderEstimator {
-            mis: self.settings.mis.unwrap_or_default(),
-            triangles: self.settings.path.triangles,
-            env: self.settings.env,
-        }
+/// The portal guide and the query it initialises at each vertex, for `path`'s trace loop.
+struct PortalVertexGuide<'a> {
+    guide: &'a PortalGuide,
+    query: &'a mut PortalQuery,
+}
+
+impl VertexGuide for PortalVertexGuide<'_> {
+    type Query = PortalQuery;
+    const GUIDED: bool = true;
+    fn ratio_max(&self) -> f32 {
+        self.guide.settings().ratio_max
     }
+    fn init(&mut self, _: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
+        self.guide.init_query(self.query, si.p, si.facing_normal());
+        self.query.cap_guiding_probability(c_max);
+        0
+    }
+    fn clear(&mut self) {
+        self.query.clear();
+    }
+    fn query(&self) -> &PortalQuery {
+        self.query
+    }
+}
 
-    /// One camera path, guided by `guide` through `query`.
-    fn trace(
-        &self,
-        scene: &Scene,
-        mut ray: Ray,
-        rng: &mut Sampler,
-        counters: &mut TraceCounters,
-        guide: &PortalGuide,
-        query: &mut PortalQuery,
-    ) -> PixelSample {
-        let estimator = self.estimator();
-        let mis = estimator.mis;
-        let mut out = PixelSample::default();
-        let mut radiance = Rgb::ZERO;
-        let mut beta = Rgb::ONE;
-        // The throughput BSDF sampling alone would carry, for Russian roulette.
-        let mut rr_beta = Rgb::ONE;
-        // The product of p_bsdf / pdf over the directions so far (`ratio_max`).
-        let mut ratio = 1.0f32;
-        let ratio_max = guide.settings().ratio_max;
-        let mut prev_delta = true;
-        let mut prev_pdf = 0.0f32;
-        let mut prev_point = ray.origin;
-        let mut prev_normal = Vec3::ZERO;
-        let mut depth = 0u32;
-        loop {
-            counters.rays += 1;
-            let Some(si) = scene.intersect(&ray) else {
-                if let Some((_, env)) = scene.environment() {
-                    if depth > 0 || env.visible_to_camera() {
-                        if let Some((le, light_pdf)) = estimator::environment_along(
-                            scene,
-                            prev_point,
-                            prev_normal,
-                            ray.dir,
-                            &estimator,
-                        ) {
-                            let weight = if prev_delta {
-                                1.0
-                            } else {
-                                mis.weight(prev_pdf, light_pdf)
-                            };
-                            radiance += beta * le * weight;
-                        }
-                    }
-                }
-                break;
-            };
-            if depth == 0 {
-                out.hit = true;
-                out.depth = si.t;
-                out.normal = si.ns;
-            }
-            let le = scene.emitted(&si);
-            if le != Rgb::ZERO {
-                let weight = if prev_delta {
-                    1.0
-                } else {
-                    let light_pdf =
-                        estimator::emitter_light_pdf(scene, prev_point, &si, &estimator);
-                    mis.weight(prev_pdf, light_pdf)
-                };
-                radiance += beta * le * weight;
-            }
-            if depth >= self.settings.max_depth {
-                break;
-            }
-            let bsdf = scene.bsdf(&si);
-            if depth == 0 {
-                out.albedo = bsdf.albedo_hint();
-            }
-            let frame = si.shading_frame();
-            let wo_local = frame.to_local(si.wo);
-            // No guiding at delta BSDFs: no mixture with a Dirac lobe has a density.
-            if bsdf.is_delta() {
-                query.clear();
-            } else {
-                guide.init_query(query, si.p, si.facing_normal());
-                // Worst case after this vertex: ratio / (1 - c) <= ratio_max.
-                query.cap_guiding_probability(1.0 - ratio / ratio_max);
-                rng.set_dimension(slot(depth, LIGHT_SLOT));
-                let u = rng.uniform2();
-                if let Some(light) = estimator::sample_direct_light(
-                    scene,
-                    &si,
-                    &frame,
-                    &bsdf,
-                    wo_local,
-                    &estimator,
-                    u,
-                    &mut counters.rays,
-                ) {
-                    let direction_pdf = if light.delta {
-                        0.0
-                    } else {
-                        query.mixture_pdf(light.wi, bsdf.pdf(wo_local, light.wi_local))
-                    };
-                    radiance += beta * light.weighted(light.weight(mis, direction_pdf));
-                }
-            }
-            rng.set_dimension(slot(depth, DIRECTION_SLOT));
-            let Some(ms) = sample_bsdf_or_guide(&bsdf, wo_local, &frame, &*query, rng) else {
-                break;
-            };
-            let bs = ms.sample;
-            let wi = frame.to_world(bs.wi);
-            // Reflections must leave on wo's side of the geometric surface, transmissions on
-            // the other side; shading normals can disagree near silhouettes.
-            let reflected = bs.wi.z * wo_local.z > 0.0;
-            let same_side = wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0;
-            if reflected != same_side {
-                break;
-            }
-            beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
-            rr_beta *= bs.f * (bs.wi.z.abs() / ms.bsdf_pdf);
-            ratio *= ms.bsdf_pdf / bs.pdf;
-            counters.largest_guided_ratio = counters.largest_guided_ratio.max(ratio);
-            if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
-                break;
-            }
-            prev_delta = bs.delta;
-            prev_pdf = bs.pdf;
-            prev_point = si.p;
-            prev_normal = si.facing_normal();
-            ray = si.spawn_ray(wi);
-            rng.set_dimension(slot(depth, ROULETTE_SLOT));
-            depth += 1;
-            if depth >= self.settings.path.rr_start_depth {
-                let q = (1.0 - rr_beta.max_element()).max(0.05);
-                if rng.uniform() < q {
-                    break;
-                }
-                beta /= 1.0 - q;
-                rr_beta /= 1.0 - q;
-            }
-        }
-        out.radiance = radiance;
-        out
+/// `strategy=irradiance`: the guide and its face query (a few dozen bytes, on the stack).
+struct FaceVertexGuide<'a> {
+    guide: &'a PortalGuide,
+    query: FaceQuery<'a>,
+}
+
+impl<'a> VertexGuide for FaceVertexGuide<'a> {
+    type Query = FaceQuery<'a>;
+    const GUIDED: bool = true;
+    fn ratio_max(&self) -> f32 {
+        self.guide.settings().ratio_max
+    }
+    fn init(&mut self, _: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
+        self.guide
+            .init_face_query(&mut self.query, si.p, si.facing_normal());
+        self.query.cap_guiding_probability(c_max);
+        0
+    }
+    fn clear(&mut self) {
+        self.query.clear();
+    }
+    fn query(&self) -> &FaceQuery<'a> {
+        &self.query
     }
 }
 
 impl Integrator for PortalPathTracer {
     fn name(&self) -> &'static str {
         "path_portal"
+    }
+
+    /// `mis=auto`: `path`'s `alpha` layer.
+    fn layers(&self) -> Vec<String> {
+        self.path.layers()
     }
 
     fn prepare(
@@ -217,8 +125,17 @@ impl Integrator for PortalPathTracer {
     ) -> Result<Precomputation> {
         self.guide = None;
         let mut pre = prepare_env_portals(scene, &self.settings)?;
-        let _ = camera;
-        let guide = PortalGuide::build(scene, &self.settings.portal, progress)?;
+        let estimator = RenderEstimator {
+            mis: self.settings.mis.unwrap_or_default(),
+            triangles: self.settings.path.triangles,
+            env: self.settings.env,
+        };
+        let guide = PortalGuide::build(
+            scene,
+            &self.settings.portal,
+            Some((camera, estimator, self.settings.max_depth)),
+            progress,
+        )?;
         pre.stages.extend_from_slice(guide.timings());
         pre.notes.push(guide.note());
         if let Some(why) = guide.unguided() {
@@ -253,10 +170,30 @@ impl Integrator for PortalPathTracer {
         let Some(guide) = self.guide.as_deref().filter(|g| g.unguided().is_none()) else {
             return self.path.sample(scene, ray, rng, counters, ctx);
         };
+        if let Some(query) = guide.face_query() {
+            let guided = &mut FaceVertexGuide { guide, query };
+            return self
+                .path
+                .sample_with(scene, ray, rng, counters, ctx, guided);
+        }
         THREAD_QUERY.with(|cell| match cell.try_borrow_mut() {
-            Ok(mut query) => self.trace(scene, ray, rng, counters, guide, &mut query),
+            Ok(mut query) => {
+                let guided = &mut PortalVertexGuide {
+                    guide,
+                    query: &mut query,
+                };
+                self.path
+                    .sample_with(scene, ray, rng, counters, ctx, guided)
+            }
             // Only if a host re-entered the renderer from inside a sample on this thread.
-            Err(_) => self.trace(scene, ray, rng, counters, guide, &mut PortalQuery::new()),
+            Err(_) => {
+                let guided = &mut PortalVertexGuide {
+                    guide,
+                    query: &mut PortalQuery::new(),
+                };
+                self.path
+                    .sample_with(scene, ray, rng, counters, ctx, guided)
+            }
         })
     }
 }
@@ -271,5 +208,5 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
         settings.portal.set(option.key, option.value)
     },
     create: |settings| Ok(Box::new(PortalPathTracer::new(settings)?)),
-    adaptive_mis: &[],
+    adaptive_mis: &[MisHeuristic::Auto],
 };

@@ -423,6 +423,18 @@ pub fn load_scene_arg(path: &Path) -> Result<(LoadedScene, String)> {
                 let scene = builtin(super::interior_builder()?, RenderSettingsFile::default());
                 return Ok((scene, "interior".into()));
             }
+            Some(name) if name.starts_with("interior:windows=") => {
+                let count = name["interior:windows=".len()..]
+                    .parse::<usize>()
+                    .map_err(|_| {
+                        Error::invalid(format!("{name}: the window count must be an integer"))
+                    })?;
+                let scene = builtin(
+                    super::interior_many_windows_builder(count)?,
+                    RenderSettingsFile::default(),
+                );
+                return Ok((scene, name.to_string()));
+            }
             Some("corridor") => {
                 let scene = builtin(
                     super::corridor_builder()?,

@@ -49,9 +49,57 @@ const WINDOWS: [(u8, f32, f32, f32, f32); 4] = [
     (2, 6.6, 1.5, 0.6, 0.6), // back room, small, facing north
 ];
 
+/// One window: (wall, centre along the wall, sill height, width, height), as [`WINDOWS`].
+type Window = (u8, f32, f32, f32, f32);
+
+/// Most windows of [`interior_many_windows_builder`].
+pub const MAX_SMALL_WINDOWS: usize = 50;
+
+/// `n` small windows (0.3 m square, two rows at sills 0.7 m and 1.5 m, 0.6 m apart) taken in
+/// turn from the living room's south, west and north walls and the back room's north wall.
+fn small_windows(n: usize) -> Vec<Window> {
+    // (wall, first centre, last centre along it)
+    let walls: [(u8, f32, f32); 4] = [(0, 0.6, 4.6), (1, 0.6, 5.4), (2, 0.6, 4.6), (2, 5.6, 7.6)];
+    let mut per_wall: Vec<Vec<Window>> = walls
+        .iter()
+        .map(|&(wall, first, last)| {
+            let mut list = Vec::new();
+            let mut along = first;
+            while along <= last + 1e-3 {
+                for sill in [0.7, 1.5] {
+                    list.push((wall, along, sill, 0.3, 0.3));
+                }
+                along += 0.6;
+            }
+            list.reverse();
+            list
+        })
+        .collect();
+    let mut out = Vec::new();
+    while out.len() < n && per_wall.iter().any(|l| !l.is_empty()) {
+        for list in &mut per_wall {
+            if out.len() < n {
+                if let Some(w) = list.pop() {
+                    out.push(w);
+                }
+            }
+        }
+    }
+    out
+}
+
 /// The modelled window apertures, for tests of portal detection.
 pub fn interior_windows() -> Vec<WindowAperture> {
-    WINDOWS
+    apertures(&WINDOWS)
+}
+
+/// The window apertures of [`interior_many_windows_builder`]`(n)`.
+pub fn interior_small_windows(n: usize) -> Vec<WindowAperture> {
+    apertures(&small_windows(n))
+}
+
+fn apertures(windows: &[Window]) -> Vec<WindowAperture> {
+    windows
         .iter()
         .map(|&(wall, along, sill, w, h)| {
             let cy = sill + h / 2.0;
@@ -102,7 +150,7 @@ impl Boxes {
 
     /// A wall slab from `min` to `max` with rectangular holes through its thin axis `normal`
     /// (0 = x, 2 = z): the slab is cut into boxes along its length axis at every hole edge,
-    /// and each piece that overlaps a hole keeps only what lies below and above it.
+    /// and each piece that overlaps holes keeps only what lies below, between and above them.
     fn wall_with_holes(
         &mut self,
         min: Vec3,
@@ -124,17 +172,21 @@ impl Boxes {
             lo[length] = l0;
             hi[length] = l1;
             let mid = 0.5 * (l0 + l1);
-            match holes.iter().find(|h| h.0 < mid && mid < h.1) {
-                None => self.cuboid(lo, hi),
-                Some(&(_, _, y0, y1)) => {
-                    let mut below = hi;
-                    below.y = y0;
-                    self.cuboid(lo, below);
-                    let mut above = lo;
-                    above.y = y1;
-                    self.cuboid(above, hi);
-                }
+            // The holes over this piece, bottom first: the wall between and around them.
+            let mut spans: Vec<(f32, f32)> = holes
+                .iter()
+                .filter(|h| h.0 < mid && mid < h.1)
+                .map(|h| (h.2, h.3))
+                .collect();
+            spans.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut from = lo;
+            for (y0, y1) in spans {
+                let mut to = hi;
+                to.y = y0;
+                self.cuboid(from, to);
+                from.y = y1;
             }
+            self.cuboid(from, hi);
         }
     }
 
@@ -174,6 +226,22 @@ pub const INTERIOR_SKY_ROTATION: f32 = 0.0;
 
 /// The builder of the built-in interior (camera and sky included), ready to `build()`.
 pub fn interior_builder() -> Result<SceneBuilder> {
+    house_builder(&WINDOWS)
+}
+
+/// The interior with `n` (1..=[`MAX_SMALL_WINDOWS`]) small windows instead of its four
+/// (`interior:windows=N`): many small openings, for the cost of window detection and of
+/// portal-masked sampling as windows multiply.
+pub fn interior_many_windows_builder(n: usize) -> Result<SceneBuilder> {
+    if !(1..=MAX_SMALL_WINDOWS).contains(&n) {
+        return Err(Error::invalid(format!(
+            "interior:windows={n}: the count must be in [1, {MAX_SMALL_WINDOWS}]"
+        )));
+    }
+    house_builder(&small_windows(n))
+}
+
+fn house_builder(windows: &[Window]) -> Result<SceneBuilder> {
     let mut b = SceneBuilder::new();
     let wall = b.add_material(Material {
         name: "wall".into(),
@@ -194,7 +262,7 @@ pub fn interior_builder() -> Result<SceneBuilder> {
 
     let mut walls = Boxes::new();
     let holes_of = |w: u8| -> Vec<(f32, f32, f32, f32)> {
-        WINDOWS
+        windows
             .iter()
             .filter(|win| win.0 == w)
             .map(|&(_, along, sill, width, height)| {

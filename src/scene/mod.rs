@@ -30,7 +30,8 @@ pub use file::{
 };
 pub use interaction::SurfaceInteraction;
 pub use interior::{
-    interior_builder, interior_sky, interior_windows, write_interior_files, WindowAperture,
+    interior_builder, interior_many_windows_builder, interior_sky, interior_small_windows,
+    interior_windows, write_interior_files, WindowAperture, MAX_SMALL_WINDOWS,
 };
 pub use material::{
     fresnel_dielectric, Bsdf, BsdfSample, Material, MaterialKind, TextureId, Transport,

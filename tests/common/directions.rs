@@ -24,11 +24,24 @@ pub fn to32(v: DVec3) -> Vec3 {
 pub fn chi2_directions<R>(
     name: &str,
     grid: &SphereGrid,
-    mut rng: R,
-    mut sample: impl FnMut(&mut R) -> Option<Vec3>,
+    rng: R,
+    sample: impl FnMut(&mut R) -> Option<Vec3>,
     pdf: impl Fn(Vec3) -> f64,
 ) -> f64 {
     let probs = grid.integrate(|w| pdf(to32(w)));
+    chi2_direction_counts(name, grid, probs, rng, sample)
+}
+
+/// [`chi2_directions`] with the pdf's integral over each cell of `grid` given (`probs`, in
+/// the grid's cell order): for a pdf the adaptive quadrature cannot follow, such as one with
+/// many discontinuities.
+pub fn chi2_direction_counts<R>(
+    name: &str,
+    grid: &SphereGrid,
+    probs: Vec<f64>,
+    mut rng: R,
+    mut sample: impl FnMut(&mut R) -> Option<Vec3>,
+) -> f64 {
     let integral: f64 = probs.iter().sum();
     assert!(
         integral <= 1.0 + 1e-3,

@@ -154,6 +154,32 @@ impl SphereGrid {
         i * self.n_phi() + j
     }
 
+    /// Integral of `f` over each cell by the midpoint rule on `k` x `k` points per cell (in
+    /// cos theta and phi): for an integrand with many discontinuities (the face-irradiance
+    /// pdf, piecewise over voxel faces), where the adaptive rule of [`Self::integrate`] would
+    /// split without end; its error falls as 1 / k along the discontinuities.
+    pub fn integrate_midpoint(&self, f: impl Fn(DVec3) -> f64, k: usize) -> Vec<f64> {
+        let mut out = Vec::with_capacity(self.cells());
+        for i in 0..self.n_cos() {
+            let (c0, c1) = (self.cos_edges[i], self.cos_edges[i + 1]);
+            for j in 0..self.n_phi() {
+                let (p0, p1) = (self.phi_edges[j], self.phi_edges[j + 1]);
+                let (dc, dp) = ((c1 - c0) / k as f64, (p1 - p0) / k as f64);
+                let mut sum = 0.0;
+                for a in 0..k {
+                    for b in 0..k {
+                        sum += f(direction(
+                            c0 + (a as f64 + 0.5) * dc,
+                            p0 + (b as f64 + 0.5) * dp,
+                        ));
+                    }
+                }
+                out.push(sum * dc * dp);
+            }
+        }
+        out
+    }
+
     /// Integral of `f` over each cell with respect to solid angle (dw = dcos dphi).
     pub fn integrate(&self, f: impl Fn(DVec3) -> f64) -> Vec<f64> {
         let mut out = Vec::with_capacity(self.cells());
