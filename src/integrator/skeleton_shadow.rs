@@ -6,7 +6,9 @@
 //! the CPU (rayon over texel rows), storing the distance to the first surface along the
 //! texel's centre direction (a radial depth, not a projective z: no near plane to choose).
 //! The maps depend only on the static geometry, so a node's map is built once, the first time
-//! a VPL maps to it, and kept ([`SkeletonShadowMaps`]).
+//! a VPL maps to it, and kept ([`SkeletonShadowMaps`]). `vpl`'s verification also reads
+//! *receiver* maps, at half the resolution, of the nodes the view's surfaces map to; both
+//! kinds share the memory budget.
 //!
 //! # Memory budget
 //!

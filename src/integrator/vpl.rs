@@ -43,14 +43,35 @@
 //! z, read with PCF from n_y's cube shadow map (`skeleton_shadow`). Grouping the VPLs by node
 //! (eq. 160) factors it out of each group's sum (eq. 161): at a shading point, a group whose
 //! `V_f` is 0 is skipped whole, and the others add `V_f` times their unshadowed sum, with no
-//! shadow ray at all. This is the thesis's approximation, kept as it is: the node sits in
-//! the middle of the empty space, not at the VPL, so a VPL that sees z from behind an
-//! obstacle the node sees past (or the reverse) is lit (or shadowed) wrongly; and the map's
-//! PCF softens the shadow edges. The image is biased whatever the clamp and the
-//! compensation (whose continuation is unchanged). VPLs mapped to no node, and those of
-//! nodes the memory budget left without a map, keep exact shadow rays. The maps are built
-//! when a node first carries VPLs (in `begin_iteration`, in parallel; their time counts in
-//! the render's) and kept for later passes and renders of the same scene.
+//! shadow ray at all. With `verify=0` this is the thesis's approximation as it is: the node
+//! sits in the middle of the empty space, not at the VPL, so a VPL that sees z from behind
+//! an obstacle the node sees past (or the reverse) is lit (or shadowed) wrongly; and the
+//! map's PCF softens the shadow edges. On the door that errs by 0.64-0.87 of the VPL light
+//! at the pairs (tests/vpl.rs prints the split): the map's own reading (texel size, depth
+//! bias, PCF) a third, the node seeing the point otherwise than its VPL two thirds, VPLs
+//! their node does not see at all little.
+//!
+//! # Verification (`verify=P`, default [`DEFAULT_VERIFY`])
+//!
+//! Where the maps are unsure, a shadow ray decides, traced with probability P and weighted
+//! 1 / P (Russian roulette, unbiased against always tracing it; its random number a hash
+//! of the two points, so the same for any thread count):
+//! - the node behind z's surface (it cannot stand in for a VPL in front of it; the map
+//!   itself reads 0 there, where a depth bias would let light through a thin wall);
+//! - the PCF kernel straddling a shadow edge (0 < V_f < 1);
+//! - the *receiver* map disagreeing: the map of z's own node (at half the resolution, built
+//!   for the nodes the view's surfaces map to) read at the VPL gives the other verdict. A
+//!   group its node's map skips is still read this way where the receiver map sees the
+//!   group's node, since the node's view differs from its VPLs' (parallax).
+//! On the door this cuts the error to 0.09-0.14 of the light, with a shadow ray for a
+//! quarter of the pairs (before the roulette). The image stays biased: the pairs both maps
+//! agree on wrongly (mostly visible pairs both call occluded: the image is darker).
+//!
+//! VPLs mapped to no node, and those of nodes the memory budget left without a map, keep
+//! exact shadow rays. The maps are built when a node first carries VPLs (in
+//! `begin_iteration`, in parallel; their time counts in the render's) and kept for later
+//! passes and renders of the same scene. Chapter 7's visibility clusters are not built
+//! (`visibility=clusters` is refused): docs/vpl-visibility.md gives the measurements.
 //!
 //! Every pass draws new VPLs from the seed and the sample index, so the image converges as
 //! passes accumulate, and the light subpaths are traced in fixed chunks: the same image for
@@ -75,9 +96,10 @@ use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction, Transport};
 pub const DEFAULT_SHADOW_RESOLUTION: u32 = 64;
 /// Largest `shadow_res`: one map of 2048^2 per face is 96 MiB.
 pub const MAX_SHADOW_RESOLUTION: u32 = 2048;
-/// Default `verify`: on the door at 128x96, 0.1 reached a lower error in 1 s than 0.25 and
-/// 0.5 (BENCHMARKS.md, `vpl` section).
-pub const DEFAULT_VERIFY: f32 = 0.1;
+/// Default `verify`: at 128x96 in 1 s, 0.25 had the lowest RMSE on the door and the ajar
+/// door among 0.1, 0.25, 0.5 and 1 (0.1 the lowest MAE on the door, but rare 10x weights in
+/// the ajar door's image; BENCHMARKS.md, `vpl` section).
+pub const DEFAULT_VERIFY: f32 = 0.25;
 /// Default memory for the shadow maps (MiB): 680 maps of 64^2 per face.
 pub const DEFAULT_SHADOW_BUDGET_MB: u32 = 64;
 
@@ -114,7 +136,7 @@ impl VplVisibility {
 }
 
 /// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact|skeleton`,
-/// with skeleton visibility `shadow_res=N:shadow_budget_mb=M`; the skeleton's `resolution` and
+/// with skeleton visibility `shadow_res=N:shadow_budget_mb=M:verify=P`; the skeleton's `resolution` and
 /// `voxel_budget` are the skeleton guide's options).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VplOptions {
@@ -250,7 +272,12 @@ impl VplOptions {
     pub fn bias(&self) -> Option<String> {
         if self.visibility == VplVisibility::Skeleton {
             return Some(format!(
-                "biased: skeleton visibility (each VPL's shadow ray replaced by the filtered visibility of its skeleton node's cube shadow map, 000 eq. 159){}",
+                "biased: skeleton visibility (each VPL's shadow ray replaced by the filtered visibility of its skeleton node's cube shadow map, 000 eq. 159{}){}",
+                if self.verify > 0.0 {
+                    ", shadow rays where the maps disagree or are unsure"
+                } else {
+                    ""
+                },
                 if self.compensate || self.clamp == 0.0 {
                     String::new()
                 } else {
