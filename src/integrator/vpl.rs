@@ -63,6 +63,7 @@
 //!   for the nodes the view's surfaces map to) read at the VPL gives the other verdict. A
 //!   group its node's map skips is still read this way where the receiver map sees the
 //!   group's node, since the node's view differs from its VPLs' (parallax).
+//!
 //! On the door this cuts the error to 0.09-0.14 of the light, with a shadow ray for a
 //! quarter of the pairs (before the roulette). The image stays biased: the pairs both maps
 //! agree on wrongly (mostly visible pairs both call occluded: the image is darker).
