@@ -406,8 +406,8 @@ impl SpecOption<'_> {
 ///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`;
 /// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`;
 /// - `vpl`: `count=N` (light subpaths per pass), `clamp=R` (0 = off), `compensate=true|false`,
-///   `visibility=exact|skeleton`, with skeleton visibility `shadow_res=N` and
-///   `shadow_budget_mb=M` and the skeleton's `resolution=N` / `voxel_budget=N`
+///   `visibility=exact|skeleton`, with skeleton visibility `shadow_res=N`,
+///   `shadow_budget_mb=M`, `verify=P` and the skeleton's `resolution=N` / `voxel_budget=N`
 ///   ([`VplOptions::set`]), e.g. `vpl:count=128:clamp=0.05:compensate=true` or
 ///   `vpl:visibility=skeleton:shadow_res=32`.
 ///

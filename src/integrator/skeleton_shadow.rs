@@ -6,7 +6,9 @@
 //! the CPU (rayon over texel rows), storing the distance to the first surface along the
 //! texel's centre direction (a radial depth, not a projective z: no near plane to choose).
 //! The maps depend only on the static geometry, so a node's map is built once, the first time
-//! a VPL maps to it, and kept ([`SkeletonShadowMaps`]).
+//! a VPL maps to it, and kept ([`SkeletonShadowMaps`]). `vpl`'s verification also reads
+//! *receiver* maps, at half the resolution, of the nodes the view's surfaces map to; both
+//! kinds share the memory budget.
 //!
 //! # Memory budget
 //!
@@ -121,7 +123,8 @@ impl CubeShadowMap {
     }
 
     /// The filtered visibility `V_f` in [0, 1] between the map's centre and surface point `p`
-    /// of geometric normal `ng`: the fraction of the 3x3 texels around the nearest one (clamped
+    /// of geometric normal `ng`, turned to the side p scatters to (0 when the centre is on
+    /// the other side): the fraction of the 3x3 texels around the nearest one (clamped
     /// to its face) whose depth is at least `p`'s distance less a slope-scaled bias.
     ///
     /// The bias: a neighbour texel k texels away sees the plane through p at a depth that
@@ -137,6 +140,11 @@ impl CubeShadowMap {
             return 1.0;
         }
         let dir = d / distance;
+        // The node behind the surface (as `ng` faces) cannot see it, however thin the
+        // surface: no depth bias lets light through it.
+        if ng.dot(dir) >= 0.0 {
+            return 0.0;
+        }
         let cos = ng.dot(dir).abs().clamp(1e-6, 1.0);
         let slope = ((1.0 - cos * cos).max(0.0).sqrt() / cos).min(MAX_SLOPE);
         let texel_angle = 2.0 / self.resolution as f32;
@@ -163,8 +171,9 @@ impl CubeShadowMap {
 /// What the shadow maps cost so far (for the render notes).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ShadowMapStats {
-    /// Nodes with a map.
+    /// Nodes with a map, and with a receiver map.
     pub maps: usize,
+    pub receiver_maps: usize,
     /// Nodes that carried VPLs but got no map (over the budget): exact rays for their VPLs.
     pub refused: usize,
     pub bytes: u64,
@@ -182,6 +191,9 @@ pub struct SkeletonShadowMaps {
     budget_bytes: u64,
     /// Per node: unset until it carried a VPL, then its map or None (over the budget).
     maps: Vec<OnceLock<Option<CubeShadowMap>>>,
+    /// Per node: the map read at VPLs from the shading points the node maps, at
+    /// [`Self::receiver_resolution`] (`vpl`'s two-sided test); built as `maps`.
+    receivers: Vec<OnceLock<Option<CubeShadowMap>>>,
     stats: Mutex<ShadowMapStats>,
 }
 
@@ -199,6 +211,7 @@ impl SkeletonShadowMaps {
         let max_maps = (budget_bytes / CubeShadowMap::bytes_for(resolution)).min(nodes) as usize;
         SkeletonShadowMaps {
             maps: (0..nodes).map(|_| OnceLock::new()).collect(),
+            receivers: (0..nodes).map(|_| OnceLock::new()).collect(),
             skeleton,
             resolution,
             requested,
@@ -216,6 +229,11 @@ impl SkeletonShadowMaps {
         self.resolution
     }
 
+    /// The position of filtered node `node` (its map's centre).
+    pub fn node_position(&self, node: u32) -> Vec3 {
+        self.skeleton.positions[node as usize]
+    }
+
     /// The filtered node of a VPL's surface point (eq. 151-155).
     pub fn node_of(&self, si: &SurfaceInteraction) -> Option<u32> {
         self.skeleton.node_of(si)
@@ -225,34 +243,69 @@ impl SkeletonShadowMaps {
     /// nodes beyond the budget, in the order given, get None. Deterministic: which nodes
     /// get maps depends only on the order in which nodes first carry VPLs.
     pub fn ensure(&self, scene: &Scene, nodes: &[u32]) {
+        self.ensure_in(&self.maps, self.resolution, scene, nodes);
+    }
+
+    /// [`Self::ensure`] for the receiver maps ([`Self::receiver_map`]), within the same
+    /// budget.
+    pub fn ensure_receivers(&self, scene: &Scene, nodes: &[u32]) {
+        self.ensure_in(&self.receivers, self.receiver_resolution(), scene, nodes);
+    }
+
+    /// Texels per face edge of a receiver map: half a node's (it only sorts VPLs into seen
+    /// and unseen, and every shading point's node needs one).
+    pub fn receiver_resolution(&self) -> u32 {
+        (self.resolution / 2).max(MIN_SHADOW_RESOLUTION)
+    }
+
+    fn ensure_in(
+        &self,
+        slots: &[OnceLock<Option<CubeShadowMap>>],
+        resolution: u32,
+        scene: &Scene,
+        nodes: &[u32],
+    ) {
         let mut stats = self.stats.lock().unwrap_or_else(|e| e.into_inner());
         let missing: Vec<u32> = nodes
             .iter()
             .copied()
-            .filter(|&n| self.maps[n as usize].get().is_none())
+            .filter(|&n| slots[n as usize].get().is_none())
             .collect();
         if missing.is_empty() {
             return;
         }
-        let room = self.max_maps.saturating_sub(stats.maps).min(missing.len());
+        let left = self.budget_bytes.saturating_sub(stats.bytes);
+        let room = ((left / CubeShadowMap::bytes_for(resolution)) as usize).min(missing.len());
         let (build, refuse) = missing.split_at(room);
         let started = Instant::now();
         let built: Vec<CubeShadowMap> = build
             .par_iter()
-            .map(|&n| {
-                CubeShadowMap::build(scene, self.skeleton.positions[n as usize], self.resolution)
-            })
+            .map(|&n| CubeShadowMap::build(scene, self.skeleton.positions[n as usize], resolution))
             .collect();
         for (&n, map) in build.iter().zip(built) {
             stats.bytes += map.memory_bytes();
-            let _ = self.maps[n as usize].set(Some(map));
+            let _ = slots[n as usize].set(Some(map));
         }
         for &n in refuse {
-            let _ = self.maps[n as usize].set(None);
+            let _ = slots[n as usize].set(None);
         }
-        stats.maps += build.len();
+        if std::ptr::eq(slots, &self.maps[..]) {
+            stats.maps += build.len();
+        } else {
+            stats.receiver_maps += build.len();
+        }
         stats.refused += refuse.len();
         stats.build_seconds += started.elapsed().as_secs_f64();
+    }
+
+    /// Node `node`'s receiver map, else its full map, None when it has neither.
+    #[inline]
+    pub fn receiver_map(&self, node: u32) -> Option<&CubeShadowMap> {
+        self.receivers
+            .get(node as usize)?
+            .get()
+            .and_then(Option::as_ref)
+            .or_else(|| self.map(node))
     }
 
     /// Node `node`'s map, None when it has none (not built yet, or over the budget).
@@ -295,9 +348,18 @@ impl SkeletonShadowMaps {
     pub fn cost_note(&self) -> String {
         let s = self.stats();
         let mut note = format!(
-            "skeleton shadow maps: {} built ({}^2 per face), {:.2} MB, {:.3} s to build",
+            "skeleton shadow maps: {} built ({}^2 per face){}, {:.2} MB, {:.3} s to build",
             s.maps,
             self.resolution,
+            if s.receiver_maps > 0 {
+                format!(
+                    " and {} receiver maps ({}^2)",
+                    s.receiver_maps,
+                    self.receiver_resolution()
+                )
+            } else {
+                String::new()
+            },
             s.bytes as f64 / (1 << 20) as f64,
             s.build_seconds
         );
@@ -342,6 +404,8 @@ mod tests {
         let map = CubeShadowMap::build(&scene, centre, 128);
         assert_eq!(map.depth.len(), 6 * 128 * 128);
         assert_eq!(map.visibility(Vec3::new(2.5, 0.0, 2.0), Vec3::Y), 1.0);
+        // The same point as the underside of the floor: the centre is behind it.
+        assert_eq!(map.visibility(Vec3::new(2.5, 0.0, 2.0), -Vec3::Y), 0.0);
         assert_eq!(map.visibility(Vec3::new(3.5, 2.5, 3.5), -Vec3::Y), 1.0);
         // Behind the side of the table (x = 1.1, top at y = 0.75).
         assert_eq!(map.visibility(Vec3::new(0.7, 0.0, 2.1), Vec3::Y), 0.0);
@@ -358,8 +422,11 @@ mod tests {
             let Some(si) = scene.intersect(&Ray::new(origin, dir, f32::INFINITY)) else {
                 continue;
             };
-            let ray_visible = !scene.occluded(&si.spawn_ray_to(centre, Vec3::ZERO, Vec3::ZERO));
-            let v = map.visibility(si.p, si.ng);
+            // The side seen from the origin, and the centre in front of it.
+            let facing = if si.ng.dot(dir) < 0.0 { si.ng } else { -si.ng };
+            let ray_visible = (centre - si.p).dot(facing) > 0.0
+                && !scene.occluded(&si.spawn_ray_to(centre, Vec3::ZERO, Vec3::ZERO));
+            let v = map.visibility(si.p, facing);
             assert!((0.0..=1.0).contains(&v));
             total += 1;
             visible += usize::from(ray_visible);
