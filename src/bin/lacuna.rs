@@ -34,7 +34,7 @@ use lacuna::{Error, Result};
     after_help = "SCENE is an .obj file (framed automatically when no camera is given), a .json scene \
                   file (docs/scene-format.md), or a built-in scene: two-rooms (the default: two rooms \
                   joined by an ajar door, lit from the far room), corridor, interior (a house lit by the sky through \
-                  windows), or rooms:SEED (a procedural \
+                  windows; interior:windows=N, the same with N small windows), or rooms:SEED (a procedural \
                   family of interiors, see `lacuna family`)."
 )]
 struct Cli {
@@ -189,7 +189,7 @@ fn run_family(args: &FamilyArgs) -> Result<()> {
 /// Scene, camera, image and path options shared by every command.
 #[derive(Args, Clone, Debug)]
 struct SceneArgs {
-    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, interior, rooms:SEED). Default: two-rooms.
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, interior, interior:windows=N, rooms:SEED). Default: two-rooms.
     scene: Option<PathBuf>,
     /// Maximum number of bounces (1 = direct lighting only) [default: 8, or the scene file's].
     #[arg(long)]
@@ -391,7 +391,7 @@ struct CompareArgs {
 
 #[derive(Args, Clone, Debug)]
 struct AnalyzeArgs {
-    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, interior, rooms:SEED). Default: two-rooms.
+    /// .obj file, .json scene file, or built-in scene name (two-rooms, corridor, interior, interior:windows=N, rooms:SEED). Default: two-rooms.
     scene: Option<PathBuf>,
     /// Voxels along the longest axis of the scene bounds.
     #[arg(long, default_value_t = 128, conflicts_with_all = ["voxel_size", "voxel_budget"])]
