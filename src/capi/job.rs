@@ -290,7 +290,7 @@ impl lacuna_render_job {
 
 /// Creates a render job of `scene` (kept alive by the job) with the integrator named
 /// `integrator` (`"path"`, `"path_skeleton"`, `"bdpt"`, `"bdpt_skeleton"`, `"bdpt_ic"`,
-/// `"env_direct"`, `"vpl"`, optionally with
+/// `"path_portal"`, `"env_direct"`, `"vpl"`, optionally with
 /// options as `NAME:KEY=VALUE...`; NULL for the scene file's integrator or `"path"`).
 /// Integrators with a per-scene precomputation (`path_skeleton`'s skeleton guide) run it at
 /// the start of every run, on the job's threads; its time is reported in
