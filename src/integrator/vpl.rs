@@ -1158,3 +1158,137 @@ pub(super) const REGISTRATION: Registration = Registration {
     create: |settings| Ok(Box::new(VplIntegrator::new(settings)?)),
     adaptive_mis: &[],
 };
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The mean of `xs` and its standard error.
+    fn mean_and_error(xs: &[f64]) -> (f64, f64) {
+        let n = xs.len() as f64;
+        let mean = xs.iter().sum::<f64>() / n;
+        let var = xs.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1.0);
+        (mean, (var / n).sqrt())
+    }
+
+    /// The Russian roulette of `verify=P` is unbiased against tracing every verification ray
+    /// (`verify=1`): at each pixel's first surface point of the two rooms (48x36 pixels, four
+    /// passes of 64 light subpaths), the same VPLs gathered at P and at 1 differ only by the
+    /// roulette, so the mean difference must be zero within its standard error. The pairs the
+    /// maps are unsure of carry enough light that a wrong weight (none, losing (1 - P) of
+    /// their light) would be off by many standard errors, which the test checks too; and the
+    /// hash traces a fraction P of those pairs, within binomial error.
+    #[test]
+    fn verification_roulette_is_unbiased_and_traces_a_fraction_p() {
+        let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
+        let camera = *scene.camera().unwrap();
+        let (_, settings) =
+            super::super::parse_spec("vpl:visibility=skeleton:verify=1", Default::default())
+                .unwrap();
+        let mut vpl = VplIntegrator::new(settings).unwrap();
+        vpl.prepare(&scene, &camera, &|_, _| true).unwrap();
+        let shadow = vpl.shadow.clone().expect("the two rooms have a skeleton");
+        let (w, h) = (48u32, 36u32);
+        let view = View {
+            frame: camera.frame(w as f32 / h as f32),
+            width: w,
+            height: h,
+        };
+        let points: Vec<SurfaceInteraction> = (0..w * h)
+            .filter_map(|k| {
+                let film = crate::math::Vec2::new(
+                    ((k % w) as f32 + 0.5) / w as f32,
+                    ((k / w) as f32 + 0.5) / h as f32,
+                );
+                scene.intersect(&view.frame.generate_ray(film, crate::math::Vec2::ZERO))
+            })
+            .filter(|si| !scene.bsdf(si).is_delta())
+            .collect();
+        for p in [0.25f32, 0.1] {
+            let (mut differences, mut unsure_light) = (Vec::new(), Vec::new());
+            let (mut unsure, mut traced) = (0u64, 0u64);
+            for pass in 0..4 {
+                let iteration = vpl.begin_iteration(&scene, &view, 1, pass).unwrap();
+                let set = iteration.data.as_ref().unwrap();
+                let set = set.downcast_ref::<VplSet>().unwrap();
+                for si in &points {
+                    let bsdf = scene.bsdf(si);
+                    let frame = si.shading_frame();
+                    let wo_local = frame.to_local(si.wo);
+                    let mut counters = TraceCounters::default();
+                    let mut gathered = |verify: f32| {
+                        vpl.options.verify = verify;
+                        let g = vpl.gather(
+                            &scene,
+                            set,
+                            si,
+                            &bsdf,
+                            &frame,
+                            wo_local,
+                            u32::MAX,
+                            &mut counters,
+                        );
+                        f64::from(crate::math::luminance(g))
+                    };
+                    differences.push(gathered(p) - gathered(1.0));
+                    // The pairs `gather` leaves to the roulette, and their exact light.
+                    let receiver = shadow.node_of(si).and_then(|n| shadow.receiver_map(n));
+                    let mut light = 0.0;
+                    for group in &set.groups {
+                        let Some(map) = shadow.map(group.node) else {
+                            continue;
+                        };
+                        let node = node_verdict(map, si, true);
+                        if node == Some(0.0) && !receiver.is_some_and(|r| sees_node(r, Some(map))) {
+                            continue;
+                        }
+                        for v in &set.vpls[group.start..group.end] {
+                            if pair_verdict(node, receiver, v).is_some() {
+                                continue;
+                            }
+                            let Some(value) = unshadowed(set.bound, si, &bsdf, &frame, wo_local, v)
+                            else {
+                                continue;
+                            };
+                            unsure += 1;
+                            traced += u64::from(pair_uniform(si, v) < p);
+                            let ray = si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng);
+                            if !scene.occluded(&ray) {
+                                light += f64::from(crate::math::luminance(value));
+                            }
+                        }
+                    }
+                    unsure_light.push(light);
+                }
+            }
+            vpl.options.verify = 1.0;
+            let (mean, error) = mean_and_error(&differences);
+            let (light, _) = mean_and_error(&unsure_light);
+            let unweighted_bias = -(1.0 - f64::from(p)) * light;
+            let rate = traced as f64 / unsure as f64;
+            let rate_error = (f64::from(p) * (1.0 - f64::from(p)) / unsure as f64).sqrt();
+            println!(
+                "verify={p}: mean difference from verify=1 {mean:.3e} +- {error:.3e} \
+                 (z {:.2}) over {} points; without the 1/P weight {unweighted_bias:.3e} \
+                 (z {:.1}); {traced} of {unsure} unsure pairs traced ({rate:.4}, z {:.2})",
+                mean / error,
+                differences.len(),
+                unweighted_bias / error,
+                (rate - f64::from(p)) / rate_error,
+            );
+            assert!(
+                error > 0.0 && unsure > 10_000,
+                "verify={p}: too few unsure pairs"
+            );
+            assert!(mean.abs() < 4.0 * error, "verify={p}: biased roulette");
+            assert!(
+                unweighted_bias.abs() > 10.0 * error,
+                "verify={p}: the unsure pairs carry too little light to test the weight"
+            );
+            assert!(
+                (rate - f64::from(p)).abs() < 4.0 * rate_error,
+                "verify={p}: the hash traces {rate} of the unsure pairs"
+            );
+        }
+    }
+}
