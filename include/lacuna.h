@@ -1906,12 +1906,26 @@ lacuna_status lacuna_light_sampler_sample_emission(const struct lacuna_light_sam
 // direction `direction` (finite, non-zero): the origin's per unit area and the direction's per
 // unit solid angle (as in `lacuna_emission_sample`), without the selection probability
 // (`lacuna_light_sampler_get_light_info`). Written to `*out_pdf_position` and
-// `*out_pdf_direction`. Thread-safe; does not allocate.
+// `*out_pdf_direction`. A light field's densities depend on where the ray leaves it, not only
+// on its direction: this gives 0 and 0 for one; `lacuna_light_sampler_emission_pdf_at` gives
+// them from the ray's origin. Thread-safe; does not allocate.
 lacuna_status lacuna_light_sampler_emission_pdf(const struct lacuna_light_sampler *sampler,
                                                 uint32_t light,
                                                 struct lacuna_vec3 direction,
                                                 float *out_pdf_position,
                                                 float *out_pdf_direction);
+
+// `lacuna_light_sampler_emission_pdf` for the ray leaving point `origin` of light `light`
+// (finite; as `lacuna_emission_sample.origin` gives it) in unit direction `direction`
+// (finite, non-zero): a light field's densities depend on the origin (the point of its image
+// plane the ray leaves from); other lights ignore it. Written to `*out_pdf_position` and
+// `*out_pdf_direction`. Thread-safe; does not allocate.
+lacuna_status lacuna_light_sampler_emission_pdf_at(const struct lacuna_light_sampler *sampler,
+                                                   uint32_t light,
+                                                   struct lacuna_vec3 origin,
+                                                   struct lacuna_vec3 direction,
+                                                   float *out_pdf_position,
+                                                   float *out_pdf_direction);
 
 // `lacuna_light_sampler_sample` for `count` queries found every `query_stride` bytes from
 // `queries` (0 = packed), samples written every `sample_stride` bytes to `out_samples`

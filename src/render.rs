@@ -217,7 +217,7 @@ fn render_in_pool(
             .any(|l| matches!(l, crate::light::Light::LightField { .. }))
     {
         return Err(Error::invalid(format!(
-            "{} cannot render light-field luminaires (its MIS weights assume light sampling that does not depend on the receiver); use path or path_skeleton",
+            "{} cannot render light-field luminaires (its resampled connections are not tested with them); use path, path_skeleton, bdpt or vpl",
             integrator.name()
         )));
     }

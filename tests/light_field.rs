@@ -337,10 +337,86 @@ fn a_baked_quad_renders_as_the_quad_under_path() {
     assert_agree("baked quad", ("quad", &a), ("light field", &b));
 }
 
+/// A floor and a back wall under a downward light field with structure (its images differ,
+/// so restricted sampling's density varies with the receiver): light reaches the camera
+/// directly and after bounces, so every bidirectional strategy takes part.
+fn room_with_field() -> (Scene, Camera) {
+    let mut b = SceneBuilder::new();
+    let grey = b.add_material(Material::diffuse(Rgb::splat(0.6))).unwrap();
+    let v = Vec3::new;
+    b.add_mesh(MeshDesc {
+        positions: vec![
+            v(-1.5, 0., -1.5),
+            v(1.5, 0., -1.5),
+            v(1.5, 0., 1.5),
+            v(-1.5, 0., 1.5),
+            v(-1.5, 2., -1.5),
+            v(1.5, 2., -1.5),
+        ],
+        indices: vec![[0, 2, 1], [0, 3, 2], [0, 1, 5], [0, 5, 4]],
+        materials: vec![grey; 4],
+        ..Default::default()
+    })
+    .unwrap();
+    b.add_light(LightDesc::LightField {
+        position: v(0.2, 1.2, -0.3),
+        direction: -Vec3::Y,
+        x_axis: v(1.0, 0.0, 0.3),
+        scale: Rgb::ONE,
+        field: Arc::new(structured_field(FilterBasis::Quadratic)),
+    })
+    .unwrap();
+    let scene = b.build().unwrap();
+    let camera = Camera::look_at(v(0.0, 1.0, 3.2), v(0.0, 0.6, 0.0), Vec3::Y, 50.0).unwrap();
+    (scene, camera)
+}
+
 #[test]
-fn bidirectional_integrators_refuse_light_fields() {
+fn light_emission_density_is_the_density_of_its_samples() {
+    let (scene, _) = room_with_field();
+    let light = &scene.lights()[0];
+    let env = lacuna::light::EnvStrategy::default();
+    let mut rng = Rng::new(4, 0);
+    let mut sampled = 0;
+    for _ in 0..20_000 {
+        let Some(e) = light.sample_emission_with(env, rng.uniform2(), rng.uniform2()) else {
+            continue;
+        };
+        sampled += 1;
+        let again = light.emission_pdf_at(env, e.origin, e.dir);
+        assert!(
+            (again - e.pdf_emit).abs() <= 2e-3 * e.pdf_emit,
+            "{} vs {again}",
+            e.pdf_emit
+        );
+    }
+    assert!(sampled > 19_000, "{sampled} emitted rays of 20000");
+    // Directions the field never emits (away from its image plane) have no density.
+    let origin = scene.lights()[0]
+        .sample_emission_with(env, Vec2::splat(0.5), Vec2::splat(0.5))
+        .unwrap()
+        .origin;
+    assert_eq!(light.emission_pdf_at(env, origin, Vec3::Y), 0.0);
+}
+
+#[test]
+fn bidirectional_integrators_agree_with_path_on_light_fields() {
+    let (scene, camera) = room_with_field();
+    common::agreement::agree_with_path(
+        "light-field room",
+        &scene,
+        &camera,
+        3,
+        16,
+        16,
+        &["bdpt", "vpl:clamp=0"],
+    );
+}
+
+#[test]
+fn resampling_bidirectional_integrators_refuse_light_fields() {
     let (scene, camera) = floor_scene(true);
-    for name in ["bdpt", "vpl"] {
+    for name in ["bdpt_ic", "bdpt_skeleton"] {
         let mut integrator =
             lacuna::integrator::create(name, IntegratorSettings::default()).unwrap();
         lacuna::render::prepare(integrator.as_mut(), &scene, &camera, None, &|_, _| true).unwrap();

@@ -884,7 +884,9 @@ pub unsafe extern "C" fn lacuna_light_sampler_sample_emission(
 /// direction `direction` (finite, non-zero): the origin's per unit area and the direction's per
 /// unit solid angle (as in `lacuna_emission_sample`), without the selection probability
 /// (`lacuna_light_sampler_get_light_info`). Written to `*out_pdf_position` and
-/// `*out_pdf_direction`. Thread-safe; does not allocate.
+/// `*out_pdf_direction`. A light field's densities depend on where the ray leaves it, not only
+/// on its direction: this gives 0 and 0 for one; `lacuna_light_sampler_emission_pdf_at` gives
+/// them from the ray's origin. Thread-safe; does not allocate.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_light_sampler_emission_pdf(
     sampler: *const lacuna_light_sampler,
@@ -912,6 +914,48 @@ pub unsafe extern "C" fn lacuna_light_sampler_emission_pdf(
         let out_dir = out_ptr(out_pdf_direction, "out_pdf_direction")?;
         let (pos, dir) =
             l.split_emission_pdf(Vec3::ZERO, l.emission_pdf_with(s.env, d.normalize()));
+        // SAFETY: checked non-NULL, writable per the contract.
+        unsafe {
+            write_out(out_pos, pos);
+            write_out(out_dir, dir);
+        }
+        Ok(())
+    })
+}
+
+/// `lacuna_light_sampler_emission_pdf` for the ray leaving point `origin` of light `light`
+/// (finite; as `lacuna_emission_sample.origin` gives it) in unit direction `direction`
+/// (finite, non-zero): a light field's densities depend on the origin (the point of its image
+/// plane the ray leaves from); other lights ignore it. Written to `*out_pdf_position` and
+/// `*out_pdf_direction`. Thread-safe; does not allocate.
+#[no_mangle]
+pub unsafe extern "C" fn lacuna_light_sampler_emission_pdf_at(
+    sampler: *const lacuna_light_sampler,
+    light: u32,
+    origin: lacuna_vec3,
+    direction: lacuna_vec3,
+    out_pdf_position: *mut f32,
+    out_pdf_direction: *mut f32,
+) -> lacuna_status {
+    boundary::status("lacuna_light_sampler_emission_pdf_at", |call| {
+        // SAFETY: NULL or a live sampler.
+        let s = unsafe { arg(sampler, "sampler") }?;
+        call.context(&s.scene.ctx);
+        let scene = s.scene();
+        let l = scene.lights().get(light as usize).ok_or_else(|| {
+            CapiError::range(format!(
+                "light {light} is out of range (the scene has {} lights)",
+                scene.lights().len()
+            ))
+        })?;
+        let o = origin.finite("origin")?;
+        let d = direction.finite("direction")?;
+        if d == Vec3::ZERO {
+            return Err(CapiError::invalid("`direction` must be non-zero"));
+        }
+        let out_pos = out_ptr(out_pdf_position, "out_pdf_position")?;
+        let out_dir = out_ptr(out_pdf_direction, "out_pdf_direction")?;
+        let (pos, dir) = l.split_emission_pdf(o, l.emission_pdf_at(s.env, o, d.normalize()));
         // SAFETY: checked non-NULL, writable per the contract.
         unsafe {
             write_out(out_pos, pos);

@@ -615,6 +615,12 @@ impl Bdpt {
                     light.direction_pdf(si.facing_normal(), self.settings.env, si.wo);
                 state.d_vcm = self.mis(direct_pdf_w * pick / emission_pdf_w);
             }
+            if state.path_len == 1 && matches!(light, Light::LightField { .. }) {
+                // A light field's restricted sampling depends on the receiver, known only
+                // now: the area density of choosing the origin by direct sampling from here.
+                let direct_pdf_a = light.direct_pdf_area_from(si.p, es.origin) * pick;
+                state.d_vcm = self.mis(direct_pdf_a / emission_pdf_w / counts.connections);
+            }
             if state.path_len > 1 || state.finite_light {
                 state.d_vcm *= self.mis(si.t * si.t);
             }
@@ -809,17 +815,20 @@ impl Bdpt {
         let rev_pdf = bsdf.pdf(wi_l, wo_l) * cont;
         // Solid-angle density of choosing this light point by direct sampling: for delta
         // positions, the area density 1 converted at the receiver (distance^2).
-        let direct_pdf_w = if light.is_delta() && light.is_finite() {
+        // A light field's point has a true density (its image plane's, by area, converted
+        // here with that plane's cosine) though no ray hits it.
+        let is_field = matches!(light, Light::LightField { .. });
+        let direct_pdf_w = if light.is_delta() && light.is_finite() && !is_field {
             ls.distance * ls.distance
         } else {
             ls.pdf
         };
-        let cos_at_light = if light.is_delta() {
+        let cos_at_light = if light.is_delta() && !is_field {
             1.0
         } else {
             (-ls.wi).dot(ls.normal).abs()
         };
-        let emission_pdf_w = light.emission_pdf_with(self.settings.env, -ls.wi);
+        let emission_pdf_w = light.emission_pdf_at(self.settings.env, ls.point, -ls.wi);
         let w_light = if light.is_delta() {
             0.0
         } else {
@@ -1179,10 +1188,6 @@ impl Bdpt {
 }
 
 impl Integrator for Bdpt {
-    fn renders_light_fields(&self) -> bool {
-        false
-    }
-
     fn name(&self) -> &'static str {
         "bdpt"
     }

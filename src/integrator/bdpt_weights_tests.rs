@@ -346,7 +346,7 @@ impl Explicit<'_> {
                     unreachable!("the weight-test scene has no environment light")
                 }
                 Light::LightField { .. } => {
-                    unreachable!("bdpt refuses light fields")
+                    unreachable!("the weight-test scene has no light field")
                 }
             };
         }

@@ -280,9 +280,9 @@ pub trait Integrator: Send + Sync {
     /// (`path_skeleton`'s scout). Most integrators ignore it.
     fn set_time_budget(&mut self, _seconds: Option<f64>) {}
 
-    /// False when the integrator cannot render light-field luminaires: bidirectional methods,
-    /// whose MIS weights assume a light point's direct-sampling density does not depend on
-    /// the receiver (a light field's restricted sampling does). Rendering refuses such scenes.
+    /// False when the integrator cannot render light-field luminaires, whose next-event
+    /// density depends on the receiver (restricted sampling): the resampling bidirectional
+    /// methods, not tested with them (`bdpt` and `vpl` are). Rendering refuses such scenes.
     fn renders_light_fields(&self) -> bool {
         true
     }

@@ -767,10 +767,6 @@ impl VplIntegrator {
 }
 
 impl Integrator for VplIntegrator {
-    fn renders_light_fields(&self) -> bool {
-        false
-    }
-
     fn name(&self) -> &'static str {
         "vpl"
     }

@@ -179,7 +179,8 @@ impl Light {
                     value: radiance * local.z,
                     pdf_emit,
                     // Direct sampling's density depends on the receiver (restricted CDFs):
-                    // bidirectional methods refuse light fields (see `LightSampler`).
+                    // bidirectional methods put `direct_pdf_area_from` the first vertex in
+                    // its place.
                     pdf_direct_area: 1.0,
                     cos_light: local.z,
                 })
@@ -248,8 +249,62 @@ impl Light {
                 ..
             } => map.pdf(env.for_emission(), Vec3::ZERO, -dir) / (PI * scene_radius * scene_radius),
             // The density depends on where the ray leaves, not only on its direction:
-            // `LightField::emission_pdf` gives it from both planes' points.
+            // `emission_pdf_at` gives it from the ray's origin.
             Light::LightField { .. } => 0.0,
+        }
+    }
+
+    /// `emission_pdf_with` for the ray leaving point `origin` of the light in unit direction
+    /// `dir`: for a light field the density depends on where the ray leaves its image plane
+    /// (`LightField::emission_pdf` of the ray's points on both planes); other lights ignore
+    /// `origin`.
+    pub fn emission_pdf_at(&self, env: EnvStrategy, origin: Vec3, dir: Vec3) -> f32 {
+        match *self {
+            Light::LightField {
+                position,
+                frame,
+                ref field,
+                ..
+            } => {
+                let s = frame.to_local(origin - position);
+                let d = frame.to_local(dir);
+                if !(d.z > 0.0) {
+                    return 0.0;
+                }
+                // The filter-plane point (z = 0) the ray came from through s (z = delta).
+                let back = field.layout().plane_distance / d.z;
+                let u = Vec2::new(s.x - d.x * back, s.y - d.y * back);
+                let pdf = field.emission_pdf(Vec2::new(s.x, s.y), u);
+                if pdf.is_finite() {
+                    pdf
+                } else {
+                    0.0
+                }
+            }
+            _ => self.emission_pdf_with(env, dir),
+        }
+    }
+
+    /// Area density with which direct light sampling from `receiver` picks the light point
+    /// `point` (by area for emissive triangles, as `bdpt` samples them; 1 for delta
+    /// positions), without selection probability. Only a light field's depends on the
+    /// receiver: its restricted sampling (`LightField::image_point_pdf`).
+    pub fn direct_pdf_area_from(&self, receiver: Vec3, point: Vec3) -> f32 {
+        match *self {
+            Light::LightField {
+                position,
+                frame,
+                ref field,
+                ..
+            } => {
+                let s = frame.to_local(point - position);
+                field.image_point_pdf(
+                    frame.to_local(receiver - position),
+                    super::LightFieldSampling::Restricted,
+                    Vec2::new(s.x, s.y),
+                )
+            }
+            _ => self.direct_pdf_area(),
         }
     }
 

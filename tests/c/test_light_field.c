@@ -165,6 +165,31 @@ static void test_light(lacuna_context *ctx, lacuna_light_field *held) {
     OK(lacuna_light_sampler_get_light_info(ls, 0, &info));
     CHECK(info.kind == LACUNA_LIGHT_KIND_LIGHT_FIELD);
     CHECK(info.power > 0.0f && info.selection_probability == 1.0f);
+    /* Emitted rays: the densities from their origin are the sample's own. */
+    int checked = 0;
+    for (int i = 0; i < 64; ++i) {
+        const float u[4] = {(i + 0.5f) / 64.0f, (i * 37 % 64 + 0.5f) / 64.0f, (i * 11 % 64 + 0.5f) / 64.0f,
+                            (i * 23 % 64 + 0.5f) / 64.0f};
+        lacuna_emission_sample e;
+        OK(lacuna_light_sampler_sample_emission(ls, u, &e));
+        if (e.pdf_position == 0.0f) continue; /* no ray from these numbers */
+        float pp = 0, pd = 0;
+        OK(lacuna_light_sampler_emission_pdf_at(ls, 0, v3(e.origin[0], e.origin[1], e.origin[2]),
+                                                v3(e.direction[0], e.direction[1], e.direction[2]), &pp, &pd));
+        CHECK(fabsf(pp - e.pdf_position) <= 1e-3f * e.pdf_position);
+        CHECK(fabsf(pd - e.pdf_direction) <= 3e-3f * e.pdf_direction);
+        ++checked;
+    }
+    CHECK(checked > 32);
+    float pp = 0, pd = 0;
+    EXPECT(lacuna_light_sampler_emission_pdf_at(ls, 0, v3(NAN, 0, 0), v3(0, -1, 0), &pp, &pd),
+           LACUNA_STATUS_INVALID_ARGUMENT, "origin");
+    EXPECT(lacuna_light_sampler_emission_pdf_at(ls, 1, v3(0, 0, 0), v3(0, -1, 0), &pp, &pd),
+           LACUNA_STATUS_OUT_OF_RANGE, "light 1");
+    EXPECT(lacuna_light_sampler_emission_pdf_at(ls, 0, v3(0, 0, 0), v3(0, 0, 0), &pp, &pd),
+           LACUNA_STATUS_INVALID_ARGUMENT, "non-zero");
+    EXPECT(lacuna_light_sampler_emission_pdf_at(ls, 0, v3(0, 0, 0), v3(0, -1, 0), NULL, &pd),
+           LACUNA_STATUS_NULL_POINTER, "out_pdf_position");
     lacuna_light_sampler_release(ls);
 
     lacuna_render_job *job = NULL;
@@ -179,8 +204,19 @@ static void test_light(lacuna_context *ctx, lacuna_light_field *held) {
     CHECK(centre > 0.0f && isfinite(centre));
     lacuna_film_release(film);
     lacuna_render_job_free(job);
-    /* bdpt refuses it with a clear error. */
+    /* bdpt renders it. */
     OK(lacuna_render_job_new(scene, "bdpt", &job));
+    OK(lacuna_render_job_set_resolution(job, 8, 8));
+    OK(lacuna_render_job_set_samples_per_pixel(job, 4));
+    film = NULL;
+    OK(lacuna_render_job_run(job, &film));
+    OK(lacuna_film_read(film, LACUNA_FILM_CHANNEL_RADIANCE, px, 8, 8, 0, 0));
+    centre = px[(4 * 8 + 4) * 3];
+    CHECK(centre > 0.0f && isfinite(centre));
+    lacuna_film_release(film);
+    lacuna_render_job_free(job);
+    /* bdpt_ic refuses it with a clear error. */
+    OK(lacuna_render_job_new(scene, "bdpt_ic", &job));
     OK(lacuna_render_job_set_resolution(job, 8, 8));
     film = NULL;
     EXPECT(lacuna_render_job_run(job, &film), LACUNA_STATUS_INVALID_ARGUMENT, "light-field");
