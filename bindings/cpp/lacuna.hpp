@@ -396,6 +396,13 @@ public:
         detail::check(lacuna_light_sampler_emission_pdf(p_, light, direction, &pos, &dir));
         return {pos, dir};
     }
+    /// (pdf_position, pdf_direction) of light `light` emitting from `origin` along `direction`
+    /// (a light field's densities depend on the origin).
+    std::pair<float, float> emission_pdf_at(uint32_t light, lacuna_vec3 origin, lacuna_vec3 direction) const {
+        float pos = 0, dir = 0;
+        detail::check(lacuna_light_sampler_emission_pdf_at(p_, light, origin, direction, &pos, &dir));
+        return {pos, dir};
+    }
     std::vector<lacuna_light_sample> sample(const std::vector<lacuna_light_query> &queries) const {
         std::vector<lacuna_light_sample> out(queries.size());
         detail::check(lacuna_light_sampler_sample_batch(p_, queries.data(), 0, queries.size(), out.data(), 0));

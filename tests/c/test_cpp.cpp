@@ -187,6 +187,12 @@ static void test_light_sampler(const lacuna::Context &ctx) {
     const float u[4] = {0.1f, 0.2f, 0.3f, 0.4f};
     lacuna_emission_sample e = lights.sample_emission(u);
     CHECK(lights.emission_pdf(e.light, lacuna::vec3(e.direction[0], e.direction[1], e.direction[2])).second > 0);
+    {
+        const lacuna_vec3 o = lacuna::vec3(e.origin[0], e.origin[1], e.origin[2]);
+        const lacuna_vec3 d = lacuna::vec3(e.direction[0], e.direction[1], e.direction[2]);
+        /* Not a light field: the origin changes nothing. */
+        CHECK(lights.emission_pdf_at(e.light, o, d) == lights.emission_pdf(e.light, d));
+    }
     q.u[0] = 1.5f;
     EXPECT_ERROR(lights.sample(q), LACUNA_STATUS_OUT_OF_RANGE, "u[0]");
     EXPECT_ERROR(lights.light_info(info.light_count), LACUNA_STATUS_OUT_OF_RANGE, "light");
