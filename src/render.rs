@@ -210,14 +210,13 @@ fn render_in_pool(
     on_pass: &mut (dyn FnMut(&Film, PassReport) + Send),
 ) -> Result<(Film, RenderStats)> {
     integrator.check_prepared(scene)?;
-    if !integrator.renders_light_fields()
-        && scene
-            .lights()
-            .iter()
-            .any(|l| matches!(l, crate::light::Light::LightField { .. }))
+    if let Some(why) = scene
+        .lights()
+        .iter()
+        .find_map(|l| integrator.refuses_light(l))
     {
         return Err(Error::invalid(format!(
-            "{} cannot render light-field luminaires (its resampled connections are not tested with them); use path, path_skeleton, bdpt or vpl",
+            "{} cannot render this scene: {why}; use path, path_skeleton, bdpt or vpl",
             integrator.name()
         )));
     }

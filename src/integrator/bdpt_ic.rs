@@ -363,8 +363,8 @@ impl BdptIc {
 }
 
 impl Integrator for BdptIc {
-    fn renders_light_fields(&self) -> bool {
-        false
+    fn refuses_light(&self, light: &crate::light::Light) -> Option<&'static str> {
+        super::bdpt::resampling_refuses(light)
     }
 
     fn name(&self) -> &'static str {

@@ -330,8 +330,8 @@ impl BdptSkeleton {
 }
 
 impl Integrator for BdptSkeleton {
-    fn renders_light_fields(&self) -> bool {
-        false
+    fn refuses_light(&self, light: &crate::light::Light) -> Option<&'static str> {
+        super::bdpt::resampling_refuses(light)
     }
 
     fn name(&self) -> &'static str {

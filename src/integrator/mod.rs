@@ -280,11 +280,13 @@ pub trait Integrator: Send + Sync {
     /// (`path_skeleton`'s scout). Most integrators ignore it.
     fn set_time_budget(&mut self, _seconds: Option<f64>) {}
 
-    /// False when the integrator cannot render light-field luminaires, whose next-event
-    /// density depends on the receiver (restricted sampling): the resampling bidirectional
-    /// methods, not tested with them (`bdpt` and `vpl` are). Rendering refuses such scenes.
-    fn renders_light_fields(&self) -> bool {
-        true
+    /// Why the integrator cannot render `light`, or None. The resampling bidirectional
+    /// methods refuse the lights whose next-event density depends on the receiver (light
+    /// fields' restricted sampling, the environment's direction sampling): their resampled
+    /// connections' MIS weights are not verified with them (under the built-in interior's sky
+    /// both were biased). Rendering refuses such scenes with this reason.
+    fn refuses_light(&self, _light: &crate::light::Light) -> Option<&'static str> {
+        None
     }
 
     /// Fails when rendering `scene` needs a `prepare` for it that has not run.
