@@ -895,32 +895,18 @@ pub unsafe extern "C" fn lacuna_light_sampler_emission_pdf(
     out_pdf_position: *mut f32,
     out_pdf_direction: *mut f32,
 ) -> lacuna_status {
-    boundary::status("lacuna_light_sampler_emission_pdf", |call| {
-        // SAFETY: NULL or a live sampler.
-        let s = unsafe { arg(sampler, "sampler") }?;
-        call.context(&s.scene.ctx);
-        let scene = s.scene();
-        let l = scene.lights().get(light as usize).ok_or_else(|| {
-            CapiError::range(format!(
-                "light {light} is out of range (the scene has {} lights)",
-                scene.lights().len()
-            ))
-        })?;
-        let d = direction.finite("direction")?;
-        if d == Vec3::ZERO {
-            return Err(CapiError::invalid("`direction` must be non-zero"));
-        }
-        let out_pos = out_ptr(out_pdf_position, "out_pdf_position")?;
-        let out_dir = out_ptr(out_pdf_direction, "out_pdf_direction")?;
-        let (pos, dir) =
-            l.split_emission_pdf(Vec3::ZERO, l.emission_pdf_with(s.env, d.normalize()));
-        // SAFETY: checked non-NULL, writable per the contract.
-        unsafe {
-            write_out(out_pos, pos);
-            write_out(out_dir, dir);
-        }
-        Ok(())
-    })
+    // SAFETY: forwarded contract.
+    unsafe {
+        emission_pdf(
+            "lacuna_light_sampler_emission_pdf",
+            sampler,
+            light,
+            None,
+            direction,
+            out_pdf_position,
+            out_pdf_direction,
+        )
+    }
 }
 
 /// `lacuna_light_sampler_emission_pdf` for the ray leaving point `origin` of light `light`
@@ -937,7 +923,36 @@ pub unsafe extern "C" fn lacuna_light_sampler_emission_pdf_at(
     out_pdf_position: *mut f32,
     out_pdf_direction: *mut f32,
 ) -> lacuna_status {
-    boundary::status("lacuna_light_sampler_emission_pdf_at", |call| {
+    // SAFETY: forwarded contract.
+    unsafe {
+        emission_pdf(
+            "lacuna_light_sampler_emission_pdf_at",
+            sampler,
+            light,
+            Some(origin),
+            direction,
+            out_pdf_position,
+            out_pdf_direction,
+        )
+    }
+}
+
+/// Both emission-density functions: with an origin, a light field's densities from it;
+/// without, a light field gives 0 and 0 (its densities need the origin).
+///
+/// # Safety
+/// As `lacuna_light_sampler_emission_pdf_at`.
+#[allow(clippy::too_many_arguments)]
+unsafe fn emission_pdf(
+    function: &'static str,
+    sampler: *const lacuna_light_sampler,
+    light: u32,
+    origin: Option<lacuna_vec3>,
+    direction: lacuna_vec3,
+    out_pdf_position: *mut f32,
+    out_pdf_direction: *mut f32,
+) -> lacuna_status {
+    boundary::status(function, |call| {
         // SAFETY: NULL or a live sampler.
         let s = unsafe { arg(sampler, "sampler") }?;
         call.context(&s.scene.ctx);
@@ -948,14 +963,17 @@ pub unsafe extern "C" fn lacuna_light_sampler_emission_pdf_at(
                 scene.lights().len()
             ))
         })?;
-        let o = origin.finite("origin")?;
+        let o = origin.map(|o| o.finite("origin")).transpose()?;
         let d = direction.finite("direction")?;
         if d == Vec3::ZERO {
             return Err(CapiError::invalid("`direction` must be non-zero"));
         }
         let out_pos = out_ptr(out_pdf_position, "out_pdf_position")?;
         let out_dir = out_ptr(out_pdf_direction, "out_pdf_direction")?;
-        let (pos, dir) = l.split_emission_pdf(o, l.emission_pdf_at(s.env, o, d.normalize()));
+        let (pos, dir) = match o {
+            Some(o) => l.split_emission_pdf(o, l.emission_pdf_at(s.env, o, d.normalize())),
+            None => l.split_emission_pdf(Vec3::ZERO, l.emission_pdf_with(s.env, d.normalize())),
+        };
         // SAFETY: checked non-NULL, writable per the contract.
         unsafe {
             write_out(out_pos, pos);
