@@ -46,7 +46,7 @@
 //!   point are mixed with their tent weights, so the strategy changes continuously across a
 //!   region border instead of jumping.
 
-use super::mixture::DirectionGuide;
+use super::mixture::{pick_lobe, DirectionGuide};
 use super::settings::RenderEstimator;
 use crate::analysis::{Analysis, NO_REGION};
 use crate::error::Result;
@@ -664,18 +664,7 @@ impl DirectionGuide for FaceQuery<'_> {
             return None;
         }
         // The lobe, then the face with the same number rescaled to the lobe's interval.
-        let mut acc = 0.0;
-        let mut chosen = self.count - 1;
-        let mut u_face = 0.0;
-        for j in 0..self.count {
-            let next = acc + self.weights[j];
-            if u_select < next || j + 1 == self.count {
-                chosen = j;
-                u_face = ((u_select - acc) / self.weights[j]).clamp(0.0, 1.0 - f32::EPSILON);
-                break;
-            }
-            acc = next;
-        }
+        let (chosen, u_face) = pick_lobe(self.weights[..self.count].iter().copied(), u_select);
         let cdf = &self.faces.region_cdf[self.regions[chosen] as usize];
         let k = cdf.partition_point(|&c| c <= u_face).min(cdf.len() - 1);
         let face = self.faces.region_faces[self.regions[chosen] as usize][k];

@@ -42,6 +42,28 @@ pub trait DirectionGuide {
     }
 }
 
+/// Picks a lobe of a mixture by one uniform number: the first lobe whose cumulative weight
+/// exceeds `u_select` (the last one when rounding leaves `u_select` past the total), and
+/// `u_select` rescaled to `[0, 1)` inside that lobe's interval, so the same number can choose
+/// again inside the lobe. `weights` are the lobes' selection probabilities (summing to about
+/// 1); at least one lobe is required.
+pub(crate) fn pick_lobe(
+    weights: impl ExactSizeIterator<Item = f32>,
+    u_select: f32,
+) -> (usize, f32) {
+    let last = weights.len() - 1;
+    let mut acc = 0.0;
+    for (j, w) in weights.enumerate() {
+        let next = acc + w;
+        if u_select < next || j == last {
+            let rescaled = if w > 0.0 { (u_select - acc) / w } else { 0.0 };
+            return (j, rescaled.clamp(0.0, 1.0 - f32::EPSILON));
+        }
+        acc = next;
+    }
+    unreachable!("pick_lobe needs at least one lobe")
+}
+
 impl DirectionGuide for GuideQuery {
     #[inline]
     fn guiding_probability(&self) -> f32 {
@@ -124,4 +146,36 @@ pub fn sample_bsdf_or_guide<G: DirectionGuide + ?Sized>(
         bsdf_pdf,
         from_guide: false,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::pick_lobe;
+
+    #[test]
+    fn pick_lobe_follows_the_cumulative_weights_and_rescales_inside_the_lobe() {
+        let weights = [0.25f32, 0.0, 0.5, 0.25];
+        let pick = |u: f32| pick_lobe(weights.iter().copied(), u);
+        assert_eq!(pick(0.0), (0, 0.0));
+        assert_eq!(pick(0.125), (0, 0.5));
+        // The empty lobe is never chosen: its interval has no width.
+        assert_eq!(pick(0.25).0, 2);
+        let (lobe, rescaled) = pick(0.5);
+        assert_eq!(lobe, 2);
+        assert!((rescaled - 0.5).abs() < 1e-6);
+        assert_eq!(pick(0.8).0, 3);
+        // Rounding that leaves the number past the total falls to the last lobe, inside [0, 1).
+        let (lobe, rescaled) = pick_lobe([0.3f32, 0.3].into_iter(), 0.99);
+        assert_eq!(lobe, 1);
+        assert!((0.0..1.0).contains(&rescaled));
+        // Frequencies over a uniform grid of numbers match the weights.
+        let n = 10_000;
+        let mut counts = [0usize; 4];
+        for i in 0..n {
+            counts[pick((i as f32 + 0.5) / n as f32).0] += 1;
+        }
+        for (c, w) in counts.iter().zip(weights) {
+            assert!((*c as f32 / n as f32 - w).abs() < 1e-3);
+        }
+    }
 }

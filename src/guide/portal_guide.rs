@@ -45,7 +45,7 @@
 use std::collections::BinaryHeap;
 
 use super::face_irradiance::{FaceIrradiance, FaceQuery, FaceScore, FaceTraining, MAX_FACE_LOBES};
-use super::mixture::DirectionGuide;
+use super::mixture::{pick_lobe, DirectionGuide};
 use super::settings::RenderEstimator;
 use crate::analysis::{Analysis, AnalysisSettings, Resolution, NO_REGION};
 use crate::error::{Error, Result};
@@ -782,15 +782,7 @@ impl DirectionGuide for PortalQuery {
         if self.count == 0 {
             return None;
         }
-        let mut acc = 0.0;
-        let mut chosen = self.count - 1;
-        for (i, l) in self.lobes[..self.count].iter().enumerate() {
-            acc += l.weight;
-            if u_select < acc {
-                chosen = i;
-                break;
-            }
-        }
+        let (chosen, _) = pick_lobe(self.lobes[..self.count].iter().map(|l| l.weight), u_select);
         let w = self.lobes[chosen].rect.sample(u);
         let pdf = self.pdf(w);
         (pdf > 0.0 && pdf.is_finite()).then_some((w, pdf))

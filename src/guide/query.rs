@@ -34,6 +34,7 @@ use std::sync::Arc;
 
 use super::directional::{self, DirectionalTable};
 use super::lobes::MAX_LOBES;
+use super::mixture::pick_lobe;
 use super::settings::{LobeAim, LobeFallback, SkeletonStrength};
 use super::skeleton_guide::SkeletonGuide;
 use crate::error::{Error, Result};
@@ -528,15 +529,10 @@ impl GuideQuery {
         if self.count == 0 {
             return None;
         }
-        let mut acc = 0.0;
-        let mut chosen = self.count - 1;
-        for (i, l) in self.lobes[..self.count].iter().enumerate() {
-            acc += l.probability;
-            if u_select < acc {
-                chosen = i;
-                break;
-            }
-        }
+        let (chosen, _) = pick_lobe(
+            self.lobes[..self.count].iter().map(|l| l.probability),
+            u_select,
+        );
         let l = &self.lobes[chosen];
         let w = if l.portal {
             l.rect.sample(u)
