@@ -1,6 +1,6 @@
 //! Hard numerical cases (issue 29), each a named test: the scene is either refused with a clear
-//! error or renders with every pixel finite (radiance, albedo, normal, depth), with `path` and
-//! `bdpt` alike. Images are tiny: these test robustness, not convergence.
+//! error or renders with every pixel finite (radiance, albedo, normal, depth), with every
+//! integrator alike. Images are tiny: these test robustness, not convergence.
 
 use std::sync::atomic::AtomicBool;
 
@@ -73,7 +73,8 @@ fn assert_finite_film(film: &Film, what: &str) {
     }
 }
 
-/// Renders with `path` and `bdpt` (16x16, 4 spp) and checks every pixel is finite.
+/// Renders with every registered integrator (16x16, 4 spp) and checks every pixel is finite.
+/// These scenes are lit by area lights, which every integrator renders: none may refuse them.
 fn renders_finite(scene: &Scene, camera: &Camera, what: &str) {
     let settings = RenderSettings {
         width: 16,
@@ -82,9 +83,10 @@ fn renders_finite(scene: &Scene, camera: &Camera, what: &str) {
         threads: Some(2),
         ..Default::default()
     };
-    for name in ["path", "bdpt"] {
+    for name in integrator::names() {
         let mut integrator = integrator::create(name, IntegratorSettings::default()).unwrap();
-        lacuna::render::prepare(integrator.as_mut(), scene, camera, Some(2), &|_, _| true).unwrap();
+        lacuna::render::prepare(integrator.as_mut(), scene, camera, Some(2), &|_, _| true)
+            .unwrap_or_else(|e| panic!("{what} ({name}): preparation failed: {e}"));
         let (film, _) = render(
             scene,
             camera,
