@@ -1,39 +1,42 @@
-//! `env_direct`: direct lighting from an environment map with many samples per shading point,
-//! the estimator of 001 chapter 3 (eq. 3.5-3.7, Algorithm 2).
+//! `env_direct`: direct lighting with many light and BSDF samples per shading point, the
+//! estimator of 001 chapter 3 (eq. 3.5-3.7, Algorithm 2) for environment maps, and the same
+//! many-sample estimator for every other light (the set-up of 001 chapter 5's Table 5.2, where
+//! automatic MIS balancing is measured).
 //!
 //! At the first non-specular surface the camera ray reaches (after mirror and glass
-//! bounces, up to `max_depth`), N_L light samples are split between the cube faces by the
-//! strategy's face proportions mu_f (M_f = mu_f N_L samples on face f, a fractional count
-//! with the last sample weighted by beta = frac(M_f), eq. 3.5-3.6), and N_B directions are
-//! drawn from the BSDF. All are combined by the balance heuristic over the counts
-//! (eq. 3.7, with the thesis's halves generalised to N_L / N and N_B / N, N = N_L + N_B):
+//! bounces, up to `max_depth`), two estimates are made, each with N_L light samples and N_B
+//! BSDF directions combined by the balance heuristic over the counts:
 //!
-//!   L ~ 1/N [ sum_f sum_i beta_i s(w_i) / q(w_i) + sum_j s(w_j) / q(w_j) ],
-//!   q(w) = (N_L mu_f(w) pdf_L(w | f(w)) + N_B pdf_B(w)) / N,
+//! - **The environment** (001 chapter 3): the N_L light samples are split between the cube
+//!   faces by the strategy's face proportions mu_f (M_f = mu_f N_L samples on face f, a
+//!   fractional count with the last sample weighted by beta = frac(M_f), eq. 3.5-3.6), and
+//!   (eq. 3.7, with the thesis's halves generalised to N_L / N and N_B / N, N = N_L + N_B)
+//!   `L ~ 1/N [sum_f sum_i beta_i s(w_i) / q(w_i) + sum_j s(w_j) / q(w_j)]` with
+//!   `q(w) = (N_L mu_f(w) pdf_L(w | f(w)) + N_B pdf_B(w)) / N`, where s = f |cos| L V. The sum of the weights beta over face f's samples is exactly
+//!   mu_f N_L, so the estimator is unbiased for any mu; mu_f(n) is zero only on faces that lie
+//!   wholly behind the surface, where s is zero. With the lat-long strategy all N_L samples
+//!   come from the 2-D lat-long density. Unlike the thesis's GPU version, every shading point
+//!   draws its own random samples (no sequence shared between pixels, so no spatial bias).
+//! - **The emitters** (every other light): the N_L light samples come from the scene's light
+//!   sampler (a light by power, then a point on it), the N_B BSDF directions are traced to
+//!   the emitter they reach, with q as above and pdf_L the light's selection probability times
+//!   its density at the point (as `path`'s next-event estimation). Delta lights, which BSDF
+//!   sampling never finds, are estimated by their light samples alone.
 //!
-//! where s = f |cos| L V. The sum of the weights beta over face f's samples is exactly
-//! mu_f N_L, so the estimator is unbiased for any mu; mu_f(n) is zero only on faces that lie
-//! wholly behind the surface, where s is zero. With the lat-long strategy all N_L samples
-//! come from the 2-D lat-long density. Unlike the thesis's GPU version, every shading point
-//! draws its own random samples (no sequence shared between pixels, so no spatial bias).
-//!
-//! `mis` chooses the weighting: `balance` (the above), `power` (exponent 2, over the same
-//! counts), `auto` (thesis 001 chapter 5: a warm-up of N/4 samples of each technique
-//! estimates the fraction alpha of BSDF samples, eq. 5.4-5.5, the other N/2 are split by it,
-//! and the two estimates are combined by eq. 5.6; alpha goes to the `alpha` layer) and
-//! `optimal` (Kondapaneni et al. 2019, its coefficients from the same warm-up); see
-//! [`super::mis_auto`].
-//!
-//! Other lights contribute one light-sampled estimate per shading point (no MIS: BSDF
-//! samples only look for the environment); with `max_depth` 1 this integrator therefore
-//! estimates what `path --max-depth 1` does.
+//! `mis` chooses the weighting of each estimate: `balance` (the above), `power` (exponent 2,
+//! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of N/4 samples of each
+//! technique estimates the fraction alpha of BSDF samples, eq. 5.4-5.5, the other N/2 are
+//! split by it, and the two estimates are combined by eq. 5.6; alpha goes to the `alpha`
+//! layer) and `optimal` (Kondapaneni et al. 2019, its coefficients from the same warm-up); see
+//! [`super::mis_auto`]. The environment and the emitters each get their own alpha. With
+//! `max_depth` 1 this integrator estimates what `path --max-depth 1` does.
 
 use super::mis_auto::{self, optimal_term, AlphaEstimate, OptimalSystem};
 use super::{Integrator, IntegratorSettings, MisHeuristic, SampleContext, TraceCounters};
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::light::{EnvStrategy, EnvironmentMap, Light};
+use crate::light::{EnvStrategy, EnvironmentMap, Light, LightSampler, TriangleSampling};
 use crate::math::{luminance, Rgb, Sampler, Vec3};
 use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
 
@@ -102,7 +105,9 @@ impl EnvDirect {
         self.shade_with_alpha(scene, si, rng, counters).0
     }
 
-    /// [`EnvDirect::shade`], and for `mis=auto` the fraction of BSDF samples it chose.
+    /// [`EnvDirect::shade`], and for `mis=auto` the fraction of BSDF samples it chose (the
+    /// mean of the two estimates' fractions where both the emitters and the environment are
+    /// estimated).
     fn shade_with_alpha(
         &self,
         scene: &Scene,
@@ -114,51 +119,156 @@ impl EnvDirect {
         if bsdf.is_delta() {
             return (Rgb::ZERO, None);
         }
-        let mut radiance = self.other_lights(scene, si, &bsdf, rng, counters);
-        let mut alpha = None;
-        if let Some((_, env)) = scene.environment() {
-            let (e, a) = self.environment(scene, env, si, &bsdf, rng, counters);
-            radiance += e;
-            alpha = a;
+        let mut radiance = Rgb::ZERO;
+        let mut alphas = (0.0, 0u32);
+        let mut targets = [None, None];
+        if let Some(lights) = scene.light_sampler() {
+            if lights_other_than_environment(scene) {
+                targets[0] = Some(Target::Emitters(lights));
+            }
         }
+        if let Some((_, env)) = scene.environment() {
+            targets[1] = Some(Target::Environment(env));
+        }
+        for target in targets.into_iter().flatten() {
+            let (value, alpha) = self.estimate(scene, target, si, &bsdf, rng, counters);
+            radiance += value;
+            if let Some(a) = alpha {
+                alphas = (alphas.0 + a, alphas.1 + 1);
+            }
+        }
+        let alpha = (alphas.1 > 0).then(|| alphas.0 / alphas.1 as f32);
         (radiance, alpha)
     }
 
-    /// One light-sampled estimate of the lights other than the environment.
-    fn other_lights(
+    /// The sample counts (light, BSDF) of one estimate: `env=bsdf` turns off light sampling
+    /// of the environment only.
+    fn counts(&self, target: Target) -> (u32, u32) {
+        let n_light = match target {
+            Target::Environment(_) => self.light_samples(),
+            Target::Emitters(_) => self.settings.env_direct.light_samples,
+        };
+        (n_light, self.settings.env_direct.bsdf_samples)
+    }
+
+    /// Draws the samples of one estimate ([`draw_environment`](Self::draw_environment) or
+    /// [`draw_emitters`](Self::draw_emitters)); returns the delta lights' part (see
+    /// `draw_emitters`).
+    #[allow(clippy::too_many_arguments)]
+    fn draw(
         &self,
         scene: &Scene,
+        target: Target,
         si: &SurfaceInteraction,
         bsdf: &Bsdf,
+        counts: (u32, u32),
         rng: &mut Sampler,
         counters: &mut TraceCounters,
+        out: &mut Vec<Drawn>,
     ) -> Rgb {
-        let Some(sampler) = scene.light_sampler() else {
-            return Rgb::ZERO;
-        };
-        let (index, pmf) = sampler.sample(rng.uniform());
-        let light = &scene.lights()[index];
-        let u = rng.uniform2();
-        if matches!(light, Light::Environment { .. }) {
-            return Rgb::ZERO;
+        match target {
+            Target::Environment(env) => {
+                self.draw_environment(scene, env, si, bsdf, counts, rng, counters, out);
+                Rgb::ZERO
+            }
+            Target::Emitters(lights) => {
+                self.draw_emitters(scene, lights, si, bsdf, counts, rng, counters, out)
+            }
         }
-        let Some(ls) = light.sample(si.p, u) else {
-            return Rgb::ZERO;
-        };
-        if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
-            return Rgb::ZERO;
-        }
+    }
+
+    /// Draws `n_light` samples of the scene's light sampler and `n_bsdf` BSDF directions for
+    /// the light of the emitters (every light but the environment, which has its own
+    /// estimate), recording each with its value s(w) (zero if occluded, behind the surface or
+    /// not reaching an emitter) and both densities: a light sample's is the light's selection
+    /// probability times its solid-angle density at the point, as `path`'s next-event
+    /// estimation has it. Light samples that pick the environment are dropped (a technique
+    /// that sometimes draws nothing stays unbiased over the counts). Delta lights (point, spot,
+    /// directional, IES, light fields) cannot be found by BSDF sampling: their samples are not
+    /// recorded but summed as s / (pmf pdf), and the return value divided by `n_light` is their
+    /// unbiased estimate.
+    #[allow(clippy::too_many_arguments)]
+    fn draw_emitters(
+        &self,
+        scene: &Scene,
+        lights: &LightSampler,
+        si: &SurfaceInteraction,
+        bsdf: &Bsdf,
+        (n_light, n_bsdf): (u32, u32),
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        out: &mut Vec<Drawn>,
+    ) -> Rgb {
         let frame = si.shading_frame();
-        let wi_local = frame.to_local(ls.wi);
-        let f = bsdf.eval(frame.to_local(si.wo), wi_local) * wi_local.z.abs();
-        if f == Rgb::ZERO {
-            return Rgb::ZERO;
+        let wo_l = frame.to_local(si.wo);
+        let normal = si.facing_normal();
+        let triangles = TriangleSampling::default();
+        let mut delta = Rgb::ZERO;
+        for _ in 0..n_light {
+            let (index, pmf) = lights.sample(rng.uniform());
+            let u = rng.uniform2();
+            let light = &scene.lights()[index];
+            if matches!(light, Light::Environment { .. }) {
+                continue;
+            }
+            let Some(ls) = light.sample_with(si.p, normal, self.settings.env, triangles, u) else {
+                continue;
+            };
+            let wi_l = frame.to_local(ls.wi);
+            let mut value = Rgb::ZERO;
+            if ls.wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0 {
+                let v = bsdf.eval(wo_l, wi_l) * wi_l.z.abs() * ls.radiance;
+                if v != Rgb::ZERO {
+                    counters.rays += 1;
+                    if scene.unoccluded(si, &ls) {
+                        value = v;
+                    }
+                }
+            }
+            if ls.delta {
+                let q = pmf * ls.pdf;
+                if value != Rgb::ZERO && q > 0.0 {
+                    delta += value / q;
+                }
+                continue;
+            }
+            out.push(Drawn {
+                weight: 1.0,
+                from_bsdf: false,
+                value,
+                pdf_light: pmf * ls.pdf,
+                pdf_bsdf: bsdf.pdf(wo_l, wi_l),
+            });
         }
-        counters.rays += 1;
-        if !scene.unoccluded(si, &ls) {
-            return Rgb::ZERO;
+        for _ in 0..n_bsdf {
+            let Some(bs) = bsdf.sample_from(wo_l, rng, Transport::Radiance) else {
+                continue;
+            };
+            if bs.delta {
+                continue;
+            }
+            let wi = frame.to_world(bs.wi);
+            let mut value = Rgb::ZERO;
+            let mut pdf_light = 0.0;
+            if wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0 {
+                counters.rays += 1;
+                if let Some(hit) = scene.intersect(&si.spawn_ray(wi)) {
+                    if let Some(k) = scene.triangle_light(hit.triangle) {
+                        pdf_light =
+                            lights.pmf(k) * scene.lights()[k].pdf_with(si.p, hit.p, triangles);
+                        value = bsdf.eval(wo_l, bs.wi) * bs.wi.z.abs() * scene.emitted(&hit);
+                    }
+                }
+            }
+            out.push(Drawn {
+                weight: 1.0,
+                from_bsdf: true,
+                value,
+                pdf_light,
+                pdf_bsdf: bsdf.pdf(wo_l, bs.wi),
+            });
         }
-        f * ls.radiance / (pmf * ls.pdf)
+        delta
     }
 
     /// Draws `n_light` environment samples (split between cube faces by the strategy) and
@@ -166,7 +276,7 @@ impl EnvDirect {
     /// s(w) (zero behind the surface or occluded) and both densities. Every sample drawn is
     /// recorded, zero ones included: the optimal estimator's control variate needs them.
     #[allow(clippy::too_many_arguments)]
-    fn draw(
+    fn draw_environment(
         &self,
         scene: &Scene,
         env: &EnvironmentMap,
@@ -240,19 +350,27 @@ impl EnvDirect {
         }
     }
 
-    /// The many-sample environment estimate at a non-specular surface point, and for
-    /// `mis=auto` the fraction alpha of BSDF samples it chose.
-    fn environment(
+    /// One many-sample estimate (the environment's or the emitters') at a non-specular
+    /// surface point, and for `mis=auto` the fraction alpha of BSDF samples it chose.
+    fn estimate(
         &self,
         scene: &Scene,
-        env: &EnvironmentMap,
+        target: Target,
         si: &SurfaceInteraction,
         bsdf: &Bsdf,
         rng: &mut Sampler,
         counters: &mut TraceCounters,
     ) -> (Rgb, Option<f32>) {
-        let (n_light, n_bsdf) = (self.light_samples(), self.settings.env_direct.bsdf_samples);
+        let (n_light, n_bsdf) = self.counts(target);
         let total = n_light + n_bsdf;
+        // The delta lights' part of a phase that drew `n` light samples.
+        let per_light_sample = |delta: Rgb, n: u32| {
+            if n > 0 {
+                delta / n as f32
+            } else {
+                Rgb::ZERO
+            }
+        };
         DRAWN.with(|cell| {
             let mut drawn = cell.take();
             drawn.clear();
@@ -261,9 +379,9 @@ impl EnvDirect {
             // a quarter of the total each, as the thesis's M = N.
             let warm = total / 4;
             let result = if !adaptive || n_light == 0 || n_bsdf == 0 || warm == 0 {
-                self.draw(
+                let delta = self.draw(
                     scene,
-                    env,
+                    target,
                     si,
                     bsdf,
                     (n_light, n_bsdf),
@@ -278,12 +396,12 @@ impl EnvDirect {
                 };
                 let alpha =
                     (self.mis() == MisHeuristic::Auto).then_some(n_bsdf as f32 / total as f32);
-                (sum, alpha)
+                (sum + per_light_sample(delta, n_light), alpha)
             } else {
                 let warm_counts = (warm as f32, warm as f32);
-                self.draw(
+                let delta = self.draw(
                     scene,
-                    env,
+                    target,
                     si,
                     bsdf,
                     (warm, warm),
@@ -291,7 +409,7 @@ impl EnvDirect {
                     counters,
                     &mut drawn,
                 );
-                let first = balance(&drawn, warm_counts);
+                let first = balance(&drawn, warm_counts) + per_light_sample(delta, warm);
                 let (m, n) = (2 * warm, total - 2 * warm);
                 let (second, alpha) = if self.mis() == MisHeuristic::Auto {
                     let mut estimate = AlphaEstimate::default();
@@ -301,9 +419,11 @@ impl EnvDirect {
                     let alpha = estimate.alpha();
                     let counts = mis_auto::split(n, alpha);
                     drawn.clear();
-                    self.draw(scene, env, si, bsdf, counts, rng, counters, &mut drawn);
-                    let counts = (counts.0 as f32, counts.1 as f32);
-                    (balance(&drawn, counts), Some(counts.1 / n as f32))
+                    let delta =
+                        self.draw(scene, target, si, bsdf, counts, rng, counters, &mut drawn);
+                    let sum = balance(&drawn, (counts.0 as f32, counts.1 as f32))
+                        + per_light_sample(delta, counts.0);
+                    (sum, Some(counts.1 as f32 / n as f32))
                 } else {
                     let mut system = OptimalSystem::default();
                     for d in &drawn {
@@ -314,20 +434,21 @@ impl EnvDirect {
                     // The rest keeps the requested proportion of light and BSDF samples.
                     let counts = mis_auto::split(n, n_bsdf as f32 / total as f32);
                     drawn.clear();
-                    self.draw(scene, env, si, bsdf, counts, rng, counters, &mut drawn);
-                    let counts = (counts.0 as f32, counts.1 as f32);
+                    let delta =
+                        self.draw(scene, target, si, bsdf, counts, rng, counters, &mut drawn);
+                    let (n_l, n_b) = (counts.0 as f32, counts.1 as f32);
                     let sum = drawn.iter().fold(Rgb::ZERO, |acc, d| {
                         acc + d.weight
                             * optimal_term(
                                 &a,
                                 d.from_bsdf,
-                                counts,
+                                (n_l, n_b),
                                 d.value,
                                 d.pdf_light,
                                 d.pdf_bsdf,
                             )
                     });
-                    (sum, None)
+                    (sum + per_light_sample(delta, counts.0), None)
                 };
                 // Eq. 5.6: the two unbiased estimates weighted by their sample counts.
                 let sum = (first * m as f32 + second * n as f32) / (m + n) as f32;
@@ -337,6 +458,21 @@ impl EnvDirect {
             result
         })
     }
+}
+
+/// What one many-sample estimate integrates: the environment's light, or the light of every
+/// other light ("emitters": emissive triangles, and the delta lights by light sampling only).
+#[derive(Clone, Copy)]
+enum Target<'a> {
+    Environment(&'a EnvironmentMap),
+    Emitters(&'a LightSampler),
+}
+
+/// Whether the scene has a light other than its environment map (then the emitters get an
+/// estimate of their own).
+fn lights_other_than_environment(scene: &Scene) -> bool {
+    let env = scene.environment().map(|(index, _)| index);
+    scene.lights().len() > usize::from(env.is_some())
 }
 
 /// One environment sample of a shading point: its weight (a fractional cube-face sample's
