@@ -32,13 +32,15 @@
 //! `max_depth` 1 this integrator estimates what `path --max-depth 1` does.
 
 use super::mis_auto::{self, optimal_term, AlphaEstimate, OptimalSystem};
-use super::{Integrator, IntegratorSettings, MisHeuristic, SampleContext, TraceCounters};
+use super::{
+    Integrator, IntegratorSettings, MisHeuristic, Precomputation, SampleContext, TraceCounters,
+};
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::light::{EnvStrategy, EnvironmentMap, Light, LightSampler, TriangleSampling};
 use crate::math::{luminance, Rgb, Sampler, Vec3};
-use crate::scene::{Bsdf, Scene, SurfaceInteraction, Transport};
+use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction, Transport};
 
 /// The name of the layer `mis=auto` writes (see [`EnvDirect`]'s `layers`).
 pub const ALPHA_LAYER: &str = "alpha";
@@ -64,6 +66,90 @@ impl Default for EnvDirectOptions {
 
 pub struct EnvDirect {
     settings: IntegratorSettings,
+    /// The emitters' light sources, each estimated on its own (built by `prepare`; empty
+    /// before, when the scene's light sampler serves as one source).
+    sources: Vec<LightSource>,
+}
+
+/// One light source of the emitters' estimate: 001 chapter 5 draws N light and BSDF samples
+/// per light source and balances them per source (a small bright lamp and a large dim one want
+/// different splits). A source is a connected emissive surface of one radiance (triangles
+/// sharing a vertex), or every delta light together (BSDF sampling never finds them).
+struct LightSource {
+    /// Chooses among the source's lights only, by power.
+    sampler: LightSampler,
+    /// False for the delta lights: no BSDF samples are drawn for them.
+    bsdf_finds_it: bool,
+}
+
+/// Above this many connected emissive surfaces, every emissive triangle is one source (the
+/// cost of a source is its samples at every shading point).
+const MAX_LIGHT_SOURCES: usize = 16;
+
+/// The light sources of `scene`'s emitters (see [`LightSource`]); empty without emitters.
+fn light_sources(scene: &Scene) -> Vec<LightSource> {
+    let lights = scene.lights();
+    let env = scene.environment().map(|(index, _)| index);
+    // Union-find over the area lights: triangles sharing a vertex position with equal radiance.
+    let mut parent: Vec<usize> = (0..lights.len()).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let mut first_at = std::collections::HashMap::new();
+    for (i, light) in lights.iter().enumerate() {
+        if let Light::Area { p, radiance, .. } = light {
+            for v in p {
+                let key = (
+                    v.x.to_bits(),
+                    v.y.to_bits(),
+                    v.z.to_bits(),
+                    radiance.x.to_bits(),
+                    radiance.y.to_bits(),
+                    radiance.z.to_bits(),
+                );
+                let other = *first_at.entry(key).or_insert(i);
+                let (a, b) = (root(&mut parent, i), root(&mut parent, other));
+                parent[a] = b;
+            }
+        }
+    }
+    let is_area = |i: usize| matches!(lights[i], Light::Area { .. });
+    let mut roots: Vec<usize> = (0..lights.len())
+        .filter(|&i| is_area(i) && root(&mut parent, i) == i)
+        .collect();
+    let mut sources = Vec::new();
+    if roots.len() > MAX_LIGHT_SOURCES {
+        roots.clear();
+        sources.extend(
+            LightSampler::of_subset(lights, is_area).map(|sampler| LightSource {
+                sampler,
+                bsdf_finds_it: true,
+            }),
+        );
+    }
+    for r in roots {
+        let members: Vec<bool> = (0..lights.len())
+            .map(|i| is_area(i) && root(&mut parent, i) == r)
+            .collect();
+        sources.extend(
+            LightSampler::of_subset(lights, |i| members[i]).map(|sampler| LightSource {
+                sampler,
+                bsdf_finds_it: true,
+            }),
+        );
+    }
+    let is_delta = |i: usize| !is_area(i) && Some(i) != env;
+    sources.extend(
+        LightSampler::of_subset(lights, is_delta).map(|sampler| LightSource {
+            sampler,
+            bsdf_finds_it: false,
+        }),
+    );
+    sources
 }
 
 impl EnvDirect {
@@ -81,7 +167,10 @@ impl EnvDirect {
                 settings.env.name()
             )));
         }
-        Ok(EnvDirect { settings })
+        Ok(EnvDirect {
+            settings,
+            sources: Vec::new(),
+        })
     }
 
     fn light_samples(&self) -> u32 {
@@ -121,19 +210,36 @@ impl EnvDirect {
         }
         let mut radiance = Rgb::ZERO;
         let mut alphas = (0.0, 0u32);
-        let mut targets = [None, None];
-        if let Some(lights) = scene.light_sampler() {
+        let mut targets: Vec<Target> = Vec::with_capacity(self.sources.len() + 1);
+        let prepared = self.sources.first().map(|s| s.sampler.len()) == Some(scene.lights().len());
+        if prepared {
+            targets.extend(self.sources.iter().map(|s| Target::Emitters {
+                lights: &s.sampler,
+                bsdf_finds_it: s.bsdf_finds_it,
+            }));
+        } else if let Some(lights) = scene.light_sampler() {
+            // Not prepared for this scene: the scene's light sampler is one source.
             if lights_other_than_environment(scene) {
-                targets[0] = Some(Target::Emitters(lights));
+                targets.push(Target::Emitters {
+                    lights,
+                    bsdf_finds_it: true,
+                });
             }
         }
         if let Some((_, env)) = scene.environment() {
-            targets[1] = Some(Target::Environment(env));
+            targets.push(Target::Environment(env));
         }
-        for target in targets.into_iter().flatten() {
+        for target in targets {
             let (value, alpha) = self.estimate(scene, target, si, &bsdf, rng, counters);
             radiance += value;
-            if let Some(a) = alpha {
+            let balanced = !matches!(
+                target,
+                Target::Emitters {
+                    bsdf_finds_it: false,
+                    ..
+                }
+            );
+            if let (Some(a), true) = (alpha, balanced) {
                 alphas = (alphas.0 + a, alphas.1 + 1);
             }
         }
@@ -144,11 +250,14 @@ impl EnvDirect {
     /// The sample counts (light, BSDF) of one estimate: `env=bsdf` turns off light sampling
     /// of the environment only.
     fn counts(&self, target: Target) -> (u32, u32) {
-        let n_light = match target {
-            Target::Environment(_) => self.light_samples(),
-            Target::Emitters(_) => self.settings.env_direct.light_samples,
-        };
-        (n_light, self.settings.env_direct.bsdf_samples)
+        let n_bsdf = self.settings.env_direct.bsdf_samples;
+        match target {
+            Target::Environment(_) => (self.light_samples(), n_bsdf),
+            Target::Emitters { bsdf_finds_it, .. } => (
+                self.settings.env_direct.light_samples,
+                if bsdf_finds_it { n_bsdf } else { 0 },
+            ),
+        }
     }
 
     /// Draws the samples of one estimate ([`draw_environment`](Self::draw_environment) or
@@ -171,7 +280,7 @@ impl EnvDirect {
                 self.draw_environment(scene, env, si, bsdf, counts, rng, counters, out);
                 Rgb::ZERO
             }
-            Target::Emitters(lights) => {
+            Target::Emitters { lights, .. } => {
                 self.draw_emitters(scene, lights, si, bsdf, counts, rng, counters, out)
             }
         }
@@ -253,10 +362,13 @@ impl EnvDirect {
             if wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0 {
                 counters.rays += 1;
                 if let Some(hit) = scene.intersect(&si.spawn_ray(wi)) {
+                    // Emitters of other sources count as nothing here (pmf 0).
                     if let Some(k) = scene.triangle_light(hit.triangle) {
-                        pdf_light =
-                            lights.pmf(k) * scene.lights()[k].pdf_with(si.p, hit.p, triangles);
-                        value = bsdf.eval(wo_l, bs.wi) * bs.wi.z.abs() * scene.emitted(&hit);
+                        let pmf = lights.pmf(k);
+                        if pmf > 0.0 {
+                            pdf_light = pmf * scene.lights()[k].pdf_with(si.p, hit.p, triangles);
+                            value = bsdf.eval(wo_l, bs.wi) * bs.wi.z.abs() * scene.emitted(&hit);
+                        }
                     }
                 }
             }
@@ -460,12 +572,16 @@ impl EnvDirect {
     }
 }
 
-/// What one many-sample estimate integrates: the environment's light, or the light of every
-/// other light ("emitters": emissive triangles, and the delta lights by light sampling only).
+/// What one many-sample estimate integrates: the environment's light, or the light of the
+/// lights `lights` chooses among (a [`LightSource`] of the emitters; `bsdf_finds_it` false for
+/// delta lights, which get light samples only).
 #[derive(Clone, Copy)]
 enum Target<'a> {
     Environment(&'a EnvironmentMap),
-    Emitters(&'a LightSampler),
+    Emitters {
+        lights: &'a LightSampler,
+        bsdf_finds_it: bool,
+    },
 }
 
 /// Whether the scene has a light other than its environment map (then the emitters get an
@@ -530,6 +646,18 @@ impl EnvDirect {
 impl Integrator for EnvDirect {
     fn name(&self) -> &'static str {
         "env_direct"
+    }
+
+    /// Finds the emitters' light sources (each gets its own estimate and, with `mis=auto`,
+    /// its own alpha).
+    fn prepare(
+        &mut self,
+        scene: &Scene,
+        _camera: &Camera,
+        _progress: &dyn Fn(&str, f64) -> bool,
+    ) -> Result<Precomputation> {
+        self.sources = light_sources(scene);
+        Ok(Precomputation::default())
     }
 
     /// `mis=auto`: the `alpha` layer, R the fraction of BSDF samples chosen at the shaded
@@ -625,3 +753,86 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
     create: |settings| Ok(Box::new(EnvDirect::new(settings)?)),
     adaptive_mis: &[MisHeuristic::Auto, MisHeuristic::Optimal],
 };
+
+#[cfg(test)]
+mod tests {
+    use super::light_sources;
+    use crate::light::LightDesc;
+    use crate::math::{Rgb, Vec3};
+    use crate::scene::{Material, MeshDesc, SceneBuilder};
+
+    /// An emissive quad (two triangles sharing an edge) at height `y`, offset by `x`.
+    fn lamp(b: &mut SceneBuilder, x: f32, y: f32, radiance: f32) {
+        let m = b
+            .add_material(Material::emissive(Rgb::splat(radiance)))
+            .unwrap();
+        b.add_mesh(MeshDesc {
+            name: "lamp".into(),
+            positions: vec![
+                Vec3::new(x, y, 0.0),
+                Vec3::new(x + 1.0, y, 0.0),
+                Vec3::new(x + 1.0, y, 1.0),
+                Vec3::new(x, y, 1.0),
+            ],
+            indices: vec![[0, 1, 2], [0, 2, 3]],
+            materials: vec![m],
+            ..Default::default()
+        })
+        .unwrap();
+    }
+
+    fn sources_of(build: impl Fn(&mut SceneBuilder)) -> Vec<(usize, bool)> {
+        let mut b = SceneBuilder::new();
+        build(&mut b);
+        let scene = b.build().unwrap();
+        let n = scene.lights().len();
+        light_sources(&scene)
+            .iter()
+            .map(|s| {
+                let members = (0..n).filter(|&i| s.sampler.pmf(i) > 0.0).count();
+                (members, s.bsdf_finds_it)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_source_is_a_connected_surface_of_one_radiance_and_the_delta_lights_are_one_more() {
+        // One quad: its two triangles are one source.
+        assert_eq!(sources_of(|b| lamp(b, 0.0, 2.0, 5.0)), vec![(2, true)]);
+        // Two quads apart, and a point light: three sources.
+        let mut two = sources_of(|b| {
+            lamp(b, 0.0, 2.0, 50.0);
+            lamp(b, 3.0, 2.0, 1.0);
+            b.add_light(LightDesc::Point {
+                position: Vec3::new(0.0, 1.0, 0.0),
+                intensity: Rgb::ONE,
+            })
+            .unwrap();
+        });
+        two.sort();
+        assert_eq!(two, vec![(1, false), (2, true), (2, true)]);
+        // Two quads sharing an edge: one source if they emit alike, two otherwise.
+        assert_eq!(
+            sources_of(|b| {
+                lamp(b, 0.0, 2.0, 5.0);
+                lamp(b, 1.0, 2.0, 5.0);
+            }),
+            vec![(4, true)]
+        );
+        assert_eq!(
+            sources_of(|b| {
+                lamp(b, 0.0, 2.0, 5.0);
+                lamp(b, 1.0, 2.0, 6.0);
+            })
+            .len(),
+            2
+        );
+        // More separate lamps than MAX_LIGHT_SOURCES: one source of every emissive triangle.
+        let many = sources_of(|b| {
+            for i in 0..=super::MAX_LIGHT_SOURCES {
+                lamp(b, 2.0 * i as f32, 2.0, 5.0);
+            }
+        });
+        assert_eq!(many, vec![(2 * (super::MAX_LIGHT_SOURCES + 1), true)]);
+    }
+}

@@ -23,6 +23,32 @@ impl LightSampler {
         AliasTable::new(&powers).map(|table| LightSampler { table })
     }
 
+    /// A sampler over the lights `member` accepts only (by power; the others never chosen);
+    /// `None` when none of them has positive power.
+    pub fn of_subset(lights: &[Light], member: impl Fn(usize) -> bool) -> Option<Self> {
+        let powers: Vec<f32> = lights
+            .iter()
+            .enumerate()
+            .map(|(i, l)| if member(i) { l.power().max(0.0) } else { 0.0 })
+            .collect();
+        if powers.iter().any(|p| !p.is_finite()) {
+            let uniform: Vec<f32> = (0..lights.len())
+                .map(|i| f32::from(u8::from(member(i))))
+                .collect();
+            return AliasTable::new(&uniform).map(|table| LightSampler { table });
+        }
+        AliasTable::new(&powers).map(|table| LightSampler { table })
+    }
+
+    /// The number of lights the sampler was built over (its table's length).
+    pub fn len(&self) -> usize {
+        self.table.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.table.is_empty()
+    }
+
     /// Index of the chosen light and its probability.
     #[inline]
     pub fn sample(&self, u: f32) -> (usize, f32) {
