@@ -1608,7 +1608,7 @@ mod methods {
 /// The Medium build's time per stage (`Bvh::build_profiled`), 1 and 2 threads, with Embree's
 /// build in the same run when compiled in.
 mod stages {
-    use lacuna::geometry::{BuildProfile, Bvh, BvhQuality};
+    use lacuna::geometry::{BuildMethod, BuildProfile, Bvh, BvhQuality};
 
     use super::{load_mesh, median};
 
@@ -1629,6 +1629,18 @@ mod stages {
         "wide nodes",
     ];
 
+    /// Medium's method, or the one `BVH_BENCH_METHOD` names: `ploc`, `sah` (no reinsertion),
+    /// `sah-0.05` (5 % reinsertion), `cheaper` (both, Medium's parameters).
+    fn stages_method(n: usize) -> BuildMethod {
+        match std::env::var("BVH_BENCH_METHOD").as_deref() {
+            Ok("ploc") => BuildMethod::Ploc(BvhQuality::Medium),
+            Ok("sah") => BuildMethod::Sah { reinsertion: 0.0 },
+            Ok("sah-0.05") => BuildMethod::Sah { reinsertion: 0.05 },
+            Ok("cheaper") => BuildMethod::Cheaper(BvhQuality::Medium, 0.0),
+            _ => BvhQuality::Medium.method(n),
+        }
+    }
+
     pub fn run(reps: usize, pools: &[rayon::ThreadPool]) {
         let meshes = std::env::var("BVH_BENCH_MESHES").unwrap_or("100k,1m,sponza".into());
         println!("\n#### Medium build by stage (seconds, median of {reps})\n");
@@ -1647,7 +1659,7 @@ mod stages {
                 continue;
             };
             eprintln!("{}: {} triangles", mesh.name, mesh.tris.len());
-            let method = BvhQuality::Medium.method(mesh.tris.len());
+            let method = stages_method(mesh.tris.len());
             // [threads][stage] -> seconds per repetition; repetitions interleave the pools.
             let mut times = vec![vec![Vec::new(); STAGES.len() + 2]; pools.len()];
             let (mut cost, mut nodes, mut both) = (0.0f32, 0usize, String::new());

@@ -246,58 +246,95 @@ fn deepest_inner_node(len: usize, children: impl Fn(usize) -> (u32, u8)) -> usiz
 /// still fit the 24 triangle bits of the traversal mask (its `child_meta` offsets are
 /// rewritten), so that a leaf of up to 3 triangles is one test. Slot `s` of the rewritten
 /// tree is lane `s % 4` of block `s / 4`; the lanes carry the global triangle ids.
+/// Nodes are laid out in parallel: each node's block count first, then every node fills its
+/// own run of blocks.
 fn triangle_blocks(cwbvh: &mut CwBvh, tris: &[Triangle]) -> Vec<TriangleBlock> {
-    let mut blocks: Vec<TriangleBlock> = Vec::with_capacity(tris.len().div_ceil(3));
-    for node in cwbvh.nodes.iter_mut() {
-        // Leaf children of this node, by their offset: (child slot, offset, count).
+    let layouts: Vec<LeafLayout> = cwbvh.nodes.par_iter().map(LeafLayout::new).collect();
+    let total: usize = layouts.iter().map(|l| l.blocks as usize).sum();
+    let mut blocks = vec![TriangleBlock::default(); total];
+    // Each node's run of blocks, in node order.
+    let mut runs: Vec<(usize, &mut [TriangleBlock])> = Vec::with_capacity(layouts.len());
+    let (mut rest, mut first_block) = (&mut blocks[..], 0usize);
+    for layout in &layouts {
+        let (run, tail) = rest.split_at_mut(layout.blocks as usize);
+        runs.push((first_block, run));
+        first_block += layout.blocks as usize;
+        rest = tail;
+    }
+    let ids = &cwbvh.primitive_indices;
+    cwbvh
+        .nodes
+        .par_iter_mut()
+        .zip(layouts.par_iter())
+        .zip(runs.into_par_iter())
+        .for_each(|((node, layout), (first_block, run))| {
+            let old_base = node.primitive_base_idx;
+            for i in 0..layout.count {
+                let (child, offset, count) = layout.leaves[i];
+                let new_offset = layout.offsets[i];
+                for k in 0..count {
+                    let slot = (new_offset + k) as usize;
+                    let id = ids[(old_base + offset + k) as usize];
+                    let t = &tris[id as usize];
+                    run[slot / 4].set(slot % 4, [t.v0.into(), t.v1.into(), t.v2.into()], id);
+                }
+                node.child_meta[child] = (node.child_meta[child] & !0x1f) | new_offset as u8;
+            }
+            node.primitive_base_idx = (first_block * 4) as u32;
+        });
+    blocks
+}
+
+/// Where a node's leaf triangles go in [`triangle_blocks`]: its leaf children by their offset
+/// (child slot, offset, count), each one's new offset, and the blocks they take.
+struct LeafLayout {
+    leaves: [(usize, u32, u32); 8],
+    offsets: [u32; 8],
+    count: usize,
+    blocks: u32,
+}
+
+impl LeafLayout {
+    fn new(node: &obvhs::cwbvh::node::CwBvhNode) -> LeafLayout {
         let mut leaves = [(0usize, 0u32, 0u32); 8];
-        let mut leaf_count = 0;
+        let mut count = 0;
         for c in 0..8 {
             let meta = node.child_meta[c];
             if node.imask & (1 << c) == 0 && meta != 0 {
-                leaves[leaf_count] = (c, (meta & 0x1f) as u32, (meta >> 5).count_ones());
-                leaf_count += 1;
+                leaves[count] = (c, (meta & 0x1f) as u32, (meta >> 5).count_ones());
+                count += 1;
             }
         }
-        let leaves = &mut leaves[..leaf_count];
-        leaves.sort_unstable_by_key(|&(_, offset, _)| offset);
+        leaves[..count].sort_unstable_by_key(|&(_, offset, _)| offset);
         let mut aligned = [0u32; 8];
         let mut end = 0u32;
-        for (i, &(_, _, count)) in leaves.iter().enumerate() {
-            let start = if end % 4 + count > 4 {
+        for (i, &(_, _, n)) in leaves[..count].iter().enumerate() {
+            let start = if end % 4 + n > 4 {
                 end.next_multiple_of(4)
             } else {
                 end
             };
             aligned[i] = start;
-            end = start + count;
+            end = start + n;
         }
-        let fits = end <= 24;
-        let first_block = blocks.len();
-        let old_base = node.primitive_base_idx;
-        let mut used = 0u32;
-        for (i, &(child, offset, count)) in leaves.iter().enumerate() {
-            let new_offset = if fits { aligned[i] } else { offset };
-            used = used.max(new_offset + count);
-            for k in 0..count {
-                let slot = (new_offset + k) as usize;
-                while blocks.len() <= first_block + slot / 4 {
-                    blocks.push(TriangleBlock::default());
-                }
-                let id = cwbvh.primitive_indices[(old_base + offset + k) as usize];
-                let t = &tris[id as usize];
-                blocks[first_block + slot / 4].set(
-                    slot % 4,
-                    [t.v0.into(), t.v1.into(), t.v2.into()],
-                    id,
-                );
-            }
-            node.child_meta[child] = (node.child_meta[child] & !0x1f) | new_offset as u8;
+        // Moving leaves to block starts may not push the node's triangles past the 24 bits of
+        // the traversal mask; then they keep obvhs's offsets.
+        let offsets = if end <= 24 {
+            aligned
+        } else {
+            std::array::from_fn(|i| leaves[i].1)
+        };
+        let used = (0..count)
+            .map(|i| offsets[i] + leaves[i].2)
+            .max()
+            .unwrap_or(0);
+        LeafLayout {
+            leaves,
+            offsets,
+            count,
+            blocks: used.div_ceil(4),
         }
-        debug_assert!(blocks.len() == first_block + used.div_ceil(4) as usize);
-        node.primitive_base_idx = (first_block * 4) as u32;
     }
-    blocks
 }
 
 /// The acceleration structure of a scene. Immutable and `Sync`: queries may run from any number

@@ -207,35 +207,51 @@ fn median_split(prims: &mut [PrimRef]) -> usize {
     mid
 }
 
-/// Exact SAH: every split between centroids sorted along each axis. Reorders `prims` so the
-/// split is `prims[..k]`, `prims[k..]`, and returns k.
+/// Exact SAH: every split between centroids sorted along each axis (ties in input order).
+/// Reorders `prims` so the split is `prims[..k]`, `prims[k..]`, and returns k. At most
+/// [`SWEEP_MAX`] prims: the sorts run on small arrays of keys, not on the prims.
 fn sweep_split(prims: &mut [PrimRef]) -> usize {
     let m = prims.len();
-    let mut best = (f32::INFINITY, 0usize, 0usize); // (cost, axis, k)
-    let mut right_area = vec![0.0f32; m];
+    debug_assert!(m <= SWEEP_MAX);
+    let mut best = (f32::INFINITY, 0usize); // (cost, k)
+    let mut best_order = [0u8; SWEEP_MAX];
+    let mut right_area = [0.0f32; SWEEP_MAX];
+    let mut keys = [(0.0f32, 0u8); SWEEP_MAX];
     for axis in 0..3 {
-        prims.sort_unstable_by(|a, b| a.centroid()[axis].total_cmp(&b.centroid()[axis]));
+        for (i, p) in prims.iter().enumerate() {
+            keys[i] = (p.centroid()[axis], i as u8);
+        }
+        let keys = &mut keys[..m];
+        keys.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut acc = Aabb::empty();
         for k in (1..m).rev() {
-            acc = acc.union(&prims[k].aabb);
+            acc = acc.union(&prims[keys[k].1 as usize].aabb);
             right_area[k] = half_area(&acc);
         }
         let mut acc = Aabb::empty();
+        let mut improved = false;
         for k in 1..m {
-            acc = acc.union(&prims[k - 1].aabb);
+            acc = acc.union(&prims[keys[k - 1].1 as usize].aabb);
             let cost = half_area(&acc) * k as f32 + right_area[k] * (m - k) as f32;
             if cost < best.0 {
-                best = (cost, axis, k);
+                best = (cost, k);
+                improved = true;
+            }
+        }
+        if improved {
+            for (o, key) in best_order.iter_mut().zip(keys.iter()) {
+                *o = key.1;
             }
         }
     }
-    let (_, axis, k) = best;
+    let (_, k) = best;
     if k == 0 {
         // Every cost was NaN (non-finite bounds): any balanced split will do.
         return m / 2;
     }
-    if axis != 2 {
-        prims.sort_unstable_by(|a, b| a.centroid()[axis].total_cmp(&b.centroid()[axis]));
+    let original: [PrimRef; SWEEP_MAX] = std::array::from_fn(|i| prims[i.min(m - 1)]);
+    for (p, &o) in prims.iter_mut().zip(best_order.iter()) {
+        *p = original[o as usize];
     }
     k
 }
