@@ -5,6 +5,7 @@
 //! cargo bench --bench bvh                 # build times and rays/s (a few minutes)
 //! cargo bench --bench bvh -- kernels      # node-test and triangle-test study (1 thread)
 //! cargo bench --bench bvh -- methods      # BVH builders side by side (work per ray, rays/s)
+//! cargo bench --bench bvh -- stages       # Medium build's time per stage, 1 and 2 threads
 //! RUSTFLAGS="--cfg lacuna_embree" cargo bench --bench bvh   # also Embree 3 on the same rays
 //! ```
 //!
@@ -194,6 +195,11 @@ fn main() {
     println!("load average at start: {}", load_average());
     if args.iter().any(|a| a == "methods") {
         methods::run(reps, n_incoherent, &pools);
+        println!("\nload average at end: {}", load_average());
+        return;
+    }
+    if args.iter().any(|a| a == "stages") {
+        stages::run(reps, &pools);
         println!("\nload average at end: {}", load_average());
         return;
     }
@@ -1596,6 +1602,108 @@ mod methods {
 
     fn any(bvh: &Bvh, rays: &[Ray]) -> usize {
         rays.iter().filter(|r| bvh.occluded(r)).count()
+    }
+}
+
+/// The Medium build's time per stage (`Bvh::build_profiled`), 1 and 2 threads, with Embree's
+/// build in the same run when compiled in.
+mod stages {
+    use lacuna::geometry::{BuildMethod, BuildProfile, Bvh, BvhQuality};
+
+    use super::{load_mesh, median};
+
+    /// Stages in table order (before the conversion computed its own costs, "8-wide cost" was
+    /// the choice between two trees and "cwbvh conversion" included the kept tree's costs) (stages of the two trees of a `Cheaper` build overlap; "both
+    /// binary trees" is their wall time together).
+    const STAGES: [&str; 11] = [
+        "input",
+        "PLOC",
+        "PLOC reinsertion",
+        "SAH build",
+        "SAH reinsertion",
+        "both binary trees",
+        "8-wide cost",
+        "cwbvh conversion",
+        "depth check",
+        "triangle blocks",
+        "wide nodes",
+    ];
+
+    /// Medium's method, or the one `BVH_BENCH_METHOD` names: `ploc`, `sah` (no reinsertion),
+    /// `sah-0.05` (5 % reinsertion), `cheaper` (both, Medium's parameters).
+    fn stages_method(n: usize) -> BuildMethod {
+        match std::env::var("BVH_BENCH_METHOD").as_deref() {
+            Ok("ploc") => BuildMethod::Ploc(BvhQuality::Medium),
+            Ok("sah") => BuildMethod::Sah { reinsertion: 0.0 },
+            Ok("sah-0.05") => BuildMethod::Sah { reinsertion: 0.05 },
+            Ok("cheaper") => BuildMethod::Cheaper(BvhQuality::Medium, 0.0),
+            _ => BvhQuality::Medium.method(n),
+        }
+    }
+
+    pub fn run(reps: usize, pools: &[rayon::ThreadPool]) {
+        let meshes = std::env::var("BVH_BENCH_MESHES").unwrap_or("100k,1m,sponza".into());
+        println!("\n#### Medium build by stage (seconds, median of {reps})\n");
+        print!("| mesh | threads |");
+        for s in STAGES {
+            print!(" {s} |");
+        }
+        println!(" total | Embree | ratio | 8-wide SAH cost (PLOC / SAH build) | nodes |");
+        print!("|---|---:|");
+        for _ in STAGES {
+            print!("---:|");
+        }
+        println!("---:|---:|---:|---:|---:|");
+        for name in meshes.split(',') {
+            let Some(mesh) = load_mesh(name.trim()) else {
+                continue;
+            };
+            eprintln!("{}: {} triangles", mesh.name, mesh.tris.len());
+            let method = stages_method(mesh.tris.len());
+            // [threads][stage] -> seconds per repetition; repetitions interleave the pools.
+            let mut times = vec![vec![Vec::new(); STAGES.len() + 2]; pools.len()];
+            let (mut cost, mut nodes, mut both) = (0.0f32, 0usize, String::new());
+            for _ in 0..reps {
+                for (pi, pool) in pools.iter().enumerate() {
+                    let profile = BuildProfile::recording();
+                    let t = std::time::Instant::now();
+                    let bvh = pool.install(|| Bvh::build_profiled(&mesh.tris, method, &profile));
+                    times[pi][STAGES.len()].push(t.elapsed().as_secs_f64());
+                    nodes = bvh.node_count();
+                    drop(bvh);
+                    cost = profile.cost().unwrap_or(f32::NAN);
+                    if let Some((p, s)) = profile.both_costs() {
+                        both = format!(" ({p:.1} / {s:.1})");
+                    }
+                    for (k, stage) in STAGES.iter().enumerate() {
+                        let s: f64 = profile
+                            .stages()
+                            .iter()
+                            .filter(|(n, _)| n == stage)
+                            .map(|(_, s)| s)
+                            .sum();
+                        times[pi][k].push(s);
+                    }
+                    #[cfg(lacuna_embree)]
+                    {
+                        let t = std::time::Instant::now();
+                        drop(super::embree::Scene::build(&mesh.tris, pi + 1));
+                        times[pi][STAGES.len() + 1].push(t.elapsed().as_secs_f64());
+                    }
+                }
+            }
+            for (pi, t) in times.iter().enumerate() {
+                print!("| {} | {} |", mesh.name, pi + 1);
+                for v in &t[..STAGES.len()] {
+                    print!(" {:.3} |", median(v));
+                }
+                let (total, embree) = (median(&t[STAGES.len()]), median(&t[STAGES.len() + 1]));
+                println!(
+                    " {total:.3} | {embree:.3} | {:.2} | {cost:.1}{both} | {nodes} |",
+                    total / embree
+                );
+            }
+        }
     }
 }
 

@@ -12,7 +12,6 @@ use glam::{UVec2, Vec3A};
 use obvhs::aabb::Aabb;
 use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
 use obvhs::bvh2::Bvh2;
-use obvhs::cwbvh::bvh2_to_cwbvh::{bvh2_to_cwbvh, Bvh2Converter};
 use obvhs::cwbvh::CwBvh;
 use obvhs::ploc::PlocBuilder;
 use obvhs::splits::split_aabbs_preset;
@@ -20,6 +19,7 @@ use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 
+use super::convert::CostTable;
 use super::triangle::{
     intersect_triangle_block, intersect_triangle_block_into, BlockHits, RayLanes, TriangleBlock,
 };
@@ -82,45 +82,111 @@ pub enum BuildMethod {
 
 /// obvhs's `build_cwbvh_from_tris` up to the binary BVH: PLOC over the triangles (or over
 /// pre-split boxes when the parameters ask for it), then reinsertion.
-fn ploc_bvh2(tris: &[Triangle], params: BvhBuildParams) -> Bvh2 {
-    let mut bvh2 = if params.pre_split {
-        let mut aabbs: Vec<Aabb> = tris.iter().map(|t| t.aabb()).collect();
-        let largest = aabbs.iter().map(Aabb::half_area).fold(0.0f32, f32::max);
-        let average = aabbs.iter().map(Aabb::half_area).sum::<f32>() / aabbs.len() as f32;
-        let mut indices: Vec<u32> = (0..tris.len() as u32).collect();
-        split_aabbs_preset(&mut aabbs, &mut indices, tris, average, largest);
-        PlocBuilder::with_capacity(aabbs.len()).build(
-            params.ploc_search_distance,
-            &aabbs,
-            indices,
-            params.sort_precision,
-            params.search_depth_threshold,
-        )
-    } else {
-        PlocBuilder::with_capacity(tris.len()).build(
-            params.ploc_search_distance,
-            tris,
-            (0..tris.len() as u32).collect(),
-            params.sort_precision,
-            params.search_depth_threshold,
-        )
-    };
+fn ploc_bvh2(tris: &[Triangle], params: BvhBuildParams, profile: &BuildProfile) -> Bvh2 {
+    let mut bvh2 = profile.time("PLOC", || {
+        if params.pre_split {
+            let mut aabbs: Vec<Aabb> = tris.iter().map(|t| t.aabb()).collect();
+            let largest = aabbs.iter().map(Aabb::half_area).fold(0.0f32, f32::max);
+            let average = aabbs.iter().map(Aabb::half_area).sum::<f32>() / aabbs.len() as f32;
+            let mut indices: Vec<u32> = (0..tris.len() as u32).collect();
+            split_aabbs_preset(&mut aabbs, &mut indices, tris, average, largest);
+            PlocBuilder::with_capacity(aabbs.len()).build(
+                params.ploc_search_distance,
+                &aabbs,
+                indices,
+                params.sort_precision,
+                params.search_depth_threshold,
+            )
+        } else {
+            PlocBuilder::with_capacity(tris.len()).build(
+                params.ploc_search_distance,
+                tris,
+                (0..tris.len() as u32).collect(),
+                params.sort_precision,
+                params.search_depth_threshold,
+            )
+        }
+    });
     bvh2.uses_spatial_splits = params.pre_split;
-    ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+    profile.time("PLOC reinsertion", || {
+        ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None)
+    });
     bvh2
 }
 
-fn sah_bvh2(tris: &[Triangle], reinsertion: f32) -> Bvh2 {
-    let aabbs: Vec<Aabb> = tris.par_iter().map(|t| t.aabb()).collect();
-    let mut bvh2 = super::sah::build_sah_bvh2(&aabbs);
-    ReinsertionOptimizer::default().run(&mut bvh2, reinsertion, None);
+fn sah_bvh2(tris: &[Triangle], reinsertion: f32, profile: &BuildProfile) -> Bvh2 {
+    let mut bvh2 = profile.time("SAH build", || {
+        let aabbs: Vec<Aabb> = tris.par_iter().map(|t| t.aabb()).collect();
+        super::sah::build_sah_bvh2(&aabbs)
+    });
+    if reinsertion > 0.0 {
+        profile.time("SAH reinsertion", || {
+            ReinsertionOptimizer::default().run(&mut bvh2, reinsertion, None)
+        });
+    }
     bvh2
 }
 
-/// The 8-wide tree, converted as obvhs's own builder does: leaves of up to 3 triangles chosen
-/// by the conversion's SAH cost, children ordered by direction.
+/// Wall time of each stage of a build and the 8-wide SAH cost of the tree it kept
+/// (`benches/bvh.rs stages`). Stages that run at the same time (the two trees of
+/// [`BuildMethod::Cheaper`]) overlap.
+#[doc(hidden)]
+#[derive(Default)]
+pub struct BuildProfile {
+    enabled: bool,
+    stages: std::sync::Mutex<Vec<(&'static str, f64)>>,
+    cost: std::sync::Mutex<Option<f32>>,
+    both_costs: std::sync::Mutex<Option<(f32, f32)>>,
+}
+
+impl BuildProfile {
+    /// A profile that records (the default one records nothing and costs nothing).
+    pub fn recording() -> BuildProfile {
+        BuildProfile {
+            enabled: true,
+            ..BuildProfile::default()
+        }
+    }
+
+    fn time<R>(&self, stage: &'static str, f: impl FnOnce() -> R) -> R {
+        if !self.enabled {
+            return f();
+        }
+        let start = std::time::Instant::now();
+        let r = f();
+        let seconds = start.elapsed().as_secs_f64();
+        self.stages.lock().expect("profile").push((stage, seconds));
+        r
+    }
+
+    fn set_cost(&self, cost: f32) {
+        *self.cost.lock().expect("profile") = Some(cost);
+    }
+
+    fn set_costs(&self, ploc: f32, sah: f32) {
+        *self.both_costs.lock().expect("profile") = Some((ploc, sah));
+    }
+
+    /// The 8-wide SAH costs of PLOC's and the SAH build's trees, where both were built.
+    pub fn both_costs(&self) -> Option<(f32, f32)> {
+        *self.both_costs.lock().expect("profile")
+    }
+
+    /// (stage, seconds) in the order the stages ended.
+    pub fn stages(&self) -> Vec<(&'static str, f64)> {
+        self.stages.lock().expect("profile").clone()
+    }
+
+    /// SAH cost of the kept binary tree's 8-wide form (the conversion's cost model).
+    pub fn cost(&self) -> Option<f32> {
+        *self.cost.lock().expect("profile")
+    }
+}
+
+/// The 8-wide tree, converted as obvhs's own builder does (`convert.rs`): leaves of up to 3
+/// triangles chosen by the conversion's SAH cost, children ordered by direction.
 fn to_cwbvh(bvh2: &Bvh2) -> CwBvh {
-    bvh2_to_cwbvh(bvh2, 3, true, false)
+    CostTable::new(bvh2).convert()
 }
 
 /// A tree within [`MAX_TRAVERSAL_DEPTH`], for input on which the requested build came out too
@@ -138,13 +204,6 @@ fn shallow_cwbvh(tris: &[Triangle]) -> CwBvh {
     let median = to_cwbvh(&super::sah::build_bvh2(&aabbs, 0));
     debug_assert!(cwbvh_inner_depth(&median) <= MAX_TRAVERSAL_DEPTH);
     median
-}
-
-/// SAH cost of the 8-wide tree the conversion would make (leaves of up to 3 triangles).
-fn cwbvh_cost(bvh2: &Bvh2) -> f32 {
-    let mut converter = Bvh2Converter::new(bvh2, false, false);
-    converter.calculate_cost(3);
-    converter.decisions[0].cost
 }
 
 /// Deepest inner node an 8-wide tree may have: obvhs's traversal stack holds 32 node groups
@@ -187,58 +246,95 @@ fn deepest_inner_node(len: usize, children: impl Fn(usize) -> (u32, u8)) -> usiz
 /// still fit the 24 triangle bits of the traversal mask (its `child_meta` offsets are
 /// rewritten), so that a leaf of up to 3 triangles is one test. Slot `s` of the rewritten
 /// tree is lane `s % 4` of block `s / 4`; the lanes carry the global triangle ids.
+/// Nodes are laid out in parallel: each node's block count first, then every node fills its
+/// own run of blocks.
 fn triangle_blocks(cwbvh: &mut CwBvh, tris: &[Triangle]) -> Vec<TriangleBlock> {
-    let mut blocks: Vec<TriangleBlock> = Vec::with_capacity(tris.len().div_ceil(3));
-    for node in cwbvh.nodes.iter_mut() {
-        // Leaf children of this node, by their offset: (child slot, offset, count).
+    let layouts: Vec<LeafLayout> = cwbvh.nodes.par_iter().map(LeafLayout::new).collect();
+    let total: usize = layouts.iter().map(|l| l.blocks as usize).sum();
+    let mut blocks = vec![TriangleBlock::default(); total];
+    // Each node's run of blocks, in node order.
+    let mut runs: Vec<(usize, &mut [TriangleBlock])> = Vec::with_capacity(layouts.len());
+    let (mut rest, mut first_block) = (&mut blocks[..], 0usize);
+    for layout in &layouts {
+        let (run, tail) = rest.split_at_mut(layout.blocks as usize);
+        runs.push((first_block, run));
+        first_block += layout.blocks as usize;
+        rest = tail;
+    }
+    let ids = &cwbvh.primitive_indices;
+    cwbvh
+        .nodes
+        .par_iter_mut()
+        .zip(layouts.par_iter())
+        .zip(runs.into_par_iter())
+        .for_each(|((node, layout), (first_block, run))| {
+            let old_base = node.primitive_base_idx;
+            for i in 0..layout.count {
+                let (child, offset, count) = layout.leaves[i];
+                let new_offset = layout.offsets[i];
+                for k in 0..count {
+                    let slot = (new_offset + k) as usize;
+                    let id = ids[(old_base + offset + k) as usize];
+                    let t = &tris[id as usize];
+                    run[slot / 4].set(slot % 4, [t.v0.into(), t.v1.into(), t.v2.into()], id);
+                }
+                node.child_meta[child] = (node.child_meta[child] & !0x1f) | new_offset as u8;
+            }
+            node.primitive_base_idx = (first_block * 4) as u32;
+        });
+    blocks
+}
+
+/// Where a node's leaf triangles go in [`triangle_blocks`]: its leaf children by their offset
+/// (child slot, offset, count), each one's new offset, and the blocks they take.
+struct LeafLayout {
+    leaves: [(usize, u32, u32); 8],
+    offsets: [u32; 8],
+    count: usize,
+    blocks: u32,
+}
+
+impl LeafLayout {
+    fn new(node: &obvhs::cwbvh::node::CwBvhNode) -> LeafLayout {
         let mut leaves = [(0usize, 0u32, 0u32); 8];
-        let mut leaf_count = 0;
+        let mut count = 0;
         for c in 0..8 {
             let meta = node.child_meta[c];
             if node.imask & (1 << c) == 0 && meta != 0 {
-                leaves[leaf_count] = (c, (meta & 0x1f) as u32, (meta >> 5).count_ones());
-                leaf_count += 1;
+                leaves[count] = (c, (meta & 0x1f) as u32, (meta >> 5).count_ones());
+                count += 1;
             }
         }
-        let leaves = &mut leaves[..leaf_count];
-        leaves.sort_unstable_by_key(|&(_, offset, _)| offset);
+        leaves[..count].sort_unstable_by_key(|&(_, offset, _)| offset);
         let mut aligned = [0u32; 8];
         let mut end = 0u32;
-        for (i, &(_, _, count)) in leaves.iter().enumerate() {
-            let start = if end % 4 + count > 4 {
+        for (i, &(_, _, n)) in leaves[..count].iter().enumerate() {
+            let start = if end % 4 + n > 4 {
                 end.next_multiple_of(4)
             } else {
                 end
             };
             aligned[i] = start;
-            end = start + count;
+            end = start + n;
         }
-        let fits = end <= 24;
-        let first_block = blocks.len();
-        let old_base = node.primitive_base_idx;
-        let mut used = 0u32;
-        for (i, &(child, offset, count)) in leaves.iter().enumerate() {
-            let new_offset = if fits { aligned[i] } else { offset };
-            used = used.max(new_offset + count);
-            for k in 0..count {
-                let slot = (new_offset + k) as usize;
-                while blocks.len() <= first_block + slot / 4 {
-                    blocks.push(TriangleBlock::default());
-                }
-                let id = cwbvh.primitive_indices[(old_base + offset + k) as usize];
-                let t = &tris[id as usize];
-                blocks[first_block + slot / 4].set(
-                    slot % 4,
-                    [t.v0.into(), t.v1.into(), t.v2.into()],
-                    id,
-                );
-            }
-            node.child_meta[child] = (node.child_meta[child] & !0x1f) | new_offset as u8;
+        // Moving leaves to block starts may not push the node's triangles past the 24 bits of
+        // the traversal mask; then they keep obvhs's offsets.
+        let offsets = if end <= 24 {
+            aligned
+        } else {
+            std::array::from_fn(|i| leaves[i].1)
+        };
+        let used = (0..count)
+            .map(|i| offsets[i] + leaves[i].2)
+            .max()
+            .unwrap_or(0);
+        LeafLayout {
+            leaves,
+            offsets,
+            count,
+            blocks: used.div_ceil(4),
         }
-        debug_assert!(blocks.len() == first_block + used.div_ceil(4) as usize);
-        node.primitive_base_idx = (first_block * 4) as u32;
     }
-    blocks
 }
 
 /// The acceleration structure of a scene. Immutable and `Sync`: queries may run from any number
@@ -269,6 +365,17 @@ impl Bvh {
     /// Builds with an explicit method (benchmarks).
     #[doc(hidden)]
     pub fn build_with(triangles: &[[Vec3; 3]], method: BuildMethod) -> Bvh {
+        Bvh::build_profiled(triangles, method, &BuildProfile::default())
+    }
+
+    /// [`Bvh::build_with`], recording the wall time of each stage in `profile` (`benches/bvh.rs
+    /// stages`).
+    #[doc(hidden)]
+    pub fn build_profiled(
+        triangles: &[[Vec3; 3]],
+        method: BuildMethod,
+        profile: &BuildProfile,
+    ) -> Bvh {
         if triangles.is_empty() {
             return Bvh {
                 nodes: Vec::new(),
@@ -276,36 +383,56 @@ impl Bvh {
                 prefetch: false,
             };
         }
-        let tris: Vec<Triangle> = triangles
-            .par_iter()
-            .map(|t| Triangle {
-                v0: t[0].into(),
-                v1: t[1].into(),
-                v2: t[2].into(),
-            })
-            .collect();
+        let tris: Vec<Triangle> = profile.time("input", || {
+            triangles
+                .par_iter()
+                .map(|t| Triangle {
+                    v0: t[0].into(),
+                    v1: t[1].into(),
+                    v2: t[2].into(),
+                })
+                .collect()
+        });
+        // (PLOC's tree, the other) where both are built, else (None, the one).
         let bvh2 = match method {
-            BuildMethod::Ploc(quality) => ploc_bvh2(&tris, quality.ploc_params()),
-            BuildMethod::Sah { reinsertion } => sah_bvh2(&tris, reinsertion),
+            BuildMethod::Ploc(quality) => (None, ploc_bvh2(&tris, quality.ploc_params(), profile)),
+            BuildMethod::Sah { reinsertion } => (None, sah_bvh2(&tris, reinsertion, profile)),
             BuildMethod::Cheaper(quality, reinsertion) => {
-                let (ploc, sah) = rayon::join(
-                    || ploc_bvh2(&tris, quality.ploc_params()),
-                    || sah_bvh2(&tris, reinsertion),
-                );
-                if cwbvh_cost(&sah) < cwbvh_cost(&ploc) {
-                    sah
-                } else {
-                    ploc
-                }
+                let (ploc, sah) = profile.time("both binary trees", || {
+                    rayon::join(
+                        || ploc_bvh2(&tris, quality.ploc_params(), profile),
+                        || sah_bvh2(&tris, reinsertion, profile),
+                    )
+                });
+                (Some(ploc), sah)
             }
         };
-        let mut cwbvh = to_cwbvh(&bvh2);
-        if cwbvh_inner_depth(&cwbvh) > MAX_TRAVERSAL_DEPTH {
-            cwbvh = shallow_cwbvh(&tris);
+        // The 8-wide costs of both trees (in parallel), then the cheaper one's conversion.
+        let (ploc_table, table) = profile.time("8-wide cost", || match &bvh2 {
+            (Some(ploc), sah) => {
+                let (p, s) = rayon::join(|| CostTable::new(ploc), || CostTable::new(sah));
+                profile.set_costs(p.root_cost(), s.root_cost());
+                (Some(p), s)
+            }
+            (None, bvh2) => (None, CostTable::new(bvh2)),
+        });
+        let table = match ploc_table {
+            Some(p) if !(table.root_cost() < p.root_cost()) => p,
+            _ => table,
+        };
+        profile.set_cost(table.root_cost());
+        let mut cwbvh = profile.time("cwbvh conversion", || table.convert());
+        drop(table);
+        let too_deep = profile.time("depth check", || {
+            cwbvh_inner_depth(&cwbvh) > MAX_TRAVERSAL_DEPTH
+        });
+        if too_deep {
+            cwbvh = profile.time("shallow fallback", || shallow_cwbvh(&tris));
         }
-        let blocks = triangle_blocks(&mut cwbvh, &tris);
+        let blocks = profile.time("triangle blocks", || triangle_blocks(&mut cwbvh, &tris));
+        let nodes = profile.time("wide nodes", || wide_nodes(&cwbvh, &blocks));
         let mut bvh = Bvh {
-            nodes: wide_nodes(&cwbvh, &blocks),
+            nodes,
             blocks,
             prefetch: false,
         };
@@ -1140,6 +1267,7 @@ mod tests {
         let raw = cwbvh_inner_depth(&to_cwbvh(&ploc_bvh2(
             &to_obvhs(&chain),
             BvhQuality::Fast.ploc_params(),
+            &BuildProfile::default(),
         )));
         assert!(raw > MAX_TRAVERSAL_DEPTH, "raw PLOC depth {raw}");
         let nested: Vec<[Vec3; 3]> = (0..3000)

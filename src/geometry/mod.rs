@@ -6,10 +6,11 @@
 //! (Pharr, Jakob and Humphreys, pbrt-v4 §6.8).
 
 mod bvh;
+mod convert;
 mod sah;
 mod triangle;
 
-pub use bvh::{BuildMethod, Bvh, BvhQuality};
+pub use bvh::{BuildMethod, BuildProfile, Bvh, BvhQuality};
 pub use triangle::{intersect_triangle, RayPrecomp, TriangleHit};
 
 use crate::math::{gamma, next_float_towards, Vec3};

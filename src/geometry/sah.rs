@@ -12,6 +12,7 @@ use glam::Vec3A;
 use obvhs::aabb::Aabb;
 use obvhs::bvh2::node::Bvh2Node;
 use obvhs::bvh2::Bvh2;
+use rayon::prelude::*;
 
 /// Bins per axis in binned splits.
 const BINS: usize = 32;
@@ -19,6 +20,11 @@ const BINS: usize = 32;
 const SWEEP_MAX: usize = 32;
 /// Subtrees with more triangles than this are built on two rayon tasks.
 const PARALLEL_MIN: usize = 4096;
+/// Nodes with at least this many triangles bin them on several rayon tasks, in chunks of
+/// [`BIN_CHUNK`] (the top levels of the tree, where the subtrees are still too few to keep the
+/// threads busy).
+const PARALLEL_BIN_MIN: usize = 1 << 15;
+const BIN_CHUNK: usize = 1 << 13;
 /// Beyond this depth, split at the median: keeps the BVH shallow enough for obvhs's 32-entry
 /// traversal stack (which silently overwrites its last entry when full) on nearly any input,
 /// e.g. SAH peeling one small triangle at a time off a huge one. `Bvh::build_with` checks the
@@ -67,7 +73,13 @@ pub fn build_bvh2(aabbs: &[Aabb], sah_max_depth: u32) -> Bvh2 {
             index: i as u32,
         })
         .collect();
-    let bounds = aabbs.iter().fold(Aabb::empty(), |b, a| b.union(a));
+    let (bounds, centroids) = prims
+        .par_chunks(BIN_CHUNK)
+        .map(|c| (union_of(c), centroid_bounds(c)))
+        .reduce(
+            || (Aabb::empty(), Aabb::empty()),
+            |a, b| (a.0.union(&b.0), a.1.union(&b.1)),
+        );
     // A subtree over m triangles has exactly 2m - 1 nodes, so every subtree's block of the
     // node array is known before it is built, and subtrees fill disjoint blocks in parallel.
     let mut nodes = vec![Bvh2Node::default(); 2 * n - 1];
@@ -75,7 +87,7 @@ pub fn build_bvh2(aabbs: &[Aabb], sah_max_depth: u32) -> Bvh2 {
     let depth = build_node(
         &mut prims,
         0,
-        bounds,
+        [bounds, centroids],
         &mut root[0],
         descendants,
         1,
@@ -90,11 +102,12 @@ pub fn build_bvh2(aabbs: &[Aabb], sah_max_depth: u32) -> Bvh2 {
 
 /// Builds the subtree over `prims` (whose first element is leaf slot `prim_offset`) into
 /// `node`, its descendants into `desc` (global index `desc_offset` onwards, 2m - 2 nodes).
+/// `bounds` are the union of the prims' boxes and the bounds of their centroids.
 /// Returns the subtree's depth below `node`.
 fn build_node(
     prims: &mut [PrimRef],
     prim_offset: u32,
-    bounds: Aabb,
+    [bounds, centroids]: [Aabb; 2],
     node: &mut Bvh2Node,
     desc: &mut [Bvh2Node],
     desc_offset: u32,
@@ -105,18 +118,26 @@ fn build_node(
         *node = Bvh2Node::new(bounds, 1, prim_offset);
         return 0;
     }
-    let split = if depth >= sah_max_depth {
-        median_split(prims)
-    } else if m <= SWEEP_MAX {
-        sweep_split(prims)
+    let binned = if depth < sah_max_depth && m > SWEEP_MAX {
+        binned_split(prims, centroids)
     } else {
-        binned_split(prims)
+        None
+    };
+    let (split, left_bounds, right_bounds) = match binned {
+        Some(split) => split,
+        None => {
+            let split = if depth >= sah_max_depth || m > SWEEP_MAX {
+                median_split(prims)
+            } else {
+                sweep_split(prims)
+            };
+            let (l, r) = prims.split_at(split);
+            (split, bounds_of(l), bounds_of(r))
+        }
     };
     debug_assert!(split > 0 && split < m);
     *node = Bvh2Node::new(bounds, 0, desc_offset);
     let (left_prims, right_prims) = prims.split_at_mut(split);
-    let left_bounds = union_of(left_prims);
-    let right_bounds = union_of(right_prims);
     let (children, rest) = desc.split_at_mut(2);
     let (left_node, right_node) = children.split_at_mut(1);
     let (left_desc, right_desc) = rest.split_at_mut(2 * split - 2);
@@ -153,6 +174,17 @@ fn build_node(
     1 + dl.max(dr)
 }
 
+/// Box and centroid bounds of `prims` (a child's input to [`build_node`]); the centroid
+/// bounds are only computed where a binned split may use them.
+fn bounds_of(prims: &[PrimRef]) -> [Aabb; 2] {
+    let centroids = if prims.len() > SWEEP_MAX {
+        centroid_bounds(prims)
+    } else {
+        Aabb::empty()
+    };
+    [union_of(prims), centroids]
+}
+
 fn union_of(prims: &[PrimRef]) -> Aabb {
     prims.iter().fold(Aabb::empty(), |b, p| b.union(&p.aabb))
 }
@@ -175,71 +207,140 @@ fn median_split(prims: &mut [PrimRef]) -> usize {
     mid
 }
 
-/// Exact SAH: every split between centroids sorted along each axis. Reorders `prims` so the
-/// split is `prims[..k]`, `prims[k..]`, and returns k.
+/// Exact SAH: every split between centroids sorted along each axis (ties in input order).
+/// Reorders `prims` so the split is `prims[..k]`, `prims[k..]`, and returns k. At most
+/// [`SWEEP_MAX`] prims: the sorts run on small arrays of keys, not on the prims.
 fn sweep_split(prims: &mut [PrimRef]) -> usize {
     let m = prims.len();
-    let mut best = (f32::INFINITY, 0usize, 0usize); // (cost, axis, k)
-    let mut right_area = vec![0.0f32; m];
+    debug_assert!(m <= SWEEP_MAX);
+    let mut best = (f32::INFINITY, 0usize); // (cost, k)
+    let mut best_order = [0u8; SWEEP_MAX];
+    let mut right_area = [0.0f32; SWEEP_MAX];
+    let mut keys = [(0.0f32, 0u8); SWEEP_MAX];
     for axis in 0..3 {
-        prims.sort_unstable_by(|a, b| a.centroid()[axis].total_cmp(&b.centroid()[axis]));
+        for (i, p) in prims.iter().enumerate() {
+            keys[i] = (p.centroid()[axis], i as u8);
+        }
+        let keys = &mut keys[..m];
+        keys.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut acc = Aabb::empty();
         for k in (1..m).rev() {
-            acc = acc.union(&prims[k].aabb);
+            acc = acc.union(&prims[keys[k].1 as usize].aabb);
             right_area[k] = half_area(&acc);
         }
         let mut acc = Aabb::empty();
+        let mut improved = false;
         for k in 1..m {
-            acc = acc.union(&prims[k - 1].aabb);
+            acc = acc.union(&prims[keys[k - 1].1 as usize].aabb);
             let cost = half_area(&acc) * k as f32 + right_area[k] * (m - k) as f32;
             if cost < best.0 {
-                best = (cost, axis, k);
+                best = (cost, k);
+                improved = true;
+            }
+        }
+        if improved {
+            for (o, key) in best_order.iter_mut().zip(keys.iter()) {
+                *o = key.1;
             }
         }
     }
-    let (_, axis, k) = best;
+    let (_, k) = best;
     if k == 0 {
         // Every cost was NaN (non-finite bounds): any balanced split will do.
         return m / 2;
     }
-    if axis != 2 {
-        prims.sort_unstable_by(|a, b| a.centroid()[axis].total_cmp(&b.centroid()[axis]));
+    let original: [PrimRef; SWEEP_MAX] = std::array::from_fn(|i| prims[i.min(m - 1)]);
+    for (p, &o) in prims.iter_mut().zip(best_order.iter()) {
+        *p = original[o as usize];
     }
     k
 }
 
-/// Binned SAH (Wald 2007): centroids binned along each axis, the best of the 3 x (BINS - 1)
-/// bin boundaries; `prims` is partitioned in place and the left size returned.
-fn binned_split(prims: &mut [PrimRef]) -> usize {
+/// Per-axis bins of a binned split: the union of the boxes and the number of the prims whose
+/// centroid falls in each.
+#[derive(Clone, Copy)]
+struct Bins {
+    bounds: [[Aabb; BINS]; 3],
+    count: [[u32; BINS]; 3],
+}
+
+impl Bins {
+    fn empty() -> Bins {
+        Bins {
+            bounds: [[Aabb::empty(); BINS]; 3],
+            count: [[0; BINS]; 3],
+        }
+    }
+
+    /// Adds prims, all three axes in one pass (`scale` 0 on an axis of zero extent).
+    fn add(&mut self, prims: &[PrimRef], min: Vec3A, scale: Vec3A) {
+        for p in prims {
+            let c = p.centroid();
+            for axis in 0..3 {
+                let b = bin_of(c[axis], min[axis], scale[axis]);
+                self.bounds[axis][b] = self.bounds[axis][b].union(&p.aabb);
+                self.count[axis][b] += 1;
+            }
+        }
+    }
+
+    /// Both sets of bins together (box unions and counts are exact, so the order of merging
+    /// does not change the result: the parallel binning gives the serial one's tree).
+    fn merge(mut self, other: &Bins) -> Bins {
+        for axis in 0..3 {
+            for b in 0..BINS {
+                self.bounds[axis][b] = self.bounds[axis][b].union(&other.bounds[axis][b]);
+                self.count[axis][b] += other.count[axis][b];
+            }
+        }
+        self
+    }
+}
+
+/// Binned SAH (Wald 2007): centroids binned along each axis (one pass over the prims for all
+/// three, on several threads for large nodes), the best of the 3 x (BINS - 1) bin boundaries;
+/// `prims` is partitioned in place. Returns the left size and the two sides' box and centroid
+/// bounds (gathered while partitioning), or None when no boundary separates the centroids.
+fn binned_split(prims: &mut [PrimRef], centroids: Aabb) -> Option<(usize, [Aabb; 2], [Aabb; 2])> {
     let m = prims.len();
-    let cb = centroid_bounds(prims);
-    let extent = cb.max - cb.min;
+    let extent = centroids.max - centroids.min;
+    let scale = Vec3A::select(
+        extent.cmpgt(Vec3A::ZERO),
+        Vec3A::splat(BINS as f32) / extent,
+        Vec3A::ZERO,
+    );
+    let bins = if m >= PARALLEL_BIN_MIN {
+        prims
+            .par_chunks(BIN_CHUNK)
+            .fold(Bins::empty, |mut bins, chunk| {
+                bins.add(chunk, centroids.min, scale);
+                bins
+            })
+            .reduce(Bins::empty, |a, b| a.merge(&b))
+    } else {
+        let mut bins = Bins::empty();
+        bins.add(prims, centroids.min, scale);
+        bins
+    };
     let mut best = (f32::INFINITY, 0usize, 0usize); // (cost, axis, boundary)
     for axis in 0..3 {
         if !(extent[axis] > 0.0) {
             continue;
         }
-        let scale = BINS as f32 / extent[axis];
-        let mut bin_bounds = [Aabb::empty(); BINS];
-        let mut bin_count = [0usize; BINS];
-        for p in prims.iter() {
-            let b = bin_of(p.centroid()[axis], cb.min[axis], scale);
-            bin_bounds[b] = bin_bounds[b].union(&p.aabb);
-            bin_count[b] += 1;
-        }
+        let (bin_bounds, bin_count) = (&bins.bounds[axis], &bins.count[axis]);
         let mut right_area = [0.0f32; BINS];
         let mut right_count = [0usize; BINS];
         let (mut acc, mut count) = (Aabb::empty(), 0);
         for b in (1..BINS).rev() {
             acc = acc.union(&bin_bounds[b]);
-            count += bin_count[b];
+            count += bin_count[b] as usize;
             right_area[b] = half_area(&acc);
             right_count[b] = count;
         }
         let (mut acc, mut count) = (Aabb::empty(), 0);
         for b in 1..BINS {
             acc = acc.union(&bin_bounds[b - 1]);
-            count += bin_count[b - 1];
+            count += bin_count[b - 1] as usize;
             if count == 0 || right_count[b] == 0 {
                 continue;
             }
@@ -252,17 +353,23 @@ fn binned_split(prims: &mut [PrimRef]) -> usize {
     let (_, axis, boundary) = best;
     if boundary == 0 {
         // All centroids coincide (or the bounds are not finite): no plane separates them.
-        return median_split(prims);
+        return None;
     }
-    let scale = BINS as f32 / extent[axis];
+    let (min, scale) = (centroids.min[axis], scale[axis]);
     let mut left = 0;
+    let mut sides = [[Aabb::empty(); 2]; 2]; // [left, right] x [boxes, centroids]
     for i in 0..m {
-        if bin_of(prims[i].centroid()[axis], cb.min[axis], scale) < boundary {
+        let p = prims[i];
+        let c = p.centroid();
+        let side = (bin_of(c[axis], min, scale) >= boundary) as usize;
+        sides[side][0] = sides[side][0].union(&p.aabb);
+        sides[side][1].extend(c);
+        if side == 0 {
             prims.swap(i, left);
             left += 1;
         }
     }
-    left
+    Some((left, sides[0], sides[1]))
 }
 
 #[inline]
