@@ -256,10 +256,10 @@ struct SceneArgs {
     /// `path:env=latlong` overrides it for that integrator.
     #[arg(long)]
     env_strategy: Option<String>,
-    /// env_direct: environment light samples per shading point [default: 30].
+    /// env_direct: light samples per shading point and light source (the environment, each emissive surface, the delta lights) [default: 30].
     #[arg(long)]
     env_samples: Option<u32>,
-    /// env_direct: BSDF samples per shading point [default: 30].
+    /// env_direct: BSDF samples per shading point and light source [default: 30].
     #[arg(long)]
     env_bsdf_samples: Option<u32>,
     /// Thin-lens radius (0 = pinhole) [default: the scene file's, else 0].
