@@ -69,7 +69,7 @@ fn structured_field(basis: FilterBasis) -> LightField {
 /// Chi-square of `strategy`'s image-plane samples from `p` against its pdf integrated over
 /// pixel-sized bins, and the pdf's integral. The pdf jumps at the edges of the restricted
 /// boxes inside pixels: bins where 4x4 probes find it, or holding samples, are integrated with
-/// 64x64 midpoints.
+/// 64x64 midpoints (256x256 for restricted sampling).
 fn chi_square(field: &LightField, p: Vec3, strategy: LightFieldSampling, name: &str) {
     let l = field.layout().clone();
     let bins = l.resolution[0] as usize;
@@ -104,12 +104,19 @@ fn chi_square(field: &LightField, p: Vec3, strategy: LightFieldSampling, name: &
         }
         mass
     };
+    // Restricted sampling's density jumps at every box edge by its own factor q_c(m) / A_m,
+    // and from a near receiver the boxes are about a pixel wide: the midpoint rule needs finer
+    // steps there (its pdf is O(1), so they are cheap).
+    let midpoints = match strategy {
+        LightFieldSampling::Restricted => 256,
+        _ => 64,
+    };
     let mut expected = vec![0f64; bins * bins];
     let mut integral = 0f64;
     for by in 0..bins {
         for bx in 0..bins {
             if observed[by * bins + bx] > 0 || integrate(bx, by, 4) > 0.0 {
-                let mass = integrate(bx, by, 64);
+                let mass = integrate(bx, by, midpoints);
                 integral += mass;
                 expected[by * bins + bx] = mass * n as f64;
             }
@@ -126,11 +133,21 @@ fn chi_square(field: &LightField, p: Vec3, strategy: LightFieldSampling, name: &
 fn restricted_and_uniform_densities_integrate_to_one_and_agree_with_sampling() {
     for basis in [FilterBasis::Linear, FilterBasis::Quadratic] {
         let field = structured_field(basis);
-        for (k, p) in [Vec3::new(0.1, -0.05, 1.2), Vec3::new(-0.6, 0.3, 2.5)]
-            .into_iter()
-            .enumerate()
+        // A near receiver (t = 1 - delta / p_z = 0.17, the boxes small), a middle one and a far
+        // one off axis.
+        for (k, p) in [
+            Vec3::new(0.3, 0.2, 0.6),
+            Vec3::new(0.1, -0.05, 1.2),
+            Vec3::new(-0.6, 0.3, 2.5),
+        ]
+        .into_iter()
+        .enumerate()
         {
-            for strategy in [LightFieldSampling::Restricted, LightFieldSampling::Uniform] {
+            for strategy in [
+                LightFieldSampling::Balanced,
+                LightFieldSampling::Uniform,
+                LightFieldSampling::Restricted,
+            ] {
                 chi_square(&field, p, strategy, &format!("{basis:?} {strategy:?} p{k}"));
             }
         }
@@ -165,7 +182,11 @@ fn both_estimators_are_unbiased_for_the_fields_irradiance() {
     for p in [Vec3::new(0.1, -0.05, 1.2), Vec3::new(-0.6, 0.3, 2.5)] {
         let exact = irradiance_by_quadrature(&field, p);
         assert!(exact > 0.0);
-        for strategy in [LightFieldSampling::Restricted, LightFieldSampling::Uniform] {
+        for strategy in [
+            LightFieldSampling::Restricted,
+            LightFieldSampling::Balanced,
+            LightFieldSampling::Uniform,
+        ] {
             let mut stats = Stats::default();
             let mut rng = Rng::new(5, 1);
             for _ in 0..200_000 {
@@ -189,6 +210,60 @@ fn both_estimators_are_unbiased_for_the_fields_irradiance() {
             );
         }
     }
+}
+
+/// Restricted sampling chooses the image from a table per receiver cell; balancing weighs
+/// every image at the receiver itself. Both are unbiased for the same irradiance: z-tests of
+/// their difference at receivers across the cells (near, middle and far from the image plane,
+/// on and off axis, and where the field is dark), and every estimate is finite.
+#[test]
+fn tabled_image_choice_agrees_with_per_receiver_balancing_across_receivers() {
+    let field = structured_field(FilterBasis::Quadratic);
+    let delta = field.layout().plane_distance;
+    let mut rng = Rng::new(23, 0);
+    let mut lit = 0;
+    for k in 0..24 {
+        let t = 0.05 + 0.9 * (k % 6) as f32 / 5.0;
+        let z = delta / (1.0 - t);
+        let p = Vec3::new(
+            (rng.uniform() - 0.5) * 3.0 * z,
+            (rng.uniform() - 0.5) * 3.0 * z,
+            z,
+        );
+        let mut stats = [Stats::default(), Stats::default()];
+        for (i, strategy) in [LightFieldSampling::Restricted, LightFieldSampling::Balanced]
+            .into_iter()
+            .enumerate()
+        {
+            let mut sampler = Rng::new(29, k);
+            for _ in 0..20_000 {
+                let estimate = match field.sample_image_point(p, strategy, sampler.uniform2()) {
+                    Some((s, pdf)) => {
+                        let to = Vec3::new(s.x, s.y, delta) - p;
+                        let d2 = to.length_squared();
+                        let cos = -to.z / d2.sqrt();
+                        let radiance = field.radiance(field.filter_point(p, s), s).x as f64;
+                        radiance * (cos * cos / d2) as f64 / pdf as f64
+                    }
+                    None => 0.0,
+                };
+                assert!(estimate.is_finite(), "{strategy:?} at {p}: {estimate}");
+                stats[i].add(estimate);
+            }
+        }
+        let (a, b) = (stats[0], stats[1]);
+        if b.mean() > 0.0 {
+            lit += 1;
+            assert!(a.mean() > 0.0, "the tabled choice misses the light at {p}");
+        }
+        assert_z(
+            &format!("tabled against balanced at {p}"),
+            a.mean() - b.mean(),
+            0.0,
+            (a.std_err().powi(2) + b.std_err().powi(2)).sqrt(),
+        );
+    }
+    assert!(lit >= 12, "only {lit} of 24 receivers are lit");
 }
 
 #[test]
@@ -655,19 +730,21 @@ fn equal_error_sample_ratio_restricted_against_uniform() {
     .unwrap();
     let n = 12usize;
     let per_point = 4000usize;
-    let mut sums = [0f64; 2];
-    let mut ratios = Vec::new();
+    let strategies = [
+        LightFieldSampling::Restricted,
+        LightFieldSampling::Balanced,
+        LightFieldSampling::Uniform,
+    ];
+    let mut sums = [0f64; 3];
+    let mut ratios = [Vec::new(), Vec::new()];
     for k in 0..n * n {
         let p = Vec3::new(
             -1.5 + 3.0 * ((k % n) as f32 + 0.5) / n as f32,
             -1.5 + 3.0 * ((k / n) as f32 + 0.5) / n as f32,
             delta + 1.0,
         );
-        let mut variances = [0f64; 2];
-        for (i, strategy) in [LightFieldSampling::Restricted, LightFieldSampling::Uniform]
-            .into_iter()
-            .enumerate()
-        {
+        let mut variances = [0f64; 3];
+        for (i, strategy) in strategies.into_iter().enumerate() {
             let mut stats = Stats::default();
             let mut rng = Rng::new(17, k as u64);
             for _ in 0..per_point {
@@ -686,19 +763,28 @@ fn equal_error_sample_ratio_restricted_against_uniform() {
             variances[i] = stats.variance();
             sums[i] += stats.variance();
         }
-        if variances[0] > 0.0 {
-            ratios.push(variances[1] / variances[0]);
+        if variances[0] > 0.0 && variances[1] > 0.0 {
+            ratios[0].push(variances[2] / variances[0]);
+            ratios[1].push(variances[2] / variances[1]);
         }
     }
-    ratios.sort_by(|a, b| a.partial_cmp(b).unwrap());
-    let median = ratios[ratios.len() / 2];
-    println!(
-        "equal-error sample ratio uniform / restricted: {:.2} (summed variance over {} receivers), per-receiver median {:.2}, min {:.2}, max {:.2}",
-        sums[1] / sums[0],
-        n * n,
-        median,
-        ratios[0],
-        ratios[ratios.len() - 1]
-    );
-    assert!(sums[1] > sums[0], "restricted sampling must beat uniform");
+    for (i, name) in [
+        "restricted (tabled choice)",
+        "balanced (every image weighed)",
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let r = &mut ratios[i];
+        r.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        println!(
+            "equal-error sample ratio uniform / {name}: {:.2} (summed variance over {} receivers), per-receiver median {:.2}, min {:.2}, max {:.2}",
+            sums[2] / sums[i],
+            n * n,
+            r[r.len() / 2],
+            r[0],
+            r[r.len() - 1]
+        );
+    }
+    assert!(sums[2] > sums[0], "restricted sampling must beat uniform");
 }
