@@ -516,8 +516,15 @@ impl LightField {
         let k = l.plane_distance / p.z;
         let pxy = Vec2::new(p.x, p.y);
         let (s_lo, s_hi) = (lo + (pxy - lo) * k, hi + (pxy - hi) * k);
+        self.pixel_box(s_lo, s_hi)
+    }
+
+    /// The image-plane rectangle [`s_lo`, `s_hi`] in pixels, clipped to the image; None where
+    /// nothing of it is left.
+    fn pixel_box(&self, s_lo: Vec2, s_hi: Vec2) -> Option<PixelBox> {
         let (x0, y0) = self.to_pixels(s_lo);
         let (x1, y1) = self.to_pixels(s_hi);
+        let l = &self.layout;
         let (rx, ry) = (l.resolution[0] as f64, l.resolution[1] as f64);
         let b = PixelBox {
             x0: x0.clamp(0.0, rx),
@@ -555,16 +562,7 @@ impl LightField {
         let (lo, hi) = (l.node(i, j) - half, l.node(i, j) + half);
         let s_lo = (lo * t_lo).min(lo * t_hi) + a_lo;
         let s_hi = (hi * t_lo).max(hi * t_hi) + a_hi;
-        let (x0, y0) = self.to_pixels(s_lo);
-        let (x1, y1) = self.to_pixels(s_hi);
-        let (rx, ry) = (l.resolution[0] as f64, l.resolution[1] as f64);
-        let b = PixelBox {
-            x0: x0.clamp(0.0, rx),
-            x1: x1.clamp(0.0, rx),
-            y0: y0.clamp(0.0, ry),
-            y1: y1.clamp(0.0, ry),
-        };
-        (b.x1 > b.x0 && b.y1 > b.y0).then_some(b)
+        self.pixel_box(s_lo, s_hi)
     }
 
     /// A_m at the receiver of grid coordinates (`a`, `t`).
