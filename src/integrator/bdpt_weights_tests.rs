@@ -28,7 +28,7 @@
 //! normals, as the integrator's do.
 
 use super::*;
-use crate::light::{Light, LightDesc};
+use crate::light::{EnvStrategy, Light, LightDesc};
 use crate::math::{INV_4PI, INV_PI, PI};
 use crate::scene::{Camera, Material, MeshDesc, SceneBuilder};
 
@@ -40,6 +40,8 @@ enum PathPoint {
     Surface(SurfaceInteraction),
     /// x_k: a point of light `index` (unused for directional lights).
     Light(usize, Vec3),
+    /// x_k on environment light `index`: the unit direction from x_{k-1} towards it.
+    Sky(usize, Vec3),
 }
 
 /// An estimate the integrator made, with its full path x_0..x_k.
@@ -51,8 +53,9 @@ struct Recorded {
 /// Records subpaths and turns every estimate into its full path.
 struct Recorder<'a> {
     scene: &'a Scene,
-    /// Light, light point and surface vertices of each light subpath traced so far.
-    light_paths: Vec<(usize, Vec3, Vec<SurfaceInteraction>)>,
+    /// Light end (a light point or a sky direction) and surface vertices of each light
+    /// subpath traced so far.
+    light_paths: Vec<(PathPoint, Vec<SurfaceInteraction>)>,
     camera: Vec<PathPoint>,
     tracing_light: bool,
     recorded: Vec<Recorded>,
@@ -60,24 +63,28 @@ struct Recorder<'a> {
 
 impl Recorder<'_> {
     fn light_part(&self, path: usize, s: u32) -> Vec<PathPoint> {
-        let (light, origin, surfaces) = &self.light_paths[path];
+        let (end, surfaces) = &self.light_paths[path];
         let mut part: Vec<PathPoint> = surfaces[..s as usize - 1]
             .iter()
             .rev()
             .map(|si| PathPoint::Surface(*si))
             .collect();
-        part.push(PathPoint::Light(*light, *origin));
+        part.push(*end);
         part
     }
 }
 
 impl PathObserver for Recorder<'_> {
-    fn light_start(&mut self, light: usize, point: Vec3) {
-        self.light_paths.push((light, point, Vec::new()));
+    fn light_start(&mut self, light: usize, point: Vec3, dir: Vec3) {
+        let end = match self.scene.lights()[light] {
+            Light::Environment { .. } => PathPoint::Sky(light, -dir),
+            _ => PathPoint::Light(light, point),
+        };
+        self.light_paths.push((end, Vec::new()));
     }
 
     fn light_vertex(&mut self, si: &SurfaceInteraction) {
-        self.light_paths.last_mut().unwrap().2.push(*si);
+        self.light_paths.last_mut().unwrap().1.push(*si);
     }
 
     fn camera_vertex(&mut self, p: Vec3, si: Option<&SurfaceInteraction>) {
@@ -97,6 +104,14 @@ impl PathObserver for Recorder<'_> {
             path.extend(self.light_part(self.light_paths.len() - 1, e.s));
             path
         } else {
+            if let (0, Endpoint::Sky(light, dir)) = (e.s, end) {
+                // The sky is the camera path's last vertex, past its surface vertices.
+                let mut path = self.camera[..e.t as usize - 1].to_vec();
+                path.push(PathPoint::Sky(light, dir));
+                assert_eq!(path.len() as u32, e.t);
+                self.recorded.push(Recorded { estimate: *e, path });
+                return;
+            }
             let mut path = self.camera[..e.t as usize].to_vec();
             match (e.s, end) {
                 (0, Endpoint::None) => {
@@ -107,6 +122,7 @@ impl PathObserver for Recorder<'_> {
                     path.push(PathPoint::Light(light, si.p));
                 }
                 (1, Endpoint::Light(light, point)) => path.push(PathPoint::Light(light, point)),
+                (1, Endpoint::Sky(light, dir)) => path.push(PathPoint::Sky(light, dir)),
                 (s, Endpoint::LightPath(j)) if s >= 2 => path.extend(self.light_part(j, s)),
                 other => panic!("unexpected estimate {other:?}"),
             }
@@ -155,6 +171,8 @@ impl Density {
 #[derive(Clone, Copy, Debug)]
 struct Model {
     mis: MisHeuristic,
+    /// How light sampling picks environment directions.
+    env: EnvStrategy,
     n_light: f64,
     /// Samples of each connection strategy (s >= 2, t >= 2) per camera path.
     n_conn: f64,
@@ -181,6 +199,7 @@ impl Explicit<'_> {
         match self.path[i] {
             PathPoint::Camera(p) | PathPoint::Light(_, p) => p,
             PathPoint::Surface(si) => si.p,
+            PathPoint::Sky(..) => panic!("the sky has no position"),
         }
     }
 
@@ -195,22 +214,33 @@ impl Explicit<'_> {
         self.bsdf(i).is_some_and(|b| b.is_delta())
     }
 
+    fn light_index(&self) -> usize {
+        match self.path[self.k()] {
+            PathPoint::Light(l, _) | PathPoint::Sky(l, _) => l,
+            _ => panic!("path must end on a light"),
+        }
+    }
+
     fn light(&self) -> &Light {
-        let PathPoint::Light(l, _) = self.path[self.k()] else {
-            panic!("path must end on a light")
-        };
-        &self.scene.lights()[l]
+        &self.scene.lights()[self.light_index()]
     }
 
     fn pick(&self) -> f64 {
-        let PathPoint::Light(l, _) = self.path[self.k()] else {
-            unreachable!()
-        };
-        self.scene.light_sampler().unwrap().pmf(l) as f64
+        self.scene.light_sampler().unwrap().pmf(self.light_index()) as f64
+    }
+
+    fn is_sky(&self, i: usize) -> bool {
+        matches!(self.path[i], PathPoint::Sky(..))
     }
 
     /// Unit direction from x_from to x_to (towards or from infinity for a directional light).
     fn dir(&self, from: usize, to: usize) -> Vec3 {
+        if let PathPoint::Sky(_, w) = self.path[to] {
+            return w;
+        }
+        if let PathPoint::Sky(_, w) = self.path[from] {
+            return -w;
+        }
         let travel = |i: usize| match self.path[i] {
             PathPoint::Light(l, _) => match self.scene.lights()[l] {
                 Light::Directional { direction, .. } => Some(direction),
@@ -240,6 +270,7 @@ impl Explicit<'_> {
                 _ => panic!("cosine at a delta light"),
             },
             PathPoint::Camera(_) => panic!("cosine at the camera"),
+            PathPoint::Sky(..) => panic!("cosine at the sky"),
         };
         n.dot(self.dir(i, towards)).abs() as f64
     }
@@ -262,6 +293,8 @@ impl Explicit<'_> {
         let frame = si.shading_frame();
         let wo = frame.to_local(self.dir(from, prev));
         let wi = frame.to_local(self.dir(from, to));
+        // Towards the sky the measure is the solid angle: no geometry term at its end.
+        let sky = self.is_sky(to);
         if b.is_delta() {
             let geometry = if self.model.specular_geometry {
                 // Refraction: eta^2 on the side of `to` (front side 1, back side the
@@ -270,11 +303,19 @@ impl Explicit<'_> {
                     Bsdf::Dielectric { eta } if wi.z < 0.0 => eta as f64,
                     _ => 1.0,
                 };
-                self.cos(from, to) * self.cos(to, from) / self.dist2(from, to) * eta_to * eta_to
+                let at_to = if sky {
+                    1.0
+                } else {
+                    self.cos(to, from) / self.dist2(from, to)
+                };
+                self.cos(from, to) * at_to * eta_to * eta_to
             } else {
                 1.0
             };
             return Density::delta(cont * geometry);
+        }
+        if sky {
+            return Density::finite(b.pdf(wo, wi) as f64 * cont);
         }
         Density::finite(b.pdf(wo, wi) as f64 * cont * self.cos(to, from) / self.dist2(from, to))
     }
@@ -301,6 +342,14 @@ impl Explicit<'_> {
         if i == k {
             return match *self.light() {
                 Light::Area { area, .. } => Density::finite(pick / area as f64),
+                // Emission picks the direction first, by the map's emission strategy.
+                Light::Environment { ref map, .. } => Density::finite(
+                    pick * map.pdf(
+                        self.model.env.for_emission(),
+                        Vec3::ZERO,
+                        self.dir(i - 1, i),
+                    ) as f64,
+                ),
                 _ => Density::delta(pick), // a point's position or a direction
             };
         }
@@ -342,8 +391,11 @@ impl Explicit<'_> {
                 } => Density::finite(area_factor(
                     profile.direction_pdf(frame.to_local(to_vertex)) as f64,
                 )),
-                Light::Environment { .. } => {
-                    unreachable!("the weight-test scene has no environment light")
+                // Then the ray's origin, uniform on the disk of the bounding sphere facing it:
+                // like a directional light.
+                Light::Environment { scene_radius, .. } => {
+                    let r = scene_radius as f64;
+                    Density::finite(self.cos(i, k) / (PI as f64 * r * r))
                 }
                 Light::LightField { .. } => {
                     unreachable!("the weight-test scene has no light field")
@@ -361,7 +413,7 @@ impl Explicit<'_> {
             return if s == 0 { Density::ONE } else { Density::ZERO };
         }
         if s == 0 {
-            if !matches!(self.light(), Light::Area { .. }) {
+            if !matches!(self.light(), Light::Area { .. } | Light::Environment { .. }) {
                 return Density::ZERO;
             }
             return (1..=k).fold(Density::ONE, |p, i| p.times(self.camera_density(i)));
@@ -371,7 +423,22 @@ impl Explicit<'_> {
             return Density::ZERO;
         }
         let camera = (1..t).fold(Density::ONE, |p, i| p.times(self.camera_density(i)));
-        let light = (t..=k).fold(Density::ONE, |p, i| p.times(self.light_density(i)));
+        let light = if let (1, Light::Environment { map, .. }) = (s, self.light()) {
+            // Direct sampling picks the sky's direction by the light-sampling strategy, for
+            // the camera vertex's shading normal facing where its path came from.
+            let PathPoint::Surface(si) = self.path[k - 1] else {
+                unreachable!()
+            };
+            let towards_camera = self.dir(k - 1, k - 2);
+            let n = if si.ns.dot(towards_camera) < 0.0 {
+                -si.ns
+            } else {
+                si.ns
+            };
+            Density::finite(self.pick() * map.pdf(self.model.env, n, self.dir(k - 1, k)) as f64)
+        } else {
+            (t..=k).fold(Density::ONE, |p, i| p.times(self.light_density(i)))
+        };
         let mut p = camera.times(light);
         if t == 1 {
             p.value *= self.model.n_light;
@@ -406,10 +473,17 @@ impl Explicit<'_> {
 }
 
 /// A box open at the top: glossy floor, diffuse back wall, mirror left wall, sharp glossy right
-/// wall, a glass slab, a small area light, and point, spot and directional lights. The floor
-/// and the area light have tilted vertex normals, so shading and geometric normals differ.
-fn test_scene() -> Scene {
+/// wall, a glass slab, a small area light, and point, spot and directional lights; with `sky`,
+/// also the interior's sky map (a sun, and per-normal face balancing in direct sampling). The
+/// floor and the area light have tilted vertex normals, so shading and geometric normals
+/// differ.
+fn test_scene(sky: bool) -> Scene {
     let mut b = SceneBuilder::new();
+    if sky {
+        b.set_environment(Some(std::sync::Arc::new(
+            crate::scene::interior_sky().unwrap(),
+        )));
+    }
     let wall = b
         .add_material(Material::diffuse(Rgb::new(0.7, 0.6, 0.5)))
         .unwrap();
@@ -536,7 +610,9 @@ fn record(
             &mut rec,
         );
         if rec.light_paths.len() == before {
-            rec.light_paths.push((0, Vec3::ZERO, Vec::new())); // no emission: empty path
+            // No emission: an empty path.
+            rec.light_paths
+                .push((PathPoint::Light(0, Vec3::ZERO), Vec::new()));
         }
         paths.ranges.push((start, paths.vertices.len() as u32));
     }
@@ -578,6 +654,8 @@ struct Comparison {
     connections: usize,
     through_specular: usize,
     delta_lights: usize,
+    /// Paths ending on the environment.
+    sky: usize,
 }
 
 fn compare(scene: &Scene, view: &View, recorded: &[Recorded], model: Model) -> Comparison {
@@ -618,6 +696,7 @@ fn compare(scene: &Scene, view: &View, recorded: &[Recorded], model: Model) -> C
                         if scene.bsdf(si).is_delta() { "d" } else { "" }
                     ),
                     PathPoint::Light(l, _) => format!("L{l}"),
+                    PathPoint::Sky(l, _) => format!("S{l}"),
                 })
                 .collect();
             eprintln!(
@@ -638,6 +717,9 @@ fn compare(scene: &Scene, view: &View, recorded: &[Recorded], model: Model) -> C
         if explicit.light().is_delta() {
             c.delta_lights += 1;
         }
+        if explicit.is_sky(explicit.k()) {
+            c.sky += 1;
+        }
     }
     c
 }
@@ -645,6 +727,7 @@ fn compare(scene: &Scene, view: &View, recorded: &[Recorded], model: Model) -> C
 fn model(settings: &IntegratorSettings, n_light: usize, n_conn: usize) -> Model {
     Model {
         mis: settings.mis.unwrap_or_default(),
+        env: settings.env,
         n_light: n_light as f64,
         n_conn: n_conn as f64,
         roulette: true,
@@ -666,7 +749,6 @@ fn assert_close(label: &str, c: &Comparison) {
 
 #[test]
 fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
-    let scene = test_scene();
     let pinhole = Camera::look_at(
         Vec3::new(0.0, 0.2, 3.0),
         Vec3::new(0.0, -0.2, 0.0),
@@ -675,48 +757,60 @@ fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
     )
     .unwrap();
     let lens = pinhole.with_thin_lens(0.15, 2.8).unwrap();
-    for (camera, mis, n_light, all) in [
-        (pinhole, MisHeuristic::Power, 1500, false),
-        (pinhole, MisHeuristic::Balance, 2000, false),
-        (lens, MisHeuristic::Power, 1500, false),
-        // Every camera vertex connected to all light subpaths (000 eq. 185).
-        (pinhole, MisHeuristic::Power, 40, true),
-    ] {
-        let settings = IntegratorSettings {
-            max_depth: 6,
-            mis: Some(mis),
-            ..Default::default()
-        };
-        let mut bdpt = Bdpt::new(settings).with_light_paths(n_light).unwrap();
-        let n_conn = if all {
-            bdpt = bdpt.with_policy(Box::new(AllLightPaths));
-            n_light
-        } else {
-            1
-        };
-        let camera_paths = if all { 1500 } else { 8000 };
-        let (view, recorded) = record(&scene, &camera, &bdpt, n_light, camera_paths, 11);
-        let c = compare(&scene, &view, &recorded, model(&settings, n_light, n_conn));
-        let label = format!(
-            "{mis:?}, {n_light} light paths, lens {}, all paths {all}",
-            camera.lens_radius
-        );
-        assert_close(&label, &c);
-        if all {
-            // Few light subpaths, but every camera vertex connects to each of them.
-            assert!(c.connections > 10_000, "{label}: {c:?}");
-            continue;
-        }
-        // Every kind of strategy and path was exercised.
-        assert!(c.checked > 5000, "{label}: {c:?}");
-        for (what, n) in [
-            ("light tracing", c.light_tracing),
-            ("emitter hits", c.emitter_hits),
-            ("connections", c.connections),
-            ("paths through specular vertices", c.through_specular),
-            ("delta lights", c.delta_lights),
+    for sky in [false, true] {
+        let scene = test_scene(sky);
+        for (camera, mis, n_light, all) in [
+            (pinhole, MisHeuristic::Power, 1500, false),
+            (pinhole, MisHeuristic::Balance, 2000, false),
+            (lens, MisHeuristic::Power, 1500, false),
+            // Every camera vertex connected to all light subpaths (000 eq. 185): the
+            // connections count N samples, as SkelBPT's and ICBPT's resampled ones do.
+            (pinhole, MisHeuristic::Power, 40, true),
+            (pinhole, MisHeuristic::Balance, 40, true),
         ] {
-            assert!(n >= 50, "{label}: only {n} {what}: {c:?}");
+            let settings = IntegratorSettings {
+                max_depth: 6,
+                mis: Some(mis),
+                ..Default::default()
+            };
+            let mut bdpt = Bdpt::new(settings).with_light_paths(n_light).unwrap();
+            let n_conn = if all {
+                bdpt = bdpt.with_policy(Box::new(AllLightPaths));
+                n_light
+            } else {
+                1
+            };
+            let camera_paths = if all { 1500 } else { 8000 };
+            let (view, recorded) = record(&scene, &camera, &bdpt, n_light, camera_paths, 11);
+            let c = compare(&scene, &view, &recorded, model(&settings, n_light, n_conn));
+            let label = format!(
+                "{mis:?}, {n_light} light paths, lens {}, all paths {all}, sky {sky}",
+                camera.lens_radius
+            );
+            assert_close(&label, &c);
+            if sky {
+                assert!(
+                    c.sky >= 200,
+                    "{label}: only {} paths to the sky: {c:?}",
+                    c.sky
+                );
+            }
+            if all {
+                // Few light subpaths, but every camera vertex connects to each of them.
+                assert!(c.connections > 10_000, "{label}: {c:?}");
+                continue;
+            }
+            // Every kind of strategy and path was exercised.
+            assert!(c.checked > 5000, "{label}: {c:?}");
+            for (what, n) in [
+                ("light tracing", c.light_tracing),
+                ("emitter hits", c.emitter_hits),
+                ("connections", c.connections),
+                ("paths through specular vertices", c.through_specular),
+                ("delta lights", c.delta_lights),
+            ] {
+                assert!(n >= 50, "{label}: only {n} {what}: {c:?}");
+            }
         }
     }
 }
@@ -724,7 +818,7 @@ fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
 /// The comparison can fail: a model with a plausible mistake disagrees with the integrator.
 #[test]
 fn weight_comparison_catches_wrong_weights() {
-    let scene = test_scene();
+    let scene = test_scene(false);
     let camera = Camera::look_at(
         Vec3::new(0.0, 0.2, 3.0),
         Vec3::new(0.0, -0.2, 0.0),

@@ -281,10 +281,9 @@ pub trait Integrator: Send + Sync {
     fn set_time_budget(&mut self, _seconds: Option<f64>) {}
 
     /// Why the integrator cannot render `light`, or None. The resampling bidirectional
-    /// methods refuse the lights whose next-event density depends on the receiver (light
-    /// fields' restricted sampling, the environment's direction sampling): their resampled
-    /// connections' MIS weights are not verified with them (under the built-in interior's sky
-    /// both were biased). Rendering refuses such scenes with this reason.
+    /// methods refuse light-field luminaires (their restricted sampling's density depends on
+    /// the receiver, and their resampled connections' MIS weights are not verified with
+    /// them). Rendering refuses such scenes with this reason.
     fn refuses_light(&self, _light: &crate::light::Light) -> Option<&'static str> {
         None
     }
