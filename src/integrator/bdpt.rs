@@ -334,8 +334,9 @@ pub(crate) enum Endpoint {
 
 /// Sees the subpaths a render traces and every estimate made from them (for tests; `()` sees
 /// nothing and compiles away). Light subpaths: `light_start` with the light, its sampled
-/// point and the emitted direction, then `light_vertex` for every surface vertex, delta ones included. Camera paths:
-/// `camera_vertex` for the eye (or lens point), then for every surface vertex.
+/// point and the emitted direction, then `light_vertex` for every surface vertex, delta ones
+/// included. Camera paths: `camera_vertex` for the eye (or lens point), then for every surface
+/// vertex.
 pub(crate) trait PathObserver {
     fn light_start(&mut self, _light: usize, _point: Vec3, _dir: Vec3) {}
     fn light_vertex(&mut self, _si: &SurfaceInteraction) {}

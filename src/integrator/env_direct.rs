@@ -4,31 +4,33 @@
 //! automatic MIS balancing is measured).
 //!
 //! At the first non-specular surface the camera ray reaches (after mirror and glass
-//! bounces, up to `max_depth`), two estimates are made, each with N_L light samples and N_B
-//! BSDF directions combined by the balance heuristic over the counts:
+//! bounces, up to `max_depth`), one estimate is made per light source (the environment; each
+//! connected emissive surface of one radiance; the delta lights together), each with N_L
+//! light samples and N_B BSDF directions combined by the balance heuristic over the counts:
 //!
 //! - **The environment** (001 chapter 3): the N_L light samples are split between the cube
 //!   faces by the strategy's face proportions mu_f (M_f = mu_f N_L samples on face f, a
 //!   fractional count with the last sample weighted by beta = frac(M_f), eq. 3.5-3.6), and
 //!   (eq. 3.7, with the thesis's halves generalised to N_L / N and N_B / N, N = N_L + N_B)
 //!   `L ~ 1/N [sum_f sum_i beta_i s(w_i) / q(w_i) + sum_j s(w_j) / q(w_j)]` with
-//!   `q(w) = (N_L mu_f(w) pdf_L(w | f(w)) + N_B pdf_B(w)) / N`, where s = f |cos| L V. The sum of the weights beta over face f's samples is exactly
-//!   mu_f N_L, so the estimator is unbiased for any mu; mu_f(n) is zero only on faces that lie
+//!   `q(w) = (N_L mu_f(w) pdf_L(w | f(w)) + N_B pdf_B(w)) / N`, where s = f |cos| L V. The
+//!   sum of the weights beta over face f's samples is exactly mu_f N_L, so the estimator is unbiased for any mu; mu_f(n) is zero only on faces that lie
 //!   wholly behind the surface, where s is zero. With the lat-long strategy all N_L samples
 //!   come from the 2-D lat-long density. Unlike the thesis's GPU version, every shading point
 //!   draws its own random samples (no sequence shared between pixels, so no spatial bias).
-//! - **The emitters** (every other light): the N_L light samples come from the scene's light
-//!   sampler (a light by power, then a point on it), the N_B BSDF directions are traced to
-//!   the emitter they reach, with q as above and pdf_L the light's selection probability times
-//!   its density at the point (as `path`'s next-event estimation). Delta lights, which BSDF
-//!   sampling never finds, are estimated by their light samples alone.
+//! - **The emitters** (every other light, per source, [`LightSource`]): the N_L light samples
+//!   pick a light of the source by power, then a point on it; the N_B BSDF directions are
+//!   traced to the emitter they reach (nothing where it belongs to another source), with q as
+//!   above and pdf_L the light's selection probability within the source times its density at
+//!   the point (as `path`'s next-event estimation). Delta lights, which BSDF sampling never
+//!   finds, are estimated by their light samples alone.
 //!
 //! `mis` chooses the weighting of each estimate: `balance` (the above), `power` (exponent 2,
 //! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of N/4 samples of each
 //! technique estimates the fraction alpha of BSDF samples, eq. 5.4-5.5, the other N/2 are
 //! split by it, and the two estimates are combined by eq. 5.6; alpha goes to the `alpha`
 //! layer) and `optimal` (Kondapaneni et al. 2019, its coefficients from the same warm-up); see
-//! [`super::mis_auto`]. The environment and the emitters each get their own alpha. With
+//! [`super::mis_auto`]. Each light source gets its own alpha. With
 //! `max_depth` 1 this integrator estimates what `path --max-depth 1` does.
 
 use super::mis_auto::{self, optimal_term, AlphaEstimate, OptimalSystem};
@@ -195,8 +197,7 @@ impl EnvDirect {
     }
 
     /// [`EnvDirect::shade`], and for `mis=auto` the fraction of BSDF samples it chose (the
-    /// mean of the two estimates' fractions where both the emitters and the environment are
-    /// estimated).
+    /// mean over the light sources that BSDF sampling can find).
     fn shade_with_alpha(
         &self,
         scene: &Scene,

@@ -12,15 +12,7 @@ pub struct LightSampler {
 impl LightSampler {
     /// `None` when no light has positive power.
     pub fn new(lights: &[Light]) -> Option<Self> {
-        let powers: Vec<f32> = lights.iter().map(|l| l.power().max(0.0)).collect();
-        // Non-finite powers (a light of huge radiance on a huge triangle) fall back to
-        // uniform selection rather than failing.
-        if powers.iter().any(|p| !p.is_finite()) {
-            return Some(LightSampler {
-                table: AliasTable::new(&vec![1.0; lights.len()])?,
-            });
-        }
-        AliasTable::new(&powers).map(|table| LightSampler { table })
+        Self::of_subset(lights, |_| true)
     }
 
     /// A sampler over the lights `member` accepts only (by power; the others never chosen);
@@ -31,6 +23,8 @@ impl LightSampler {
             .enumerate()
             .map(|(i, l)| if member(i) { l.power().max(0.0) } else { 0.0 })
             .collect();
+        // Non-finite powers (a light of huge radiance on a huge triangle) fall back to
+        // uniform selection among the members rather than failing.
         if powers.iter().any(|p| !p.is_finite()) {
             let uniform: Vec<f32> = (0..lights.len())
                 .map(|i| f32::from(u8::from(member(i))))
