@@ -5,7 +5,7 @@
 //!
 //! At the first non-specular surface the camera ray reaches (after mirror and glass
 //! bounces, up to `max_depth`), one estimate is made per light source (the environment; each
-//! connected emissive surface of one radiance; the delta lights together), each with N_L
+//! connected emissive surface of one radiance; the point-like lights; the light fields), each with N_L
 //! light samples and N_B BSDF directions combined by the balance heuristic over the counts:
 //!
 //! - **The environment** (001 chapter 3): the N_L light samples are split between the cube
@@ -23,7 +23,9 @@
 //!   traced to the emitter they reach (nothing where it belongs to another source), with q as
 //!   above and pdf_L the light's selection probability within the source times its density at
 //!   the point (as `path`'s next-event estimation). Delta lights, which BSDF sampling never
-//!   finds, are estimated by their light samples alone.
+//!   finds, are estimated by their light samples alone; the point-like ones (point, spot,
+//!   directional, photometric), whose sample at a point is fixed, are each evaluated once
+//!   (exact, one shadow ray each) when there are no more of them than N_L.
 //!
 //! `mis` chooses the weighting of each estimate: `balance` (the above), `power` (exponent 2,
 //! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of N/4 samples of each
@@ -40,8 +42,10 @@ use super::{
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
-use crate::light::{EnvStrategy, EnvironmentMap, Light, LightSampler, TriangleSampling};
-use crate::math::{luminance, Rgb, Sampler, Vec3};
+use crate::light::{
+    EnvStrategy, EnvironmentMap, Light, LightSample, LightSampler, TriangleSampling,
+};
+use crate::math::{luminance, Rgb, Sampler, Vec2, Vec3};
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction, Transport};
 
 /// The name of the layer `mis=auto` writes (see [`EnvDirect`]'s `layers`).
@@ -76,12 +80,29 @@ pub struct EnvDirect {
 /// One light source of the emitters' estimate: 001 chapter 5 draws N light and BSDF samples
 /// per light source and balances them per source (a small bright lamp and a large dim one want
 /// different splits). A source is a connected emissive surface of one radiance (triangles
-/// sharing a vertex), or every delta light together (BSDF sampling never finds them).
+/// sharing a vertex), the point-like lights together, or the light fields together (BSDF
+/// sampling never finds these two).
 struct LightSource {
     /// Chooses among the source's lights only, by power.
     sampler: LightSampler,
     /// False for the delta lights: no BSDF samples are drawn for them.
     bsdf_finds_it: bool,
+    /// The point-like lights (point, spot, directional, photometric) of the source: each one's
+    /// light sample at a point is fixed, so evaluating each once is exact with one shadow ray
+    /// per light, where N_L samples chosen by power would cost N_L rays and add the choice's
+    /// noise. Used when there are no more of them than N_L; empty for other sources.
+    point_like: Vec<usize>,
+}
+
+/// Lights whose sample at a receiver does not depend on the random numbers.
+fn is_point_like(light: &Light) -> bool {
+    matches!(
+        light,
+        Light::Point { .. }
+            | Light::Spot { .. }
+            | Light::Directional { .. }
+            | Light::Photometric { .. }
+    )
 }
 
 /// Above this many connected emissive surfaces, every emissive triangle is one source (the
@@ -91,7 +112,6 @@ const MAX_LIGHT_SOURCES: usize = 16;
 /// The light sources of `scene`'s emitters (see [`LightSource`]); empty without emitters.
 fn light_sources(scene: &Scene) -> Vec<LightSource> {
     let lights = scene.lights();
-    let env = scene.environment().map(|(index, _)| index);
     // Union-find over the area lights: triangles sharing a vertex position with equal radiance.
     let mut parent: Vec<usize> = (0..lights.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
@@ -130,6 +150,7 @@ fn light_sources(scene: &Scene) -> Vec<LightSource> {
             LightSampler::of_subset(lights, is_area).map(|sampler| LightSource {
                 sampler,
                 bsdf_finds_it: true,
+                point_like: Vec::new(),
             }),
         );
     }
@@ -141,14 +162,28 @@ fn light_sources(scene: &Scene) -> Vec<LightSource> {
             LightSampler::of_subset(lights, |i| members[i]).map(|sampler| LightSource {
                 sampler,
                 bsdf_finds_it: true,
+                point_like: Vec::new(),
             }),
         );
     }
-    let is_delta = |i: usize| !is_area(i) && Some(i) != env;
+    // The delta lights: the point-like ones together, and the light fields (whose samples
+    // are random) together.
+    let point_like: Vec<usize> = (0..lights.len())
+        .filter(|&i| is_point_like(&lights[i]))
+        .collect();
     sources.extend(
-        LightSampler::of_subset(lights, is_delta).map(|sampler| LightSource {
+        LightSampler::of_subset(lights, |i| is_point_like(&lights[i])).map(|sampler| LightSource {
             sampler,
             bsdf_finds_it: false,
+            point_like,
+        }),
+    );
+    let is_light_field = |i: usize| matches!(lights[i], Light::LightField { .. });
+    sources.extend(
+        LightSampler::of_subset(lights, is_light_field).map(|sampler| LightSource {
+            sampler,
+            bsdf_finds_it: false,
+            point_like: Vec::new(),
         }),
     );
     sources
@@ -214,10 +249,20 @@ impl EnvDirect {
         let mut targets: Vec<Target> = Vec::with_capacity(self.sources.len() + 1);
         let prepared = self.sources.first().map(|s| s.sampler.len()) == Some(scene.lights().len());
         if prepared {
-            targets.extend(self.sources.iter().map(|s| Target::Emitters {
-                lights: &s.sampler,
-                bsdf_finds_it: s.bsdf_finds_it,
-            }));
+            let n_light = self.settings.env_direct.light_samples;
+            for source in &self.sources {
+                let exact = !source.point_like.is_empty()
+                    && n_light > 0
+                    && source.point_like.len() <= n_light as usize;
+                if exact {
+                    radiance += self.point_lights(scene, &source.point_like, si, &bsdf, counters);
+                } else {
+                    targets.push(Target::Emitters {
+                        lights: &source.sampler,
+                        bsdf_finds_it: source.bsdf_finds_it,
+                    });
+                }
+            }
         } else if let Some(lights) = scene.light_sampler() {
             // Not prepared for this scene: the scene's light sampler is one source.
             if lights_other_than_environment(scene) {
@@ -325,16 +370,7 @@ impl EnvDirect {
                 continue;
             };
             let wi_l = frame.to_local(ls.wi);
-            let mut value = Rgb::ZERO;
-            if ls.wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0 {
-                let v = bsdf.eval(wo_l, wi_l) * wi_l.z.abs() * ls.radiance;
-                if v != Rgb::ZERO {
-                    counters.rays += 1;
-                    if scene.unoccluded(si, &ls) {
-                        value = v;
-                    }
-                }
-            }
+            let value = light_sample_value(scene, si, bsdf, wo_l, wi_l, &ls, counters);
             if ls.delta {
                 let q = pmf * ls.pdf;
                 if value != Rgb::ZERO && q > 0.0 {
@@ -382,6 +418,37 @@ impl EnvDirect {
             });
         }
         delta
+    }
+
+    /// The exact light of the point-like lights `indices` (see [`LightSource::point_like`]):
+    /// one sample and one shadow ray each.
+    fn point_lights(
+        &self,
+        scene: &Scene,
+        indices: &[usize],
+        si: &SurfaceInteraction,
+        bsdf: &Bsdf,
+        counters: &mut TraceCounters,
+    ) -> Rgb {
+        let frame = si.shading_frame();
+        let wo_l = frame.to_local(si.wo);
+        let normal = si.facing_normal();
+        let mut sum = Rgb::ZERO;
+        for &index in indices {
+            let light = &scene.lights()[index];
+            // The random numbers are unused by point-like lights.
+            let u = Vec2::splat(0.5);
+            let triangles = TriangleSampling::default();
+            let Some(ls) = light.sample_with(si.p, normal, self.settings.env, triangles, u) else {
+                continue;
+            };
+            let value =
+                light_sample_value(scene, si, bsdf, wo_l, frame.to_local(ls.wi), &ls, counters);
+            if value != Rgb::ZERO && ls.pdf > 0.0 {
+                sum += value / ls.pdf;
+            }
+        }
+        sum
     }
 
     /// Draws `n_light` environment samples (split between cube faces by the strategy) and
@@ -570,6 +637,32 @@ impl EnvDirect {
             cell.set(drawn);
             result
         })
+    }
+}
+
+/// s(w) of a light sample at `si`: the BSDF times the cosine times the light's radiance, zero
+/// behind the surface or occluded (one shadow ray when the rest is non-zero).
+fn light_sample_value(
+    scene: &Scene,
+    si: &SurfaceInteraction,
+    bsdf: &Bsdf,
+    wo_l: Vec3,
+    wi_l: Vec3,
+    ls: &LightSample,
+    counters: &mut TraceCounters,
+) -> Rgb {
+    if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
+        return Rgb::ZERO;
+    }
+    let v = bsdf.eval(wo_l, wi_l) * wi_l.z.abs() * ls.radiance;
+    if v == Rgb::ZERO {
+        return v;
+    }
+    counters.rays += 1;
+    if scene.unoccluded(si, ls) {
+        v
+    } else {
+        Rgb::ZERO
     }
 }
 
@@ -794,6 +887,93 @@ mod tests {
                 (members, s.bsdf_finds_it)
             })
             .collect()
+    }
+
+    /// Point lights over a diffuse floor: each is evaluated once, so the estimate at a point
+    /// is exact (the same for any random numbers) and equals the closed form
+    /// sum_k albedo / pi * I_k cos(theta_k) / d_k^2; with more lights than N_L they are
+    /// sampled by power instead, and agree in the mean.
+    #[test]
+    fn point_lights_are_evaluated_once_each_and_exactly() {
+        use super::{EnvDirect, EnvDirectOptions};
+        use crate::geometry::Ray;
+        use crate::integrator::{IntegratorSettings, TraceCounters};
+        use crate::math::{Sampler, SamplerKind};
+        let albedo = 0.6;
+        let lights = [
+            (Vec3::new(0.0, 1.0, 0.0), 2.0),
+            (Vec3::new(1.0, 2.0, 0.5), 5.0),
+            (Vec3::new(-0.5, 0.5, -1.0), 1.0),
+        ];
+        let mut b = SceneBuilder::new();
+        let m = b
+            .add_material(Material::diffuse(Rgb::splat(albedo)))
+            .unwrap();
+        b.add_mesh(MeshDesc {
+            name: "floor".into(),
+            positions: vec![
+                Vec3::new(-5.0, 0.0, -5.0),
+                Vec3::new(5.0, 0.0, -5.0),
+                Vec3::new(5.0, 0.0, 5.0),
+                Vec3::new(-5.0, 0.0, 5.0),
+            ],
+            indices: vec![[0, 2, 1], [0, 3, 2]],
+            materials: vec![m],
+            ..Default::default()
+        })
+        .unwrap();
+        for (position, intensity) in lights {
+            b.add_light(LightDesc::Point {
+                position,
+                intensity: Rgb::splat(intensity),
+            })
+            .unwrap();
+        }
+        let scene = b.build().unwrap();
+        let si = scene
+            .intersect(&Ray::new(
+                Vec3::new(0.2, 3.0, 0.1),
+                Vec3::new(0.0, -1.0, 0.0),
+                f32::INFINITY,
+            ))
+            .expect("the ray hits the floor");
+        let expected: f32 = lights
+            .iter()
+            .map(|&(position, intensity)| {
+                let d = position - si.p;
+                albedo / crate::math::PI * intensity * d.normalize().y / d.length_squared()
+            })
+            .sum();
+        let shade = |light_samples: u32, seed: u64| {
+            let settings = IntegratorSettings {
+                env_direct: EnvDirectOptions {
+                    light_samples,
+                    bsdf_samples: 4,
+                },
+                ..Default::default()
+            };
+            let mut direct = EnvDirect::new(settings).unwrap();
+            direct.sources = light_sources(&scene);
+            let mut rng = Sampler::new(SamplerKind::Independent, seed, 0, 0);
+            let mut counters = TraceCounters::default();
+            let value = direct.shade(&scene, &si, &mut rng, &mut counters);
+            (value.x, counters.rays)
+        };
+        for seed in [1, 2, 3] {
+            let (value, rays) = shade(3, seed);
+            assert!(
+                (value - expected).abs() <= 1e-5 * expected,
+                "{value} against {expected}"
+            );
+            assert_eq!(rays, 3, "one shadow ray per light");
+        }
+        // Two samples for three lights: chosen by power, unbiased in the mean.
+        let n = 20_000;
+        let mean = (0..n).map(|seed| shade(2, seed).0 as f64).sum::<f64>() / n as f64;
+        assert!(
+            (mean - expected as f64).abs() < 0.01 * expected as f64,
+            "{mean} against {expected}"
+        );
     }
 
     #[test]
