@@ -330,10 +330,6 @@ impl BdptSkeleton {
 }
 
 impl Integrator for BdptSkeleton {
-    fn refuses_light(&self, light: &crate::light::Light) -> Option<&'static str> {
-        super::bdpt::resampling_refuses(light)
-    }
-
     fn name(&self) -> &'static str {
         "bdpt_skeleton"
     }
