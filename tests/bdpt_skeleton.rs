@@ -248,6 +248,17 @@ fn skelbpt_without_a_usable_skeleton_renders_exactly_bdpt() {
         "{:?}",
         pre.notes
     );
+    // Open at every probe point: decided before the scene's analysis, which did not run.
+    assert!(
+        pre.notes.iter().any(|n| n.contains("an open scene")),
+        "{:?}",
+        pre.notes
+    );
+    assert!(
+        pre.stages.iter().all(|s| !s.stage.starts_with("analysis")),
+        "{:?}",
+        pre.stages
+    );
     let a = render_image(&scene, &camera, &skel, &settings(16, 4, 2));
     let b = render_image(&scene, &camera, bdpt.as_ref(), &settings(16, 4, 2));
     assert!(a.radiance().iter().any(|p| p.max_element() > 0.0));
