@@ -210,16 +210,6 @@ fn render_in_pool(
     on_pass: &mut (dyn FnMut(&Film, PassReport) + Send),
 ) -> Result<(Film, RenderStats)> {
     integrator.check_prepared(scene)?;
-    if let Some(why) = scene
-        .lights()
-        .iter()
-        .find_map(|l| integrator.refuses_light(l))
-    {
-        return Err(Error::invalid(format!(
-            "{} cannot render this scene: {why}; use path, path_skeleton, bdpt or vpl",
-            integrator.name()
-        )));
-    }
     let (w, h) = (settings.width, settings.height);
     let view = View {
         frame: camera.frame(w as f32 / h as f32),

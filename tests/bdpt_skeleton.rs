@@ -1,7 +1,8 @@
 //! SkelBPT (`bdpt_skeleton`, paper 002) must be unbiased: image and region means agree with
 //! `bdpt` and `path` within their measured error on the Cornell box, the built-in two rooms
-//! and corridor, and the Veach door; no NaN; the same image for any thread count; exactly
-//! `bdpt`'s image where it has no skeleton to use. (The resampling distributions against brute
+//! and corridor, and the Veach door, and (with ICBPT) under sky light and light fields; no
+//! NaN; the same image for any thread count; exactly `bdpt`'s image where it has no skeleton
+//! to use. (The resampling distributions against brute
 //! force are in `guide::resampling`'s unit tests.)
 
 mod common;
@@ -89,6 +90,37 @@ fn skelbpt_and_icbpt_agree_under_environment_light() {
         32,
         &[spec, "bdpt_ic:subset=32:density=0.05"],
     );
+}
+
+/// Under light-field luminaires (the baked luminaire room: two fields, no emitting geometry)
+/// the light subpaths start on the fields' image planes, whose direct-sampling density depends
+/// on the receiver, and no camera path can hit a field: both resampling integrators agree
+/// with `bdpt` and `path`.
+#[test]
+fn skelbpt_and_icbpt_agree_under_light_fields() {
+    let scene = load_scene("scenes/luminaire_room_baked.json");
+    assert!(scene
+        .lights()
+        .iter()
+        .all(|l| matches!(l, lacuna::light::Light::LightField { .. })));
+    let camera = *scene.camera().unwrap();
+    let skeleton_specs = ["bdpt_skeleton:subset=32:accept=0", "bdpt_skeleton"];
+    for spec in skeleton_specs {
+        let (_, settings) = integrator::parse_spec(
+            spec,
+            IntegratorSettings {
+                max_depth: 4,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let mut skel = BdptSkeleton::new(settings).unwrap();
+        lacuna::render::prepare(&mut skel, &scene, &camera, None, &|_, _| true).unwrap();
+        assert!(skel.resamples(), "{spec} does not resample in the room");
+    }
+    let mut specs = skeleton_specs.to_vec();
+    specs.push("bdpt_ic:subset=32:density=0.05");
+    agree_with_path_and_bdpt("luminaire room (light fields)", &scene, (4, 16, 32), &specs);
 }
 
 #[test]
@@ -215,6 +247,17 @@ fn skelbpt_without_a_usable_skeleton_renders_exactly_bdpt() {
         pre.notes.iter().any(|n| n.contains("renders as bdpt")),
         "{:?}",
         pre.notes
+    );
+    // Open at every probe point: decided before the scene's analysis, which did not run.
+    assert!(
+        pre.notes.iter().any(|n| n.contains("an open scene")),
+        "{:?}",
+        pre.notes
+    );
+    assert!(
+        pre.stages.iter().all(|s| !s.stage.starts_with("analysis")),
+        "{:?}",
+        pre.stages
     );
     let a = render_image(&scene, &camera, &skel, &settings(16, 4, 2));
     let b = render_image(&scene, &camera, bdpt.as_ref(), &settings(16, 4, 2));

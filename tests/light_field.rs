@@ -489,33 +489,6 @@ fn bidirectional_integrators_agree_with_path_on_light_fields() {
 }
 
 #[test]
-fn resampling_bidirectional_integrators_refuse_light_fields() {
-    let (scene, camera) = floor_scene(true);
-    for name in ["bdpt_ic", "bdpt_skeleton"] {
-        let mut integrator =
-            lacuna::integrator::create(name, IntegratorSettings::default()).unwrap();
-        lacuna::render::prepare(integrator.as_mut(), &scene, &camera, None, &|_, _| true).unwrap();
-        let result = lacuna::render::render(
-            &scene,
-            &camera,
-            integrator.as_ref(),
-            &lacuna::render::RenderSettings {
-                width: 4,
-                height: 4,
-                spp: 1,
-                ..Default::default()
-            },
-            &|_| true,
-            &std::sync::atomic::AtomicBool::new(false),
-        );
-        let Err(err) = result else {
-            panic!("{name} rendered a light field");
-        };
-        assert!(err.to_string().contains("light-field"), "{err}");
-    }
-}
-
-#[test]
 fn light_samples_agree_with_the_field() {
     // The Light's sample: true solid-angle density (area density x d^2 / cos), delta flag
     // (MIS weight 1), and the field's radiance along the ray.

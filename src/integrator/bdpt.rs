@@ -1291,15 +1291,3 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
 #[cfg(test)]
 #[path = "bdpt_weights_tests.rs"]
 mod weights_tests;
-
-/// The lights the resampling policies (`bdpt_skeleton`, `bdpt_ic`) refuse (see
-/// [`Integrator::refuses_light`]): light-field luminaires, whose resampled connections are not
-/// verified (their MIS sums are not in the weight tests, and no agreement test renders them).
-pub(super) fn resampling_refuses(light: &Light) -> Option<&'static str> {
-    match light {
-        Light::LightField { .. } => {
-            Some("its resampled connections are not verified with light-field luminaires")
-        }
-        _ => None,
-    }
-}

@@ -363,10 +363,6 @@ impl BdptIc {
 }
 
 impl Integrator for BdptIc {
-    fn refuses_light(&self, light: &crate::light::Light) -> Option<&'static str> {
-        super::bdpt::resampling_refuses(light)
-    }
-
     fn name(&self) -> &'static str {
         "bdpt_ic"
     }

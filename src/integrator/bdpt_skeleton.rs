@@ -22,6 +22,9 @@
 //! scene is open: every node sees the outside in a quarter of its directions or more), or
 //! when no node sees any vertex of a pilot set of light subpaths, the integrator renders
 //! exactly `bdpt`'s image (same samples, same numbers) and its precomputation notes say why.
+//! What can be decided without the skeleton is decided before its analysis: a pilot that
+//! reaches no surface, or a scene open at every probe point along the camera's rays and the
+//! pilot's subpaths.
 
 use std::any::Any;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -46,7 +49,7 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::ResamplingSettings;
-use crate::math::{Sampler, Vec3};
+use crate::math::{Sampler, Vec2, Vec3};
 use crate::scene::{Camera, Scene};
 
 /// Light subpaths of the pilot that decides whether any node sees light vertices.
@@ -57,6 +60,10 @@ const PILOT_SEED: u64 = 0x5ce1_b9d7;
 const OPENNESS_RAYS: usize = 64;
 /// A node is enclosed when fewer than this fraction of its rays leave the scene.
 const ENCLOSED_ESCAPE_FRACTION: f32 = 0.25;
+/// Camera rays per axis, and pilot light-subpath segments at most, whose midpoints probe the
+/// scene's openness before the analysis.
+const PROBE_CAMERA_RAYS_PER_AXIS: u32 = 8;
+const PROBE_SEGMENTS: usize = 192;
 
 /// Accumulated over a render, for the render notes (002 Table 4 and the resampling cost).
 #[derive(Clone, Copy, Debug, Default)]
@@ -259,6 +266,51 @@ impl BdptSkeleton {
         self.resampler.stats()
     }
 
+    /// Why the scene surely has no use for a skeleton, decided from the pilot light subpaths
+    /// and the camera before the costly analysis: the subpaths left no vertex (no node can see
+    /// one), or the scene is open at every probe point (the camera, midpoints of camera rays to
+    /// their first hits and of the pilot subpaths' segments): each sees the outside in at least
+    /// [`ENCLOSED_ESCAPE_FRACTION`] of its directions. One enclosed probe leaves the decision
+    /// to the skeleton's nodes ([`BdptSkeleton::build_skeleton`]).
+    fn refuse_early(scene: &Scene, camera: &Camera, pilot: &LightPaths) -> Option<String> {
+        if pilot.vertices.is_empty() {
+            return Some(format!(
+                "renders as bdpt: none of its {PILOT_LIGHT_PATHS} pilot light subpaths reaches a \
+                 surface"
+            ));
+        }
+        let frame = camera.frame(1.0);
+        let mut probes = vec![frame.eye];
+        let side = PROBE_CAMERA_RAYS_PER_AXIS;
+        for k in 0..side * side {
+            let film = Vec2::new(
+                ((k % side) as f32 + 0.5) / side as f32,
+                ((k / side) as f32 + 0.5) / side as f32,
+            );
+            let ray = frame.generate_ray(film, Vec2::splat(0.5));
+            if let Some(si) = scene.intersect(&ray) {
+                probes.push((ray.origin + si.p) * 0.5);
+            }
+        }
+        let segments = pilot.ranges.iter().flat_map(|&(a, b)| {
+            let v = &pilot.vertices[a as usize..b as usize];
+            v.windows(2).map(|w| (w[0].si.p + w[1].si.p) * 0.5)
+        });
+        probes.extend(segments.take(PROBE_SEGMENTS));
+        let open = probes
+            .par_iter()
+            .all(|&p| escape_fraction(scene, p) >= ENCLOSED_ESCAPE_FRACTION);
+        open.then(|| {
+            format!(
+                "renders as bdpt: no usable skeleton (an open scene: every one of {} probe \
+                 points, the camera and points along camera rays and pilot light subpaths, sees \
+                 the outside in at least {:.0} % of its directions)",
+                probes.len(),
+                100.0 * ENCLOSED_ESCAPE_FRACTION
+            )
+        })
+    }
+
     /// The skeleton, or why there is none to use.
     fn build_skeleton(
         &self,
@@ -291,8 +343,8 @@ impl BdptSkeleton {
         Ok(Ok(skeleton))
     }
 
-    /// Nodes that see at least one vertex of a pilot set of light subpaths.
-    fn nodes_seeing_light(&self, scene: &Scene, skeleton: &NodeSkeleton) -> usize {
+    /// The pilot set of light subpaths (deterministic for the scene).
+    fn pilot_light_paths(&self, scene: &Scene) -> LightPaths {
         let camera = scene.camera().copied().or_else(|| {
             let b = scene.bounds();
             let centre = (b.min + b.max) * 0.5;
@@ -305,16 +357,24 @@ impl BdptSkeleton {
             .ok()
         });
         let Some(camera) = camera else {
-            return 0;
+            return LightPaths {
+                vertices: Vec::new(),
+                ranges: Vec::new(),
+                policy_data: None,
+            };
         };
         let view = View {
             frame: camera.frame(1.0),
             width: 16,
             height: 16,
         };
-        let (paths, _) =
-            self.bdpt
-                .trace_light_paths(scene, &view, PILOT_SEED, 0, PILOT_LIGHT_PATHS);
+        self.bdpt
+            .trace_light_paths(scene, &view, PILOT_SEED, 0, PILOT_LIGHT_PATHS)
+            .0
+    }
+
+    /// Nodes that see at least one vertex of the pilot light subpaths.
+    fn nodes_seeing_light(scene: &Scene, skeleton: &NodeSkeleton, paths: &LightPaths) -> usize {
         skeleton
             .positions
             .par_iter()
@@ -330,10 +390,6 @@ impl BdptSkeleton {
 }
 
 impl Integrator for BdptSkeleton {
-    fn refuses_light(&self, light: &crate::light::Light) -> Option<&'static str> {
-        super::bdpt::resampling_refuses(light)
-    }
-
     fn name(&self) -> &'static str {
         "bdpt_skeleton"
     }
@@ -345,20 +401,33 @@ impl Integrator for BdptSkeleton {
     fn prepare(
         &mut self,
         scene: &Scene,
-        _camera: &Camera,
+        camera: &Camera,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Precomputation> {
         self.prepared_for = None;
         let mut stages = Vec::new();
         let mut notes = Vec::new();
         let mut resampler = SkeletonResampler::plain(self.settings.resampling);
-        match self.build_skeleton(scene, progress, &mut stages)? {
-            Err(why) => notes.push(format!("renders as bdpt: no usable skeleton ({why})")),
+        let t = Instant::now();
+        let pilot = self.pilot_light_paths(scene);
+        let early = Self::refuse_early(scene, camera, &pilot);
+        stages.push(StageTime {
+            stage: "pilot light subpaths, openness probes",
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        let skeleton = match early {
+            Some(why) => Err(why),
+            None => self
+                .build_skeleton(scene, progress, &mut stages)?
+                .map_err(|why| format!("renders as bdpt: no usable skeleton ({why})")),
+        };
+        match skeleton {
+            Err(why) => notes.push(why),
             Ok(skeleton) => {
                 let t = Instant::now();
-                let seeing = self.nodes_seeing_light(scene, &skeleton);
+                let seeing = Self::nodes_seeing_light(scene, &skeleton, &pilot);
                 stages.push(StageTime {
-                    stage: "pilot light subpaths",
+                    stage: "nodes seeing the pilot's light vertices",
                     seconds: t.elapsed().as_secs_f64(),
                 });
                 let nodes = skeleton.positions.len();

@@ -181,6 +181,9 @@ struct Model {
     /// Include cos / dist^2 in densities through specular vertices (else 1, as pbrt-v3's
     /// remapping does).
     specular_geometry: bool,
+    /// A light field's direct-sampling density of its image-plane point is restricted
+    /// sampling's from the receiver (else, wrongly, emission's density of that point).
+    field_direct_at_receiver: bool,
 }
 
 struct Explicit<'a> {
@@ -350,6 +353,17 @@ impl Explicit<'_> {
                         self.dir(i - 1, i),
                     ) as f64,
                 ),
+                // Emission picks the image-plane point x_k and the direction of the ray from
+                // the filter plane through it together: their joint density (area on the
+                // image plane times solid angle there; `light_density(k - 1)` converts the
+                // solid angle to area at x_{k-1}). A finite density, though no ray hits x_k.
+                Light::LightField { .. } => Density::finite(
+                    pick * self.light().emission_pdf_at(
+                        self.model.env,
+                        self.pos(k),
+                        self.dir(k, k - 1),
+                    ) as f64,
+                ),
                 _ => Density::delta(pick), // a point's position or a direction
             };
         }
@@ -397,9 +411,9 @@ impl Explicit<'_> {
                     let r = scene_radius as f64;
                     Density::finite(self.cos(i, k) / (PI as f64 * r * r))
                 }
-                Light::LightField { .. } => {
-                    unreachable!("the weight-test scene has no light field")
-                }
+                // The emitted ray's direction density at the image-plane point x_k (in
+                // `light_density(k)`, with its area density) converted to area here.
+                Light::LightField { .. } => Density::finite(self.cos(i, k) / self.dist2(i, k)),
             };
         }
         self.scatter_density(i + 2, i + 1, i)
@@ -436,6 +450,17 @@ impl Explicit<'_> {
                 si.ns
             };
             Density::finite(self.pick() * map.pdf(self.model.env, n, self.dir(k - 1, k)) as f64)
+        } else if let (1, Light::LightField { .. }) = (s, self.light()) {
+            // Direct sampling picks the image-plane point by restricted sampling, whose
+            // density depends on the receiver x_{k-1}: not emission's density of x_k.
+            let light = self.light();
+            let area = if self.model.field_direct_at_receiver {
+                light.direct_pdf_area_from(self.pos(k - 1), self.pos(k))
+            } else {
+                let emit = light.emission_pdf_at(self.model.env, self.pos(k), self.dir(k, k - 1));
+                light.split_emission_pdf(self.pos(k), emit).0
+            };
+            Density::finite(self.pick() * area as f64)
         } else {
             (t..=k).fold(Density::ONE, |p, i| p.times(self.light_density(i)))
         };
@@ -474,11 +499,21 @@ impl Explicit<'_> {
 
 /// A box open at the top: glossy floor, diffuse back wall, mirror left wall, sharp glossy right
 /// wall, a glass slab, a small area light, and point, spot and directional lights; with `sky`,
-/// also the interior's sky map (a sun, and per-normal face balancing in direct sampling). The
-/// floor and the area light have tilted vertex normals, so shading and geometric normals
-/// differ.
-fn test_scene(sky: bool) -> Scene {
+/// also the interior's sky map (a sun, and per-normal face balancing in direct sampling); with
+/// `field`, also a light-field luminaire ([`test_light_field`]). The floor and the area light
+/// have tilted vertex normals, so shading and geometric normals differ.
+fn test_scene(sky: bool, field: bool) -> Scene {
     let mut b = SceneBuilder::new();
+    if field {
+        b.add_light(LightDesc::LightField {
+            position: Vec3::new(0.3, 0.6, 0.2),
+            direction: -Vec3::Y,
+            x_axis: Vec3::new(1.0, 0.0, 0.3),
+            scale: Rgb::ONE,
+            field: std::sync::Arc::new(test_light_field()),
+        })
+        .unwrap();
+    }
     if sky {
         b.set_environment(Some(std::sync::Arc::new(
             crate::scene::interior_sky().unwrap(),
@@ -566,6 +601,35 @@ fn test_scene(sky: bool) -> Scene {
     })
     .unwrap();
     b.build().unwrap()
+}
+
+/// A small light field whose radiance varies with the ray's place and direction, so its
+/// images differ and restricted sampling's density of an image-plane point changes with the
+/// receiver (as the light subpaths' MIS sums must follow).
+fn test_light_field() -> crate::light::LightField {
+    use crate::light::{FilterBasis, LightField, LightFieldLayout};
+    let half = 0.12;
+    let spacing = 2.0 * half / 4.0;
+    let layout = LightFieldLayout {
+        nodes: [9, 9],
+        node_min: Vec2::splat(-half - 2.0 * spacing),
+        node_spacing: Vec2::splat(spacing),
+        basis: FilterBasis::Quadratic,
+        plane_distance: 0.2,
+        image_min: Vec2::splat(-half - 0.3),
+        image_max: Vec2::splat(half + 0.3),
+        resolution: [16, 16],
+    };
+    LightField::bake(layout, 3, |u, s| {
+        if u.x.abs() > half || u.y.abs() > half {
+            return Rgb::ZERO;
+        }
+        let d = s - u;
+        let lobe = (1.0 - 8.0 * (d.x - 0.05).powi(2)).max(0.0) + 0.2;
+        let place = 1.5 + 3.0 * u.x + 0.5 * (30.0 * u.y).sin();
+        Rgb::new(lobe * place, 0.5 * lobe, place) * 20.0
+    })
+    .unwrap()
 }
 
 /// Traces `n_light` light subpaths and `camera_paths` camera paths through random pixels,
@@ -656,6 +720,9 @@ struct Comparison {
     delta_lights: usize,
     /// Paths ending on the environment.
     sky: usize,
+    /// Paths ending on a light field, and those of them sampled by direct sampling (s = 1).
+    field: usize,
+    field_direct: usize,
 }
 
 fn compare(scene: &Scene, view: &View, recorded: &[Recorded], model: Model) -> Comparison {
@@ -720,6 +787,10 @@ fn compare(scene: &Scene, view: &View, recorded: &[Recorded], model: Model) -> C
         if explicit.is_sky(explicit.k()) {
             c.sky += 1;
         }
+        if matches!(explicit.light(), Light::LightField { .. }) {
+            c.field += 1;
+            c.field_direct += (e.s == 1) as usize;
+        }
     }
     c
 }
@@ -732,6 +803,7 @@ fn model(settings: &IntegratorSettings, n_light: usize, n_conn: usize) -> Model 
         n_conn: n_conn as f64,
         roulette: true,
         specular_geometry: true,
+        field_direct_at_receiver: true,
     }
 }
 
@@ -757,8 +829,8 @@ fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
     )
     .unwrap();
     let lens = pinhole.with_thin_lens(0.15, 2.8).unwrap();
-    for sky in [false, true] {
-        let scene = test_scene(sky);
+    for (sky, field) in [(false, false), (true, false), (false, true)] {
+        let scene = test_scene(sky, field);
         for (camera, mis, n_light, all) in [
             (pinhole, MisHeuristic::Power, 1500, false),
             (pinhole, MisHeuristic::Balance, 2000, false),
@@ -784,7 +856,8 @@ fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
             let (view, recorded) = record(&scene, &camera, &bdpt, n_light, camera_paths, 11);
             let c = compare(&scene, &view, &recorded, model(&settings, n_light, n_conn));
             let label = format!(
-                "{mis:?}, {n_light} light paths, lens {}, all paths {all}, sky {sky}",
+                "{mis:?}, {n_light} light paths, lens {}, all paths {all}, sky {sky}, \
+                 field {field}",
                 camera.lens_radius
             );
             assert_close(&label, &c);
@@ -793,6 +866,14 @@ fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
                     c.sky >= 200,
                     "{label}: only {} paths to the sky: {c:?}",
                     c.sky
+                );
+            }
+            if field {
+                assert!(
+                    c.field >= 200 && c.field_direct >= 50,
+                    "{label}: only {} paths from the light field ({} sampled directly): {c:?}",
+                    c.field,
+                    c.field_direct
                 );
             }
             if all {
@@ -815,10 +896,11 @@ fn recursive_weights_equal_explicit_weights_and_sum_to_one() {
     }
 }
 
-/// The comparison can fail: a model with a plausible mistake disagrees with the integrator.
+/// The comparison can fail: a model with a plausible mistake disagrees with the integrator
+/// (in the scene with the light field, so that its mistake can be made too).
 #[test]
 fn weight_comparison_catches_wrong_weights() {
-    let scene = test_scene(false);
+    let scene = test_scene(false, true);
     let camera = Camera::look_at(
         Vec3::new(0.0, 0.2, 3.0),
         Vec3::new(0.0, -0.2, 0.0),
@@ -868,6 +950,13 @@ fn weight_comparison_catches_wrong_weights() {
             "densities through specular vertices remapped to 1",
             Model {
                 specular_geometry: false,
+                ..right
+            },
+        ),
+        (
+            "the light field's direct density taken as emission's",
+            Model {
+                field_direct_at_receiver: false,
                 ..right
             },
         ),

@@ -280,14 +280,6 @@ pub trait Integrator: Send + Sync {
     /// (`path_skeleton`'s scout). Most integrators ignore it.
     fn set_time_budget(&mut self, _seconds: Option<f64>) {}
 
-    /// Why the integrator cannot render `light`, or None. The resampling bidirectional
-    /// methods refuse light-field luminaires (their restricted sampling's density depends on
-    /// the receiver, and their resampled connections' MIS weights are not verified with
-    /// them). Rendering refuses such scenes with this reason.
-    fn refuses_light(&self, _light: &crate::light::Light) -> Option<&'static str> {
-        None
-    }
-
     /// Fails when rendering `scene` needs a `prepare` for it that has not run.
     fn check_prepared(&self, _scene: &Scene) -> Result<()> {
         Ok(())
