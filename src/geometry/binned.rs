@@ -6,11 +6,12 @@
 //! build's time walking a 2n-node binary tree (BENCHMARKS.md, "Build time by stage"). Here each
 //! 8-wide node is made by splitting its triangles with binned SAH (centroids in [`BINS`] bins
 //! per axis, in-place partition of 32-byte references), always splitting the child with the
-//! largest surface area next, until it has 8 children or only single triangles are left; sets
-//! of at most [`MAX_LEAF`] triangles become leaves. Nodes are written depth first in the order
-//! obvhs's conversion writes them (a node's inner children contiguous after the nodes already
-//! written, then their subtrees in slot order), children ordered by direction as there.
-//! Large subtrees are built on rayon tasks and spliced in that order.
+//! largest surface area next, until it has 8 children or only sets of at most [`MAX_LEAF`]
+//! triangles, which become leaves (small sets take an exact SAH sweep instead of bins). Nodes
+//! are written depth first in the order obvhs's conversion writes them (a node's inner
+//! children contiguous after the nodes already written, then their subtrees in slot order),
+//! children ordered by direction as there. Large subtrees are built on rayon tasks and spliced
+//! in that order.
 
 use glam::{Vec3A, Vec4};
 use obvhs::aabb::Aabb;
@@ -24,6 +25,9 @@ use super::sah::half_area;
 
 /// Bins per axis.
 const BINS: usize = 32;
+/// Sets of at most this many triangles are split by an exact SAH sweep instead of bins (a
+/// binning pass costs about as much as its 3 x [`BINS`] bins, whatever the set's size).
+const SWEEP_MAX: usize = 16;
 /// Sets with at least this many triangles are binned on several rayon tasks, in chunks of
 /// [`BIN_CHUNK`].
 const PARALLEL_BIN_MIN: usize = 1 << 15;
@@ -260,17 +264,18 @@ fn rebased(set: &Set) -> Set {
     }
 }
 
-/// Splits `set` (at least 2 triangles) into up to 8 children, Embree's way: the child with the
-/// largest surface area among those of more than one triangle is split next (the one with the
-/// most triangles when `median`). Returns the children (the first `count`), which partition
-/// `prims` into contiguous ranges.
+/// Splits `set` into up to 8 children, Embree's way: the child with the largest surface area
+/// among those too large for a leaf is split next (the one with the most triangles when
+/// `median`). Leaves are not split further: their triangles are tested together, one SIMD
+/// block, and each split costs a binning pass. Returns the children (the first `count`), which
+/// partition `prims` into contiguous ranges.
 fn open(prims: &mut [PrimRef], set: Set, median: bool) -> ([Set; 8], usize) {
     let mut children = [set; 8];
     let mut count = 1;
     while count < 8 {
         let mut best = (f32::NEG_INFINITY, usize::MAX);
         for (i, c) in children[..count].iter().enumerate() {
-            if c.len() <= 1 {
+            if c.len() <= MAX_LEAF as usize {
                 continue;
             }
             let key = if median {
@@ -300,7 +305,8 @@ fn open(prims: &mut [PrimRef], set: Set, median: bool) -> ([Set; 8], usize) {
     (children, count)
 }
 
-/// Splits `set` (at least 2 triangles) into two non-empty sets: the binned SAH split, or at the
+/// Splits `set` (at least 2 triangles) into two non-empty sets: the SAH split (binned, or the
+/// exact sweep for at most [`SWEEP_MAX`] triangles), or at the
 /// median of the widest centroid axis when `median` or when no bin boundary separates the
 /// centroids (then in the middle of the range if they all coincide).
 fn split(prims: &mut [PrimRef], set: Set, median: bool) -> (Set, Set) {
@@ -309,6 +315,8 @@ fn split(prims: &mut [PrimRef], set: Set, median: bool) -> (Set, Set) {
     debug_assert!(m >= 2);
     let binned = if median {
         None
+    } else if m <= SWEEP_MAX {
+        sweep_split(slice)
     } else {
         binned_split(slice, &set.centroids)
     };
@@ -344,6 +352,57 @@ fn split(prims: &mut [PrimRef], set: Set, median: bool) -> (Set, Set) {
             centroids: rc,
         },
     )
+}
+
+/// Exact SAH over every split between the centroids sorted along each axis (ties in slice
+/// order); reorders `prims` so that the split is `prims[..k]`, `prims[k..]`. Returns k and both
+/// sides' box and centroid bounds, or None when every cost is NaN (non-finite input).
+#[allow(clippy::type_complexity)]
+fn sweep_split(prims: &mut [PrimRef]) -> Option<(usize, [Aabb; 2], [Aabb; 2])> {
+    let m = prims.len();
+    debug_assert!(m <= SWEEP_MAX);
+    let mut best = (f32::INFINITY, 0usize, [0u8; SWEEP_MAX]); // (cost, k, order)
+    let mut right_area = [0.0f32; SWEEP_MAX];
+    for axis in 0..3 {
+        let mut keys = [(0.0f32, 0u8); SWEEP_MAX];
+        for (i, p) in prims.iter().enumerate() {
+            keys[i] = (p.centroid2()[axis], i as u8);
+        }
+        let keys = &mut keys[..m];
+        keys.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut acc = Aabb::empty();
+        for k in (1..m).rev() {
+            let p = &prims[keys[k].1 as usize];
+            acc = acc.union(&Aabb::new(p.lo(), p.hi()));
+            right_area[k] = half_area(&acc);
+        }
+        let mut acc = Aabb::empty();
+        let mut improved = false;
+        for k in 1..m {
+            let p = &prims[keys[k - 1].1 as usize];
+            acc = acc.union(&Aabb::new(p.lo(), p.hi()));
+            let cost = half_area(&acc) * k as f32 + right_area[k] * (m - k) as f32;
+            if cost < best.0 {
+                (best.0, best.1) = (cost, k);
+                improved = true;
+            }
+        }
+        if improved {
+            for (o, key) in best.2.iter_mut().zip(keys.iter()) {
+                *o = key.1;
+            }
+        }
+    }
+    let (_, k, order) = best;
+    if k == 0 {
+        return None;
+    }
+    let original: [PrimRef; SWEEP_MAX] = std::array::from_fn(|i| prims[i.min(m - 1)]);
+    for (p, &o) in prims.iter_mut().zip(order.iter()) {
+        *p = original[o as usize];
+    }
+    let ((lb, lc), (rb, rc)) = (bounds_of(&prims[..k]), bounds_of(&prims[k..]));
+    Some((k, [lb, lc], [rb, rc]))
 }
 
 /// Per-axis bins: the union of the boxes and the number of the triangles whose centroid falls
