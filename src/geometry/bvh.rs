@@ -1,5 +1,6 @@
 //! 8-wide BVH over triangles: built with obvhs (PLOC or a top-down SAH build, then obvhs's
-//! BVH2 -> CWBVH conversion, which chooses the 8-wide topology, the leaves and the child order),
+//! BVH2 -> CWBVH conversion, which chooses the 8-wide topology, the leaves and the child order;
+//! `convert.rs`), or for [`BvhQuality::Fast`] directly by binned SAH (`binned.rs`),
 //! but stored and traversed as Lacuna's own uncompressed nodes ([`WideNode`]: the children's
 //! exact f32 boxes, one 256-bit load per plane) instead of obvhs's 8-bit quantised ones (why:
 //! see [`WideNode`]). The triangles are copied into BVH leaf order (in SIMD blocks of four,
