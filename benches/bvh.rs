@@ -1517,6 +1517,7 @@ mod methods {
             BuildMethod::Sah { reinsertion: 0.2 },
             BuildMethod::Cheaper(BvhQuality::Medium, 0.0),
             BuildMethod::Cheaper(BvhQuality::High, 0.05),
+            BuildMethod::Binned,
         ];
         let meshes = std::env::var("BVH_BENCH_MESHES").unwrap_or("room,cornell,100k,sponza".into());
         for name in meshes.split(',') {
@@ -1615,8 +1616,9 @@ mod stages {
     /// Stages in table order (before the conversion computed its own costs, "8-wide cost" was
     /// the choice between two trees and "cwbvh conversion" included the kept tree's costs) (stages of the two trees of a `Cheaper` build overlap; "both
     /// binary trees" is their wall time together).
-    const STAGES: [&str; 11] = [
+    const STAGES: [&str; 12] = [
         "input",
+        "binned 8-wide build",
         "PLOC",
         "PLOC reinsertion",
         "SAH build",
@@ -1630,13 +1632,15 @@ mod stages {
     ];
 
     /// Medium's method, or the one `BVH_BENCH_METHOD` names: `ploc`, `sah` (no reinsertion),
-    /// `sah-0.05` (5 % reinsertion), `cheaper` (both, Medium's parameters).
+    /// `sah-0.05` (5 % reinsertion), `cheaper` (both, Medium's parameters), `binned` (the
+    /// 8-wide binned SAH build).
     fn stages_method(n: usize) -> BuildMethod {
         match std::env::var("BVH_BENCH_METHOD").as_deref() {
             Ok("ploc") => BuildMethod::Ploc(BvhQuality::Medium),
             Ok("sah") => BuildMethod::Sah { reinsertion: 0.0 },
             Ok("sah-0.05") => BuildMethod::Sah { reinsertion: 0.05 },
             Ok("cheaper") => BuildMethod::Cheaper(BvhQuality::Medium, 0.0),
+            Ok("binned") => BuildMethod::Binned,
             _ => BvhQuality::Medium.method(n),
         }
     }

@@ -259,6 +259,8 @@ typedef struct {
 
 static RTCDevice g_device;
 static lacuna_context *g_ctx;
+/* Lacuna's BVH build quality (fourth argument: fast, medium or high; default medium). */
+static lacuna_bvh_quality g_quality = LACUNA_BVH_QUALITY_MEDIUM;
 
 static void embree_error(void *user, enum RTCError code, const char *str) {
     (void)user;
@@ -303,6 +305,7 @@ static lacuna_scene *lacuna_from_mesh(const mesh_t *m) {
     uint32_t mat, mi;
     lacuna_scene *s;
     TRY(lacuna_scene_builder_new(g_ctx, &b));
+    TRY(lacuna_scene_builder_set_bvh_quality(b, g_quality));
     TRY(lacuna_scene_builder_add_material(b, LACUNA_MATERIAL_KIND_DIFFUSE, &mat));
     TRY(lacuna_mesh_new(&lm));
     TRY(lacuna_mesh_set_positions(lm, m->pos, 0, m->nv));
@@ -927,12 +930,21 @@ static int check_obj_numbering(scene_t *sc, size_t lacuna_nt) {
 /* ---------------------------------------------------------------- main */
 int main(int argc, char **argv) {
     if (argc < 3) {
-        fprintf(stderr, "usage: %s <repo-root> <out-dir> [ray-scale]\n", argv[0]);
+        fprintf(stderr, "usage: %s <repo-root> <out-dir> [ray-scale] [fast|medium|high]\n",
+                argv[0]);
         return 2;
     }
     const char *root = argv[1], *out_dir = argv[2];
     double ray_scale = argc > 3 ? atof(argv[3]) : 1.0;
     if (!(ray_scale > 0)) ray_scale = 1;
+    if (argc > 4) {
+        if (strcmp(argv[4], "fast") == 0) g_quality = LACUNA_BVH_QUALITY_FAST;
+        else if (strcmp(argv[4], "high") == 0) g_quality = LACUNA_BVH_QUALITY_HIGH;
+        else if (strcmp(argv[4], "medium") != 0) {
+            fprintf(stderr, "unknown BVH quality %s\n", argv[4]);
+            return 2;
+        }
+    }
     mkdir(out_dir, 0777);
     if (lacuna_version() != LACUNA_VERSION) {
         fprintf(stderr, "header %s but library %s\n", LACUNA_VERSION_STRING,
@@ -944,8 +956,9 @@ int main(int argc, char **argv) {
     rtcSetDeviceErrorFunction(g_device, embree_error, NULL);
     TRY(lacuna_context_new(&g_ctx));
     TRY(lacuna_context_set_thread_count(g_ctx, 2));
-    printf("Embree %d.%d.%d vs Lacuna %s, ray scale %g\n", RTC_VERSION_MAJOR, RTC_VERSION_MINOR,
-           RTC_VERSION_PATCH, lacuna_version_string(), ray_scale);
+    printf("Embree %d.%d.%d vs Lacuna %s, ray scale %g, BVH quality %s\n", RTC_VERSION_MAJOR,
+           RTC_VERSION_MINOR, RTC_VERSION_PATCH, lacuna_version_string(), ray_scale,
+           argc > 4 ? argv[4] : "medium");
 
     enum { NSCENES = 4 };
     scene_t scenes[NSCENES];

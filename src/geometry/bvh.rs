@@ -1,5 +1,6 @@
 //! 8-wide BVH over triangles: built with obvhs (PLOC or a top-down SAH build, then obvhs's
-//! BVH2 -> CWBVH conversion, which chooses the 8-wide topology, the leaves and the child order),
+//! BVH2 -> CWBVH conversion, which chooses the 8-wide topology, the leaves and the child order;
+//! `convert.rs`), or for [`BvhQuality::Fast`] directly by binned SAH (`binned.rs`),
 //! but stored and traversed as Lacuna's own uncompressed nodes ([`WideNode`]: the children's
 //! exact f32 boxes, one 256-bit load per plane) instead of obvhs's 8-bit quantised ones (why:
 //! see [`WideNode`]). The triangles are copied into BVH leaf order (in SIMD blocks of four,
@@ -29,7 +30,8 @@ use crate::math::Vec3;
 /// Build quality: a trade between build time and traversal speed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum BvhQuality {
-    /// Shortest build (interactive edits): obvhs's PLOC, "fast" parameters.
+    /// Shortest build (interactive edits): the 8-wide tree built directly by binned SAH
+    /// ([`BuildMethod::Binned`]).
     Fast,
     /// The default: obvhs's PLOC ("medium" parameters), and up to 2^18 triangles also a
     /// top-down SAH build, keeping the cheaper tree (see [`BvhQuality::method`]).
@@ -57,7 +59,7 @@ impl BvhQuality {
     /// milliseconds) and High always, keeping the cheaper tree.
     pub fn method(self, n: usize) -> BuildMethod {
         match self {
-            BvhQuality::Fast => BuildMethod::Ploc(BvhQuality::Fast),
+            BvhQuality::Fast => BuildMethod::Binned,
             BvhQuality::Medium if n <= 1 << 18 => BuildMethod::Cheaper(BvhQuality::Medium, 0.0),
             BvhQuality::Medium => BuildMethod::Ploc(BvhQuality::Medium),
             BvhQuality::High => BuildMethod::Cheaper(BvhQuality::High, 0.05),
@@ -78,6 +80,8 @@ pub enum BuildMethod {
     /// Both of the above; keeps the tree whose 8-wide form has the lower SAH cost (the cost
     /// model of obvhs's BVH2 -> CWBVH conversion, Ylitie et al. 2017).
     Cheaper(BvhQuality, f32),
+    /// The 8-wide tree built directly by binned SAH (`binned.rs`): no binary tree.
+    Binned,
 }
 
 /// obvhs's `build_cwbvh_from_tris` up to the binary BVH: PLOC over the triangles (or over
@@ -337,6 +341,41 @@ impl LeafLayout {
     }
 }
 
+/// The 8-wide tree of a method that builds binary trees: the binary tree(s), the 8-wide cost
+/// table of each, and the conversion of the cheaper one.
+fn via_binary(tris: &[Triangle], method: BuildMethod, profile: &BuildProfile) -> CwBvh {
+    // (PLOC's tree, the other) where both are built, else (None, the one).
+    let bvh2 = match method {
+        BuildMethod::Ploc(quality) => (None, ploc_bvh2(tris, quality.ploc_params(), profile)),
+        BuildMethod::Sah { reinsertion } => (None, sah_bvh2(tris, reinsertion, profile)),
+        BuildMethod::Cheaper(quality, reinsertion) => {
+            let (ploc, sah) = profile.time("both binary trees", || {
+                rayon::join(
+                    || ploc_bvh2(tris, quality.ploc_params(), profile),
+                    || sah_bvh2(tris, reinsertion, profile),
+                )
+            });
+            (Some(ploc), sah)
+        }
+        BuildMethod::Binned => unreachable!("the binned build makes no binary tree"),
+    };
+    // The 8-wide costs of both trees (in parallel), then the cheaper one's conversion.
+    let (ploc_table, table) = profile.time("8-wide cost", || match &bvh2 {
+        (Some(ploc), sah) => {
+            let (p, s) = rayon::join(|| CostTable::new(ploc), || CostTable::new(sah));
+            profile.set_costs(p.root_cost(), s.root_cost());
+            (Some(p), s)
+        }
+        (None, bvh2) => (None, CostTable::new(bvh2)),
+    });
+    let table = match ploc_table {
+        Some(p) if !(table.root_cost() < p.root_cost()) => p,
+        _ => table,
+    };
+    profile.set_cost(table.root_cost());
+    profile.time("cwbvh conversion", || table.convert())
+}
+
 /// The acceleration structure of a scene. Immutable and `Sync`: queries may run from any number
 /// of threads.
 pub struct Bvh {
@@ -393,36 +432,14 @@ impl Bvh {
                 })
                 .collect()
         });
-        // (PLOC's tree, the other) where both are built, else (None, the one).
-        let bvh2 = match method {
-            BuildMethod::Ploc(quality) => (None, ploc_bvh2(&tris, quality.ploc_params(), profile)),
-            BuildMethod::Sah { reinsertion } => (None, sah_bvh2(&tris, reinsertion, profile)),
-            BuildMethod::Cheaper(quality, reinsertion) => {
-                let (ploc, sah) = profile.time("both binary trees", || {
-                    rayon::join(
-                        || ploc_bvh2(&tris, quality.ploc_params(), profile),
-                        || sah_bvh2(&tris, reinsertion, profile),
-                    )
-                });
-                (Some(ploc), sah)
+        let mut cwbvh = match method {
+            BuildMethod::Binned => {
+                let built = profile.time("binned 8-wide build", || super::binned::build(&tris));
+                profile.set_cost(built.cost);
+                built.cwbvh
             }
+            _ => via_binary(&tris, method, profile),
         };
-        // The 8-wide costs of both trees (in parallel), then the cheaper one's conversion.
-        let (ploc_table, table) = profile.time("8-wide cost", || match &bvh2 {
-            (Some(ploc), sah) => {
-                let (p, s) = rayon::join(|| CostTable::new(ploc), || CostTable::new(sah));
-                profile.set_costs(p.root_cost(), s.root_cost());
-                (Some(p), s)
-            }
-            (None, bvh2) => (None, CostTable::new(bvh2)),
-        });
-        let table = match ploc_table {
-            Some(p) if !(table.root_cost() < p.root_cost()) => p,
-            _ => table,
-        };
-        profile.set_cost(table.root_cost());
-        let mut cwbvh = profile.time("cwbvh conversion", || table.convert());
-        drop(table);
         let too_deep = profile.time("depth check", || {
             cwbvh_inner_depth(&cwbvh) > MAX_TRAVERSAL_DEPTH
         });
@@ -1209,37 +1226,39 @@ mod tests {
         let mut rng = Rng::new(5, 1);
         for n in [1usize, 2, 3, 5, 17, 300, 5000] {
             let tris = random_triangles(n, &mut rng);
-            let bvh = Bvh::build(&tris, BvhQuality::Medium);
-            let mut seen = vec![0u32; n];
-            for node in &bvh.nodes {
-                assert_eq!(node.primitive_base_idx % 4, 0);
-                let mut leaves: Vec<(u32, u32)> = (0..8)
-                    .filter(|&c| node.imask & (1 << c) == 0 && node.child_meta[c] != 0)
-                    .map(|c| {
-                        let meta = node.child_meta[c];
-                        ((meta & 0x1f) as u32, (meta >> 5).count_ones())
-                    })
-                    .collect();
-                leaves.sort();
-                let packed: u32 = leaves.iter().map(|l| l.1).sum();
-                let straddles = leaves.iter().any(|&(o, c)| o / 4 != (o + c - 1) / 4);
-                // Only a node whose aligned leaves would not fit 24 bits keeps a straddle.
-                assert!(!straddles || packed > 16, "{leaves:?}");
-                for (offset, count) in leaves {
-                    for k in 0..count {
-                        let slot = (node.primitive_base_idx + offset + k) as usize;
-                        let block = &bvh.blocks[slot / 4];
-                        assert!(block.lanes() & (1 << (slot % 4)) != 0);
-                        let id = block.id(slot % 4) as usize;
-                        assert_eq!(block.triangle(slot % 4), tris[id]);
-                        seen[id] += 1;
+            for method in [BvhQuality::Medium.method(n), BuildMethod::Binned] {
+                let bvh = Bvh::build_with(&tris, method);
+                let mut seen = vec![0u32; n];
+                for node in &bvh.nodes {
+                    assert_eq!(node.primitive_base_idx % 4, 0);
+                    let mut leaves: Vec<(u32, u32)> = (0..8)
+                        .filter(|&c| node.imask & (1 << c) == 0 && node.child_meta[c] != 0)
+                        .map(|c| {
+                            let meta = node.child_meta[c];
+                            ((meta & 0x1f) as u32, (meta >> 5).count_ones())
+                        })
+                        .collect();
+                    leaves.sort();
+                    let packed: u32 = leaves.iter().map(|l| l.1).sum();
+                    let straddles = leaves.iter().any(|&(o, c)| o / 4 != (o + c - 1) / 4);
+                    // Only a node whose aligned leaves would not fit 24 bits keeps a straddle.
+                    assert!(!straddles || packed > 16, "{leaves:?}");
+                    for (offset, count) in leaves {
+                        for k in 0..count {
+                            let slot = (node.primitive_base_idx + offset + k) as usize;
+                            let block = &bvh.blocks[slot / 4];
+                            assert!(block.lanes() & (1 << (slot % 4)) != 0);
+                            let id = block.id(slot % 4) as usize;
+                            assert_eq!(block.triangle(slot % 4), tris[id]);
+                            seen[id] += 1;
+                        }
                     }
                 }
+                assert!(seen.iter().all(|&s| s == 1), "n = {n}");
+                // The occupied-lane masks mark exactly the lanes that hold a triangle.
+                let marked: u32 = bvh.blocks.iter().map(|b| b.lanes().count_ones()).sum();
+                assert_eq!(marked as usize, n);
             }
-            assert!(seen.iter().all(|&s| s == 1), "n = {n}");
-            // The occupied-lane masks mark exactly the lanes that hold a triangle.
-            let marked: u32 = bvh.blocks.iter().map(|b| b.lanes().count_ones()).sum();
-            assert_eq!(marked as usize, n);
         }
     }
 
@@ -1318,6 +1337,7 @@ mod tests {
                 BuildMethod::Ploc(BvhQuality::Medium),
                 BuildMethod::Ploc(BvhQuality::High),
                 BuildMethod::Sah { reinsertion: 0.0 },
+                BuildMethod::Binned,
                 BvhQuality::Medium.method(tris.len()),
             ] {
                 let bvh = Bvh::build_with(tris, method);
@@ -1440,6 +1460,7 @@ mod tests {
                 BuildMethod::Ploc(BvhQuality::High),
                 BuildMethod::Sah { reinsertion: 0.0 },
                 BuildMethod::Sah { reinsertion: 0.05 },
+                BuildMethod::Binned,
                 BvhQuality::Medium.method(tris.len()),
             ] {
                 let bvh = Bvh::build_with(&tris, quality);
@@ -1681,6 +1702,7 @@ mod tests {
             for quality in [
                 BuildMethod::Ploc(BvhQuality::Fast),
                 BuildMethod::Sah { reinsertion: 0.0 },
+                BuildMethod::Binned,
                 BvhQuality::High.method(tris.len()),
             ] {
                 let bvh = Bvh::build_with(&tris, quality);
@@ -1839,6 +1861,7 @@ mod tests {
             for method in [
                 BuildMethod::Ploc(BvhQuality::Medium),
                 BuildMethod::Sah { reinsertion: 0.0 },
+                BuildMethod::Binned,
             ] {
                 let bvh = Bvh::build_with(&tris, method);
                 let mut below = Vec::new();
@@ -1966,6 +1989,7 @@ mod tests {
             for method in [
                 BuildMethod::Ploc(BvhQuality::Fast),
                 BuildMethod::Sah { reinsertion: 0.0 },
+                BuildMethod::Binned,
             ] {
                 let bvh = Bvh::build_with(&tris, method);
                 for i in 0..400 {

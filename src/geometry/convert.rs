@@ -20,10 +20,10 @@ use obvhs::cwbvh::CwBvh;
 use rayon::prelude::*;
 
 /// Cost of one primitive relative to a node visit (obvhs's `PRIM_COST`).
-const PRIM_COST: f32 = 0.3;
+pub(crate) const PRIM_COST: f32 = 0.3;
 /// Most triangles in one leaf of the 8-wide tree (obvhs's `max_prims_per_leaf` as Lacuna calls
 /// it; the leaf encoding allows 3).
-const MAX_LEAF: u32 = 3;
+pub(crate) const MAX_LEAF: u32 = 3;
 /// Binary subtrees whose root is above this depth fill their cost tables on separate rayon
 /// tasks (2^12 tasks at most; below, one task per subtree).
 const PARALLEL_COST_DEPTH: u32 = 12;
@@ -227,20 +227,7 @@ impl<'a> CostTable<'a> {
             .map(|&child| self.subtree(child as usize, depth + 1))
             .collect();
         let base = nodes[0].child_base_idx as usize;
-        for (rank, (sub, sub_prims)) in parts.into_iter().enumerate() {
-            // Local index j >= 1 of `sub` lands at `node_offset + j - 1`; its root at its slot.
-            let node_offset = nodes.len() as u32;
-            let prim_offset = prims.len() as u32;
-            let shift = |mut n: CwBvhNode| {
-                n.child_base_idx = n.child_base_idx + node_offset - 1;
-                n.primitive_base_idx += prim_offset;
-                n
-            };
-            let mut sub = sub.into_iter();
-            nodes[base + rank] = shift(sub.next().expect("subtree root"));
-            nodes.extend(sub.map(shift));
-            prims.extend_from_slice(&sub_prims);
-        }
+        splice_subtrees(&mut nodes, &mut prims, base, parts);
         (nodes, prims)
     }
 
@@ -328,52 +315,18 @@ impl<'a> CostTable<'a> {
         }
     }
 
-    /// obvhs's `order_children`: greedy assignment of children to the 8 octant slots by the
-    /// direction of their centres from the node's centre.
+    /// obvhs's `order_children` ([`octant_slots`] of the children's box centres).
     fn order_children(&self, node: usize, children: &mut [u32; 8], count: usize) {
         let p = self.bvh2.nodes[node].aabb().center();
-        let mut cost = [[f32::MAX; 8]; 8];
-        for s in 0..8 {
-            let d = Vec3A::new(
-                if s & 0b100 != 0 { -1.0 } else { 1.0 },
-                if s & 0b010 != 0 { -1.0 } else { 1.0 },
-                if s & 0b001 != 0 { -1.0 } else { 1.0 },
-            );
-            for c in 0..count {
-                let v = self.bvh2.nodes[children[c] as usize].aabb().center() - p;
-                cost[c][s] = d.dot(v);
-            }
-        }
-        let mut assignment = [usize::MAX; 8];
-        let mut slot_filled = [false; 8];
-        loop {
-            let (mut min_cost, mut min_slot, mut min_index) = (f32::MAX, usize::MAX, usize::MAX);
-            for c in 0..count {
-                if assignment[c] == usize::MAX {
-                    for s in 0..8 {
-                        if !slot_filled[s] && cost[c][s] < min_cost {
-                            (min_cost, min_slot, min_index) = (cost[c][s], s, c);
-                        }
-                    }
-                }
-            }
-            if min_slot == usize::MAX {
-                break;
-            }
-            slot_filled[min_slot] = true;
-            assignment[min_index] = min_slot;
-        }
+        let centres: [Vec3A; 8] = std::array::from_fn(|c| {
+            children[..count].get(c).map_or(Vec3A::ZERO, |&i| {
+                self.bvh2.nodes[i as usize].aabb().center()
+            })
+        });
+        let slots = octant_slots(p, &centres[..count]);
         let original = std::mem::replace(children, [u32::MAX; 8]);
         for c in 0..count {
-            // A child no slot was cheaper than f32::MAX for (NaN centres) takes a free slot.
-            let slot = if assignment[c] == usize::MAX {
-                let s = slot_filled.iter().position(|f| !f).expect("a free slot");
-                slot_filled[s] = true;
-                s
-            } else {
-                assignment[c]
-            };
-            children[slot] = original[c];
+            children[slots[c]] = original[c];
         }
     }
 
@@ -387,6 +340,79 @@ impl<'a> CostTable<'a> {
         }
         self.push_primitives(n.first_index as usize, prims)
             + self.push_primitives(n.first_index as usize + 1, prims)
+    }
+}
+
+/// obvhs's `order_children`: the slot of each of up to 8 children, assigned greedily by the
+/// direction of their box centres from the node's centre `p` (slot bits: negative x, y, z),
+/// so that traversal can visit them nearest first by the ray's octant.
+pub(crate) fn octant_slots(p: Vec3A, centres: &[Vec3A]) -> [usize; 8] {
+    let count = centres.len();
+    debug_assert!(count <= 8);
+    let mut cost = [[f32::MAX; 8]; 8];
+    for s in 0..8 {
+        let d = Vec3A::new(
+            if s & 0b100 != 0 { -1.0 } else { 1.0 },
+            if s & 0b010 != 0 { -1.0 } else { 1.0 },
+            if s & 0b001 != 0 { -1.0 } else { 1.0 },
+        );
+        for c in 0..count {
+            cost[c][s] = d.dot(centres[c] - p);
+        }
+    }
+    let mut assignment = [usize::MAX; 8];
+    let mut slot_filled = [false; 8];
+    loop {
+        let (mut min_cost, mut min_slot, mut min_index) = (f32::MAX, usize::MAX, usize::MAX);
+        for c in 0..count {
+            if assignment[c] == usize::MAX {
+                for s in 0..8 {
+                    if !slot_filled[s] && cost[c][s] < min_cost {
+                        (min_cost, min_slot, min_index) = (cost[c][s], s, c);
+                    }
+                }
+            }
+        }
+        if min_slot == usize::MAX {
+            break;
+        }
+        slot_filled[min_slot] = true;
+        assignment[min_index] = min_slot;
+    }
+    for a in assignment.iter_mut().take(count) {
+        // A child no slot was cheaper than f32::MAX for (NaN centres) takes a free slot.
+        if *a == usize::MAX {
+            let s = slot_filled.iter().position(|f| !f).expect("a free slot");
+            slot_filled[s] = true;
+            *a = s;
+        }
+    }
+    assignment
+}
+
+/// Appends 8-wide subtrees (each with its root at index 0 and indices relative to its own
+/// arrays) to `nodes` and `prims`, as obvhs's depth-first recursion would have written them:
+/// subtree `rank`'s root goes to the already allocated `nodes[base + rank]`, its other nodes
+/// and its primitives after the current ends.
+pub(crate) fn splice_subtrees(
+    nodes: &mut Vec<CwBvhNode>,
+    prims: &mut Vec<u32>,
+    base: usize,
+    parts: Vec<(Vec<CwBvhNode>, Vec<u32>)>,
+) {
+    for (rank, (sub, sub_prims)) in parts.into_iter().enumerate() {
+        // Local index j >= 1 of `sub` lands at `node_offset + j - 1`; its root at its slot.
+        let node_offset = nodes.len() as u32;
+        let prim_offset = prims.len() as u32;
+        let shift = |mut n: CwBvhNode| {
+            n.child_base_idx = n.child_base_idx + node_offset - 1;
+            n.primitive_base_idx += prim_offset;
+            n
+        };
+        let mut sub = sub.into_iter();
+        nodes[base + rank] = shift(sub.next().expect("subtree root"));
+        nodes.extend(sub.map(shift));
+        prims.extend_from_slice(&sub_prims);
     }
 }
 

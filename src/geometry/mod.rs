@@ -5,6 +5,7 @@
 //! that spawned rays start just outside the surface without a per-scene epsilon
 //! (Pharr, Jakob and Humphreys, pbrt-v4 §6.8).
 
+mod binned;
 mod bvh;
 mod convert;
 mod sah;

@@ -47,7 +47,7 @@ impl PrimRef {
 
 /// Surface area / 2 of a box, 0 for an empty one.
 #[inline]
-fn half_area(b: &Aabb) -> f32 {
+pub(super) fn half_area(b: &Aabb) -> f32 {
     let d = (b.max - b.min).max(Vec3A::ZERO);
     (d.x + d.y) * d.z + d.x * d.y
 }
