@@ -58,7 +58,7 @@ fn direct(scene: &Scene, si: &SurfaceInteraction, rng: &mut Rng) -> Rgb {
     let frame = si.shading_frame();
     let wo = frame.to_local(si.wo);
     let wi = frame.to_local(ls.wi);
-    let f = bsdf.eval(wo, wi) * wi.z.abs();
+    let f = bsdf.eval(wo, wi, Transport::Radiance) * wi.z.abs();
     if f == Rgb::ZERO || !scene.unoccluded(si, &ls) {
         return Rgb::ZERO;
     }
@@ -224,7 +224,7 @@ fn main() {
                     continue;
                 };
                 let wl = frame.to_local(wi);
-                let f = bsdf.eval(wo, wl) * wl.z.abs();
+                let f = bsdf.eval(wo, wl, Transport::Radiance) * wl.z.abs();
                 let pdf = query.mixture_pdf(wi, bsdf.pdf(wo, wl));
                 let (v, lit) = match scene.intersect(&si.spawn_ray(wi)) {
                     Some(next) if f != Rgb::ZERO && wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0 => {

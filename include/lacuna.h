@@ -180,6 +180,8 @@ enum lacuna_material_kind
     LACUNA_MATERIAL_KIND_MIRROR = 2,
     // Smooth glass with index of refraction IOR.
     LACUNA_MATERIAL_KIND_DIELECTRIC = 3,
+    // Frosted glass: index of refraction IOR, GGX microfacet width ROUGHNESS (default 0.3).
+    LACUNA_MATERIAL_KIND_ROUGH_DIELECTRIC = 4,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -220,6 +222,8 @@ enum lacuna_material_float
     LACUNA_MATERIAL_FLOAT_EXPONENT = 0,
     // Index of refraction, > 0.
     LACUNA_MATERIAL_FLOAT_IOR = 1,
+    // GGX width alpha of ROUGH_DIELECTRIC in [0, 1] (below 1e-3 rendered as 1e-3).
+    LACUNA_MATERIAL_FLOAT_ROUGHNESS = 2,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -1023,14 +1027,16 @@ typedef struct lacuna_skeleton_node {
 } lacuna_skeleton_node;
 
 // A surface point and its material, resolved at a hit (`lacuna_scene_get_surface`). The
-// layout (116 bytes, 4-byte aligned) never changes with build options.
+// layout (120 bytes, 4-byte aligned) never changes with build options.
 //
 // Materials follow Lacuna's conventions (docs/scene-format.md): BSDFs are two-sided (they
 // reflect on the side of the outgoing direction); DIFFUSE is Lambertian `diffuse / pi`;
 // GLOSSY is the modified Phong `diffuse / pi + specular (exponent + 2) / (2 pi)
 // cos^exponent(alpha)` with alpha the angle between the incident direction and the mirror
 // direction of the outgoing one (zero beyond 90 degrees); MIRROR reflects `specular`;
-// DIELECTRIC is smooth glass of index `ior`. `emission` is emitted on the geometric normal's
+// DIELECTRIC is smooth glass of index `ior`; ROUGH_DIELECTRIC is frosted glass of index `ior`,
+// GGX microfacet reflection and transmission (Walter et al. 2007, separable Smith G) of width
+// alpha = `roughness`. `emission` is emitted on the geometric normal's
 // side only.
 typedef struct lacuna_surface {
     float position[3];
@@ -1051,7 +1057,7 @@ typedef struct lacuna_surface {
     float exponent;
     // Texture coordinates (the barycentrics u, v without texture coordinates).
     float uv[2];
-    // Index of refraction (DIELECTRIC).
+    // Index of refraction (DIELECTRIC, ROUGH_DIELECTRIC).
     float ior;
     // Diffuse albedo with the texture applied.
     struct lacuna_rgb diffuse;
@@ -1059,6 +1065,8 @@ typedef struct lacuna_surface {
     struct lacuna_rgb specular;
     // Emitted radiance on the front side.
     struct lacuna_rgb emission;
+    // GGX width alpha (ROUGH_DIELECTRIC; at least 1e-3 where it is rendered).
+    float roughness;
 } lacuna_surface;
 
 // The scene's camera (`lacuna_scene_get_camera`): a look-at placement with a vertical field

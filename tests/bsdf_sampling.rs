@@ -167,7 +167,7 @@ fn chi2_bsdf(name: &str, bsdf: &Bsdf, wo: Vec3, grid: &SphereGrid, seed: u64) ->
                 s.pdf,
                 s.wi
             );
-            let f = bsdf.eval(wo, s.wi);
+            let f = bsdf.eval(wo, s.wi, Transport::Radiance);
             for c in 0..3 {
                 assert!(
                     s.f[c].is_finite() && rel_close(s.f[c], f[c], 1e-4),
@@ -188,7 +188,7 @@ fn chi2_bsdf(name: &str, bsdf: &Bsdf, wo: Vec3, grid: &SphereGrid, seed: u64) ->
 fn albedo_quadrature(bsdf: &Bsdf, wo: Vec3, grid: &SphereGrid) -> f64 {
     grid.integrate(|w| {
         let wi = to32(w);
-        bsdf.eval(wo, wi).x as f64 * w.z.abs()
+        bsdf.eval(wo, wi, Transport::Radiance).x as f64 * w.z.abs()
     })
     .iter()
     .sum()
@@ -455,7 +455,7 @@ fn mirror_throughput_is_reflectance() {
             "wo {wo}: throughput {throughput}"
         );
         // Delta lobes are invisible to eval and pdf.
-        assert_eq!(bsdf.eval(wo, s.wi), Rgb::ZERO);
+        assert_eq!(bsdf.eval(wo, s.wi, Transport::Radiance), Rgb::ZERO);
         assert_eq!(bsdf.pdf(wo, s.wi), 0.0);
     }
 }
@@ -675,6 +675,270 @@ fn dielectric_importance_transport_conserves_energy() {
 }
 
 // ---------------------------------------------------------------------------------------
+// Rough dielectric (GGX microfacet reflection and transmission).
+
+fn rough(eta: f32, alpha: f32) -> Bsdf {
+    Material::rough_dielectric(eta, alpha).bsdf(Rgb::ZERO)
+}
+
+/// The refracted direction of `wo` through the macro surface, if any (`eta` inside/outside).
+fn refracted(wo: Vec3, eta: f32) -> Option<DVec3> {
+    let w = to64(wo);
+    let etap = if w.z > 0.0 {
+        eta as f64
+    } else {
+        1.0 / eta as f64
+    };
+    let cos_i = w.z.abs();
+    let sin2_t = (1.0 - cos_i * cos_i) / (etap * etap);
+    if sin2_t >= 1.0 {
+        return None;
+    }
+    let n = DVec3::new(0.0, 0.0, w.z.signum());
+    Some((-w / etap + n * (cos_i / etap - (1.0 - sin2_t).sqrt())).normalize())
+}
+
+/// A grid resolving the reflection lobe (around the mirror direction) and the transmission
+/// lobe (around the refracted direction) of width about `alpha`.
+fn rough_grid(wo: Vec3, eta: f32, alpha: f32) -> SphereGrid {
+    let mut grid = SphereGrid::uniform(24, 48);
+    // Transmissions end where the half vector wo + etap wi turns horizontal (beyond, only a
+    // microfacet facing down would join them), at wi.z = -wo.z / etap, with the density
+    // nonzero on one side: a step the quadrature must see as a cell edge.
+    let etap = if wo.z > 0.0 {
+        eta as f64
+    } else {
+        1.0 / eta as f64
+    };
+    let z_step = -(wo.z as f64) / etap;
+    if z_step.abs() < 1.0 {
+        grid.cos_edges.push(z_step);
+    }
+    grid.tidy();
+    let sigma = 0.5 * alpha as f64;
+    grid.refine_lobe(lobe_axis(wo), sigma, 5.0, 8);
+    if let Some(t) = refracted(wo, eta) {
+        grid.refine_lobe(t, sigma, 5.0, 8);
+    }
+    grid
+}
+
+/// Samples the rough dielectric at `wo` through `chi2_directions` (reflections and
+/// transmissions alike), checking each sample against `pdf` and `eval` in `mode`; returns
+/// the run and the importance-sampled estimate of the albedo f |cos| / pdf.
+fn chi2_rough(
+    name: &str,
+    bsdf: &Bsdf,
+    wo: Vec3,
+    grid: &SphereGrid,
+    seed: u64,
+    mode: Transport,
+) -> (Run, Stats) {
+    let mut albedo = Stats::default();
+    let run = chi2_directions(
+        name,
+        grid,
+        seed,
+        |rng| {
+            let uc = rng.uniform();
+            let u = rng.uniform2();
+            let Some(s) = bsdf.sample(wo, uc, u, mode) else {
+                albedo.add(0.0);
+                return None;
+            };
+            assert!(
+                !s.delta && (s.wi.length() - 1.0).abs() < 1e-4,
+                "{name}: {s:?}"
+            );
+            let pdf = bsdf.pdf(wo, s.wi);
+            assert!(
+                s.pdf > 0.0 && s.pdf.is_finite() && rel_close(s.pdf, pdf, 1e-4),
+                "{name}: sample pdf {} but pdf() = {pdf} at wi {}",
+                s.pdf,
+                s.wi
+            );
+            let f = bsdf.eval(wo, s.wi, mode);
+            assert!(
+                s.f.x.is_finite() && rel_close(s.f.x, f.x, 1e-4),
+                "{name}: sample f {} but eval() = {f} at wi {}",
+                s.f,
+                s.wi
+            );
+            albedo.add((s.f.x * s.wi.z.abs() / s.pdf) as f64);
+            Some(s.wi)
+        },
+        |w| bsdf.pdf(wo, w),
+    );
+    (run, albedo)
+}
+
+/// Outgoing directions for the rough dielectric: above (outside) and below (inside, where
+/// 70 degrees is beyond the critical angle of glass 1.5 and its transmission vanishes).
+fn rough_wos() -> Vec<(&'static str, Vec3)> {
+    vec![
+        ("normal", Vec3::Z),
+        ("45deg", dir_z(45f64.to_radians().cos(), 0.7)),
+        ("80deg", dir_z(80f64.to_radians().cos(), 2.1)),
+        ("below 30deg", dir_z(-(30f64.to_radians().cos()), 5.3)),
+        ("below 70deg", dir_z(-(70f64.to_radians().cos()), 1.1)),
+    ]
+}
+
+/// Chi-square of sampling against the pdf for GGX widths 0.05 to 1, eta 1.5 and 1 / 1.5, wo on
+/// both sides; the pdf's integral is the chance of a sample (the rest is the None cell, the
+/// microfacet directions that scatter to the wrong side); the albedo in importance transport
+/// (reflectance + transmittance, no eta^2) by quadrature is at most 1, agrees with the sampled
+/// estimate, and is close to 1 for narrow lobes (single scattering loses only what the
+/// masking term hides, Walter et al. 2007 §5.4).
+fn chi2_rough_dielectric(alpha: f32, seed: u64) {
+    for (ei, eta) in [1.5f32, 1.0 / 1.5].into_iter().enumerate() {
+        let bsdf = rough(eta, alpha);
+        for (wi, (label, wo)) in rough_wos().into_iter().enumerate() {
+            let name = format!("rough dielectric alpha={alpha} eta={eta} wo {label}");
+            let grid = rough_grid(wo, eta, alpha);
+            let seed = seed + 10 * ei as u64 + wi as u64;
+            let (run, albedo_mc) = chi2_rough(&name, &bsdf, wo, &grid, seed, Transport::Importance);
+            assert!(
+                run.pdf_integral <= 1.0 + 1e-4 && run.pdf_integral > 0.3,
+                "{name}: pdf integrates to {}",
+                run.pdf_integral
+            );
+            let albedo: f64 = grid
+                .integrate(|w| {
+                    let wi = to32(w);
+                    bsdf.eval(wo, wi, Transport::Importance).x as f64 * w.z.abs()
+                })
+                .iter()
+                .sum();
+            assert!(albedo <= 1.0 + 1e-4, "{name}: albedo {albedo}");
+            // Visible-normal sampling loses samples only where the albedo loses energy.
+            assert!(albedo <= run.pdf_integral + 1e-3, "{name}: albedo {albedo}");
+            if alpha <= 0.05 && wo.z.abs() > 0.3 {
+                assert!(albedo > 0.98, "{name}: albedo {albedo}");
+            }
+            let se = (albedo_mc.variance() / SAMPLES as f64 + 4e-10).sqrt();
+            assert_z(&format!("{name} albedo"), albedo_mc.mean(), albedo, se);
+        }
+    }
+}
+
+#[test]
+fn chi2_rough_dielectric_alpha_0_05() {
+    chi2_rough_dielectric(0.05, 9000);
+}
+
+#[test]
+fn chi2_rough_dielectric_alpha_0_2() {
+    chi2_rough_dielectric(0.2, 9100);
+}
+
+#[test]
+fn chi2_rough_dielectric_alpha_0_5() {
+    chi2_rough_dielectric(0.5, 9200);
+}
+
+#[test]
+fn chi2_rough_dielectric_alpha_1() {
+    chi2_rough_dielectric(1.0, 9300);
+}
+
+/// Reciprocity of the physical BTDF, f(wo, wi) / eta_wo^2 = f(wi, wo) / eta_wi^2 (Veach 1997
+/// eq. 5.15), and the adjoint (importance) BSDF is the radiance BSDF with its arguments
+/// swapped; reflection is symmetric.
+#[test]
+fn rough_dielectric_is_reciprocal_and_its_adjoint_swaps_arguments() {
+    let mut rng = Rng::new(23, 4);
+    for alpha in [0.01f32, 0.1, 0.4, 1.0] {
+        for eta in [1.5f32, 1.0 / 1.33] {
+            let bsdf = rough(eta, alpha);
+            let mut checked = 0;
+            for _ in 0..20_000 {
+                let wo = warp::uniform_sphere(rng.uniform2());
+                let wi = warp::uniform_sphere(rng.uniform2());
+                let (fr_oi, fr_io) = (
+                    bsdf.eval(wo, wi, Transport::Radiance).x,
+                    bsdf.eval(wi, wo, Transport::Radiance).x,
+                );
+                let fi_oi = bsdf.eval(wo, wi, Transport::Importance).x;
+                let n = |w: Vec3| if w.z > 0.0 { 1.0 } else { eta };
+                let what = format!("alpha {alpha} eta {eta} wo {wo} wi {wi}");
+                // Relative to rounding, or absolutely for values where a direction is nearly
+                // tangent to the microfacet (a dot product near 0 has few exact digits).
+                let close = |a: f32, b: f32| rel_close(a, b, 2e-3) || (a - b).abs() < 1e-6;
+                assert!(
+                    close(fr_oi / (n(wo) * n(wo)), fr_io / (n(wi) * n(wi))),
+                    "{what}: {fr_oi} against {fr_io}"
+                );
+                assert!(close(fi_oi, fr_io), "{what}: {fi_oi} against {fr_io}");
+                if fr_oi > 0.0 && wo.z * wi.z < 0.0 {
+                    checked += 1;
+                }
+            }
+            assert!(
+                checked > 100,
+                "alpha {alpha} eta {eta}: {checked} transmissions"
+            );
+        }
+    }
+}
+
+/// As the GGX width shrinks the rough dielectric tends to the smooth one: reflectance and
+/// transmittance (importance transport, quadrature around the two lobes) approach Fresnel's
+/// split of the smooth interface, and the radiance transmittance carries 1 / etap^2. (Away from
+/// the critical angle, where F jumps and any roughness averages it visibly.)
+#[test]
+fn rough_dielectric_tends_to_the_smooth_one() {
+    for eta in [1.5f32, 1.0 / 1.5] {
+        for (label, wo) in [
+            ("normal", Vec3::Z),
+            ("30deg", dir_z(30f64.to_radians().cos(), 0.3)),
+            ("below 20deg", dir_z(-(20f64.to_radians().cos()), 2.0)),
+        ] {
+            let alpha = 0.01;
+            let bsdf = rough(eta, alpha);
+            let mut grid = SphereGrid::uniform(24, 48);
+            grid.refine_lobe(lobe_axis(wo), alpha as f64, 6.0, 12);
+            if let Some(t) = refracted(wo, eta) {
+                grid.refine_lobe(t, alpha as f64, 6.0, 12);
+            }
+            let split = |mode: Transport| -> (f64, f64) {
+                let cells = grid.integrate(|w| {
+                    let wi = to32(w);
+                    let v = bsdf.eval(wo, wi, mode).x as f64 * w.z.abs();
+                    if (w.z > 0.0) == (wo.z > 0.0) {
+                        v
+                    } else {
+                        -v
+                    }
+                });
+                let r: f64 = cells.iter().filter(|&&c| c > 0.0).sum();
+                let t: f64 = -cells.iter().filter(|&&c| c < 0.0).sum::<f64>();
+                (r, t)
+            };
+            let f = fresnel_dielectric(wo.z, eta) as f64;
+            let (r, t) = split(Transport::Importance);
+            let name = format!("eta {eta} wo {label}");
+            assert!((r - f).abs() < 5e-3, "{name}: reflectance {r}, Fresnel {f}");
+            assert!(
+                (t - (1.0 - f)).abs() < 1e-2,
+                "{name}: transmittance {t}, 1 - F {}",
+                1.0 - f
+            );
+            let etap = if wo.z > 0.0 {
+                eta as f64
+            } else {
+                1.0 / eta as f64
+            };
+            let (_, t_radiance) = split(Transport::Radiance);
+            assert!(
+                (t_radiance * etap * etap - t).abs() < 1e-4 * t.max(1.0),
+                "{name}: radiance transmittance {t_radiance}"
+            );
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------
 // Robustness.
 
 fn all_bsdfs() -> Vec<(String, Bsdf)> {
@@ -696,6 +960,13 @@ fn all_bsdfs() -> Vec<(String, Bsdf)> {
             format!("dielectric {eta}"),
             Material::dielectric(eta).bsdf(Rgb::ZERO),
         ));
+        // Roughness 0 is raised to the smallest width (see `microfacet::MIN_ALPHA`).
+        for alpha in [0.0f32, 1e-3, 0.05, 0.5, 1.0] {
+            v.push((
+                format!("rough dielectric {eta} alpha {alpha}"),
+                rough(eta, alpha),
+            ));
+        }
     }
     v
 }
@@ -739,8 +1010,15 @@ fn no_nan_or_inf_for_degenerate_arguments() {
                 wis.push(warp::uniform_sphere(rng.uniform2()));
             }
             for wi in wis {
-                let f = bsdf.eval(wo, wi);
                 let p = bsdf.pdf(wo, wi);
+                for mode in [Transport::Radiance, Transport::Importance] {
+                    let f = bsdf.eval(wo, wi, mode);
+                    assert!(
+                        f.is_finite() && f.min_element() >= 0.0,
+                        "{name}: eval({wo}, {wi}, {mode:?}) = {f}"
+                    );
+                }
+                let f = bsdf.eval(wo, wi, Transport::Radiance);
                 assert!(
                     f.is_finite() && f.min_element() >= 0.0,
                     "{name}: eval({wo}, {wi}) = {f}"
@@ -794,7 +1072,7 @@ fn pdf_is_positive_wherever_f_is() {
         for _ in 0..20_000 {
             let wo = warp::uniform_sphere(rng.uniform2());
             let wi = warp::uniform_sphere(rng.uniform2());
-            let f = bsdf.eval(wo, wi);
+            let f = bsdf.eval(wo, wi, Transport::Radiance);
             if f.max_element() > 0.0 {
                 assert!(
                     bsdf.pdf(wo, wi) > 0.0,
@@ -816,6 +1094,7 @@ fn sample_from_draws_what_sample_would() {
         ("phong", phong(0.4, 0.5, 30.0)),
         ("mirror", Material::mirror(Rgb::splat(0.9)).bsdf(Rgb::ZERO)),
         ("dielectric", Material::dielectric(1.5).bsdf(Rgb::ZERO)),
+        ("rough dielectric", rough(1.5, 0.3)),
     ];
     let mut rng = Rng::new(11, 3);
     for kind in [SamplerKind::Sobol, SamplerKind::Independent] {

@@ -221,18 +221,18 @@ fn the_captured_downlight_renders_as_its_geometry_far_and_near() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// The glass globe's field (as shipped: 13 x 13 basis functions, 32 x 32 pixels, 64 paths)
-/// against its geometry under `bdpt`, far (2 m) and near (0.4 m below its equator), printed
-/// for docs/light-field.md. Run with
-/// `cargo test --release --test luminaire_capture -- --ignored --nocapture glass_globe`.
+/// The frosted glass globe's shipped field (scenes/luminaires/glass_globe.exr: 13 x 13 basis
+/// functions, 32 x 32 pixels, 64 paths) against its geometry under `bdpt`, far (2 m) and near
+/// (0.4 m below its equator); the differences are printed for docs/light-field.md with
+/// `cargo test --release --test luminaire_capture -- --nocapture glass_globe`. A stale field
+/// (the luminaire file changed without a re-bake) fails here. In the far field every region
+/// agrees within the noise and BIAS; in the near field the two lower regions (the floor
+/// under the lamp) do, while the upper two see the floor at more than about 60 degrees from
+/// the axis, through lines the field does not record (docs/light-field.md): there the field
+/// may only be darker.
 #[test]
-#[ignore]
 fn the_glass_globes_field_against_its_geometry() {
-    let luminaire = load_luminaire(&scenes().join("glass_globe.json")).unwrap();
-    let (field, _) = capture(&luminaire.scene, &luminaire.settings).unwrap();
-    let dir = temp_dir("globe-field");
-    let field_path = dir.join("globe.exr");
-    field.write(&field_path).unwrap();
+    let field_path = scenes().join("glass_globe.exr");
     let integrator = IntegratorSettings {
         max_depth: 12,
         ..Default::default()
@@ -246,14 +246,24 @@ fn the_glass_globes_field_against_its_geometry() {
         let (baked, _) = luminaire_over_floor(lamp, Some(&field_path), drop, eye, fov);
         let a = region_means(&geometry, &camera, "bdpt", integrator, 16, 256, 8);
         let b = region_means(&baked, &camera, "path", integrator, 16, 64, 8);
+        assert!(a[0].0 > 0.0, "{name}: the floor is lit");
         for (k, ((ma, ea), (mb, eb))) in a.iter().zip(&b).enumerate() {
+            let sigma = (ea * ea + eb * eb).sqrt();
             println!(
-                "globe {name} region {k}: geometry {ma:.4} +- {ea:.4}, light field {mb:.4} +- {eb:.4}: {:+.1} %",
-                (mb / ma - 1.0) * 100.0
+                "globe {name} region {k}: geometry {ma:.4} +- {ea:.4}, light field {mb:.4} +- {eb:.4}: {:+.1} % ({:.1} sigma)",
+                (mb / ma - 1.0) * 100.0,
+                (mb - ma).abs() / sigma
             );
+            let recorded = name == "far field" || k >= 3;
+            let what =
+                format!("globe {name} region {k}: geometry {ma} +- {ea}, light field {mb} +- {eb}");
+            if recorded {
+                assert!((ma - mb).abs() <= 4.5 * sigma + BIAS * ma, "{what}");
+            } else {
+                assert!(*mb <= ma + 4.5 * sigma, "{what}");
+            }
         }
     }
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// The relative difference the light field may have from the geometry it was captured from,

@@ -32,6 +32,7 @@ use lacuna::math::{Frame, Rgb, Rng, Sampler, Vec3};
 use lacuna::render::{prepare, render, RenderSettings};
 use lacuna::scene::{
     corridor_builder, two_rooms_builder, Bsdf, Camera, Material, MeshDesc, Scene, SceneBuilder,
+    Transport,
 };
 
 /// A sphere grid refined around every lobe axis.
@@ -122,7 +123,8 @@ fn chi2_and_albedo_of_the_bsdf_and_skeleton_mixture() {
         let q = GuideQuery::with_lobes(0.6, &lobes).unwrap();
         let grid = grid_for(&lobes);
         let mut estimate = Stats::default();
-        let reflects = |w: Vec3| bsdf.eval(wo_local, frame.to_local(w)) != Rgb::ZERO;
+        let reflects =
+            |w: Vec3| bsdf.eval(wo_local, frame.to_local(w), Transport::Radiance) != Rgb::ZERO;
         let integral = chi2_directions(
             name,
             &grid,
@@ -142,7 +144,7 @@ fn chi2_and_albedo_of_the_bsdf_and_skeleton_mixture() {
                     "{name}: sample pdf {} but mixture pdf {expected}",
                     s.pdf
                 );
-                let f = bsdf.eval(wo_local, s.wi);
+                let f = bsdf.eval(wo_local, s.wi, Transport::Radiance);
                 assert!((s.f - f).abs().max_element() <= 1e-4 * f.max_element());
                 estimate.add((s.f.x * s.wi.z.abs() / s.pdf) as f64);
                 Some(w)
@@ -159,7 +161,7 @@ fn chi2_and_albedo_of_the_bsdf_and_skeleton_mixture() {
         let albedo = if albedo.is_nan() {
             grid.integrate(|w| {
                 let wi = frame.to_local(to32(w));
-                (bsdf.eval(wo_local, wi).x * wi.z.abs()) as f64
+                (bsdf.eval(wo_local, wi, Transport::Radiance).x * wi.z.abs()) as f64
             })
             .iter()
             .sum()

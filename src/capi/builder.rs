@@ -240,6 +240,7 @@ pub unsafe extern "C" fn lacuna_scene_builder_add_material(
                 }
                 lacuna_material_kind::Mirror => Material::mirror(Rgb::ONE),
                 lacuna_material_kind::Dielectric => Material::dielectric(1.5),
+                lacuna_material_kind::RoughDielectric => Material::rough_dielectric(1.5, 0.3),
             };
             let index = b.builder.add_material(m)?;
             write_out(out, index);
@@ -310,6 +311,7 @@ pub unsafe extern "C" fn lacuna_scene_builder_set_material_float(
             edit_material(b, index, |m| match p {
                 lacuna_material_float::Exponent => m.exponent = v,
                 lacuna_material_float::Ior => m.ior = v,
+                lacuna_material_float::Roughness => m.roughness = v,
             })
         })
     }

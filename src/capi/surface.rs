@@ -14,14 +14,16 @@ use crate::math::Vec3;
 use crate::scene::MaterialKind;
 
 /// A surface point and its material, resolved at a hit (`lacuna_scene_get_surface`). The
-/// layout (116 bytes, 4-byte aligned) never changes with build options.
+/// layout (120 bytes, 4-byte aligned) never changes with build options.
 ///
 /// Materials follow Lacuna's conventions (docs/scene-format.md): BSDFs are two-sided (they
 /// reflect on the side of the outgoing direction); DIFFUSE is Lambertian `diffuse / pi`;
 /// GLOSSY is the modified Phong `diffuse / pi + specular (exponent + 2) / (2 pi)
 /// cos^exponent(alpha)` with alpha the angle between the incident direction and the mirror
 /// direction of the outgoing one (zero beyond 90 degrees); MIRROR reflects `specular`;
-/// DIELECTRIC is smooth glass of index `ior`. `emission` is emitted on the geometric normal's
+/// DIELECTRIC is smooth glass of index `ior`; ROUGH_DIELECTRIC is frosted glass of index `ior`,
+/// GGX microfacet reflection and transmission (Walter et al. 2007, separable Smith G) of width
+/// alpha = `roughness`. `emission` is emitted on the geometric normal's
 /// side only.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -44,7 +46,7 @@ pub struct lacuna_surface {
     pub exponent: f32,
     /// Texture coordinates (the barycentrics u, v without texture coordinates).
     pub uv: [f32; 2],
-    /// Index of refraction (DIELECTRIC).
+    /// Index of refraction (DIELECTRIC, ROUGH_DIELECTRIC).
     pub ior: f32,
     /// Diffuse albedo with the texture applied.
     pub diffuse: lacuna_rgb,
@@ -52,6 +54,8 @@ pub struct lacuna_surface {
     pub specular: lacuna_rgb,
     /// Emitted radiance on the front side.
     pub emission: lacuna_rgb,
+    /// GGX width alpha (ROUGH_DIELECTRIC; at least 1e-3 where it is rendered).
+    pub roughness: f32,
 }
 
 /// The scene's camera (`lacuna_scene_get_camera`): a look-at placement with a vertical field
@@ -142,6 +146,7 @@ pub unsafe extern "C" fn lacuna_scene_get_surface(
             MaterialKind::Glossy => lacuna_material_kind::Glossy,
             MaterialKind::Mirror => lacuna_material_kind::Mirror,
             MaterialKind::Dielectric => lacuna_material_kind::Dielectric,
+            MaterialKind::RoughDielectric => lacuna_material_kind::RoughDielectric,
         };
         let surface = lacuna_surface {
             position: si.p.to_array(),
@@ -157,6 +162,7 @@ pub unsafe extern "C" fn lacuna_scene_get_surface(
             diffuse: rgb(diffuse),
             specular: rgb(material.specular),
             emission: rgb(material.emission),
+            roughness: material.roughness,
         };
         // SAFETY: checked non-NULL, writable per the contract.
         unsafe { write_out(out, surface) };

@@ -180,6 +180,8 @@ pub enum lacuna_material_kind {
     Mirror = 2,
     /// Smooth glass with index of refraction IOR.
     Dielectric = 3,
+    /// Frosted glass: index of refraction IOR, GGX microfacet width ROUGHNESS (default 0.3).
+    RoughDielectric = 4,
 }
 
 /// Colour parameters of a material (`lacuna_scene_builder_set_material_rgb`).
@@ -202,6 +204,8 @@ pub enum lacuna_material_float {
     Exponent = 0,
     /// Index of refraction, > 0.
     Ior = 1,
+    /// GGX width alpha of ROUGH_DIELECTRIC in [0, 1] (below 1e-3 rendered as 1e-3).
+    Roughness = 2,
 }
 
 /// What to do with zero-area triangles (`lacuna_scene_builder_set_degenerate_policy`).
@@ -397,14 +401,19 @@ c_enum!(lacuna_material_kind {
     Diffuse,
     Glossy,
     Mirror,
-    Dielectric
+    Dielectric,
+    RoughDielectric
 });
 c_enum!(lacuna_material_rgb {
     Diffuse,
     Specular,
     Emission
 });
-c_enum!(lacuna_material_float { Exponent, Ior });
+c_enum!(lacuna_material_float {
+    Exponent,
+    Ior,
+    Roughness
+});
 c_enum!(lacuna_degenerate_policy { Error, Skip });
 c_enum!(lacuna_bvh_quality { Fast, Medium, High });
 c_enum!(lacuna_mis_heuristic {

@@ -119,7 +119,7 @@ pub fn sample_bsdf_or_guide<G: DirectionGuide + ?Sized>(
     if c > 0.0 && rng.uniform() < c {
         let (wi, guide_pdf) = query.sample(rng.uniform(), rng.uniform2())?;
         let wi_local = frame.to_local(wi);
-        let f = bsdf.eval(wo_local, wi_local);
+        let f = bsdf.eval(wo_local, wi_local, Transport::Radiance);
         if f == Rgb::ZERO {
             return None;
         }

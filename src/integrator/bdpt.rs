@@ -693,12 +693,13 @@ impl Bdpt {
         let to_camera = lens - v.si.p;
         let dist2 = to_camera.length_squared();
         let dir = to_camera / dist2.sqrt();
-        if dir.dot(v.si.ng) * v.si.wo.dot(v.si.ng) <= 0.0 {
-            return None;
-        }
         let frame = v.si.shading_frame();
         let (wo_l, wi_l) = (frame.to_local(v.si.wo), frame.to_local(dir));
-        let f = bsdf.eval(wo_l, wi_l) * shading_correction(&v.si, v.si.wo, dir);
+        if !v.si.scatters_toward(dir, wo_l, wi_l) {
+            return None;
+        }
+        let f =
+            bsdf.eval(wo_l, wi_l, Transport::Importance) * shading_correction(&v.si, v.si.wo, dir);
         let cos_to_camera = wi_l.z.abs();
         if f == Rgb::ZERO || cos_to_camera == 0.0 {
             return None;
@@ -804,12 +805,12 @@ impl Bdpt {
             TriangleSampling::Area,
             rng.uniform2(),
         )?;
-        if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
-            return None;
-        }
         let frame = si.shading_frame();
         let (wo_l, wi_l) = (frame.to_local(si.wo), frame.to_local(ls.wi));
-        let f = bsdf.eval(wo_l, wi_l);
+        if !si.scatters_toward(ls.wi, wo_l, wi_l) {
+            return None;
+        }
+        let f = bsdf.eval(wo_l, wi_l, Transport::Radiance);
         let cos_to_light = wi_l.z.abs();
         if f == Rgb::ZERO || cos_to_light == 0.0 {
             return None;
@@ -882,19 +883,18 @@ impl Bdpt {
             return None;
         }
         let dir = d / dist2.sqrt();
-        if dir.dot(si.ng) * si.wo.dot(si.ng) <= 0.0
-            || (-dir).dot(v.si.ng) * v.si.wo.dot(v.si.ng) <= 0.0
-        {
-            return None;
-        }
         let frame_c = si.shading_frame();
         let (wo_c, wi_c) = (frame_c.to_local(si.wo), frame_c.to_local(dir));
-        let f_c = bsdf.eval(wo_c, wi_c);
+        let f_c = bsdf.eval(wo_c, wi_c, Transport::Radiance);
         let cos_c = wi_c.z.abs();
         let light_bsdf = scene.bsdf(&v.si);
         let frame_l = v.si.shading_frame();
         let (wo_l, wi_l) = (frame_l.to_local(v.si.wo), frame_l.to_local(-dir));
-        let f_l = light_bsdf.eval(wo_l, wi_l) * shading_correction(&v.si, v.si.wo, -dir);
+        if !si.scatters_toward(dir, wo_c, wi_c) || !v.si.scatters_toward(-dir, wo_l, wi_l) {
+            return None;
+        }
+        let f_l = light_bsdf.eval(wo_l, wi_l, Transport::Importance)
+            * shading_correction(&v.si, v.si.wo, -dir);
         let cos_l = wi_l.z.abs();
         if f_c == Rgb::ZERO || f_l == Rgb::ZERO || cos_c == 0.0 || cos_l == 0.0 {
             return None;

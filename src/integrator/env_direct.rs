@@ -396,7 +396,7 @@ impl EnvDirect {
             let wi = frame.to_world(bs.wi);
             let mut value = Rgb::ZERO;
             let mut pdf_light = 0.0;
-            if wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0 {
+            if si.scatters_toward(wi, wo_l, bs.wi) {
                 counters.rays += 1;
                 if let Some(hit) = scene.intersect(&si.spawn_ray(wi)) {
                     // Emitters of other sources count as nothing here (pmf 0).
@@ -404,7 +404,9 @@ impl EnvDirect {
                         let pmf = lights.pmf(k);
                         if pmf > 0.0 {
                             pdf_light = pmf * scene.lights()[k].pdf_with(si.p, hit.p, triangles);
-                            value = bsdf.eval(wo_l, bs.wi) * bs.wi.z.abs() * scene.emitted(&hit);
+                            value = bsdf.eval(wo_l, bs.wi, Transport::Radiance)
+                                * bs.wi.z.abs()
+                                * scene.emitted(&hit);
                         }
                     }
                 }
@@ -475,8 +477,9 @@ impl EnvDirect {
             let wi_l = frame.to_local(wi);
             let pdf_bsdf = bsdf.pdf(wo_l, wi_l);
             let mut value = Rgb::ZERO;
-            if wi.dot(si.ng) * si.wo.dot(si.ng) > 0.0 {
-                let v = bsdf.eval(wo_l, wi_l) * wi_l.z.abs() * env.radiance(wi);
+            if si.scatters_toward(wi, wo_l, wi_l) {
+                let v =
+                    bsdf.eval(wo_l, wi_l, Transport::Radiance) * wi_l.z.abs() * env.radiance(wi);
                 if v != Rgb::ZERO {
                     counters.rays += 1;
                     if !scene.occluded(&si.spawn_ray(wi)) {
@@ -651,10 +654,10 @@ fn light_sample_value(
     ls: &LightSample,
     counters: &mut TraceCounters,
 ) -> Rgb {
-    if ls.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
+    if !si.scatters_toward(ls.wi, wo_l, wi_l) {
         return Rgb::ZERO;
     }
-    let v = bsdf.eval(wo_l, wi_l) * wi_l.z.abs() * ls.radiance;
+    let v = bsdf.eval(wo_l, wi_l, Transport::Radiance) * wi_l.z.abs() * ls.radiance;
     if v == Rgb::ZERO {
         return v;
     }

@@ -365,15 +365,15 @@ fn unshadowed(
         return None;
     }
     let dir = d / dist2.sqrt();
-    // Both ends must scatter on the side the connection leaves from.
-    if dir.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 || (-dir).dot(v.si.ng) * v.si.wo.dot(v.si.ng) <= 0.0
-    {
+    let wi_x = frame.to_local(dir);
+    let f_x = bsdf.eval(wo_local, wi_x, Transport::Radiance);
+    let wi_y = v.frame.to_local(-dir);
+    // Both ends must scatter to the side the connection leaves by.
+    if !si.scatters_toward(dir, wo_local, wi_x) || !v.si.scatters_toward(-dir, v.wo_local, wi_y) {
         return None;
     }
-    let wi_x = frame.to_local(dir);
-    let f_x = bsdf.eval(wo_local, wi_x);
-    let wi_y = v.frame.to_local(-dir);
-    let f_y = v.bsdf.eval(v.wo_local, wi_y) * shading_correction(&v.si, v.si.wo, -dir);
+    let f_y = v.bsdf.eval(v.wo_local, wi_y, Transport::Importance)
+        * shading_correction(&v.si, v.si.wo, -dir);
     let cosines = wi_x.z.abs() * wi_y.z.abs();
     if f_x == Rgb::ZERO || f_y == Rgb::ZERO || cosines == 0.0 {
         return None;

@@ -339,6 +339,8 @@ enum KindSpec {
     Glossy,
     Mirror,
     Dielectric,
+    #[serde(rename = "rough_dielectric")]
+    RoughDielectric,
 }
 
 /// Material fields, all optional: an override changes only the fields it gives.
@@ -355,6 +357,7 @@ struct MaterialSpec {
     specular: Option<Colour>,
     exponent: Option<f32>,
     ior: Option<f32>,
+    roughness: Option<f32>,
     emission: Option<Colour>,
 }
 
@@ -856,6 +859,7 @@ fn apply_material(
             KindSpec::Glossy => MaterialKind::Glossy,
             KindSpec::Mirror => MaterialKind::Mirror,
             KindSpec::Dielectric => MaterialKind::Dielectric,
+            KindSpec::RoughDielectric => MaterialKind::RoughDielectric,
         };
     }
     if let Some(c) = spec.diffuse {
@@ -885,6 +889,9 @@ fn apply_material(
     }
     if let Some(i) = spec.ior {
         m.ior = i;
+    }
+    if let Some(r) = spec.roughness {
+        m.roughness = r;
     }
     if let Some(c) = spec.emission {
         m.emission = c.rgb();
@@ -1226,7 +1233,9 @@ mod tests {
               "normal": [0, -1, 0], "material": { "name": "lamp_mat", "diffuse": 0, "emission": [5, 6, 7] } },
             { "type": "disk", "center": [0, 2, 0], "normal": [1, 0, 0], "radius": 0.5, "segments": 16,
               "material": { "emission": 3 } },
-            { "type": "sphere", "center": [0, 0, 3], "radius": 0.25, "segments": 8 }
+            { "type": "sphere", "center": [0, 0, 3], "radius": 0.25, "segments": 8 },
+            { "type": "sphere", "center": [0, 0, -3], "radius": 0.25, "segments": 8,
+              "material": { "name": "frost", "kind": "rough_dielectric", "ior": 1.45, "roughness": 0.4 } }
           ],
           "camera": { "eye": [0, 1, 5], "target": [0, 1, 0], "fov": 45, "lens_radius": 0.01, "focus_distance": 4 },
           "lights": [
@@ -1297,6 +1306,11 @@ mod tests {
         assert_eq!(loaded.objects[2].bounds.min.z, -5.0);
         let mut builder = loaded.builder;
         let mats = builder.materials_mut().to_vec();
+        let frost = mats.iter().find(|m| m.name == "frost").unwrap();
+        assert_eq!(
+            (frost.kind, frost.ior, frost.roughness),
+            (MaterialKind::RoughDielectric, 1.45, 0.4)
+        );
         let walls: Vec<&Material> = mats.iter().filter(|m| m.name == "wall").collect();
         assert_eq!(walls.len(), 3, "one per loaded copy of the OBJ");
         for w in walls {

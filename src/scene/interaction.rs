@@ -29,6 +29,21 @@ impl SurfaceInteraction {
     /// A ray leaving the surface in direction `dir`, starting just off the side `dir` points to.
     /// The shading normal turned to the side of `wo`: the hemisphere the (opaque) BSDFs
     /// reflect into, which per-normal light sampling balances its samples for.
+    /// Whether a connection leaving in direction `wi` (world) scatters on the side of the
+    /// geometric surface that the shading frame says: on `wo`'s side when `wi_local` and
+    /// `wo_local` share a hemisphere (reflection), across it otherwise (transmission). Shading
+    /// normals can disagree with the geometry near silhouettes, and would let light through
+    /// walls. Opaque BSDFs are zero across, so for them this is "wi on wo's side".
+    #[inline]
+    pub fn scatters_toward(&self, wi: Vec3, wo_local: Vec3, wi_local: Vec3) -> bool {
+        let sides = wi.dot(self.ng) * self.wo.dot(self.ng);
+        if wo_local.z * wi_local.z > 0.0 {
+            sides > 0.0
+        } else {
+            sides < 0.0
+        }
+    }
+
     #[inline]
     pub fn facing_normal(&self) -> Vec3 {
         if self.ns.dot(self.wo) < 0.0 {

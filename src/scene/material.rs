@@ -4,6 +4,7 @@
 //! the surface. `eval` returns f (no cosine); `sample` returns f, the sampled direction and its
 //! solid-angle pdf. Opaque BSDFs are two-sided: they reflect on whichever side `wo` is.
 
+use super::microfacet;
 use crate::error::{Error, Result};
 use crate::math::{luminance, warp, Rgb, Sampler, Vec2, Vec3, INV_2PI, INV_PI};
 
@@ -23,6 +24,9 @@ pub enum MaterialKind {
     Mirror,
     /// Smooth dielectric interface (glass) with index of refraction `ior`.
     Dielectric,
+    /// Rough dielectric interface (frosted glass): GGX microfacet reflection and transmission
+    /// (Walter et al. 2007) with index of refraction `ior` and GGX width `roughness`.
+    RoughDielectric,
 }
 
 /// A surface material. Emission makes every triangle using it an area light.
@@ -36,6 +40,9 @@ pub struct Material {
     /// Phong exponent n (0..=1e6).
     pub exponent: f32,
     pub ior: f32,
+    /// GGX width alpha of a rough dielectric's microfacet normals (0..=1; alpha = tan of the
+    /// normals' spread, not squared). Below [`microfacet::MIN_ALPHA`] it is raised to it.
+    pub roughness: f32,
     /// Emitted radiance (W sr^-1 m^-2) on the front side.
     pub emission: Rgb,
 }
@@ -50,6 +57,7 @@ impl Default for Material {
             specular: Rgb::ZERO,
             exponent: 1.0,
             ior: 1.5,
+            roughness: 0.3,
             emission: Rgb::ZERO,
         }
     }
@@ -87,6 +95,16 @@ impl Material {
             kind: MaterialKind::Dielectric,
             diffuse: Rgb::ZERO,
             ior,
+            ..Default::default()
+        }
+    }
+
+    pub fn rough_dielectric(ior: f32, roughness: f32) -> Self {
+        Material {
+            kind: MaterialKind::RoughDielectric,
+            diffuse: Rgb::ZERO,
+            ior,
+            roughness,
             ..Default::default()
         }
     }
@@ -136,6 +154,12 @@ impl Material {
                 self.ior
             )));
         }
+        if !(self.roughness.is_finite() && (0.0..=1.0).contains(&self.roughness)) {
+            return Err(Error::invalid(format!(
+                "material '{name}': roughness {} must be in [0, 1]",
+                self.roughness
+            )));
+        }
         if !crate::math::is_finite3(self.emission) || self.emission.min_element() < 0.0 {
             return Err(Error::invalid(format!(
                 "material '{name}': emission {} must be finite and >= 0",
@@ -170,6 +194,10 @@ impl Material {
                 reflectance: self.specular,
             },
             MaterialKind::Dielectric => Bsdf::Dielectric { eta: self.ior },
+            MaterialKind::RoughDielectric => Bsdf::RoughDielectric {
+                eta: self.ior,
+                alpha: self.roughness.max(microfacet::MIN_ALPHA),
+            },
         }
     }
 }
@@ -210,6 +238,11 @@ pub enum Bsdf {
     },
     Dielectric {
         eta: f32,
+    },
+    /// `eta` as for `Dielectric`; `alpha` the GGX width, at least [`microfacet::MIN_ALPHA`].
+    RoughDielectric {
+        eta: f32,
+        alpha: f32,
     },
 }
 
@@ -260,12 +293,14 @@ impl Bsdf {
                 diffuse, specular, ..
             } => diffuse + specular,
             Bsdf::Mirror { reflectance } => reflectance,
-            Bsdf::Dielectric { .. } => Rgb::ONE,
+            Bsdf::Dielectric { .. } | Bsdf::RoughDielectric { .. } => Rgb::ONE,
         }
     }
 
-    /// f(wo, wi); zero for delta lobes.
-    pub fn eval(&self, wo: Vec3, wi: Vec3) -> Rgb {
+    /// f(wo, wi); zero for delta lobes. `mode` matters only for transmission: the BSDF of a
+    /// light path's vertex (`Importance`, `wo` towards the light) is the adjoint, which lacks
+    /// the radiance's (eta_wo / eta_wi)^2 (Veach 1997 §5.2).
+    pub fn eval(&self, wo: Vec3, wi: Vec3, mode: Transport) -> Rgb {
         match *self {
             Bsdf::Lambert { albedo } => {
                 let (wo, wi) = to_upper(wo, wi);
@@ -296,6 +331,9 @@ impl Bsdf {
                 diffuse * INV_PI + specular * ((exponent + 2.0) * INV_2PI * lobe)
             }
             Bsdf::Mirror { .. } | Bsdf::Dielectric { .. } => Rgb::ZERO,
+            Bsdf::RoughDielectric { eta, alpha } => {
+                Rgb::splat(microfacet::RoughDielectric { eta, alpha }.eval(wo, wi, mode))
+            }
         }
     }
 
@@ -329,6 +367,9 @@ impl Bsdf {
                 (1.0 - p_specular) * warp::cosine_hemisphere_pdf(wi) + p_specular * spec
             }
             Bsdf::Mirror { .. } | Bsdf::Dielectric { .. } => 0.0,
+            Bsdf::RoughDielectric { eta, alpha } => {
+                microfacet::RoughDielectric { eta, alpha }.pdf(wo, wi)
+            }
         }
     }
 
@@ -346,6 +387,7 @@ impl Bsdf {
             Bsdf::Phong { .. } => (true, true),
             Bsdf::Mirror { .. } => (false, false),
             Bsdf::Dielectric { .. } => (true, false),
+            Bsdf::RoughDielectric { .. } => (true, true),
         };
         let uc = if reads_choice {
             rng.uniform()
@@ -417,7 +459,7 @@ impl Bsdf {
                 }
                 Some(BsdfSample {
                     wi,
-                    f: self.eval(wo, wi),
+                    f: self.eval(wo, wi, mode),
                     pdf,
                     delta: false,
                 })
@@ -482,6 +524,9 @@ impl Bsdf {
                     pdf: 1.0 - f,
                     delta: true,
                 })
+            }
+            Bsdf::RoughDielectric { eta, alpha } => {
+                microfacet::RoughDielectric { eta, alpha }.sample(wo, uc, u, mode)
             }
         }
     }

@@ -15,6 +15,7 @@ mod file;
 mod interaction;
 mod interior;
 mod material;
+pub mod microfacet;
 mod obj;
 mod quad_mesh;
 mod texture;
@@ -425,8 +426,9 @@ impl Scene {
     /// ([`LightSampler::sample_reuse`], so a stratified `u` stays stratified over each light),
     /// and the BSDF term f |cos| toward it. `env` and `triangles` say how environment maps and
     /// emissive triangles are sampled ([`Light::sample_with`]). None when it cannot contribute (no
-    /// lights, no sample, the light on the other side of the geometric surface from wo, which
-    /// shading normals would otherwise let through walls, or a zero BSDF term). The caller
+    /// lights, no sample, the light on the other side of the geometric surface from the one
+    /// the shading frame scatters to ([`SurfaceInteraction::scatters_toward`]), or a zero BSDF
+    /// term). The caller
     /// traces the shadow ray ([`unoccluded`](Self::unoccluded)) and weights the result.
     #[allow(clippy::too_many_arguments)]
     #[inline]
@@ -443,11 +445,11 @@ impl Scene {
         let (index, pmf, u_light) = self.light_sampler()?.sample_reuse(u.x);
         let u = Vec2::new(u_light, u.y);
         let sample = self.sample_light_at(index, si.p, si.facing_normal(), env, triangles, u)?;
-        if sample.wi.dot(si.ng) * si.wo.dot(si.ng) <= 0.0 {
+        let wi_local = frame.to_local(sample.wi);
+        if !si.scatters_toward(sample.wi, wo_local, wi_local) {
             return None;
         }
-        let wi_local = frame.to_local(sample.wi);
-        let f_cos = bsdf.eval(wo_local, wi_local) * wi_local.z.abs();
+        let f_cos = bsdf.eval(wo_local, wi_local, Transport::Radiance) * wi_local.z.abs();
         (f_cos != Rgb::ZERO).then_some(LightTowardSample {
             sample,
             pmf,

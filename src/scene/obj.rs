@@ -17,7 +17,9 @@
 //!   emitted radiance, `map_Kd` diffuse texture (relative to the MTL file's folder, loaded once
 //!   per path; a texture that cannot be loaded is a warning, the material keeps `Kd`).
 //! - kind: `illum` 3 or 5 with `Ks > 0` is a mirror (reflectance `Ks`); `illum` 4, 6, 7 or
-//!   dissolve < 1 is a dielectric (`Ni`); otherwise `Ks > 0` gives a glossy (modified Phong)
+//!   dissolve < 1 is a dielectric (`Ni`), rough (frosted) when the PBR extension's roughness
+//!   `Pr` is above 0, with GGX width alpha = `Pr`^2 (the exporters' perceptual roughness, as
+//!   Blender writes it; `Pr` is clamped to [0, 1]); otherwise `Ks > 0` gives a glossy (modified Phong)
 //!   material, scaled down with a warning when `Kd + Ks > 1`; otherwise diffuse.
 //! - colours outside [0, 1] are clamped with a warning. Objects without a material (or naming
 //!   an unknown one, a warning) get a grey diffuse default.
@@ -495,10 +497,13 @@ fn convert_material(
         ior = 1.5;
     }
     let exponent = m.shininess.unwrap_or(1.0).clamp(0.0, 1e6);
+    let pr = number("Pr").unwrap_or(0.0).clamp(0.0, 1.0);
     let illum = m.illumination_model;
     let has_ks = ks.max_element() > 0.0;
     let kind = if matches!(illum, Some(3 | 5)) && has_ks {
         MaterialKind::Mirror
+    } else if (matches!(illum, Some(4 | 6 | 7)) || dissolve < 1.0) && pr > 0.0 {
+        MaterialKind::RoughDielectric
     } else if matches!(illum, Some(4 | 6 | 7)) || dissolve < 1.0 {
         MaterialKind::Dielectric
     } else if has_ks {
@@ -520,7 +525,7 @@ fn convert_material(
             }
         }
         MaterialKind::Mirror => kd = Rgb::ZERO,
-        MaterialKind::Dielectric => {
+        MaterialKind::Dielectric | MaterialKind::RoughDielectric => {
             kd = Rgb::ZERO;
             ks = Rgb::ZERO;
         }
@@ -538,6 +543,7 @@ fn convert_material(
         specular: ks,
         exponent,
         ior,
+        roughness: pr * pr,
         emission,
     }
 }
@@ -1075,6 +1081,10 @@ Ni 1.2
 newmtl tr_glass
 Kd 0.8 0.8 0.8
 Tr 0.5
+newmtl frosted
+illum 7
+Ni 1.45
+Pr 0.6
 newmtl lamp
 Kd 0 0 0
 Ke 10 20 30
@@ -1167,6 +1177,7 @@ map_Kd does_not_exist.png
             "glass",
             "see_through",
             "tr_glass",
+            "frosted",
             "lamp",
             "textured",
             "textured_again",
@@ -1204,6 +1215,9 @@ map_Kd does_not_exist.png
         assert_eq!((m.kind, m.ior), (MaterialKind::Dielectric, 1.2));
         let m = material(&mut b, &r, "tr_glass").clone();
         assert_eq!((m.kind, m.ior), (MaterialKind::Dielectric, 1.5));
+        let m = material(&mut b, &r, "frosted").clone();
+        assert_eq!((m.kind, m.ior), (MaterialKind::RoughDielectric, 1.45));
+        assert!((m.roughness - 0.36).abs() < 1e-6);
         let m = material(&mut b, &r, "lamp").clone();
         assert_eq!(m.emission, Rgb::new(10.0, 20.0, 30.0));
         assert!(m.is_emissive());

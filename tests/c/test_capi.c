@@ -235,7 +235,10 @@ static void test_builder(lacuna_context *ctx) {
            LACUNA_STATUS_INVALID_ARGUMENT, "ior");
     EXPECT(lacuna_scene_builder_set_material_float(b, 0, LACUNA_MATERIAL_FLOAT_EXPONENT, INFINITY),
            LACUNA_STATUS_INVALID_ARGUMENT, "value");
-    EXPECT(lacuna_scene_builder_set_material_float(b, 0, 2, 1), LACUNA_STATUS_INVALID_ARGUMENT, "param");
+    OK(lacuna_scene_builder_set_material_float(b, 3, LACUNA_MATERIAL_FLOAT_ROUGHNESS, 0.4f));
+    EXPECT(lacuna_scene_builder_set_material_float(b, 3, LACUNA_MATERIAL_FLOAT_ROUGHNESS, 2),
+           LACUNA_STATUS_INVALID_ARGUMENT, "roughness");
+    EXPECT(lacuna_scene_builder_set_material_float(b, 0, 3, 1), LACUNA_STATUS_INVALID_ARGUMENT, "param");
     EXPECT(lacuna_scene_builder_set_material_float(b, 9, LACUNA_MATERIAL_FLOAT_IOR, 1.5f),
            LACUNA_STATUS_OUT_OF_RANGE, "9");
     OK(lacuna_scene_builder_set_material_name(b, 0, "varnish"));

@@ -9,13 +9,13 @@
 /// Family-wise significance level over all statistical tests.
 pub const ALPHA: f64 = 0.01;
 
-/// Number of statistical tests in the test binaries: bsdf_sampling runs 6 Lambert, 100 Phong
-/// and 6 power-cosine chi-square tests and 100 albedo z-tests (212); light_sampling runs 27
+/// Number of statistical tests in the test binaries: bsdf_sampling runs 6 Lambert, 100 Phong,
+/// 40 rough dielectric and 6 power-cosine chi-square tests and 140 albedo z-tests (292); light_sampling runs 27
 /// chi-square tests and 64 z-tests (91); environment runs 21 chi-square tests and 8 z-tests
 /// (29); path_skeleton runs 9 chi-square tests and 4 z-tests (13); sampler runs 81 chi-square
 /// tests and 12 z-tests (93). Update it when adding tests (an overestimate only makes the
 /// correction conservative).
-pub const TEST_COUNT: usize = 438;
+pub const TEST_COUNT: usize = 518;
 
 /// Cells whose expected count is below this are pooled with their neighbours in order of
 /// expected count.

@@ -109,7 +109,7 @@ impl SphereGrid {
         self.tidy();
     }
 
-    fn tidy(&mut self) {
+    pub fn tidy(&mut self) {
         for (edges, lo, hi) in [
             (&mut self.cos_edges, -1.0, 1.0),
             (&mut self.phi_edges, 0.0, 2.0 * PI),
