@@ -45,11 +45,11 @@
 
 /* Version of the library this header was generated from (Cargo.toml). */
 #define LACUNA_VERSION_MAJOR 0
-#define LACUNA_VERSION_MINOR 1
+#define LACUNA_VERSION_MINOR 2
 #define LACUNA_VERSION_PATCH 0
 /* (major << 16) | (minor << 8) | patch, as lacuna_version() returns it. */
-#define LACUNA_VERSION 256
-#define LACUNA_VERSION_STRING "0.1.0"
+#define LACUNA_VERSION 512
+#define LACUNA_VERSION_STRING "0.2.0"
 
 
 // Treat the inside of closed objects as occupied.
