@@ -21,17 +21,11 @@ use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 
 use super::convert::{octant_slots, splice_subtrees, MAX_LEAF, PRIM_COST};
-use super::sah::half_area;
+use super::sah::{bin_scale, half_area, Bins, BINS, BIN_CHUNK};
 
-/// Bins per axis.
-const BINS: usize = 32;
 /// Sets of at most this many triangles are split by an exact SAH sweep instead of bins (a
 /// binning pass costs about as much as its 3 x [`BINS`] bins, whatever the set's size).
 const SWEEP_MAX: usize = 16;
-/// Sets with at least this many triangles are binned on several rayon tasks, in chunks of
-/// [`BIN_CHUNK`].
-const PARALLEL_BIN_MIN: usize = 1 << 15;
-const BIN_CHUNK: usize = 1 << 13;
 /// Nodes with more triangles than this build their inner children's subtrees on rayon tasks.
 const PARALLEL_MIN: usize = 1 << 12;
 /// From this depth of the 8-wide tree on, nodes split at the median of the largest child
@@ -405,47 +399,6 @@ fn sweep_split(prims: &mut [PrimRef]) -> Option<(usize, [Aabb; 2], [Aabb; 2])> {
     Some((k, [lb, lc], [rb, rc]))
 }
 
-/// Per-axis bins: the union of the boxes and the number of the triangles whose centroid falls
-/// in each.
-#[derive(Clone, Copy)]
-struct Bins {
-    bounds: [[Aabb; BINS]; 3],
-    count: [[u32; BINS]; 3],
-}
-
-impl Bins {
-    fn empty() -> Bins {
-        Bins {
-            bounds: [[Aabb::empty(); BINS]; 3],
-            count: [[0; BINS]; 3],
-        }
-    }
-
-    fn add(&mut self, prims: &[PrimRef], min: Vec3A, scale: Vec3A) {
-        for p in prims {
-            let b = bins_of(p.centroid2(), min, scale);
-            let (lo, hi) = (p.lo(), p.hi());
-            for (axis, &b) in b.iter().enumerate() {
-                let bin = &mut self.bounds[axis][b];
-                bin.min = bin.min.min(lo);
-                bin.max = bin.max.max(hi);
-                self.count[axis][b] += 1;
-            }
-        }
-    }
-
-    /// Box unions and counts are exact, so the order of merging does not change the result.
-    fn merge(mut self, other: &Bins) -> Bins {
-        for axis in 0..3 {
-            for b in 0..BINS {
-                self.bounds[axis][b] = self.bounds[axis][b].union(&other.bounds[axis][b]);
-                self.count[axis][b] += other.count[axis][b];
-            }
-        }
-        self
-    }
-}
-
 /// The bin of a (doubled) centroid on each axis (`scale` 0 on an axis of zero extent).
 #[inline(always)]
 fn bins_of(c: Vec3A, min: Vec3A, scale: Vec3A) -> [usize; 3] {
@@ -460,56 +413,13 @@ fn bins_of(c: Vec3A, min: Vec3A, scale: Vec3A) -> [usize; 3] {
 fn binned_split(prims: &mut [PrimRef], centroids: &Aabb) -> Option<(usize, [Aabb; 2], [Aabb; 2])> {
     let m = prims.len();
     let extent = centroids.max - centroids.min;
-    let scale = Vec3A::select(
-        extent.cmpgt(Vec3A::ZERO),
-        Vec3A::splat(BINS as f32) / extent,
-        Vec3A::ZERO,
-    );
-    let bins = if m >= PARALLEL_BIN_MIN {
-        prims
-            .par_chunks(BIN_CHUNK)
-            .fold(Bins::empty, |mut bins, chunk| {
-                bins.add(chunk, centroids.min, scale);
-                bins
-            })
-            .reduce(Bins::empty, |a, b| a.merge(&b))
-    } else {
-        let mut bins = Bins::empty();
-        bins.add(prims, centroids.min, scale);
-        bins
-    };
-    let mut best = (f32::INFINITY, 0usize, 0usize); // (cost, axis, boundary)
-    for axis in 0..3 {
-        if !(extent[axis] > 0.0) {
-            continue;
+    let scale = bin_scale(extent);
+    let bins = Bins::of(prims, |bins, chunk| {
+        for p in chunk {
+            bins.add_box(bins_of(p.centroid2(), centroids.min, scale), p.lo(), p.hi());
         }
-        let (bin_bounds, bin_count) = (&bins.bounds[axis], &bins.count[axis]);
-        let mut right_area = [0.0f32; BINS];
-        let mut right_count = [0usize; BINS];
-        let (mut acc, mut count) = (Aabb::empty(), 0);
-        for b in (1..BINS).rev() {
-            acc = acc.union(&bin_bounds[b]);
-            count += bin_count[b] as usize;
-            right_area[b] = half_area(&acc);
-            right_count[b] = count;
-        }
-        let (mut acc, mut count) = (Aabb::empty(), 0);
-        for b in 1..BINS {
-            acc = acc.union(&bin_bounds[b - 1]);
-            count += bin_count[b - 1] as usize;
-            if count == 0 || right_count[b] == 0 {
-                continue;
-            }
-            let cost = half_area(&acc) * count as f32 + right_area[b] * right_count[b] as f32;
-            if cost < best.0 {
-                best = (cost, axis, b);
-            }
-        }
-    }
-    let (_, axis, boundary) = best;
-    if boundary == 0 {
-        return None;
-    }
+    });
+    let (axis, boundary) = bins.best_split(extent)?;
     let (min, scale) = (centroids.min[axis], scale[axis]);
     let is_left =
         |p: &PrimRef| ((((p.centroid2()[axis] - min) * scale) as usize).min(BINS - 1)) < boundary;

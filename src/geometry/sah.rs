@@ -14,8 +14,8 @@ use obvhs::bvh2::node::Bvh2Node;
 use obvhs::bvh2::Bvh2;
 use rayon::prelude::*;
 
-/// Bins per axis in binned splits.
-const BINS: usize = 32;
+/// Bins per axis in binned splits (this builder's and `binned.rs`'s).
+pub(super) const BINS: usize = 32;
 /// Nodes with at most this many triangles get the exact sweep instead of bins.
 const SWEEP_MAX: usize = 32;
 /// Subtrees with more triangles than this are built on two rayon tasks.
@@ -24,7 +24,7 @@ const PARALLEL_MIN: usize = 4096;
 /// [`BIN_CHUNK`] (the top levels of the tree, where the subtrees are still too few to keep the
 /// threads busy).
 const PARALLEL_BIN_MIN: usize = 1 << 15;
-const BIN_CHUNK: usize = 1 << 13;
+pub(super) const BIN_CHUNK: usize = 1 << 13;
 /// Beyond this depth, split at the median: keeps the BVH shallow enough for obvhs's 32-entry
 /// traversal stack (which silently overwrites its last entry when full) on nearly any input,
 /// e.g. SAH peeling one small triangle at a time off a huge one. `Bvh::build_with` checks the
@@ -256,10 +256,10 @@ fn sweep_split(prims: &mut [PrimRef]) -> usize {
     k
 }
 
-/// Per-axis bins of a binned split: the union of the boxes and the number of the prims whose
-/// centroid falls in each.
+/// Per-axis bins of a binned split (this builder's and `binned.rs`'s): the union of the boxes
+/// and the number of the prims whose centroid falls in each.
 #[derive(Clone, Copy)]
-struct Bins {
+pub(super) struct Bins {
     bounds: [[Aabb; BINS]; 3],
     count: [[u32; BINS]; 3],
 }
@@ -272,15 +272,14 @@ impl Bins {
         }
     }
 
-    /// Adds prims, all three axes in one pass (`scale` 0 on an axis of zero extent).
-    fn add(&mut self, prims: &[PrimRef], min: Vec3A, scale: Vec3A) {
-        for p in prims {
-            let c = p.centroid();
-            for axis in 0..3 {
-                let b = bin_of(c[axis], min[axis], scale[axis]);
-                self.bounds[axis][b] = self.bounds[axis][b].union(&p.aabb);
-                self.count[axis][b] += 1;
-            }
+    /// Adds a box whose centroid falls in bin `bins[axis]` on each axis.
+    #[inline(always)]
+    pub(super) fn add_box(&mut self, bins: [usize; 3], lo: Vec3A, hi: Vec3A) {
+        for (axis, &b) in bins.iter().enumerate() {
+            let bin = &mut self.bounds[axis][b];
+            bin.min = bin.min.min(lo);
+            bin.max = bin.max.max(hi);
+            self.count[axis][b] += 1;
         }
     }
 
@@ -295,66 +294,89 @@ impl Bins {
         }
         self
     }
+
+    /// The bins of `prims`, `add` binning a chunk of them: all three axes in one pass, on
+    /// several rayon tasks for large sets (the top levels of a tree, where the subtrees are
+    /// still too few to keep the threads busy).
+    pub(super) fn of<P: Sync>(prims: &[P], add: impl Fn(&mut Bins, &[P]) + Sync + Send) -> Bins {
+        if prims.len() >= PARALLEL_BIN_MIN {
+            prims
+                .par_chunks(BIN_CHUNK)
+                .fold(Bins::empty, |mut bins, chunk| {
+                    add(&mut bins, chunk);
+                    bins
+                })
+                .reduce(Bins::empty, |a, b| a.merge(&b))
+        } else {
+            let mut bins = Bins::empty();
+            add(&mut bins, prims);
+            bins
+        }
+    }
+
+    /// The best of the 3 x (BINS - 1) bin boundaries by SAH (Wald 2007): (axis, boundary), the
+    /// left side the bins below `boundary`; None when no boundary separates the centroids (all
+    /// coincide, or the bounds are not finite). `extent` is the centroids' extent.
+    pub(super) fn best_split(&self, extent: Vec3A) -> Option<(usize, usize)> {
+        let mut best = (f32::INFINITY, 0usize, 0usize); // (cost, axis, boundary)
+        for axis in 0..3 {
+            if !(extent[axis] > 0.0) {
+                continue;
+            }
+            let (bin_bounds, bin_count) = (&self.bounds[axis], &self.count[axis]);
+            let mut right_area = [0.0f32; BINS];
+            let mut right_count = [0usize; BINS];
+            let (mut acc, mut count) = (Aabb::empty(), 0);
+            for b in (1..BINS).rev() {
+                acc = acc.union(&bin_bounds[b]);
+                count += bin_count[b] as usize;
+                right_area[b] = half_area(&acc);
+                right_count[b] = count;
+            }
+            let (mut acc, mut count) = (Aabb::empty(), 0);
+            for b in 1..BINS {
+                acc = acc.union(&bin_bounds[b - 1]);
+                count += bin_count[b - 1] as usize;
+                if count == 0 || right_count[b] == 0 {
+                    continue;
+                }
+                let cost = half_area(&acc) * count as f32 + right_area[b] * right_count[b] as f32;
+                if cost < best.0 {
+                    best = (cost, axis, b);
+                }
+            }
+        }
+        let (_, axis, boundary) = best;
+        (boundary > 0).then_some((axis, boundary))
+    }
 }
 
-/// Binned SAH (Wald 2007): centroids binned along each axis (one pass over the prims for all
-/// three, on several threads for large nodes), the best of the 3 x (BINS - 1) bin boundaries;
-/// `prims` is partitioned in place. Returns the left size and the two sides' box and centroid
-/// bounds (gathered while partitioning), or None when no boundary separates the centroids.
-fn binned_split(prims: &mut [PrimRef], centroids: Aabb) -> Option<(usize, [Aabb; 2], [Aabb; 2])> {
-    let m = prims.len();
-    let extent = centroids.max - centroids.min;
-    let scale = Vec3A::select(
+/// Bins per unit of centroid extent on each axis (0 on an axis of zero extent, whose centroids
+/// all fall in bin 0).
+pub(super) fn bin_scale(extent: Vec3A) -> Vec3A {
+    Vec3A::select(
         extent.cmpgt(Vec3A::ZERO),
         Vec3A::splat(BINS as f32) / extent,
         Vec3A::ZERO,
-    );
-    let bins = if m >= PARALLEL_BIN_MIN {
-        prims
-            .par_chunks(BIN_CHUNK)
-            .fold(Bins::empty, |mut bins, chunk| {
-                bins.add(chunk, centroids.min, scale);
-                bins
-            })
-            .reduce(Bins::empty, |a, b| a.merge(&b))
-    } else {
-        let mut bins = Bins::empty();
-        bins.add(prims, centroids.min, scale);
-        bins
-    };
-    let mut best = (f32::INFINITY, 0usize, 0usize); // (cost, axis, boundary)
-    for axis in 0..3 {
-        if !(extent[axis] > 0.0) {
-            continue;
+    )
+}
+
+/// Binned SAH (Wald 2007): centroids binned along each axis ([`Bins::of`]), the best of the
+/// 3 x (BINS - 1) bin boundaries ([`Bins::best_split`]); `prims` is partitioned in place.
+/// Returns the left size and the two sides' box and centroid bounds (gathered while
+/// partitioning), or None when no boundary separates the centroids.
+fn binned_split(prims: &mut [PrimRef], centroids: Aabb) -> Option<(usize, [Aabb; 2], [Aabb; 2])> {
+    let m = prims.len();
+    let extent = centroids.max - centroids.min;
+    let scale = bin_scale(extent);
+    let bins = Bins::of(prims, |bins, chunk| {
+        for p in chunk {
+            let c = p.centroid();
+            let b = [0, 1, 2].map(|axis| bin_of(c[axis], centroids.min[axis], scale[axis]));
+            bins.add_box(b, p.aabb.min, p.aabb.max);
         }
-        let (bin_bounds, bin_count) = (&bins.bounds[axis], &bins.count[axis]);
-        let mut right_area = [0.0f32; BINS];
-        let mut right_count = [0usize; BINS];
-        let (mut acc, mut count) = (Aabb::empty(), 0);
-        for b in (1..BINS).rev() {
-            acc = acc.union(&bin_bounds[b]);
-            count += bin_count[b] as usize;
-            right_area[b] = half_area(&acc);
-            right_count[b] = count;
-        }
-        let (mut acc, mut count) = (Aabb::empty(), 0);
-        for b in 1..BINS {
-            acc = acc.union(&bin_bounds[b - 1]);
-            count += bin_count[b - 1] as usize;
-            if count == 0 || right_count[b] == 0 {
-                continue;
-            }
-            let cost = half_area(&acc) * count as f32 + right_area[b] * right_count[b] as f32;
-            if cost < best.0 {
-                best = (cost, axis, b);
-            }
-        }
-    }
-    let (_, axis, boundary) = best;
-    if boundary == 0 {
-        // All centroids coincide (or the bounds are not finite): no plane separates them.
-        return None;
-    }
+    });
+    let (axis, boundary) = bins.best_split(extent)?;
     let (min, scale) = (centroids.min[axis], scale[axis]);
     let mut left = 0;
     let mut sides = [[Aabb::empty(); 2]; 2]; // [left, right] x [boxes, centroids]
