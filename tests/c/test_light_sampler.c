@@ -431,6 +431,44 @@ static void test_portals(lacuna_context *ctx) {
     lacuna_scene_release(scene);
 }
 
+/* A frosted-glass pane made through the C API: the surface reports its kind, index and
+ * roughness as set, and a roughness out of [0, 1] is refused. */
+static void test_rough_glass_surface(lacuna_context *ctx) {
+    lacuna_scene_builder *b = NULL;
+    OK(lacuna_scene_builder_new(ctx, &b));
+    uint32_t glass = 99;
+    OK(lacuna_scene_builder_add_material(b, LACUNA_MATERIAL_KIND_ROUGH_DIELECTRIC, &glass));
+    OK(lacuna_scene_builder_set_material_float(b, glass, LACUNA_MATERIAL_FLOAT_IOR, 1.4f));
+    OK(lacuna_scene_builder_set_material_float(b, glass, LACUNA_MATERIAL_FLOAT_ROUGHNESS, 0.25f));
+    EXPECT(lacuna_scene_builder_set_material_float(b, glass, LACUNA_MATERIAL_FLOAT_ROUGHNESS, -0.5f),
+           LACUNA_STATUS_INVALID_ARGUMENT, "roughness");
+    const float p[4][3] = {{-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}};
+    const uint32_t idx[2][3] = {{0, 2, 1}, {0, 3, 2}};
+    lacuna_mesh *m = NULL;
+    OK(lacuna_mesh_new(&m));
+    OK(lacuna_mesh_set_positions(m, &p[0][0], 0, 4));
+    OK(lacuna_mesh_set_indices(m, &idx[0][0], 0, 2));
+    OK(lacuna_mesh_set_material(m, glass));
+    uint32_t mesh_index = 99;
+    OK(lacuna_scene_builder_add_mesh(b, m, &mesh_index));
+    lacuna_mesh_free(m);
+    lacuna_scene *scene = NULL;
+    OK(lacuna_scene_builder_build(b, &scene));
+    lacuna_scene_builder_free(b);
+    lacuna_ray ray;
+    lacuna_ray_init(&ray);
+    ray.origin[1] = 0.5f;
+    ray.direction[2] = 0;
+    ray.direction[1] = -1;
+    lacuna_hit hit;
+    OK(lacuna_scene_intersect(scene, &ray, &hit));
+    lacuna_surface s;
+    OK(lacuna_scene_get_surface(scene, &hit, &s));
+    CHECK(s.kind == LACUNA_MATERIAL_KIND_ROUGH_DIELECTRIC && s.material == glass);
+    CHECK(s.ior == 1.4f && s.roughness == 0.25f);
+    lacuna_scene_release(scene);
+}
+
 int main(int argc, char **argv) {
     if (argc > 1) snprintf(dir, sizeof dir, "%s", argv[1]);
     (void)path_in_dir; /* shared helper this program does not need */
@@ -460,6 +498,7 @@ int main(int argc, char **argv) {
     test_batches(ls);
     test_surface_and_camera(ctx, scene);
     test_portals(ctx);
+    test_rough_glass_surface(ctx);
 
     lacuna_scene_release(scene);
     lacuna_light_sampler_release(ls);
