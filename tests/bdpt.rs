@@ -7,6 +7,7 @@ mod common;
 use std::sync::atomic::AtomicBool;
 
 use common::agreement::{assert_agree, box_scene, region_means, render_image};
+use common::shapes::{open_box, quad, OpenBoxMaterials};
 use lacuna::integrator::{
     self, strategy_layer_name, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter,
 };
@@ -179,55 +180,15 @@ fn bdpt_agrees_with_path_through_rough_glass() {
     let light = b
         .add_material(Material::emissive(Rgb::splat(15.0)))
         .unwrap();
-    let quad = |b: &mut SceneBuilder, p: [Vec3; 4], m: u32| {
-        b.add_mesh(MeshDesc {
-            positions: p.to_vec(),
-            indices: vec![[0, 1, 2], [0, 2, 3]],
-            materials: vec![m],
-            ..Default::default()
-        })
-        .unwrap();
-    };
     // Room: floor, back wall, two side walls (open towards the camera and the ceiling).
-    quad(
+    open_box(
         &mut b,
-        [
-            v3(-1., -1., -1.),
-            v3(-1., -1., 1.),
-            v3(1., -1., 1.),
-            v3(1., -1., -1.),
-        ],
-        wall,
-    );
-    quad(
-        &mut b,
-        [
-            v3(-1., -1., -1.),
-            v3(1., -1., -1.),
-            v3(1., 1., -1.),
-            v3(-1., 1., -1.),
-        ],
-        wall,
-    );
-    quad(
-        &mut b,
-        [
-            v3(-1., -1., -1.),
-            v3(-1., 1., -1.),
-            v3(-1., 1., 1.),
-            v3(-1., -1., 1.),
-        ],
-        wall,
-    );
-    quad(
-        &mut b,
-        [
-            v3(1., -1., -1.),
-            v3(1., -1., 1.),
-            v3(1., 1., 1.),
-            v3(1., 1., -1.),
-        ],
-        wall,
+        OpenBoxMaterials {
+            floor: wall,
+            back: wall,
+            left: wall,
+            right: wall,
+        },
     );
     // Area light facing down, the rough pane below it.
     quad(

@@ -13,9 +13,23 @@ use lacuna::math::{Rgb, Vec3};
 use lacuna::render::RenderSettings;
 use lacuna::scene::{Camera, Material, MeshDesc, Scene, SceneBuilder};
 
-/// Region means of `path`, `bdpt` and each SkelBPT variant; every variant must agree with both.
-/// `resamples`: whether the variants must resample (false: the scene is open or unsuited, and
-/// the test checks the fallback to `bdpt`), so a silent fallback cannot pass for resampling.
+/// Prepares `spec` (a `bdpt_skeleton` variant) on `scene` and checks whether it resamples
+/// (false: the scene is open or unsuited and it falls back to `bdpt`), so that a silent
+/// fallback cannot pass for resampling in an agreement test.
+fn assert_resamples(label: &str, scene: &Scene, max_depth: u32, spec: &str, resamples: bool) {
+    let camera = *scene.camera().unwrap();
+    let settings = IntegratorSettings {
+        max_depth,
+        ..Default::default()
+    };
+    let (_, settings) = integrator::parse_spec(spec, settings).unwrap();
+    let mut skel = BdptSkeleton::new(settings).unwrap();
+    lacuna::render::prepare(&mut skel, scene, &camera, None, &|_, _| true).unwrap();
+    assert_eq!(skel.resamples(), resamples, "{label}: {spec} resamples");
+}
+
+/// Region means of `path`, `bdpt` and each SkelBPT variant; every variant must agree with both
+/// and resample or not as `resamples` says ([`assert_resamples`]).
 fn agree(
     label: &str,
     scene: &Scene,
@@ -23,16 +37,8 @@ fn agree(
     resamples: bool,
     variants: &[&str],
 ) {
-    let camera = *scene.camera().unwrap();
     for spec in variants {
-        let settings = IntegratorSettings {
-            max_depth,
-            ..Default::default()
-        };
-        let (_, settings) = integrator::parse_spec(spec, settings).unwrap();
-        let mut skel = BdptSkeleton::new(settings).unwrap();
-        lacuna::render::prepare(&mut skel, scene, &camera, None, &|_, _| true).unwrap();
-        assert_eq!(skel.resamples(), resamples, "{label}: {spec} resamples");
+        assert_resamples(label, scene, max_depth, spec, resamples);
     }
     agree_with_path_and_bdpt(label, scene, (max_depth, size, spp), variants);
 }
@@ -70,17 +76,7 @@ fn skelbpt_and_icbpt_agree_under_environment_light() {
     let scene = lacuna::scene::interior_builder().unwrap().build().unwrap();
     let camera = *scene.camera().unwrap();
     let spec = "bdpt_skeleton:subset=32:accept=0";
-    let (_, settings) = integrator::parse_spec(
-        spec,
-        IntegratorSettings {
-            max_depth: 4,
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    let mut skel = BdptSkeleton::new(settings).unwrap();
-    lacuna::render::prepare(&mut skel, &scene, &camera, None, &|_, _| true).unwrap();
-    assert!(skel.resamples(), "{spec} does not resample in the interior");
+    assert_resamples("interior", &scene, 4, spec, true);
     agree_with_path(
         "interior under the sky",
         &scene,
@@ -103,20 +99,9 @@ fn skelbpt_and_icbpt_agree_under_light_fields() {
         .lights()
         .iter()
         .all(|l| matches!(l, lacuna::light::Light::LightField { .. })));
-    let camera = *scene.camera().unwrap();
     let skeleton_specs = ["bdpt_skeleton:subset=32:accept=0", "bdpt_skeleton"];
     for spec in skeleton_specs {
-        let (_, settings) = integrator::parse_spec(
-            spec,
-            IntegratorSettings {
-                max_depth: 4,
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        let mut skel = BdptSkeleton::new(settings).unwrap();
-        lacuna::render::prepare(&mut skel, &scene, &camera, None, &|_, _| true).unwrap();
-        assert!(skel.resamples(), "{spec} does not resample in the room");
+        assert_resamples("luminaire room", &scene, 4, spec, true);
     }
     let mut specs = skeleton_specs.to_vec();
     specs.push("bdpt_ic:subset=32:density=0.05");

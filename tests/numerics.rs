@@ -2,25 +2,17 @@
 //! error or renders with every pixel finite (radiance, albedo, normal, depth), with every
 //! integrator alike. Images are tiny: these test robustness, not convergence.
 
+mod common;
+
 use std::sync::atomic::AtomicBool;
 
+use common::shapes::quad;
 use lacuna::film::Film;
 use lacuna::integrator::{self, IntegratorSettings};
 use lacuna::light::LightDesc;
 use lacuna::math::{Rgb, Vec3};
 use lacuna::render::{render, RenderSettings};
 use lacuna::scene::{Camera, Material, MeshDesc, Scene, SceneBuilder};
-
-fn quad(b: &mut SceneBuilder, corners: [Vec3; 4], material: u32) {
-    b.add_mesh(MeshDesc {
-        name: "quad".into(),
-        positions: corners.to_vec(),
-        indices: vec![[0, 1, 2], [0, 2, 3]],
-        materials: vec![material],
-        ..Default::default()
-    })
-    .unwrap();
-}
 
 /// A floor quad of half-size `h` at y = 0 facing up, with `material`.
 fn floor(b: &mut SceneBuilder, h: f32, material: u32) {

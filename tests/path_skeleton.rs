@@ -20,6 +20,7 @@ use std::sync::atomic::AtomicBool;
 use common::agreement::{agree_on_corridor, agree_with_path, box_scene, load_scene};
 use common::chi2::{assert_chi2, assert_z, Stats};
 use common::directions::{chi2_directions, surface_points, to32, to64, SAMPLES};
+use common::shapes::quad;
 use common::sphere::SphereGrid;
 use lacuna::compare::{compare, Contender};
 use lacuna::guide::{
@@ -31,8 +32,7 @@ use lacuna::math::warp::SphericalRectangle;
 use lacuna::math::{Frame, Rgb, Rng, Sampler, Vec3};
 use lacuna::render::{prepare, render, RenderSettings};
 use lacuna::scene::{
-    corridor_builder, two_rooms_builder, Bsdf, Camera, Material, MeshDesc, Scene, SceneBuilder,
-    Transport,
+    corridor_builder, two_rooms_builder, Bsdf, Camera, Material, Scene, SceneBuilder, Transport,
 };
 
 /// A sphere grid refined around every lobe axis.
@@ -607,16 +607,6 @@ fn lobes_aim_through_the_door_opening() {
         3 * through_opening > guided_opening,
         "only {through_opening} of {guided_opening} points aim through the doorway"
     );
-}
-
-fn quad(b: &mut SceneBuilder, p: [Vec3; 4], m: u32) {
-    b.add_mesh(MeshDesc {
-        positions: p.to_vec(),
-        indices: vec![[0, 1, 2], [0, 2, 3]],
-        materials: vec![m],
-        ..Default::default()
-    })
-    .unwrap();
 }
 
 /// A closed box of side 2 centred at `c` (faces pointing inwards).

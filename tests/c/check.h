@@ -1,4 +1,4 @@
-/* The check macros and small helpers shared by the C tests (test_capi.c, test_environment.c):
+/* The check macros and small helpers shared by the C tests (tests/c/test_*.c):
  * each test program includes this once; results are counted in `passed` and `failed`, and
  * `dir` holds the scratch directory given as argv[1]. */
 #ifndef LACUNA_TEST_CHECK_H
@@ -65,6 +65,21 @@ static lacuna_rgb rgb(float r, float g, float b) {
     c.g = g;
     c.b = b;
     return c;
+}
+
+/* Adds a floor: the square [-half, half]^2 at y = 0, facing +y, two triangles of `material`.
+ * (inline: programs that do not use it get no unused-function warning.) */
+static inline void add_floor_quad(lacuna_scene_builder *b, float half, uint32_t material) {
+    const float p[4][3] = {{-half, 0, -half}, {half, 0, -half}, {half, 0, half}, {-half, 0, half}};
+    const uint32_t idx[2][3] = {{0, 2, 1}, {0, 3, 2}};
+    lacuna_mesh *m = NULL;
+    OK(lacuna_mesh_new(&m));
+    OK(lacuna_mesh_set_positions(m, &p[0][0], 0, 4));
+    OK(lacuna_mesh_set_indices(m, &idx[0][0], 0, 2));
+    OK(lacuna_mesh_set_material(m, material));
+    uint32_t mesh_index = 99;
+    OK(lacuna_scene_builder_add_mesh(b, m, &mesh_index));
+    lacuna_mesh_free(m);
 }
 
 #endif

@@ -24,16 +24,7 @@ static lacuna_scene *floor_scene(lacuna_context *ctx, const lacuna_environment *
     uint32_t mat = 99;
     OK(lacuna_scene_builder_add_material(b, LACUNA_MATERIAL_KIND_DIFFUSE, &mat));
     OK(lacuna_scene_builder_set_material_rgb(b, mat, LACUNA_MATERIAL_RGB_DIFFUSE, rgb(0.5f, 0.5f, 0.5f)));
-    const float p[4][3] = {{-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}};
-    const uint32_t idx[2][3] = {{0, 2, 1}, {0, 3, 2}};
-    lacuna_mesh *m = NULL;
-    OK(lacuna_mesh_new(&m));
-    OK(lacuna_mesh_set_positions(m, &p[0][0], 0, 4));
-    OK(lacuna_mesh_set_indices(m, &idx[0][0], 0, 2));
-    OK(lacuna_mesh_set_material(m, mat));
-    uint32_t mesh_index = 99;
-    OK(lacuna_scene_builder_add_mesh(b, m, &mesh_index));
-    lacuna_mesh_free(m);
+    add_floor_quad(b, 1.0f, mat);
     OK(lacuna_scene_builder_set_camera(b, v3(0, 3, 0), v3(0, 0, 0), v3(0, 0, -1), 60));
     EXPECT(lacuna_scene_builder_set_environment(NULL, env), LACUNA_STATUS_NULL_POINTER, "builder");
     OK(lacuna_scene_builder_set_environment(b, env));

@@ -130,16 +130,7 @@ static void test_light(lacuna_context *ctx, lacuna_light_field *held) {
     OK(lacuna_scene_builder_new(ctx, &b));
     uint32_t mat = 99;
     OK(lacuna_scene_builder_add_material(b, LACUNA_MATERIAL_KIND_DIFFUSE, &mat));
-    const float pos[4][3] = {{-2, 0, -2}, {2, 0, -2}, {2, 0, 2}, {-2, 0, 2}};
-    const uint32_t idx[2][3] = {{0, 2, 1}, {0, 3, 2}};
-    lacuna_mesh *m = NULL;
-    OK(lacuna_mesh_new(&m));
-    OK(lacuna_mesh_set_positions(m, &pos[0][0], 0, 4));
-    OK(lacuna_mesh_set_indices(m, &idx[0][0], 0, 2));
-    OK(lacuna_mesh_set_material(m, mat));
-    uint32_t mesh_index = 99;
-    OK(lacuna_scene_builder_add_mesh(b, m, &mesh_index));
-    lacuna_mesh_free(m);
+    add_floor_quad(b, 2.0f, mat);
     lacuna_vec3 at = v3(0, 1.5f, 0), down = v3(0, -1, 0), x = v3(1, 0, 0);
     EXPECT(lacuna_scene_builder_add_light_field_light(NULL, held, at, down, x, rgb(1, 1, 1)),
            LACUNA_STATUS_NULL_POINTER, "builder");

@@ -283,7 +283,8 @@ static void test_batches(const lacuna_light_sampler *ls) {
            "stride");
 }
 
-static void test_surface_and_camera(lacuna_context *ctx, const lacuna_scene *scene) {
+/* The hit of a ray cast straight down from (0, 0.5, 0): the centre of the floor quad. */
+static lacuna_hit hit_from_above(const lacuna_scene *scene) {
     lacuna_ray ray;
     lacuna_ray_init(&ray);
     ray.origin[1] = 0.5f;
@@ -291,6 +292,11 @@ static void test_surface_and_camera(lacuna_context *ctx, const lacuna_scene *sce
     ray.direction[1] = -1;
     lacuna_hit hit;
     OK(lacuna_scene_intersect(scene, &ray, &hit));
+    return hit;
+}
+
+static void test_surface_and_camera(lacuna_context *ctx, const lacuna_scene *scene) {
+    lacuna_hit hit = hit_from_above(scene);
     CHECK(hit.triangle < 2);
     lacuna_surface s;
     OK(lacuna_scene_get_surface(scene, &hit, &s));
@@ -442,26 +448,11 @@ static void test_rough_glass_surface(lacuna_context *ctx) {
     OK(lacuna_scene_builder_set_material_float(b, glass, LACUNA_MATERIAL_FLOAT_ROUGHNESS, 0.25f));
     EXPECT(lacuna_scene_builder_set_material_float(b, glass, LACUNA_MATERIAL_FLOAT_ROUGHNESS, -0.5f),
            LACUNA_STATUS_INVALID_ARGUMENT, "roughness");
-    const float p[4][3] = {{-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1}};
-    const uint32_t idx[2][3] = {{0, 2, 1}, {0, 3, 2}};
-    lacuna_mesh *m = NULL;
-    OK(lacuna_mesh_new(&m));
-    OK(lacuna_mesh_set_positions(m, &p[0][0], 0, 4));
-    OK(lacuna_mesh_set_indices(m, &idx[0][0], 0, 2));
-    OK(lacuna_mesh_set_material(m, glass));
-    uint32_t mesh_index = 99;
-    OK(lacuna_scene_builder_add_mesh(b, m, &mesh_index));
-    lacuna_mesh_free(m);
+    add_floor_quad(b, 1.0f, glass);
     lacuna_scene *scene = NULL;
     OK(lacuna_scene_builder_build(b, &scene));
     lacuna_scene_builder_free(b);
-    lacuna_ray ray;
-    lacuna_ray_init(&ray);
-    ray.origin[1] = 0.5f;
-    ray.direction[2] = 0;
-    ray.direction[1] = -1;
-    lacuna_hit hit;
-    OK(lacuna_scene_intersect(scene, &ray, &hit));
+    lacuna_hit hit = hit_from_above(scene);
     lacuna_surface s;
     OK(lacuna_scene_get_surface(scene, &hit, &s));
     CHECK(s.kind == LACUNA_MATERIAL_KIND_ROUGH_DIELECTRIC && s.material == glass);

@@ -9,7 +9,9 @@ use lacuna::integrator::{self, Integrator, IntegratorSettings};
 use lacuna::light::LightDesc;
 use lacuna::math::{Rgb, SamplerKind, Vec3};
 use lacuna::render::{render, RenderSettings};
-use lacuna::scene::{Camera, Material, MeshDesc, Scene, SceneBuilder};
+use lacuna::scene::{Camera, Material, Scene, SceneBuilder};
+
+use super::shapes::{open_box, quad, OpenBoxMaterials};
 
 /// Renders to completion, without progress reports or cancellation: what most tests need.
 pub fn render_image(
@@ -229,56 +231,16 @@ pub fn box_scene(delta_bsdfs: bool, area_light: bool, delta_lights: bool) -> (Sc
     let light = b
         .add_material(Material::emissive(Rgb::splat(15.0)))
         .unwrap();
-    let quad = |b: &mut SceneBuilder, p: [Vec3; 4], m: u32| {
-        b.add_mesh(MeshDesc {
-            positions: p.to_vec(),
-            indices: vec![[0, 1, 2], [0, 2, 3]],
-            materials: vec![m],
-            ..Default::default()
-        })
-        .unwrap();
-    };
+    open_box(
+        &mut b,
+        OpenBoxMaterials {
+            floor: glossy,
+            back: wall,
+            left: if delta_bsdfs { mirror } else { wall },
+            right: sharp,
+        },
+    );
     let v = Vec3::new;
-    quad(
-        &mut b,
-        [
-            v(-1., -1., -1.),
-            v(-1., -1., 1.),
-            v(1., -1., 1.),
-            v(1., -1., -1.),
-        ],
-        glossy,
-    );
-    quad(
-        &mut b,
-        [
-            v(-1., -1., -1.),
-            v(1., -1., -1.),
-            v(1., 1., -1.),
-            v(-1., 1., -1.),
-        ],
-        wall,
-    );
-    quad(
-        &mut b,
-        [
-            v(-1., -1., -1.),
-            v(-1., 1., -1.),
-            v(-1., 1., 1.),
-            v(-1., -1., 1.),
-        ],
-        if delta_bsdfs { mirror } else { wall },
-    );
-    quad(
-        &mut b,
-        [
-            v(1., -1., -1.),
-            v(1., -1., 1.),
-            v(1., 1., 1.),
-            v(1., 1., -1.),
-        ],
-        sharp,
-    );
     if delta_bsdfs {
         quad(
             &mut b,

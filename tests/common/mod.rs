@@ -1,5 +1,5 @@
-//! Helpers shared by the sampling tests: chi-square and z-tests with their p-values, and a
-//! (cos theta, phi) grid over the sphere with per-cell quadrature.
+//! Helpers shared by the tests: chi-square and z-tests with their p-values, a (cos theta, phi)
+//! grid over the sphere with per-cell quadrature, integrator agreement, and small test geometry.
 //!
 //! Each test binary uses only part of this module.
 #![allow(dead_code)]
@@ -7,4 +7,5 @@
 pub mod agreement;
 pub mod chi2;
 pub mod directions;
+pub mod shapes;
 pub mod sphere;
