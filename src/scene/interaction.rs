@@ -26,9 +26,6 @@ impl SurfaceInteraction {
         Frame::from_z(self.ns)
     }
 
-    /// A ray leaving the surface in direction `dir`, starting just off the side `dir` points to.
-    /// The shading normal turned to the side of `wo`: the hemisphere the (opaque) BSDFs
-    /// reflect into, which per-normal light sampling balances its samples for.
     /// Whether a connection leaving in direction `wi` (world) scatters on the side of the
     /// geometric surface that the shading frame says: on `wo`'s side when `wi_local` and
     /// `wo_local` share a hemisphere (reflection), across it otherwise (transmission). Shading
@@ -44,6 +41,8 @@ impl SurfaceInteraction {
         }
     }
 
+    /// The shading normal turned to the side of `wo`: the hemisphere the (opaque) BSDFs
+    /// reflect into, which per-normal light sampling balances its samples for.
     #[inline]
     pub fn facing_normal(&self) -> Vec3 {
         if self.ns.dot(self.wo) < 0.0 {
@@ -53,6 +52,7 @@ impl SurfaceInteraction {
         }
     }
 
+    /// A ray leaving the surface in direction `dir`, starting just off the side `dir` points to.
     #[inline]
     pub fn spawn_ray(&self, dir: Vec3) -> Ray {
         Ray::new(
