@@ -6,8 +6,7 @@ mod common;
 
 use std::sync::atomic::AtomicBool;
 
-use common::agreement::{assert_agree, box_scene, region_means, render_image};
-use common::shapes::{open_box, quad, OpenBoxMaterials};
+use common::agreement::{assert_agree, box_scene, region_means, render_image, rough_glass_room};
 use lacuna::integrator::{
     self, strategy_layer_name, Bdpt, Integrator, IntegratorSettings, MisHeuristic, StrategyFilter,
 };
@@ -160,93 +159,12 @@ fn bdpt_agrees_with_path_on_glossy_mirror_and_glass_under_an_area_light() {
     );
 }
 
-/// Frosted glass (the GGX rough dielectric): a closed rough-glass box with a point light inside
-/// (the frosted lamp: light leaves only through rough refraction, entering and leaving), a
-/// rough pane under the area light, diffuse walls. Paths through rough glass are found by
-/// every strategy: next-event estimation and connections through the glass, light tracing
-/// out of it (importance transport, no eta^2), so the two integrators must agree.
+/// Frosted glass ([`rough_glass_room`]): paths through rough glass are found by every
+/// strategy: next-event estimation and connections through the glass, light tracing out of it
+/// (importance transport, no eta^2), so the two integrators must agree.
 #[test]
 fn bdpt_agrees_with_path_through_rough_glass() {
-    let mut b = SceneBuilder::new();
-    let wall = b
-        .add_material(Material::diffuse(Rgb::new(0.7, 0.6, 0.5)))
-        .unwrap();
-    let frosted = b
-        .add_material(Material::rough_dielectric(1.5, 0.3))
-        .unwrap();
-    let pane = b
-        .add_material(Material::rough_dielectric(1.3, 0.1))
-        .unwrap();
-    let light = b
-        .add_material(Material::emissive(Rgb::splat(15.0)))
-        .unwrap();
-    // Room: floor, back wall, two side walls (open towards the camera and the ceiling).
-    open_box(
-        &mut b,
-        OpenBoxMaterials {
-            floor: wall,
-            back: wall,
-            left: wall,
-            right: wall,
-        },
-    );
-    // Area light facing down, the rough pane below it.
-    quad(
-        &mut b,
-        [
-            v3(-0.2, 0.9, -0.5),
-            v3(0.2, 0.9, -0.5),
-            v3(0.2, 0.9, -0.1),
-            v3(-0.2, 0.9, -0.1),
-        ],
-        light,
-    );
-    quad(
-        &mut b,
-        [
-            v3(-0.4, 0.7, -0.7),
-            v3(0.4, 0.7, -0.7),
-            v3(0.4, 0.7, 0.1),
-            v3(-0.4, 0.7, 0.1),
-        ],
-        pane,
-    );
-    // A closed frosted box (outward normals) around a point light.
-    let (lo, hi) = (v3(-0.25, -0.6, -0.25), v3(0.25, -0.1, 0.25));
-    let c = |i: usize| {
-        v3(
-            if i & 1 == 0 { lo.x } else { hi.x },
-            if i & 2 == 0 { lo.y } else { hi.y },
-            if i & 4 == 0 { lo.z } else { hi.z },
-        )
-    };
-    b.add_mesh(MeshDesc {
-        positions: (0..8).map(c).collect(),
-        indices: vec![
-            [0, 1, 5],
-            [0, 5, 4],
-            [2, 6, 7],
-            [2, 7, 3], // y faces
-            [0, 4, 6],
-            [0, 6, 2],
-            [1, 3, 7],
-            [1, 7, 5], // x faces
-            [0, 2, 3],
-            [0, 3, 1],
-            [4, 5, 7],
-            [4, 7, 6], // z faces
-        ],
-        materials: vec![frosted],
-        ..Default::default()
-    })
-    .unwrap();
-    b.add_light(lacuna::light::LightDesc::Point {
-        position: v3(0.0, -0.35, 0.0),
-        intensity: Rgb::splat(1.5),
-    })
-    .unwrap();
-    let scene = b.build().unwrap();
-    let camera = Camera::look_at(v3(0.0, 0.2, 3.2), v3(0.0, -0.2, 0.0), Vec3::Y, 45.0).unwrap();
+    let (scene, camera) = rough_glass_room();
     compare(
         "rough glass",
         &scene,

@@ -7,7 +7,9 @@
 
 mod common;
 
-use common::agreement::{agree_with_path, agree_with_path_and_bdpt, load_scene, render_image};
+use common::agreement::{
+    agree_with_path, agree_with_path_and_bdpt, load_scene, render_image, rough_glass_room,
+};
 use lacuna::integrator::{self, BdptSkeleton, Integrator, IntegratorSettings};
 use lacuna::math::{Rgb, Vec3};
 use lacuna::render::RenderSettings;
@@ -106,6 +108,24 @@ fn skelbpt_and_icbpt_agree_under_light_fields() {
     let mut specs = skeleton_specs.to_vec();
     specs.push("bdpt_ic:subset=32:density=0.05");
     agree_with_path_and_bdpt("luminaire room (light fields)", &scene, (4, 16, 32), &specs);
+}
+
+/// Through rough glass ([`rough_glass_room`]): light vertices on the frosted lamp's outside
+/// are reached from within, so connections leave them across the surface; ICBPT's
+/// distributions count such pairs as connectable (`resampled::may_leave`) and must stay
+/// unbiased against `path`.
+#[test]
+fn icbpt_agrees_with_path_through_rough_glass() {
+    let (scene, camera) = rough_glass_room();
+    agree_with_path(
+        "rough glass",
+        &scene,
+        &camera,
+        6,
+        16,
+        32,
+        &["bdpt_ic:subset=32:density=0.05"],
+    );
 }
 
 #[test]

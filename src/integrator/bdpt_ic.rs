@@ -25,7 +25,7 @@ use super::bdpt::{
     CameraVertex, Connection, ConnectionPolicy, LightPaths, PathObserver, UniformPerPixel,
 };
 use super::resampled::{
-    build_tables, distribution_layers, Anchor, OcclusionTally, Tables, NO_TABLE,
+    build_tables, distribution_layers, Anchor, AnchorSurface, OcclusionTally, Tables, NO_TABLE,
 };
 use super::{
     Bdpt, Integrator, IntegratorSettings, Iteration, ResamplingStats, SampleContext, TraceCounters,
@@ -349,7 +349,12 @@ impl BdptIc {
             .iter()
             .map(|si| Anchor {
                 p: si.p,
-                surface: Some((si.p_error, si.ng, si.wo)),
+                surface: Some(AnchorSurface {
+                    p_error: si.p_error,
+                    ng: si.ng,
+                    wo: si.wo,
+                    transmits: scene.bsdf(si).transmits(),
+                }),
             })
             .collect();
         let positions: Vec<Vec3> = records.iter().map(|si| si.p).collect();

@@ -72,10 +72,29 @@ impl OcclusionTally {
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Anchor {
     pub p: Vec3,
-    /// On a surface (an importance record): its position error, geometric normal and the
-    /// direction the eye came from; a connection must leave it on that side. `None` in free
-    /// space (a skeleton node).
-    pub surface: Option<(Vec3, Vec3, Vec3)>,
+    /// On a surface (an importance record); `None` in free space (a skeleton node).
+    pub surface: Option<AnchorSurface>,
+}
+
+/// The surface an [`Anchor`] lies on.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct AnchorSurface {
+    pub p_error: Vec3,
+    /// Geometric normal.
+    pub ng: Vec3,
+    /// The direction the eye came from: an opaque anchor is left on that side only.
+    pub wo: Vec3,
+    /// Its BSDF refracts ([`Bsdf::transmits`](crate::scene::Bsdf::transmits)): either side.
+    pub transmits: bool,
+}
+
+/// Whether a connection may leave a surface point (geometric normal `ng`, reached from `wo`)
+/// in direction `d`: on `wo`'s side, or on either side where its BSDF refracts. (The exact
+/// test of a given pair of directions is `SurfaceInteraction::scatters_toward`; this is its
+/// union over both lobes, which is what p_V needs before any direction is sampled.)
+fn may_leave(d: Vec3, ng: Vec3, wo: Vec3, transmits: bool) -> bool {
+    let sides = d.dot(ng) * wo.dot(ng);
+    sides > 0.0 || (transmits && sides < 0.0)
 }
 
 /// One iteration's distributions.
@@ -184,6 +203,11 @@ pub(super) fn build_tables(
         anchor_table[k] = t as u32;
     }
     let e = entries.len();
+    // Per entry: whether its vertex's BSDF refracts ([`may_leave`]).
+    let transmits: Vec<bool> = entries
+        .iter()
+        .map(|&(_, v)| scene.bsdf(&paths.vertices[v as usize].si).transmits())
+        .collect();
     let mut cdfs = vec![0.0f32; chosen.len() * e];
     let mut origins = vec![0u8; chosen.len() * e];
     let visible_pairs = AtomicU64::new(0);
@@ -202,10 +226,10 @@ pub(super) fn build_tables(
                     let dist2 = d.length_squared().max(1e-12);
                     let w = luminance(y.throughput).max(0.0) / dist2;
                     weights[i] = if w.is_finite() { w } else { 0.0 };
-                    // The anchor must be on the side the vertex was reached from (the only
-                    // side a connection can leave it by), the vertex on the side of a
-                    // surface anchor its eye came from, and the segment unoccluded.
-                    let leaves_vertex = d.dot(y.si.ng) * y.si.wo.dot(y.si.ng) > 0.0;
+                    // A connection must be able to leave the vertex towards the anchor and
+                    // a surface anchor towards the vertex ([`may_leave`]), and the segment
+                    // must be unoccluded.
+                    let leaves_vertex = may_leave(d, y.si.ng, y.si.wo, transmits[i]);
                     visible[i] = leaves_vertex
                         && match anchor.surface {
                             None => !scene.occluded(&y.si.spawn_ray_to(
@@ -213,9 +237,10 @@ pub(super) fn build_tables(
                                 Vec3::ZERO,
                                 Vec3::ZERO,
                             )),
-                            Some((p_error, ng, wo)) => {
-                                -d.dot(ng) * wo.dot(ng) > 0.0
-                                    && !scene.occluded(&y.si.spawn_ray_to(anchor.p, p_error, ng))
+                            Some(a) => {
+                                may_leave(-d, a.ng, a.wo, a.transmits)
+                                    && !scene
+                                        .occluded(&y.si.spawn_ray_to(anchor.p, a.p_error, a.ng))
                             }
                         };
                     seen += visible[i] as u64;
@@ -243,4 +268,27 @@ pub(super) fn build_tables(
         },
         visible_pairs.into_inner(),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::may_leave;
+    use crate::math::Vec3;
+
+    /// An opaque surface is left on the side it was reached from only; a refracting one on
+    /// either side; never along the surface's plane.
+    #[test]
+    fn connections_leave_opaque_surfaces_on_the_eyes_side_and_refracting_ones_on_both() {
+        let (ng, from_above) = (Vec3::Y, Vec3::new(0.3, 0.8, 0.1).normalize());
+        let (up, down) = (Vec3::new(0.1, 1.0, 0.0), Vec3::new(0.1, -1.0, 0.0));
+        assert!(may_leave(up, ng, from_above, false));
+        assert!(!may_leave(down, ng, from_above, false));
+        assert!(may_leave(up, ng, from_above, true));
+        assert!(may_leave(down, ng, from_above, true));
+        // Reached from below (the back side): mirrored.
+        assert!(may_leave(down, ng, -from_above, false));
+        assert!(!may_leave(up, ng, -from_above, false));
+        // In the plane: no side.
+        assert!(!may_leave(Vec3::X, ng, from_above, true));
+    }
 }

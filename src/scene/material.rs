@@ -285,6 +285,12 @@ impl Bsdf {
         matches!(self, Bsdf::Mirror { .. } | Bsdf::Dielectric { .. })
     }
 
+    /// Whether light can leave across the surface (refraction): for those BSDFs a connection
+    /// may leave on either side of it, for the others only on the side light arrived from.
+    pub fn transmits(&self) -> bool {
+        matches!(self, Bsdf::Dielectric { .. } | Bsdf::RoughDielectric { .. })
+    }
+
     /// Albedo used for the albedo AOV.
     pub fn albedo_hint(&self) -> Rgb {
         match *self {

@@ -9,7 +9,7 @@ use lacuna::integrator::{self, Integrator, IntegratorSettings};
 use lacuna::light::LightDesc;
 use lacuna::math::{Rgb, SamplerKind, Vec3};
 use lacuna::render::{render, RenderSettings};
-use lacuna::scene::{Camera, Material, Scene, SceneBuilder};
+use lacuna::scene::{Camera, Material, MeshDesc, Scene, SceneBuilder};
 
 use super::shapes::{open_box, quad, OpenBoxMaterials};
 
@@ -301,5 +301,98 @@ pub fn box_scene(delta_bsdfs: bool, area_light: bool, delta_lights: bool) -> (Sc
     }
     let scene = b.build().unwrap();
     let camera = Camera::look_at(v(0.0, 0.2, 3.0), v(0.0, -0.2, 0.0), Vec3::Y, 50.0).unwrap();
+    (scene, camera)
+}
+
+/// Frosted glass (the GGX rough dielectric): a closed rough-glass box with a point light inside
+/// (the frosted lamp: light leaves only through rough refraction, entering and leaving), a
+/// rough pane under the area light, diffuse walls of an [`open_box`].
+pub fn rough_glass_room() -> (Scene, Camera) {
+    let mut b = SceneBuilder::new();
+    let wall = b
+        .add_material(Material::diffuse(Rgb::new(0.7, 0.6, 0.5)))
+        .unwrap();
+    let frosted = b
+        .add_material(Material::rough_dielectric(1.5, 0.3))
+        .unwrap();
+    let pane = b
+        .add_material(Material::rough_dielectric(1.3, 0.1))
+        .unwrap();
+    let light = b
+        .add_material(Material::emissive(Rgb::splat(15.0)))
+        .unwrap();
+    // Room: floor, back wall, two side walls (open towards the camera and the ceiling).
+    open_box(
+        &mut b,
+        OpenBoxMaterials {
+            floor: wall,
+            back: wall,
+            left: wall,
+            right: wall,
+        },
+    );
+    // Area light facing down, the rough pane below it.
+    quad(
+        &mut b,
+        [
+            Vec3::new(-0.2, 0.9, -0.5),
+            Vec3::new(0.2, 0.9, -0.5),
+            Vec3::new(0.2, 0.9, -0.1),
+            Vec3::new(-0.2, 0.9, -0.1),
+        ],
+        light,
+    );
+    quad(
+        &mut b,
+        [
+            Vec3::new(-0.4, 0.7, -0.7),
+            Vec3::new(0.4, 0.7, -0.7),
+            Vec3::new(0.4, 0.7, 0.1),
+            Vec3::new(-0.4, 0.7, 0.1),
+        ],
+        pane,
+    );
+    // A closed frosted box (outward normals) around a point light.
+    let (lo, hi) = (Vec3::new(-0.25, -0.6, -0.25), Vec3::new(0.25, -0.1, 0.25));
+    let c = |i: usize| {
+        Vec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        )
+    };
+    b.add_mesh(MeshDesc {
+        positions: (0..8).map(c).collect(),
+        indices: vec![
+            [0, 1, 5],
+            [0, 5, 4],
+            [2, 6, 7],
+            [2, 7, 3], // y faces
+            [0, 4, 6],
+            [0, 6, 2],
+            [1, 3, 7],
+            [1, 7, 5], // x faces
+            [0, 2, 3],
+            [0, 3, 1],
+            [4, 5, 7],
+            [4, 7, 6], // z faces
+        ],
+        materials: vec![frosted],
+        ..Default::default()
+    })
+    .unwrap();
+    b.add_light(LightDesc::Point {
+        position: Vec3::new(0.0, -0.35, 0.0),
+        intensity: Rgb::splat(1.5),
+    })
+    .unwrap();
+    let scene = b.build().unwrap();
+    let camera = Camera::look_at(
+        Vec3::new(0.0, 0.2, 3.2),
+        Vec3::new(0.0, -0.2, 0.0),
+        Vec3::Y,
+        45.0,
+    )
+    .unwrap();
     (scene, camera)
 }
