@@ -5,7 +5,9 @@
 //! count; its options refused when wrong, and the bias stated. With skeleton visibility (000
 //! chapter 8): its agreement with exact shadow rays over VPL / shading point pairs on the door
 //! and the two rooms, measured and bounded below; no NaN; the same image for any thread count;
-//! the memory budget lowering the maps' resolution.
+//! the memory budget lowering the maps' resolution. With importance-driven VPL selection (the
+//! default): the compensated estimator agreeing with `path` on the Cornell box, the door and
+//! the two rooms; the same image for any thread count; its options checked.
 
 mod common;
 
@@ -17,12 +19,16 @@ use lacuna::render::RenderSettings;
 use lacuna::scene::{Camera, Scene};
 
 /// No clamping (the plain VPL estimator, unbiased where there is no delta surface), a clamp
-/// with compensation, and a large clamp with few VPLs, so that the compensation carries most
-/// of the indirect light.
+/// with compensation, a large clamp with few VPLs, so that the compensation carries most
+/// of the indirect light, and the compensated estimator with importance-driven selection
+/// (Russian roulette on the VPLs' light at the camera's probe points, unbiased by its 1 / p
+/// weights; a large `p_min` too, where most weights are small, and a small one).
 const UNBIASED: &[&str] = &[
-    "vpl:clamp=0:count=16",
-    "vpl:clamp=0.1:compensate=true:count=16",
-    "vpl:clamp=0.5:compensate=true:count=4",
+    "vpl:clamp=0:count=16:select=uniform",
+    "vpl:clamp=0.1:compensate=true:count=16:select=uniform",
+    "vpl:clamp=0.5:compensate=true:count=4:select=uniform",
+    "vpl:clamp=0.1:compensate=true:count=16:select=importance:candidates=8:p_min=0.02",
+    "vpl:clamp=0.1:compensate=true:count=16:select=importance:candidates=2:p_min=0.3",
 ];
 
 #[test]
@@ -102,11 +108,13 @@ fn vpl_gives_the_same_image_for_any_thread_count() {
         ..Default::default()
     };
     for spec in [
-        "vpl:count=8",
+        "vpl:count=8:select=uniform",
         "vpl:count=8:compensate=true",
         "vpl:count=8:visibility=skeleton:shadow_res=16",
         "vpl:count=8:visibility=skeleton:shadow_res=16:verify=0",
         "vpl:count=8:visibility=skeleton:shadow_res=16:verify=0.5:compensate=true",
+        "vpl:count=8:select=importance:candidates=4",
+        "vpl:count=8:select=importance:candidates=4:visibility=skeleton:shadow_res=16:compensate=true",
     ] {
         let mut vpl = integrator::create(spec, s).unwrap();
         lacuna::render::prepare(vpl.as_mut(), &scene, &camera, Some(2), &|_, _| true).unwrap();
@@ -150,6 +158,15 @@ fn vpl_options_are_checked_and_the_bias_stated() {
         "vpl:visibility=skeleton:verify=2",
         "vpl:visibility=skeleton:verify=-0.1",
         "vpl:visibility=skeleton:verify=yes",
+        "vpl:select=best",
+        "vpl:select=importance:candidates=0",
+        "vpl:select=importance:candidates=1000",
+        "vpl:select=importance:candidates=x",
+        "vpl:select=importance:p_min=0",
+        "vpl:select=importance:p_min=1.5",
+        "vpl:select=importance:p_min=nan",
+        "vpl:select=importance:probes=0",
+        "vpl:select=importance:probes=x",
     ] {
         let err = integrator::create(bad, s).err().expect(bad).to_string();
         assert!(
@@ -182,6 +199,18 @@ fn vpl_options_are_checked_and_the_bias_stated() {
     );
     let (_, parsed) = integrator::parse_spec("vpl:visibility=skeleton:verify=0.5", s).unwrap();
     assert_eq!(parsed.vpl.verify, 0.5);
+    let (_, parsed) =
+        integrator::parse_spec("vpl:select=importance:candidates=4:p_min=0.1", s).unwrap();
+    assert_eq!(
+        (parsed.vpl.select, parsed.vpl.candidates, parsed.vpl.p_min),
+        (lacuna::integrator::VplSelect::Importance, 4, 0.1)
+    );
+    // Importance selection is the default and adds no bias of its own.
+    assert_eq!(
+        integrator::parse_spec("vpl", s).unwrap().1.vpl.select,
+        lacuna::integrator::VplSelect::Importance
+    );
+    assert_eq!(bias("vpl:compensate=true:select=uniform"), None);
     // The refusal of clusters points to the measured reason.
     let err = integrator::create("vpl:visibility=clusters", s)
         .err()
@@ -223,7 +252,8 @@ fn skeleton_visibility_agrees_with_exact_rays_on_the_door_and_two_rooms() {
     ];
     for (label, scene, measured) in scenes {
         let camera = *scene.camera().unwrap();
-        let (vpl, notes) = prepared_skeleton_vpl(&scene, &camera, "vpl:visibility=skeleton");
+        let (vpl, notes) =
+            prepared_skeleton_vpl(&scene, &camera, "vpl:visibility=skeleton:select=uniform");
         assert!(notes.contains("skeleton shadow maps"), "{label}: {notes}");
         let view = View {
             frame: camera.frame(48.0 / 36.0),
@@ -290,8 +320,11 @@ fn skeleton_visibility_agrees_with_exact_rays_on_the_door_and_two_rooms() {
             assert!(a.exact_rays * 2 < a.pairs, "{label}: {a:?}");
             // The maps alone (eq. 159 as the thesis has it) err several times as much
             // (measured 0.79-0.88 of the exact light).
-            let (maps_alone, _) =
-                prepared_skeleton_vpl(&scene, &camera, "vpl:visibility=skeleton:verify=0");
+            let (maps_alone, _) = prepared_skeleton_vpl(
+                &scene,
+                &camera,
+                "vpl:visibility=skeleton:verify=0:select=uniform",
+            );
             let b = maps_alone
                 .visibility_agreement(&scene, &view, 1, pass)
                 .unwrap();

@@ -26,7 +26,7 @@ pub use path::PathOptions;
 pub use path::PathTracer;
 pub use path_portal::PortalPathTracer;
 pub use skeleton_shadow::{CubeShadowMap, ShadowMapStats, SkeletonShadowMaps};
-pub use vpl::{VisibilityAgreement, VplIntegrator, VplOptions, VplVisibility};
+pub use vpl::{VisibilityAgreement, VplIntegrator, VplOptions, VplSelect, VplVisibility};
 
 /// Re-exported: the heuristic lives in [`crate::math`], below the guides that weigh with it.
 pub use crate::math::MisHeuristic;
@@ -400,9 +400,10 @@ impl SpecOption<'_> {
 /// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`;
 /// - `vpl`: `count=N` (light subpaths per pass), `clamp=R` (0 = off), `compensate=true|false`,
 ///   `visibility=exact|skeleton`, with skeleton visibility `shadow_res=N`,
-///   `shadow_budget_mb=M`, `verify=P` and the skeleton's `resolution=N` / `voxel_budget=N`
+///   `shadow_budget_mb=M`, `verify=P` and the skeleton's `resolution=N` / `voxel_budget=N`,
+///   `select=uniform|importance` with `candidates=K`, `p_min=P`
 ///   ([`VplOptions::set`]), e.g. `vpl:count=128:clamp=0.05:compensate=true` or
-///   `vpl:visibility=skeleton:shadow_res=32`.
+///   `vpl:visibility=skeleton:shadow_res=32` or `vpl:select=importance:candidates=8`.
 ///
 /// The shared options are set here, the others by the integrator's
 /// [`Registration::set_option`].

@@ -74,6 +74,28 @@
 //! passes and renders of the same scene. Chapter 7's visibility clusters are not built
 //! (`visibility=clusters` is refused): docs/vpl-visibility.md gives the measurements.
 //!
+//! # Importance-driven selection (`select=importance`, the default)
+//!
+//! After Georgiev & Slusallek 2010 ("Simple and robust iterative importance sampling of
+//! virtual point lights"). Where most VPLs cannot light what the camera sees (the door:
+//! the light room holds most of them, and 6 % of the VPL / pixel pairs are visible), a pass
+//! spends most of its work, and skeleton visibility most of its bias, on them. So a pass
+//! traces `candidates` x `count` light subpaths (each VPL's throughput divided by all of
+//! them) and keeps each candidate VPL with probability `p = clamp(e / t, p_min, 1)`,
+//! weighting it by 1 / p (Russian roulette: the expectation is the plain estimator's with
+//! the same candidates, clamp and compensation, so `compensate=true` stays unbiased). Its
+//! importance e is its light (luminance, the clamped term, exact shadow rays) at `probes`
+//! camera probe points: the first non-delta vertices of a grid of pixel centres, with the
+//! throughput of the delta surfaces before them, traced with fixed numbers. t is set from
+//! the pass's candidates so that the probabilities sum to one `candidates`-th of them
+//! ([`acceptance_probabilities`]): a function of the candidates, never of an acceptance
+//! draw; each draw is a hash of the seed, the pass and the candidate's index (the same
+//! image for any thread count). Every kept VPL lighting the probes carries about the same
+//! importance t; `p_min` keeps those lighting no probe (which may still light pixels
+//! between probes or points behind delta surfaces) reachable, at weight at most 1 / p_min.
+//! Candidates too long for any path of `max_depth` are dropped (they light nothing).
+//! `select=uniform` keeps every VPL of `count` subpaths.
+//!
 //! Every pass draws new VPLs from the seed and the sample index, so the image converges as
 //! passes accumulate, and the light subpaths are traced in fixed chunks: the same image for
 //! any thread count (the shadow maps are a function of the geometry alone).
@@ -103,6 +125,46 @@ pub const MAX_SHADOW_RESOLUTION: u32 = 2048;
 pub const DEFAULT_VERIFY: f32 = 0.25;
 /// Default memory for the shadow maps (MiB): 680 maps of 64^2 per face.
 pub const DEFAULT_SHADOW_BUDGET_MB: u32 = 64;
+/// Default `candidates` of `select=importance`: candidate light subpaths per kept one.
+pub const DEFAULT_CANDIDATES: u32 = 8;
+/// Default `p_min` of `select=importance`: the least acceptance probability of a candidate.
+pub const DEFAULT_P_MIN: f32 = 0.02;
+/// Largest `candidates`.
+pub const MAX_CANDIDATES: u32 = 256;
+/// Default `probes` of `select=importance`: camera probe points (a 9 x 8 grid at 4:3).
+pub const DEFAULT_PROBES: u32 = 64;
+/// Largest `probes`.
+pub const MAX_PROBES: u32 = 4096;
+
+/// How a pass picks its VPLs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VplSelect {
+    /// Every vertex of `count` light subpaths.
+    Uniform,
+    /// The vertices of `candidates` x `count` light subpaths thinned by Russian roulette on
+    /// their estimated light at the camera's probe points (module docs, "Importance-driven
+    /// selection").
+    Importance,
+}
+
+impl VplSelect {
+    pub fn parse(value: &str) -> Result<Self> {
+        match value {
+            "uniform" => Ok(VplSelect::Uniform),
+            "importance" => Ok(VplSelect::Importance),
+            _ => Err(Error::invalid(format!(
+                "vpl: select={value} is not one of: uniform, importance"
+            ))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            VplSelect::Uniform => "uniform",
+            VplSelect::Importance => "importance",
+        }
+    }
+}
 
 /// Which shadow test the VPL term uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -138,7 +200,8 @@ impl VplVisibility {
 
 /// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact|skeleton`,
 /// with skeleton visibility `shadow_res=N:shadow_budget_mb=M:verify=P`; the skeleton's `resolution` and
-/// `voxel_budget` are the skeleton guide's options).
+/// `voxel_budget` are the skeleton guide's options; `select=uniform|importance` with
+/// `candidates=K:p_min=P:probes=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VplOptions {
     /// Light subpaths per pass; each leaves a VPL at every non-delta surface it reaches.
@@ -158,6 +221,16 @@ pub struct VplOptions {
     /// are unsure of (module docs; Russian roulette, so no bias against tracing them all);
     /// 0 keeps the thesis's maps alone (eq. 159), faster and far more biased.
     pub verify: f32,
+    /// How a pass picks its VPLs (module docs).
+    pub select: VplSelect,
+    /// `select=importance`: candidate light subpaths traced per pass, as a multiple of `count`.
+    pub candidates: u32,
+    /// `select=importance`: the least acceptance probability, so that every VPL stays
+    /// reachable (its weight at most 1 / `p_min`).
+    pub p_min: f32,
+    /// `select=importance`: about how many camera probe points estimate a candidate's light
+    /// (a grid of pixel centres with the image's aspect).
+    pub probes: u32,
 }
 
 impl Default for VplOptions {
@@ -170,6 +243,10 @@ impl Default for VplOptions {
             shadow_res: DEFAULT_SHADOW_RESOLUTION,
             shadow_budget_mb: DEFAULT_SHADOW_BUDGET_MB,
             verify: DEFAULT_VERIFY,
+            select: VplSelect::Importance,
+            candidates: DEFAULT_CANDIDATES,
+            p_min: DEFAULT_P_MIN,
+            probes: DEFAULT_PROBES,
         }
     }
 }
@@ -213,6 +290,28 @@ impl VplOptions {
                 })?;
             }
             "visibility" => self.visibility = VplVisibility::parse(value)?,
+            "select" => self.select = VplSelect::parse(value)?,
+            "candidates" => {
+                self.candidates = value.parse::<u32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: candidates={value} must be a positive integer (candidate light subpaths per kept one)"
+                    ))
+                })?;
+            }
+            "probes" => {
+                self.probes = value.parse::<u32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: probes={value} must be a positive integer (camera probe points)"
+                    ))
+                })?;
+            }
+            "p_min" => {
+                self.p_min = value.parse::<f32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: p_min={value} must be a probability in (0, 1] (the least acceptance probability)"
+                    ))
+                })?;
+            }
             "shadow_res" => {
                 self.shadow_res = value.parse::<u32>().map_err(|_| {
                     Error::invalid(format!(
@@ -259,6 +358,28 @@ impl VplOptions {
             return Err(Error::invalid(format!(
                 "vpl: verify={} must be a probability in [0, 1] (0 = the maps alone)",
                 self.verify
+            )));
+        }
+        if !(1..=MAX_CANDIDATES).contains(&self.candidates) {
+            return Err(Error::invalid(format!(
+                "vpl: candidates={} must be within 1..={MAX_CANDIDATES}",
+                self.candidates
+            )));
+        }
+        crate::limits::check_light_paths(
+            "vpl: count x candidates (candidate light subpaths per pass)",
+            self.count as u64 * self.candidates as u64,
+        )?;
+        if !(1..=MAX_PROBES).contains(&self.probes) {
+            return Err(Error::invalid(format!(
+                "vpl: probes={} must be within 1..={MAX_PROBES}",
+                self.probes
+            )));
+        }
+        if !(self.p_min > 0.0 && self.p_min <= 1.0) {
+            return Err(Error::invalid(format!(
+                "vpl: p_min={} must be a probability in (0, 1] (the least acceptance probability)",
+                self.p_min
             )));
         }
         crate::limits::check_memory_budget(
@@ -450,6 +571,166 @@ fn pair_verdict(
     }
 }
 
+/// Delta surfaces a probe's camera ray follows, at most, to its first non-delta vertex.
+const PROBE_MAX_DELTA: u32 = 4;
+/// Random streams of the probes' delta bounces and of the acceptance decisions (apart from
+/// the light subpaths' and the pixels').
+const PROBE_STREAM: u64 = 0x5AE1_7C0B_E6A3_21F5;
+const SELECT_STREAM: u64 = 0x3C9D_0E84_B1F2_6A17;
+
+/// A camera probe point of `select=importance`: the first non-delta vertex of a pixel
+/// centre's camera path, with the throughput of the delta surfaces before it.
+struct Probe {
+    si: SurfaceInteraction,
+    bsdf: Bsdf,
+    frame: Frame,
+    wo_local: Vec3,
+    beta: Rgb,
+}
+
+/// The probe points of `view`: one per cell of a grid of about `count` pixel centres (with
+/// the image's aspect, at most one per pixel) whose camera ray reaches a non-delta surface
+/// (through at most [`PROBE_MAX_DELTA`] delta ones, sampled with fixed numbers), and the
+/// rays traced. Deterministic.
+fn probes(scene: &Scene, view: &View, count: u32) -> (Vec<Probe>, u64) {
+    let aspect = view.width.max(1) as f32 / view.height.max(1) as f32;
+    let cols = ((count as f32 * aspect).sqrt().round() as u32).clamp(1, view.width.max(1));
+    let rows = (count.div_ceil(cols)).clamp(1, view.height.max(1));
+    let mut rays = 0u64;
+    let mut out = Vec::new();
+    for k in 0..cols * rows {
+        let film = crate::math::Vec2::new(
+            ((k % cols) as f32 + 0.5) / cols as f32,
+            ((k / cols) as f32 + 0.5) / rows as f32,
+        );
+        let mut ray = view.frame.generate_ray(film, crate::math::Vec2::ZERO);
+        let mut rng = Sampler::independent(crate::math::Rng::for_sample(PROBE_STREAM, k as u64, 0));
+        let mut beta = Rgb::ONE;
+        for _ in 0..=PROBE_MAX_DELTA {
+            rays += 1;
+            let Some(si) = scene.intersect(&ray) else {
+                break;
+            };
+            let bsdf = scene.bsdf(&si);
+            let frame = si.shading_frame();
+            let wo_local = frame.to_local(si.wo);
+            if !bsdf.is_delta() {
+                out.push(Probe {
+                    si,
+                    bsdf,
+                    frame,
+                    wo_local,
+                    beta,
+                });
+                break;
+            }
+            let Some(bs) = bsdf.sample_from(wo_local, &mut rng, Transport::Radiance) else {
+                break;
+            };
+            if !(bs.pdf > 0.0) {
+                break;
+            }
+            beta *= bs.f * (bs.wi.z.abs() / bs.pdf);
+            if !crate::math::is_finite3(beta) || beta == Rgb::ZERO {
+                break;
+            }
+            ray = si.spawn_ray(frame.to_world(bs.wi));
+        }
+    }
+    (out, rays)
+}
+
+/// VPL `v`'s light at the probes (luminance, exact shadow rays, geometry term capped at
+/// `bound`): the importance of `select=importance`, with the shadow rays it traced.
+fn probe_estimate(scene: &Scene, probes: &[Probe], bound: f32, v: &Vpl) -> (f32, u64) {
+    let mut sum = 0.0f32;
+    let mut rays = 0u64;
+    for p in probes {
+        let Some(value) = unshadowed(bound, &p.si, &p.bsdf, &p.frame, p.wo_local, v) else {
+            continue;
+        };
+        let light = crate::math::luminance(p.beta * value);
+        if !(light > 0.0) {
+            continue;
+        }
+        rays += 1;
+        if !scene.occluded(&p.si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng)) {
+            sum += light;
+        }
+    }
+    (if sum.is_finite() { sum } else { 0.0 }, rays)
+}
+
+/// The acceptance probabilities `p_i = clamp(e_i / t, p_min, 1)` of candidates with
+/// importance `estimates` (>= 0), t chosen so that `sum p_i` is `expected` (Georgiev &
+/// Slusallek 2010, with the target from the pass's candidates rather than the previous
+/// pass's: the probabilities are a function of the candidates, never of an acceptance
+/// draw, so accepting with `p_i` and weighting by `1 / p_i` is unbiased). Where even
+/// `t -> 0` keeps fewer than `expected` (few candidates with a non-zero estimate), those
+/// are all kept and the others share the rest evenly (at least `p_min`); with no non-zero
+/// estimate at all, every candidate gets `expected / n`, at least `p_min`.
+pub(crate) fn acceptance_probabilities(estimates: &[f32], expected: f32, p_min: f32) -> Vec<f32> {
+    let n = estimates.len();
+    let expected = f64::from(expected);
+    let p_min64 = f64::from(p_min);
+    let positive: Vec<f64> = estimates
+        .iter()
+        .map(|&e| f64::from(e))
+        .filter(|&e| e > 0.0)
+        .collect();
+    let zeros = (n - positive.len()) as f64;
+    if expected >= n as f64 {
+        return vec![1.0; n];
+    }
+    let even = |p: f64| p.clamp(p_min64, 1.0) as f32;
+    if positive.is_empty() {
+        return vec![even(expected / n as f64); n];
+    }
+    let all_kept = positive.len() as f64;
+    if all_kept + p_min64 * zeros >= expected {
+        // sum_i clamp(e_i / t, p_min, 1) falls from all_kept + p_min zeros (t at the least
+        // positive estimate) to n p_min (t at the largest over p_min): bisection on log t.
+        let kept = |t: f64| {
+            positive
+                .iter()
+                .map(|&e| (e / t).clamp(p_min64, 1.0))
+                .sum::<f64>()
+                + p_min64 * zeros
+        };
+        let lo_e = positive.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi_e = positive.iter().copied().fold(0.0, f64::max);
+        let (mut lo, mut hi) = (lo_e.ln(), (hi_e / p_min64).ln());
+        for _ in 0..64 {
+            let mid = 0.5 * (lo + hi);
+            if kept(mid.exp()) > expected {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let t = (0.5 * (lo + hi)).exp();
+        estimates
+            .iter()
+            .map(|&e| (f64::from(e) / t).clamp(p_min64, 1.0) as f32)
+            .collect()
+    } else {
+        let rest = even((expected - all_kept) / zeros.max(1.0));
+        estimates
+            .iter()
+            .map(|&e| if e > 0.0 { 1.0 } else { rest })
+            .collect()
+    }
+}
+
+/// Whether candidate `index` of pass `sample_index` is accepted with probability `p`: a
+/// uniform number from the seed, the pass and the index, so the same for any thread count.
+fn accepted(seed: u64, sample_index: u32, index: usize, p: f32) -> bool {
+    p >= 1.0
+        || crate::math::Rng::for_sample(seed ^ SELECT_STREAM, index as u64, sample_index as u64)
+            .uniform()
+            < p
+}
+
 pub struct VplIntegrator {
     settings: IntegratorSettings,
     options: VplOptions,
@@ -458,6 +739,42 @@ pub struct VplIntegrator {
     shadow: Option<Arc<SkeletonShadowMaps>>,
     /// The scene `prepare` ran for (skeleton visibility needs it).
     prepared_for: Option<Fingerprint>,
+    selection_stats: SelectionStats,
+}
+
+/// What `select=importance` kept over a render, for its note.
+#[derive(Default)]
+struct SelectionStats {
+    passes: std::sync::atomic::AtomicU64,
+    candidates: std::sync::atomic::AtomicU64,
+    kept: std::sync::atomic::AtomicU64,
+    /// Candidates no probe receives light from.
+    unseen: std::sync::atomic::AtomicU64,
+}
+
+impl SelectionStats {
+    fn record(&self, candidates: usize, kept: usize, importance: &[f32]) {
+        use std::sync::atomic::Ordering::Relaxed;
+        self.passes.fetch_add(1, Relaxed);
+        self.candidates.fetch_add(candidates as u64, Relaxed);
+        self.kept.fetch_add(kept as u64, Relaxed);
+        let unseen = importance.iter().filter(|&&e| e == 0.0).count();
+        self.unseen.fetch_add(unseen as u64, Relaxed);
+    }
+
+    fn note(&self) -> Option<String> {
+        use std::sync::atomic::Ordering::Relaxed;
+        let passes = self.passes.load(Relaxed);
+        (passes > 0).then(|| {
+            let per = |x: &std::sync::atomic::AtomicU64| x.load(Relaxed) as f64 / passes as f64;
+            format!(
+                "vpl importance selection: {:.0} of {:.0} candidate VPLs kept per pass ({:.0} lighting no probe), {passes} passes",
+                per(&self.kept),
+                per(&self.candidates),
+                per(&self.unseen)
+            )
+        })
+    }
 }
 
 impl VplIntegrator {
@@ -472,6 +789,7 @@ impl VplIntegrator {
             light,
             shadow: None,
             prepared_for: None,
+            selection_stats: SelectionStats::default(),
         })
     }
 
@@ -574,6 +892,48 @@ impl VplIntegrator {
         nodes.sort_unstable();
         nodes.dedup();
         shadow.ensure_receivers(scene, &nodes);
+    }
+
+    /// `select=importance` (module docs): keeps each candidate of `vpls` with its
+    /// [`acceptance_probabilities`] for about one `candidates`-th of them, its throughput
+    /// divided by the probability; drops those too long for any path of `max_depth`
+    /// segments. Returns the rays traced.
+    fn select(
+        &self,
+        scene: &Scene,
+        view: &View,
+        seed: u64,
+        sample_index: u32,
+        bound: f32,
+        vpls: &mut Vec<Vpl>,
+    ) -> u64 {
+        use rayon::prelude::*;
+        // A VPL of j segments is gathered at most by the first vertex, as j + 2 segments.
+        let longest = self.settings.max_depth.saturating_sub(1);
+        vpls.retain(|v| v.path_len <= longest);
+        let (probes, mut rays) = probes(scene, view, self.options.probes);
+        let estimates: Vec<(f32, u64)> = vpls
+            .par_iter()
+            .map(|v| probe_estimate(scene, &probes, bound, v))
+            .collect();
+        rays += estimates.iter().map(|e| e.1).sum::<u64>();
+        let importance: Vec<f32> = estimates.iter().map(|e| e.0).collect();
+        let expected = vpls.len() as f32 / self.options.candidates as f32;
+        let p = acceptance_probabilities(&importance, expected, self.options.p_min);
+        let candidates = vpls.len();
+        let mut index = 0usize;
+        vpls.retain_mut(|v| {
+            let i = index;
+            index += 1;
+            let keep = accepted(seed, sample_index, i, p[i]);
+            if keep {
+                v.throughput /= p[i];
+            }
+            keep
+        });
+        self.selection_stats
+            .record(candidates, vpls.len(), &importance);
+        rays
     }
 
     /// Light from every VPL of at most `max_len` segments at x (shading `frame`, `wo_local`).
@@ -787,6 +1147,7 @@ impl Integrator for VplIntegrator {
     ) -> Result<Precomputation> {
         self.shadow = None;
         self.prepared_for = None;
+        self.selection_stats = SelectionStats::default();
         let mut pre = Precomputation::default();
         if self.options.visibility == VplVisibility::Skeleton {
             match NodeSkeleton::build(
@@ -825,7 +1186,11 @@ impl Integrator for VplIntegrator {
     }
 
     fn render_notes(&self) -> Vec<String> {
-        self.shadow.iter().map(|s| s.cost_note()).collect()
+        self.shadow
+            .iter()
+            .map(|s| s.cost_note())
+            .chain(self.selection_stats.note())
+            .collect()
     }
 
     fn begin_iteration(
@@ -835,7 +1200,13 @@ impl Integrator for VplIntegrator {
         seed: u64,
         sample_index: u32,
     ) -> Result<Iteration> {
-        let count = self.options.count as usize;
+        let importance = self.options.select == VplSelect::Importance;
+        let count = self.options.count as usize
+            * if importance {
+                self.options.candidates as usize
+            } else {
+                1
+            };
         let (paths, out) = self
             .light
             .trace_light_paths(scene, view, seed, sample_index, count);
@@ -855,15 +1226,20 @@ impl Integrator for VplIntegrator {
                 }
             })
             .collect();
+        let bound = self.bound(scene);
+        let mut rays = out.rays();
+        if importance {
+            rays += self.select(scene, view, seed, sample_index, bound, &mut vpls);
+        }
         let groups = self.group(scene, &mut vpls);
         self.ensure_receiver_maps(scene, view);
         Ok(Iteration {
             data: Some(Box::new(VplSet {
                 vpls,
                 groups,
-                bound: self.bound(scene),
+                bound,
             })),
-            rays: out.rays(),
+            rays,
             ..Default::default()
         })
     }
@@ -1178,9 +1554,11 @@ mod tests {
     fn verification_roulette_is_unbiased_and_traces_a_fraction_p() {
         let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
         let camera = *scene.camera().unwrap();
-        let (_, settings) =
-            super::super::parse_spec("vpl:visibility=skeleton:verify=1", Default::default())
-                .unwrap();
+        let (_, settings) = super::super::parse_spec(
+            "vpl:visibility=skeleton:verify=1:select=uniform",
+            Default::default(),
+        )
+        .unwrap();
         let mut vpl = VplIntegrator::new(settings).unwrap();
         vpl.prepare(&scene, &camera, &|_, _| true).unwrap();
         let shadow = vpl.shadow.clone().expect("the two rooms have a skeleton");
@@ -1286,5 +1664,103 @@ mod tests {
                 "verify={p}: the hash traces {rate} of the unsure pairs"
             );
         }
+    }
+
+    /// `select=importance`'s roulette: every probability within [p_min, 1], their sum the
+    /// expected count, larger estimates never less likely; and over many draws of
+    /// [`accepted`], the weighted sum `sum_i x_i [accepted_i] / p_i` averages the unselected
+    /// sum `sum_i x_i` within its standard error, for estimates proportional to the values,
+    /// unrelated to them, and all zero (the values include some with a zero estimate, which
+    /// only `p_min` keeps reachable). Without the 1 / p weight the mean is far off.
+    #[test]
+    fn importance_selection_is_unbiased_and_respects_p_min() {
+        let n = 400usize;
+        let mut rng = crate::math::Rng::for_sample(11, 0, 0);
+        let values: Vec<f64> = (0..n)
+            .map(|i| {
+                if i % 5 == 0 {
+                    0.0
+                } else {
+                    f64::from(rng.uniform()) * 3.0
+                }
+            })
+            .collect();
+        let proportional: Vec<f32> = values
+            .iter()
+            .enumerate()
+            .map(|(i, &x)| if i % 7 == 0 { 0.0 } else { x as f32 })
+            .collect();
+        let unrelated: Vec<f32> = (0..n).map(|_| rng.uniform().powi(4)).collect();
+        let zero = vec![0.0f32; n];
+        let exact: f64 = values.iter().sum();
+        for (label, estimates) in [
+            ("proportional", &proportional),
+            ("unrelated", &unrelated),
+            ("zero", &zero),
+        ] {
+            for (expected, p_min) in [(50.0f32, 0.05f32), (100.0, 0.02), (390.0, 0.1)] {
+                let p = acceptance_probabilities(estimates, expected, p_min);
+                assert_eq!(p.len(), n);
+                assert!(
+                    p.iter().all(|&q| (p_min..=1.0).contains(&q)),
+                    "{label}: a probability outside [p_min, 1]"
+                );
+                let sum: f32 = p.iter().sum();
+                assert!(
+                    (sum - expected).abs() < 1e-2 * expected,
+                    "{label}: expected {expected}, probabilities sum to {sum}"
+                );
+                for i in 0..n {
+                    for j in 0..n {
+                        if estimates[i] > estimates[j] {
+                            assert!(p[i] >= p[j], "{label}: p not monotone in the estimate");
+                        }
+                    }
+                }
+                let draws = 4000u32;
+                let (mut weighted, mut unweighted) = (Vec::new(), Vec::new());
+                for pass in 0..draws {
+                    let (mut w, mut u) = (0.0, 0.0);
+                    for i in 0..n {
+                        if accepted(3, pass, i, p[i]) {
+                            w += values[i] / f64::from(p[i]);
+                            u += values[i];
+                        }
+                    }
+                    weighted.push(w);
+                    unweighted.push(u);
+                }
+                let (mean, error) = mean_and_error(&weighted);
+                let (plain, _) = mean_and_error(&unweighted);
+                println!(
+                    "{label}, expected {expected}, p_min {p_min}: weighted mean {mean:.3} +- {error:.3} against {exact:.3} (z {:.2}); unweighted {plain:.3}",
+                    (mean - exact) / error.max(1e-12)
+                );
+                assert!(
+                    (mean - exact).abs() <= 4.0 * error + 1e-9 * exact,
+                    "{label}: weighted mean {mean} +- {error} against {exact}"
+                );
+                assert!(
+                    (plain - exact).abs() > 10.0 * error,
+                    "{label}: the weight is not tested"
+                );
+            }
+        }
+    }
+
+    /// Few candidates with a non-zero estimate: those are all kept and the rest share the
+    /// remainder; more expected than candidates keeps all.
+    #[test]
+    fn importance_selection_fills_the_count_when_few_candidates_are_seen() {
+        let mut e = vec![0.0f32; 100];
+        e[3] = 1.0;
+        e[50] = 0.01;
+        let p = acceptance_probabilities(&e, 20.0, 0.05);
+        assert_eq!((p[3], p[50]), (1.0, 1.0));
+        assert!(p.iter().all(|&q| q >= 0.05));
+        assert!((p.iter().sum::<f32>() - 20.0).abs() < 1e-3);
+        assert!(acceptance_probabilities(&e, 200.0, 0.05)
+            .iter()
+            .all(|&q| q == 1.0));
     }
 }
