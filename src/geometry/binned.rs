@@ -1,17 +1,22 @@
 //! Top-down binned SAH build of the 8-wide tree itself, in the manner of Embree's
-//! `BVHBuilderBinnedSAH` with branching factor 8: no binary tree, no cost table and no
+//! `BVHBuilderBinnedSAH` with branching factor 8: no tree-wide binary tree, cost table or
 //! conversion pass.
 //!
 //! Why: building a binary tree (PLOC or `sah.rs`) and then converting it spends most of a
 //! build's time walking a 2n-node binary tree (BENCHMARKS.md, "Build time by stage"). Here each
-//! 8-wide node is made by splitting its triangles with binned SAH (centroids in [`BINS`] bins
-//! per axis, in-place partition of 32-byte references), always splitting the child with the
-//! largest surface area next, until it has 8 children or only sets of at most [`MAX_LEAF`]
-//! triangles, which become leaves (small sets take an exact SAH sweep instead of bins). Nodes
-//! are written depth first in the order obvhs's conversion writes them (a node's inner
-//! children contiguous after the nodes already written, then their subtrees in slot order),
-//! children ordered by direction as there. Large subtrees are built on rayon tasks and spliced
-//! in that order.
+//! large 8-wide node is made by splitting its triangles with binned SAH (centroids in [`BINS`]
+//! bins per axis, in-place partition of 32-byte references), always splitting the child with
+//! the largest surface area next, until it has 8 children or only sets of at most [`MAX_LEAF`]
+//! triangles, which become leaves (small sets take an exact SAH sweep instead of bins).
+//! Sets of at most [`COLLAPSE_MAX`] triangles are built as a small binary SAH tree and
+//! collapsed by the conversion's cost table ([`collapse`]): a fixed rule for leaves (split
+//! every set of more than 3 triangles, never one of 3 or fewer) left nodes of two or three
+//! children near the leaves, 1.4-1.8x Medium's node count; the cost table chooses leaf sizes
+//! and which subtrees a node takes by the SAH, and the small tree stays in cache. Nodes are
+//! written depth first in the order obvhs's conversion writes them (a node's inner children
+//! contiguous after the nodes already written, then their subtrees in slot order), children
+//! ordered by direction as there. Large subtrees are built on rayon tasks and spliced in that
+//! order.
 
 use glam::{Vec3A, Vec4};
 use obvhs::aabb::Aabb;
@@ -32,6 +37,13 @@ const PARALLEL_MIN: usize = 1 << 12;
 /// instead of by SAH: every level then at least halves the largest set, so any input stays
 /// within the traversal stack (`MAX_TRAVERSAL_DEPTH`, which `Bvh::build_with` checks again).
 const SAH_MAX_DEPTH: u32 = 16;
+/// Sets of at most this many triangles (in nodes that split by SAH) are built as a binary SAH
+/// tree and collapsed into 8-wide nodes by the conversion's cost table ([`collapse`]).
+const COLLAPSE_MAX: usize = 1024;
+/// In a collapsed set, binary nodes from this depth on (the 8-wide depth of the set's node
+/// plus the binary depth below it) split at the median: its 8-wide subtree has at most one
+/// level per binary level, so the tree stays within this plus log2 [`COLLAPSE_MAX`] levels.
+const COLLAPSE_SAH_MAX_DEPTH: u32 = 18;
 
 /// A triangle's box with its index in the input in the `w` lane of `min`: 32 bytes, two SIMD
 /// loads.
@@ -164,7 +176,11 @@ fn node(
     nodes: &mut Vec<CwBvhNode>,
     out: &mut Vec<u32>,
 ) -> f32 {
-    let (children, count) = open(prims, set, depth >= sah_max_depth);
+    let median = depth >= sah_max_depth;
+    if !median && set.len() <= COLLAPSE_MAX {
+        return collapse(prims, set, depth, wide, nodes, out);
+    }
+    let (children, count) = open(prims, set, median);
     let children = &children[..count];
     let centres: [Vec3A; 8] = std::array::from_fn(|c| {
         children
@@ -452,6 +468,232 @@ fn binned_split(prims: &mut [PrimRef], centroids: &Aabb) -> Option<(usize, [Aabb
     }
     debug_assert!(i > 0 && i < m);
     Some((i, sides[0], sides[1]))
+}
+
+/// A node of the binary tree of a collapsed set ([`collapse`]): its box, its triangles
+/// (`prims[start..end]`), its children (`left` and `left + 1`; none for one triangle) and its
+/// row of the conversion's cost table.
+struct BinaryNode {
+    bounds: Aabb,
+    start: u32,
+    end: u32,
+    left: u32,
+    cost: [f32; 7],
+    choice: [Choice; 7],
+}
+
+/// What a binary node becomes when it may use `i + 1` subtrees (`i` the table column), and
+/// the columns of its two children it distributes them to (as in `convert.rs`).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Leaf,
+    Internal,
+    Distribute,
+}
+
+#[derive(Clone, Copy)]
+struct Choice {
+    kind: Kind,
+    left: u8,
+    right: u8,
+}
+
+/// Makes node `wide` over `prims` (the whole of `set`) and its subtree from a binary SAH tree
+/// collapsed by the conversion's cost table: each 8-wide node takes the cheapest cover of its
+/// binary subtree by up to 8 leaves (1 to [`MAX_LEAF`] triangles) and subtrees, so that leaf
+/// sizes and the children's split between leaves and inner nodes follow the SAH rather than
+/// the order in which [`open`] splits. Returns the subtree's cost.
+fn collapse(
+    prims: &mut [PrimRef],
+    set: Set,
+    depth: u32,
+    wide: usize,
+    nodes: &mut Vec<CwBvhNode>,
+    out: &mut Vec<u32>,
+) -> f32 {
+    let mut tree = Vec::with_capacity(2 * set.len());
+    tree.push(BinaryNode {
+        bounds: set.bounds,
+        start: 0,
+        end: set.len() as u32,
+        left: u32::MAX,
+        cost: [0.0; 7],
+        choice: [LEAF; 7],
+    });
+    grow(prims, set, depth, 0, &mut tree);
+    emit(prims, &tree, 0, wide, nodes, out)
+}
+
+const LEAF: Choice = Choice {
+    kind: Kind::Leaf,
+    left: 0,
+    right: 0,
+};
+
+/// Splits binary node `i` (over `set`) down to one triangle per leaf, then fills its row of
+/// the cost table (`CostTable::fill` of `convert.rs`, the same arithmetic). Splits are SAH
+/// splits down to [`COLLAPSE_SAH_MAX_DEPTH`] (counting the 8-wide depth above), median ones
+/// below, so the 8-wide subtree (at most one level per binary level) stays within the
+/// traversal stack.
+fn grow(prims: &mut [PrimRef], set: Set, depth: u32, i: usize, tree: &mut Vec<BinaryNode>) {
+    let ha = half_area(&set.bounds);
+    let m = set.len();
+    if m == 1 {
+        tree[i].cost = [ha * PRIM_COST; 7];
+        return;
+    }
+    let (l, r) = split(prims, set, depth >= COLLAPSE_SAH_MAX_DEPTH);
+    let left = tree.len();
+    for s in [&l, &r] {
+        tree.push(BinaryNode {
+            bounds: s.bounds,
+            start: s.start as u32,
+            end: s.end as u32,
+            left: u32::MAX,
+            cost: [0.0; 7],
+            choice: [LEAF; 7],
+        });
+    }
+    tree[i].left = left as u32;
+    grow(prims, l, depth + 1, left, tree);
+    grow(prims, r, depth + 1, left + 1, tree);
+    let (cl, cr) = (tree[left].cost, tree[left + 1].cost);
+    let cost_leaf = if m <= MAX_LEAF as usize {
+        m as f32 * ha * PRIM_COST
+    } else {
+        f32::INFINITY
+    };
+    let (mut cost_distribute, mut dl, mut dr) = (f32::INFINITY, 0u8, 6u8);
+    for k in 0..7 {
+        let c = cl[k] + cr[6 - k];
+        if c < cost_distribute {
+            (cost_distribute, dl, dr) = (c, k as u8, 6 - k as u8);
+        }
+    }
+    let cost_internal = cost_distribute + ha;
+    let mut previous = if cost_leaf < cost_internal {
+        (cost_leaf, Kind::Leaf)
+    } else {
+        (cost_internal, Kind::Internal)
+    };
+    let mut previous_choice = Choice {
+        kind: previous.1,
+        left: dl,
+        right: dr,
+    };
+    let node = &mut tree[i];
+    (node.cost[0], node.choice[0]) = (previous.0, previous_choice);
+    for c in 1..7 {
+        let mut best = None;
+        let mut cost_distribute = previous.0;
+        for k in 0..c {
+            let d = cl[k] + cr[c - k - 1];
+            if d < cost_distribute {
+                cost_distribute = d;
+                best = Some((k as u8, (c - k - 1) as u8));
+            }
+        }
+        if let Some((left, right)) = best {
+            previous_choice = Choice {
+                kind: Kind::Distribute,
+                left,
+                right,
+            };
+            previous = (cost_distribute, Kind::Distribute);
+        }
+        (node.cost[c], node.choice[c]) = (previous.0, previous_choice);
+    }
+}
+
+/// The subtrees that column `column` of binary node `i` distributes to (`CostTable::gather`).
+fn gather(
+    tree: &[BinaryNode],
+    i: usize,
+    column: usize,
+    children: &mut [u32; 8],
+    count: &mut usize,
+) {
+    let n = &tree[i];
+    if n.left == u32::MAX {
+        children[*count] = i as u32;
+        *count += 1;
+        return;
+    }
+    let choice = n.choice[column];
+    for (child, col) in [
+        (n.left as usize, choice.left as usize),
+        (n.left as usize + 1, choice.right as usize),
+    ] {
+        if tree[child].choice[col].kind == Kind::Distribute {
+            gather(tree, child, col, children, count);
+        } else {
+            children[*count] = child as u32;
+            *count += 1;
+        }
+    }
+}
+
+/// Fills node `wide` (already allocated) for binary node `i` with the up to 8 subtrees of its
+/// cheapest cover, ordered by direction, then its inner children's subtrees depth first, in
+/// the layout of [`node`]; returns the subtree's cost.
+fn emit(
+    prims: &[PrimRef],
+    tree: &[BinaryNode],
+    i: usize,
+    wide: usize,
+    nodes: &mut Vec<CwBvhNode>,
+    out: &mut Vec<u32>,
+) -> f32 {
+    let (mut children, mut count) = ([u32::MAX; 8], 0);
+    gather(tree, i, 0, &mut children, &mut count);
+    let centres: [Vec3A; 8] = std::array::from_fn(|c| {
+        children[..count]
+            .get(c)
+            .map_or(Vec3A::ZERO, |&k| tree[k as usize].bounds.center())
+    });
+    let slots = octant_slots(tree[i].bounds.center(), &centres[..count]);
+    let mut by_slot = [u32::MAX; 8];
+    for c in 0..count {
+        by_slot[slots[c]] = children[c];
+    }
+    let mut n = CwBvhNode {
+        primitive_base_idx: out.len() as u32,
+        child_base_idx: nodes.len() as u32,
+        ..CwBvhNode::default()
+    };
+    let mut cost = half_area(&tree[i].bounds);
+    let (mut inner, mut inner_count) = ([0u32; 8], 0);
+    let mut leaf_prims = 0u32;
+    for (slot, &c) in by_slot.iter().enumerate() {
+        if c == u32::MAX {
+            continue;
+        }
+        let child = &tree[c as usize];
+        if child.choice[0].kind == Kind::Leaf {
+            let k = child.end - child.start;
+            debug_assert!((1..=MAX_LEAF).contains(&k));
+            out.extend(
+                prims[child.start as usize..child.end as usize]
+                    .iter()
+                    .map(PrimRef::index),
+            );
+            n.child_meta[slot] = leaf_prims as u8 | ((1u8 << k) - 1) << 5;
+            leaf_prims += k;
+            cost += half_area(&child.bounds) * k as f32 * PRIM_COST;
+        } else {
+            n.imask |= 1 << slot;
+            n.child_meta[slot] = (24 + slot as u8) | 0b0010_0000;
+            inner[inner_count] = c;
+            inner_count += 1;
+        }
+    }
+    nodes.resize(nodes.len() + inner_count, CwBvhNode::default());
+    nodes[wide] = n;
+    let base = n.child_base_idx as usize;
+    for (rank, &c) in inner[..inner_count].iter().enumerate() {
+        cost += emit(prims, tree, c as usize, base + rank, nodes, out);
+    }
+    cost
 }
 
 #[cfg(test)]
