@@ -25,7 +25,7 @@ use obvhs::cwbvh::CwBvh;
 use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 
-use super::convert::{octant_slots, splice_subtrees, MAX_LEAF, PRIM_COST};
+use super::convert::{cost_row, octant_slots, splice_subtrees, Choice, Kind, MAX_LEAF, PRIM_COST};
 use super::sah::{bin_scale, half_area, Bins, BINS, BIN_CHUNK};
 
 /// Sets of at most this many triangles are split by an exact SAH sweep instead of bins (a
@@ -165,6 +165,49 @@ fn subtree(prims: &mut [PrimRef], set: Set, depth: (u32, u32)) -> (Vec<CwBvhNode
     (nodes, out, cost)
 }
 
+/// A child of an 8-wide node being laid out: its box, its triangles (`prims[range]`), whether
+/// it becomes a leaf, and the caller's index of it.
+struct SlotChild {
+    bounds: Aabb,
+    range: std::ops::Range<usize>,
+    leaf: bool,
+    id: usize,
+}
+
+/// Lays out node `n`'s children (over `node_bounds`) in slot order: a leaf's triangles are
+/// appended to `out`, with its meta; an inner child gets its `imask` bit and meta. Returns the
+/// node's SAH cost without its inner subtrees, and the ids of its inner children in slot order
+/// (the first `count` of the array), whose nodes follow at `child_base_idx`.
+fn lay_out(
+    n: &mut CwBvhNode,
+    node_bounds: &Aabb,
+    by_slot: [Option<SlotChild>; 8],
+    prims: &[PrimRef],
+    out: &mut Vec<u32>,
+) -> (f32, [usize; 8], usize) {
+    let mut cost = half_area(node_bounds);
+    let (mut inner, mut inner_count) = ([0usize; 8], 0);
+    let mut leaf_prims = 0u32;
+    for (slot, child) in by_slot.into_iter().enumerate() {
+        let Some(child) = child else {
+            continue;
+        };
+        if child.leaf {
+            let k = child.range.len() as u32;
+            out.extend(prims[child.range].iter().map(PrimRef::index));
+            n.child_meta[slot] = leaf_prims as u8 | ((1u8 << k) - 1) << 5;
+            leaf_prims += k;
+            cost += half_area(&child.bounds) * k as f32 * PRIM_COST;
+        } else {
+            n.imask |= 1 << slot;
+            n.child_meta[slot] = (24 + slot as u8) | 0b0010_0000;
+            inner[inner_count] = child.id;
+            inner_count += 1;
+        }
+    }
+    (cost, inner, inner_count)
+}
+
 /// Makes node `wide` (already allocated) over `prims` (the whole of `set`, which need not fit a
 /// leaf), then its inner children's subtrees depth first; returns the subtree's cost. `depth`
 /// is the node's and the depth from which nodes split at the median.
@@ -188,36 +231,22 @@ fn node(
             .map_or(Vec3A::ZERO, |s: &Set| s.bounds.center())
     });
     let slots = octant_slots(set.bounds.center(), &centres[..count]);
-    let mut by_slot = [usize::MAX; 8];
-    for (c, &s) in slots.iter().enumerate().take(count) {
-        by_slot[s] = c;
+    let mut by_slot: [Option<SlotChild>; 8] = Default::default();
+    for (c, &slot) in slots.iter().enumerate().take(count) {
+        let child = &children[c];
+        by_slot[slot] = Some(SlotChild {
+            bounds: child.bounds,
+            range: child.start..child.end,
+            leaf: child.len() <= MAX_LEAF as usize,
+            id: c,
+        });
     }
     let mut n = CwBvhNode {
         primitive_base_idx: out.len() as u32,
         child_base_idx: nodes.len() as u32,
         ..CwBvhNode::default()
     };
-    let mut cost = half_area(&set.bounds);
-    let (mut inner, mut inner_count) = ([0usize; 8], 0);
-    let mut leaf_prims = 0u32;
-    for (slot, &c) in by_slot.iter().enumerate() {
-        if c == usize::MAX {
-            continue;
-        }
-        let child = &children[c];
-        if child.len() <= MAX_LEAF as usize {
-            let k = child.len() as u32;
-            out.extend(prims[child.start..child.end].iter().map(PrimRef::index));
-            n.child_meta[slot] = leaf_prims as u8 | ((1u8 << k) - 1) << 5;
-            leaf_prims += k;
-            cost += half_area(&child.bounds) * k as f32 * PRIM_COST;
-        } else {
-            n.imask |= 1 << slot;
-            n.child_meta[slot] = (24 + slot as u8) | 0b0010_0000;
-            inner[inner_count] = c;
-            inner_count += 1;
-        }
-    }
+    let (mut cost, inner, inner_count) = lay_out(&mut n, &set.bounds, by_slot, prims, out);
     nodes.resize(nodes.len() + inner_count, CwBvhNode::default());
     nodes[wide] = n;
     let inner = &inner[..inner_count];
@@ -482,22 +511,6 @@ struct BinaryNode {
     choice: [Choice; 7],
 }
 
-/// What a binary node becomes when it may use `i + 1` subtrees (`i` the table column), and
-/// the columns of its two children it distributes them to (as in `convert.rs`).
-#[derive(Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    Leaf,
-    Internal,
-    Distribute,
-}
-
-#[derive(Clone, Copy)]
-struct Choice {
-    kind: Kind,
-    left: u8,
-    right: u8,
-}
-
 /// Makes node `wide` over `prims` (the whole of `set`) and its subtree from a binary SAH tree
 /// collapsed by the conversion's cost table: each 8-wide node takes the cheapest cover of its
 /// binary subtree by up to 8 leaves (1 to [`MAX_LEAF`] triangles) and subtrees, so that leaf
@@ -518,20 +531,14 @@ fn collapse(
         end: set.len() as u32,
         left: u32::MAX,
         cost: [0.0; 7],
-        choice: [LEAF; 7],
+        choice: [Choice::LEAF; 7],
     });
     grow(prims, set, depth, 0, &mut tree);
     emit(prims, &tree, 0, wide, nodes, out)
 }
 
-const LEAF: Choice = Choice {
-    kind: Kind::Leaf,
-    left: 0,
-    right: 0,
-};
-
 /// Splits binary node `i` (over `set`) down to one triangle per leaf, then fills its row of
-/// the cost table (`CostTable::fill` of `convert.rs`, the same arithmetic). Splits are SAH
+/// the cost table ([`cost_row`], as `CostTable::fill` does). Splits are SAH
 /// splits down to [`COLLAPSE_SAH_MAX_DEPTH`] (counting the 8-wide depth above), median ones
 /// below, so the 8-wide subtree (at most one level per binary level) stays within the
 /// traversal stack.
@@ -551,58 +558,14 @@ fn grow(prims: &mut [PrimRef], set: Set, depth: u32, i: usize, tree: &mut Vec<Bi
             end: s.end as u32,
             left: u32::MAX,
             cost: [0.0; 7],
-            choice: [LEAF; 7],
+            choice: [Choice::LEAF; 7],
         });
     }
     tree[i].left = left as u32;
     grow(prims, l, depth + 1, left, tree);
     grow(prims, r, depth + 1, left + 1, tree);
     let (cl, cr) = (tree[left].cost, tree[left + 1].cost);
-    let cost_leaf = if m <= MAX_LEAF as usize {
-        m as f32 * ha * PRIM_COST
-    } else {
-        f32::INFINITY
-    };
-    let (mut cost_distribute, mut dl, mut dr) = (f32::INFINITY, 0u8, 6u8);
-    for k in 0..7 {
-        let c = cl[k] + cr[6 - k];
-        if c < cost_distribute {
-            (cost_distribute, dl, dr) = (c, k as u8, 6 - k as u8);
-        }
-    }
-    let cost_internal = cost_distribute + ha;
-    let mut previous = if cost_leaf < cost_internal {
-        (cost_leaf, Kind::Leaf)
-    } else {
-        (cost_internal, Kind::Internal)
-    };
-    let mut previous_choice = Choice {
-        kind: previous.1,
-        left: dl,
-        right: dr,
-    };
-    let node = &mut tree[i];
-    (node.cost[0], node.choice[0]) = (previous.0, previous_choice);
-    for c in 1..7 {
-        let mut best = None;
-        let mut cost_distribute = previous.0;
-        for k in 0..c {
-            let d = cl[k] + cr[c - k - 1];
-            if d < cost_distribute {
-                cost_distribute = d;
-                best = Some((k as u8, (c - k - 1) as u8));
-            }
-        }
-        if let Some((left, right)) = best {
-            previous_choice = Choice {
-                kind: Kind::Distribute,
-                left,
-                right,
-            };
-            previous = (cost_distribute, Kind::Distribute);
-        }
-        (node.cost[c], node.choice[c]) = (previous.0, previous_choice);
-    }
+    (tree[i].cost, tree[i].choice) = cost_row(&cl, &cr, ha, m as u32);
 }
 
 /// The subtrees that column `column` of binary node `i` distributes to (`CostTable::gather`).
@@ -652,46 +615,30 @@ fn emit(
             .map_or(Vec3A::ZERO, |&k| tree[k as usize].bounds.center())
     });
     let slots = octant_slots(tree[i].bounds.center(), &centres[..count]);
-    let mut by_slot = [u32::MAX; 8];
+    let mut by_slot: [Option<SlotChild>; 8] = Default::default();
     for c in 0..count {
-        by_slot[slots[c]] = children[c];
+        let id = children[c] as usize;
+        let child = &tree[id];
+        let leaf = child.choice[0].kind == Kind::Leaf;
+        debug_assert!(!leaf || (1..=MAX_LEAF).contains(&(child.end - child.start)));
+        by_slot[slots[c]] = Some(SlotChild {
+            bounds: child.bounds,
+            range: child.start as usize..child.end as usize,
+            leaf,
+            id,
+        });
     }
     let mut n = CwBvhNode {
         primitive_base_idx: out.len() as u32,
         child_base_idx: nodes.len() as u32,
         ..CwBvhNode::default()
     };
-    let mut cost = half_area(&tree[i].bounds);
-    let (mut inner, mut inner_count) = ([0u32; 8], 0);
-    let mut leaf_prims = 0u32;
-    for (slot, &c) in by_slot.iter().enumerate() {
-        if c == u32::MAX {
-            continue;
-        }
-        let child = &tree[c as usize];
-        if child.choice[0].kind == Kind::Leaf {
-            let k = child.end - child.start;
-            debug_assert!((1..=MAX_LEAF).contains(&k));
-            out.extend(
-                prims[child.start as usize..child.end as usize]
-                    .iter()
-                    .map(PrimRef::index),
-            );
-            n.child_meta[slot] = leaf_prims as u8 | ((1u8 << k) - 1) << 5;
-            leaf_prims += k;
-            cost += half_area(&child.bounds) * k as f32 * PRIM_COST;
-        } else {
-            n.imask |= 1 << slot;
-            n.child_meta[slot] = (24 + slot as u8) | 0b0010_0000;
-            inner[inner_count] = c;
-            inner_count += 1;
-        }
-    }
+    let (mut cost, inner, inner_count) = lay_out(&mut n, &tree[i].bounds, by_slot, prims, out);
     nodes.resize(nodes.len() + inner_count, CwBvhNode::default());
     nodes[wide] = n;
     let base = n.child_base_idx as usize;
     for (rank, &c) in inner[..inner_count].iter().enumerate() {
-        cost += emit(prims, tree, c as usize, base + rank, nodes, out);
+        cost += emit(prims, tree, c, base + rank, nodes, out);
     }
     cost
 }

@@ -32,7 +32,7 @@ const PARALLEL_CONVERT_DEPTH: u32 = 3;
 
 /// What a binary node becomes when it may use `i + 1` subtrees (`i` the table column).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Kind {
+pub(super) enum Kind {
     Leaf = 0,
     Internal = 1,
     Distribute = 2,
@@ -49,16 +49,24 @@ struct NodeCosts {
     choice: [AtomicU8; 7],
 }
 
+/// A table entry's choice: its [`Kind`] and the columns of the two children it distributes
+/// to.
 #[derive(Clone, Copy)]
-struct Choice {
-    kind: Kind,
-    left: usize,
-    right: usize,
+pub(super) struct Choice {
+    pub kind: Kind,
+    pub left: u8,
+    pub right: u8,
 }
 
 impl Choice {
+    pub(super) const LEAF: Choice = Choice {
+        kind: Kind::Leaf,
+        left: 0,
+        right: 0,
+    };
+
     fn pack(self) -> u8 {
-        ((self.kind as u8) << 6) | ((self.left as u8) << 3) | self.right as u8
+        ((self.kind as u8) << 6) | (self.left << 3) | self.right
     }
 
     fn unpack(v: u8) -> Choice {
@@ -68,10 +76,70 @@ impl Choice {
                 1 => Kind::Internal,
                 _ => Kind::Distribute,
             },
-            left: ((v >> 3) & 7) as usize,
-            right: (v & 7) as usize,
+            left: (v >> 3) & 7,
+            right: v & 7,
         }
     }
+}
+
+/// The cost-table row ([`NodeCosts`]) of a binary node with `prims` triangles and half area
+/// `half_area`, from its two children's rows `cl` and `cr`. Column 0: a leaf (at most
+/// [`MAX_LEAF`] triangles), or an 8-wide node over the best split of 8 subtrees between the
+/// children; columns 1..7: distribute i + 1 subtrees between the children, or keep column
+/// i - 1. Where no split has a finite cost (non-finite bounds) column 0 names (0, 6), so that
+/// every choice names valid columns; obvhs leaves that case undefined.
+pub(super) fn cost_row(
+    cl: &[f32; 7],
+    cr: &[f32; 7],
+    half_area: f32,
+    prims: u32,
+) -> ([f32; 7], [Choice; 7]) {
+    let cost_leaf = if prims <= MAX_LEAF {
+        (prims as f32) * half_area * PRIM_COST
+    } else {
+        f32::INFINITY
+    };
+    let (mut cost_distribute, mut left, mut right) = (f32::INFINITY, 0u8, 6u8);
+    for k in 0..7 {
+        let c = cl[k] + cr[6 - k];
+        if c < cost_distribute {
+            (cost_distribute, left, right) = (c, k as u8, 6 - k as u8);
+        }
+    }
+    let cost_internal = cost_distribute + half_area;
+    let mut previous = if cost_leaf < cost_internal {
+        (cost_leaf, Kind::Leaf)
+    } else {
+        (cost_internal, Kind::Internal)
+    };
+    let mut previous_choice = Choice {
+        kind: previous.1,
+        left,
+        right,
+    };
+    let (mut costs, mut choices) = ([0.0; 7], [Choice::LEAF; 7]);
+    (costs[0], choices[0]) = (previous.0, previous_choice);
+    for i in 1..7 {
+        let mut best = None;
+        let mut cost_distribute = previous.0;
+        for k in 0..i {
+            let c = cl[k] + cr[i - k - 1];
+            if c < cost_distribute {
+                cost_distribute = c;
+                best = Some((k as u8, (i - k - 1) as u8));
+            }
+        }
+        if let Some((left, right)) = best {
+            previous_choice = Choice {
+                kind: Kind::Distribute,
+                left,
+                right,
+            };
+            previous = (cost_distribute, Kind::Distribute);
+        }
+        (costs[i], choices[i]) = (previous.0, previous_choice);
+    }
+    (costs, choices)
 }
 
 /// The cost table of a binary BVH with one primitive per leaf (as both of Lacuna's builders
@@ -120,13 +188,8 @@ impl<'a> CostTable<'a> {
         let half_area = n.aabb().half_area();
         if n.is_leaf() {
             let cost = half_area * (n.prim_count as f32) * PRIM_COST;
-            let leaf = Choice {
-                kind: Kind::Leaf,
-                left: 0,
-                right: 0,
-            };
             for i in 0..7 {
-                self.set(node, i, cost, leaf);
+                self.set(node, i, cost, Choice::LEAF);
             }
             return n.prim_count;
         }
@@ -141,53 +204,9 @@ impl<'a> CostTable<'a> {
             std::array::from_fn(|i| self.cost(l, i)),
             std::array::from_fn(|i| self.cost(r, i)),
         );
-        // Column 0: a leaf, or an 8-wide node over the best split of 8 subtrees.
-        let cost_leaf = if prims <= MAX_LEAF {
-            (prims as f32) * half_area * PRIM_COST
-        } else {
-            f32::INFINITY
-        };
-        // (0, 6) where no split has a finite cost (non-finite bounds), so that every choice
-        // names valid columns; obvhs leaves that case undefined.
-        let (mut cost_distribute, mut left, mut right) = (f32::INFINITY, 0, 6);
-        for k in 0..7 {
-            let c = cl[k] + cr[6 - k];
-            if c < cost_distribute {
-                (cost_distribute, left, right) = (c, k, 6 - k);
-            }
-        }
-        let cost_internal = cost_distribute + half_area;
-        let mut previous = if cost_leaf < cost_internal {
-            (cost_leaf, Kind::Leaf)
-        } else {
-            (cost_internal, Kind::Internal)
-        };
-        let mut previous_choice = Choice {
-            kind: previous.1,
-            left,
-            right,
-        };
-        self.set(node, 0, previous.0, previous_choice);
-        // Columns 1..7: distribute i + 1 subtrees between the children, or keep column i - 1.
-        for i in 1..7 {
-            let mut best = None;
-            let mut cost_distribute = previous.0;
-            for k in 0..i {
-                let c = cl[k] + cr[i - k - 1];
-                if c < cost_distribute {
-                    cost_distribute = c;
-                    best = Some((k, i - k - 1));
-                }
-            }
-            if let Some((left, right)) = best {
-                previous_choice = Choice {
-                    kind: Kind::Distribute,
-                    left,
-                    right,
-                };
-                previous = (cost_distribute, Kind::Distribute);
-            }
-            self.set(node, i, previous.0, previous_choice);
+        let (costs, choices) = cost_row(&cl, &cr, half_area, prims);
+        for i in 0..7 {
+            self.set(node, i, costs[i], choices[i]);
         }
         prims
     }
@@ -303,8 +322,8 @@ impl<'a> CostTable<'a> {
         }
         let choice = self.choice(node, i);
         for (child, column) in [
-            (n.first_index as usize, choice.left),
-            (n.first_index as usize + 1, choice.right),
+            (n.first_index as usize, choice.left as usize),
+            (n.first_index as usize + 1, choice.right as usize),
         ] {
             if self.choice(child, column).kind == Kind::Distribute {
                 self.gather(child, column, children, count);
