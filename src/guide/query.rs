@@ -36,7 +36,7 @@ use super::directional::{self, DirectionalTable};
 use super::lobes::MAX_LOBES;
 use super::mixture::pick_lobe;
 use super::settings::{LobeAim, LobeFallback, SkeletonStrength};
-use super::skeleton_guide::{GridPoint, SkeletonGuide};
+use super::skeleton_guide::SkeletonGuide;
 use crate::error::{Error, Result};
 use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
 use crate::math::{warp, Frame, Vec2, Vec3};
@@ -307,27 +307,11 @@ impl GuideQuery {
         normal: Vec3,
         wo: Vec3,
     ) -> u32 {
-        self.init_at(guide, scene, &guide.grid_point(p), p, p_error, normal, wo)
-    }
-
-    /// [`init`](Self::init) with the point's place in the guide's grid known (`at =
-    /// guide.grid_point(p)`, which the host also gave [`SkeletonGuide::prefetch`]).
-    #[allow(clippy::too_many_arguments)]
-    pub fn init_at(
-        &mut self,
-        guide: &SkeletonGuide,
-        scene: &Scene,
-        at: &GridPoint,
-        p: Vec3,
-        p_error: Vec3,
-        normal: Vec3,
-        wo: Vec3,
-    ) -> u32 {
         self.count = 0;
         self.node = None;
         self.slot = NO_SLOT;
         self.lobe_of = [NOT_ACTIVE; MAX_LOBES];
-        let Some((node, voxel)) = guide.map_guided_grid_point(at, normal, wo) else {
+        let Some((node, voxel)) = guide.map_guided_point(p, normal, wo) else {
             return 0;
         };
         self.node = Some(node);

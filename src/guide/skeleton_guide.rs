@@ -136,16 +136,6 @@ fn voxel_sees_bits(target: u32) -> (u32, u32) {
     (1u32 << (2 * target), 1u32 << (2 * target + 1))
 }
 
-/// A point's place in a guide's grid ([`SkeletonGuide::grid_point`]): its grid coordinates
-/// `g`, its voxel `v` (the floor of `g`, possibly outside the grid) and, inside the grid, the
-/// voxel's index (`usize::MAX` outside).
-#[derive(Clone, Copy, Debug)]
-pub struct GridPoint {
-    g: [f64; 3],
-    v: [i64; 3],
-    index: usize,
-}
-
 impl SkeletonGuide {
     /// Runs the precomputation (module docs) on the current rayon pool. `progress(stage,
     /// fraction)` is called between stages and may cancel by returning false.
@@ -561,75 +551,64 @@ impl SkeletonGuide {
             .get(self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize))
     }
 
-    /// Where `p` lies in the grid: its grid coordinates and voxel (see [`GridPoint`]),
-    /// computed once per vertex for both [`Self::prefetch`] and the query's mapping.
-    #[inline]
-    pub fn grid_point(&self, p: Vec3) -> GridPoint {
-        let g = self.grid.to_grid(p);
-        let d = &self.grid_extent;
-        if g[0] >= 0.0 && g[0] < d[0] && g[1] >= 0.0 && g[1] < d[1] && g[2] >= 0.0 && g[2] < d[2] {
-            // Inside the grid (false for NaN) the floor is the truncation (no saturation, no
-            // correction below zero), and the voxel needs no bounds test.
-            // (`as i64`: one instruction, where `as usize` tests for values above 2^63.)
-            let v = [g[0] as i64, g[1] as i64, g[2] as i64];
-            let k = self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
-            GridPoint { g, v, index: k }
-        } else {
-            GridPoint {
-                g,
-                v: crate::analysis::grid::floor3_to_i64(g),
-                index: usize::MAX,
-            }
-        }
-    }
-
     /// [`Self::map_point_voxel`] where [`Self::may_guide_at`] allows it, else None; the grid
     /// coordinates of `p` computed once for both.
-    #[cfg(test)]
     pub(super) fn map_guided_point(
         &self,
         p: Vec3,
         normal: Vec3,
         incident: Vec3,
     ) -> Option<(u32, usize)> {
-        self.map_guided_grid_point(&self.grid_point(p), normal, incident)
-    }
-
-    /// [`Self::map_guided_point`] of the point at `at` (`grid_point(p)`).
-    #[inline]
-    pub(super) fn map_guided_grid_point(
-        &self,
-        at: &GridPoint,
-        normal: Vec3,
-        incident: Vec3,
-    ) -> Option<(u32, usize)> {
-        if at.index != usize::MAX {
-            if !self.may_guide.is_empty() && !self.may_guide.get(at.index) {
+        let g = self.grid.to_grid(p);
+        let d = &self.grid_extent;
+        let v = if g[0] >= 0.0
+            && g[0] < d[0]
+            && g[1] >= 0.0
+            && g[1] < d[1]
+            && g[2] >= 0.0
+            && g[2] < d[2]
+        {
+            // Inside the grid (false for NaN) the floor is the truncation (no saturation, no
+            // correction below zero), and the voxel needs no bounds test.
+            // (`as i64`: one instruction, where `as usize` tests for values above 2^63.)
+            let v = [g[0] as i64, g[1] as i64, g[2] as i64];
+            let k = self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
+            if !self.may_guide.is_empty() && !self.may_guide.get(k) {
                 return None;
             }
-        } else if !self.may_guide_in(at.v) {
-            return None;
-        }
+            v
+        } else {
+            let v = crate::analysis::grid::floor3_to_i64(g);
+            if !self.may_guide_in(v) {
+                return None;
+            }
+            v
+        };
         self.neighbours
-            .map_grid_point_voxel(&self.grid, &self.node_map, at.g, at.v, normal, incident)
+            .map_grid_point_voxel(&self.grid, &self.node_map, g, v, normal, incident)
             .map(|k| (self.node_map[k], k))
     }
 
-    /// A hint ahead of [`GuideQuery::init_at`] at grid point `at` with geometric normal
-    /// `normal` seen from `incident`: requests the cache lines the mapping most likely reads
-    /// (the voxel's `may_guide` word, and the node map at the neighbour that the normal's
-    /// dominant axis faces: the facing shortcut's voxel on walls, floors and ceilings), so
-    /// that their misses overlap the work between the ray's hit and the query (the BSDF's
-    /// texture lookups) instead of stalling it: they are the guided vertex's largest stalls in
-    /// a wall-time profile. No effect on any result.
-    ///
-    /// [`GuideQuery::init_at`]: super::GuideQuery::init_at
+    /// A hint ahead of [`GuideQuery::init`] at point `p` with geometric normal `normal` seen
+    /// from `incident`: requests the cache lines the mapping most likely reads (the voxel's
+    /// `may_guide` word, and the node map at the neighbour that the normal's dominant axis
+    /// faces: the facing shortcut's voxel on walls, floors and ceilings), so that their misses
+    /// overlap the work between the ray's hit and the query (the BSDF's texture lookups)
+    /// instead of stalling it: they are the guided vertex's largest stalls in a wall-time
+    /// profile. No effect on any result.
     #[inline]
-    pub fn prefetch(&self, at: &GridPoint, normal: Vec3, incident: Vec3) {
-        if at.index == usize::MAX {
+    pub fn prefetch(&self, p: Vec3, normal: Vec3, incident: Vec3) {
+        let g = self.grid.to_grid(p);
+        let d = &self.grid_extent;
+        if !(g[0] >= 0.0 && g[0] < d[0] && g[1] >= 0.0 && g[1] < d[1] && g[2] >= 0.0 && g[2] < d[2])
+        {
             return;
         }
-        let k = at.index;
+        let k = self.grid.index(
+            g[0] as i64 as usize,
+            g[1] as i64 as usize,
+            g[2] as i64 as usize,
+        );
         self.may_guide.prefetch(k);
         let n = if normal.dot(incident) >= 0.0 {
             normal

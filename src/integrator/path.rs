@@ -12,32 +12,30 @@
 //!
 //! # The pilot
 //!
-//! The training's scene-level prediction (`guide::training`, "The path-level prediction") scores
-//! its choices with a proxy: next-event estimation only, paths cut at `training_depth` (8)
-//! vertices. On scenes it was not tuned on it promised too much: on the family `rooms:SEED` it
-//! predicted variance ratios of 0.41-0.64 where the render's per-sample variance ratio was
-//! 0.84-1.06 (BENCHMARKS.md, "Procedural family"), and guided scenes lost to `path`. So before a
-//! trained guide is used, `prepare` traces a pilot with this file's own estimator at the render's
-//! depth: `pilot_paths` pairs of camera samples, each pair traced unguided and guided with the same
-//! random numbers for both policies. Where the host gave the render's image size
-//! (`Integrator::set_image_size`: `lacuna render` and `compare`, C API jobs) the pairs are drawn
-//! over the render's view (its aspect, not the training's 2:1) and a pair is two samples at
-//! independent points of one pixel of the render's image (on rooms:17 at 64x48 the 2:1 single-ray
-//! pilot read a variance ratio of 0.667, this one 0.751, the render's is 0.713-0.747), so half
-//! their squared difference is an unbiased estimate of that pixel's variance per sample with
-//! independent numbers, as the render pays it; else both samples of a pair follow one ray of the
-//! 2:1 view. Their means give the measured variance ratio. The cost ratio is the time of the guided
-//! samples over the unguided ones' (`pilot_cost=time`, the default), in this thread's CPU time,
-//! timed in batches of 16 rays, the two policies in turn with the order alternating: time slices
-//! given to other processes do not enter it (wall time read 1.2-1.8x on one scene under a changing
-//! load), and neither policy is timed on warmer caches. A work count (`pilot_cost=work`: rays
-//! traced per sample times the training's overhead ratio for the queries and the node mapping,
-//! `guide::training`, "Cost") read 0.90-1.18x on family scenes whose measured cost was 1.12-1.46x.
-//! Unless 1 / (variance ratio x cost ratio) exceeds the switch's margin (1.1), every node is set to
-//! c = 0 and `path_skeleton` traces `path`'s samples. The pilot's random numbers are its own, so
-//! the render stays unbiased whatever the verdict; with `pilot_cost=work` the verdict is also a
-//! deterministic function of the scene (chunk sums combined in chunk order), with `time` it may
-//! differ between runs where the efficiency is near the margin.
+//! The training's scene-level prediction (`guide::training`, "The path-level prediction")
+//! scores its choices with a proxy: next-event estimation only, paths cut at
+//! `training_depth` (8) vertices. On scenes it was not tuned on it promised too much: on
+//! the family `rooms:SEED` it predicted variance ratios of 0.41-0.64 where the render's
+//! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, "Procedural family"), and guided scenes lost
+//! to `path`. So before a trained guide is used, `prepare` traces a pilot with this file's own
+//! estimator at the render's depth: `pilot_paths` camera rays (drawn over the training's
+//! image), each traced twice unguided and twice guided with the
+//! same random numbers for both policies. Half the squared difference of a ray's two samples
+//! is an unbiased estimate of the variance along that ray (the pixel's variance less the part
+//! from where in the pixel the ray goes, which guiding does not change); their means give the
+//! measured variance ratio. The cost ratio is the time of the guided samples over the
+//! unguided ones' (`pilot_cost=time`, the default), in this thread's CPU time, timed in
+//! batches of 16 rays, the two policies in turn with the order alternating: time slices given
+//! to other processes do not enter it (wall time read 1.2-1.8x on one scene under a changing
+//! load), and neither policy is timed on warmer caches. A work count (`pilot_cost=work`: rays traced
+//! per sample times the training's overhead ratio for the queries and the node mapping,
+//! `guide::training`, "Cost") read 0.90-1.18x on family scenes whose measured cost was
+//! 1.12-1.46x. Unless 1 / (variance ratio x cost ratio) exceeds the switch's margin (1.1),
+//! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The pilot's random
+//! numbers are its own, so the render stays unbiased whatever the verdict; with
+//! `pilot_cost=work` the verdict is also a deterministic function of the scene (chunk sums
+//! combined in chunk order), with `time` it may differ between runs where the efficiency is
+//! near the margin.
 
 use std::cell::RefCell;
 use std::sync::Arc;
@@ -53,12 +51,12 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::{
-    estimator, sample_bsdf_or_guide, DirectionGuide, GridPoint, GuideQuery, Pilot, PilotCost,
-    RenderEstimator, SkeletonGuide,
+    estimator, sample_bsdf_or_guide, DirectionGuide, GuideQuery, Pilot, PilotCost, RenderEstimator,
+    SkeletonGuide,
 };
 use crate::light::TriangleSampling;
 use crate::math::FIRST_INTEGRATOR_DIMENSION;
-use crate::math::{luminance, Frame, Rgb, Rng, Sampler, Vec2, Vec3};
+use crate::math::{luminance, Frame, Rgb, Rng, Sampler, Vec3};
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction};
 use crate::timing::thread_cpu_seconds;
 
@@ -84,8 +82,6 @@ pub struct PathTracer {
     guiding: Option<Option<Arc<SkeletonGuide>>>,
     /// [`Integrator::set_time_budget`]'s seconds, for the skeleton guide's scout.
     time_budget: Option<f64>,
-    /// [`Integrator::set_image_size`]'s width and height, for the pilot.
-    image_size: Option<(u32, u32)>,
     /// `mis=auto`: the per-pixel alpha estimates (see [`super::mis_auto::DEPTH_CLASSES`]).
     alphas: PixelAlphas,
 }
@@ -96,7 +92,6 @@ impl PathTracer {
             settings,
             guiding: None,
             time_budget: None,
-            image_size: None,
             alphas: PixelAlphas::default(),
         }
     }
@@ -110,7 +105,6 @@ impl PathTracer {
             settings,
             guiding: Some(None),
             time_budget: None,
-            image_size: None,
             alphas: PixelAlphas::default(),
         })
     }
@@ -284,33 +278,7 @@ impl PathTracer {
         {
             return None;
         }
-        let aspect = self
-            .image_size
-            .map_or(PILOT_ASPECT, |(w, h)| w as f32 / h as f32);
-        let frame = camera.frame(aspect);
-        // The two samples of a pair: where the render's pixels are known, each at its own
-        // point of the pixel the pair's ray falls in (and its own lens point), so that the
-        // pair's difference also holds the variance from where in the pixel a sample goes,
-        // which the render's per-sample variance holds and adds to both policies alike;
-        // else both along that one ray.
-        let pair = |i: u32| -> [Ray; 2] {
-            let mut pick = Rng::new(PILOT_SEED, i as u64);
-            let (film, lens) = (pick.uniform2(), pick.uniform2());
-            let Some((w, h)) = self.image_size else {
-                return [frame.generate_ray(film, lens); 2];
-            };
-            let (w, h) = (w as f32, h as f32);
-            let pixel = Vec2::new(
-                (film.x * w).floor().min(w - 1.0),
-                (film.y * h).floor().min(h - 1.0),
-            );
-            [0u64, 1].map(|j| {
-                let mut at = Rng::new(PILOT_SEED + 3 + j, i as u64);
-                let u = at.uniform2();
-                let film = Vec2::new((pixel.x + u.x) / w, (pixel.y + u.y) / h);
-                frame.generate_ray(film, at.uniform2())
-            })
-        };
+        let frame = camera.frame(PILOT_ASPECT);
         let chunk_count = rays.div_ceil(PILOT_CHUNK);
         let chunks: Vec<[f64; 6]> = (0..chunk_count)
             .into_par_iter()
@@ -322,15 +290,21 @@ impl PathTracer {
                 let chunk_rays = c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(rays);
                 let chunk_rays: Vec<u32> = chunk_rays.collect();
                 for (b, batch) in chunk_rays.chunks(PILOT_BATCH).enumerate() {
-                    let batch_rays: Vec<[Ray; 2]> = batch.iter().map(|&i| pair(i)).collect();
+                    let batch_rays: Vec<Ray> = batch
+                        .iter()
+                        .map(|&i| {
+                            let mut pick = Rng::new(PILOT_SEED, i as u64);
+                            frame.generate_ray(pick.uniform2(), pick.uniform2())
+                        })
+                        .collect();
                     // Unguided and guided in turn, which goes first alternating, so that
                     // neither is timed on warmer caches.
                     for step in 0..2 {
                         let k = (step + b + c as usize) % 2;
                         let started = thread_cpu_seconds();
-                        for (&i, rays) in batch.iter().zip(&batch_rays) {
+                        for (&i, &ray) in batch.iter().zip(&batch_rays) {
                             let mut l = [Rgb::ZERO; 2];
-                            for (j, (lj, &ray)) in l.iter_mut().zip(rays).enumerate() {
+                            for (j, lj) in l.iter_mut().enumerate() {
                                 // The same numbers for both policies: their difference is
                                 // less noisy than either.
                                 let mut rng = Sampler::independent(Rng::new(
@@ -342,7 +316,6 @@ impl PathTracer {
                                     let guided = &mut SkeletonVertexGuide {
                                         guide,
                                         query: &mut query,
-                                        at: None,
                                     };
                                     self.trace(scene, ray, &mut rng, &mut counters[k], guided, off)
                                 } else {
@@ -544,10 +517,6 @@ impl Integrator for PathTracer {
         self.time_budget = seconds;
     }
 
-    fn set_image_size(&mut self, width: u32, height: u32) {
-        self.image_size = (width > 0 && height > 0).then_some((width, height));
-    }
-
     fn check_prepared(&self, scene: &Scene) -> Result<()> {
         match &self.guiding {
             None => Ok(()),
@@ -580,7 +549,6 @@ impl Integrator for PathTracer {
                 let guided = &mut SkeletonVertexGuide {
                     guide,
                     query: &mut query,
-                    at: None,
                 };
                 self.sample_with(scene, ray, rng, counters, ctx, guided)
             }
@@ -589,7 +557,6 @@ impl Integrator for PathTracer {
                 let guided = &mut SkeletonVertexGuide {
                     guide,
                     query: &mut GuideQuery::new(),
-                    at: None,
                 };
                 self.sample_with(scene, ray, rng, counters, ctx, guided)
             }
@@ -782,7 +749,7 @@ pub(super) trait VertexGuide {
     }
     /// Called at every surface hit before its BSDF is built (a guide may start loading what
     /// the vertex will read).
-    fn prefetch(&mut self, _si: &SurfaceInteraction) {}
+    fn prefetch(&self, _si: &SurfaceInteraction) {}
     /// Sets the query up at non-delta vertex `si`, its guiding probability at most `c_max`;
     /// returns the rays it traced.
     fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64;
@@ -822,8 +789,6 @@ impl VertexGuide for Unguided {
 struct SkeletonVertexGuide<'a> {
     guide: &'a SkeletonGuide,
     query: &'a mut GuideQuery,
-    /// The current vertex's place in the guide's grid, found by `prefetch` for `init`.
-    at: Option<GridPoint>,
 }
 
 impl VertexGuide for SkeletonVertexGuide<'_> {
@@ -832,20 +797,14 @@ impl VertexGuide for SkeletonVertexGuide<'_> {
     fn ratio_max(&self) -> f32 {
         self.guide.ratio_max()
     }
-    #[inline]
-    fn prefetch(&mut self, si: &SurfaceInteraction) {
-        let at = self.guide.grid_point(si.p);
-        self.guide.prefetch(&at, si.ng, si.wo);
-        self.at = Some(at);
+    fn prefetch(&self, si: &SurfaceInteraction) {
+        self.guide.prefetch(si.p, si.ng, si.wo);
     }
     fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
-        let at = self
-            .at
-            .take()
-            .unwrap_or_else(|| self.guide.grid_point(si.p));
+        self.query.clear();
         let rays = self
             .query
-            .init_at(self.guide, scene, &at, si.p, si.p_error, si.ng, si.wo);
+            .init(self.guide, scene, si.p, si.p_error, si.ng, si.wo);
         self.query.cap_guiding_probability(c_max);
         self.query.prefetch_directions();
         rays as u64

@@ -249,9 +249,8 @@ impl SceneChoice {
 pub struct Pilot {
     /// Rays the pilot traced from.
     pub rays: u32,
-    /// Mean per-sample variance of the luminance (half the squared difference of two
-    /// independent samples of one pixel of the render's image, or along one ray where the
-    /// pilot does not know the image), unguided and guided.
+    /// Mean per-ray variance of the sample's luminance (half the squared difference of two
+    /// independent samples along the same ray), unguided and guided.
     pub variance_path: f64,
     pub variance_guided: f64,
     /// Rays traced (closest hits and shadow rays) per sample, unguided and guided.
