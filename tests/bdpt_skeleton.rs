@@ -13,7 +13,7 @@ use common::agreement::{
 use lacuna::integrator::{self, BdptSkeleton, Integrator, IntegratorSettings};
 use lacuna::math::{Rgb, Vec3};
 use lacuna::render::RenderSettings;
-use lacuna::scene::{Camera, Material, MeshDesc, Scene, SceneBuilder};
+use lacuna::scene::{Camera, Material, Scene, SceneBuilder};
 
 /// Prepares `spec` (a `bdpt_skeleton` variant) on `scene` and checks whether it resamples
 /// (false: the scene is open or unsuited and it falls back to `bdpt`), so that a silent
@@ -228,13 +228,7 @@ fn skelbpt_without_a_usable_skeleton_renders_exactly_bdpt() {
             light,
         ),
     ] {
-        b.add_mesh(MeshDesc {
-            positions: p.to_vec(),
-            indices: vec![[0, 1, 2], [0, 2, 3]],
-            materials: vec![m],
-            ..Default::default()
-        })
-        .unwrap();
+        common::shapes::quad(&mut b, p, m);
     }
     b.set_camera(Camera::look_at(v(0., 1., 4.), v(0., 0.3, 0.), Vec3::Y, 50.0).unwrap())
         .unwrap();

@@ -366,18 +366,16 @@ fn floor_scene(as_light_field: bool) -> (Scene, Camera) {
         let emitter = b
             .add_material(Material::emissive(Rgb::splat(RADIANCE)))
             .unwrap();
-        b.add_mesh(MeshDesc {
-            positions: vec![
+        common::shapes::quad(
+            &mut b,
+            [
                 v(-HALF, height, -HALF),
                 v(HALF, height, -HALF),
                 v(HALF, height, HALF),
                 v(-HALF, height, HALF),
             ],
-            indices: vec![[0, 1, 2], [0, 2, 3]],
-            materials: vec![emitter],
-            ..Default::default()
-        })
-        .unwrap();
+            emitter,
+        );
     }
     let scene = b.build().unwrap();
     let camera = Camera::look_at(v(0.0, 1.0, 3.2), v(0.0, 0.0, 0.0), Vec3::Y, 40.0).unwrap();
