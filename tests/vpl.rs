@@ -259,6 +259,7 @@ fn skeleton_visibility_agrees_with_exact_rays_on_the_door_and_two_rooms() {
             frame: camera.frame(48.0 / 36.0),
             width: 48,
             height: 36,
+            sampler: Default::default(),
         };
         for pass in 0..2 {
             let a = vpl.visibility_agreement(&scene, &view, 1, pass).unwrap();
@@ -376,3 +377,62 @@ fn the_shadow_map_budget_lowers_the_resolution() {
     let stats = vpl.render_notes().join("; ");
     assert!(stats.contains("built"), "{stats}");
 }
+
+/// `interleave=1` (one VPL set per pass, no filter) is today's estimator bit for bit: the
+/// images of the door and the two rooms pinned to the bits the estimator gave before
+/// interleaved sampling existed (exact and skeleton visibility, importance selection,
+/// compensation), and `interleave=1` spelled out gives the same image as the default.
+#[test]
+fn vpl_interleave_1_is_the_plain_estimator_bit_for_bit() {
+    let door = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let rooms = lacuna::scene::two_rooms_builder().unwrap().build().unwrap();
+    let s = IntegratorSettings {
+        max_depth: 6,
+        ..Default::default()
+    };
+    let cases: [(&str, &Scene, &str, [u64; 2]); 4] = [
+        ("door", &door, "vpl:count=8:select=uniform", PINNED[0]),
+        ("door", &door, "vpl:count=8:compensate=true", PINNED[1]),
+        ("door", &door, "vpl:count=8:visibility=skeleton:shadow_res=16", PINNED[2]),
+        ("two rooms", &rooms, "vpl:count=8", PINNED[3]),
+    ];
+    for (label, scene, spec, pinned) in cases {
+        let camera = *scene.camera().unwrap();
+        let rs = RenderSettings {
+            width: 16,
+            height: 12,
+            spp: 2,
+            seed: 3,
+            threads: Some(2),
+            ..Default::default()
+        };
+        let mut images = Vec::new();
+        for spec in [spec.to_string(), format!("{spec}:interleave=1")] {
+            let mut vpl = integrator::create(&spec, s).unwrap();
+            lacuna::render::prepare(vpl.as_mut(), scene, &camera, Some(2), &|_, _| true).unwrap();
+            images.push(render_image(scene, &camera, vpl.as_ref(), &rs).radiance());
+        }
+        assert_eq!(images[0], images[1], "{label} {spec}");
+        // The image's sum in a fixed order, and one lit pixel's red channel, as bits.
+        let sum: f64 = images[0]
+            .iter()
+            .map(|p| f64::from(p.x) + f64::from(p.y) + f64::from(p.z))
+            .sum();
+        let brightest = images[0]
+            .iter()
+            .map(|p| p.x)
+            .fold(0.0f32, f32::max);
+        let bits = [sum.to_bits(), u64::from(brightest.to_bits())];
+        println!("{label} {spec}: {bits:?}");
+        assert_eq!(bits, pinned, "{label} {spec}");
+    }
+}
+
+/// The bits of the image sum and of the brightest red channel of the cases above, rendered
+/// at commit 00310c1 (before `interleave`).
+const PINNED: [[u64; 2]; 4] = [
+    [4639324784082223104, 1090671824],
+    [4644189091871890433, 1091517287],
+    [4649966687905973525, 1092805763],
+    [4630327761721245696, 1075715876],
+];

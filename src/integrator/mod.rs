@@ -40,7 +40,7 @@ use crate::geometry::Ray;
 use crate::guide::{PortalGuideSettings, ResamplingSettings, SkeletonGuideSettings};
 use crate::light::EnvStrategy;
 use crate::math::Rgb;
-use crate::math::Sampler;
+use crate::math::{Sampler, SamplerKind};
 use crate::scene::{Camera, CameraFrame, RenderSettingsFile, Scene};
 use crate::timing::StageTime;
 
@@ -189,6 +189,10 @@ pub struct View {
     pub frame: CameraFrame,
     pub width: u32,
     pub height: u32,
+    /// The render's pixel sampler: an integrator that traces the pixels' samples itself in
+    /// `begin_iteration` (`vpl:interleave=N`, which filters them in image space) draws the
+    /// numbers the render loop would.
+    pub sampler: SamplerKind,
 }
 
 impl View {

@@ -1567,6 +1567,7 @@ mod tests {
             frame: camera.frame(w as f32 / h as f32),
             width: w,
             height: h,
+            sampler: Default::default(),
         };
         let points: Vec<SurfaceInteraction> = (0..w * h)
             .filter_map(|k| {
