@@ -257,6 +257,17 @@ fn vpl_options_are_checked_and_the_bias_stated() {
     assert!(bias("vpl:interleave=3")
         .is_some_and(|b| b.contains("interleave=3") && b.contains("clamped")));
     assert_eq!(bias("vpl:compensate=true:interleave=1"), None);
+    // `lacuna compare` (and the CLI, scene files and the C API, through the same parser).
+    let contender = lacuna::compare::Contender::from_spec(
+        "vpl:interleave=2:compensate=true:sampler=independent",
+        s,
+    )
+    .unwrap();
+    assert!(contender
+        .integrator
+        .bias()
+        .is_some_and(|b| b.contains("interleave=2")));
+    assert!(lacuna::compare::Contender::from_spec("vpl:interleave=9", s).is_err());
     // The refusal of clusters points to the measured reason.
     let err = integrator::create("vpl:visibility=clusters", s)
         .err()

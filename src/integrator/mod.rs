@@ -405,7 +405,8 @@ impl SpecOption<'_> {
 /// - `vpl`: `count=N` (light subpaths per pass), `clamp=R` (0 = off), `compensate=true|false`,
 ///   `visibility=exact|skeleton`, with skeleton visibility `shadow_res=N`,
 ///   `shadow_budget_mb=M`, `verify=P` and the skeleton's `resolution=N` / `voxel_budget=N`,
-///   `select=uniform|importance` with `candidates=K`, `p_min=P`
+///   `select=uniform|importance` with `candidates=K`, `p_min=P`, `probes=N`,
+///   `interleave=N` (N x N VPL sets, the indirect light filtered over N x N blocks)
 ///   ([`VplOptions::set`]), e.g. `vpl:count=128:clamp=0.05:compensate=true` or
 ///   `vpl:visibility=skeleton:shadow_res=32` or `vpl:select=importance:candidates=8`.
 ///

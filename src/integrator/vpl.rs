@@ -96,6 +96,29 @@
 //! Candidates too long for any path of `max_depth` are dropped (they light nothing).
 //! `select=uniform` keeps every VPL of `count` subpaths.
 //!
+//! # Interleaved sampling (`interleave=N`; Keller & Heidrich 2001)
+//!
+//! A pass of 64 VPLs leaves the VPL light blotchy, and at 128x96 a second buys only 6-20
+//! passes. With `interleave=N` a pass traces N² VPL sets (set k of pass s drawn as sample
+//! index s N² + k, so N = 1 is the plain estimator bit for bit) and pixel (x, y) gathers
+//! only set (x mod N, y mod N): the shadow rays per pixel stay those of one set. The pass
+//! is then traced for every pixel in `begin_iteration` (in parallel, each pixel's ray and
+//! numbers those the render loop would draw, [`View::sampler`]), and each pixel's indirect
+//! light, everything past its first non-delta vertex x (x's VPL light and, with
+//! `compensate=true`, the continuation from x), is filtered by a discontinuity buffer
+//! ([`filter_indirect`]): demodulated by the diffuse albedo of x times the throughput of the
+//! delta vertices before it, averaged over the pixels of the N x N window around it whose x
+//! has the same material behind as many delta vertices, a normal within about 25 degrees,
+//! a depth within 10 % and lies within 2 % of the depth of the other's tangent plane
+//! (renormalized over those: the window holds each set once), and multiplied back by the
+//! pixel's own modulation (textures stay sharp). Direct light and emission are never
+//! filtered. The compensation's continuation is filtered with the VPL light: both estimate
+//! the indirect light at x (their sum the unclamped one), and the continuation, one BSDF
+//! path per pixel, is the noisier part. `sample` then hands back the filtered pixel.
+//! The filter averages neighbours' indirect light: the image is biased (a blur of the
+//! indirect light over the block where the geometry agrees), which [`VplOptions::bias`]
+//! says. The pass's samples are held in memory (a [`PixelSample`] per pixel).
+//!
 //! Every pass draws new VPLs from the seed and the sample index, so the image converges as
 //! passes accumulate, and the light subpaths are traced in fixed chunks: the same image for
 //! any thread count (the shadow maps are a function of the geometry alone).
@@ -205,7 +228,7 @@ impl VplVisibility {
 /// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact|skeleton`,
 /// with skeleton visibility `shadow_res=N:shadow_budget_mb=M:verify=P`; the skeleton's `resolution` and
 /// `voxel_budget` are the skeleton guide's options; `select=uniform|importance` with
-/// `candidates=K:p_min=P:probes=N`).
+/// `candidates=K:p_min=P:probes=N`; `interleave=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VplOptions {
     /// Light subpaths per pass; each leaves a VPL at every non-delta surface it reaches.
