@@ -10,6 +10,8 @@ L=target/release/lacuna
 O=${1:-q36}
 mkdir -p "$O"
 V=vpl,vpl:interleave=2,vpl:interleave=3,vpl:interleave=4,vpl:visibility=skeleton,vpl:visibility=skeleton:interleave=2,vpl:visibility=skeleton:interleave=3,vpl:visibility=skeleton:interleave=4
+# Compensated (unbiased before the filter; the filter also averages the continuation).
+C=vpl:compensate=true,vpl:compensate=true:interleave=2,vpl:compensate=true:interleave=4
 A="--width 128 --height 96 --max-depth 6"
 log() { echo "$(date -u +%H:%M:%S) load $(cut -d' ' -f1-3 /proc/loadavg) $*" | tee -a "$O/log"; }
 for sc in door ajar two-rooms; do
@@ -20,6 +22,8 @@ for sc in door ajar two-rooms; do
   esac
   log "$sc vpl 1 s"
   $L compare $S $A --integrators $V --time 1 --runs 3 --reference $R --out $O/1s-$sc > $O/1s-$sc.log 2>&1
+  log "$sc vpl compensated 1 s"
+  $L compare $S $A --integrators $C --time 1 --runs 3 --reference $R --out $O/1s-comp-$sc > $O/1s-comp-$sc.log 2>&1
   log "$sc path 10 s"
   $L compare $S $A --integrators path --time 10 --runs 2 --reference $R --out $O/10s-$sc > $O/10s-$sc.log 2>&1
   if [ $sc != two-rooms ]; then
