@@ -57,6 +57,7 @@ fn main() {
         frame: camera.frame(width as f32 / height as f32),
         width,
         height,
+        sampler: Default::default(),
     };
     for spec in args[7].split(',') {
         let mut integrator = integrator::create(spec, IntegratorSettings::default()).unwrap();

@@ -215,6 +215,7 @@ fn render_in_pool(
         frame: camera.frame(w as f32 / h as f32),
         width: w,
         height: h,
+        sampler: settings.sampler,
     };
     let iterative = integrator.uses_iterations();
     let layer_names = integrator.layers();

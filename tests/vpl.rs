@@ -7,7 +7,9 @@
 //! and the two rooms, measured and bounded below; no NaN; the same image for any thread count;
 //! the memory budget lowering the maps' resolution. With importance-driven VPL selection (the
 //! default): the compensated estimator agreeing with `path` on the Cornell box, the door and
-//! the two rooms; the same image for any thread count; its options checked.
+//! the two rooms; the same image for any thread count; its options checked. With interleaved
+//! sampling (`interleave=N`): `interleave=1` today's images bit for bit; the region means of
+//! `path` kept; the same image for any thread count; the option checked and the bias stated.
 
 mod common;
 
@@ -50,6 +52,26 @@ fn vpl_agrees_with_path_on_the_veach_door() {
     let scene = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
     let camera = *scene.camera().unwrap();
     agree_with_path("veach door", &scene, &camera, 6, 16, 16, UNBIASED);
+}
+
+/// Interleaved sampling (N x N VPL sets per pass, the indirect light filtered over N x N
+/// blocks of similar pixels): biased by its blur, but on these diffuse scenes, whose walls
+/// are flat regions of constant normal and depth, the region means of the compensated
+/// estimator stay those of `path` within their measured error (the filter keeps the mean of
+/// what it averages), with both selections.
+#[test]
+fn interleaved_vpl_keeps_the_region_means_of_path() {
+    let specs = [
+        "vpl:clamp=0.1:compensate=true:count=16:interleave=2",
+        "vpl:clamp=0.1:compensate=true:count=16:interleave=4",
+        "vpl:clamp=0.1:compensate=true:count=16:interleave=3:select=uniform",
+    ];
+    let scene = load_scene("scenes/cornell-box/cornell-box.json");
+    let camera = *scene.camera().unwrap();
+    agree_with_path("cornell", &scene, &camera, 5, 16, 16, &specs);
+    let scene = lacuna::scene::two_rooms_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    agree_with_path("two rooms", &scene, &camera, 6, 16, 16, &specs);
 }
 
 /// Delta surfaces (mirror, glass) and delta lights: only the compensated estimator covers the
@@ -115,10 +137,18 @@ fn vpl_gives_the_same_image_for_any_thread_count() {
         "vpl:count=8:visibility=skeleton:shadow_res=16:verify=0.5:compensate=true",
         "vpl:count=8:select=importance:candidates=4",
         "vpl:count=8:select=importance:candidates=4:visibility=skeleton:shadow_res=16:compensate=true",
+        "vpl:count=8:interleave=3",
+        "vpl:count=4:interleave=4:select=uniform:compensate=true",
+        "vpl:count=4:interleave=2:visibility=skeleton:shadow_res=16:compensate=true",
     ] {
-        let mut vpl = integrator::create(spec, s).unwrap();
-        lacuna::render::prepare(vpl.as_mut(), &scene, &camera, Some(2), &|_, _| true).unwrap();
+        // A fresh integrator per render: skeleton visibility keeps the shadow maps a render
+        // built, and where the receiver scan missed a shading point's node, a node map built
+        // by an earlier render stands in for its receiver map (a dependence on the
+        // integrator's history, not on the thread count).
         let render = |threads| {
+            let mut vpl = integrator::create(spec, s).unwrap();
+            lacuna::render::prepare(vpl.as_mut(), &scene, &camera, Some(2), &|_, _| true)
+                .unwrap();
             let rs = RenderSettings {
                 width: 20,
                 height: 20,
@@ -167,6 +197,9 @@ fn vpl_options_are_checked_and_the_bias_stated() {
         "vpl:select=importance:p_min=nan",
         "vpl:select=importance:probes=0",
         "vpl:select=importance:probes=x",
+        "vpl:interleave=0",
+        "vpl:interleave=9",
+        "vpl:interleave=x",
     ] {
         let err = integrator::create(bad, s).err().expect(bad).to_string();
         assert!(
@@ -211,6 +244,30 @@ fn vpl_options_are_checked_and_the_bias_stated() {
         lacuna::integrator::VplSelect::Importance
     );
     assert_eq!(bias("vpl:compensate=true:select=uniform"), None);
+    // Interleaved sampling's filter blurs: biased whatever the estimator.
+    assert_eq!(
+        integrator::parse_spec("vpl:interleave=4", s)
+            .unwrap()
+            .1
+            .vpl
+            .interleave,
+        4
+    );
+    assert!(bias("vpl:compensate=true:interleave=2").is_some_and(|b| b.contains("interleave=2")));
+    assert!(bias("vpl:interleave=3")
+        .is_some_and(|b| b.contains("interleave=3") && b.contains("clamped")));
+    assert_eq!(bias("vpl:compensate=true:interleave=1"), None);
+    // `lacuna compare` (and the CLI, scene files and the C API, through the same parser).
+    let contender = lacuna::compare::Contender::from_spec(
+        "vpl:interleave=2:compensate=true:sampler=independent",
+        s,
+    )
+    .unwrap();
+    assert!(contender
+        .integrator
+        .bias()
+        .is_some_and(|b| b.contains("interleave=2")));
+    assert!(lacuna::compare::Contender::from_spec("vpl:interleave=9", s).is_err());
     // The refusal of clusters points to the measured reason.
     let err = integrator::create("vpl:visibility=clusters", s)
         .err()
@@ -259,6 +316,7 @@ fn skeleton_visibility_agrees_with_exact_rays_on_the_door_and_two_rooms() {
             frame: camera.frame(48.0 / 36.0),
             width: 48,
             height: 36,
+            sampler: Default::default(),
         };
         for pass in 0..2 {
             let a = vpl.visibility_agreement(&scene, &view, 1, pass).unwrap();
@@ -376,3 +434,64 @@ fn the_shadow_map_budget_lowers_the_resolution() {
     let stats = vpl.render_notes().join("; ");
     assert!(stats.contains("built"), "{stats}");
 }
+
+/// `interleave=1` (one VPL set per pass, no filter) is today's estimator bit for bit: the
+/// images of the door and the two rooms pinned to the bits the estimator gave before
+/// interleaved sampling existed (exact and skeleton visibility, importance selection,
+/// compensation), and `interleave=1` spelled out gives the same image as the default.
+#[test]
+fn vpl_interleave_1_is_the_plain_estimator_bit_for_bit() {
+    let door = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let rooms = lacuna::scene::two_rooms_builder().unwrap().build().unwrap();
+    let s = IntegratorSettings {
+        max_depth: 6,
+        ..Default::default()
+    };
+    let cases: [(&str, &Scene, &str, [u64; 2]); 4] = [
+        ("door", &door, "vpl:count=8:select=uniform", PINNED[0]),
+        ("door", &door, "vpl:count=8:compensate=true", PINNED[1]),
+        (
+            "door",
+            &door,
+            "vpl:count=8:visibility=skeleton:shadow_res=16",
+            PINNED[2],
+        ),
+        ("two rooms", &rooms, "vpl:count=8", PINNED[3]),
+    ];
+    for (label, scene, spec, pinned) in cases {
+        let camera = *scene.camera().unwrap();
+        let rs = RenderSettings {
+            width: 16,
+            height: 12,
+            spp: 2,
+            seed: 3,
+            threads: Some(2),
+            ..Default::default()
+        };
+        let mut images = Vec::new();
+        for spec in [spec.to_string(), format!("{spec}:interleave=1")] {
+            let mut vpl = integrator::create(&spec, s).unwrap();
+            lacuna::render::prepare(vpl.as_mut(), scene, &camera, Some(2), &|_, _| true).unwrap();
+            images.push(render_image(scene, &camera, vpl.as_ref(), &rs).radiance());
+        }
+        assert_eq!(images[0], images[1], "{label} {spec}");
+        // The image's sum in a fixed order, and one lit pixel's red channel, as bits.
+        let sum: f64 = images[0]
+            .iter()
+            .map(|p| f64::from(p.x) + f64::from(p.y) + f64::from(p.z))
+            .sum();
+        let brightest = images[0].iter().map(|p| p.x).fold(0.0f32, f32::max);
+        let bits = [sum.to_bits(), u64::from(brightest.to_bits())];
+        println!("{label} {spec}: {bits:?}");
+        assert_eq!(bits, pinned, "{label} {spec}");
+    }
+}
+
+/// The bits of the image sum and of the brightest red channel of the cases above, rendered
+/// at commit 00310c1 (before `interleave`).
+const PINNED: [[u64; 2]; 4] = [
+    [4639324784082223104, 1090671824],
+    [4644189091871890433, 1091517287],
+    [4649966687905973525, 1092805763],
+    [4630327761721245696, 1075715876],
+];

@@ -367,6 +367,7 @@ impl BdptSkeleton {
             frame: camera.frame(1.0),
             width: 16,
             height: 16,
+            sampler: Default::default(),
         };
         self.bdpt
             .trace_light_paths(scene, &view, PILOT_SEED, 0, PILOT_LIGHT_PATHS)

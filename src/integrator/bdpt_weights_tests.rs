@@ -646,6 +646,7 @@ fn record(
         frame: camera.frame(1.0),
         width: 24,
         height: 24,
+        sampler: Default::default(),
     };
     let mut rec = Recorder {
         scene,

@@ -40,7 +40,7 @@ use crate::geometry::Ray;
 use crate::guide::{PortalGuideSettings, ResamplingSettings, SkeletonGuideSettings};
 use crate::light::EnvStrategy;
 use crate::math::Rgb;
-use crate::math::Sampler;
+use crate::math::{Sampler, SamplerKind};
 use crate::scene::{Camera, CameraFrame, RenderSettingsFile, Scene};
 use crate::timing::StageTime;
 
@@ -189,6 +189,10 @@ pub struct View {
     pub frame: CameraFrame,
     pub width: u32,
     pub height: u32,
+    /// The render's pixel sampler: an integrator that traces the pixels' samples itself in
+    /// `begin_iteration` (`vpl:interleave=N`, which filters them in image space) draws the
+    /// numbers the render loop would.
+    pub sampler: SamplerKind,
 }
 
 impl View {
@@ -401,7 +405,8 @@ impl SpecOption<'_> {
 /// - `vpl`: `count=N` (light subpaths per pass), `clamp=R` (0 = off), `compensate=true|false`,
 ///   `visibility=exact|skeleton`, with skeleton visibility `shadow_res=N`,
 ///   `shadow_budget_mb=M`, `verify=P` and the skeleton's `resolution=N` / `voxel_budget=N`,
-///   `select=uniform|importance` with `candidates=K`, `p_min=P`
+///   `select=uniform|importance` with `candidates=K`, `p_min=P`, `probes=N`,
+///   `interleave=N` (N x N VPL sets, the indirect light filtered over N x N blocks)
 ///   ([`VplOptions::set`]), e.g. `vpl:count=128:clamp=0.05:compensate=true` or
 ///   `vpl:visibility=skeleton:shadow_res=32` or `vpl:select=importance:candidates=8`.
 ///

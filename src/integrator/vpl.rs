@@ -96,6 +96,29 @@
 //! Candidates too long for any path of `max_depth` are dropped (they light nothing).
 //! `select=uniform` keeps every VPL of `count` subpaths.
 //!
+//! # Interleaved sampling (`interleave=N`; Keller & Heidrich 2001)
+//!
+//! A pass of 64 VPLs leaves the VPL light blotchy, and at 128x96 a second buys only 6-20
+//! passes. With `interleave=N` a pass traces N² VPL sets (set k of pass s drawn as sample
+//! index s N² + k, so N = 1 is the plain estimator bit for bit) and pixel (x, y) gathers
+//! only set (x mod N, y mod N): the shadow rays per pixel stay those of one set. The pass
+//! is then traced for every pixel in `begin_iteration` (in parallel, each pixel's ray and
+//! numbers those the render loop would draw, [`View::sampler`]), and each pixel's indirect
+//! light, everything past its first non-delta vertex x (x's VPL light and, with
+//! `compensate=true`, the continuation from x), is filtered by a discontinuity buffer
+//! ([`filter_indirect`]): demodulated by the diffuse albedo of x times the throughput of the
+//! delta vertices before it, averaged over the pixels of the N x N window around it whose x
+//! has the same material behind as many delta vertices, a normal within about 25 degrees,
+//! a depth within 10 % and lies within 2 % of the depth of the other's tangent plane
+//! (renormalized over those: the window holds each set once), and multiplied back by the
+//! pixel's own modulation (textures stay sharp). Direct light and emission are never
+//! filtered. The compensation's continuation is filtered with the VPL light: both estimate
+//! the indirect light at x (their sum the unclamped one), and the continuation, one BSDF
+//! path per pixel, is the noisier part. `sample` then hands back the filtered pixel.
+//! The filter averages neighbours' indirect light: the image is biased (a blur of the
+//! indirect light over the block where the geometry agrees), which [`VplOptions::bias`]
+//! says. The pass's samples are held in memory (a [`PixelSample`] per pixel).
+//!
 //! Every pass draws new VPLs from the seed and the sample index, so the image converges as
 //! passes accumulate, and the light subpaths are traced in fixed chunks: the same image for
 //! any thread count (the shadow maps are a function of the geometry alone).
@@ -135,6 +158,10 @@ pub const MAX_CANDIDATES: u32 = 256;
 pub const DEFAULT_PROBES: u32 = 64;
 /// Largest `probes`.
 pub const MAX_PROBES: u32 = 4096;
+/// Default `interleave` (pixel blocks of N x N, module docs "Interleaved sampling").
+pub const DEFAULT_INTERLEAVE: u32 = 1;
+/// Largest `interleave`: 64 VPL sets per pass.
+pub const MAX_INTERLEAVE: u32 = 8;
 
 /// How a pass picks its VPLs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -201,7 +228,7 @@ impl VplVisibility {
 /// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact|skeleton`,
 /// with skeleton visibility `shadow_res=N:shadow_budget_mb=M:verify=P`; the skeleton's `resolution` and
 /// `voxel_budget` are the skeleton guide's options; `select=uniform|importance` with
-/// `candidates=K:p_min=P:probes=N`).
+/// `candidates=K:p_min=P:probes=N`; `interleave=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VplOptions {
     /// Light subpaths per pass; each leaves a VPL at every non-delta surface it reaches.
@@ -231,6 +258,10 @@ pub struct VplOptions {
     /// `select=importance`: about how many camera probe points estimate a candidate's light
     /// (a grid of pixel centres with the image's aspect).
     pub probes: u32,
+    /// Interleaved sampling (module docs): each pass traces `interleave`² VPL sets, pixel
+    /// (x, y) gathers set (x mod N, y mod N), and the VPL light is then filtered over N x N
+    /// pixel blocks by a geometry-aware filter. 1: one set, no filter.
+    pub interleave: u32,
 }
 
 impl Default for VplOptions {
@@ -247,6 +278,7 @@ impl Default for VplOptions {
             candidates: DEFAULT_CANDIDATES,
             p_min: DEFAULT_P_MIN,
             probes: DEFAULT_PROBES,
+            interleave: DEFAULT_INTERLEAVE,
         }
     }
 }
@@ -319,6 +351,13 @@ impl VplOptions {
                     ))
                 })?;
             }
+            "interleave" => {
+                self.interleave = value.parse::<u32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: interleave={value} must be an integer in 1..={MAX_INTERLEAVE} (N x N pixel blocks)"
+                    ))
+                })?;
+            }
             "shadow_budget_mb" => {
                 self.shadow_budget_mb = value.parse::<u32>().map_err(|_| {
                     Error::invalid(format!(
@@ -382,6 +421,12 @@ impl VplOptions {
                 self.p_min
             )));
         }
+        if !(1..=MAX_INTERLEAVE).contains(&self.interleave) {
+            return Err(Error::invalid(format!(
+                "vpl: interleave={} must be within 1..={MAX_INTERLEAVE} (N x N pixel blocks)",
+                self.interleave
+            )));
+        }
         crate::limits::check_memory_budget(
             "vpl: shadow_budget_mb",
             (self.shadow_budget_mb as u64) << 20,
@@ -392,6 +437,22 @@ impl VplOptions {
     /// Why an image rendered with these options is biased, or None when it is not (for the
     /// render summary and the EXR metadata).
     pub fn bias(&self) -> Option<String> {
+        let estimator = self.estimator_bias();
+        if self.interleave <= 1 {
+            return estimator;
+        }
+        let n = self.interleave;
+        let blur = format!(
+            "biased: interleaved sampling (interleave={n}) averages the VPL light over {n}x{n} pixel blocks of similar normal, depth and material (a blur of the indirect light; direct light and emission unfiltered)"
+        );
+        Some(match estimator {
+            Some(other) => format!("{blur}; also {other}"),
+            None => blur,
+        })
+    }
+
+    /// [`Self::bias`] of the per-pixel estimator, without interleaved sampling's filter.
+    fn estimator_bias(&self) -> Option<String> {
         if self.visibility == VplVisibility::Skeleton {
             return Some(format!(
                 "biased: skeleton visibility (each VPL's shadow ray replaced by the filtered visibility of its skeleton node's cube shadow map, 000 eq. 159{}){}",
@@ -467,6 +528,123 @@ struct VplSet {
     groups: Vec<VplGroup>,
     /// The cap on the geometry term (infinite without clamping).
     bound: f32,
+}
+
+/// A pass of interleaved sampling ([`VplIntegrator::interleaved_pass`]): its N² VPL sets
+/// and every pixel's filtered sample, row-major, for `width` x `height`.
+struct InterleavedPass {
+    width: u32,
+    height: u32,
+    pixels: Vec<PixelSample>,
+    sets: Vec<VplSet>,
+}
+
+/// A camera path's radiance split at its first non-delta vertex x: `direct` (emission and
+/// environment before x, x's own next-event estimation), `indirect` (x's VPL light and,
+/// with compensation, everything the continuation from x adds), and x's description for
+/// the geometry-aware filter (None when the path has no non-delta vertex).
+#[derive(Clone, Copy, Default)]
+struct Split {
+    direct: Rgb,
+    indirect: Rgb,
+    first: Option<FirstVertex>,
+}
+
+impl Split {
+    /// Adds a term of the path's radiance: to `indirect` once past x.
+    #[inline]
+    fn add(&mut self, value: Rgb) {
+        if self.first.is_some() {
+            self.indirect += value;
+        } else {
+            self.direct += value;
+        }
+    }
+}
+
+/// The first non-delta vertex of a camera path, as the discontinuity buffer sees it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct FirstVertex {
+    p: Vec3,
+    /// The shading normal turned towards the camera path.
+    normal: Vec3,
+    /// The camera path's length to x (through its delta vertices).
+    distance: f32,
+    material: u32,
+    /// Delta vertices before x.
+    delta_vertices: u32,
+    /// What the indirect light is demodulated by: the throughput of the delta vertices
+    /// before x times x's diffuse albedo ([`Bsdf::albedo_hint`]).
+    modulation: Rgb,
+}
+
+/// Least cosine between the normals of two pixels the filter averages (about 25 degrees).
+const FILTER_NORMAL_COS: f32 = 0.9;
+/// Largest difference of the camera path's length to two pixels the filter averages, and
+/// largest distance of each one's point from the other's tangent plane, as fractions of
+/// the path's length (a step of depth or a parallel surface behind).
+const FILTER_DEPTH_TOLERANCE: f32 = 0.1;
+const FILTER_PLANE_TOLERANCE: f32 = 0.02;
+/// Modulation below this (a black albedo channel) is not divided by.
+const FILTER_MIN_MODULATION: f32 = 1e-4;
+
+/// Whether the filter may average pixel `b`'s demodulated indirect light into pixel `a`'s:
+/// the same material behind as many delta vertices, a similar normal, a similar depth and
+/// each point near the other's tangent plane.
+fn similar(a: &FirstVertex, b: &FirstVertex) -> bool {
+    let depth = a.distance.max(b.distance);
+    a.material == b.material
+        && a.delta_vertices == b.delta_vertices
+        && a.normal.dot(b.normal) >= FILTER_NORMAL_COS
+        && (a.distance - b.distance).abs() <= FILTER_DEPTH_TOLERANCE * depth
+        && (b.p - a.p).dot(a.normal).abs() <= FILTER_PLANE_TOLERANCE * a.distance
+        && (a.p - b.p).dot(b.normal).abs() <= FILTER_PLANE_TOLERANCE * b.distance
+}
+
+/// Interleaved sampling's geometry-aware filter (a discontinuity buffer; module docs): each
+/// pixel's indirect light is its modulation times the mean of the demodulated indirect
+/// light (indirect / modulation, per channel) of the pixels of the N x N window around it
+/// that are [`similar`] (itself always), the window shifted inside the image at its edges
+/// so that it holds each of the N² VPL sets once. A channel whose modulation is below
+/// [`FILTER_MIN_MODULATION`] is neither divided (the pixel keeps its own value) nor
+/// averaged in. `pixels` is row-major, `width` x `height`; the result is too.
+fn filter_indirect(width: u32, height: u32, n: u32, pixels: &[Split]) -> Vec<Rgb> {
+    use rayon::prelude::*;
+    // The window's first column (row) for a pixel at x (y) of a side of `len` pixels.
+    let start = |x: u32, len: u32| x.saturating_sub(n / 2).min(len.saturating_sub(n));
+    (0..width * height)
+        .into_par_iter()
+        .map(|i| {
+            let own = &pixels[i as usize];
+            let Some(a) = own.first else {
+                return own.indirect;
+            };
+            let (x, y) = (i % width, i / width);
+            let (x0, y0) = (start(x, width), start(y, height));
+            let (mut sum, mut count) = ([0.0f32; 3], [0u32; 3]);
+            for wy in y0..(y0 + n).min(height) {
+                for wx in x0..(x0 + n).min(width) {
+                    let other = &pixels[(wy * width + wx) as usize];
+                    let Some(b) = other.first.filter(|b| similar(&a, b)) else {
+                        continue;
+                    };
+                    for c in 0..3 {
+                        if b.modulation[c] > FILTER_MIN_MODULATION {
+                            sum[c] += other.indirect[c] / b.modulation[c];
+                            count[c] += 1;
+                        }
+                    }
+                }
+            }
+            let mut out = own.indirect;
+            for c in 0..3 {
+                if a.modulation[c] > FILTER_MIN_MODULATION && count[c] > 0 {
+                    out[c] = a.modulation[c] * sum[c] / count[c] as f32;
+                }
+            }
+            out
+        })
+        .collect()
 }
 
 /// VPL v's light at x without visibility, `T f_y f_x min(G, bound)` (module docs), None when
@@ -740,6 +918,41 @@ pub struct VplIntegrator {
     /// The scene `prepare` ran for (skeleton visibility needs it).
     prepared_for: Option<Fingerprint>,
     selection_stats: SelectionStats,
+    /// `select=importance`: the probe points of the last scene and view rendered, built once
+    /// per render rather than every pass.
+    probes: std::sync::Mutex<Option<ProbeCache>>,
+}
+
+/// The probe points of one scene and view ([`VplIntegrator::cached_probes`]).
+struct ProbeCache {
+    scene: Fingerprint,
+    view: [u32; 16],
+    probes: Arc<Vec<Probe>>,
+}
+
+/// The bits of everything of `view` that moves a probe point.
+fn view_key(view: &View) -> [u32; 16] {
+    let f = &view.frame;
+    let v = |a: Vec3| [a.x, a.y, a.z].map(f32::to_bits);
+    let [e, d, r, u] = [v(f.eye), v(f.forward), v(f.right), v(f.up)];
+    [
+        e[0],
+        e[1],
+        e[2],
+        d[0],
+        d[1],
+        d[2],
+        r[0],
+        r[1],
+        r[2],
+        u[0],
+        u[1],
+        u[2],
+        f.lens_radius.to_bits(),
+        f.focus_distance.to_bits(),
+        view.width,
+        view.height,
+    ]
 }
 
 /// What `select=importance` kept over a render, for its note.
@@ -768,7 +981,7 @@ impl SelectionStats {
         (passes > 0).then(|| {
             let per = |x: &std::sync::atomic::AtomicU64| x.load(Relaxed) as f64 / passes as f64;
             format!(
-                "vpl importance selection: {:.0} of {:.0} candidate VPLs kept per pass ({:.0} lighting no probe), {passes} passes",
+                "vpl importance selection: {:.0} of {:.0} candidate VPLs kept per VPL set ({:.0} lighting no probe), {passes} sets (interleave² per pass)",
                 per(&self.kept),
                 per(&self.candidates),
                 per(&self.unseen)
@@ -790,7 +1003,29 @@ impl VplIntegrator {
             shadow: None,
             prepared_for: None,
             selection_stats: SelectionStats::default(),
+            probes: std::sync::Mutex::new(None),
         })
+    }
+
+    /// The probe points of `scene` seen through `view` (built on the first pass of a render,
+    /// then kept while the scene and view stay), and the rays their building traced now.
+    fn cached_probes(&self, scene: &Scene, view: &View) -> (Arc<Vec<Probe>>, u64) {
+        let (fingerprint, key) = (Fingerprint::of(scene), view_key(view));
+        let mut cache = self.probes.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(c) = cache
+            .as_ref()
+            .filter(|c| c.scene == fingerprint && c.view == key)
+        {
+            return (Arc::clone(&c.probes), 0);
+        }
+        let (built, rays) = probes(scene, view, self.options.probes);
+        let built = Arc::new(built);
+        *cache = Some(ProbeCache {
+            scene: fingerprint,
+            view: key,
+            probes: Arc::clone(&built),
+        });
+        (built, rays)
     }
 
     fn estimator(&self) -> RenderEstimator {
@@ -901,7 +1136,7 @@ impl VplIntegrator {
     fn select(
         &self,
         scene: &Scene,
-        view: &View,
+        probes: &[Probe],
         seed: u64,
         sample_index: u32,
         bound: f32,
@@ -911,12 +1146,11 @@ impl VplIntegrator {
         // A VPL of j segments is gathered at most by the first vertex, as j + 2 segments.
         let longest = self.settings.max_depth.saturating_sub(1);
         vpls.retain(|v| v.path_len <= longest);
-        let (probes, mut rays) = probes(scene, view, self.options.probes);
         let estimates: Vec<(f32, u64)> = vpls
             .par_iter()
-            .map(|v| probe_estimate(scene, &probes, bound, v))
+            .map(|v| probe_estimate(scene, probes, bound, v))
             .collect();
-        rays += estimates.iter().map(|e| e.1).sum::<u64>();
+        let rays = estimates.iter().map(|e| e.1).sum::<u64>();
         let importance: Vec<f32> = estimates.iter().map(|e| e.0).collect();
         let expected = vpls.len() as f32 / self.options.candidates as f32;
         let p = acceptance_probabilities(&importance, expected, self.options.p_min);
@@ -934,6 +1168,101 @@ impl VplIntegrator {
         self.selection_stats
             .record(candidates, vpls.len(), &importance);
         rays
+    }
+
+    /// The VPLs of one set (module docs): `count` light subpaths of sample index `index`
+    /// (`candidates` x `count` thinned by `select=importance` on `probes`), grouped. Returns
+    /// the rays traced.
+    fn vpl_set(
+        &self,
+        scene: &Scene,
+        view: &View,
+        probes: Option<&[Probe]>,
+        seed: u64,
+        index: u32,
+    ) -> (VplSet, u64) {
+        let count = self.options.count as usize
+            * if probes.is_some() {
+                self.options.candidates as usize
+            } else {
+                1
+            };
+        let (paths, out) = self
+            .light
+            .trace_light_paths(scene, view, seed, index, count);
+        let mut vpls: Vec<Vpl> = paths
+            .vertices
+            .iter()
+            .map(|v| {
+                let frame = v.si.shading_frame();
+                Vpl {
+                    si: v.si,
+                    bsdf: scene.bsdf(&v.si),
+                    frame,
+                    wo_local: frame.to_local(v.si.wo),
+                    throughput: v.throughput / count as f32,
+                    facing: facing_normal(&v.si),
+                    path_len: v.path_len,
+                }
+            })
+            .collect();
+        let bound = self.bound(scene);
+        let mut rays = out.rays();
+        if let Some(probes) = probes {
+            rays += self.select(scene, probes, seed, index, bound, &mut vpls);
+        }
+        let groups = self.group(scene, &mut vpls);
+        (
+            VplSet {
+                vpls,
+                groups,
+                bound,
+            },
+            rays,
+        )
+    }
+
+    /// Interleaved sampling's pass (module docs): every pixel's sample of `sample_index`,
+    /// traced as the render loop would (its ray and numbers from the render's pixel sampler)
+    /// with the VPL set of its place in the N x N block, then its indirect light filtered
+    /// ([`filter_indirect`]). In parallel over the pixels, each a function of the seed and
+    /// the pixel: the same image for any thread count. Returns the samples, row-major, and
+    /// the rays traced.
+    fn interleaved_pass(
+        &self,
+        scene: &Scene,
+        view: &View,
+        seed: u64,
+        sample_index: u32,
+        sets: &[VplSet],
+    ) -> (Vec<PixelSample>, u64) {
+        use rayon::prelude::*;
+        let (w, n) = (view.width, self.options.interleave);
+        let traced: Vec<(PixelSample, Split, u64)> = (0..view.width * view.height)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let sampler = crate::math::PixelSampler::new(view.sampler, seed, u64::from(i));
+                let mut rng = sampler.sample(sample_index);
+                let ray = view.primary_ray(x, y, &mut rng);
+                let set = &sets[((y % n) * n + x % n) as usize];
+                let mut counters = TraceCounters::default();
+                let (sample, split) = self.trace(scene, set, ray, &mut rng, &mut counters);
+                (sample, split, counters.rays)
+            })
+            .collect();
+        let rays = traced.iter().map(|t| t.2).sum();
+        let splits: Vec<Split> = traced.iter().map(|t| t.1).collect();
+        let indirect = filter_indirect(view.width, view.height, n, &splits);
+        let pixels = traced
+            .into_iter()
+            .zip(indirect)
+            .map(|((sample, split, _), indirect)| PixelSample {
+                radiance: split.direct + indirect,
+                ..sample
+            })
+            .collect();
+        (pixels, rays)
     }
 
     /// Light from every VPL of at most `max_len` segments at x (shading `frame`, `wo_local`).
@@ -996,7 +1325,8 @@ impl VplIntegrator {
         sum
     }
 
-    /// One camera path (module docs).
+    /// One camera path (module docs), and its radiance split at the first non-delta vertex
+    /// for interleaved sampling's filter (the sample's radiance is summed as without it).
     fn trace(
         &self,
         scene: &Scene,
@@ -1004,9 +1334,12 @@ impl VplIntegrator {
         mut ray: Ray,
         rng: &mut Sampler,
         counters: &mut TraceCounters,
-    ) -> PixelSample {
+    ) -> (PixelSample, Split) {
         let mut out = PixelSample::default();
         let mut radiance = Rgb::ZERO;
+        let mut split = Split::default();
+        // Along the camera path to the first non-delta vertex: its length and delta vertices.
+        let (mut distance, mut delta_vertices) = (0.0f32, 0u32);
         let mut beta = Rgb::ONE;
         // Emitters and the environment found along the path count only where no light sample
         // could have found them: from the camera and behind delta surfaces.
@@ -1023,13 +1356,18 @@ impl VplIntegrator {
                 if count_emission {
                     if let Some((_, env)) = scene.environment() {
                         if depth > 0 || env.visible_to_camera() {
-                            radiance += beta * env.radiance(ray.dir);
+                            let e = beta * env.radiance(ray.dir);
+                            radiance += e;
+                            split.add(e);
                         }
                     }
                 }
                 break;
             };
             let bsdf = scene.bsdf(&si);
+            if split.first.is_none() {
+                distance += (si.p - ray.origin).length();
+            }
             if depth == 0 {
                 out.hit = true;
                 out.depth = si.t;
@@ -1037,7 +1375,9 @@ impl VplIntegrator {
                 out.albedo = bsdf.albedo_hint();
             }
             if count_emission {
-                radiance += beta * scene.emitted(&si);
+                let e = beta * scene.emitted(&si);
+                radiance += e;
+                split.add(e);
             }
             if depth >= max_depth {
                 break;
@@ -1056,7 +1396,20 @@ impl VplIntegrator {
                     rng.uniform2(),
                     &mut counters.rays,
                 ) {
-                    radiance += beta * light.unweighted();
+                    let e = beta * light.unweighted();
+                    radiance += e;
+                    split.add(e);
+                }
+                if split.first.is_none() {
+                    // Everything from here on is this vertex's indirect light.
+                    split.first = Some(FirstVertex {
+                        p: si.p,
+                        normal: si.facing_normal(),
+                        distance,
+                        material: si.material,
+                        delta_vertices,
+                        modulation: beta * bsdf.albedo_hint(),
+                    });
                 }
                 // A VPL of j segments makes a path of (depth + 1) + 1 + j segments.
                 let max_len = max_depth - depth;
@@ -1071,7 +1424,9 @@ impl VplIntegrator {
                         max_len - 1,
                         counters,
                     );
-                    radiance += beta * gathered;
+                    let e = beta * gathered;
+                    radiance += e;
+                    split.add(e);
                 }
                 if !self.options.compensate {
                     break;
@@ -1094,6 +1449,7 @@ impl VplIntegrator {
             let mut weight = bs.f * (bs.wi.z.abs() / bs.pdf);
             if bsdf.is_delta() {
                 count_emission = true;
+                delta_vertices += 1;
             } else {
                 count_emission = false;
                 // The share the VPLs left out: 1 - min(1, b / G) at the point found (0 past
@@ -1122,7 +1478,7 @@ impl VplIntegrator {
             depth += 1;
         }
         out.radiance = radiance;
-        out
+        (out, split)
     }
 }
 
@@ -1148,6 +1504,7 @@ impl Integrator for VplIntegrator {
         self.shadow = None;
         self.prepared_for = None;
         self.selection_stats = SelectionStats::default();
+        *self.probes.get_mut().unwrap_or_else(|e| e.into_inner()) = None;
         let mut pre = Precomputation::default();
         if self.options.visibility == VplVisibility::Skeleton {
             match NodeSkeleton::build(
@@ -1200,46 +1557,48 @@ impl Integrator for VplIntegrator {
         seed: u64,
         sample_index: u32,
     ) -> Result<Iteration> {
-        let importance = self.options.select == VplSelect::Importance;
-        let count = self.options.count as usize
-            * if importance {
-                self.options.candidates as usize
-            } else {
-                1
-            };
-        let (paths, out) = self
-            .light
-            .trace_light_paths(scene, view, seed, sample_index, count);
-        let mut vpls: Vec<Vpl> = paths
-            .vertices
-            .iter()
-            .map(|v| {
-                let frame = v.si.shading_frame();
-                Vpl {
-                    si: v.si,
-                    bsdf: scene.bsdf(&v.si),
-                    frame,
-                    wo_local: frame.to_local(v.si.wo),
-                    throughput: v.throughput / count as f32,
-                    facing: facing_normal(&v.si),
-                    path_len: v.path_len,
-                }
-            })
-            .collect();
-        let bound = self.bound(scene);
-        let mut rays = out.rays();
-        if importance {
-            rays += self.select(scene, view, seed, sample_index, bound, &mut vpls);
+        let n = self.options.interleave;
+        let (probes, mut rays) = match self.options.select {
+            VplSelect::Importance => {
+                let (p, r) = self.cached_probes(scene, view);
+                (Some(p), r)
+            }
+            VplSelect::Uniform => (None, 0),
+        };
+        // Set k of pass s draws its light subpaths and acceptances as sample index
+        // s N² + k (unique per set and pass below 2^32 / N² passes; s itself for N = 1).
+        let mut sets = Vec::with_capacity((n * n) as usize);
+        for k in 0..n * n {
+            let index = sample_index.wrapping_mul(n * n).wrapping_add(k);
+            let (set, r) = self.vpl_set(
+                scene,
+                view,
+                probes.as_ref().map(|p| p.as_slice()),
+                seed,
+                index,
+            );
+            rays += r;
+            sets.push(set);
         }
-        let groups = self.group(scene, &mut vpls);
         self.ensure_receiver_maps(scene, view);
+        if n == 1 {
+            return Ok(Iteration {
+                data: sets
+                    .pop()
+                    .map(|s| Box::new(s) as Box<dyn std::any::Any + Send + Sync>),
+                rays,
+                ..Default::default()
+            });
+        }
+        let (pixels, r) = self.interleaved_pass(scene, view, seed, sample_index, &sets);
         Ok(Iteration {
-            data: Some(Box::new(VplSet {
-                vpls,
-                groups,
-                bound,
+            data: Some(Box::new(InterleavedPass {
+                width: view.width,
+                height: view.height,
+                pixels,
+                sets,
             })),
-            rays,
+            rays: rays + r,
             ..Default::default()
         })
     }
@@ -1257,11 +1616,29 @@ impl Integrator for VplIntegrator {
             groups: Vec::new(),
             bound: f32::INFINITY,
         };
+        if let Some(pass) = ctx
+            .iteration
+            .and_then(|d| d.downcast_ref::<InterleavedPass>())
+        {
+            // The render loop's pixel sample, traced and filtered in `begin_iteration`.
+            let v = ctx.view;
+            if (v.width, v.height) == (pass.width, pass.height) {
+                if let Some(s) = pass.pixels.get(ctx.pixel_index as usize) {
+                    return *s;
+                }
+            }
+            // Another caller's view: the pixel's own set, unfiltered.
+            let n = self.options.interleave as u64;
+            let w = u64::from(v.width.max(1));
+            let (x, y) = (ctx.pixel_index % w, ctx.pixel_index / w);
+            let set = &pass.sets[((y % n) * n + x % n) as usize];
+            return self.trace(scene, set, ray, rng, counters).0;
+        }
         let set = ctx
             .iteration
             .and_then(|d| d.downcast_ref::<VplSet>())
             .unwrap_or(&empty);
-        self.trace(scene, set, ray, rng, counters)
+        self.trace(scene, set, ray, rng, counters).0
     }
 }
 
@@ -1567,6 +1944,7 @@ mod tests {
             frame: camera.frame(w as f32 / h as f32),
             width: w,
             height: h,
+            sampler: Default::default(),
         };
         let points: Vec<SurfaceInteraction> = (0..w * h)
             .filter_map(|k| {
@@ -1663,6 +2041,113 @@ mod tests {
                 (rate - f64::from(p)).abs() < 4.0 * rate_error,
                 "verify={p}: the hash traces {rate} of the unsure pairs"
             );
+        }
+    }
+
+    /// A pixel of a synthetic G-buffer for [`filter_indirect`]: on the plane through `p`
+    /// with normal `normal`, seen at `distance`, demodulated indirect light `light` under
+    /// albedo `albedo`.
+    fn pixel(p: Vec3, normal: Vec3, distance: f32, albedo: Rgb, light: f32) -> Split {
+        Split {
+            direct: Rgb::splat(100.0),
+            indirect: albedo * light,
+            first: Some(FirstVertex {
+                p,
+                normal,
+                distance,
+                material: 0,
+                delta_vertices: 0,
+                modulation: albedo,
+            }),
+        }
+    }
+
+    /// The geometry-aware filter averages only across similar pixels: on an 8x8 buffer of
+    /// four quadrants (left half a wall at depth 1, facing the camera; top right the same
+    /// wall's plane 2 units behind; bottom right a floor, its normal at 90 degrees), each
+    /// quadrant's demodulated light constant but different, the filtered light of every
+    /// pixel is its own quadrant's, for N = 2, 3, 4 (the windows straddle the quadrants'
+    /// borders); a different material or delta path is not averaged either. Within one
+    /// quadrant, noise is averaged: each pixel's filtered light is the mean over its window
+    /// (shifted inside the image at the edges), times its own albedo (demodulation keeps a
+    /// texture); a black albedo channel keeps its own value.
+    #[test]
+    fn the_filter_does_not_cross_depth_normal_or_material_discontinuities() {
+        let (w, h) = (8u32, 8u32);
+        let z = Vec3::new(0.0, 0.0, 1.0);
+        let y = Vec3::new(0.0, 1.0, 0.0);
+        let quadrant = |x: u32, row: u32| match (x < w / 2, row < h / 2) {
+            (true, _) => 0,
+            (false, true) => 1,
+            (false, false) => 2,
+        };
+        let texture = |x: u32, _row: u32| Rgb::new(0.2 + 0.1 * (x % 3) as f32, 0.5, 0.0);
+        let buffer: Vec<Split> = (0..w * h)
+            .map(|i| {
+                let (x, row) = (i % w, i / w);
+                let at = Vec3::new(x as f32 * 0.01, row as f32 * 0.01, 0.0);
+                match quadrant(x, row) {
+                    0 => pixel(at + z, -z, 1.0, texture(x, row), 1.0),
+                    1 => pixel(at + 3.0 * z, -z, 3.0, texture(x, row), 5.0),
+                    _ => pixel(at + z, y, 1.0, texture(x, row), 9.0),
+                }
+            })
+            .collect();
+        let light = [1.0f32, 5.0, 9.0];
+        for n in [2u32, 3, 4] {
+            let filtered = filter_indirect(w, h, n, &buffer);
+            for i in 0..w * h {
+                let (x, row) = (i % w, i / w);
+                let want = texture(x, row) * light[quadrant(x, row)];
+                let got = filtered[i as usize];
+                assert!(
+                    (got - want).abs().max_element() < 1e-5,
+                    "N = {n}, pixel ({x}, {row}): {got} against {want}"
+                );
+            }
+        }
+        // A different material, or a path behind a delta vertex, on the same plane.
+        for change in 0..2 {
+            let mut b = buffer.clone();
+            for i in [0usize, 1, 8, 9] {
+                let f = b[i].first.as_mut().unwrap();
+                if change == 0 {
+                    f.material = 7;
+                } else {
+                    f.delta_vertices = 1;
+                }
+                b[i].indirect = f.modulation * 20.0;
+            }
+            let filtered = filter_indirect(w, h, 2, &b);
+            assert!((filtered[0] - b[0].indirect).abs().max_element() < 1e-5);
+            assert!((filtered[2] - buffer[2].indirect).abs().max_element() < 1e-5);
+        }
+        // Noise within one flat region: the window mean, the region mean kept.
+        let mut rng = crate::math::Rng::for_sample(5, 0, 0);
+        let noisy: Vec<Split> = (0..w * h)
+            .map(|i| {
+                let (x, row) = (i % w, i / w);
+                let at = Vec3::new(x as f32 * 0.01, row as f32 * 0.01, 1.0);
+                pixel(at, -z, 1.0, texture(x, row), 4.0 * rng.uniform())
+            })
+            .collect();
+        for n in [2u32, 4] {
+            let filtered = filter_indirect(w, h, n, &noisy);
+            let demodulated = |i: u32| {
+                noisy[i as usize].indirect.x / noisy[i as usize].first.unwrap().modulation.x
+            };
+            for i in 0..w * h {
+                let (x, row) = (i % w, i / w);
+                let x0 = x.saturating_sub(n / 2).min(w - n);
+                let y0 = row.saturating_sub(n / 2).min(h - n);
+                let mean = (y0..y0 + n)
+                    .flat_map(|wy| (x0..x0 + n).map(move |wx| wy * w + wx))
+                    .map(demodulated)
+                    .sum::<f32>()
+                    / (n * n) as f32;
+                let want = texture(x, row).x * mean;
+                assert!((filtered[i as usize].x - want).abs() < 1e-5, "N = {n}");
+            }
         }
     }
 

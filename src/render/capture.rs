@@ -288,6 +288,7 @@ pub fn capture(scene: &Scene, settings: &CaptureSettings) -> Result<(LightField,
         frame: camera.frame(1.0),
         width: rx,
         height: ry,
+        sampler: Default::default(),
     };
     let pool = WorkerPool::new(settings.threads, Some("capture"))
         .map_err(|e| Error::invalid(format!("worker pool: {e}")))?;
