@@ -18,8 +18,9 @@
 //! the family `rooms:SEED` it predicted variance ratios of 0.41-0.64 where the render's
 //! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, "Procedural family"), and guided scenes lost
 //! to `path`. So before a trained guide is used, `prepare` traces a pilot with this file's own
-//! estimator at the render's depth: `pilot_paths` camera rays (drawn over the training's
-//! image), each traced twice unguided and twice guided with the
+//! estimator at the render's depth: `pilot_paths` camera rays (drawn over the render's view
+//! where the host gave its image size, `Integrator::set_image_size`, else over the training's
+//! 2:1 image), each traced twice unguided and twice guided with the
 //! same random numbers for both policies. Half the squared difference of a ray's two samples
 //! is an unbiased estimate of the variance along that ray (the pixel's variance less the part
 //! from where in the pixel the ray goes, which guiding does not change); their means give the
@@ -82,6 +83,8 @@ pub struct PathTracer {
     guiding: Option<Option<Arc<SkeletonGuide>>>,
     /// [`Integrator::set_time_budget`]'s seconds, for the skeleton guide's scout.
     time_budget: Option<f64>,
+    /// [`Integrator::set_image_size`]'s width and height, for the pilot's view.
+    image_size: Option<(u32, u32)>,
     /// `mis=auto`: the per-pixel alpha estimates (see [`super::mis_auto::DEPTH_CLASSES`]).
     alphas: PixelAlphas,
 }
@@ -92,6 +95,7 @@ impl PathTracer {
             settings,
             guiding: None,
             time_budget: None,
+            image_size: None,
             alphas: PixelAlphas::default(),
         }
     }
@@ -105,6 +109,7 @@ impl PathTracer {
             settings,
             guiding: Some(None),
             time_budget: None,
+            image_size: None,
             alphas: PixelAlphas::default(),
         })
     }
@@ -250,7 +255,8 @@ const PILOT_CHUNK: u32 = 256;
 /// too slow to time a single sample against.
 const PILOT_BATCH: usize = 16;
 const PILOT_SEED: u64 = 0x9170_7a11;
-/// Width / height of the pilot's image: the training's (the render's is not known yet).
+/// Width / height of the pilot's image where the host did not give the render's
+/// (`Integrator::set_image_size`): the training's.
 const PILOT_ASPECT: f32 = 2.0;
 
 /// Half the squared difference of two samples' luminance (an unbiased estimate of the
@@ -278,7 +284,10 @@ impl PathTracer {
         {
             return None;
         }
-        let frame = camera.frame(PILOT_ASPECT);
+        let aspect = self
+            .image_size
+            .map_or(PILOT_ASPECT, |(w, h)| w as f32 / h as f32);
+        let frame = camera.frame(aspect);
         let chunk_count = rays.div_ceil(PILOT_CHUNK);
         let chunks: Vec<[f64; 6]> = (0..chunk_count)
             .into_par_iter()
@@ -515,6 +524,10 @@ impl Integrator for PathTracer {
 
     fn set_time_budget(&mut self, seconds: Option<f64>) {
         self.time_budget = seconds;
+    }
+
+    fn set_image_size(&mut self, width: u32, height: u32) {
+        self.image_size = (width > 0 && height > 0).then_some((width, height));
     }
 
     fn check_prepared(&self, scene: &Scene) -> Result<()> {
