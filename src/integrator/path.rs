@@ -258,6 +258,11 @@ const PILOT_SEED: u64 = 0x9170_7a11;
 /// Width / height of the pilot's image where the host did not give the render's
 /// (`Integrator::set_image_size`): the training's.
 const PILOT_ASPECT: f32 = 2.0;
+/// The pilot traces more rays while its variance ratio's relative standard error is above
+/// this (module docs, "The pilot")...
+const PILOT_TAIL_ERROR: f64 = 0.3;
+/// ...up to this many times `pilot_paths`.
+const PILOT_EXTENSION: u32 = 4;
 
 /// Half the squared difference of two samples' luminance (an unbiased estimate of the
 /// variance along their ray); infinite if either is not finite.
@@ -271,33 +276,27 @@ fn half_squared_difference(a: Rgb, b: Rgb) -> f64 {
 }
 
 impl PathTracer {
-    /// The pilot (module docs, "The pilot"): None where it does not apply (no pilot rays, a
-    /// guide without a trained scene-level switch, or one that guides nothing already).
-    fn pilot(&self, scene: &Scene, camera: &Camera, guide: &SkeletonGuide) -> Option<Pilot> {
-        let settings = guide.settings();
-        let training = guide.training().filter(|t| t.paths > 0)?;
-        let rays = settings.pilot_paths;
-        if rays == 0
-            || guide.guides_nothing()
-            || !settings.learned_c_skel
-            || !settings.cost_model.switches()
-        {
-            return None;
-        }
-        let aspect = self
-            .image_size
-            .map_or(PILOT_ASPECT, |(w, h)| w as f32 / h as f32);
-        let frame = camera.frame(aspect);
-        let chunk_count = rays.div_ceil(PILOT_CHUNK);
-        let chunks: Vec<[f64; 6]> = (0..chunk_count)
+    /// The pilot's sums over camera rays `range` (module docs, "The pilot"): per policy
+    /// (unguided, guided) the summed half squared differences, rays traced and CPU seconds,
+    /// then the sums of the squared differences' squares and cross product (for the ratio's
+    /// standard error). Chunk sums combined in chunk order: the same for any thread count.
+    fn pilot_sums(
+        &self,
+        scene: &Scene,
+        frame: &crate::scene::CameraFrame,
+        guide: &SkeletonGuide,
+        range: std::ops::Range<u32>,
+    ) -> [f64; 9] {
+        let chunk_count = (range.end - range.start).div_ceil(PILOT_CHUNK);
+        let chunks: Vec<[f64; 9]> = (0..chunk_count)
             .into_par_iter()
             .map(|c| {
                 let mut query = GuideQuery::new();
                 let mut counters = [TraceCounters::default(), TraceCounters::default()];
-                let mut variance = [0f64; 2];
                 let mut seconds = [0f64; 2];
-                let chunk_rays = c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(rays);
-                let chunk_rays: Vec<u32> = chunk_rays.collect();
+                let first = range.start + c * PILOT_CHUNK;
+                let chunk_rays: Vec<u32> = (first..(first + PILOT_CHUNK).min(range.end)).collect();
+                let mut out = [0f64; 9];
                 for (b, batch) in chunk_rays.chunks(PILOT_BATCH).enumerate() {
                     let batch_rays: Vec<Ray> = batch
                         .iter()
@@ -306,12 +305,13 @@ impl PathTracer {
                             frame.generate_ray(pick.uniform2(), pick.uniform2())
                         })
                         .collect();
+                    let mut d = vec![[0f64; 2]; batch.len()];
                     // Unguided and guided in turn, which goes first alternating, so that
                     // neither is timed on warmer caches.
                     for step in 0..2 {
-                        let k = (step + b + c as usize) % 2;
+                        let k = (step + b + (first / PILOT_CHUNK) as usize) % 2;
                         let started = thread_cpu_seconds();
-                        for (&i, &ray) in batch.iter().zip(&batch_rays) {
+                        for ((&i, &ray), dk) in batch.iter().zip(&batch_rays).zip(&mut d) {
                             let mut l = [Rgb::ZERO; 2];
                             for (j, lj) in l.iter_mut().enumerate() {
                                 // The same numbers for both policies: their difference is
@@ -339,25 +339,69 @@ impl PathTracer {
                                 };
                                 *lj = sample.radiance;
                             }
-                            variance[k] += half_squared_difference(l[0], l[1]);
+                            dk[k] = half_squared_difference(l[0], l[1]);
                         }
                         seconds[k] += thread_cpu_seconds() - started;
                     }
+                    for [a, g] in d {
+                        out[0] += a;
+                        out[1] += g;
+                        out[6] += a * a;
+                        out[7] += g * g;
+                        out[8] += a * g;
+                    }
                 }
-                [
-                    variance[0],
-                    variance[1],
-                    counters[0].rays as f64,
-                    counters[1].rays as f64,
-                    seconds[0],
-                    seconds[1],
-                ]
+                out[2] = counters[0].rays as f64;
+                out[3] = counters[1].rays as f64;
+                out[4] = seconds[0];
+                out[5] = seconds[1];
+                out
             })
             .collect();
-        let mut sum = [0f64; 6];
+        let mut sum = [0f64; 9];
         for chunk in &chunks {
             for (s, c) in sum.iter_mut().zip(chunk) {
                 *s += c;
+            }
+        }
+        sum
+    }
+
+    /// The pilot (module docs, "The pilot"): None where it does not apply (no pilot rays, a
+    /// guide without a trained scene-level switch, or one that guides nothing already).
+    fn pilot(&self, scene: &Scene, camera: &Camera, guide: &SkeletonGuide) -> Option<Pilot> {
+        let settings = guide.settings();
+        let training = guide.training().filter(|t| t.paths > 0)?;
+        let first = settings.pilot_paths;
+        if first == 0
+            || guide.guides_nothing()
+            || !settings.learned_c_skel
+            || !settings.cost_model.switches()
+        {
+            return None;
+        }
+        let aspect = self
+            .image_size
+            .map_or(PILOT_ASPECT, |(w, h)| w as f32 / h as f32);
+        let frame = camera.frame(aspect);
+        // Rounds of rays, doubling the total, while the variance ratio's relative standard
+        // error says a few rays decide it (module docs, "The pilot").
+        let mut sum = [0f64; 9];
+        let mut rays = 0u32;
+        let limit = first.saturating_mul(PILOT_EXTENSION);
+        loop {
+            let end = if rays == 0 {
+                first
+            } else {
+                rays.saturating_mul(2).min(limit)
+            };
+            let round = self.pilot_sums(scene, &frame, guide, rays..end);
+            for (s, r) in sum.iter_mut().zip(round) {
+                *s += r;
+            }
+            rays = end;
+            if rays >= limit || ratio_relative_error(&sum, rays) <= PILOT_TAIL_ERROR {
+                break;
             }
         }
         let n = rays as f64;
@@ -377,6 +421,7 @@ impl PathTracer {
             rays,
             variance_path: sum[0] / n,
             variance_guided: sum[1] / n,
+            variance_error: ratio_relative_error(&sum, rays),
             rays_per_sample_path: rays_path,
             rays_per_sample_guided: rays_guided,
             seconds_path,
@@ -384,6 +429,24 @@ impl PathTracer {
             cost_ratio,
         })
     }
+}
+
+/// The relative standard error of the pilot's variance ratio from its sums
+/// ([`PathTracer::pilot_sums`]) over `n` rays: the delta method for a ratio of two means of
+/// paired values (the two policies' squared differences on one ray are correlated). 0 where
+/// either mean is 0 or a sum is not finite (nothing to extend).
+fn ratio_relative_error(sum: &[f64; 9], n: u32) -> f64 {
+    let n = n as f64;
+    let (ma, mg) = (sum[0] / n, sum[1] / n);
+    if !(ma > 0.0 && mg > 0.0) || !sum.iter().all(|s| s.is_finite()) {
+        return 0.0;
+    }
+    let va = sum[6] / n - ma * ma;
+    let vg = sum[7] / n - mg * mg;
+    let c = sum[8] / n - ma * mg;
+    ((vg / (mg * mg) + va / (ma * ma) - 2.0 * c / (ma * mg)) / n)
+        .max(0.0)
+        .sqrt()
 }
 
 impl Integrator for PathTracer {
@@ -442,10 +505,11 @@ impl Integrator for PathTracer {
         notes.extend(portals.notes);
         if let Some(p) = pilot {
             notes.push(format!(
-                "pilot ({} rays, {:.2} s): variance {:.3}x, cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x{}",
+                "pilot ({} rays, {:.2} s): variance {:.3}x (relative error {:.2}), cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x{}",
                 p.rays,
                 pilot_seconds,
                 p.variance_ratio(),
+                p.variance_error,
                 p.cost_ratio,
                 p.rays_per_sample_guided,
                 p.rays_per_sample_path,
