@@ -18,21 +18,29 @@
 //! the family `rooms:SEED` it predicted variance ratios of 0.41-0.64 where the render's
 //! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, "Procedural family"), and guided scenes lost
 //! to `path`. So before a trained guide is used, `prepare` traces a pilot with this file's own
-//! estimator at the render's depth: `pilot_paths` camera rays (drawn over the render's view
-//! where the host gave its image size, `Integrator::set_image_size`, else over the training's
-//! 2:1 image), each traced twice unguided and twice guided with the
-//! same random numbers for both policies. Half the squared difference of a ray's two samples
-//! is an unbiased estimate of the variance along that ray (the pixel's variance less the part
-//! from where in the pixel the ray goes, which guiding does not change); their means give the
-//! measured variance ratio. The cost ratio is the time of the guided samples over the
-//! unguided ones' (`pilot_cost=time`, the default), in this thread's CPU time, timed in
-//! batches of 16 rays, the two policies in turn with the order alternating: time slices given
-//! to other processes do not enter it (wall time read 1.2-1.8x on one scene under a changing
-//! load), and neither policy is timed on warmer caches. A work count (`pilot_cost=work`: rays traced
-//! per sample times the training's overhead ratio for the queries and the node mapping,
-//! `guide::training`, "Cost") read 0.90-1.18x on family scenes whose measured cost was
-//! 1.12-1.46x. Unless 1 / (variance ratio x cost ratio) exceeds the switch's margin (1.1),
-//! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The pilot's random
+//! estimator at the render's depth: camera rays, each traced twice unguided and twice guided
+//! with the same random numbers for both policies. Half the squared difference of a ray's two
+//! samples is an unbiased estimate of the variance along that ray (the pixel's variance less
+//! the part from where in the pixel the ray goes, which guiding does not change); their means
+//! give the measured variance ratio. The rays are drawn over the render's view where the host
+//! gave its image size (`Integrator::set_image_size`: `lacuna render` and `compare`, C API
+//! jobs), else over the training's 2:1 image: regions outside the render weighed in the
+//! verdict (rooms:17 at 64x48: 0.667 over 2:1, 0.807 over 4:3, the render's 0.82).
+//!
+//! The variance ratio of heavy-tailed scenes rests on a few rays (the corridor over its 1:1
+//! view: 1.37, 0.89, 0.54, 0.34, 0.28 from the first 16384 to 262144 rays), so the pilot traces
+//! `pilot_paths` rays, then doubles them while the ratio's relative standard error (delta
+//! method over the rays, `Pilot::variance_error`) is above [`PILOT_TAIL_ERROR`], up to
+//! [`PILOT_EXTENSION`] times `pilot_paths`. The cost ratio is the time of the guided samples
+//! over the unguided ones' (`pilot_cost=time`, the default), in this thread's CPU time, timed
+//! in batches of 16 rays, the two policies in turn with the order alternating: time slices
+//! given to other processes do not enter it (wall time read 1.2-1.8x on one scene under a
+//! changing load), and neither policy is timed on warmer caches. A work count
+//! (`pilot_cost=work`: rays traced per sample times the training's overhead ratio for the
+//! queries and the node mapping, `guide::training`, "Cost") read 0.90-1.18x on family scenes
+//! whose measured cost was 1.12-1.46x. Unless 1 / (variance ratio x cost ratio) exceeds
+//! 1 + `PILOT_MARGIN` (1.2, `guide::training`), every node is set to c = 0 and
+//! `path_skeleton` traces `path`'s samples. The pilot's random
 //! numbers are its own, so the render stays unbiased whatever the verdict; with
 //! `pilot_cost=work` the verdict is also a deterministic function of the scene (chunk sums
 //! combined in chunk order), with `time` it may differ between runs where the efficiency is
