@@ -851,7 +851,6 @@ fn run_render(args: &RenderArgs) -> Result<()> {
     };
     // `--time`: a precomputation may stop early rather than spend the render's time.
     integrator.set_time_budget(prep.settings.render.time_limit.map(|t| t.as_secs_f64()));
-    integrator.set_image_size(prep.settings.render.width, prep.settings.render.height);
     lacuna::film::Film::check_budget(
         prep.settings.render.width,
         prep.settings.render.height,

@@ -75,7 +75,6 @@ impl JobSettings {
     pub(crate) fn make_integrator(&self) -> crate::error::Result<Box<dyn Integrator>> {
         let mut integrator = self.make_integrator_unbudgeted()?;
         integrator.set_time_budget(self.resolved.render.time_limit.map(|t| t.as_secs_f64()));
-        integrator.set_image_size(self.resolved.render.width, self.resolved.render.height);
         Ok(integrator)
     }
 

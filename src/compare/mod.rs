@@ -471,9 +471,6 @@ fn run_contender(
 ) -> Result<ContenderRun> {
     let start = Instant::now();
     contender.integrator.set_time_budget(Some(seconds_per_run));
-    contender
-        .integrator
-        .set_image_size(settings.width, settings.height);
     let prepare_progress = |_: &str, _: f64| {
         progress(Progress {
             fraction: 0.0,

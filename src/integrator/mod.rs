@@ -280,11 +280,6 @@ pub trait Integrator: Send + Sync {
     /// (`path_skeleton`'s scout). Most integrators ignore it.
     fn set_time_budget(&mut self, _seconds: Option<f64>) {}
 
-    /// The size in pixels of the image the render will make, where the host knows it before
-    /// `prepare` (`lacuna render` and `compare`, a C API job): `path_skeleton`'s pilot then
-    /// draws its rays over the render's view (its aspect). Most integrators ignore it.
-    fn set_image_size(&mut self, _width: u32, _height: u32) {}
-
     /// Fails when rendering `scene` needs a `prepare` for it that has not run.
     fn check_prepared(&self, _scene: &Scene) -> Result<()> {
         Ok(())

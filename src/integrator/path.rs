@@ -18,29 +18,22 @@
 //! the family `rooms:SEED` it predicted variance ratios of 0.41-0.64 where the render's
 //! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, "Procedural family"), and guided scenes lost
 //! to `path`. So before a trained guide is used, `prepare` traces a pilot with this file's own
-//! estimator at the render's depth: camera rays, each traced twice unguided and twice guided
-//! with the same random numbers for both policies. Half the squared difference of a ray's two
-//! samples is an unbiased estimate of the variance along that ray (the pixel's variance less
-//! the part from where in the pixel the ray goes, which guiding does not change); their means
-//! give the measured variance ratio. The rays are drawn over the render's view where the host
-//! gave its image size (`Integrator::set_image_size`: `lacuna render` and `compare`, C API
-//! jobs), else over the training's 2:1 image: regions outside the render weighed in the
-//! verdict (rooms:17 at 64x48: 0.667 over 2:1, 0.807 over 4:3, the render's 0.82).
-//!
-//! The variance ratio of heavy-tailed scenes rests on a few rays (the corridor over its 1:1
-//! view: 1.37, 0.89, 0.54, 0.34, 0.28 from the first 16384 to 262144 rays), so the pilot traces
-//! `pilot_paths` rays, then doubles them while the ratio's relative standard error (delta
-//! method over the rays, `Pilot::variance_error`) is above [`PILOT_TAIL_ERROR`], up to
-//! [`PILOT_EXTENSION`] times `pilot_paths`. The cost ratio is the time of the guided samples
-//! over the unguided ones' (`pilot_cost=time`, the default), in this thread's CPU time, timed
-//! in batches of 16 rays, the two policies in turn with the order alternating: time slices
-//! given to other processes do not enter it (wall time read 1.2-1.8x on one scene under a
-//! changing load), and neither policy is timed on warmer caches. A work count
-//! (`pilot_cost=work`: rays traced per sample times the training's overhead ratio for the
-//! queries and the node mapping, `guide::training`, "Cost") read 0.90-1.18x on family scenes
-//! whose measured cost was 1.12-1.46x. Unless 1 / (variance ratio x cost ratio) exceeds
-//! 1 + `PILOT_MARGIN` (1.2, `guide::training`), every node is set to c = 0 and
-//! `path_skeleton` traces `path`'s samples. The pilot's random
+//! estimator at the render's depth: `pilot_paths` camera rays (drawn over the training's
+//! 2:1 image), each traced twice unguided and twice guided with the same random numbers for
+//! both policies. Half the squared difference of a ray's two samples is an unbiased estimate of
+//! the variance along that ray (the pixel's variance less the part from where in the pixel the
+//! ray goes, which guiding does not change); their means give the measured variance ratio, and
+//! the delta method over the rays its relative standard error (`Pilot::variance_error`,
+//! printed: 0.1-0.2 on family scenes that lose, 0.3-0.6 on heavy-tailed ones, where a few
+//! rays decide the ratio). The cost ratio is the time of the guided samples over the unguided
+//! ones' (`pilot_cost=time`, the default), in this thread's CPU time, timed in batches of 16
+//! rays, the two policies in turn with the order alternating: time slices given to other
+//! processes do not enter it (wall time read 1.2-1.8x on one scene under a changing load), and
+//! neither policy is timed on warmer caches. A work count (`pilot_cost=work`: rays traced per
+//! sample times the training's overhead ratio for the queries and the node mapping,
+//! `guide::training`, "Cost") read 0.90-1.18x on family scenes whose measured cost was
+//! 1.12-1.46x. Unless 1 / (variance ratio x cost ratio) exceeds the switch's margin (1.1),
+//! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The pilot's random
 //! numbers are its own, so the render stays unbiased whatever the verdict; with
 //! `pilot_cost=work` the verdict is also a deterministic function of the scene (chunk sums
 //! combined in chunk order), with `time` it may differ between runs where the efficiency is
@@ -91,8 +84,6 @@ pub struct PathTracer {
     guiding: Option<Option<Arc<SkeletonGuide>>>,
     /// [`Integrator::set_time_budget`]'s seconds, for the skeleton guide's scout.
     time_budget: Option<f64>,
-    /// [`Integrator::set_image_size`]'s width and height, for the pilot's view.
-    image_size: Option<(u32, u32)>,
     /// `mis=auto`: the per-pixel alpha estimates (see [`super::mis_auto::DEPTH_CLASSES`]).
     alphas: PixelAlphas,
 }
@@ -103,7 +94,6 @@ impl PathTracer {
             settings,
             guiding: None,
             time_budget: None,
-            image_size: None,
             alphas: PixelAlphas::default(),
         }
     }
@@ -117,7 +107,6 @@ impl PathTracer {
             settings,
             guiding: Some(None),
             time_budget: None,
-            image_size: None,
             alphas: PixelAlphas::default(),
         })
     }
@@ -263,14 +252,9 @@ const PILOT_CHUNK: u32 = 256;
 /// too slow to time a single sample against.
 const PILOT_BATCH: usize = 16;
 const PILOT_SEED: u64 = 0x9170_7a11;
-/// Width / height of the pilot's image where the host did not give the render's
-/// (`Integrator::set_image_size`): the training's.
+/// Width / height of the pilot's image: the training's (BENCHMARKS.md, "Procedural family",
+/// "The pilot against the render": the render's view was tried and not kept).
 const PILOT_ASPECT: f32 = 2.0;
-/// The pilot traces more rays while its variance ratio's relative standard error is above
-/// this (module docs, "The pilot")...
-const PILOT_TAIL_ERROR: f64 = 0.3;
-/// ...up to this many times `pilot_paths`.
-const PILOT_EXTENSION: u32 = 4;
 
 /// Half the squared difference of two samples' luminance (an unbiased estimate of the
 /// variance along their ray); infinite if either is not finite.
@@ -380,38 +364,16 @@ impl PathTracer {
     fn pilot(&self, scene: &Scene, camera: &Camera, guide: &SkeletonGuide) -> Option<Pilot> {
         let settings = guide.settings();
         let training = guide.training().filter(|t| t.paths > 0)?;
-        let first = settings.pilot_paths;
-        if first == 0
+        let rays = settings.pilot_paths;
+        if rays == 0
             || guide.guides_nothing()
             || !settings.learned_c_skel
             || !settings.cost_model.switches()
         {
             return None;
         }
-        let aspect = self
-            .image_size
-            .map_or(PILOT_ASPECT, |(w, h)| w as f32 / h as f32);
-        let frame = camera.frame(aspect);
-        // Rounds of rays, doubling the total, while the variance ratio's relative standard
-        // error says a few rays decide it (module docs, "The pilot").
-        let mut sum = [0f64; 9];
-        let mut rays = 0u32;
-        let limit = first.saturating_mul(PILOT_EXTENSION);
-        loop {
-            let end = if rays == 0 {
-                first
-            } else {
-                rays.saturating_mul(2).min(limit)
-            };
-            let round = self.pilot_sums(scene, &frame, guide, rays..end);
-            for (s, r) in sum.iter_mut().zip(round) {
-                *s += r;
-            }
-            rays = end;
-            if rays >= limit || ratio_relative_error(&sum, rays) <= PILOT_TAIL_ERROR {
-                break;
-            }
-        }
+        let frame = camera.frame(PILOT_ASPECT);
+        let sum = self.pilot_sums(scene, &frame, guide, 0..rays);
         let n = rays as f64;
         let samples = 2.0 * n;
         let (rays_path, rays_guided) = (sum[2] / samples, sum[3] / samples);
@@ -442,11 +404,11 @@ impl PathTracer {
 /// The relative standard error of the pilot's variance ratio from its sums
 /// ([`PathTracer::pilot_sums`]) over `n` rays: the delta method for a ratio of two means of
 /// paired values (the two policies' squared differences on one ray are correlated). 0 where
-/// either mean is 0 or a sum is not finite (nothing to extend).
+/// either mean is 0 or a sum is not finite.
 fn ratio_relative_error(sum: &[f64; 9], n: u32) -> f64 {
     let n = n as f64;
     let (ma, mg) = (sum[0] / n, sum[1] / n);
-    if !(ma > 0.0 && mg > 0.0) || !sum.iter().all(|s| s.is_finite()) {
+    if !(ma > 0.0 && mg > 0.0 && sum.iter().all(|s| s.is_finite())) {
         return 0.0;
     }
     let va = sum[6] / n - ma * ma;
@@ -596,10 +558,6 @@ impl Integrator for PathTracer {
 
     fn set_time_budget(&mut self, seconds: Option<f64>) {
         self.time_budget = seconds;
-    }
-
-    fn set_image_size(&mut self, width: u32, height: u32) {
-        self.image_size = (width > 0 && height > 0).then_some((width, height));
     }
 
     fn check_prepared(&self, scene: &Scene) -> Result<()> {

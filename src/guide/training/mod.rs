@@ -253,8 +253,8 @@ pub struct Pilot {
     /// independent samples along the same ray), unguided and guided.
     pub variance_path: f64,
     pub variance_guided: f64,
-    /// The relative standard error of the variance ratio (delta method over the rays), which
-    /// decided how many rays the pilot traced.
+    /// The relative standard error of the variance ratio (delta method over the rays; a
+    /// diagnostic, printed with the verdict).
     pub variance_error: f64,
     /// Rays traced (closest hits and shadow rays) per sample, unguided and guided.
     pub rays_per_sample_path: f64,
@@ -284,17 +284,11 @@ impl Pilot {
         1.0 / (self.variance_ratio() * self.cost_ratio)
     }
 
-    /// Whether guiding pays by the pilot's margin ([`PILOT_MARGIN`]).
+    /// Whether guiding pays by the scene-level margin.
     pub fn pays(&self) -> bool {
-        self.efficiency() > 1.0 + PILOT_MARGIN
+        self.efficiency() > 1.0 + SCENE_MARGIN
     }
 }
-
-/// The pilot's measured efficiency must exceed 1 by this for anything to be guided. Calibrated
-/// on the render (BENCHMARKS.md, "Procedural family", "The pilot against the render"): the
-/// render's efficiency per unit of time was 0.65-0.95 of the pilot's on the family scenes and
-/// the door, so at 1.1 the pilot kept guides that lost (rooms:3 and rooms:17 read 1.12-1.23).
-pub const PILOT_MARGIN: f64 = 0.2;
 
 impl TrainingReport {
     /// Nodes with a learned probability above 0.
