@@ -36,7 +36,7 @@ pub use query::GuideQuery;
 pub use resampling::ResamplingSettings;
 pub use settings::{
     CostModel, LobeAim, LobeFallback, PilotCost, RenderEstimator, SkeletonGuideSettings,
-    SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX, DEFAULT_PILOT_PATHS, DEFAULT_TRAINING_DEPTH,
+    SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX, DEFAULT_TRAINING_DEPTH,
     DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET, MAX_STRENGTH, OPTION_NAMES, STRENGTH_CANDIDATES,
 };
 pub use skeleton_guide::SkeletonGuide;
