@@ -577,3 +577,120 @@ fn the_pilot_decides_with_the_measured_cost() {
         1.0 / (timed.variance_ratio() * timed.cost_ratio) > 1.1
     );
 }
+
+/// The per-sample luminance variance of `pt` on a family scene at `w` x `h`, `spp` x `renders`
+/// (pixel variance over renders with their own random numbers, averaged over the image) with
+/// `sampler`.
+fn pixel_variance(
+    family: &FamilyScene,
+    scene: &Scene,
+    pt: &lacuna::integrator::PathTracer,
+    (w, h): (u32, u32),
+    (spp, renders): (u32, u64),
+    sampler: lacuna::math::SamplerKind,
+) -> f64 {
+    let n = (w * h) as usize;
+    let (mut sum, mut sum2) = (vec![0f64; n], vec![0f64; n]);
+    for s in 0..renders {
+        let rs = RenderSettings {
+            width: w,
+            height: h,
+            spp,
+            seed: s * 7919 + 11,
+            sampler,
+            threads: Some(2),
+            ..Default::default()
+        };
+        let (film, _) = lacuna::render::render(
+            scene,
+            &family.camera,
+            pt,
+            &rs,
+            &|_| true,
+            &std::sync::atomic::AtomicBool::new(false),
+        )
+        .unwrap();
+        for (k, p) in film.radiance().iter().enumerate() {
+            let l = luminance(*p) as f64;
+            sum[k] += l;
+            sum2[k] += l * l;
+        }
+    }
+    let r = renders as f64;
+    (0..n)
+        .map(|k| sum2[k] / r - (sum[k] / r).powi(2))
+        .sum::<f64>()
+        / n as f64
+        * spp as f64
+        * r
+        / (r - 1.0)
+}
+
+/// The pilot's variance *ratio* (guided over unguided) against the render's own per-sample
+/// ratio, measured independently: pixel variances of renders at the pilot's 2:1 aspect with
+/// other random numbers, the same trained choices forced on with `pilot_paths=0`. On a family
+/// scene where guiding gains per sample (rooms:30, heavy-tailed) and one where it does not pay
+/// for its cost (rooms:17), the pilot must agree within 2.5 times its own stated relative error
+/// (`Pilot::variance_error`, at least 20 %), and both must see the gain on rooms:30. The ratio
+/// with the render's default Sobol numbers is printed beside it (not asserted: the pilot's
+/// numbers are independent). No timing: the verdict's cost is not checked here. Measured
+/// 2026-12-07: rooms:30 pilot 0.539 (relative error 0.40), independent 0.523, Sobol 0.753;
+/// rooms:17 pilot 0.667 (0.12), independent 0.802, Sobol 0.932 (log off 0.18 of 0.30 allowed).
+#[test]
+fn the_pilot_ratio_agrees_with_the_render_per_sample_ratio() {
+    let size = (32u32, 16u32);
+    for seed in [30u64, 17] {
+        let family = FamilyScene::generate(seed);
+        let scene = family.builder().unwrap().build().unwrap();
+        let make = |spec: &str| {
+            let settings = IntegratorSettings {
+                max_depth: 65,
+                ..Default::default()
+            };
+            let (_, settings) = integrator::parse_spec(spec, settings).unwrap();
+            let mut pt = if spec.starts_with("path_skeleton") {
+                lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap()
+            } else {
+                lacuna::integrator::PathTracer::new(settings)
+            };
+            prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
+            pt
+        };
+        let piloted = make("path_skeleton:pilot_cost=work");
+        let guide = piloted.guide().unwrap();
+        let pilot = guide
+            .training()
+            .unwrap()
+            .scene
+            .pilot
+            .expect("the training guides: the pilot runs");
+        let forced = make("path_skeleton:pilot_cost=work:pilot_paths=0");
+        assert!(!forced.guide().unwrap().guides_nothing());
+        let unguided = make("path");
+        let ratio = |sampler| {
+            pixel_variance(&family, &scene, &forced, size, (16, 24), sampler)
+                / pixel_variance(&family, &scene, &unguided, size, (16, 24), sampler)
+        };
+        // The pilot's numbers are independent, as are these; the render's default Sobol
+        // numbers are printed for comparison (not asserted).
+        let measured = ratio(lacuna::math::SamplerKind::Independent);
+        let sobol = ratio(lacuna::math::SamplerKind::Sobol);
+        let off = (pilot.variance_ratio() / measured).ln().abs();
+        println!(
+            "rooms:{seed}: pilot {:.3} ({} rays, relative error {:.2}), measured {measured:.3} (Sobol {sobol:.3}), log off {off:.3}, efficiency at the pilot's cost: pilot {:.3} measured {:.3}",
+            pilot.variance_ratio(),
+            pilot.rays,
+            pilot.variance_error,
+            pilot.efficiency(),
+            1.0 / (measured * pilot.cost_ratio),
+        );
+        assert!(
+            off < (2.5 * pilot.variance_error).max(0.2),
+            "rooms:{seed}: pilot {} against measured {measured}",
+            pilot.variance_ratio()
+        );
+        if seed == 30 {
+            assert!(measured < 1.0 && pilot.variance_ratio() < 1.0);
+        }
+    }
+}

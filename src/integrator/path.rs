@@ -19,16 +19,18 @@
 //! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, "Procedural family"), and guided scenes lost
 //! to `path`. So before a trained guide is used, `prepare` traces a pilot with this file's own
 //! estimator at the render's depth: `pilot_paths` camera rays (drawn over the training's
-//! image), each traced twice unguided and twice guided with the
-//! same random numbers for both policies. Half the squared difference of a ray's two samples
-//! is an unbiased estimate of the variance along that ray (the pixel's variance less the part
-//! from where in the pixel the ray goes, which guiding does not change); their means give the
-//! measured variance ratio. The cost ratio is the time of the guided samples over the
-//! unguided ones' (`pilot_cost=time`, the default), in this thread's CPU time, timed in
-//! batches of 16 rays, the two policies in turn with the order alternating: time slices given
-//! to other processes do not enter it (wall time read 1.2-1.8x on one scene under a changing
-//! load), and neither policy is timed on warmer caches. A work count (`pilot_cost=work`: rays traced
-//! per sample times the training's overhead ratio for the queries and the node mapping,
+//! 2:1 image), each traced twice unguided and twice guided with the same random numbers for
+//! both policies. Half the squared difference of a ray's two samples is an unbiased estimate of
+//! the variance along that ray (the pixel's variance less the part from where in the pixel the
+//! ray goes, which guiding does not change); their means give the measured variance ratio, and
+//! the delta method over the rays its relative standard error (`Pilot::variance_error`,
+//! printed: 0.1-0.2 on family scenes that lose, 0.3-0.6 on heavy-tailed ones, where a few
+//! rays decide the ratio). The cost ratio is the time of the guided samples over the unguided
+//! ones' (`pilot_cost=time`, the default), in this thread's CPU time, timed in batches of 16
+//! rays, the two policies in turn with the order alternating: time slices given to other
+//! processes do not enter it (wall time read 1.2-1.8x on one scene under a changing load), and
+//! neither policy is timed on warmer caches. A work count (`pilot_cost=work`: rays traced per
+//! sample times the training's overhead ratio for the queries and the node mapping,
 //! `guide::training`, "Cost") read 0.90-1.18x on family scenes whose measured cost was
 //! 1.12-1.46x. Unless 1 / (variance ratio x cost ratio) exceeds the switch's margin (1.1),
 //! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The pilot's random
@@ -250,7 +252,8 @@ const PILOT_CHUNK: u32 = 256;
 /// too slow to time a single sample against.
 const PILOT_BATCH: usize = 16;
 const PILOT_SEED: u64 = 0x9170_7a11;
-/// Width / height of the pilot's image: the training's (the render's is not known yet).
+/// Width / height of the pilot's image: the training's (BENCHMARKS.md, "Procedural family",
+/// "The pilot against the render": the render's view was tried and not kept).
 const PILOT_ASPECT: f32 = 2.0;
 
 /// Half the squared difference of two samples' luminance (an unbiased estimate of the
@@ -265,30 +268,27 @@ fn half_squared_difference(a: Rgb, b: Rgb) -> f64 {
 }
 
 impl PathTracer {
-    /// The pilot (module docs, "The pilot"): None where it does not apply (no pilot rays, a
-    /// guide without a trained scene-level switch, or one that guides nothing already).
-    fn pilot(&self, scene: &Scene, camera: &Camera, guide: &SkeletonGuide) -> Option<Pilot> {
-        let settings = guide.settings();
-        let training = guide.training().filter(|t| t.paths > 0)?;
-        let rays = settings.pilot_paths;
-        if rays == 0
-            || guide.guides_nothing()
-            || !settings.learned_c_skel
-            || !settings.cost_model.switches()
-        {
-            return None;
-        }
-        let frame = camera.frame(PILOT_ASPECT);
-        let chunk_count = rays.div_ceil(PILOT_CHUNK);
-        let chunks: Vec<[f64; 6]> = (0..chunk_count)
+    /// The pilot's sums over camera rays `range` (module docs, "The pilot"): per policy
+    /// (unguided, guided) the summed half squared differences, rays traced and CPU seconds,
+    /// then the sums of the squared differences' squares and cross product (for the ratio's
+    /// standard error). Chunk sums combined in chunk order: the same for any thread count.
+    fn pilot_sums(
+        &self,
+        scene: &Scene,
+        frame: &crate::scene::CameraFrame,
+        guide: &SkeletonGuide,
+        range: std::ops::Range<u32>,
+    ) -> [f64; 9] {
+        let chunk_count = (range.end - range.start).div_ceil(PILOT_CHUNK);
+        let chunks: Vec<[f64; 9]> = (0..chunk_count)
             .into_par_iter()
             .map(|c| {
                 let mut query = GuideQuery::new();
                 let mut counters = [TraceCounters::default(), TraceCounters::default()];
-                let mut variance = [0f64; 2];
                 let mut seconds = [0f64; 2];
-                let chunk_rays = c * PILOT_CHUNK..((c + 1) * PILOT_CHUNK).min(rays);
-                let chunk_rays: Vec<u32> = chunk_rays.collect();
+                let first = range.start + c * PILOT_CHUNK;
+                let chunk_rays: Vec<u32> = (first..(first + PILOT_CHUNK).min(range.end)).collect();
+                let mut out = [0f64; 9];
                 for (b, batch) in chunk_rays.chunks(PILOT_BATCH).enumerate() {
                     let batch_rays: Vec<Ray> = batch
                         .iter()
@@ -297,12 +297,13 @@ impl PathTracer {
                             frame.generate_ray(pick.uniform2(), pick.uniform2())
                         })
                         .collect();
+                    let mut d = vec![[0f64; 2]; batch.len()];
                     // Unguided and guided in turn, which goes first alternating, so that
                     // neither is timed on warmer caches.
                     for step in 0..2 {
-                        let k = (step + b + c as usize) % 2;
+                        let k = (step + b + (first / PILOT_CHUNK) as usize) % 2;
                         let started = thread_cpu_seconds();
-                        for (&i, &ray) in batch.iter().zip(&batch_rays) {
+                        for ((&i, &ray), dk) in batch.iter().zip(&batch_rays).zip(&mut d) {
                             let mut l = [Rgb::ZERO; 2];
                             for (j, lj) in l.iter_mut().enumerate() {
                                 // The same numbers for both policies: their difference is
@@ -330,27 +331,49 @@ impl PathTracer {
                                 };
                                 *lj = sample.radiance;
                             }
-                            variance[k] += half_squared_difference(l[0], l[1]);
+                            dk[k] = half_squared_difference(l[0], l[1]);
                         }
                         seconds[k] += thread_cpu_seconds() - started;
                     }
+                    for [a, g] in d {
+                        out[0] += a;
+                        out[1] += g;
+                        out[6] += a * a;
+                        out[7] += g * g;
+                        out[8] += a * g;
+                    }
                 }
-                [
-                    variance[0],
-                    variance[1],
-                    counters[0].rays as f64,
-                    counters[1].rays as f64,
-                    seconds[0],
-                    seconds[1],
-                ]
+                out[2] = counters[0].rays as f64;
+                out[3] = counters[1].rays as f64;
+                out[4] = seconds[0];
+                out[5] = seconds[1];
+                out
             })
             .collect();
-        let mut sum = [0f64; 6];
+        let mut sum = [0f64; 9];
         for chunk in &chunks {
             for (s, c) in sum.iter_mut().zip(chunk) {
                 *s += c;
             }
         }
+        sum
+    }
+
+    /// The pilot (module docs, "The pilot"): None where it does not apply (no pilot rays, a
+    /// guide without a trained scene-level switch, or one that guides nothing already).
+    fn pilot(&self, scene: &Scene, camera: &Camera, guide: &SkeletonGuide) -> Option<Pilot> {
+        let settings = guide.settings();
+        let training = guide.training().filter(|t| t.paths > 0)?;
+        let rays = settings.pilot_paths;
+        if rays == 0
+            || guide.guides_nothing()
+            || !settings.learned_c_skel
+            || !settings.cost_model.switches()
+        {
+            return None;
+        }
+        let frame = camera.frame(PILOT_ASPECT);
+        let sum = self.pilot_sums(scene, &frame, guide, 0..rays);
         let n = rays as f64;
         let samples = 2.0 * n;
         let (rays_path, rays_guided) = (sum[2] / samples, sum[3] / samples);
@@ -368,6 +391,7 @@ impl PathTracer {
             rays,
             variance_path: sum[0] / n,
             variance_guided: sum[1] / n,
+            variance_error: ratio_relative_error(&sum, rays),
             rays_per_sample_path: rays_path,
             rays_per_sample_guided: rays_guided,
             seconds_path,
@@ -375,6 +399,24 @@ impl PathTracer {
             cost_ratio,
         })
     }
+}
+
+/// The relative standard error of the pilot's variance ratio from its sums
+/// ([`PathTracer::pilot_sums`]) over `n` rays: the delta method for a ratio of two means of
+/// paired values (the two policies' squared differences on one ray are correlated). 0 where
+/// either mean is 0 or a sum is not finite.
+fn ratio_relative_error(sum: &[f64; 9], n: u32) -> f64 {
+    let n = n as f64;
+    let (ma, mg) = (sum[0] / n, sum[1] / n);
+    if !(ma > 0.0 && mg > 0.0 && sum.iter().all(|s| s.is_finite())) {
+        return 0.0;
+    }
+    let va = sum[6] / n - ma * ma;
+    let vg = sum[7] / n - mg * mg;
+    let c = sum[8] / n - ma * mg;
+    ((vg / (mg * mg) + va / (ma * ma) - 2.0 * c / (ma * mg)) / n)
+        .max(0.0)
+        .sqrt()
 }
 
 impl Integrator for PathTracer {
@@ -433,10 +475,11 @@ impl Integrator for PathTracer {
         notes.extend(portals.notes);
         if let Some(p) = pilot {
             notes.push(format!(
-                "pilot ({} rays, {:.2} s): variance {:.3}x, cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x{}",
+                "pilot ({} rays, {:.2} s): variance {:.3}x (relative error {:.2}), cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x{}",
                 p.rays,
                 pilot_seconds,
                 p.variance_ratio(),
+                p.variance_error,
                 p.cost_ratio,
                 p.rays_per_sample_guided,
                 p.rays_per_sample_path,

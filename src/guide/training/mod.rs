@@ -253,6 +253,9 @@ pub struct Pilot {
     /// independent samples along the same ray), unguided and guided.
     pub variance_path: f64,
     pub variance_guided: f64,
+    /// The relative standard error of the variance ratio (delta method over the rays; a
+    /// diagnostic, printed with the verdict).
+    pub variance_error: f64,
     /// Rays traced (closest hits and shadow rays) per sample, unguided and guided.
     pub rays_per_sample_path: f64,
     pub rays_per_sample_guided: f64,
