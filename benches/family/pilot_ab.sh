@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # Five-scene A/B for issue 27 (task p27c), both contenders at once.
-# Usage: q27.sh OUT TIME RUNS [BINS]   BINS: space-separated "name=path" pairs, run in turn per scene
-# (default: new=/work/wt/h27c/target/release/lacuna base=/tmp/h27c-base).
+# Usage: pilot_ab.sh OUT TIME RUNS [BINS]   BINS: space-separated "name=path" pairs, run in turn per scene
+# (default: new=target/release/lacuna).
 out=$1; t=$2; runs=$3
-bins=${4:-"new=/work/wt/h27c/target/release/lacuna base=/tmp/h27c-base"}
-R=/work/lead/refs
+bins=${4:-"new=target/release/lacuna"}
+R=${REFS:-refs}
 for sc in ${SCENES:-rooms:3 rooms:17 rooms:30 door corridor}; do
   case $sc in
-    door) S=/work/main/scenes/veach-door-pg2015/veach-door-pg2015.json; A="--width 128 --height 64"; ref=$R/door.exr;;
+    door) S=scenes/veach-door-pg2015/veach-door-pg2015.json; A="--width 128 --height 64"; ref=$R/door.exr;;
     corridor) S=corridor; A="--width 128 --height 128"; ref=$R/corridor.exr;;
     *) S=$sc; A="--width 64 --height 48 --max-depth 65"; ref=$R/rooms${sc#rooms:}.exr;;
   esac

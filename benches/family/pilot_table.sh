@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Table of q27.sh results: per scene and binary, spp path / path_skeleton, path_skeleton's
+# Table of pilot_ab.sh results: per scene and binary, spp path / path_skeleton, path_skeleton's
 # precomputation and its MSE above the reference's against path's (median [min, max]).
-# Usage: q27t.sh OUT
+# Usage: pilot_table.sh OUT
 for d in $1/*/*/compare.log; do
   b=$(echo $d | awk -F/ '{print $(NF-2)}'); sc=$(echo $d | awk -F/ '{print $(NF-1)}')
   p=$(grep '^| path |' $d); s=$(grep '^| path_skeleton |' $d)

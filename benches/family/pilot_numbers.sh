@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # The pilot's numbers (issue 27, task p27c): `render -v --spp 1` per scene and binary, at the
-# compare's image sizes. Usage: q27p.sh OUT "name=path ..."
-out=$1; bins=${2:-"new=/work/wt/h27c/target/release/lacuna base=/tmp/h27c-base"}
+# compare's image sizes. Usage: pilot_numbers.sh OUT "name=path ..."
+out=$1; bins=${2:-"new=target/release/lacuna"}
 mkdir -p $out
 for sc in ${SCENES:-rooms:3 rooms:17 rooms:30 door corridor}; do
   case $sc in
-    door) S=/work/main/scenes/veach-door-pg2015/veach-door-pg2015.json; A="--width 128 --height 64";;
+    door) S=scenes/veach-door-pg2015/veach-door-pg2015.json; A="--width 128 --height 64";;
     corridor) S=corridor; A="--width 128 --height 128";;
     *) S=$sc; A="--width 64 --height 48 --max-depth 65";;
   esac
