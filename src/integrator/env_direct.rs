@@ -29,7 +29,8 @@
 //!
 //! `mis` chooses the weighting of each estimate: `balance` (the above), `power` (exponent 2,
 //! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of N/4 samples of each
-//! technique estimates the fraction alpha of BSDF samples, eq. 5.4-5.5, the other N/2 are
+//! technique estimates the fraction alpha of BSDF samples, eq. 5.4-5.5, re-expanded once
+//! around that alpha by default (`alpha_steps`, thesis section 5.6), the other N/2 are
 //! split by it, and the two estimates are combined by eq. 5.6; alpha goes to the `alpha`
 //! layer) and `optimal` (Kondapaneni et al. 2019, its coefficients from the same warm-up); see
 //! [`super::mis_auto`]. Each light source gets its own alpha. With
@@ -59,6 +60,12 @@ pub struct EnvDirectOptions {
     pub light_samples: u32,
     /// BSDF samples per shading point (N_B).
     pub bsdf_samples: u32,
+    /// `mis=auto`: quadratic models of the second moment minimised in turn, the first around
+    /// alpha = 1/2 (eq. 5.4), each further one around the previous alpha
+    /// ([`mis_auto::refine_alpha`], thesis section 5.6), all from the same warm-up samples.
+    /// 2 by default: per camera ray (BENCHMARKS.md, issue 33) the second model gained on
+    /// every scene over eq. 5.4 alone, and more gained nothing further.
+    pub alpha_steps: u32,
 }
 
 impl Default for EnvDirectOptions {
@@ -66,6 +73,7 @@ impl Default for EnvDirectOptions {
         EnvDirectOptions {
             light_samples: 30,
             bsdf_samples: 30,
+            alpha_steps: 2,
         }
     }
 }
@@ -599,7 +607,11 @@ impl EnvDirect {
                     for d in &drawn {
                         estimate.add(d.weight, luminance(d.value), d.pdf_bsdf, d.pdf_light);
                     }
-                    let alpha = estimate.alpha();
+                    let steps = self.settings.env_direct.alpha_steps.saturating_sub(1);
+                    let samples = drawn
+                        .iter()
+                        .map(|d| (d.weight, luminance(d.value), d.pdf_bsdf, d.pdf_light));
+                    let alpha = mis_auto::refine_alpha(estimate.alpha(), steps, samples);
                     let counts = mis_auto::split(n, alpha);
                     drawn.clear();
                     let delta =
@@ -835,14 +847,16 @@ impl Integrator for EnvDirect {
     }
 }
 
-/// `env_direct` in the integrator registry: `samples=N` (light samples per shading point) and
-/// `bsdf=N` (BSDF samples); the only integrator taking `mis=auto` and `mis=optimal`.
+/// `env_direct` in the integrator registry: `samples=N` (light samples per shading point),
+/// `bsdf=N` (BSDF samples) and `alpha_steps=K` (`mis=auto`'s quadratic models, 1 = eq. 5.4);
+/// the only integrator taking `mis=auto` and `mis=optimal`.
 pub(super) const REGISTRATION: super::Registration = super::Registration {
     name: "env_direct",
     set_option: |settings, option| {
         match option.key {
             "samples" => settings.env_direct.light_samples = option.count()?,
             "bsdf" => settings.env_direct.bsdf_samples = option.count()?,
+            "alpha_steps" => settings.env_direct.alpha_steps = option.count()?.max(1),
             _ => return Ok(false),
         }
         Ok(true)
@@ -952,6 +966,7 @@ mod tests {
                 env_direct: EnvDirectOptions {
                     light_samples,
                     bsdf_samples: 4,
+                    ..Default::default()
                 },
                 ..Default::default()
             };
