@@ -28,9 +28,10 @@
 //!   (exact, one shadow ray each) when there are no more of them than N_L.
 //!
 //! `mis` chooses the weighting of each estimate: `balance` (the above), `power` (exponent 2,
-//! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of N/4 samples of each
-//! technique estimates the fraction alpha of BSDF samples, eq. 5.4-5.5, re-expanded once
-//! around that alpha by default (`alpha_steps`, thesis section 5.6), the other N/2 are
+//! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of N/16 samples of each
+//! technique, `warmup`, where the thesis spends N/4, estimates the fraction alpha of BSDF
+//! samples, eq. 5.4-5.5, re-expanded once around that alpha by default (`alpha_steps`,
+//! thesis section 5.6), the other 7N/8 are
 //! split by it, and the two estimates are combined by eq. 5.6; alpha goes to the `alpha`
 //! layer) and `optimal` (Kondapaneni et al. 2019, its coefficients from the same warm-up); see
 //! [`super::mis_auto`]. Each light source gets its own alpha. With
@@ -66,6 +67,10 @@ pub struct EnvDirectOptions {
     /// 2 by default: per camera ray (BENCHMARKS.md, issue 33) the second model gained on
     /// every scene over eq. 5.4 alone, and more gained nothing further.
     pub alpha_steps: u32,
+    /// `mis=auto` and `mis=optimal`: the warm-up's sample count M (half from each technique,
+    /// at most the total); `None` for an eighth of the total with `auto` (at least one sample
+    /// of each technique) and half with `optimal`. The thesis's M = N is half the total.
+    pub warmup: Option<u32>,
 }
 
 impl Default for EnvDirectOptions {
@@ -74,6 +79,7 @@ impl Default for EnvDirectOptions {
             light_samples: 30,
             bsdf_samples: 30,
             alpha_steps: 2,
+            warmup: None,
         }
     }
 }
@@ -566,9 +572,20 @@ impl EnvDirect {
             let mut drawn = cell.take();
             drawn.clear();
             let adaptive = matches!(self.mis(), MisHeuristic::Auto | MisHeuristic::Optimal);
-            // The warm-up: `warm` samples of each technique (the half-half mixture of eq. 5.5),
-            // a quarter of the total each, as the thesis's M = N.
-            let warm = total / 4;
+            // The warm-up: `warm` samples of each technique (the half-half mixture of eq. 5.5).
+            // By default an eighth of the total for `auto` (the thesis's half spends half the
+            // samples at alpha = 1/2; per camera ray an eighth measured better on every scene,
+            // BENCHMARKS.md) and half for `optimal` (not re-measured).
+            let default_warm = if self.mis() == MisHeuristic::Auto {
+                (total / 16).max(1)
+            } else {
+                total / 4
+            };
+            let warm = self
+                .settings
+                .env_direct
+                .warmup
+                .map_or(default_warm, |m| (m / 2).min(total / 2));
             let result = if !adaptive || n_light == 0 || n_bsdf == 0 || warm == 0 {
                 let delta = self.draw(
                     scene,
@@ -848,7 +865,8 @@ impl Integrator for EnvDirect {
 }
 
 /// `env_direct` in the integrator registry: `samples=N` (light samples per shading point),
-/// `bsdf=N` (BSDF samples) and `alpha_steps=K` (`mis=auto`'s quadratic models, 1 = eq. 5.4);
+/// `bsdf=N` (BSDF samples), `alpha_steps=K` (`mis=auto`'s quadratic models, 1 = eq. 5.4) and
+/// `warmup=M` (the warm-up's samples, both techniques);
 /// the only integrator taking `mis=auto` and `mis=optimal`.
 pub(super) const REGISTRATION: super::Registration = super::Registration {
     name: "env_direct",
@@ -857,6 +875,7 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
             "samples" => settings.env_direct.light_samples = option.count()?,
             "bsdf" => settings.env_direct.bsdf_samples = option.count()?,
             "alpha_steps" => settings.env_direct.alpha_steps = option.count()?.max(1),
+            "warmup" => settings.env_direct.warmup = Some(option.count()?),
             _ => return Ok(false),
         }
         Ok(true)

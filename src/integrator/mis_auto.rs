@@ -121,24 +121,11 @@ impl AlphaEstimate {
 pub fn refine_alpha(
     alpha: f32,
     steps: u32,
-    samples: impl Iterator<Item = (f32, f32, f32, f32)>,
+    samples: impl Iterator<Item = (f32, f32, f32, f32)> + Clone,
 ) -> f32 {
-    if steps == 0 {
-        return alpha;
-    }
-    // Per sample with f != 0: w f^2 / pbar, pdf_B, pdf_L (the rest adds nothing).
-    let terms: Vec<[f64; 3]> = samples
-        .filter_map(|(w, f, pdf_bsdf, pdf_light)| {
-            let (pb, pl) = (pdf_bsdf as f64, pdf_light as f64);
-            let pbar = 0.5 * (pb + pl);
-            let g = w as f64 * (f as f64).powi(2) / pbar;
-            (f != 0.0 && pbar > 0.0 && g.is_finite() && pb.is_finite() && pl.is_finite())
-                .then_some([g, pb, pl])
-        })
-        .collect();
     let mut alpha = alpha;
     for _ in 0..steps {
-        match newton_step(alpha, &terms) {
+        match newton_step(alpha, samples.clone()) {
             Some(next) if next != alpha => alpha = next,
             _ => break,
         }
@@ -146,21 +133,27 @@ pub fn refine_alpha(
     alpha
 }
 
-/// One step of [`refine_alpha`] from `alpha0` over its `terms`; `None` when no term carries
-/// information (then alpha stays).
-fn newton_step(alpha0: f32, terms: &[[f64; 3]]) -> Option<f32> {
+/// One step of [`refine_alpha`] from `alpha0`; `None` when no sample carries information
+/// (then alpha stays).
+fn newton_step(alpha0: f32, samples: impl Iterator<Item = (f32, f32, f32, f32)>) -> Option<f32> {
     let a = alpha0 as f64;
     let (mut first, mut second) = (0.0f64, 0.0f64);
-    for &[g, pb, pl] in terms {
-        let q0 = a * pb + (1.0 - a) * pl;
-        if !(q0 > 0.0) {
+    for (w, f, pdf_bsdf, pdf_light) in samples {
+        // Samples with f = 0 add nothing (most of them where a light is small or occluded).
+        if f == 0.0 {
             continue;
         }
-        // f^2 D / q0^2 / pbar and f^2 D^2 / q0^3 / pbar as (g / q0) d and (g / q0) d^2.
-        let r = 1.0 / q0;
-        let d = (pb - pl) * r;
-        let h = g * r * d;
-        first += h;
+        let (pb, pl) = (pdf_bsdf as f64, pdf_light as f64);
+        let pbar = 0.5 * (pb + pl);
+        let q0 = a * pb + (1.0 - a) * pl;
+        // f^2 D / q0^2 / pbar and f^2 D^2 / q0^3 / pbar with one division.
+        let inv = 1.0 / (pbar * q0 * q0 * q0);
+        let d = pb - pl;
+        let h = w as f64 * (f as f64) * (f as f64) * d * inv;
+        if !(h.is_finite() && q0 > 0.0) {
+            continue;
+        }
+        first += h * q0;
         second += h * d;
     }
     if !(second > 0.0 && second.is_finite() && first.is_finite()) {
