@@ -28,10 +28,10 @@
 //!   (exact, one shadow ray each) when there are no more of them than N_L.
 //!
 //! `mis` chooses the weighting of each estimate: `balance` (the above), `power` (exponent 2,
-//! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of N/16 samples of each
-//! technique, `warmup`, where the thesis spends N/4, estimates the fraction alpha of BSDF
-//! samples, eq. 5.4-5.5, re-expanded once around that alpha by default (`alpha_steps`,
-//! thesis section 5.6), the other 7N/8 are
+//! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of 16 samples of each
+//! technique, at most N/4 (`warmup`; the thesis spends N/4), estimates the fraction alpha of
+//! BSDF samples, eq. 5.4-5.5, re-expanded once around that alpha by default (`alpha_steps`,
+//! thesis section 5.6), the other samples are
 //! split by it, and the two estimates are combined by eq. 5.6; alpha goes to the `alpha`
 //! layer) and `optimal` (Kondapaneni et al. 2019, its coefficients from the same warm-up); see
 //! [`super::mis_auto`]. Each light source gets its own alpha. With
@@ -49,6 +49,11 @@ use crate::light::{
 };
 use crate::math::{luminance, Rgb, Sampler, Vec2, Vec3};
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction, Transport};
+
+/// `mis=auto`'s default warm-up sample count M (both techniques; at most half the total):
+/// enough for a usable alpha, and at N = 256 an eighth of the samples instead of the thesis's
+/// half (BENCHMARKS.md, issue 33, per camera ray).
+pub const AUTO_WARMUP: u32 = 32;
 
 /// The name of the layer `mis=auto` writes (see [`EnvDirect`]'s `layers`).
 pub const ALPHA_LAYER: &str = "alpha";
@@ -68,8 +73,8 @@ pub struct EnvDirectOptions {
     /// every scene over eq. 5.4 alone, and more gained nothing further.
     pub alpha_steps: u32,
     /// `mis=auto` and `mis=optimal`: the warm-up's sample count M (half from each technique,
-    /// at most the total); `None` for an eighth of the total with `auto` (at least one sample
-    /// of each technique) and half with `optimal`. The thesis's M = N is half the total.
+    /// at most the total); `None` for [`AUTO_WARMUP`] but at most half the total with `auto`,
+    /// and half the total with `optimal`. The thesis's M = N is half the total.
     pub warmup: Option<u32>,
 }
 
@@ -573,11 +578,12 @@ impl EnvDirect {
             drawn.clear();
             let adaptive = matches!(self.mis(), MisHeuristic::Auto | MisHeuristic::Optimal);
             // The warm-up: `warm` samples of each technique (the half-half mixture of eq. 5.5).
-            // By default an eighth of the total for `auto` (the thesis's half spends half the
-            // samples at alpha = 1/2; per camera ray an eighth measured better on every scene,
-            // BENCHMARKS.md) and half for `optimal` (not re-measured).
+            // By default, for `auto`, AUTO_WARMUP in all but at most half the total (the
+            // thesis's half spends half the samples at alpha = 1/2: per camera ray 32 of 256
+            // measured better on every scene, an eighth of 64 worse, BENCHMARKS.md), and half
+            // for `optimal` (not re-measured).
             let default_warm = if self.mis() == MisHeuristic::Auto {
-                (total / 16).max(1)
+                (AUTO_WARMUP / 2).min(total / 4)
             } else {
                 total / 4
             };

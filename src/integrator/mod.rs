@@ -391,8 +391,8 @@ impl SpecOption<'_> {
 ///   `triangles=area|solid_angle` (how next-event estimation samples emissive triangles);
 /// - `env_direct`: `samples=N` (light samples per shading point), `bsdf=N` (BSDF samples) and
 ///   `alpha_steps=K` (`mis=auto`: K quadratic models of the second moment, 1 = eq. 5.4 alone,
-///   default 2) and `warmup=M` (`mis=auto|optimal`: warm-up samples, default an eighth of the
-///   total for `auto`, half for `optimal`);
+///   default 2) and `warmup=M` (`mis=auto|optimal`: warm-up samples, default 32 but at most
+///   half the total for `auto`, half for `optimal`);
 /// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
 ///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`;
 /// - `path_portal`: `path`'s options and the portal guide's ([`PortalGuideSettings::set`]):
