@@ -609,10 +609,18 @@ fn mis_weightings_of_env_direct_agree_with_balance() {
         let spec = "env_direct:env=cube-dynamic:samples=8:bsdf=8";
         let balance = region_means(&scene, &camera, spec, with(MisHeuristic::Balance), 16, 8, 8);
         assert!(balance[0].0 > 0.0);
-        for mis in [
-            MisHeuristic::Power,
-            MisHeuristic::Auto,
-            MisHeuristic::Optimal,
+        // `alpha_steps=1` is the thesis's eq. 5.4 alone; 4 re-expands around each alpha;
+        // `warmup=4` spends 4 of the 16 samples on the warm-up instead of 8.
+        let single_step = format!("{spec}:alpha_steps=1");
+        let newton = format!("{spec}:alpha_steps=4");
+        let short_warmup = format!("{spec}:warmup=4");
+        for (mis, spec) in [
+            (MisHeuristic::Power, spec),
+            (MisHeuristic::Auto, spec),
+            (MisHeuristic::Auto, single_step.as_str()),
+            (MisHeuristic::Auto, newton.as_str()),
+            (MisHeuristic::Auto, short_warmup.as_str()),
+            (MisHeuristic::Optimal, spec),
         ] {
             let other = region_means(&scene, &camera, spec, with(mis), 16, 8, 8);
             assert_agree(

@@ -201,13 +201,26 @@ fn env_direct_with_every_weighting_agrees_with_path_on_emitters() {
             if mis == MisHeuristic::Optimal && label == "glossy floor" {
                 continue;
             }
-            let spec = "env_direct:samples=8:bsdf=8";
-            let direct = region_means(scene, camera, spec, settings(mis, 1), 16, 8, 8);
-            assert_agree(
-                &format!("{label}: path (depth 1) vs {spec} {mis:?}"),
-                ("path", &path),
-                (spec, &direct),
-            );
+            // `auto` also with its alpha from one quadratic model (eq. 5.4), from four
+            // (`alpha_steps`), and from a shorter warm-up (`warmup`).
+            let specs: &[&str] = if mis == MisHeuristic::Auto {
+                &[
+                    "env_direct:samples=8:bsdf=8",
+                    "env_direct:samples=8:bsdf=8:alpha_steps=1",
+                    "env_direct:samples=8:bsdf=8:alpha_steps=4",
+                    "env_direct:samples=8:bsdf=8:warmup=4",
+                ]
+            } else {
+                &["env_direct:samples=8:bsdf=8"]
+            };
+            for spec in specs {
+                let direct = region_means(scene, camera, spec, settings(mis, 1), 16, 8, 8);
+                assert_agree(
+                    &format!("{label}: path (depth 1) vs {spec} {mis:?}"),
+                    ("path", &path),
+                    (spec, &direct),
+                );
+            }
         }
     }
 }

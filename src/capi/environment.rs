@@ -447,6 +447,7 @@ pub unsafe extern "C" fn lacuna_render_job_set_environment_samples(
             s.resolved.integrator_settings.env_direct = EnvDirectOptions {
                 light_samples,
                 bsdf_samples,
+                ..s.resolved.integrator_settings.env_direct
             };
             Ok(())
         })

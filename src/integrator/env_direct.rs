@@ -28,8 +28,10 @@
 //!   (exact, one shadow ray each) when there are no more of them than N_L.
 //!
 //! `mis` chooses the weighting of each estimate: `balance` (the above), `power` (exponent 2,
-//! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of N/4 samples of each
-//! technique estimates the fraction alpha of BSDF samples, eq. 5.4-5.5, the other N/2 are
+//! over the same counts), `auto` (thesis 001 chapter 5: a warm-up of 16 samples of each
+//! technique, at most N/4 (`warmup`; the thesis spends N/4), estimates the fraction alpha of
+//! BSDF samples, eq. 5.4-5.5, re-expanded once around that alpha by default (`alpha_steps`,
+//! thesis section 5.6), the other samples are
 //! split by it, and the two estimates are combined by eq. 5.6; alpha goes to the `alpha`
 //! layer) and `optimal` (Kondapaneni et al. 2019, its coefficients from the same warm-up); see
 //! [`super::mis_auto`]. Each light source gets its own alpha. With
@@ -48,6 +50,11 @@ use crate::light::{
 use crate::math::{luminance, Rgb, Sampler, Vec2, Vec3};
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction, Transport};
 
+/// `mis=auto`'s default warm-up sample count M (both techniques; at most half the total):
+/// enough for a usable alpha, and at N = 256 an eighth of the samples instead of the thesis's
+/// half (BENCHMARKS.md, issue 33, per camera ray).
+pub const AUTO_WARMUP: u32 = 32;
+
 /// The name of the layer `mis=auto` writes (see [`EnvDirect`]'s `layers`).
 pub const ALPHA_LAYER: &str = "alpha";
 
@@ -59,6 +66,16 @@ pub struct EnvDirectOptions {
     pub light_samples: u32,
     /// BSDF samples per shading point (N_B).
     pub bsdf_samples: u32,
+    /// `mis=auto`: quadratic models of the second moment minimised in turn, the first around
+    /// alpha = 1/2 (eq. 5.4), each further one around the previous alpha
+    /// ([`mis_auto::refine_alpha`], thesis section 5.6), all from the same warm-up samples.
+    /// 2 by default: per camera ray (BENCHMARKS.md, issue 33) the second model gained on
+    /// every scene over eq. 5.4 alone, and more gained nothing further.
+    pub alpha_steps: u32,
+    /// `mis=auto` and `mis=optimal`: the warm-up's sample count M (half from each technique,
+    /// at most the total); `None` for [`AUTO_WARMUP`] but at most half the total with `auto`,
+    /// and half the total with `optimal`. The thesis's M = N is half the total.
+    pub warmup: Option<u32>,
 }
 
 impl Default for EnvDirectOptions {
@@ -66,6 +83,8 @@ impl Default for EnvDirectOptions {
         EnvDirectOptions {
             light_samples: 30,
             bsdf_samples: 30,
+            alpha_steps: 2,
+            warmup: None,
         }
     }
 }
@@ -558,9 +577,21 @@ impl EnvDirect {
             let mut drawn = cell.take();
             drawn.clear();
             let adaptive = matches!(self.mis(), MisHeuristic::Auto | MisHeuristic::Optimal);
-            // The warm-up: `warm` samples of each technique (the half-half mixture of eq. 5.5),
-            // a quarter of the total each, as the thesis's M = N.
-            let warm = total / 4;
+            // The warm-up: `warm` samples of each technique (the half-half mixture of eq. 5.5).
+            // By default, for `auto`, AUTO_WARMUP in all but at most half the total (the
+            // thesis's half spends half the samples at alpha = 1/2: per camera ray 32 of 256
+            // measured better on every scene, an eighth of 64 worse, BENCHMARKS.md), and half
+            // for `optimal` (not re-measured).
+            let default_warm = if self.mis() == MisHeuristic::Auto {
+                (AUTO_WARMUP / 2).min(total / 4)
+            } else {
+                total / 4
+            };
+            let warm = self
+                .settings
+                .env_direct
+                .warmup
+                .map_or(default_warm, |m| (m / 2).min(total / 2));
             let result = if !adaptive || n_light == 0 || n_bsdf == 0 || warm == 0 {
                 let delta = self.draw(
                     scene,
@@ -599,7 +630,11 @@ impl EnvDirect {
                     for d in &drawn {
                         estimate.add(d.weight, luminance(d.value), d.pdf_bsdf, d.pdf_light);
                     }
-                    let alpha = estimate.alpha();
+                    let steps = self.settings.env_direct.alpha_steps.saturating_sub(1);
+                    let samples = drawn
+                        .iter()
+                        .map(|d| (d.weight, luminance(d.value), d.pdf_bsdf, d.pdf_light));
+                    let alpha = mis_auto::refine_alpha(estimate.alpha(), steps, samples);
                     let counts = mis_auto::split(n, alpha);
                     drawn.clear();
                     let delta =
@@ -835,14 +870,18 @@ impl Integrator for EnvDirect {
     }
 }
 
-/// `env_direct` in the integrator registry: `samples=N` (light samples per shading point) and
-/// `bsdf=N` (BSDF samples); the only integrator taking `mis=auto` and `mis=optimal`.
+/// `env_direct` in the integrator registry: `samples=N` (light samples per shading point),
+/// `bsdf=N` (BSDF samples), `alpha_steps=K` (`mis=auto`'s quadratic models, 1 = eq. 5.4) and
+/// `warmup=M` (the warm-up's samples, both techniques);
+/// the only integrator taking `mis=auto` and `mis=optimal`.
 pub(super) const REGISTRATION: super::Registration = super::Registration {
     name: "env_direct",
     set_option: |settings, option| {
         match option.key {
             "samples" => settings.env_direct.light_samples = option.count()?,
             "bsdf" => settings.env_direct.bsdf_samples = option.count()?,
+            "alpha_steps" => settings.env_direct.alpha_steps = option.count()?.max(1),
+            "warmup" => settings.env_direct.warmup = Some(option.count()?),
             _ => return Ok(false),
         }
         Ok(true)
@@ -952,6 +991,7 @@ mod tests {
                 env_direct: EnvDirectOptions {
                     light_samples,
                     bsdf_samples: 4,
+                    ..Default::default()
                 },
                 ..Default::default()
             };

@@ -105,6 +105,66 @@ impl AlphaEstimate {
     }
 }
 
+/// Re-expands the second moment around the current alpha `steps` times (thesis 001 section
+/// 5.6: "a second-order Taylor expansion around the previously estimated value alpha_i ... used
+/// to estimate the next alpha_i+1"), starting from `alpha` (eq. 5.4's). With
+/// `q0 = alpha0 pdf_B + (1 - alpha0) pdf_L` and `D = pdf_B - pdf_L`, the moment
+/// `M(alpha) = int f^2 / q_alpha` has `M' = -int f^2 D / q0^2` and `M'' = 2 int f^2 D^2 / q0^3`
+/// at alpha0, so its quadratic model is minimal at
+/// `alpha0 + int f^2 D / q0^2 / (2 int f^2 D^2 / q0^3)` (a Newton step; from alpha0 = 1/2 it
+/// is eq. 5.4 exactly). M is convex in alpha (f^2 / q is convex in q, q linear in alpha), so
+/// the steps move toward the minimiser of the estimated exact moment rather than that of its
+/// expansion around 1/2, which the thesis finds poor far from 1/2. Each step is clamped to
+/// [`ALPHA_MIN`, `ALPHA_MAX`]; the steps stop early once alpha stops moving (at the clamp).
+/// The integrals are estimated from the warm-up's samples of the half-half mixture `pbar`,
+/// each divided by `pbar`: `samples` yields (weight, f, pdf_B, pdf_L) as [`AlphaEstimate::add`].
+pub fn refine_alpha(
+    alpha: f32,
+    steps: u32,
+    samples: impl Iterator<Item = (f32, f32, f32, f32)> + Clone,
+) -> f32 {
+    let mut alpha = alpha;
+    for _ in 0..steps {
+        match newton_step(alpha, samples.clone()) {
+            Some(next) if next != alpha => alpha = next,
+            _ => break,
+        }
+    }
+    alpha
+}
+
+/// One step of [`refine_alpha`] from `alpha0`; `None` when no sample carries information
+/// (then alpha stays).
+fn newton_step(alpha0: f32, samples: impl Iterator<Item = (f32, f32, f32, f32)>) -> Option<f32> {
+    let a = alpha0 as f64;
+    let (mut first, mut second) = (0.0f64, 0.0f64);
+    for (w, f, pdf_bsdf, pdf_light) in samples {
+        // Samples with f = 0 add nothing (most of them where a light is small or occluded).
+        if f == 0.0 {
+            continue;
+        }
+        let (pb, pl) = (pdf_bsdf as f64, pdf_light as f64);
+        let pbar = 0.5 * (pb + pl);
+        let q0 = a * pb + (1.0 - a) * pl;
+        // f^2 D / q0^2 / pbar and f^2 D^2 / q0^3 / pbar with one division.
+        let inv = 1.0 / (pbar * q0 * q0 * q0);
+        let d = pb - pl;
+        let h = w as f64 * (f as f64) * (f as f64) * d * inv;
+        if !(h.is_finite() && q0 > 0.0) {
+            continue;
+        }
+        first += h * q0;
+        second += h * d;
+    }
+    if !(second > 0.0 && second.is_finite() && first.is_finite()) {
+        return None;
+    }
+    let alpha = a + first / (2.0 * second);
+    alpha
+        .is_finite()
+        .then(|| (alpha as f32).clamp(ALPHA_MIN, ALPHA_MAX))
+}
+
 /// Splits `total` samples into (light, BSDF) counts with a fraction `alpha` (rounded) from the
 /// BSDF, keeping at least one of each when `total >= 2` so both densities stay in the weights.
 pub fn split(total: u32, alpha: f32) -> (u32, u32) {
@@ -466,6 +526,61 @@ mod tests {
             assert!(best > 0.5 && alpha > 0.5, "k={k}: {alpha} vs {best}");
             assert!(moment(alpha) < moment(0.5), "k={k}");
         }
+    }
+
+    /// The first Newton step from 1/2 is eq. 5.4 on the same samples; repeated steps reach
+    /// the exact minimiser of the second moment (fine search) on pdf_B = 2x, pdf_L = 2(1 - x),
+    /// f = x^k, where eq. 5.4 alone stops short of it.
+    #[test]
+    fn newton_steps_start_at_eq_5_4_and_reach_the_exact_minimiser() {
+        for k in [1, 2, 3] {
+            let mut rng = Rng::new(11 + k as u64, 0);
+            let samples: Vec<(f32, f32, f32, f32)> = (0..200_000)
+                .map(|i| {
+                    let u = rng.uniform().sqrt();
+                    let x = if i % 2 == 0 { u } else { 1.0 - u };
+                    (1.0, x.powi(k), 2.0 * x, 2.0 * (1.0 - x))
+                })
+                .collect();
+            let mut est = AlphaEstimate::default();
+            for &(w, f, pb, pl) in &samples {
+                est.add(w, f, pb, pl);
+            }
+            let first = refine_alpha(0.5, 1, samples.iter().copied());
+            assert!(
+                (first - est.alpha()).abs() < 1e-5,
+                "k={k}: {first} vs {}",
+                est.alpha()
+            );
+            assert_eq!(refine_alpha(first, 0, samples.iter().copied()), first);
+            let alpha = refine_alpha(first, 8, samples.iter().copied());
+            let moment = |alpha: f64| {
+                let n = 20000;
+                (0..n)
+                    .map(|i| {
+                        let x = (i as f64 + 0.5) / n as f64;
+                        x.powi(2 * k) / (alpha * 2.0 * x + (1.0 - alpha) * 2.0 * (1.0 - x))
+                    })
+                    .sum::<f64>()
+            };
+            let best = (25..=975)
+                .map(|i| i as f64 / 1000.0)
+                .min_by(|a, b| moment(*a).total_cmp(&moment(*b)))
+                .unwrap();
+            assert!(
+                (alpha as f64 - best).abs() < 0.01,
+                "k={k}: {alpha} vs {best}"
+            );
+            assert!(
+                moment(alpha as f64) <= moment(first as f64) * (1.0 + 1e-9),
+                "k={k}"
+            );
+        }
+        assert_eq!(refine_alpha(0.3, 4, std::iter::empty()), 0.3);
+        assert_eq!(
+            refine_alpha(0.3, 4, [(1.0, 0.0, 1.0, 2.0)].into_iter()),
+            0.3
+        );
     }
 
     #[test]

@@ -9,6 +9,7 @@ pub mod mis_auto;
 mod node_skeleton;
 mod path;
 mod path_portal;
+pub mod ray_variance;
 mod resampled;
 mod skeleton_shadow;
 mod vpl;
@@ -392,7 +393,10 @@ impl SpecOption<'_> {
 ///   sampling: latlong, cube-uniform, cube-power, cube-dynamic, bsdf);
 /// - `path` and `path_skeleton`: `rr_depth=D` (bounces before Russian roulette starts),
 ///   `triangles=area|solid_angle` (how next-event estimation samples emissive triangles);
-/// - `env_direct`: `samples=N` (light samples per shading point) and `bsdf=N` (BSDF samples);
+/// - `env_direct`: `samples=N` (light samples per shading point), `bsdf=N` (BSDF samples) and
+///   `alpha_steps=K` (`mis=auto`: K quadratic models of the second moment, 1 = eq. 5.4 alone,
+///   default 2) and `warmup=M` (`mis=auto|optimal`: warm-up samples, default 32 but at most
+///   half the total for `auto`, half for `optimal`);
 /// - `path_skeleton`: the guide's options ([`SkeletonGuideSettings::set`]), e.g.
 ///   `path_skeleton:strength=16:c_skel=0.3` or `strength=auto:64`;
 /// - `path_portal`: `path`'s options and the portal guide's ([`PortalGuideSettings::set`]):
