@@ -215,6 +215,13 @@ fn the_switch_turns_guiding_off_on_open_scenes_lit_in_the_camera_room() {
 fn prepared(seed: u64, spec: &str) -> (FamilyScene, Scene, lacuna::integrator::PathTracer) {
     let family = FamilyScene::generate(seed);
     let scene = family.builder().unwrap().build().unwrap();
+    let pt = prepared_on(&family, &scene, spec);
+    (family, scene, pt)
+}
+
+/// `spec` (`path` or `path_skeleton[:options]`) at max depth 65, prepared on `scene` for
+/// `family`'s camera on 2 threads.
+fn prepared_on(family: &FamilyScene, scene: &Scene, spec: &str) -> lacuna::integrator::PathTracer {
     let settings = IntegratorSettings {
         max_depth: 65,
         ..Default::default()
@@ -225,8 +232,8 @@ fn prepared(seed: u64, spec: &str) -> (FamilyScene, Scene, lacuna::integrator::P
     } else {
         lacuna::integrator::PathTracer::new(settings)
     };
-    prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
-    (family, scene, pt)
+    prepare(&mut pt, scene, &family.camera, Some(2), &|_, _| true).unwrap();
+    pt
 }
 
 /// Per-sample variance (pixel variance over independent renders, averaged over the image) and
@@ -642,20 +649,7 @@ fn the_pilot_ratio_agrees_with_the_render_per_sample_ratio() {
     for seed in [30u64, 17] {
         let family = FamilyScene::generate(seed);
         let scene = family.builder().unwrap().build().unwrap();
-        let make = |spec: &str| {
-            let settings = IntegratorSettings {
-                max_depth: 65,
-                ..Default::default()
-            };
-            let (_, settings) = integrator::parse_spec(spec, settings).unwrap();
-            let mut pt = if spec.starts_with("path_skeleton") {
-                lacuna::integrator::PathTracer::skeleton_guided(settings).unwrap()
-            } else {
-                lacuna::integrator::PathTracer::new(settings)
-            };
-            prepare(&mut pt, &scene, &family.camera, Some(2), &|_, _| true).unwrap();
-            pt
-        };
+        let make = |spec: &str| prepared_on(&family, &scene, spec);
         let piloted = make("path_skeleton:pilot_cost=work");
         let guide = piloted.guide().unwrap();
         let pilot = guide
