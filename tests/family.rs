@@ -244,49 +244,16 @@ fn per_sample(
     renders: u64,
 ) -> (f64, f64, Option<lacuna::guide::TrainingReport>) {
     let (family, scene, pt) = prepared(seed, spec);
-    let (w, h, spp) = (32u32, 16u32, 8u32);
-    let n = (w * h) as usize;
-    let (mut sum, mut sum2, mut rays) = (vec![0f64; n], vec![0f64; n], 0u64);
-    for s in 0..renders {
-        let rs = RenderSettings {
-            width: w,
-            height: h,
-            spp,
-            seed: s * 7919 + 3,
-            sampler: lacuna::math::SamplerKind::Independent,
-            threads: Some(2),
-            ..Default::default()
-        };
-        let (film, stats) = lacuna::render::render(
-            &scene,
-            &family.camera,
-            &pt,
-            &rs,
-            &|_| true,
-            &std::sync::atomic::AtomicBool::new(false),
-        )
-        .unwrap();
-        rays += stats.rays;
-        for (k, p) in film.radiance().iter().enumerate() {
-            let l = luminance(*p) as f64;
-            sum[k] += l;
-            sum2[k] += l * l;
-        }
-    }
-    let r = renders as f64;
-    let variance = (0..n)
-        .map(|k| sum2[k] / r - (sum[k] / r).powi(2))
-        .sum::<f64>()
-        / n as f64
-        * spp as f64
-        * r
-        / (r - 1.0);
+    let (variance, rays) = pixel_variance(
+        &family,
+        &scene,
+        &pt,
+        (32, 16),
+        (8, renders),
+        (lacuna::math::SamplerKind::Independent, 3),
+    );
     let training = pt.guide().and_then(|g| g.training().cloned());
-    (
-        variance,
-        rays as f64 / (renders * (w * h * spp) as u64) as f64,
-        training,
-    )
+    (variance, rays, training)
 }
 
 /// Never a loss, deterministically: the pilot (`integrator::path`, "The pilot") keeps guiding
@@ -586,29 +553,29 @@ fn the_pilot_decides_with_the_measured_cost() {
 }
 
 /// The per-sample luminance variance of `pt` on a family scene at `w` x `h`, `spp` x `renders`
-/// (pixel variance over renders with their own random numbers, averaged over the image) with
-/// `sampler`.
+/// (pixel variance over renders with their own random numbers, seeds `s * 7919 + offset`,
+/// averaged over the image) with `sampler`, and the rays traced per sample.
 fn pixel_variance(
     family: &FamilyScene,
     scene: &Scene,
     pt: &lacuna::integrator::PathTracer,
     (w, h): (u32, u32),
     (spp, renders): (u32, u64),
-    sampler: lacuna::math::SamplerKind,
-) -> f64 {
+    (sampler, seed_offset): (lacuna::math::SamplerKind, u64),
+) -> (f64, f64) {
     let n = (w * h) as usize;
-    let (mut sum, mut sum2) = (vec![0f64; n], vec![0f64; n]);
+    let (mut sum, mut sum2, mut rays) = (vec![0f64; n], vec![0f64; n], 0u64);
     for s in 0..renders {
         let rs = RenderSettings {
             width: w,
             height: h,
             spp,
-            seed: s * 7919 + 11,
+            seed: s * 7919 + seed_offset,
             sampler,
             threads: Some(2),
             ..Default::default()
         };
-        let (film, _) = lacuna::render::render(
+        let (film, stats) = lacuna::render::render(
             scene,
             &family.camera,
             pt,
@@ -617,6 +584,7 @@ fn pixel_variance(
             &std::sync::atomic::AtomicBool::new(false),
         )
         .unwrap();
+        rays += stats.rays;
         for (k, p) in film.radiance().iter().enumerate() {
             let l = luminance(*p) as f64;
             sum[k] += l;
@@ -624,13 +592,17 @@ fn pixel_variance(
         }
     }
     let r = renders as f64;
-    (0..n)
+    let variance = (0..n)
         .map(|k| sum2[k] / r - (sum[k] / r).powi(2))
         .sum::<f64>()
         / n as f64
         * spp as f64
         * r
-        / (r - 1.0)
+        / (r - 1.0);
+    (
+        variance,
+        rays as f64 / (renders * (w * h * spp) as u64) as f64,
+    )
 }
 
 /// The pilot's variance *ratio* (guided over unguided) against the render's own per-sample
@@ -662,8 +634,8 @@ fn the_pilot_ratio_agrees_with_the_render_per_sample_ratio() {
         assert!(!forced.guide().unwrap().guides_nothing());
         let unguided = make("path");
         let ratio = |sampler| {
-            pixel_variance(&family, &scene, &forced, size, (16, 24), sampler)
-                / pixel_variance(&family, &scene, &unguided, size, (16, 24), sampler)
+            pixel_variance(&family, &scene, &forced, size, (16, 24), (sampler, 11)).0
+                / pixel_variance(&family, &scene, &unguided, size, (16, 24), (sampler, 11)).0
         };
         // The pilot's numbers are independent, as are these; the render's default Sobol
         // numbers are printed for comparison (not asserted).
