@@ -36,7 +36,7 @@ use std::sync::Arc;
 use lacuna::integrator::{self, EnvDirect, IntegratorSettings, TraceCounters};
 use lacuna::light::environment::{describe, EnvImage, Grid};
 use lacuna::light::{EnvSettings, EnvStrategy, EnvironmentMap};
-use lacuna::math::{Rgb, Rng, Sampler, Vec2};
+use lacuna::math::{Rgb, Rng, Sampler};
 use lacuna::scene::{convert_layout, load_scene_file, SurfaceInteraction};
 use rayon::prelude::*;
 
@@ -158,18 +158,11 @@ fn fig36() {
                 let map_grid = map.image().grid();
                 builder.set_environment(Some(Arc::new(map)));
                 let scene = builder.build().unwrap();
-                let frame = scene.camera().unwrap().frame(1.0);
-                let hits: Vec<Hit> = (0..size * size)
-                    .filter_map(|p| {
-                        let (x, y) = (p % size, p / size);
-                        let film = Vec2::new(
-                            (x as f32 + 0.5) / size as f32,
-                            (y as f32 + 0.5) / size as f32,
-                        );
-                        let si = scene.intersect(&frame.generate_ray(film, Vec2::splat(0.5)))?;
-                        (!scene.bsdf(&si).is_delta()).then_some(Hit { si })
-                    })
-                    .collect();
+                let hits: Vec<Hit> =
+                    lacuna::integrator::ray_variance::shading_points(&scene, size, size)
+                        .into_iter()
+                        .map(|si| Hit { si })
+                        .collect();
                 let estimate = |spec: &str, seed: u64| -> (Vec<Rgb>, u64) {
                     let (_, settings) =
                         integrator::parse_spec(spec, IntegratorSettings::default()).unwrap();
