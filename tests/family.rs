@@ -3,7 +3,7 @@
 mod common;
 
 use lacuna::integrator::{self, IntegratorSettings};
-use lacuna::math::luminance;
+use lacuna::math::{luminance, SamplerKind};
 use lacuna::render::{prepare, RenderSettings};
 use lacuna::scene::{FamilyScene, Scene};
 
@@ -606,15 +606,20 @@ fn pixel_variance(
 }
 
 /// The pilot's variance *ratio* (guided over unguided) against the render's own per-sample
-/// ratio, measured independently: pixel variances of renders at the pilot's 2:1 aspect with
-/// other random numbers, the same trained choices forced on with `pilot_paths=0`. On a family
-/// scene where guiding gains per sample (rooms:30, heavy-tailed) and one where it does not pay
-/// for its cost (rooms:17), the pilot must agree within 2.5 times its own stated relative error
-/// (`Pilot::variance_error`, at least 20 %), and both must see the gain on rooms:30. The ratio
-/// with the render's default Sobol numbers is printed beside it (not asserted: the pilot's
-/// numbers are independent). No timing: the verdict's cost is not checked here. Measured
-/// 2026-12-07: rooms:30 pilot 0.539 (relative error 0.40), independent 0.523, Sobol 0.753;
-/// rooms:17 pilot 0.667 (0.12), independent 0.802, Sobol 0.932 (log off 0.18 of 0.30 allowed).
+/// ratio, measured independently: pixel variances of renders at the pilot's 2:1 aspect, the
+/// same trained choices forced on with `pilot_paths=0`. Both pilots: the default (pairs of
+/// independent samples along one ray) against renders with independent numbers, and
+/// `pilot_sampler=sobol` (pixels of 16 samples under two scrambles) against renders with the
+/// render's default Sobol numbers under other scrambles. On a family scene where guiding
+/// gains per sample under independent numbers but less under Sobol (rooms:30, heavy-tailed)
+/// and one where it does not pay for its cost (rooms:17), each pilot must agree with its
+/// measurement within a multiple of its own stated relative error (`Pilot::variance_error`):
+/// 2.5 times and at least 20 % for the default, 2 times and at least 15 % for Sobol; and the
+/// default must see the gain on rooms:30. No timing: the verdict's cost
+/// is not checked here. Measured 2026-12-07: rooms:30 independent pilot 0.539 (relative error
+/// 0.40) against 0.523, Sobol pilot 1.073 (0.32) against 0.753; rooms:17 independent pilot
+/// 0.667 (0.12) against 0.802, Sobol pilot 0.989 (0.14) against 0.932. The default pilot
+/// against the Sobol measurement would fail on rooms:17 (log off 0.33, 0.24 allowed).
 #[test]
 fn the_pilot_ratio_agrees_with_the_render_per_sample_ratio() {
     let size = (32u32, 16u32);
@@ -622,41 +627,50 @@ fn the_pilot_ratio_agrees_with_the_render_per_sample_ratio() {
         let family = FamilyScene::generate(seed);
         let scene = family.builder().unwrap().build().unwrap();
         let make = |spec: &str| prepared_on(&family, &scene, spec);
-        let piloted = make("path_skeleton:pilot_cost=work");
-        let guide = piloted.guide().unwrap();
-        let pilot = guide
-            .training()
-            .unwrap()
-            .scene
-            .pilot
-            .expect("the training guides: the pilot runs");
         let forced = make("path_skeleton:pilot_cost=work:pilot_paths=0");
         assert!(!forced.guide().unwrap().guides_nothing());
         let unguided = make("path");
-        let ratio = |sampler| {
-            pixel_variance(&family, &scene, &forced, size, (16, 24), (sampler, 11)).0
-                / pixel_variance(&family, &scene, &unguided, size, (16, 24), (sampler, 11)).0
-        };
-        // The pilot's numbers are independent, as are these; the render's default Sobol
-        // numbers are printed for comparison (not asserted).
-        let measured = ratio(lacuna::math::SamplerKind::Independent);
-        let sobol = ratio(lacuna::math::SamplerKind::Sobol);
-        let off = (pilot.variance_ratio() / measured).ln().abs();
-        println!(
-            "rooms:{seed}: pilot {:.3} ({} rays, relative error {:.2}), measured {measured:.3} (Sobol {sobol:.3}), log off {off:.3}, efficiency at the pilot's cost: pilot {:.3} measured {:.3}",
-            pilot.variance_ratio(),
-            pilot.rays,
-            pilot.variance_error,
-            pilot.efficiency(),
-            1.0 / (measured * pilot.cost_ratio),
-        );
-        assert!(
-            off < (2.5 * pilot.variance_error).max(0.2),
-            "rooms:{seed}: pilot {} against measured {measured}",
-            pilot.variance_ratio()
-        );
-        if seed == 30 {
-            assert!(measured < 1.0 && pilot.variance_ratio() < 1.0);
+        for sampler in [SamplerKind::Independent, SamplerKind::Sobol] {
+            let spec = format!(
+                "path_skeleton:pilot_cost=work:pilot_sampler={}",
+                sampler.name()
+            );
+            let piloted = make(&spec);
+            let pilot = piloted
+                .guide()
+                .unwrap()
+                .training()
+                .unwrap()
+                .scene
+                .pilot
+                .expect("the training guides: the pilot runs");
+            let measured = pixel_variance(&family, &scene, &forced, size, (16, 24), (sampler, 11))
+                .0
+                / pixel_variance(&family, &scene, &unguided, size, (16, 24), (sampler, 11)).0;
+            let off = (pilot.variance_ratio() / measured).ln().abs();
+            println!(
+                "rooms:{seed} {}: pilot {:.3} ({} units, relative error {:.2}), measured {measured:.3}, log off {off:.3}, efficiency at the pilot's cost: pilot {:.3} measured {:.3}",
+                sampler.name(),
+                pilot.variance_ratio(),
+                pilot.units,
+                pilot.variance_error,
+                pilot.efficiency(),
+                1.0 / (measured * pilot.cost_ratio),
+            );
+            // The Sobol pilot is held closer (its reading of rooms:17 is tighter).
+            let (errors, floor) = match sampler {
+                SamplerKind::Independent => (2.5, 0.2),
+                SamplerKind::Sobol => (2.0, 0.15),
+            };
+            assert!(
+                off < (errors * pilot.variance_error).max(floor),
+                "rooms:{seed} {}: pilot {} against measured {measured}",
+                sampler.name(),
+                pilot.variance_ratio()
+            );
+            if seed == 30 && sampler == SamplerKind::Independent {
+                assert!(measured < 1.0 && pilot.variance_ratio() < 1.0);
+            }
         }
     }
 }

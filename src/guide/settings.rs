@@ -8,7 +8,7 @@ use super::training::{self};
 use crate::analysis::Resolution;
 use crate::error::{Error, Result};
 use crate::light::{EnvStrategy, TriangleSampling};
-use crate::math::MisHeuristic;
+use crate::math::{MisHeuristic, SamplerKind};
 
 /// How the skeleton strength `s` of eq. 163 is chosen.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -183,13 +183,17 @@ pub struct SkeletonGuideSettings {
     pub cost_model: CostModel,
     /// Vertices per training path (`training_depth`).
     pub training_depth: u32,
-    /// `pilot_paths=N` (default [`DEFAULT_PILOT_PATHS`], 0: none): camera rays of the pilot
-    /// that checks the scene-level switch's prediction with the render's own estimator
+    /// `pilot_paths=N` (default [`DEFAULT_PILOT_PATHS`], 0: none): camera samples of the
+    /// pilot that checks the scene-level switch's prediction with the render's own estimator
     /// (`integrator::path`, "The pilot"), each traced twice guided and twice unguided.
     pub pilot_paths: u32,
     /// `pilot_cost=time` (the default) or `work`: what the pilot takes as the guided
     /// sample's cost against the unguided one's (`integrator::path`, "The pilot").
     pub pilot_cost: PilotCost,
+    /// `pilot_sampler=independent` (the default) or `sobol`: the pilot's numbers
+    /// (`integrator::path`, "The pilot"): pairs of independent samples along one ray, or
+    /// pixels of 16 samples under two scrambles of the render's Sobol points.
+    pub pilot_sampler: SamplerKind,
     /// Camera paths of the training pass (`training_paths`).
     pub training_paths: u32,
     /// `training_passes=N` (with `directions=learned`; default 1): training passes of
@@ -370,7 +374,7 @@ pub const DEFAULT_C_MAX: f32 = 0.7;
 
 /// Default vertices per training path: the integrators' default maximum depth.
 pub const DEFAULT_TRAINING_DEPTH: u32 = 8;
-/// Camera rays of the pilot (`pilot_paths`): 4 x 32768 render samples, a few tenths of a
+/// Camera samples of the pilot (`pilot_paths`): 4 x 32768 render samples, a few tenths of a
 /// second on the family scenes.
 pub const DEFAULT_PILOT_PATHS: u32 = 32768;
 
@@ -479,6 +483,7 @@ impl Default for SkeletonGuideSettings {
             training_depth: DEFAULT_TRAINING_DEPTH,
             pilot_paths: DEFAULT_PILOT_PATHS,
             pilot_cost: PilotCost::Time,
+            pilot_sampler: SamplerKind::Independent,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_passes: 1,
             training_history: false,
@@ -528,6 +533,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "directions",
     "pilot_paths",
     "pilot_cost",
+    "pilot_sampler",
 ];
 
 impl SkeletonGuideSettings {
@@ -607,6 +613,7 @@ impl SkeletonGuideSettings {
             "training_depth" => next.training_depth = number(key, value)?,
             "pilot_paths" => next.pilot_paths = number(key, value)?,
             "pilot_cost" => next.pilot_cost = PilotCost::parse(value)?,
+            "pilot_sampler" => next.pilot_sampler = SamplerKind::parse(value.trim())?,
             "training_paths" => next.training_paths = number(key, value)?,
             "training_passes" => next.training_passes = number(key, value)?,
             "histogram_floor" => next.histogram_floor = number(key, value)?,

@@ -18,23 +18,37 @@
 //! the family `rooms:SEED` it predicted variance ratios of 0.41-0.64 where the render's
 //! per-sample variance ratio was 0.84-1.06 (BENCHMARKS.md, "Procedural family"), and guided scenes lost
 //! to `path`. So before a trained guide is used, `prepare` traces a pilot with this file's own
-//! estimator at the render's depth: `pilot_paths` camera rays (drawn over the training's
-//! 2:1 image), each traced twice unguided and twice guided with the same random numbers for
-//! both policies. Half the squared difference of a ray's two samples is an unbiased estimate of
-//! the variance along that ray (the pixel's variance less the part from where in the pixel the
-//! ray goes, which guiding does not change); their means give the measured variance ratio, and
-//! the delta method over the rays its relative standard error (`Pilot::variance_error`,
-//! printed: 0.1-0.2 on family scenes that lose, 0.3-0.6 on heavy-tailed ones, where a few
-//! rays decide the ratio). The cost ratio is the time of the guided samples over the unguided
-//! ones' (`pilot_cost=time`, the default), in this thread's CPU time, timed in batches of 16
-//! rays, the two policies in turn with the order alternating: time slices given to other
-//! processes do not enter it (wall time read 1.2-1.8x on one scene under a changing load), and
-//! neither policy is timed on warmer caches. A work count (`pilot_cost=work`: rays traced per
-//! sample times the training's overhead ratio for the queries and the node mapping,
-//! `guide::training`, "Cost") read 0.90-1.18x on family scenes whose measured cost was
-//! 1.12-1.46x. Unless 1 / (variance ratio x cost ratio) exceeds the switch's margin (1.1),
-//! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The pilot's random
-//! numbers are its own, so the render stays unbiased whatever the verdict; with
+//! estimator at the render's depth, over an image at the training's 2:1 aspect, both policies
+//! with the same random numbers (their difference is less noisy than either), in units of
+//! two independent estimates each (`pilot_sampler`):
+//! - `independent` (the default): `pilot_paths` camera rays, each traced twice with
+//!   independent numbers. Half the squared difference of a ray's two samples is an unbiased
+//!   estimate of the variance along that ray (the pixel's variance less the part from where
+//!   in the pixel the ray goes, which guiding does not change).
+//! - `sobol`: `pilot_paths / 16` pixels, each estimated from 16 samples (the render's film,
+//!   lens and bounce slots) under two independent scrambles of the render's default Sobol
+//!   points (`math::pixel_sampler`). Half the squared difference of a pixel's two estimates,
+//!   times 16, is an unbiased estimate of the variance per sample that the render's pixel
+//!   error has under these numbers, which lower `path`'s variance more than the guided
+//!   mixture's (its guide/BSDF choice takes padded slots). On the family scenes it reads what
+//!   Sobol renders measure where the default reads the ratio under independent numbers
+//!   (rooms:17 0.99 against 0.93, the default 0.67); not the default because the five-scene
+//!   equal-time comparison could not show that it removes the losers without losing the
+//!   winners (BENCHMARKS.md, "Procedural family", "A pilot under the render's sampler").
+//!
+//! The units' means give the measured variance ratio, and the delta method over the units its
+//! relative standard error (`Pilot::variance_error`, printed: 0.1-0.2 on family scenes that
+//! lose, 0.3-0.6 on heavy-tailed ones, where a few units decide the ratio). The
+//! cost ratio is the time of the guided samples over the unguided ones' (`pilot_cost=time`,
+//! the default), in this thread's CPU time, timed in batches (16 rays or one pixel), the two policies in turn
+//! with the order alternating: time slices given to other processes do not enter it (wall
+//! time read 1.2-1.8x on one scene under a changing load), and neither policy is timed on
+//! warmer caches. A work count (`pilot_cost=work`: rays traced per sample times the
+//! training's overhead ratio for the queries and the node mapping, `guide::training`,
+//! "Cost") read 0.90-1.18x on family scenes whose measured cost was 1.12-1.46x. Unless 1 /
+//! (variance ratio x cost ratio) exceeds the switch's margin (1.1), every node is set to c =
+//! 0 and `path_skeleton` traces `path`'s samples. The pilot's random
+//! numbers are its own (its own seeds), so the render stays unbiased whatever the verdict; with
 //! `pilot_cost=work` the verdict is also a deterministic function of the scene (chunk sums
 //! combined in chunk order), with `time` it may differ between runs where the efficiency is
 //! near the margin.
@@ -47,7 +61,7 @@ use rayon::prelude::*;
 use super::mis_auto::{PixelAlphas, VertexAlphas};
 use super::{
     Integrator, IntegratorSettings, MisHeuristic, Precomputation, SampleContext, TraceCounters,
-    ALPHA_LAYER,
+    View, ALPHA_LAYER,
 };
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
@@ -58,7 +72,7 @@ use crate::guide::{
 };
 use crate::light::TriangleSampling;
 use crate::math::FIRST_INTEGRATOR_DIMENSION;
-use crate::math::{luminance, Frame, Rgb, Rng, Sampler, Vec3};
+use crate::math::{luminance, Frame, PixelSampler, Rgb, Rng, Sampler, SamplerKind, Vec3};
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction};
 use crate::timing::thread_cpu_seconds;
 
@@ -246,20 +260,97 @@ impl PathTracer {
     }
 }
 
-/// Camera rays per chunk of the pilot (the fixed work partition).
-const PILOT_CHUNK: u32 = 256;
-/// Rays timed together (one row of a pilot tile): the thread CPU clock is a system call,
-/// too slow to time a single sample against.
-const PILOT_BATCH: usize = 16;
+/// Samples per pilot pixel and scramble (`pilot_sampler=sobol`): enough for the Sobol points'
+/// stratification to lower `path`'s variance (BENCHMARKS.md, "Procedural family", "A pilot
+/// under the render's sampler"; 64 samples over 512 pixels read the door's ratio at 1.35).
+const PILOT_SPP: u32 = 16;
 const PILOT_SEED: u64 = 0x9170_7a11;
 /// Width / height of the pilot's image: the training's (BENCHMARKS.md, "Procedural family",
 /// "The pilot against the render": the render's view was tried and not kept).
 const PILOT_ASPECT: f32 = 2.0;
 
-/// Half the squared difference of two samples' luminance (an unbiased estimate of the
-/// variance along their ray); infinite if either is not finite.
-fn half_squared_difference(a: Rgb, b: Rgb) -> f64 {
-    let d = luminance(a) as f64 - luminance(b) as f64;
+/// The pilot's units (module docs, "The pilot"): rays with a pair of independent samples
+/// each, or pixels estimated under two scrambles of the Sobol points.
+#[derive(Clone, Copy)]
+enum PilotUnits {
+    Rays(crate::scene::CameraFrame),
+    Pixels(View),
+}
+
+impl PilotUnits {
+    /// `samples` camera samples of the pilot under `sampler`'s numbers.
+    fn new(camera: &Camera, sampler: SamplerKind, samples: u32) -> (Self, u32) {
+        let frame = camera.frame(PILOT_ASPECT);
+        match sampler {
+            SamplerKind::Independent => (PilotUnits::Rays(frame), samples),
+            SamplerKind::Sobol => {
+                let pixels = samples.div_ceil(PILOT_SPP);
+                let width = ((pixels as f64 * PILOT_ASPECT as f64).sqrt().ceil() as u32).max(1);
+                let view = View {
+                    frame,
+                    width,
+                    height: pixels.div_ceil(width),
+                    sampler,
+                };
+                (PilotUnits::Pixels(view), pixels)
+            }
+        }
+    }
+
+    /// Units per chunk (the fixed work partition) and per timed batch: the thread CPU clock
+    /// is a system call, too slow to time a single sample against.
+    fn chunk_and_batch(&self) -> (u32, usize) {
+        match self {
+            PilotUnits::Rays(_) => (256, 16),
+            PilotUnits::Pixels(_) => (16, 1),
+        }
+    }
+
+    /// Samples per unit and estimate.
+    fn samples(&self) -> u32 {
+        match self {
+            PilotUnits::Rays(_) => 1,
+            PilotUnits::Pixels(_) => PILOT_SPP,
+        }
+    }
+
+    /// The unit's two independent estimates (luminance) by `trace`, which maps a camera ray
+    /// and its numbers to a sample: for a ray, two samples along it with independent numbers;
+    /// for a pixel, its means over [`PILOT_SPP`] samples under two scrambles. The numbers
+    /// depend only on the unit, so both policies see the same.
+    fn estimates(&self, unit: u32, mut trace: impl FnMut(Ray, &mut Sampler) -> Rgb) -> [f64; 2] {
+        let mut out = [0f64; 2];
+        match self {
+            PilotUnits::Rays(frame) => {
+                let mut pick = Rng::new(PILOT_SEED, unit as u64);
+                let ray = frame.generate_ray(pick.uniform2(), pick.uniform2());
+                for (j, estimate) in out.iter_mut().enumerate() {
+                    let mut rng =
+                        Sampler::independent(Rng::new(PILOT_SEED + 1 + j as u64, unit as u64));
+                    *estimate = luminance(trace(ray, &mut rng)) as f64;
+                }
+            }
+            PilotUnits::Pixels(view) => {
+                let (x, y) = (unit % view.width, unit / view.width);
+                for (j, estimate) in out.iter_mut().enumerate() {
+                    let pixel = PixelSampler::new(view.sampler, PILOT_SEED + j as u64, unit as u64);
+                    for s in 0..PILOT_SPP {
+                        let mut rng = pixel.sample(s);
+                        let ray = view.primary_ray(x, y, &mut rng);
+                        *estimate += luminance(trace(ray, &mut rng)) as f64;
+                    }
+                    *estimate /= PILOT_SPP as f64;
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Half the squared difference of two estimates (an unbiased estimate of either's variance
+/// when they are independent and alike); infinite if either is not finite.
+fn half_squared_difference([a, b]: [f64; 2]) -> f64 {
+    let d = a - b;
     if d.is_finite() {
         0.5 * d * d
     } else {
@@ -268,70 +359,54 @@ fn half_squared_difference(a: Rgb, b: Rgb) -> f64 {
 }
 
 impl PathTracer {
-    /// The pilot's sums over camera rays `range` (module docs, "The pilot"): per policy
-    /// (unguided, guided) the summed half squared differences, rays traced and CPU seconds,
-    /// then the sums of the squared differences' squares and cross product (for the ratio's
-    /// standard error). Chunk sums combined in chunk order: the same for any thread count.
+    /// The pilot's sums over `count` units (module docs, "The pilot"): per policy (unguided,
+    /// guided) the summed per-sample variances, rays traced and CPU seconds, then the sums
+    /// of the variances' squares and cross product (for the ratio's standard error). Chunk
+    /// sums combined in chunk order: the same for any thread count.
     fn pilot_sums(
         &self,
         scene: &Scene,
-        frame: &crate::scene::CameraFrame,
+        units: PilotUnits,
         guide: &SkeletonGuide,
-        range: std::ops::Range<u32>,
+        count: u32,
     ) -> [f64; 9] {
-        let chunk_count = (range.end - range.start).div_ceil(PILOT_CHUNK);
-        let chunks: Vec<[f64; 9]> = (0..chunk_count)
+        let (chunk, batch) = units.chunk_and_batch();
+        let samples = units.samples() as f64;
+        let chunks: Vec<[f64; 9]> = (0..count.div_ceil(chunk))
             .into_par_iter()
             .map(|c| {
                 let mut query = GuideQuery::new();
                 let mut counters = [TraceCounters::default(), TraceCounters::default()];
                 let mut seconds = [0f64; 2];
-                let first = range.start + c * PILOT_CHUNK;
-                let chunk_rays: Vec<u32> = (first..(first + PILOT_CHUNK).min(range.end)).collect();
+                let first = c * chunk;
+                let chunk_units: Vec<u32> = (first..(first + chunk).min(count)).collect();
                 let mut out = [0f64; 9];
-                for (b, batch) in chunk_rays.chunks(PILOT_BATCH).enumerate() {
-                    let batch_rays: Vec<Ray> = batch
-                        .iter()
-                        .map(|&i| {
-                            let mut pick = Rng::new(PILOT_SEED, i as u64);
-                            frame.generate_ray(pick.uniform2(), pick.uniform2())
-                        })
-                        .collect();
-                    let mut d = vec![[0f64; 2]; batch.len()];
+                for (b, batch_units) in chunk_units.chunks(batch).enumerate() {
+                    let mut d = vec![[0f64; 2]; batch_units.len()];
                     // Unguided and guided in turn, which goes first alternating, so that
                     // neither is timed on warmer caches.
                     for step in 0..2 {
-                        let k = (step + b + (first / PILOT_CHUNK) as usize) % 2;
+                        let k = (step + b + c as usize) % 2;
                         let started = thread_cpu_seconds();
-                        for ((&i, &ray), dk) in batch.iter().zip(&batch_rays).zip(&mut d) {
-                            let mut l = [Rgb::ZERO; 2];
-                            for (j, lj) in l.iter_mut().enumerate() {
-                                // The same numbers for both policies: their difference is
-                                // less noisy than either.
-                                let mut rng = Sampler::independent(Rng::new(
-                                    PILOT_SEED + 1 + j as u64,
-                                    i as u64,
-                                ));
-                                let off = &mut { VertexAlphas::OFF };
+                        for (&unit, dk) in batch_units.iter().zip(&mut d) {
+                            let counters = &mut counters[k];
+                            let off = &mut { VertexAlphas::OFF };
+                            let estimates = units.estimates(unit, |ray, rng| {
                                 let sample = if k == 1 {
                                     let guided = &mut SkeletonVertexGuide {
                                         guide,
                                         query: &mut query,
                                     };
-                                    self.trace(scene, ray, &mut rng, &mut counters[k], guided, off)
+                                    self.trace(scene, ray, rng, counters, guided, off)
                                 } else {
-                                    self.trace(
-                                        scene,
-                                        ray,
-                                        &mut rng,
-                                        &mut counters[k],
-                                        &mut Unguided,
-                                        off,
-                                    )
+                                    self.trace(scene, ray, rng, counters, &mut Unguided, off)
                                 };
-                                *lj = sample.radiance;
-                            }
-                            dk[k] = half_squared_difference(l[0], l[1]);
+                                sample.radiance
+                            });
+                            // The variance of the unit's estimate times its samples: the
+                            // variance per sample that the render's error has under these
+                            // numbers.
+                            dk[k] = samples * half_squared_difference(estimates);
                         }
                         seconds[k] += thread_cpu_seconds() - started;
                     }
@@ -364,18 +439,17 @@ impl PathTracer {
     fn pilot(&self, scene: &Scene, camera: &Camera, guide: &SkeletonGuide) -> Option<Pilot> {
         let settings = guide.settings();
         let training = guide.training().filter(|t| t.paths > 0)?;
-        let rays = settings.pilot_paths;
-        if rays == 0
+        if settings.pilot_paths == 0
             || guide.guides_nothing()
             || !settings.learned_c_skel
             || !settings.cost_model.switches()
         {
             return None;
         }
-        let frame = camera.frame(PILOT_ASPECT);
-        let sum = self.pilot_sums(scene, &frame, guide, 0..rays);
-        let n = rays as f64;
-        let samples = 2.0 * n;
+        let (units, count) = PilotUnits::new(camera, settings.pilot_sampler, settings.pilot_paths);
+        let sum = self.pilot_sums(scene, units, guide, count);
+        let n = count as f64;
+        let samples = 2.0 * n * units.samples() as f64;
         let (rays_path, rays_guided) = (sum[2] / samples, sum[3] / samples);
         let ray_ratio = if rays_path > 0.0 {
             rays_guided / rays_path
@@ -388,10 +462,11 @@ impl PathTracer {
             _ => ray_ratio * training.scene.cost_ratio,
         };
         Some(Pilot {
-            rays,
+            rays: count * units.samples(),
+            units: count,
             variance_path: sum[0] / n,
             variance_guided: sum[1] / n,
-            variance_error: ratio_relative_error(&sum, rays),
+            variance_error: ratio_relative_error(&sum, count),
             rays_per_sample_path: rays_path,
             rays_per_sample_guided: rays_guided,
             seconds_path,
@@ -402,9 +477,9 @@ impl PathTracer {
 }
 
 /// The relative standard error of the pilot's variance ratio from its sums
-/// ([`PathTracer::pilot_sums`]) over `n` rays: the delta method for a ratio of two means of
-/// paired values (the two policies' squared differences on one ray are correlated). 0 where
-/// either mean is 0 or a sum is not finite.
+/// ([`PathTracer::pilot_sums`]) over `n` units: the delta method for a ratio of two means of
+/// paired values (the two policies' variances at one unit are correlated). 0 where either
+/// mean is 0 or a sum is not finite.
 fn ratio_relative_error(sum: &[f64; 9], n: u32) -> f64 {
     let n = n as f64;
     let (ma, mg) = (sum[0] / n, sum[1] / n);
@@ -475,8 +550,9 @@ impl Integrator for PathTracer {
         notes.extend(portals.notes);
         if let Some(p) = pilot {
             notes.push(format!(
-                "pilot ({} rays, {:.2} s): variance {:.3}x (relative error {:.2}), cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x{}",
+                "pilot ({} camera samples in {} units, {:.2} s): variance {:.3}x (relative error {:.2}), cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x{}",
                 p.rays,
+                p.units,
                 pilot_seconds,
                 p.variance_ratio(),
                 p.variance_error,

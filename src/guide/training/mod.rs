@@ -244,22 +244,24 @@ impl SceneChoice {
 }
 
 /// What the pilot measured (`integrator::path`, "The pilot"): the render's own samples, guided
-/// against unguided from the same rays and random numbers.
+/// against unguided from the same rays or pixels and random numbers.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Pilot {
-    /// Rays the pilot traced from.
+    /// Camera samples per policy and estimate.
     pub rays: u32,
-    /// Mean per-ray variance of the sample's luminance (half the squared difference of two
-    /// independent samples along the same ray), unguided and guided.
+    /// Units (rays or pixels, `pilot_sampler`), each estimated twice per policy.
+    pub units: u32,
+    /// Mean per-sample variance of a unit's luminance (half the squared difference of its
+    /// two independent estimates, times its samples per estimate), unguided and guided.
     pub variance_path: f64,
     pub variance_guided: f64,
-    /// The relative standard error of the variance ratio (delta method over the rays; a
+    /// The relative standard error of the variance ratio (delta method over the units; a
     /// diagnostic, printed with the verdict).
     pub variance_error: f64,
     /// Rays traced (closest hits and shadow rays) per sample, unguided and guided.
     pub rays_per_sample_path: f64,
     pub rays_per_sample_guided: f64,
-    /// Time spent tracing the unguided and the guided samples (interleaved ray by ray, so
+    /// Time spent tracing the unguided and the guided samples (interleaved unit by unit, so
     /// that the machine's load weighs on both alike).
     pub seconds_path: f64,
     pub seconds_guided: f64,
