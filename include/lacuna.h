@@ -1658,8 +1658,9 @@ lacuna_status lacuna_render_job_set_thread_count(struct lacuna_render_job *job,
 
 // Sets the MIS heuristic: a `lacuna_mis_heuristic` value. Unset, each integrator uses its
 // own default: `LACUNA_MIS_HEURISTIC_POWER` for `path`, `path_skeleton` and `bdpt`,
-// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`. `AUTO` is taken by `path` and
-// `env_direct`, `OPTIMAL` by `env_direct`; another integrator refuses them when the job runs.
+// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`. `AUTO` is taken by `path`,
+// `path_skeleton`, `path_portal` and `env_direct`, `OPTIMAL` by `env_direct`; another
+// integrator refuses them when the job runs.
 lacuna_status lacuna_render_job_set_mis_heuristic(struct lacuna_render_job *job,
                                                   uint32_t heuristic);
 

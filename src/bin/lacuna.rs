@@ -194,7 +194,7 @@ struct SceneArgs {
     /// Maximum number of bounces (1 = direct lighting only) [default: 8, or the scene file's].
     #[arg(long)]
     max_depth: Option<u32>,
-    /// MIS heuristic between light and BSDF sampling: power or balance; path and env_direct also auto (the per-pixel / per-point sample split of thesis 001 ch. 5), env_direct also optimal (Kondapaneni et al. 2019) [default: power; env_direct: balance].
+    /// MIS heuristic between light and BSDF sampling: power or balance; path, path_skeleton, path_portal and env_direct also auto (the per-pixel / per-point sample split of thesis 001 ch. 5; path_skeleton also re-estimates its guiding probability per node), env_direct also optimal (Kondapaneni et al. 2019) [default: power; env_direct: balance].
     #[arg(long)]
     mis: Option<String>,
     /// Bidirectional integrators: light subpaths per iteration [default: one per pixel].

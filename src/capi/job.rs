@@ -511,8 +511,9 @@ pub unsafe extern "C" fn lacuna_render_job_set_thread_count(
 
 /// Sets the MIS heuristic: a `lacuna_mis_heuristic` value. Unset, each integrator uses its
 /// own default: `LACUNA_MIS_HEURISTIC_POWER` for `path`, `path_skeleton` and `bdpt`,
-/// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`. `AUTO` is taken by `path` and
-/// `env_direct`, `OPTIMAL` by `env_direct`; another integrator refuses them when the job runs.
+/// `LACUNA_MIS_HEURISTIC_BALANCE` for `env_direct`. `AUTO` is taken by `path`,
+/// `path_skeleton`, `path_portal` and `env_direct`, `OPTIMAL` by `env_direct`; another
+/// integrator refuses them when the job runs.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_set_mis_heuristic(
     job: *mut lacuna_render_job,

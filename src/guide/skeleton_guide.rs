@@ -658,6 +658,17 @@ impl SkeletonGuide {
         }
     }
 
+    /// Replaces the guided nodes' probabilities (`path_skeleton:mis=auto`'s re-estimate,
+    /// `integrator::mis_auto::refine_mixture`): a node keeps c = 0 where it had it and stays
+    /// guided where it was, so which voxels may guide does not change.
+    pub fn set_guiding_probabilities(&mut self, c: &[f32]) {
+        for (old, &new) in self.node_c.iter_mut().zip(c) {
+            if *old > 0.0 && new > 0.0 {
+                *old = new;
+            }
+        }
+    }
+
     /// True when no node is guided (every learned c is 0): no query can guide, and
     /// `path_skeleton` skips the queries altogether (its samples are then `path`'s).
     pub fn guides_nothing(&self) -> bool {

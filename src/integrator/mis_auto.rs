@@ -136,18 +136,29 @@ pub fn refine_alpha(
 /// One step of [`refine_alpha`] from `alpha0`; `None` when no sample carries information
 /// (then alpha stays).
 fn newton_step(alpha0: f32, samples: impl Iterator<Item = (f32, f32, f32, f32)>) -> Option<f32> {
+    newton_step_sampled(
+        alpha0,
+        samples.map(|(w, f, pb, pl)| (w, f, pb, pl, 0.5 * (pb as f64 + pl as f64))),
+    )
+}
+
+/// [`newton_step`] from samples drawn with density `sampled` (the fifth item), each yielding
+/// (weight, f, pdf_B, pdf_L, sampled).
+fn newton_step_sampled(
+    alpha0: f32,
+    samples: impl Iterator<Item = (f32, f32, f32, f32, f64)>,
+) -> Option<f32> {
     let a = alpha0 as f64;
     let (mut first, mut second) = (0.0f64, 0.0f64);
-    for (w, f, pdf_bsdf, pdf_light) in samples {
+    for (w, f, pdf_bsdf, pdf_light, sampled) in samples {
         // Samples with f = 0 add nothing (most of them where a light is small or occluded).
         if f == 0.0 {
             continue;
         }
         let (pb, pl) = (pdf_bsdf as f64, pdf_light as f64);
-        let pbar = 0.5 * (pb + pl);
         let q0 = a * pb + (1.0 - a) * pl;
-        // f^2 D / q0^2 / pbar and f^2 D^2 / q0^3 / pbar with one division.
-        let inv = 1.0 / (pbar * q0 * q0 * q0);
+        // f^2 D / q0^2 / sampled and f^2 D^2 / q0^3 / sampled with one division.
+        let inv = 1.0 / (sampled * q0 * q0 * q0);
         let d = pb - pl;
         let h = w as f64 * (f as f64) * (f as f64) * d * inv;
         if !(h.is_finite() && q0 > 0.0) {
@@ -163,6 +174,70 @@ fn newton_step(alpha0: f32, samples: impl Iterator<Item = (f32, f32, f32, f32)>)
     alpha
         .is_finite()
         .then(|| (alpha as f32).clamp(ALPHA_MIN, ALPHA_MAX))
+}
+
+/// **`path_skeleton`'s mixture.** At a guided node `path_skeleton` draws its direction from
+/// the skeleton's lobes with probability c and from the BSDF otherwise, with the mixture's
+/// density `q_c = c p_G + (1 - c) p_B` (one-sample MIS, `guide::mixture`): eq. 5.3 with the
+/// guide in the BSDF's place and the BSDF in the light's, alpha = c. The sample's estimate is
+/// `h / q_c`, `h` the integrand (f |cos| times the radiance the rest of the path brings, times
+/// the throughput before the vertex: the sample's share of the pixel), so the second moment is
+/// `int h^2 / q_c`, convex in c, and [`refine_alpha`]'s Newton steps apply, from samples drawn
+/// with the density the render used there (`sampled`, the mixture at the node's trained c or
+/// lower where `ratio_max` capped it). A [`MixtureSample`] is one such direction; the steps
+/// start at the node's trained c and are clamped to [`ALPHA_MIN`, `c_max`] (the guide's own
+/// bound on c, below [`ALPHA_MAX`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MixtureSample {
+    /// The node the vertex mapped to.
+    pub node: u32,
+    /// The integrand h (luminance) of the direction: the sample's contribution times `sampled`.
+    pub h: f32,
+    /// The guide's and the BSDF's densities of the direction.
+    pub pdf_guide: f32,
+    pub pdf_bsdf: f32,
+    /// The mixture density it was drawn with.
+    pub sampled: f32,
+}
+
+/// Nodes need at least this many samples with h != 0 for their c to be re-estimated; fewer
+/// keep the trained c (the estimate from a handful of samples is mostly noise).
+pub const MIXTURE_MIN_SAMPLES: usize = 16;
+
+/// The Newton steps of the mixture's c per node (see [`MixtureSample`]): `samples` sorted by
+/// node, `c` the trained probabilities (only nodes with c > 0 change), `c_max` the largest c
+/// allowed. Returns how many nodes changed. Deterministic: each node's sums run over its
+/// samples in the given order.
+pub fn refine_mixture(c: &mut [f32], samples: &[MixtureSample], steps: u32, c_max: f32) -> usize {
+    let c_max = c_max.clamp(ALPHA_MIN, ALPHA_MAX);
+    let mut changed = 0;
+    for group in samples.chunk_by(|a, b| a.node == b.node) {
+        let Some(c0) = c.get_mut(group[0].node as usize) else {
+            continue;
+        };
+        if *c0 <= 0.0 || group.iter().filter(|s| s.h != 0.0).count() < MIXTURE_MIN_SAMPLES {
+            continue;
+        }
+        let mut alpha = c0.clamp(ALPHA_MIN, c_max);
+        for _ in 0..steps {
+            let step = newton_step_sampled(
+                alpha,
+                group
+                    .iter()
+                    .map(|s| (1.0, s.h, s.pdf_guide, s.pdf_bsdf, s.sampled as f64)),
+            )
+            .map(|a| a.min(c_max));
+            match step {
+                Some(next) if next != alpha => alpha = next,
+                _ => break,
+            }
+        }
+        if alpha != *c0 {
+            *c0 = alpha;
+            changed += 1;
+        }
+    }
+    changed
 }
 
 /// Splits `total` samples into (light, BSDF) counts with a fraction `alpha` (rounded) from the
@@ -581,6 +656,80 @@ mod tests {
             refine_alpha(0.3, 4, [(1.0, 0.0, 1.0, 2.0)].into_iter()),
             0.3
         );
+    }
+
+    /// `path_skeleton`'s mixture: samples drawn from the mixture at c = 0.3 (not the even
+    /// split) of pdf_G = 2x and pdf_B = 2(1 - x), integrand h = x^k: the steps reach the exact
+    /// minimiser of int h^2 / q_c (fine search) from the trained c, per node; a node with c = 0,
+    /// one with too few samples, and samples with zero or infinite densities change nothing
+    /// and give no NaN.
+    #[test]
+    fn mixture_steps_reach_the_exact_minimiser_from_the_sampled_c() {
+        let c_s = 0.3f32;
+        let mut rng = Rng::new(5, 0);
+        let mut samples = Vec::new();
+        for (node, k) in [(0u32, 1), (2, 3)] {
+            for _ in 0..100_000 {
+                let u = rng.uniform().sqrt();
+                let x = if rng.uniform() < c_s { u } else { 1.0 - u };
+                let (pg, pb) = (2.0 * x, 2.0 * (1.0 - x));
+                samples.push(MixtureSample {
+                    node,
+                    h: x.powi(k),
+                    pdf_guide: pg,
+                    pdf_bsdf: pb,
+                    sampled: c_s * pg + (1.0 - c_s) * pb,
+                });
+            }
+        }
+        // Node 3: c = 0 (not guided); node 4: too few samples; node 5: degenerate densities.
+        for i in 0..MIXTURE_MIN_SAMPLES + 4 {
+            let node = if i < 4 { 4 } else { 3 };
+            samples.push(MixtureSample {
+                node,
+                h: 1.0,
+                pdf_guide: 1.0,
+                pdf_bsdf: 3.0,
+                sampled: 2.0,
+            });
+        }
+        for (pg, pb, q) in [(0.0, 0.0, 0.0), (f32::INFINITY, 1.0, 1.0), (1.0, 1.0, 1.0)] {
+            for _ in 0..MIXTURE_MIN_SAMPLES {
+                samples.push(MixtureSample {
+                    node: 5,
+                    h: 1.0,
+                    pdf_guide: pg,
+                    pdf_bsdf: pb,
+                    sampled: q,
+                });
+            }
+        }
+        samples.sort_by_key(|s| s.node);
+        let mut c = vec![c_s, 0.5, c_s, 0.0, 0.4, 0.6];
+        let changed = refine_mixture(&mut c, &samples, 8, ALPHA_MAX);
+        assert_eq!(changed, 2, "{c:?}");
+        assert_eq!([c[1], c[3], c[4], c[5]], [0.5, 0.0, 0.4, 0.6]);
+        let mut c2 = vec![c_s, 0.5, c_s, 0.0, 0.4, 0.6];
+        refine_mixture(&mut c2, &samples, 8, ALPHA_MAX);
+        assert_eq!(c, c2, "deterministic");
+        for (node, k) in [(0usize, 1), (2, 3)] {
+            let moment = |c: f64| {
+                let n = 20000;
+                (0..n)
+                    .map(|i| {
+                        let x = (i as f64 + 0.5) / n as f64;
+                        x.powi(2 * k) / (c * 2.0 * x + (1.0 - c) * 2.0 * (1.0 - x))
+                    })
+                    .sum::<f64>()
+            };
+            let best = (25..=975)
+                .map(|i| i as f64 / 1000.0)
+                .min_by(|a, b| moment(*a).total_cmp(&moment(*b)))
+                .unwrap();
+            let got = c[node];
+            assert!((got as f64 - best).abs() < 0.02, "k={k}: {got} vs {best}");
+            assert!(moment(got as f64) < moment(c_s as f64), "k={k}");
+        }
     }
 
     #[test]

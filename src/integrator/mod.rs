@@ -49,7 +49,8 @@ use crate::timing::StageTime;
 /// than beside the heuristic in [`crate::math`].
 impl MisHeuristic {
     /// Fails for `auto` and `optimal` in an integrator whose [`Registration::adaptive_mis`]
-    /// does not list it (`auto`: `env_direct` and `path`; `optimal`: `env_direct`).
+    /// does not list it (`auto`: `env_direct`, `path`, `path_skeleton` and `path_portal`;
+    /// `optimal`: `env_direct`).
     pub fn check_supported(self, integrator: &str) -> Result<()> {
         let adaptive = matches!(self, MisHeuristic::Auto | MisHeuristic::Optimal);
         let supported = find(integrator).is_some_and(|r| r.adaptive_mis.contains(&self));

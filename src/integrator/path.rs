@@ -58,7 +58,7 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
-use super::mis_auto::{PixelAlphas, VertexAlphas};
+use super::mis_auto::{MixtureSample, PixelAlphas, VertexAlphas};
 use super::{
     Integrator, IntegratorSettings, MisHeuristic, Precomputation, SampleContext, TraceCounters,
     View, ALPHA_LAYER,
@@ -536,6 +536,31 @@ impl Integrator for PathTracer {
             guide.apply_pilot(p);
         }
         let pilot_seconds = pilot_started.elapsed().as_secs_f64();
+        let mixture_started = std::time::Instant::now();
+        let mixture = if self.mis() == MisHeuristic::Auto {
+            self.mixture_warmup(scene, camera, &guide)
+        } else {
+            None
+        };
+        let mixture_seconds = mixture_started.elapsed().as_secs_f64();
+        let mut mixture_note = None;
+        if let Some((c, changed, samples)) = &mixture {
+            let mean = |c: &mut dyn Iterator<Item = f32>| {
+                let (sum, n) = c
+                    .filter(|&c| c > 0.0)
+                    .fold((0.0, 0), |(s, n), c| (s + c, n + 1));
+                sum / n.max(1) as f32
+            };
+            let before =
+                mean(&mut (0..guide.node_count() as u32).map(|n| guide.guiding_probability(n)));
+            guide.set_guiding_probabilities(c);
+            mixture_note = Some(format!(
+                "mis=auto: c re-estimated at {changed} of {} guided nodes from {samples} directions ({:.2} s), mean c {before:.2} -> {:.2}",
+                c.iter().filter(|&&c| c > 0.0).count(),
+                mixture_seconds,
+                mean(&mut c.iter().copied())
+            ));
+        }
         let notes = vec![format!(
             "skeleton guide: {} nodes ({} raw), {} importance nodes ({} found), {} of {} nodes guided, {:.1} MiB",
             guide.node_count(),
@@ -548,6 +573,7 @@ impl Integrator for PathTracer {
         )];
         let mut notes = notes;
         notes.extend(portals.notes);
+        notes.extend(mixture_note);
         if let Some(p) = pilot {
             notes.push(format!(
                 "pilot ({} camera samples in {} units, {:.2} s): variance {:.3}x (relative error {:.2}), cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x{}",
@@ -626,6 +652,12 @@ impl Integrator for PathTracer {
             stages.push(crate::analysis::StageTime {
                 stage: "pilot (guided against unguided samples)",
                 seconds: pilot_seconds,
+            });
+        }
+        if mixture.is_some() {
+            stages.push(crate::analysis::StageTime {
+                stage: "mis=auto: the mixture's c per node (warm-up paths)",
+                seconds: mixture_seconds,
             });
         }
         self.guiding = Some(Some(Arc::new(guide)));
@@ -875,6 +907,11 @@ pub(super) trait VertexGuide {
     /// Makes the query unguided (a delta vertex: no mixture with a Dirac lobe has a density).
     fn clear(&mut self);
     fn query(&self) -> &Self::Query;
+    /// Told of each non-delta direction the vertex drew (world `wi`, mixture density `pdf`),
+    /// with the sample's radiance before it: the mixture warm-up of `mis=auto` records them
+    /// ([`MixtureRecorder`]); the render's guides ignore it.
+    #[inline]
+    fn drew(&mut self, _radiance: Rgb, _wi: Vec3, _pdf: f32) {}
     /// Feature `diagnostics`: the skeleton query the vertex records show, if this is one.
     #[cfg(feature = "diagnostics")]
     fn skeleton_query(&self) -> Option<&GuideQuery> {
@@ -937,6 +974,137 @@ impl VertexGuide for SkeletonVertexGuide<'_> {
     #[cfg(feature = "diagnostics")]
     fn skeleton_query(&self) -> Option<&GuideQuery> {
         Some(self.query)
+    }
+}
+
+/// `mis=auto`'s mixture warm-up (see [`super::mis_auto::MixtureSample`]): the skeleton guide,
+/// recording each direction drawn at a guided vertex with the sample's radiance before it;
+/// [`MixtureRecorder::finish`] turns them into the samples' integrands once the path's
+/// radiance is known.
+struct MixtureRecorder<'a> {
+    guided: SkeletonVertexGuide<'a>,
+    /// Per direction of the current path: its node, the radiance before it (luminance), its
+    /// guide and BSDF densities and the mixture's.
+    pending: Vec<(u32, f32, f32, f32, f32)>,
+    samples: Vec<MixtureSample>,
+}
+
+impl MixtureRecorder<'_> {
+    /// Ends the current path, of radiance `radiance`: each direction's contribution is the
+    /// radiance the path gained after it, and its integrand that times the mixture density.
+    fn finish(&mut self, radiance: Rgb) {
+        let total = luminance(radiance);
+        for (node, before, pdf_guide, pdf_bsdf, sampled) in self.pending.drain(..) {
+            let h = (total - before).max(0.0) * sampled;
+            if h.is_finite() {
+                self.samples.push(MixtureSample {
+                    node,
+                    h,
+                    pdf_guide,
+                    pdf_bsdf,
+                    sampled,
+                });
+            }
+        }
+    }
+}
+
+impl VertexGuide for MixtureRecorder<'_> {
+    type Query = GuideQuery;
+    const GUIDED: bool = true;
+    fn ratio_max(&self) -> f32 {
+        self.guided.ratio_max()
+    }
+    fn prefetch(&self, si: &SurfaceInteraction) {
+        self.guided.prefetch(si);
+    }
+    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
+        self.guided.init(scene, si, c_max)
+    }
+    fn clear(&mut self) {
+        self.guided.clear();
+    }
+    fn query(&self) -> &GuideQuery {
+        self.guided.query()
+    }
+    fn drew(&mut self, radiance: Rgb, wi: Vec3, pdf: f32) {
+        let query = self.guided.query();
+        let c = query.guiding_probability();
+        let Some(node) = query.node().filter(|_| c > 0.0 && c < 1.0) else {
+            return;
+        };
+        let pdf_guide = query.pdf(wi);
+        // The BSDF's density from the mixture's: q = c p_G + (1 - c) p_B.
+        let pdf_bsdf = ((pdf - c * pdf_guide) / (1.0 - c)).max(0.0);
+        self.pending
+            .push((node, luminance(radiance), pdf_guide, pdf_bsdf, pdf));
+    }
+    #[cfg(feature = "diagnostics")]
+    fn skeleton_query(&self) -> Option<&GuideQuery> {
+        Some(self.guided.query)
+    }
+}
+
+/// Camera rays per chunk of the mixture warm-up (the fixed work partition).
+const MIXTURE_CHUNK: u32 = 1024;
+const MIXTURE_SEED: u64 = 0x313c_a17a;
+/// Newton steps of the mixture's c per node, as `env_direct`'s `alpha_steps` default.
+const MIXTURE_STEPS: u32 = 2;
+
+impl PathTracer {
+    /// `mis=auto`'s mixture warm-up (see [`super::mis_auto::MixtureSample`]): traces
+    /// `mix_warmup` camera rays over the pilot's view with the trained guide and its own random
+    /// numbers (the render stays unbiased: its c does not depend on its samples), and
+    /// re-estimates each guided node's c from the directions drawn there. Chunks are combined
+    /// in chunk order and sorted stably by node: the same c for any thread count. Returns the
+    /// new probabilities and the samples recorded, or None where nothing is guided.
+    fn mixture_warmup(
+        &self,
+        scene: &Scene,
+        camera: &Camera,
+        guide: &SkeletonGuide,
+    ) -> Option<(Vec<f32>, usize, usize)> {
+        let rays = self.settings.path.mix_warmup;
+        if rays == 0 || guide.guides_nothing() {
+            return None;
+        }
+        let frame = camera.frame(PILOT_ASPECT);
+        let chunk_count = rays.div_ceil(MIXTURE_CHUNK);
+        let chunks: Vec<Vec<MixtureSample>> = (0..chunk_count)
+            .into_par_iter()
+            .map(|c| {
+                let mut query = GuideQuery::new();
+                let mut recorder = MixtureRecorder {
+                    guided: SkeletonVertexGuide {
+                        guide,
+                        query: &mut query,
+                    },
+                    pending: Vec::new(),
+                    samples: Vec::new(),
+                };
+                let mut counters = TraceCounters::default();
+                let first = c * MIXTURE_CHUNK;
+                for i in first..(first + MIXTURE_CHUNK).min(rays) {
+                    let mut pick = Rng::new(MIXTURE_SEED, i as u64);
+                    let ray = frame.generate_ray(pick.uniform2(), pick.uniform2());
+                    let mut rng = Sampler::independent(Rng::new(MIXTURE_SEED + 1, i as u64));
+                    let sample =
+                        self.trace(scene, ray, &mut rng, &mut counters, &mut recorder, &mut {
+                            VertexAlphas::OFF
+                        });
+                    recorder.finish(sample.radiance);
+                }
+                recorder.samples
+            })
+            .collect();
+        let mut samples: Vec<MixtureSample> = chunks.into_iter().flatten().collect();
+        samples.sort_by_key(|s| s.node);
+        let mut c: Vec<f32> = (0..guide.node_count() as u32)
+            .map(|n| guide.guiding_probability(n))
+            .collect();
+        let c_max = guide.settings().c_max;
+        let changed = super::mis_auto::refine_mixture(&mut c, &samples, MIXTURE_STEPS, c_max);
+        Some((c, changed, samples.len()))
     }
 }
 
@@ -1072,6 +1240,9 @@ impl PathTracer {
             if let Some(query) = guide.skeleton_query() {
                 diagnostics::record(query, depth, ms.bsdf_pdf, bs.pdf, radiance, ms.from_guide);
             }
+            if G::GUIDED && !bs.delta {
+                guide.drew(radiance, wi, bs.pdf);
+            }
             if alphas.is_active() {
                 prev_scale = beta * bs.f * bs.wi.z.abs();
             }
@@ -1163,11 +1334,11 @@ pub(super) const PATH_SKELETON: super::Registration = super::Registration {
         Ok(true)
     },
     create: |settings| Ok(Box::new(PathTracer::skeleton_guided(settings)?)),
-    adaptive_mis: &[],
+    adaptive_mis: &[MisHeuristic::Auto],
 };
 
 /// `path`'s and `path_skeleton`'s own options
-/// (`path:rr_depth=D:triangles=area|solid_angle:mis_warmup=N`).
+/// (`path:rr_depth=D:triangles=area|solid_angle:mis_warmup=N`, `path_skeleton:mix_warmup=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PathOptions {
     /// Russian roulette: a path that has made this many bounces may be ended before the next
@@ -1181,6 +1352,10 @@ pub struct PathOptions {
     /// `mis=auto`: the samples of each pixel that estimate its alpha (rendered with the
     /// balance heuristic) before the others use it (see [`super::mis_auto::DEPTH_CLASSES`]).
     pub mis_warmup: u32,
+    /// `path_skeleton:mis=auto`: camera rays of the warm-up that re-estimates each guided
+    /// node's guiding probability c (`integrator::mis_auto::MixtureSample`); 0 keeps the
+    /// trained c (then only next-event estimation is balanced automatically).
+    pub mix_warmup: u32,
 }
 
 impl Default for PathOptions {
@@ -1189,6 +1364,7 @@ impl Default for PathOptions {
             rr_start_depth: 5,
             triangles: TriangleSampling::default(),
             mis_warmup: 16,
+            mix_warmup: 32768,
         }
     }
 }
@@ -1203,6 +1379,7 @@ pub(super) fn set_path_option(
         "rr_depth" => options.rr_start_depth = option.count()?,
         "triangles" => options.triangles = TriangleSampling::parse(option.value)?,
         "mis_warmup" => options.mis_warmup = option.count()?,
+        "mix_warmup" => options.mix_warmup = option.count()?,
         _ => return Ok(false),
     }
     Ok(true)
