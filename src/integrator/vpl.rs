@@ -60,7 +60,8 @@
 //!   itself reads 0 there, where a depth bias would let light through a thin wall);
 //! - the PCF kernel straddling a shadow edge (0 < V_f < 1);
 //! - the *receiver* map disagreeing: the map of z's own node (at half the resolution, built
-//!   for the nodes the view's surfaces map to) read at the VPL gives the other verdict. A
+//!   for the nodes the view's surfaces map to, and only those: never a node map built by
+//!   an earlier pass or render) read at the VPL gives the other verdict. A
 //!   group its node's map skips is still read this way where the receiver map sees the
 //!   group's node, since the node's view differs from its VPLs' (parallax).
 //!
@@ -122,6 +123,17 @@
 //! Every pass draws new VPLs from the seed and the sample index, so the image converges as
 //! passes accumulate, and the light subpaths are traced in fixed chunks: the same image for
 //! any thread count (the shadow maps are a function of the geometry alone).
+//!
+//! # Time budgets
+//!
+//! A pass is one sample per pixel of `count` light subpaths and may cost a good part of a
+//! one-second budget. Under a time budget the render loop sizes the passes
+//! ([`crate::render::next_pass_size`]): the first has `count` subpaths per VPL set, the
+//! later ones `size` x `count`, planned from the measured cost so that the passes fill the
+//! budget. Each pass stays an unbiased sample of its own (its VPLs' throughput divided by
+//! its own subpaths); the film averages passes with equal weights, a little noisier than
+//! weighting them by size. A time-budgeted image is then a function of the seed and the
+//! sizes the clock chose; sample-budget renders keep size 1.
 
 use std::sync::Arc;
 
@@ -528,6 +540,27 @@ struct VplSet {
     groups: Vec<VplGroup>,
     /// The cap on the geometry term (infinite without clamping).
     bound: f32,
+    /// With `verify`: the nodes with a receiver map for this render's view, sorted
+    /// ([`VplIntegrator::ensure_receiver_maps`]); a shading point of another node has no
+    /// receiver side, whatever maps earlier passes or renders built.
+    receivers: Arc<Vec<u32>>,
+}
+
+impl VplSet {
+    /// The receiver map of shading point `si`'s node (the two-sided test's receiver side),
+    /// None where this render's view gave its node none.
+    #[inline]
+    fn receiver<'a>(
+        &self,
+        shadow: &'a SkeletonShadowMaps,
+        si: &SurfaceInteraction,
+    ) -> Option<&'a super::CubeShadowMap> {
+        let node = shadow.node_of(si)?;
+        self.receivers
+            .binary_search(&node)
+            .ok()
+            .and_then(|_| shadow.receiver_map(node))
+    }
 }
 
 /// A pass of interleaved sampling ([`VplIntegrator::interleaved_pass`]): its N² VPL sets
@@ -909,6 +942,39 @@ fn accepted(seed: u64, sample_index: u32, index: usize, p: f32) -> bool {
             < p
 }
 
+/// Light subpaths per VPL set of a pass of `size` (1: `count`; at least 1, and within the
+/// limit on light subpaths with the `candidates`).
+fn sized_subpaths(count: u32, candidates: u32, size: f32) -> u32 {
+    let most = crate::limits::MAX_LIGHT_PATHS / candidates.max(1);
+    ((count as f32 * size).round() as u32).clamp(1, most.max(1))
+}
+
+/// The pass sizes of time-budgeted renders other than 1, for the render notes.
+#[derive(Default)]
+struct PassSizeStats(std::sync::Mutex<(u32, f32, f32)>);
+
+impl PassSizeStats {
+    fn record(&self, size: f32) {
+        if size != 1.0 {
+            let mut s = self.0.lock().unwrap_or_else(|e| e.into_inner());
+            *s = if s.0 == 0 {
+                (1, size, size)
+            } else {
+                (s.0 + 1, s.1.min(size), s.2.max(size))
+            };
+        }
+    }
+
+    fn note(&self, count: u32) -> Option<String> {
+        let (passes, least, most) = *self.0.lock().unwrap_or_else(|e| e.into_inner());
+        (passes > 0).then(|| {
+            format!(
+                "vpl passes sized to the time budget: {passes} of {least:.2}-{most:.2} x count={count} light subpaths"
+            )
+        })
+    }
+}
+
 pub struct VplIntegrator {
     settings: IntegratorSettings,
     options: VplOptions,
@@ -918,6 +984,7 @@ pub struct VplIntegrator {
     /// The scene `prepare` ran for (skeleton visibility needs it).
     prepared_for: Option<Fingerprint>,
     selection_stats: SelectionStats,
+    pass_sizes: PassSizeStats,
     /// `select=importance`: the probe points of the last scene and view rendered, built once
     /// per render rather than every pass.
     probes: std::sync::Mutex<Option<ProbeCache>>,
@@ -1003,6 +1070,7 @@ impl VplIntegrator {
             shadow: None,
             prepared_for: None,
             selection_stats: SelectionStats::default(),
+            pass_sizes: PassSizeStats::default(),
             probes: std::sync::Mutex::new(None),
         })
     }
@@ -1104,11 +1172,13 @@ impl VplIntegrator {
     /// With `verify`, builds the maps of the nodes the view's visible surfaces map to (the
     /// receiver side of the two-sided test), found from a grid of at most
     /// [`RECEIVER_SCAN`] pixel centres; after the VPLs' nodes, within the same budget. A
-    /// shading point whose node has no map uses its VPLs' nodes' maps alone. Deterministic:
-    /// the nodes depend on the view and the scene only.
-    fn ensure_receiver_maps(&self, scene: &Scene, view: &View) {
+    /// shading point whose node has none uses its VPLs' nodes' maps alone. Returns the
+    /// nodes that have a receiver map, sorted: a function of the view and the scene only
+    /// (and of the budget), so that every pass of every render of this view reads the same
+    /// receiver maps.
+    fn ensure_receiver_maps(&self, scene: &Scene, view: &View) -> Vec<u32> {
         let Some(shadow) = self.shadow.as_deref().filter(|_| self.options.verify > 0.0) else {
-            return;
+            return Vec::new();
         };
         let (cols, rows) = (
             view.width.min(RECEIVER_SCAN[0]),
@@ -1127,6 +1197,8 @@ impl VplIntegrator {
         nodes.sort_unstable();
         nodes.dedup();
         shadow.ensure_receivers(scene, &nodes);
+        nodes.retain(|&n| shadow.receiver_map(n).is_some());
+        nodes
     }
 
     /// `select=importance` (module docs): keeps each candidate of `vpls` with its
@@ -1170,9 +1242,9 @@ impl VplIntegrator {
         rays
     }
 
-    /// The VPLs of one set (module docs): `count` light subpaths of sample index `index`
-    /// (`candidates` x `count` thinned by `select=importance` on `probes`), grouped. Returns
-    /// the rays traced.
+    /// The VPLs of one set (module docs): `subpaths` light subpaths of sample index `index`
+    /// (`candidates` x `subpaths` thinned by `select=importance` on `probes`), grouped.
+    /// Returns the rays traced.
     fn vpl_set(
         &self,
         scene: &Scene,
@@ -1180,8 +1252,9 @@ impl VplIntegrator {
         probes: Option<&[Probe]>,
         seed: u64,
         index: u32,
+        subpaths: u32,
     ) -> (VplSet, u64) {
-        let count = self.options.count as usize
+        let count = subpaths as usize
             * if probes.is_some() {
                 self.options.candidates as usize
             } else {
@@ -1217,6 +1290,7 @@ impl VplIntegrator {
                 vpls,
                 groups,
                 bound,
+                receivers: Arc::default(),
             },
             rays,
         )
@@ -1282,9 +1356,7 @@ impl VplIntegrator {
         let verify = self.options.verify;
         let checked = verify > 0.0;
         // The receiver side of the two-sided test: the map of the shading point's own node.
-        let receiver = shadow
-            .filter(|_| checked)
-            .and_then(|s| s.node_of(si).and_then(|n| s.receiver_map(n)));
+        let receiver = shadow.filter(|_| checked).and_then(|s| set.receiver(s, si));
         let mut sum = Rgb::ZERO;
         for group in &set.groups {
             // eq. 161: the node's filtered visibility, and the whole group skipped at 0
@@ -1504,6 +1576,7 @@ impl Integrator for VplIntegrator {
         self.shadow = None;
         self.prepared_for = None;
         self.selection_stats = SelectionStats::default();
+        self.pass_sizes = PassSizeStats::default();
         *self.probes.get_mut().unwrap_or_else(|e| e.into_inner()) = None;
         let mut pre = Precomputation::default();
         if self.options.visibility == VplVisibility::Skeleton {
@@ -1547,6 +1620,7 @@ impl Integrator for VplIntegrator {
             .iter()
             .map(|s| s.cost_note())
             .chain(self.selection_stats.note())
+            .chain(self.pass_sizes.note(self.options.count))
             .collect()
     }
 
@@ -1557,6 +1631,24 @@ impl Integrator for VplIntegrator {
         seed: u64,
         sample_index: u32,
     ) -> Result<Iteration> {
+        self.begin_sized_iteration(scene, view, seed, sample_index, 1.0)
+    }
+
+    fn sized_iterations(&self) -> bool {
+        true
+    }
+
+    /// A pass of `size` x `count` light subpaths per VPL set (module docs, "Time budgets").
+    fn begin_sized_iteration(
+        &self,
+        scene: &Scene,
+        view: &View,
+        seed: u64,
+        sample_index: u32,
+        size: f32,
+    ) -> Result<Iteration> {
+        let subpaths = sized_subpaths(self.options.count, self.options.candidates, size);
+        self.pass_sizes.record(size);
         let n = self.options.interleave;
         let (probes, mut rays) = match self.options.select {
             VplSelect::Importance => {
@@ -1576,11 +1668,15 @@ impl Integrator for VplIntegrator {
                 probes.as_ref().map(|p| p.as_slice()),
                 seed,
                 index,
+                subpaths,
             );
             rays += r;
             sets.push(set);
         }
-        self.ensure_receiver_maps(scene, view);
+        let receivers = Arc::new(self.ensure_receiver_maps(scene, view));
+        for set in &mut sets {
+            set.receivers = Arc::clone(&receivers);
+        }
         if n == 1 {
             return Ok(Iteration {
                 data: sets
@@ -1615,6 +1711,7 @@ impl Integrator for VplIntegrator {
             vpls: Vec::new(),
             groups: Vec::new(),
             bound: f32::INFINITY,
+            receivers: Arc::default(),
         };
         if let Some(pass) = ctx
             .iteration
@@ -1826,9 +1923,7 @@ impl VplIntegrator {
                 }
                 let frame = si.shading_frame();
                 let wo_local = frame.to_local(si.wo);
-                let receiver = (verify)
-                    .then(|| shadow.node_of(&si).and_then(|n| shadow.receiver_map(n)))
-                    .flatten();
+                let receiver = verify.then(|| set.receiver(shadow, &si)).flatten();
                 let own_node = shadow.node_of(&si);
                 for &(v, node, map, sees) in &mapped {
                     if unshadowed(f32::INFINITY, &si, &bsdf, &frame, wo_local, v).is_none() {
@@ -1984,7 +2079,7 @@ mod tests {
                     };
                     differences.push(gathered(p) - gathered(1.0));
                     // The pairs `gather` leaves to the roulette, and their exact light.
-                    let receiver = shadow.node_of(si).and_then(|n| shadow.receiver_map(n));
+                    let receiver = set.receiver(&shadow, si);
                     let mut light = 0.0;
                     for group in &set.groups {
                         let Some(map) = shadow.map(group.node) else {
