@@ -31,6 +31,7 @@ const UNBIASED: &[&str] = &[
     "vpl:clamp=0.5:compensate=true:count=4:select=uniform",
     "vpl:clamp=0.1:compensate=true:count=16:select=importance:candidates=8:p_min=0.02",
     "vpl:clamp=0.1:compensate=true:count=16:select=importance:candidates=2:p_min=0.3",
+    "vpl:clamp=0.1:compensate=true:count=16:light_samples=4",
 ];
 
 #[test]
@@ -232,6 +233,9 @@ fn vpl_options_are_checked_and_the_bias_stated() {
         "vpl:interleave=0",
         "vpl:interleave=9",
         "vpl:interleave=x",
+        "vpl:light_samples=0",
+        "vpl:light_samples=65",
+        "vpl:light_samples=x",
     ] {
         let err = integrator::create(bad, s).err().expect(bad).to_string();
         assert!(

@@ -8,7 +8,7 @@ cd "$(dirname "$0")/../.."
 L=target/release/lacuna
 O=${1:-q36d}
 mkdir -p "$O"
-V=vpl,vpl:compensate=true,vpl:compensate=true:interleave=4,vpl:visibility=skeleton,vpl:visibility=skeleton:interleave=3
+V=vpl,vpl:light_samples=8,vpl:compensate=true:interleave=4:light_samples=16,vpl:visibility=skeleton:compensate=true:interleave=4:light_samples=8,vpl:compensate=true,vpl:compensate=true:interleave=4,vpl:visibility=skeleton,vpl:visibility=skeleton:interleave=3
 A="--width 128 --height 96 --max-depth 6"
 log() { echo "$(date -u +%H:%M:%S) load $(cut -d' ' -f1-3 /proc/loadavg) $*" | tee -a "$O/log"; }
 for sc in door ajar; do

@@ -174,6 +174,10 @@ pub const MAX_PROBES: u32 = 4096;
 pub const DEFAULT_INTERLEAVE: u32 = 1;
 /// Largest `interleave`: 64 VPL sets per pass.
 pub const MAX_INTERLEAVE: u32 = 8;
+/// Default `light_samples`: next-event samples per non-delta camera-path vertex.
+pub const DEFAULT_LIGHT_SAMPLES: u32 = 1;
+/// Largest `light_samples`.
+pub const MAX_LIGHT_SAMPLES: u32 = 64;
 
 /// How a pass picks its VPLs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -274,6 +278,9 @@ pub struct VplOptions {
     /// (x, y) gathers set (x mod N, y mod N), and the VPL light is then filtered over N x N
     /// pixel blocks by a geometry-aware filter. 1: one set, no filter.
     pub interleave: u32,
+    /// Next-event samples per non-delta vertex of the camera path, averaged (the direct
+    /// light, which the VPLs do not carry; unbiased for any count).
+    pub light_samples: u32,
 }
 
 impl Default for VplOptions {
@@ -291,6 +298,7 @@ impl Default for VplOptions {
             p_min: DEFAULT_P_MIN,
             probes: DEFAULT_PROBES,
             interleave: DEFAULT_INTERLEAVE,
+            light_samples: DEFAULT_LIGHT_SAMPLES,
         }
     }
 }
@@ -370,6 +378,13 @@ impl VplOptions {
                     ))
                 })?;
             }
+            "light_samples" => {
+                self.light_samples = value.parse::<u32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: light_samples={value} must be an integer in 1..={MAX_LIGHT_SAMPLES} (next-event samples per vertex)"
+                    ))
+                })?;
+            }
             "shadow_budget_mb" => {
                 self.shadow_budget_mb = value.parse::<u32>().map_err(|_| {
                     Error::invalid(format!(
@@ -439,6 +454,12 @@ impl VplOptions {
                 self.interleave
             )));
         }
+        if !(1..=MAX_LIGHT_SAMPLES).contains(&self.light_samples) {
+            return Err(Error::invalid(format!(
+                "vpl: light_samples={} must be within 1..={MAX_LIGHT_SAMPLES} (next-event samples per vertex)",
+                self.light_samples
+            )));
+        }
         crate::limits::check_memory_budget(
             "vpl: shadow_budget_mb",
             (self.shadow_budget_mb as u64) << 20,
@@ -502,6 +523,12 @@ const DIRECTION_SLOT: u32 = 1;
 
 fn slot(depth: u32, k: u32) -> u32 {
     FIRST_INTEGRATOR_DIMENSION + depth * SLOTS_PER_VERTEX + k
+}
+
+/// Sampler slot of the `j`-th (j >= 1) light sample of `light_samples` at `depth`: past
+/// every slot a path of `max_depth` uses, so that `light_samples=1` keeps its numbers.
+fn extra_light_slot(max_depth: u32, depth: u32, j: u32) -> u32 {
+    slot(max_depth + 1, 0) + depth * MAX_LIGHT_SAMPLES + j
 }
 
 /// One virtual point light: a stored light-subpath vertex with its BSDF resolved.
@@ -1457,18 +1484,33 @@ impl VplIntegrator {
             let frame = si.shading_frame();
             let wo_local = frame.to_local(si.wo);
             if !bsdf.is_delta() {
-                rng.set_dimension(slot(depth, LIGHT_SLOT));
-                if let Some(light) = estimator::sample_direct_light(
-                    scene,
-                    &si,
-                    &frame,
-                    &bsdf,
-                    wo_local,
-                    &estimator,
-                    rng.uniform2(),
-                    &mut counters.rays,
-                ) {
-                    let e = beta * light.unweighted();
+                let samples = self.options.light_samples;
+                let mut direct: Option<Rgb> = None;
+                for j in 0..samples {
+                    rng.set_dimension(if j == 0 {
+                        slot(depth, LIGHT_SLOT)
+                    } else {
+                        extra_light_slot(max_depth, depth, j)
+                    });
+                    if let Some(light) = estimator::sample_direct_light(
+                        scene,
+                        &si,
+                        &frame,
+                        &bsdf,
+                        wo_local,
+                        &estimator,
+                        rng.uniform2(),
+                        &mut counters.rays,
+                    ) {
+                        *direct.get_or_insert(Rgb::ZERO) += light.unweighted();
+                    }
+                }
+                if let Some(direct) = direct {
+                    let e = if samples == 1 {
+                        beta * direct
+                    } else {
+                        beta * (direct / samples as f32)
+                    };
                     radiance += e;
                     split.add(e);
                 }
