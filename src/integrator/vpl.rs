@@ -244,7 +244,7 @@ impl VplVisibility {
 /// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact|skeleton`,
 /// with skeleton visibility `shadow_res=N:shadow_budget_mb=M:verify=P`; the skeleton's `resolution` and
 /// `voxel_budget` are the skeleton guide's options; `select=uniform|importance` with
-/// `candidates=K:p_min=P:probes=N`; `interleave=N`).
+/// `candidates=K:p_min=P:probes=N`; `interleave=N`; `light_samples=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VplOptions {
     /// Light subpaths per pass; each leaves a VPL at every non-delta surface it reaches.
