@@ -200,6 +200,45 @@ pub fn render_observed(
     })
 }
 
+/// The size of a time-budgeted render's first pass with sized iterations, before any cost
+/// is measured: smaller than the usual, so that it overruns a short budget less.
+pub const FIRST_PASS_SIZE: f32 = 0.5;
+/// Share of the remaining time the sizes are planned for (a margin for the clock's noise).
+const PASS_TIME_SHARE: f64 = 0.95;
+/// The share of a pass's cost assumed not to scale with its size (camera rays, next-event
+/// estimation; `vpl` at 128x96: about 5 % with exact visibility, more with skeleton
+/// visibility's cheap gathers) when a pass is shrunk, so that the last pass does not
+/// overrun the budget.
+const PASS_FIXED_SHARE: f64 = 0.2;
+/// Smallest pass worth running (in units of the usual).
+const MIN_PASS_SIZE: f32 = 0.05;
+
+/// The size of the next pass of a time-budgeted render of an integrator with sized
+/// iterations ([`Integrator::sized_iterations`]), None to stop. The first pass (no cost
+/// measured yet) has [`FIRST_PASS_SIZE`]. Then, from the `last` pass's (size, seconds),
+/// with a cost model `a + b size` that puts a share [`PASS_FIXED_SHARE`] of a size-1
+/// pass's cost in `a` (and, for passes larger than the measured one, the cost proportional
+/// to the size: each model errs low on its own side), the remaining time is planned as the
+/// whole number of equal passes nearest to what fits (so sizes stay near the usual while
+/// more than one pass fits), and the next is one of them. The render loop weights each
+/// pass by its size, so a small last pass adds what it can.
+pub fn next_pass_size(remaining: f64, last: Option<(f32, f64)>) -> Option<f32> {
+    let Some((measured, seconds)) = last else {
+        return Some(FIRST_PASS_SIZE);
+    };
+    if !(remaining > 0.0 && seconds > 0.0 && measured > 0.0) {
+        return None;
+    }
+    // seconds = a + b measured, a = F (a + b).
+    let fixed = PASS_FIXED_SHARE / (1.0 - PASS_FIXED_SHARE);
+    let b = seconds / (fixed + f64::from(measured));
+    let a = fixed * b;
+    let time = PASS_TIME_SHARE * remaining;
+    let per_pass = time / (time / (a + b)).round().max(1.0);
+    let size = ((per_pass - a) / b).min(per_pass * f64::from(measured) / seconds) as f32;
+    (size >= MIN_PASS_SIZE).then_some(size)
+}
+
 fn render_in_pool(
     scene: &Scene,
     camera: &Camera,
@@ -233,14 +272,32 @@ fn render_in_pool(
     let tiles_done = AtomicU64::new(0);
     let mut spp_done = 0u32;
     let mut seconds_per_spp: Option<f64> = None;
+    // Time-budgeted renders of integrators with sized iterations size their passes to fill
+    // the budget ([`next_pass_size`]); `film` is then the size-weighted mean of the passes,
+    // `weighted` the sum of their films times their sizes, `size_sum` the sizes' sum.
+    let sized = iterative && settings.time_limit.is_some() && integrator.sized_iterations();
+    let mut last_pass: Option<(f32, f64)> = None;
+    let mut weighted = Film::with_layers(w, h, &layer_names);
+    let mut size_sum = 0.0f64;
 
     while spp_done < settings.spp {
         let elapsed = start.elapsed().saturating_sub(observer_time);
+        let size = match settings.time_limit.filter(|_| sized) {
+            Some(limit) => {
+                let remaining = limit.saturating_sub(elapsed).as_secs_f64();
+                match next_pass_size(remaining, last_pass) {
+                    Some(size) => size,
+                    None => break,
+                }
+            }
+            None => 1.0,
+        };
         // Size of this pass: fixed for sample budgets; for time budgets, what fits in the
         // remaining time (at least one sample, at most a quarter of the remaining time per
         // pass so progress stays smooth).
         let pass = match (settings.time_limit, seconds_per_spp) {
             (Some(limit), _) if elapsed >= limit => break,
+            _ if sized => 1,
             (Some(limit), Some(sps)) => {
                 let remaining = (limit - elapsed).as_secs_f64();
                 let fit = (remaining / sps).floor() as u32;
@@ -268,7 +325,7 @@ fn render_in_pool(
         let mut completed = true;
         for &(first, count) in &sub_passes {
             let iteration = if iterative {
-                Some(integrator.begin_iteration(scene, &view, settings.seed, first)?)
+                Some(integrator.begin_sized_iteration(scene, &view, settings.seed, first, size)?)
             } else {
                 None
             };
@@ -364,9 +421,21 @@ fn render_in_pool(
             stats.cancelled = true;
             break;
         }
-        film.merge(&pass_film);
+        if sized {
+            // The sized passes' mean, each weighted by its size (1 spp per pass).
+            pass_film.scale_radiance(f64::from(size));
+            weighted.merge(&pass_film);
+            size_sum += f64::from(size);
+            film = weighted.clone();
+            film.scale_radiance(f64::from(spp_done + pass) / size_sum);
+        } else {
+            film.merge(&pass_film);
+        }
         let pass_seconds = pass_start.elapsed().as_secs_f64();
         seconds_per_spp = Some(pass_seconds / pass as f64);
+        if sized {
+            last_pass = Some((size, pass_seconds));
+        }
         spp_done += pass;
         stats.passes += 1;
         let observer_start = Instant::now();
@@ -390,4 +459,78 @@ fn render_in_pool(
         elapsed: start.elapsed(),
     });
     Ok((film, stats))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A time-budgeted render simulated without a clock: passes whose cost is `fixed` plus
+    /// `per_size - fixed` times their size (the first also `setup`), sized by
+    /// [`next_pass_size`] from the last pass's cost, as the render loop does. Returns the
+    /// time used and the sizes.
+    fn simulate(budget: f64, setup: f64, fixed: f64, per_size: f64) -> (f64, Vec<f32>) {
+        let (mut elapsed, mut sizes, mut last) = (0.0, Vec::new(), None);
+        while elapsed < budget {
+            let Some(size) = next_pass_size(budget - elapsed, last) else {
+                break;
+            };
+            let first = if sizes.is_empty() { setup } else { 0.0 };
+            let cost = first + fixed + (per_size - fixed) * f64::from(size);
+            elapsed += cost;
+            last = Some((size, cost));
+            sizes.push(size);
+        }
+        (elapsed, sizes)
+    }
+
+    /// Where a pass of the usual size costs from a twentieth of the budget to half of it,
+    /// with a first pass slowed by a set-up and up to a fifth of each pass's cost not
+    /// scaling with its size, the passes fill 90-100 % of the budget (the render loop's
+    /// whole passes stop at 55 % when a pass costs half the budget), 80-100 % where a pass
+    /// costs up to 0.8 of it (two or three passes: the cost measured on the first, smaller
+    /// one extrapolates with a margin); no pass but the last two is far from the usual size.
+    #[test]
+    fn sized_passes_fill_the_time_budget() {
+        for per_size in [0.05, 0.1, 0.2, 0.3, 0.45, 0.5, 0.6, 0.8] {
+            let mut fills = Vec::new();
+            for (setup, fixed_share) in [(0.0, 0.0), (0.05, 0.1), (0.1, 0.2), (0.0, 0.2)] {
+                let fixed = fixed_share * per_size;
+                let (used, sizes) = simulate(1.0, setup, fixed, per_size);
+                let label = format!(
+                    "pass {per_size} s, setup {setup}, fixed {fixed:.3}: {used:.3} s, sizes {sizes:?}"
+                );
+                fills.push(used);
+                let least = if per_size <= 0.5 { 0.9 } else { 0.8 };
+                assert!((least..=1.0).contains(&used), "{label}");
+                assert_eq!(sizes[0], FIRST_PASS_SIZE, "{label}");
+                let middle = sizes.get(1..sizes.len().saturating_sub(2)).unwrap_or(&[]);
+                assert!(middle.iter().all(|&s| (0.6..=1.5).contains(&s)), "{label}");
+            }
+            println!("pass {per_size} s: budget used {fills:.3?}");
+        }
+    }
+
+    #[test]
+    fn next_pass_size_plans_equal_passes() {
+        assert_eq!(next_pass_size(1.0, None), Some(FIRST_PASS_SIZE));
+        // A pass of size 1 cost 0.5 s: a = 0.1 s, b = 0.4 s per size. 0.45 s left: one
+        // pass of (0.95 x 0.45 - 0.1) / 0.4 = 0.81875.
+        let s = next_pass_size(0.45, Some((1.0, 0.5))).unwrap();
+        assert!((s - 0.81875).abs() < 1e-4, "{s}");
+        // The same cost measured on a pass of size 0.5 (0.3 s): the model gives the same,
+        // the proportional cost (0.6 s at size 1) less, 0.4275 / 0.6 = 0.7125.
+        let t = next_pass_size(0.45, Some((0.5, 0.3))).unwrap();
+        assert!((t - 0.7125).abs() < 1e-4, "{t}");
+        // 1.3 passes' worth (a = 0.2, b = 0.8): one pass of 1.235 s, the proportional
+        // size 1.235 below the model's (1.235 - 0.2) / 0.8.
+        let s = next_pass_size(1.3, Some((1.0, 1.0))).unwrap();
+        assert!((s - 1.235).abs() < 1e-4, "{s}");
+        // 10.3 passes' worth: ten of (0.9785 - 0.2) / 0.8 = 0.9731.
+        let s = next_pass_size(10.3, Some((1.0, 1.0))).unwrap();
+        assert!((s - 0.973125).abs() < 1e-4, "{s}");
+        // Too little time for the fixed part and a useful pass: none.
+        assert_eq!(next_pass_size(0.2, Some((1.0, 1.0))), None);
+        assert_eq!(next_pass_size(0.0, Some((1.0, 1.0))), None);
+    }
 }

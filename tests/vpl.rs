@@ -31,6 +31,7 @@ const UNBIASED: &[&str] = &[
     "vpl:clamp=0.5:compensate=true:count=4:select=uniform",
     "vpl:clamp=0.1:compensate=true:count=16:select=importance:candidates=8:p_min=0.02",
     "vpl:clamp=0.1:compensate=true:count=16:select=importance:candidates=2:p_min=0.3",
+    "vpl:clamp=0.1:compensate=true:count=16:light_samples=4",
 ];
 
 #[test]
@@ -141,10 +142,7 @@ fn vpl_gives_the_same_image_for_any_thread_count() {
         "vpl:count=4:interleave=4:select=uniform:compensate=true",
         "vpl:count=4:interleave=2:visibility=skeleton:shadow_res=16:compensate=true",
     ] {
-        // A fresh integrator per render: skeleton visibility keeps the shadow maps a render
-        // built, and where the receiver scan missed a shading point's node, a node map built
-        // by an earlier render stands in for its receiver map (a dependence on the
-        // integrator's history, not on the thread count).
+        // A fresh integrator per render (one integrator rendering again: the next test).
         let render = |threads| {
             let mut vpl = integrator::create(spec, s).unwrap();
             lacuna::render::prepare(vpl.as_mut(), &scene, &camera, Some(2), &|_, _| true)
@@ -165,6 +163,41 @@ fn vpl_gives_the_same_image_for_any_thread_count() {
         assert!(a.iter().any(|p| p.max_element() > 0.0), "{spec}: black");
         assert_eq!(a, render(2).radiance(), "{spec}");
         assert_eq!(a, render(3).radiance(), "{spec}");
+    }
+}
+
+/// Skeleton visibility keeps the shadow maps of earlier passes and renders; the image must
+/// not depend on them: one prepared integrator renders the same image again after a render
+/// of another size, seed and sample count (which builds other node and receiver maps).
+#[test]
+fn skeleton_vpl_renders_the_same_image_again_on_one_integrator() {
+    let scene = load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json");
+    let camera = *scene.camera().unwrap();
+    let s = IntegratorSettings {
+        max_depth: 6,
+        ..Default::default()
+    };
+    for spec in [
+        "vpl:count=8:visibility=skeleton:shadow_res=16",
+        "vpl:count=8:visibility=skeleton:shadow_res=16:verify=0.5:compensate=true",
+        "vpl:count=4:interleave=2:visibility=skeleton:shadow_res=16",
+    ] {
+        let mut vpl = integrator::create(spec, s).unwrap();
+        lacuna::render::prepare(vpl.as_mut(), &scene, &camera, Some(2), &|_, _| true).unwrap();
+        let settings = |width, height, spp, seed| RenderSettings {
+            width,
+            height,
+            spp,
+            seed,
+            threads: Some(2),
+            ..Default::default()
+        };
+        let first = render_image(&scene, &camera, vpl.as_ref(), &settings(20, 20, 3, 5));
+        let a = first.radiance();
+        assert!(a.iter().any(|p| p.max_element() > 0.0), "{spec}: black");
+        render_image(&scene, &camera, vpl.as_ref(), &settings(48, 36, 6, 9));
+        let again = render_image(&scene, &camera, vpl.as_ref(), &settings(20, 20, 3, 5));
+        assert_eq!(a, again.radiance(), "{spec}");
     }
 }
 
@@ -200,6 +233,9 @@ fn vpl_options_are_checked_and_the_bias_stated() {
         "vpl:interleave=0",
         "vpl:interleave=9",
         "vpl:interleave=x",
+        "vpl:light_samples=0",
+        "vpl:light_samples=65",
+        "vpl:light_samples=x",
     ] {
         let err = integrator::create(bad, s).err().expect(bad).to_string();
         assert!(

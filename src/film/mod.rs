@@ -229,6 +229,16 @@ impl Film {
         self.merge_tile(0, 0, other);
     }
 
+    /// Multiplies the radiance and layer sums by `factor` (sample counts and AOVs kept): a
+    /// pass weighted in a mean of passes of unequal sizes (the render loop's sized passes).
+    pub fn scale_radiance(&mut self, factor: f64) {
+        for v in self.radiance.iter_mut().chain(self.layers.iter_mut()) {
+            for c in v.iter_mut() {
+                *c *= factor;
+            }
+        }
+    }
+
     /// Mean radiance of a pixel (zero before any sample).
     pub fn pixel(&self, x: u32, y: u32) -> Rgb {
         let i = self.index(x, y);

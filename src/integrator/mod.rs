@@ -307,6 +307,29 @@ pub trait Integrator: Send + Sync {
         Ok(Iteration::default())
     }
 
+    /// True when [`Self::begin_sized_iteration`] honours its size: a time-budgeted render
+    /// then sizes each sample index's work so that its passes fill the budget
+    /// ([`crate::render::next_pass_size`]) rather than stopping where the next whole one no
+    /// longer fits.
+    fn sized_iterations(&self) -> bool {
+        false
+    }
+
+    /// [`Self::begin_iteration`] with `size` times the usual work (`vpl`: `size` x `count`
+    /// light subpaths); each sample index stays one unbiased sample, its variance about
+    /// 1 / `size` times the usual. Sample-budget renders always pass 1, so that their images
+    /// stay a function of the seed.
+    fn begin_sized_iteration(
+        &self,
+        scene: &Scene,
+        view: &View,
+        seed: u64,
+        sample_index: u32,
+        _size: f32,
+    ) -> Result<Iteration> {
+        self.begin_iteration(scene, view, seed, sample_index)
+    }
+
     /// Why this integrator's images are biased (they converge to something other than the
     /// rendering equation's solution), in a sentence for the render summary and the EXR
     /// metadata; None for a consistent, unbiased estimator.

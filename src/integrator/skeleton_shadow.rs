@@ -298,14 +298,11 @@ impl SkeletonShadowMaps {
         stats.build_seconds += started.elapsed().as_secs_f64();
     }
 
-    /// Node `node`'s receiver map, else its full map, None when it has neither.
+    /// Node `node`'s receiver map, None when it has none (not built yet, or over the
+    /// budget). Never its full map: whether that exists depends on which passes ran before.
     #[inline]
     pub fn receiver_map(&self, node: u32) -> Option<&CubeShadowMap> {
-        self.receivers
-            .get(node as usize)?
-            .get()
-            .and_then(Option::as_ref)
-            .or_else(|| self.map(node))
+        self.receivers.get(node as usize)?.get()?.as_ref()
     }
 
     /// Node `node`'s map, None when it has none (not built yet, or over the budget).

@@ -60,7 +60,8 @@
 //!   itself reads 0 there, where a depth bias would let light through a thin wall);
 //! - the PCF kernel straddling a shadow edge (0 < V_f < 1);
 //! - the *receiver* map disagreeing: the map of z's own node (at half the resolution, built
-//!   for the nodes the view's surfaces map to) read at the VPL gives the other verdict. A
+//!   for the nodes the view's surfaces map to, and only those: never a node map built by
+//!   an earlier pass or render) read at the VPL gives the other verdict. A
 //!   group its node's map skips is still read this way where the receiver map sees the
 //!   group's node, since the node's view differs from its VPLs' (parallax).
 //!
@@ -122,6 +123,17 @@
 //! Every pass draws new VPLs from the seed and the sample index, so the image converges as
 //! passes accumulate, and the light subpaths are traced in fixed chunks: the same image for
 //! any thread count (the shadow maps are a function of the geometry alone).
+//!
+//! # Time budgets
+//!
+//! A pass is one sample per pixel of `count` light subpaths and may cost a good part of a
+//! one-second budget. Under a time budget the render loop sizes the passes
+//! ([`crate::render::next_pass_size`]): the first has `count` subpaths per VPL set, the
+//! later ones `size` x `count`, planned from the measured cost so that the passes fill the
+//! budget. Each pass stays an unbiased sample of its own (its VPLs' throughput divided by
+//! its own subpaths); the film averages passes with equal weights, a little noisier than
+//! weighting them by size. A time-budgeted image is then a function of the seed and the
+//! sizes the clock chose; sample-budget renders keep size 1.
 
 use std::sync::Arc;
 
@@ -162,6 +174,10 @@ pub const MAX_PROBES: u32 = 4096;
 pub const DEFAULT_INTERLEAVE: u32 = 1;
 /// Largest `interleave`: 64 VPL sets per pass.
 pub const MAX_INTERLEAVE: u32 = 8;
+/// Default `light_samples`: next-event samples per non-delta camera-path vertex.
+pub const DEFAULT_LIGHT_SAMPLES: u32 = 1;
+/// Largest `light_samples`.
+pub const MAX_LIGHT_SAMPLES: u32 = 64;
 
 /// How a pass picks its VPLs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -228,7 +244,7 @@ impl VplVisibility {
 /// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact|skeleton`,
 /// with skeleton visibility `shadow_res=N:shadow_budget_mb=M:verify=P`; the skeleton's `resolution` and
 /// `voxel_budget` are the skeleton guide's options; `select=uniform|importance` with
-/// `candidates=K:p_min=P:probes=N`; `interleave=N`).
+/// `candidates=K:p_min=P:probes=N`; `interleave=N`; `light_samples=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VplOptions {
     /// Light subpaths per pass; each leaves a VPL at every non-delta surface it reaches.
@@ -262,6 +278,9 @@ pub struct VplOptions {
     /// (x, y) gathers set (x mod N, y mod N), and the VPL light is then filtered over N x N
     /// pixel blocks by a geometry-aware filter. 1: one set, no filter.
     pub interleave: u32,
+    /// Next-event samples per non-delta vertex of the camera path, averaged (the direct
+    /// light, which the VPLs do not carry; unbiased for any count).
+    pub light_samples: u32,
 }
 
 impl Default for VplOptions {
@@ -279,6 +298,7 @@ impl Default for VplOptions {
             p_min: DEFAULT_P_MIN,
             probes: DEFAULT_PROBES,
             interleave: DEFAULT_INTERLEAVE,
+            light_samples: DEFAULT_LIGHT_SAMPLES,
         }
     }
 }
@@ -358,6 +378,13 @@ impl VplOptions {
                     ))
                 })?;
             }
+            "light_samples" => {
+                self.light_samples = value.parse::<u32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: light_samples={value} must be an integer in 1..={MAX_LIGHT_SAMPLES} (next-event samples per vertex)"
+                    ))
+                })?;
+            }
             "shadow_budget_mb" => {
                 self.shadow_budget_mb = value.parse::<u32>().map_err(|_| {
                     Error::invalid(format!(
@@ -427,6 +454,12 @@ impl VplOptions {
                 self.interleave
             )));
         }
+        if !(1..=MAX_LIGHT_SAMPLES).contains(&self.light_samples) {
+            return Err(Error::invalid(format!(
+                "vpl: light_samples={} must be within 1..={MAX_LIGHT_SAMPLES} (next-event samples per vertex)",
+                self.light_samples
+            )));
+        }
         crate::limits::check_memory_budget(
             "vpl: shadow_budget_mb",
             (self.shadow_budget_mb as u64) << 20,
@@ -492,6 +525,12 @@ fn slot(depth: u32, k: u32) -> u32 {
     FIRST_INTEGRATOR_DIMENSION + depth * SLOTS_PER_VERTEX + k
 }
 
+/// Sampler slot of the `j`-th (j >= 1) light sample of `light_samples` at `depth`: past
+/// every slot a path of `max_depth` uses, so that `light_samples=1` keeps its numbers.
+fn extra_light_slot(max_depth: u32, depth: u32, j: u32) -> u32 {
+    slot(max_depth + 1, 0) + depth * MAX_LIGHT_SAMPLES + j
+}
+
 /// One virtual point light: a stored light-subpath vertex with its BSDF resolved.
 struct Vpl {
     si: SurfaceInteraction,
@@ -528,6 +567,27 @@ struct VplSet {
     groups: Vec<VplGroup>,
     /// The cap on the geometry term (infinite without clamping).
     bound: f32,
+    /// With `verify`: the nodes with a receiver map for this render's view, sorted
+    /// ([`VplIntegrator::ensure_receiver_maps`]); a shading point of another node has no
+    /// receiver side, whatever maps earlier passes or renders built.
+    receivers: Arc<Vec<u32>>,
+}
+
+impl VplSet {
+    /// The receiver map of shading point `si`'s node (the two-sided test's receiver side),
+    /// None where this render's view gave its node none.
+    #[inline]
+    fn receiver<'a>(
+        &self,
+        shadow: &'a SkeletonShadowMaps,
+        si: &SurfaceInteraction,
+    ) -> Option<&'a super::CubeShadowMap> {
+        let node = shadow.node_of(si)?;
+        self.receivers
+            .binary_search(&node)
+            .ok()
+            .and_then(|_| shadow.receiver_map(node))
+    }
 }
 
 /// A pass of interleaved sampling ([`VplIntegrator::interleaved_pass`]): its N² VPL sets
@@ -909,6 +969,39 @@ fn accepted(seed: u64, sample_index: u32, index: usize, p: f32) -> bool {
             < p
 }
 
+/// Light subpaths per VPL set of a pass of `size` (1: `count`; at least 1, and within the
+/// limit on light subpaths with the `candidates`).
+fn sized_subpaths(count: u32, candidates: u32, size: f32) -> u32 {
+    let most = crate::limits::MAX_LIGHT_PATHS / candidates.max(1);
+    ((count as f32 * size).round() as u32).clamp(1, most.max(1))
+}
+
+/// The pass sizes of time-budgeted renders other than 1, for the render notes.
+#[derive(Default)]
+struct PassSizeStats(std::sync::Mutex<(u32, f32, f32)>);
+
+impl PassSizeStats {
+    fn record(&self, size: f32) {
+        if size != 1.0 {
+            let mut s = self.0.lock().unwrap_or_else(|e| e.into_inner());
+            *s = if s.0 == 0 {
+                (1, size, size)
+            } else {
+                (s.0 + 1, s.1.min(size), s.2.max(size))
+            };
+        }
+    }
+
+    fn note(&self, count: u32) -> Option<String> {
+        let (passes, least, most) = *self.0.lock().unwrap_or_else(|e| e.into_inner());
+        (passes > 0).then(|| {
+            format!(
+                "vpl passes sized to the time budget: {passes} of {least:.2}-{most:.2} x count={count} light subpaths"
+            )
+        })
+    }
+}
+
 pub struct VplIntegrator {
     settings: IntegratorSettings,
     options: VplOptions,
@@ -918,6 +1011,7 @@ pub struct VplIntegrator {
     /// The scene `prepare` ran for (skeleton visibility needs it).
     prepared_for: Option<Fingerprint>,
     selection_stats: SelectionStats,
+    pass_sizes: PassSizeStats,
     /// `select=importance`: the probe points of the last scene and view rendered, built once
     /// per render rather than every pass.
     probes: std::sync::Mutex<Option<ProbeCache>>,
@@ -1003,6 +1097,7 @@ impl VplIntegrator {
             shadow: None,
             prepared_for: None,
             selection_stats: SelectionStats::default(),
+            pass_sizes: PassSizeStats::default(),
             probes: std::sync::Mutex::new(None),
         })
     }
@@ -1104,11 +1199,13 @@ impl VplIntegrator {
     /// With `verify`, builds the maps of the nodes the view's visible surfaces map to (the
     /// receiver side of the two-sided test), found from a grid of at most
     /// [`RECEIVER_SCAN`] pixel centres; after the VPLs' nodes, within the same budget. A
-    /// shading point whose node has no map uses its VPLs' nodes' maps alone. Deterministic:
-    /// the nodes depend on the view and the scene only.
-    fn ensure_receiver_maps(&self, scene: &Scene, view: &View) {
+    /// shading point whose node has none uses its VPLs' nodes' maps alone. Returns the
+    /// nodes that have a receiver map, sorted: a function of the view and the scene only
+    /// (and of the budget), so that every pass of every render of this view reads the same
+    /// receiver maps.
+    fn ensure_receiver_maps(&self, scene: &Scene, view: &View) -> Vec<u32> {
         let Some(shadow) = self.shadow.as_deref().filter(|_| self.options.verify > 0.0) else {
-            return;
+            return Vec::new();
         };
         let (cols, rows) = (
             view.width.min(RECEIVER_SCAN[0]),
@@ -1127,6 +1224,8 @@ impl VplIntegrator {
         nodes.sort_unstable();
         nodes.dedup();
         shadow.ensure_receivers(scene, &nodes);
+        nodes.retain(|&n| shadow.receiver_map(n).is_some());
+        nodes
     }
 
     /// `select=importance` (module docs): keeps each candidate of `vpls` with its
@@ -1170,9 +1269,9 @@ impl VplIntegrator {
         rays
     }
 
-    /// The VPLs of one set (module docs): `count` light subpaths of sample index `index`
-    /// (`candidates` x `count` thinned by `select=importance` on `probes`), grouped. Returns
-    /// the rays traced.
+    /// The VPLs of one set (module docs): `subpaths` light subpaths of sample index `index`
+    /// (`candidates` x `subpaths` thinned by `select=importance` on `probes`), grouped.
+    /// Returns the rays traced.
     fn vpl_set(
         &self,
         scene: &Scene,
@@ -1180,8 +1279,9 @@ impl VplIntegrator {
         probes: Option<&[Probe]>,
         seed: u64,
         index: u32,
+        subpaths: u32,
     ) -> (VplSet, u64) {
-        let count = self.options.count as usize
+        let count = subpaths as usize
             * if probes.is_some() {
                 self.options.candidates as usize
             } else {
@@ -1217,6 +1317,7 @@ impl VplIntegrator {
                 vpls,
                 groups,
                 bound,
+                receivers: Arc::default(),
             },
             rays,
         )
@@ -1282,9 +1383,7 @@ impl VplIntegrator {
         let verify = self.options.verify;
         let checked = verify > 0.0;
         // The receiver side of the two-sided test: the map of the shading point's own node.
-        let receiver = shadow
-            .filter(|_| checked)
-            .and_then(|s| s.node_of(si).and_then(|n| s.receiver_map(n)));
+        let receiver = shadow.filter(|_| checked).and_then(|s| set.receiver(s, si));
         let mut sum = Rgb::ZERO;
         for group in &set.groups {
             // eq. 161: the node's filtered visibility, and the whole group skipped at 0
@@ -1385,18 +1484,33 @@ impl VplIntegrator {
             let frame = si.shading_frame();
             let wo_local = frame.to_local(si.wo);
             if !bsdf.is_delta() {
-                rng.set_dimension(slot(depth, LIGHT_SLOT));
-                if let Some(light) = estimator::sample_direct_light(
-                    scene,
-                    &si,
-                    &frame,
-                    &bsdf,
-                    wo_local,
-                    &estimator,
-                    rng.uniform2(),
-                    &mut counters.rays,
-                ) {
-                    let e = beta * light.unweighted();
+                let samples = self.options.light_samples;
+                let mut direct: Option<Rgb> = None;
+                for j in 0..samples {
+                    rng.set_dimension(if j == 0 {
+                        slot(depth, LIGHT_SLOT)
+                    } else {
+                        extra_light_slot(max_depth, depth, j)
+                    });
+                    if let Some(light) = estimator::sample_direct_light(
+                        scene,
+                        &si,
+                        &frame,
+                        &bsdf,
+                        wo_local,
+                        &estimator,
+                        rng.uniform2(),
+                        &mut counters.rays,
+                    ) {
+                        *direct.get_or_insert(Rgb::ZERO) += light.unweighted();
+                    }
+                }
+                if let Some(direct) = direct {
+                    let e = if samples == 1 {
+                        beta * direct
+                    } else {
+                        beta * (direct / samples as f32)
+                    };
                     radiance += e;
                     split.add(e);
                 }
@@ -1504,6 +1618,7 @@ impl Integrator for VplIntegrator {
         self.shadow = None;
         self.prepared_for = None;
         self.selection_stats = SelectionStats::default();
+        self.pass_sizes = PassSizeStats::default();
         *self.probes.get_mut().unwrap_or_else(|e| e.into_inner()) = None;
         let mut pre = Precomputation::default();
         if self.options.visibility == VplVisibility::Skeleton {
@@ -1547,6 +1662,7 @@ impl Integrator for VplIntegrator {
             .iter()
             .map(|s| s.cost_note())
             .chain(self.selection_stats.note())
+            .chain(self.pass_sizes.note(self.options.count))
             .collect()
     }
 
@@ -1557,6 +1673,24 @@ impl Integrator for VplIntegrator {
         seed: u64,
         sample_index: u32,
     ) -> Result<Iteration> {
+        self.begin_sized_iteration(scene, view, seed, sample_index, 1.0)
+    }
+
+    fn sized_iterations(&self) -> bool {
+        true
+    }
+
+    /// A pass of `size` x `count` light subpaths per VPL set (module docs, "Time budgets").
+    fn begin_sized_iteration(
+        &self,
+        scene: &Scene,
+        view: &View,
+        seed: u64,
+        sample_index: u32,
+        size: f32,
+    ) -> Result<Iteration> {
+        let subpaths = sized_subpaths(self.options.count, self.options.candidates, size);
+        self.pass_sizes.record(size);
         let n = self.options.interleave;
         let (probes, mut rays) = match self.options.select {
             VplSelect::Importance => {
@@ -1576,11 +1710,15 @@ impl Integrator for VplIntegrator {
                 probes.as_ref().map(|p| p.as_slice()),
                 seed,
                 index,
+                subpaths,
             );
             rays += r;
             sets.push(set);
         }
-        self.ensure_receiver_maps(scene, view);
+        let receivers = Arc::new(self.ensure_receiver_maps(scene, view));
+        for set in &mut sets {
+            set.receivers = Arc::clone(&receivers);
+        }
         if n == 1 {
             return Ok(Iteration {
                 data: sets
@@ -1615,6 +1753,7 @@ impl Integrator for VplIntegrator {
             vpls: Vec::new(),
             groups: Vec::new(),
             bound: f32::INFINITY,
+            receivers: Arc::default(),
         };
         if let Some(pass) = ctx
             .iteration
@@ -1826,9 +1965,7 @@ impl VplIntegrator {
                 }
                 let frame = si.shading_frame();
                 let wo_local = frame.to_local(si.wo);
-                let receiver = (verify)
-                    .then(|| shadow.node_of(&si).and_then(|n| shadow.receiver_map(n)))
-                    .flatten();
+                let receiver = verify.then(|| set.receiver(shadow, &si)).flatten();
                 let own_node = shadow.node_of(&si);
                 for &(v, node, map, sees) in &mapped {
                     if unshadowed(f32::INFINITY, &si, &bsdf, &frame, wo_local, v).is_none() {
@@ -1984,7 +2121,7 @@ mod tests {
                     };
                     differences.push(gathered(p) - gathered(1.0));
                     // The pairs `gather` leaves to the roulette, and their exact light.
-                    let receiver = shadow.node_of(si).and_then(|n| shadow.receiver_map(n));
+                    let receiver = set.receiver(&shadow, si);
                     let mut light = 0.0;
                     for group in &set.groups {
                         let Some(map) = shadow.map(group.node) else {
