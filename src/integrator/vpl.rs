@@ -131,9 +131,10 @@
 //! ([`crate::render::next_pass_size`]): the first has `count` subpaths per VPL set, the
 //! later ones `size` x `count`, planned from the measured cost so that the passes fill the
 //! budget. Each pass stays an unbiased sample of its own (its VPLs' throughput divided by
-//! its own subpaths); the film averages passes with equal weights, a little noisier than
-//! weighting them by size. A time-budgeted image is then a function of the seed and the
-//! sizes the clock chose; sample-budget renders keep size 1.
+//! its own subpaths), and the render loop weights each by its size (about the inverse of its
+//! variance; weights that depend on the clock only keep the mean). A time-budgeted image is
+//! then a function of the seed and the sizes the clock chose; sample-budget renders keep
+//! size 1.
 
 use std::sync::Arc;
 
