@@ -529,6 +529,27 @@ mod tests {
     use super::*;
     use crate::math::Rng;
 
+    /// The second moment (up to a constant) of estimating int_0^1 x^k with the densities
+    /// 2x and 2(1 - x) mixed at `alpha`: int x^2k / (alpha 2x + (1 - alpha) 2(1 - x)),
+    /// by the midpoint rule.
+    fn ramp_moment(k: i32, alpha: f64) -> f64 {
+        let n = 20000;
+        (0..n)
+            .map(|i| {
+                let x = (i as f64 + 0.5) / n as f64;
+                x.powi(2 * k) / (alpha * 2.0 * x + (1.0 - alpha) * 2.0 * (1.0 - x))
+            })
+            .sum::<f64>()
+    }
+
+    /// The minimiser of [`ramp_moment`] over alpha in [0.025, 0.975], by a fine search.
+    fn ramp_minimiser(k: i32) -> f64 {
+        (25..=975)
+            .map(|i| i as f64 / 1000.0)
+            .min_by(|a, b| ramp_moment(k, *a).total_cmp(&ramp_moment(k, *b)))
+            .unwrap()
+    }
+
     /// pdf_B(x) = 2x, pdf_L(x) = 2(1 - x) on [0, 1], f(x) = x^k: pbar = 1, dpdf = 2x - 1, so
     /// I_1 = int x^2k (2x - 1) and I_2 = int x^2k (2x - 1)^2 in closed form.
     fn closed_form_alpha(k: i32) -> f64 {
@@ -629,19 +650,8 @@ mod tests {
             );
             assert_eq!(refine_alpha(first, 0, samples.iter().copied()), first);
             let alpha = refine_alpha(first, 8, samples.iter().copied());
-            let moment = |alpha: f64| {
-                let n = 20000;
-                (0..n)
-                    .map(|i| {
-                        let x = (i as f64 + 0.5) / n as f64;
-                        x.powi(2 * k) / (alpha * 2.0 * x + (1.0 - alpha) * 2.0 * (1.0 - x))
-                    })
-                    .sum::<f64>()
-            };
-            let best = (25..=975)
-                .map(|i| i as f64 / 1000.0)
-                .min_by(|a, b| moment(*a).total_cmp(&moment(*b)))
-                .unwrap();
+            let moment = |alpha: f64| ramp_moment(k, alpha);
+            let best = ramp_minimiser(k);
             assert!(
                 (alpha as f64 - best).abs() < 0.01,
                 "k={k}: {alpha} vs {best}"
@@ -713,19 +723,8 @@ mod tests {
         refine_mixture(&mut c2, &samples, 8, ALPHA_MAX);
         assert_eq!(c, c2, "deterministic");
         for (node, k) in [(0usize, 1), (2, 3)] {
-            let moment = |c: f64| {
-                let n = 20000;
-                (0..n)
-                    .map(|i| {
-                        let x = (i as f64 + 0.5) / n as f64;
-                        x.powi(2 * k) / (c * 2.0 * x + (1.0 - c) * 2.0 * (1.0 - x))
-                    })
-                    .sum::<f64>()
-            };
-            let best = (25..=975)
-                .map(|i| i as f64 / 1000.0)
-                .min_by(|a, b| moment(*a).total_cmp(&moment(*b)))
-                .unwrap();
+            let moment = |c: f64| ramp_moment(k, c);
+            let best = ramp_minimiser(k);
             let got = c[node];
             assert!((got as f64 - best).abs() < 0.02, "k={k}: {got} vs {best}");
             assert!(moment(got as f64) < moment(c_s as f64), "k={k}");

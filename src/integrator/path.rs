@@ -907,11 +907,11 @@ pub(super) trait VertexGuide {
     /// Makes the query unguided (a delta vertex: no mixture with a Dirac lobe has a density).
     fn clear(&mut self);
     fn query(&self) -> &Self::Query;
-    /// Told of each non-delta direction the vertex drew (world `wi`, mixture density `pdf`),
-    /// with the sample's radiance before it: the mixture warm-up of `mis=auto` records them
-    /// ([`MixtureRecorder`]); the render's guides ignore it.
+    /// Told of each non-delta direction the vertex drew (world `wi`, mixture density `pdf`,
+    /// the BSDF's own `pdf_bsdf`), with the sample's radiance before it: the mixture warm-up
+    /// of `mis=auto` records them ([`MixtureRecorder`]); the render's guides ignore it.
     #[inline]
-    fn drew(&mut self, _radiance: Rgb, _wi: Vec3, _pdf: f32) {}
+    fn drew(&mut self, _radiance: Rgb, _wi: Vec3, _pdf: f32, _pdf_bsdf: f32) {}
     /// Feature `diagnostics`: the skeleton query the vertex records show, if this is one.
     #[cfg(feature = "diagnostics")]
     fn skeleton_query(&self) -> Option<&GuideQuery> {
@@ -1027,15 +1027,13 @@ impl VertexGuide for MixtureRecorder<'_> {
     fn query(&self) -> &GuideQuery {
         self.guided.query()
     }
-    fn drew(&mut self, radiance: Rgb, wi: Vec3, pdf: f32) {
+    fn drew(&mut self, radiance: Rgb, wi: Vec3, pdf: f32, pdf_bsdf: f32) {
         let query = self.guided.query();
         let c = query.guiding_probability();
         let Some(node) = query.node().filter(|_| c > 0.0 && c < 1.0) else {
             return;
         };
         let pdf_guide = query.pdf(wi);
-        // The BSDF's density from the mixture's: q = c p_G + (1 - c) p_B.
-        let pdf_bsdf = ((pdf - c * pdf_guide) / (1.0 - c)).max(0.0);
         self.pending
             .push((node, luminance(radiance), pdf_guide, pdf_bsdf, pdf));
     }
@@ -1241,7 +1239,7 @@ impl PathTracer {
                 diagnostics::record(query, depth, ms.bsdf_pdf, bs.pdf, radiance, ms.from_guide);
             }
             if G::GUIDED && !bs.delta {
-                guide.drew(radiance, wi, bs.pdf);
+                guide.drew(radiance, wi, bs.pdf, ms.bsdf_pdf);
             }
             if alphas.is_active() {
                 prev_scale = beta * bs.f * bs.wi.z.abs();
