@@ -12,7 +12,11 @@ use lacuna::scene::Scene;
 
 /// The paper's defaults (N = 1024, d = 0.001: one record subpath at these sizes) and a small
 /// subset with many records.
-const VARIANTS: &[&str] = &["bdpt_ic", "bdpt_ic:subset=32:density=0.05"];
+const VARIANTS: &[&str] = &[
+    "bdpt_ic",
+    "bdpt_ic:subset=32:density=0.05",
+    "bdpt_ic:subset=32:density=0.05:count=subset",
+];
 
 fn agree(label: &str, scene: &Scene, size: (u32, u32, u32)) {
     agree_with_path_and_bdpt(label, scene, size, VARIANTS);

@@ -46,8 +46,12 @@ fn agree(
 }
 
 /// The paper's defaults (N = 1024, more than the pixels here: all subpaths), a small subset,
-/// and every mapped node accepted (alpha = 0).
-const VARIANTS: &[&str] = &["bdpt_skeleton", "bdpt_skeleton:subset=32:accept=0"];
+/// and every mapped node accepted (alpha = 0), with both MIS counts of the connections.
+const VARIANTS: &[&str] = &[
+    "bdpt_skeleton",
+    "bdpt_skeleton:subset=32:accept=0",
+    "bdpt_skeleton:subset=32:accept=0:count=subset",
+];
 
 /// The Cornell box is open at the front: its nodes see the outside, so SkelBPT falls back to
 /// `bdpt` here (the closed scenes below resample).

@@ -33,7 +33,7 @@ pub use portal_guide::{
     PortalStrategy, Unguided, MAX_PORTAL_LOBES, OPEN_SCENE_FRACTION, PORTAL_OPTION_NAMES,
 };
 pub use query::GuideQuery;
-pub use resampling::ResamplingSettings;
+pub use resampling::{ConnectionCount, ResamplingSettings};
 pub use settings::{
     CostModel, LobeAim, LobeFallback, PilotCost, RenderEstimator, SkeletonGuideSettings,
     SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX, DEFAULT_TRAINING_DEPTH,

@@ -38,6 +38,24 @@ pub struct ResamplingSettings {
     /// ICBPT (`bdpt_ic`): importance records come from the eye subpaths of this fraction d of
     /// the pixels per iteration (002 §5: 0.001), at least one subpath.
     pub density: f32,
+    /// MIS sample count of the resampled connection strategies (s >= 2, t >= 2).
+    pub count: ConnectionCount,
+}
+
+/// How many samples the MIS weights credit a resampled connection strategy with, against the
+/// strategies that take one (s = 0, next-event estimation s = 1) and light tracing. Any
+/// constant keeps the estimate unbiased (the weights still sum to one over the strategies);
+/// it only decides which strategy carries a path.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConnectionCount {
+    /// N, the subset size: the count of the estimator connecting every camera vertex to all N
+    /// subpaths (000 eq. 185), which the resampled one only estimates with one connection. It
+    /// hands next-event estimation's paths to the resampled s = 2 connections, whose one
+    /// pick then carries them at up to 20x `bdpt`'s variance (BENCHMARKS.md, issue 31).
+    Subset,
+    /// One (the default): a resampled connection samples one path per strategy and camera
+    /// vertex (002 line 196 counts the paths each strategy samples), weighted as `bdpt`'s.
+    One,
 }
 
 impl Default for ResamplingSettings {
@@ -47,18 +65,31 @@ impl Default for ResamplingSettings {
             accept: 1.0,
             images: false,
             density: 0.001,
+            count: ConnectionCount::One,
         }
     }
 }
 
 /// Option keys of [`ResamplingSettings::set`].
-pub const RESAMPLING_KEYS: &[&str] = &["subset", "accept", "images", "density"];
+pub const RESAMPLING_KEYS: &[&str] = &["subset", "accept", "images", "density", "count"];
 
 impl ResamplingSettings {
     /// Sets one option from text: `subset=N` (N >= 1), `accept=ALPHA` (ALPHA >= 0, finite),
-    /// `images=true|false`, `density=D` (0 < D <= 1).
+    /// `images=true|false`, `density=D` (0 < D <= 1), `count=subset|one`.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         match key {
+            "count" => {
+                self.count = match value {
+                    "subset" => ConnectionCount::Subset,
+                    "one" | "1" => ConnectionCount::One,
+                    _ => {
+                        return Err(Error::invalid(format!(
+                            "count={value} must be subset or one"
+                        )))
+                    }
+                };
+                Ok(())
+            }
             "subset" => self.set_subset(value.parse().map_err(|_| {
                 Error::invalid(format!("subset={value} must be a positive integer"))
             })?),
@@ -86,8 +117,16 @@ impl ResamplingSettings {
             }
             other => Err(Error::invalid(format!(
                 "no resampling option '{other}' (bdpt_skeleton: subset, accept, images, \
-                 resolution, voxel_budget; bdpt_ic: subset, density, images)"
+                 count, resolution, voxel_budget; bdpt_ic: subset, density, images, count)"
             ))),
+        }
+    }
+
+    /// MIS sample count of the connection strategies with `light_paths` subpaths traced.
+    pub fn connection_count(&self, light_paths: usize) -> f32 {
+        match self.count {
+            ConnectionCount::Subset => (self.subset as usize).min(light_paths).max(1) as f32,
+            ConnectionCount::One => 1.0,
         }
     }
 
@@ -392,6 +431,7 @@ mod tests {
         s.set("accept", "0.5").unwrap();
         s.set("images", "true").unwrap();
         s.set("density", "0.01").unwrap();
+        s.set("count", "subset").unwrap();
         assert_eq!(
             s,
             ResamplingSettings {
@@ -399,6 +439,7 @@ mod tests {
                 accept: 0.5,
                 images: true,
                 density: 0.01,
+                count: ConnectionCount::Subset,
             }
         );
         for (k, v) in [
@@ -411,6 +452,7 @@ mod tests {
             ("density", "0"),
             ("density", "1.5"),
             ("density", "nan"),
+            ("count", "two"),
             ("radius", "2"),
         ] {
             let err = s.set(k, v).unwrap_err().to_string();

@@ -198,7 +198,7 @@ impl IcResampler {
 
 impl ConnectionPolicy for IcResampler {
     fn connection_count(&self, light_paths: usize) -> f32 {
-        (self.settings.subset as usize).min(light_paths).max(1) as f32
+        self.settings.connection_count(light_paths)
     }
 
     fn begin_iteration(
@@ -439,7 +439,9 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
     name: "bdpt_ic",
     set_option: |settings, option| {
         match option.key {
-            "subset" | "density" | "images" => settings.resampling.set(option.key, option.value)?,
+            "subset" | "density" | "images" | "count" => {
+                settings.resampling.set(option.key, option.value)?
+            }
             _ => return Ok(false),
         }
         Ok(true)

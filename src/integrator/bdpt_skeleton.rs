@@ -7,10 +7,14 @@
 //! node in use, one distribution per light subpath length over the vertices of the first N
 //! subpaths (`guide::resampling`: p_V from shadow rays between the node and each vertex, p_U,
 //! p_C, max heuristic premultiplied). Each camera vertex z_{t-1}, t >= 2, maps to its node
-//! through the node map and picks one light vertex of each length, connected with the factor
-//! 1 / (N q). In the MIS weights the connection strategies count N samples (002 line 196: the
-//! resampled estimator estimates the one connecting every camera vertex to all N subpaths,
-//! 002 eq. 3), light tracing one per light subpath, the others one.
+//! through the node map and, for each light subpath length, picks one light vertex of that
+//! length (connected with probability n / N, n of the N subpaths having one, and the factor
+//! 1 / (n q): `resampled::Tables::resample`). In the MIS weights a resampled connection
+//! strategy counts one sample by default, the paths it samples (002 line 196), as `bdpt`'s;
+//! `count=subset` credits it with N, the estimator connecting every camera vertex to all N
+//! subpaths (002 eq. 3), which weights next-event estimation's paths over to single
+//! resampled connections (much noisier: BENCHMARKS.md, issue 31). Light tracing counts one
+//! sample per light subpath.
 //!
 //! Node acceptance (002 §4.4): camera vertices are counted per node over the iterations of a
 //! render; an iteration builds distributions only at nodes mapped to more than alpha_accept
@@ -141,7 +145,7 @@ impl SkeletonResampler {
 impl ConnectionPolicy for SkeletonResampler {
     fn connection_count(&self, light_paths: usize) -> f32 {
         if self.skeleton.is_some() {
-            (self.settings.subset as usize).min(light_paths).max(1) as f32
+            self.settings.connection_count(light_paths)
         } else {
             1.0
         }
@@ -254,6 +258,13 @@ impl BdptSkeleton {
             resampler,
             prepared_for: None,
         })
+    }
+
+    /// Also renders the image of every (s, t) strategy (`Bdpt::with_strategy_images`), for
+    /// the per-strategy error split of `examples/strategy_variance.rs`.
+    pub fn with_strategy_images(mut self, max_length: u32) -> Result<Self> {
+        self.bdpt = self.bdpt.with_strategy_images(max_length)?;
+        Ok(self)
     }
 
     /// Whether the render resamples (false: it renders exactly `bdpt`'s image).
@@ -517,7 +528,9 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
     set_option: |settings, option| {
         match option.key {
             "resolution" | "voxel_budget" => settings.skeleton.set(option.key, option.value)?,
-            "subset" | "accept" | "images" => settings.resampling.set(option.key, option.value)?,
+            "subset" | "accept" | "images" | "count" => {
+                settings.resampling.set(option.key, option.value)?
+            }
             _ => return Ok(false),
         }
         Ok(true)

@@ -427,9 +427,9 @@ impl SpecOption<'_> {
 ///   `strategy=shortest|irradiance`, `c_portal=C` in [0, 1), `resolution=N` (analysis voxels
 ///   on the longest axis), `smoothing=R` (voxels), with `irradiance` `training_paths=N`,
 ///   `face_mix=F`, `d_t=D`, `o_t=O`, e.g. `path_portal:c_portal=0.3:resolution=128`;
-/// - `bdpt_skeleton`: `subset=N`, `accept=ALPHA`, `images=true` ([`ResamplingSettings::set`])
+/// - `bdpt_skeleton`: `subset=N`, `accept=ALPHA`, `images=true`, `count=one|subset` ([`ResamplingSettings::set`])
 ///   and the skeleton's `resolution=N` / `voxel_budget=N`, e.g. `bdpt_skeleton:subset=1024:accept=1`;
-/// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, e.g. `bdpt_ic:subset=1024:density=0.001`;
+/// - `bdpt_ic`: `subset=N`, `density=D`, `images=true`, `count=one|subset`, e.g. `bdpt_ic:subset=1024:density=0.001`;
 /// - `vpl`: `count=N` (light subpaths per pass), `clamp=R` (0 = off), `compensate=true|false`,
 ///   `visibility=exact|skeleton`, with skeleton visibility `shadow_res=N`,
 ///   `shadow_budget_mb=M`, `verify=P` and the skeleton's `resolution=N` / `voxel_budget=N`,

@@ -123,9 +123,16 @@ impl Tables {
         self.cdfs.len().checked_div(self.entries.len()).unwrap_or(0)
     }
 
-    /// Connects `vertex` to one light vertex of each length it may use, picked from table
-    /// `table` (uniformly for [`NO_TABLE`]), with the factor 1 / (N q); adds what each
-    /// connection gave to the vertex's layer of the distribution it came from.
+    /// Connects `vertex` to light vertices of each length it may use: with probability
+    /// n / N, n of the N subpaths having a vertex of that length, to one picked from table
+    /// `table` (uniformly for [`NO_TABLE`]) with probability q, with the factor 1 / (n q)
+    /// (over both choices the expected factor of each vertex is 1 / N: unbiased). Adds what
+    /// each connection gave to the vertex's layer of the distribution it came from.
+    ///
+    /// The first choice makes as many connections per length, on average, as `bdpt`'s own
+    /// subpath gives (a subpath has a vertex of that length with probability n / N): always
+    /// connecting would trace a shadow ray per length for the long lengths few subpaths reach,
+    /// each worth little (002 connects always; measured slower, BENCHMARKS.md issue 31).
     pub fn resample(
         &self,
         vertex: &CameraVertex,
@@ -144,9 +151,13 @@ impl Tables {
             if a == b {
                 continue;
             }
+            let n = b - a;
+            // Connect with probability n / N (see above).
+            if rng.uniform() * subset >= n as f32 {
+                continue;
+            }
             let u = rng.uniform();
             let (i, q, origin) = if table == NO_TABLE {
-                let n = b - a;
                 (
                     ((u * n as f32) as usize).min(n - 1),
                     1.0 / n as f32,
@@ -159,7 +170,7 @@ impl Tables {
                 (i, q, Origin::from_u8(self.origins[base + a + i]))
             };
             let (j, v) = self.entries[a + i];
-            let c = connect(j as usize, v as usize, 1.0 / (subset * q));
+            let c = connect(j as usize, v as usize, 1.0 / (n as f32 * q));
             if let Some(cell) = vertex.layers.get(origin as usize) {
                 cell.set(cell.get() + c.added);
             }

@@ -49,7 +49,7 @@ pub struct RenderSettingsFile {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub skeleton: Option<BTreeMap<String, serde_json::Value>>,
     /// Options of the vertex-connection resampling of `bdpt_skeleton` and `bdpt_ic` by name
-    /// (`subset`, `accept`, `images`, `density`: see `guide::ResamplingSettings::set`), kept
+    /// (`subset`, `accept`, `images`, `density`, `count`: see `guide::ResamplingSettings::set`), kept
     /// raw as `skeleton` is.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub resampling: Option<BTreeMap<String, serde_json::Value>>,
