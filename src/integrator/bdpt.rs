@@ -56,14 +56,16 @@ pub struct CameraVertex<'a> {
 /// Chooses the stored light subpaths each camera vertex connects to (all the valid vertices of
 /// each chosen subpath), the eye pass's pluggable part (000 §11: SkelBPT resamples them).
 ///
-/// The estimate is unbiased when, over the policy's choices, the factors make every light
-/// subpath count as `connection_count` samples: E[sum of the factors given to subpath j] =
-/// connection_count / N for each of the N subpaths. `connection_count` is also the number of
-/// samples the connection strategies get in the MIS weights (000 eq. 185: the many-path
-/// estimator with every camera vertex connected to all N subpaths has N). A resampling policy
-/// (eq. 186) picks per camera vertex with probability p(j) and gives the factor
-/// connection_count / (N p(j)). A policy may also pick single vertices of a subpath
-/// ([`ConnectionPolicy::connect_vertex`]), as SkelBPT does, one per subpath length.
+/// The estimate is unbiased when, over the policy's choices, the factors average the N
+/// subpaths: E[sum of the factors given to subpath j] = 1 / N for each of the N subpaths
+/// (connecting to all of them, [`AllLightPaths`], gives each the factor 1 / N). Separately,
+/// `connection_count` is the number of samples the connection strategies get in the MIS
+/// weights: any constant keeps the weights summing to one, so it only decides which strategy
+/// carries a path (000 eq. 185 credits the all-subpath estimator with N; SkelBPT and ICBPT
+/// credit their one pick with one by default, [`crate::guide::ConnectionCount`]). A resampling policy (eq.
+/// 186) picks per camera vertex with probability p(j) and gives the factor 1 / (N p(j)). A
+/// policy may also pick single vertices of a subpath ([`ConnectionPolicy::connect_vertex`]),
+/// as SkelBPT does, one per subpath length.
 pub trait ConnectionPolicy: Send + Sync {
     /// MIS sample count of the connection strategies, for `light_paths` subpaths.
     fn connection_count(&self, light_paths: usize) -> f32;
