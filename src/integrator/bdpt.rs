@@ -62,10 +62,10 @@ pub struct CameraVertex<'a> {
 /// `connection_count` is the number of samples the connection strategies get in the MIS
 /// weights: any constant keeps the weights summing to one, so it only decides which strategy
 /// carries a path (000 eq. 185 credits the all-subpath estimator with N; SkelBPT and ICBPT
-/// credit their one pick with one by default, [`crate::guide::ConnectionCount`]). A resampling policy (eq.
-/// 186) picks per camera vertex with probability p(j) and gives the factor 1 / (N p(j)). A
-/// policy may also pick single vertices of a subpath ([`ConnectionPolicy::connect_vertex`]),
-/// as SkelBPT does, one per subpath length.
+/// credit their one pick with one by default, [`crate::guide::ConnectionCount`]). A
+/// resampling policy (eq. 186) picks per camera vertex with probability p(j) and gives the
+/// factor 1 / (N p(j)). A policy may also pick single vertices of a subpath
+/// ([`ConnectionPolicy::connect_vertex`]), as SkelBPT does, one per subpath length.
 pub trait ConnectionPolicy: Send + Sync {
     /// MIS sample count of the connection strategies, for `light_paths` subpaths.
     fn connection_count(&self, light_paths: usize) -> f32;
