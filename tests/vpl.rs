@@ -141,6 +141,8 @@ fn vpl_gives_the_same_image_for_any_thread_count() {
         "vpl:count=8:interleave=3",
         "vpl:count=4:interleave=4:select=uniform:compensate=true",
         "vpl:count=4:interleave=2:visibility=skeleton:shadow_res=16:compensate=true",
+        "vpl:count=8:visibility=skeleton:shadow_res=16:sites=8",
+        "vpl:count=8:visibility=skeleton:shadow_res=16:sites=4:verify=0",
     ] {
         // A fresh integrator per render (one integrator rendering again: the next test).
         let render = |threads| {
@@ -181,6 +183,7 @@ fn skeleton_vpl_renders_the_same_image_again_on_one_integrator() {
         "vpl:count=8:visibility=skeleton:shadow_res=16",
         "vpl:count=8:visibility=skeleton:shadow_res=16:verify=0.5:compensate=true",
         "vpl:count=4:interleave=2:visibility=skeleton:shadow_res=16",
+        "vpl:count=8:visibility=skeleton:shadow_res=16:sites=8",
     ] {
         let mut vpl = integrator::create(spec, s).unwrap();
         lacuna::render::prepare(vpl.as_mut(), &scene, &camera, Some(2), &|_, _| true).unwrap();
@@ -221,6 +224,8 @@ fn vpl_options_are_checked_and_the_bias_stated() {
         "vpl:visibility=skeleton:verify=2",
         "vpl:visibility=skeleton:verify=-0.1",
         "vpl:visibility=skeleton:verify=yes",
+        "vpl:visibility=skeleton:sites=65",
+        "vpl:visibility=skeleton:sites=-1",
         "vpl:select=best",
         "vpl:select=importance:candidates=0",
         "vpl:select=importance:candidates=1000",
@@ -436,6 +441,91 @@ fn skeleton_visibility_agrees_with_exact_rays_on_the_door_and_two_rooms() {
         }
         let notes = vpl.render_notes().join("; ");
         assert!(notes.contains("receiver maps"), "{label}: {notes}");
+    }
+}
+
+/// Map sites (`sites=K`) against node maps: the same pairs as the test above (door and two
+/// rooms, two passes), the maps alone (`verify=0`) and verified (default `verify`), printed
+/// with the disagreements split into visible pairs called occluded and occluded pairs
+/// called visible, and the light's error by cause. Maps near their VPLs must cut the
+/// parallax part of the error (the node's view standing in for the VPL's) of the maps
+/// alone.
+#[test]
+fn map_sites_cut_the_parallax_error_of_node_maps() {
+    let scenes = [
+        (
+            "veach door",
+            load_scene("scenes/veach-door-pg2015/veach-door-pg2015.json"),
+        ),
+        (
+            "two rooms",
+            lacuna::scene::two_rooms_builder().unwrap().build().unwrap(),
+        ),
+    ];
+    for (label, scene) in scenes {
+        let camera = *scene.camera().unwrap();
+        let view = View {
+            frame: camera.frame(48.0 / 36.0),
+            width: 48,
+            height: 36,
+            sampler: Default::default(),
+        };
+        for verify in ["0", "0.25"] {
+            let mut parallax = Vec::new();
+            for sites in [0, 4, 8, 16] {
+                let spec =
+                    format!("vpl:visibility=skeleton:select=uniform:verify={verify}:sites={sites}");
+                let (vpl, _) = prepared_skeleton_vpl(&scene, &camera, &spec);
+                let mut error = 0.0;
+                for pass in 0..2 {
+                    let a = vpl.visibility_agreement(&scene, &view, 1, pass).unwrap();
+                    let occluded = a.pairs - a.visible;
+                    let called_visible = (a.agreeing - a.visible_agreeing).abs_diff(occluded);
+                    let share = |b: [f64; 2]| {
+                        format!(
+                            "+{:.3} -{:.3}",
+                            b[0] / a.light.max(1e-30),
+                            b[1] / a.light.max(1e-30)
+                        )
+                    };
+                    println!(
+                        "{label}, verify={verify}, sites={sites}, pass {pass}: balanced rate {:.4}; \
+                         visible called occluded {} of {} ({:.3}), occluded called visible {} of {} \
+                         ({:.4}); {} pairs by rays; {} of {} VPLs unseen by their map; light error: \
+                         map {}, unseen {}, parallax {}; net {:+.3}, mean at most {:.3}",
+                        a.balanced_rate(),
+                        a.visible - a.visible_agreeing,
+                        a.visible,
+                        (a.visible - a.visible_agreeing) as f64 / a.visible.max(1) as f64,
+                        called_visible,
+                        occluded,
+                        called_visible as f64 / occluded.max(1) as f64,
+                        a.exact_rays,
+                        a.unseen_vpls,
+                        a.mapped_vpls,
+                        share(a.map_bias),
+                        share(a.unseen_bias),
+                        share(a.parallax_bias),
+                        a.relative_bias(),
+                        a.relative_error_bound()
+                    );
+                    assert!(a.pairs > 10_000, "{label}: {a:?}");
+                    assert!(
+                        a.mapped_vpls * 10 > a.vpls * 9,
+                        "{label} sites={sites}: {a:?}"
+                    );
+                    error += (a.parallax_bias[0] + a.parallax_bias[1]) / a.light;
+                }
+                parallax.push(error / 2.0);
+                println!(
+                    "{label}, verify={verify}, sites={sites}: notes {}",
+                    vpl.render_notes().join("; ")
+                );
+            }
+            println!(
+                "{label}, verify={verify}: parallax error for sites 0, 4, 8, 16: {parallax:.3?}"
+            );
+        }
     }
 }
 

@@ -18,7 +18,8 @@
 //! fit, the first nodes to carry VPLs get maps up to the budget and the VPLs of the others
 //! keep exact shadow rays. The render notes say which happened.
 
-use std::sync::{Mutex, OnceLock};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -168,12 +169,23 @@ impl CubeShadowMap {
     }
 }
 
+/// A map site of `vpl:sites=K`: a cell of K^3 voxels of the skeleton's grid (`cell` holds its
+/// coordinates and K) and a filtered node, standing for the empty voxels of the cell that map
+/// to that node (one side of a wall through the cell).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Site {
+    pub cell: [u32; 4],
+    pub node: u32,
+}
+
 /// What the shadow maps cost so far (for the render notes).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ShadowMapStats {
     /// Nodes with a map, and with a receiver map.
     pub maps: usize,
     pub receiver_maps: usize,
+    /// Sites with a map (`vpl:sites=K`).
+    pub site_maps: usize,
     /// Nodes that carried VPLs but got no map (over the budget): exact rays for their VPLs.
     pub refused: usize,
     pub bytes: u64,
@@ -190,10 +202,13 @@ pub struct SkeletonShadowMaps {
     max_maps: usize,
     budget_bytes: u64,
     /// Per node: unset until it carried a VPL, then its map or None (over the budget).
-    maps: Vec<OnceLock<Option<CubeShadowMap>>>,
+    maps: Vec<OnceLock<Option<Arc<CubeShadowMap>>>>,
     /// Per node: the map read at VPLs from the shading points the node maps, at
     /// [`Self::receiver_resolution`] (`vpl`'s two-sided test); built as `maps`.
-    receivers: Vec<OnceLock<Option<CubeShadowMap>>>,
+    receivers: Vec<OnceLock<Option<Arc<CubeShadowMap>>>>,
+    /// `vpl:sites=K`: the maps of the sites ([`Site`]) that carried VPLs, None over the
+    /// budget or where the site has no empty voxel.
+    sites: Mutex<HashMap<Site, Option<Arc<CubeShadowMap>>>>,
     stats: Mutex<ShadowMapStats>,
 }
 
@@ -212,6 +227,7 @@ impl SkeletonShadowMaps {
         SkeletonShadowMaps {
             maps: (0..nodes).map(|_| OnceLock::new()).collect(),
             receivers: (0..nodes).map(|_| OnceLock::new()).collect(),
+            sites: Mutex::new(HashMap::new()),
             skeleton,
             resolution,
             requested,
@@ -260,7 +276,7 @@ impl SkeletonShadowMaps {
 
     fn ensure_in(
         &self,
-        slots: &[OnceLock<Option<CubeShadowMap>>],
+        slots: &[OnceLock<Option<Arc<CubeShadowMap>>>],
         resolution: u32,
         scene: &Scene,
         nodes: &[u32],
@@ -284,7 +300,7 @@ impl SkeletonShadowMaps {
             .collect();
         for (&n, map) in build.iter().zip(built) {
             stats.bytes += map.memory_bytes();
-            let _ = slots[n as usize].set(Some(map));
+            let _ = slots[n as usize].set(Some(Arc::new(map)));
         }
         for &n in refuse {
             let _ = slots[n as usize].set(None);
@@ -302,13 +318,109 @@ impl SkeletonShadowMaps {
     /// budget). Never its full map: whether that exists depends on which passes ran before.
     #[inline]
     pub fn receiver_map(&self, node: u32) -> Option<&CubeShadowMap> {
-        self.receivers.get(node as usize)?.get()?.as_ref()
+        self.receivers.get(node as usize)?.get()?.as_deref()
     }
 
     /// Node `node`'s map, None when it has none (not built yet, or over the budget).
     #[inline]
-    pub fn map(&self, node: u32) -> Option<&CubeShadowMap> {
+    pub fn map(&self, node: u32) -> Option<&Arc<CubeShadowMap>> {
         self.maps.get(node as usize)?.get()?.as_ref()
+    }
+
+    /// The site of a VPL's surface point with sites of `cell` voxels per edge
+    /// (`vpl:sites=K`): the cell of the empty voxel the point maps through (eq. 151-155's
+    /// voxel, on the side the surface faces) and that voxel's node.
+    pub fn site_of(&self, si: &SurfaceInteraction, cell: u32) -> Option<Site> {
+        let sk = &self.skeleton;
+        let k = sk.voxel_of(si)?;
+        let c = sk.grid.coords(k).map(|x| (x / cell as usize) as u32);
+        Some(Site {
+            cell: [c[0], c[1], c[2], cell],
+            node: sk.node_map[k],
+        })
+    }
+
+    /// Where a site's map stands: among the empty voxels of the site's cell that map to its
+    /// node, the centre of the one nearest their centroid (inside the free space the site's
+    /// VPLs face, as far from the cell's walls as its voxels go). None when it has none.
+    pub fn site_centre(&self, site: Site) -> Option<Vec3> {
+        let sk = &self.skeleton;
+        let [cx, cy, cz, k] = site.cell.map(|x| x as usize);
+        let dims = sk.grid.dims;
+        let mut voxels = Vec::new();
+        for z in cz * k..((cz + 1) * k).min(dims[2]) {
+            for y in cy * k..((cy + 1) * k).min(dims[1]) {
+                for x in cx * k..((cx + 1) * k).min(dims[0]) {
+                    let i = sk.grid.index(x, y, z);
+                    if sk.node_map[i] == site.node {
+                        voxels.push(i);
+                    }
+                }
+            }
+        }
+        if voxels.is_empty() {
+            return None;
+        }
+        let centroid = voxels
+            .iter()
+            .fold(Vec3::ZERO, |a, &i| a + sk.grid.voxel_center(i))
+            / voxels.len() as f32;
+        voxels
+            .iter()
+            .map(|&i| sk.grid.voxel_center(i))
+            .min_by(|a, b| {
+                (*a - centroid)
+                    .length_squared()
+                    .total_cmp(&(*b - centroid).length_squared())
+            })
+    }
+
+    /// The maps of `sites` (sorted, distinct), building those that have none yet in
+    /// parallel at the node maps' resolution, within the same budget (sites beyond it, in
+    /// the order given, get None for good, as nodes do). Deterministic as [`Self::ensure`].
+    pub fn ensure_sites(&self, scene: &Scene, sites: &[Site]) -> Vec<Option<Arc<CubeShadowMap>>> {
+        let mut table = self.sites.lock().unwrap_or_else(|e| e.into_inner());
+        let missing: Vec<(Site, Option<Vec3>)> = sites
+            .iter()
+            .filter(|s| !table.contains_key(s))
+            .map(|&s| (s, self.site_centre(s)))
+            .collect();
+        if !missing.is_empty() {
+            let mut stats = self.stats.lock().unwrap_or_else(|e| e.into_inner());
+            let per_map = CubeShadowMap::bytes_for(self.resolution);
+            let mut left = self.budget_bytes.saturating_sub(stats.bytes);
+            let mut build = Vec::new();
+            for &(site, centre) in &missing {
+                match centre {
+                    Some(c) if left >= per_map => {
+                        left -= per_map;
+                        build.push((site, c));
+                    }
+                    Some(_) => {
+                        stats.refused += 1;
+                        table.insert(site, None);
+                    }
+                    None => {
+                        table.insert(site, None);
+                    }
+                }
+            }
+            let started = Instant::now();
+            let built: Vec<CubeShadowMap> = build
+                .par_iter()
+                .map(|&(_, c)| CubeShadowMap::build(scene, c, self.resolution))
+                .collect();
+            for (&(site, _), map) in build.iter().zip(built) {
+                stats.bytes += map.memory_bytes();
+                table.insert(site, Some(Arc::new(map)));
+            }
+            stats.site_maps += build.len();
+            stats.build_seconds += started.elapsed().as_secs_f64();
+        }
+        sites
+            .iter()
+            .map(|s| table.get(s).cloned().flatten())
+            .collect()
     }
 
     pub fn stats(&self) -> ShadowMapStats {
@@ -354,6 +466,10 @@ impl SkeletonShadowMaps {
                     s.receiver_maps,
                     self.receiver_resolution()
                 )
+            } else {
+                String::new()
+            } + &if s.site_maps > 0 {
+                format!(", {} site maps", s.site_maps)
             } else {
                 String::new()
             },
