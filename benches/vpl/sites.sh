@@ -10,8 +10,8 @@ L=target/release/lacuna
 O=${1:-q36e}
 mkdir -p "$O"
 K=vpl:visibility=skeleton
-V=$K,$K:sites=8,$K:sites=16,$K:sites=8:shadow_res=32,$K:sites=16:shadow_res=32,$K:compensate=true:interleave=4:light_samples=8,$K:sites=16:shadow_res=32:compensate=true:interleave=4:light_samples=8
-F=$K,$K:sites=8,$K:sites=16:shadow_res=32
+V=$K,$K:sites=4,$K:sites=8,$K:sites=16,$K:sites=8:shadow_res=32,$K:compensate=true:interleave=4:light_samples=8,$K:sites=8:compensate=true:interleave=4:light_samples=8
+F=$K,$K:sites=4,$K:sites=8
 A="--width 128 --height 96 --max-depth 6"
 log() { echo "$(date -u +%H:%M:%S) load $(cut -d' ' -f1-3 /proc/loadavg) $*" | tee -a "$O/log"; }
 for sc in door ajar two-rooms; do

@@ -19,6 +19,7 @@
 //! keep exact shadow rays. The render notes say which happened.
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
@@ -45,9 +46,17 @@ const RELATIVE_EPSILON: f32 = 1e-3;
 pub struct CubeShadowMap {
     centre: Vec3,
     resolution: u32,
-    /// Face-major, then row (v), then column (u); `f32::INFINITY` where the ray left the scene.
-    depth: Vec<f32>,
+    /// The f32 bits of each texel's depth, face-major, then row (v), then column (u);
+    /// `f32::INFINITY` where the ray left the scene, [`UNTRACED`] where a lazy map
+    /// ([`Self::lazy`]) has not traced the texel yet. A texel's depth is a function of the
+    /// map's centre and the texel alone, so threads that trace it at once store the same.
+    depth: Vec<AtomicU32>,
+    /// Texels a lazy map has traced.
+    traced: AtomicU64,
 }
+
+/// The bits of a texel not traced yet: a NaN no ray's distance gives.
+const UNTRACED: u32 = 0x7fc0_beef;
 
 /// The face of direction `d` (0: +x, 1: -x, 2: +y, 3: -y, 4: +z, 5: -z) and its coordinates
 /// (u, v) in [-1, 1] on that face: `d[b] / |d[a]|`, `d[c] / |d[a]|` for the major axis a and
@@ -89,26 +98,60 @@ impl CubeShadowMap {
 
     /// Casts one ray per texel from `centre` (in parallel over texel rows).
     pub fn build(scene: &Scene, centre: Vec3, resolution: u32) -> CubeShadowMap {
+        let map = Self::lazy(centre, resolution);
         let r = resolution as usize;
-        let mut depth = vec![f32::INFINITY; 6 * r * r];
-        let to_face = |i: usize| (i as f32 + 0.5) / resolution as f32 * 2.0 - 1.0;
-        depth
-            .par_chunks_mut(r.max(1))
+        map.depth
+            .par_chunks(r.max(1))
             .enumerate()
             .for_each(|(row, texels)| {
                 let (face, j) = (row / r, row % r);
-                for (i, texel) in texels.iter_mut().enumerate() {
-                    let dir = face_direction(face, to_face(i), to_face(j));
-                    if let Some(hit) = scene.intersect_hit(&Ray::new(centre, dir, f32::INFINITY)) {
-                        *texel = hit.t;
-                    }
+                for (i, texel) in texels.iter().enumerate() {
+                    texel.store(map.trace(scene, face, i, j).to_bits(), Ordering::Relaxed);
                 }
             });
+        map
+    }
+
+    /// A map whose texels are traced when first read ([`Self::visibility`]): it costs the
+    /// rays of the texels the shading points look up, not of all `6 resolution^2` (map
+    /// sites, most of whose view no shading point lies in). The same depths as
+    /// [`Self::build`]'s.
+    pub fn lazy(centre: Vec3, resolution: u32) -> CubeShadowMap {
+        let r = resolution as usize;
         CubeShadowMap {
             centre,
             resolution,
-            depth,
+            depth: (0..6 * r * r).map(|_| AtomicU32::new(UNTRACED)).collect(),
+            traced: AtomicU64::new(0),
         }
+    }
+
+    /// The depth of texel (i, j) of `face`: the distance to the first surface along the
+    /// direction through the texel's centre.
+    fn trace(&self, scene: &Scene, face: usize, i: usize, j: usize) -> f32 {
+        let to_face = |i: usize| (i as f32 + 0.5) / self.resolution as f32 * 2.0 - 1.0;
+        let dir = face_direction(face, to_face(i), to_face(j));
+        scene
+            .intersect_hit(&Ray::new(self.centre, dir, f32::INFINITY))
+            .map_or(f32::INFINITY, |hit| hit.t)
+    }
+
+    /// Texel `index` (of texel (i, j) of `face`), traced first if it is not yet.
+    #[inline]
+    fn depth_at(&self, scene: &Scene, index: usize, face: usize, i: usize, j: usize) -> f32 {
+        let bits = self.depth[index].load(Ordering::Relaxed);
+        if bits != UNTRACED {
+            return f32::from_bits(bits);
+        }
+        let d = self.trace(scene, face, i, j);
+        self.depth[index].store(d.to_bits(), Ordering::Relaxed);
+        self.traced.fetch_add(1, Ordering::Relaxed);
+        d
+    }
+
+    /// Texels of a lazy map traced so far.
+    pub fn traced_texels(&self) -> u64 {
+        self.traced.load(Ordering::Relaxed)
     }
 
     pub fn centre(&self) -> Vec3 {
@@ -134,7 +177,7 @@ impl CubeShadowMap {
     /// towards the corners). With k up to 1.5 (the kernel's radius and the sub-texel
     /// offset), the tolerance is that, capped in slope ([`MAX_SLOPE`]), plus one texel's
     /// worth for a surface that is not quite planar and a relative epsilon.
-    pub fn visibility(&self, p: Vec3, ng: Vec3) -> f32 {
+    pub fn visibility(&self, scene: &Scene, p: Vec3, ng: Vec3) -> f32 {
         let d = p - self.centre;
         let distance = d.length();
         if !(distance > 0.0) {
@@ -160,7 +203,9 @@ impl CubeShadowMap {
         for j in (cj - PCF_RADIUS).max(0)..=(cj + PCF_RADIUS).min(r - 1) {
             for i in (ci - PCF_RADIUS).max(0)..=(ci + PCF_RADIUS).min(r - 1) {
                 total += 1;
-                if self.depth[base + (j * r + i) as usize] + tolerance >= distance {
+                let index = base + (j * r + i) as usize;
+                let depth = self.depth_at(scene, index, face, i as usize, j as usize);
+                if depth + tolerance >= distance {
                     lit += 1;
                 }
             }
@@ -375,10 +420,11 @@ impl SkeletonShadowMaps {
             })
     }
 
-    /// The maps of `sites` (sorted, distinct), building those that have none yet in
-    /// parallel at the node maps' resolution, within the same budget (sites beyond it, in
-    /// the order given, get None for good, as nodes do). Deterministic as [`Self::ensure`].
-    pub fn ensure_sites(&self, scene: &Scene, sites: &[Site]) -> Vec<Option<Arc<CubeShadowMap>>> {
+    /// The maps of `sites` (sorted, distinct), making those that have none yet at the node
+    /// maps' resolution, within the same budget (sites beyond it, in the order given, get
+    /// None for good, as nodes do). Deterministic as [`Self::ensure`]. The maps are lazy
+    /// ([`CubeShadowMap::lazy`]): their texels are traced as the lookups need them.
+    pub fn ensure_sites(&self, sites: &[Site]) -> Vec<Option<Arc<CubeShadowMap>>> {
         let mut table = self.sites.lock().unwrap_or_else(|e| e.into_inner());
         let missing: Vec<(Site, Option<Vec3>)> = sites
             .iter()
@@ -405,17 +451,12 @@ impl SkeletonShadowMaps {
                     }
                 }
             }
-            let started = Instant::now();
-            let built: Vec<CubeShadowMap> = build
-                .par_iter()
-                .map(|&(_, c)| CubeShadowMap::build(scene, c, self.resolution))
-                .collect();
-            for (&(site, _), map) in build.iter().zip(built) {
+            for &(site, centre) in &build {
+                let map = CubeShadowMap::lazy(centre, self.resolution);
                 stats.bytes += map.memory_bytes();
                 table.insert(site, Some(Arc::new(map)));
             }
             stats.site_maps += build.len();
-            stats.build_seconds += started.elapsed().as_secs_f64();
         }
         sites
             .iter()
@@ -469,7 +510,20 @@ impl SkeletonShadowMaps {
             } else {
                 String::new()
             } + &if s.site_maps > 0 {
-                format!(", {} site maps", s.site_maps)
+                let texels: u64 = self
+                    .sites
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .values()
+                    .flatten()
+                    .map(|m| m.traced_texels())
+                    .sum();
+                format!(
+                    ", {} lazy site maps ({texels} of their texels traced, {:.1} per cent)",
+                    s.site_maps,
+                    100.0 * texels as f64
+                        / (s.site_maps as f64 * 6.0 * (self.resolution as f64).powi(2))
+                )
             } else {
                 String::new()
             },
@@ -516,14 +570,29 @@ mod tests {
         let centre = Vec3::new(2.5, 1.25, 2.0);
         let map = CubeShadowMap::build(&scene, centre, 128);
         assert_eq!(map.depth.len(), 6 * 128 * 128);
-        assert_eq!(map.visibility(Vec3::new(2.5, 0.0, 2.0), Vec3::Y), 1.0);
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(2.5, 0.0, 2.0), Vec3::Y),
+            1.0
+        );
         // The same point as the underside of the floor: the centre is behind it.
-        assert_eq!(map.visibility(Vec3::new(2.5, 0.0, 2.0), -Vec3::Y), 0.0);
-        assert_eq!(map.visibility(Vec3::new(3.5, 2.5, 3.5), -Vec3::Y), 1.0);
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(2.5, 0.0, 2.0), -Vec3::Y),
+            0.0
+        );
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(3.5, 2.5, 3.5), -Vec3::Y),
+            1.0
+        );
         // Behind the side of the table (x = 1.1, top at y = 0.75).
-        assert_eq!(map.visibility(Vec3::new(0.7, 0.0, 2.1), Vec3::Y), 0.0);
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(0.7, 0.0, 2.1), Vec3::Y),
+            0.0
+        );
         // The segment to it crosses z = 0 at x = 2.9: the wall beside the doorway.
-        assert_eq!(map.visibility(Vec3::new(3.5, 0.0, -3.0), Vec3::Y), 0.0);
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(3.5, 0.0, -3.0), Vec3::Y),
+            0.0
+        );
         let b = scene.bounds();
         let size = b.max - b.min;
         let (mut agree, mut total, mut visible) = (0, 0, 0);
@@ -539,7 +608,7 @@ mod tests {
             let facing = if si.ng.dot(dir) < 0.0 { si.ng } else { -si.ng };
             let ray_visible = (centre - si.p).dot(facing) > 0.0
                 && !scene.occluded(&si.spawn_ray_to(centre, Vec3::ZERO, Vec3::ZERO));
-            let v = map.visibility(si.p, facing);
+            let v = map.visibility(&scene, si.p, facing);
             assert!((0.0..=1.0).contains(&v));
             total += 1;
             visible += usize::from(ray_visible);

@@ -80,12 +80,15 @@
 //! (so a wall through the cell makes two sites). The site's map stands at the centre of the
 //! empty voxel of the site nearest their centroid: within K voxels of its VPLs, in the free
 //! space they face. A site is a function of the scene alone (never of which VPLs came
-//! first), so the maps are built once, in parallel, when a site first carries a VPL, and kept
-//! as node maps are, within the same budget. A VPL its site's centre does not see (one ray
+//! first), so its map is made when a site first carries a VPL and kept as node maps are,
+//! within the same budget; it is lazy (`CubeShadowMap::lazy`: a texel is traced when a
+//! lookup first reads it, the same depth as a map built whole), and a site's group, a VPL
+//! or a few, reads its map only once one of them faces the shading point. A VPL its site's centre does not see (one ray
 //! per VPL and pass), or whose site got no map, keeps its node's map (or exact rays). The
 //! skeleton still groups the VPLs (a group per site, skipped whole where its map reads 0,
 //! eq. 161) and gives the receiver maps of the verification. Finer sites cost more maps
-//! (door, two passes of 64 subpaths: K = 4, 8, 16 built 357, 285, 159 maps).
+//! (door, two passes of 64 subpaths: K = 4, 8, 16 made 357, 285, 159 maps), and a pass
+//! costs 2-3x one with node maps, whose groups are skipped whole (BENCHMARKS.md).
 //!
 //! VPLs mapped to no node, and those of nodes the memory budget left without a map, keep
 //! exact shadow rays. The maps are built when a node first carries VPLs (in
@@ -597,6 +600,9 @@ struct Vpl {
 struct VplGroup {
     node: u32,
     map: Option<Arc<CubeShadowMap>>,
+    /// A site's group (`sites=K`): a VPL or a few, so a shading point finds one it faces
+    /// before reading the map.
+    site: bool,
     start: usize,
     end: usize,
 }
@@ -810,12 +816,17 @@ fn facing_normal(si: &SurfaceInteraction) -> Vec3 {
 /// `verify`, the node cannot stand in for its VPLs there and shadow rays decide: the node
 /// behind `si`'s surface, or the PCF kernel straddling a shadow edge (0 < V_f < 1).
 #[inline]
-fn node_verdict(map: &super::CubeShadowMap, si: &SurfaceInteraction, verify: bool) -> Option<f32> {
+fn node_verdict(
+    scene: &Scene,
+    map: &super::CubeShadowMap,
+    si: &SurfaceInteraction,
+    verify: bool,
+) -> Option<f32> {
     let facing = facing_normal(si);
     if verify && (map.centre() - si.p).dot(facing) <= 0.0 {
         return None;
     }
-    let v = map.visibility(si.p, facing);
+    let v = map.visibility(scene, si.p, facing);
     (!verify || v == 0.0 || v == 1.0).then_some(v)
 }
 
@@ -834,10 +845,10 @@ fn pair_uniform(si: &SurfaceInteraction, v: &Vpl) -> f32 {
 /// Whether the receiver map `r` sees the centre of node map `map` (a group the node's map
 /// skips may still hold VPLs the receiver sees only then, in the two-sided test).
 #[inline]
-fn sees_node(r: &super::CubeShadowMap, map: Option<&super::CubeShadowMap>) -> bool {
+fn sees_node(scene: &Scene, r: &super::CubeShadowMap, map: Option<&super::CubeShadowMap>) -> bool {
     map.is_some_and(|m| {
         let towards = r.centre() - m.centre();
-        towards.length_squared() > 0.0 && r.visibility(m.centre(), towards.normalize()) > 0.5
+        towards.length_squared() > 0.0 && r.visibility(scene, m.centre(), towards.normalize()) > 0.5
     })
 }
 
@@ -847,13 +858,14 @@ fn sees_node(r: &super::CubeShadowMap, map: Option<&super::CubeShadowMap>) -> bo
 /// disagree, a shadow ray decides.
 #[inline]
 fn pair_verdict(
+    scene: &Scene,
     node: Option<f32>,
     receiver: Option<&super::CubeShadowMap>,
     v: &Vpl,
 ) -> Option<f32> {
     let g = node?;
     match receiver {
-        Some(m) if (m.visibility(v.si.p, v.facing) > 0.5) != (g > 0.5) => None,
+        Some(m) if (m.visibility(scene, v.si.p, v.facing) > 0.5) != (g > 0.5) => None,
         _ => Some(g),
     }
 }
@@ -1203,6 +1215,7 @@ impl VplIntegrator {
                 vec![VplGroup {
                     node: EXACT_GROUP,
                     map: None,
+                    site: false,
                     start: 0,
                     end: vpls.len(),
                 }],
@@ -1219,7 +1232,7 @@ impl VplIntegrator {
             let mut distinct: Vec<Site> = wanted.iter().flatten().copied().collect();
             distinct.sort_unstable();
             distinct.dedup();
-            let maps = shadow.ensure_sites(scene, &distinct);
+            let maps = shadow.ensure_sites(&distinct);
             let mut seen = Vec::with_capacity(vpls.len());
             for (v, site) in vpls.iter().zip(wanted) {
                 let map = site.and_then(|s| {
@@ -1268,12 +1281,13 @@ impl VplIntegrator {
                 Some(g) if last == Some((node, site)) => g.end = i + 1,
                 _ => {
                     let map = match site {
-                        Some(site) => shadow.ensure_sites(scene, &[site])[0].clone(),
+                        Some(site) => shadow.ensure_sites(&[site])[0].clone(),
                         None => shadow.map(node).cloned(),
                     };
                     groups.push(VplGroup {
                         node,
                         map,
+                        site: site.is_some(),
                         start: i,
                         end: i + 1,
                     })
@@ -1476,22 +1490,42 @@ impl VplIntegrator {
         let receiver = shadow.filter(|_| checked).and_then(|s| set.receiver(s, si));
         let mut sum = Rgb::ZERO;
         for group in &set.groups {
-            // eq. 161: the node's filtered visibility, and the whole group skipped at 0
+            // eq. 161: the group's filtered visibility, and the whole group skipped at 0
             // (unless the receiver's map may still see some of its VPLs).
             let map = group.map.as_deref();
-            let node = map.and_then(|m| node_verdict(m, si, checked));
-            if node == Some(0.0) && !receiver.is_some_and(|r| sees_node(r, map)) {
+            let group_verdict = || {
+                let node = map.and_then(|m| node_verdict(scene, m, si, checked));
+                let skip = node == Some(0.0) && !receiver.is_some_and(|r| sees_node(scene, r, map));
+                (node, skip)
+            };
+            // A node's group is read first (most are skipped whole); a site's when one of
+            // its few VPLs faces x.
+            let mut verdict = (!group.site).then(group_verdict);
+            if verdict.is_some_and(|(_, skip)| skip) {
                 continue;
             }
             let vpls = set.vpls[group.start..group.end]
                 .iter()
                 .take_while(|v| v.path_len <= max_len);
             for v in vpls {
-                let visibility = pair_verdict(node, receiver, v);
+                let mut value = None;
+                if group.site {
+                    value = unshadowed(set.bound, si, bsdf, frame, wo_local, v);
+                    if value.is_none() {
+                        continue;
+                    }
+                }
+                let (node, skip) = *verdict.get_or_insert_with(group_verdict);
+                if skip {
+                    break;
+                }
+                let visibility = pair_verdict(scene, node, receiver, v);
                 if visibility == Some(0.0) {
                     continue;
                 }
-                let Some(value) = unshadowed(set.bound, si, bsdf, frame, wo_local, v) else {
+                let Some(value) =
+                    value.or_else(|| unshadowed(set.bound, si, bsdf, frame, wo_local, v))
+                else {
                     continue;
                 };
                 match visibility {
@@ -2064,7 +2098,8 @@ impl VplIntegrator {
                     let weight = unshadowed(set.bound, &si, &bsdf, &frame, wo_local, v)
                         .map_or(0.0, |c| f64::from(crate::math::luminance(c)));
                     let exact = !scene.occluded(&si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng));
-                    let verdict = pair_verdict(node_verdict(map, &si, verify), receiver, v);
+                    let verdict =
+                        pair_verdict(scene, node_verdict(scene, map, &si, verify), receiver, v);
                     tally.exact_rays += u64::from(verdict.is_none());
                     let filtered = verdict.unwrap_or(f32::from(u8::from(exact)));
                     let from_node = (map.centre() - si.p).dot(facing_normal(&si)) > 0.0
@@ -2217,12 +2252,14 @@ mod tests {
                         let Some(map) = group.map.as_deref() else {
                             continue;
                         };
-                        let node = node_verdict(map, si, true);
-                        if node == Some(0.0) && !receiver.is_some_and(|r| sees_node(r, Some(map))) {
+                        let node = node_verdict(&scene, map, si, true);
+                        if node == Some(0.0)
+                            && !receiver.is_some_and(|r| sees_node(&scene, r, Some(map)))
+                        {
                             continue;
                         }
                         for v in &set.vpls[group.start..group.end] {
-                            if pair_verdict(node, receiver, v).is_some() {
+                            if pair_verdict(&scene, node, receiver, v).is_some() {
                                 continue;
                             }
                             let Some(value) = unshadowed(set.bound, si, &bsdf, &frame, wo_local, v)
