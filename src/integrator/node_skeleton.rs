@@ -26,6 +26,14 @@ impl NodeSkeleton {
             .filter(|&n| (n as usize) < self.positions.len())
     }
 
+    /// The empty voxel [`Self::node_of`] takes the node of (its index in `grid`).
+    #[inline]
+    pub fn voxel_of(&self, si: &SurfaceInteraction) -> Option<usize> {
+        self.masks
+            .map_point_voxel(&self.grid, &self.node_map, si.p, si.ng, si.wo)
+            .filter(|&k| (self.node_map[k] as usize) < self.positions.len())
+    }
+
     /// Builds the analysis and the skeleton of `scene` at `resolution`, pushing their stage
     /// times onto `stages`. `Ok(Err(why))` when there is no skeleton to use (the analysis or
     /// the thinning failed, or it has no node); `Err` only when cancelled.

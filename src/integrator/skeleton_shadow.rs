@@ -18,7 +18,9 @@
 //! fit, the first nodes to carry VPLs get maps up to the budget and the VPLs of the others
 //! keep exact shadow rays. The render notes say which happened.
 
-use std::sync::{Mutex, OnceLock};
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -44,9 +46,17 @@ const RELATIVE_EPSILON: f32 = 1e-3;
 pub struct CubeShadowMap {
     centre: Vec3,
     resolution: u32,
-    /// Face-major, then row (v), then column (u); `f32::INFINITY` where the ray left the scene.
-    depth: Vec<f32>,
+    /// The f32 bits of each texel's depth, face-major, then row (v), then column (u);
+    /// `f32::INFINITY` where the ray left the scene, [`UNTRACED`] where a lazy map
+    /// ([`Self::lazy`]) has not traced the texel yet. A texel's depth is a function of the
+    /// map's centre and the texel alone, so threads that trace it at once store the same.
+    depth: Vec<AtomicU32>,
+    /// Texels a lazy map has traced.
+    traced: AtomicU64,
 }
+
+/// The bits of a texel not traced yet: a NaN no ray's distance gives.
+const UNTRACED: u32 = 0x7fc0_beef;
 
 /// The face of direction `d` (0: +x, 1: -x, 2: +y, 3: -y, 4: +z, 5: -z) and its coordinates
 /// (u, v) in [-1, 1] on that face: `d[b] / |d[a]|`, `d[c] / |d[a]|` for the major axis a and
@@ -88,26 +98,60 @@ impl CubeShadowMap {
 
     /// Casts one ray per texel from `centre` (in parallel over texel rows).
     pub fn build(scene: &Scene, centre: Vec3, resolution: u32) -> CubeShadowMap {
+        let map = Self::lazy(centre, resolution);
         let r = resolution as usize;
-        let mut depth = vec![f32::INFINITY; 6 * r * r];
-        let to_face = |i: usize| (i as f32 + 0.5) / resolution as f32 * 2.0 - 1.0;
-        depth
-            .par_chunks_mut(r.max(1))
+        map.depth
+            .par_chunks(r.max(1))
             .enumerate()
             .for_each(|(row, texels)| {
                 let (face, j) = (row / r, row % r);
-                for (i, texel) in texels.iter_mut().enumerate() {
-                    let dir = face_direction(face, to_face(i), to_face(j));
-                    if let Some(hit) = scene.intersect_hit(&Ray::new(centre, dir, f32::INFINITY)) {
-                        *texel = hit.t;
-                    }
+                for (i, texel) in texels.iter().enumerate() {
+                    texel.store(map.trace(scene, face, i, j).to_bits(), Ordering::Relaxed);
                 }
             });
+        map
+    }
+
+    /// A map whose texels are traced when first read ([`Self::visibility`]): it costs the
+    /// rays of the texels the shading points look up, not of all `6 resolution^2` (map
+    /// sites, most of whose view no shading point lies in). The same depths as
+    /// [`Self::build`]'s.
+    pub fn lazy(centre: Vec3, resolution: u32) -> CubeShadowMap {
+        let r = resolution as usize;
         CubeShadowMap {
             centre,
             resolution,
-            depth,
+            depth: (0..6 * r * r).map(|_| AtomicU32::new(UNTRACED)).collect(),
+            traced: AtomicU64::new(0),
         }
+    }
+
+    /// The depth of texel (i, j) of `face`: the distance to the first surface along the
+    /// direction through the texel's centre.
+    fn trace(&self, scene: &Scene, face: usize, i: usize, j: usize) -> f32 {
+        let to_face = |i: usize| (i as f32 + 0.5) / self.resolution as f32 * 2.0 - 1.0;
+        let dir = face_direction(face, to_face(i), to_face(j));
+        scene
+            .intersect_hit(&Ray::new(self.centre, dir, f32::INFINITY))
+            .map_or(f32::INFINITY, |hit| hit.t)
+    }
+
+    /// Texel `index` (of texel (i, j) of `face`), traced first if it is not yet.
+    #[inline]
+    fn depth_at(&self, scene: &Scene, index: usize, face: usize, i: usize, j: usize) -> f32 {
+        let bits = self.depth[index].load(Ordering::Relaxed);
+        if bits != UNTRACED {
+            return f32::from_bits(bits);
+        }
+        let d = self.trace(scene, face, i, j);
+        self.depth[index].store(d.to_bits(), Ordering::Relaxed);
+        self.traced.fetch_add(1, Ordering::Relaxed);
+        d
+    }
+
+    /// Texels of a lazy map traced so far.
+    pub fn traced_texels(&self) -> u64 {
+        self.traced.load(Ordering::Relaxed)
     }
 
     pub fn centre(&self) -> Vec3 {
@@ -133,7 +177,7 @@ impl CubeShadowMap {
     /// towards the corners). With k up to 1.5 (the kernel's radius and the sub-texel
     /// offset), the tolerance is that, capped in slope ([`MAX_SLOPE`]), plus one texel's
     /// worth for a surface that is not quite planar and a relative epsilon.
-    pub fn visibility(&self, p: Vec3, ng: Vec3) -> f32 {
+    pub fn visibility(&self, scene: &Scene, p: Vec3, ng: Vec3) -> f32 {
         let d = p - self.centre;
         let distance = d.length();
         if !(distance > 0.0) {
@@ -159,7 +203,9 @@ impl CubeShadowMap {
         for j in (cj - PCF_RADIUS).max(0)..=(cj + PCF_RADIUS).min(r - 1) {
             for i in (ci - PCF_RADIUS).max(0)..=(ci + PCF_RADIUS).min(r - 1) {
                 total += 1;
-                if self.depth[base + (j * r + i) as usize] + tolerance >= distance {
+                let index = base + (j * r + i) as usize;
+                let depth = self.depth_at(scene, index, face, i as usize, j as usize);
+                if depth + tolerance >= distance {
                     lit += 1;
                 }
             }
@@ -168,12 +214,23 @@ impl CubeShadowMap {
     }
 }
 
+/// A map site of `vpl:sites=K`: a cell of K^3 voxels of the skeleton's grid (`cell` holds its
+/// coordinates and K) and a filtered node, standing for the empty voxels of the cell that map
+/// to that node (one side of a wall through the cell).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Site {
+    pub cell: [u32; 4],
+    pub node: u32,
+}
+
 /// What the shadow maps cost so far (for the render notes).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ShadowMapStats {
     /// Nodes with a map, and with a receiver map.
     pub maps: usize,
     pub receiver_maps: usize,
+    /// Sites with a map (`vpl:sites=K`).
+    pub site_maps: usize,
     /// Nodes that carried VPLs but got no map (over the budget): exact rays for their VPLs.
     pub refused: usize,
     pub bytes: u64,
@@ -190,10 +247,13 @@ pub struct SkeletonShadowMaps {
     max_maps: usize,
     budget_bytes: u64,
     /// Per node: unset until it carried a VPL, then its map or None (over the budget).
-    maps: Vec<OnceLock<Option<CubeShadowMap>>>,
+    maps: Vec<OnceLock<Option<Arc<CubeShadowMap>>>>,
     /// Per node: the map read at VPLs from the shading points the node maps, at
     /// [`Self::receiver_resolution`] (`vpl`'s two-sided test); built as `maps`.
-    receivers: Vec<OnceLock<Option<CubeShadowMap>>>,
+    receivers: Vec<OnceLock<Option<Arc<CubeShadowMap>>>>,
+    /// `vpl:sites=K`: the maps of the sites ([`Site`]) that carried VPLs, None over the
+    /// budget or where the site has no empty voxel.
+    sites: Mutex<HashMap<Site, Option<Arc<CubeShadowMap>>>>,
     stats: Mutex<ShadowMapStats>,
 }
 
@@ -212,6 +272,7 @@ impl SkeletonShadowMaps {
         SkeletonShadowMaps {
             maps: (0..nodes).map(|_| OnceLock::new()).collect(),
             receivers: (0..nodes).map(|_| OnceLock::new()).collect(),
+            sites: Mutex::new(HashMap::new()),
             skeleton,
             resolution,
             requested,
@@ -260,7 +321,7 @@ impl SkeletonShadowMaps {
 
     fn ensure_in(
         &self,
-        slots: &[OnceLock<Option<CubeShadowMap>>],
+        slots: &[OnceLock<Option<Arc<CubeShadowMap>>>],
         resolution: u32,
         scene: &Scene,
         nodes: &[u32],
@@ -284,7 +345,7 @@ impl SkeletonShadowMaps {
             .collect();
         for (&n, map) in build.iter().zip(built) {
             stats.bytes += map.memory_bytes();
-            let _ = slots[n as usize].set(Some(map));
+            let _ = slots[n as usize].set(Some(Arc::new(map)));
         }
         for &n in refuse {
             let _ = slots[n as usize].set(None);
@@ -302,13 +363,105 @@ impl SkeletonShadowMaps {
     /// budget). Never its full map: whether that exists depends on which passes ran before.
     #[inline]
     pub fn receiver_map(&self, node: u32) -> Option<&CubeShadowMap> {
-        self.receivers.get(node as usize)?.get()?.as_ref()
+        self.receivers.get(node as usize)?.get()?.as_deref()
     }
 
     /// Node `node`'s map, None when it has none (not built yet, or over the budget).
     #[inline]
-    pub fn map(&self, node: u32) -> Option<&CubeShadowMap> {
+    pub fn map(&self, node: u32) -> Option<&Arc<CubeShadowMap>> {
         self.maps.get(node as usize)?.get()?.as_ref()
+    }
+
+    /// The site of a VPL's surface point with sites of `cell` voxels per edge
+    /// (`vpl:sites=K`): the cell of the empty voxel the point maps through (eq. 151-155's
+    /// voxel, on the side the surface faces) and that voxel's node.
+    pub fn site_of(&self, si: &SurfaceInteraction, cell: u32) -> Option<Site> {
+        let sk = &self.skeleton;
+        let k = sk.voxel_of(si)?;
+        let c = sk.grid.coords(k).map(|x| (x / cell as usize) as u32);
+        Some(Site {
+            cell: [c[0], c[1], c[2], cell],
+            node: sk.node_map[k],
+        })
+    }
+
+    /// Where a site's map stands: among the empty voxels of the site's cell that map to its
+    /// node, the centre of the one nearest their centroid (inside the free space the site's
+    /// VPLs face, as far from the cell's walls as its voxels go). None when it has none.
+    pub fn site_centre(&self, site: Site) -> Option<Vec3> {
+        let sk = &self.skeleton;
+        let [cx, cy, cz, k] = site.cell.map(|x| x as usize);
+        let dims = sk.grid.dims;
+        let mut voxels = Vec::new();
+        for z in cz * k..((cz + 1) * k).min(dims[2]) {
+            for y in cy * k..((cy + 1) * k).min(dims[1]) {
+                for x in cx * k..((cx + 1) * k).min(dims[0]) {
+                    let i = sk.grid.index(x, y, z);
+                    if sk.node_map[i] == site.node {
+                        voxels.push(i);
+                    }
+                }
+            }
+        }
+        if voxels.is_empty() {
+            return None;
+        }
+        let centroid = voxels
+            .iter()
+            .fold(Vec3::ZERO, |a, &i| a + sk.grid.voxel_center(i))
+            / voxels.len() as f32;
+        voxels
+            .iter()
+            .map(|&i| sk.grid.voxel_center(i))
+            .min_by(|a, b| {
+                (*a - centroid)
+                    .length_squared()
+                    .total_cmp(&(*b - centroid).length_squared())
+            })
+    }
+
+    /// The maps of `sites` (sorted, distinct), making those that have none yet at the node
+    /// maps' resolution, within the same budget (sites beyond it, in the order given, get
+    /// None for good, as nodes do). Deterministic as [`Self::ensure`]. The maps are lazy
+    /// ([`CubeShadowMap::lazy`]): their texels are traced as the lookups need them.
+    pub fn ensure_sites(&self, sites: &[Site]) -> Vec<Option<Arc<CubeShadowMap>>> {
+        let mut table = self.sites.lock().unwrap_or_else(|e| e.into_inner());
+        let missing: Vec<(Site, Option<Vec3>)> = sites
+            .iter()
+            .filter(|s| !table.contains_key(s))
+            .map(|&s| (s, self.site_centre(s)))
+            .collect();
+        if !missing.is_empty() {
+            let mut stats = self.stats.lock().unwrap_or_else(|e| e.into_inner());
+            let per_map = CubeShadowMap::bytes_for(self.resolution);
+            let mut left = self.budget_bytes.saturating_sub(stats.bytes);
+            let mut build = Vec::new();
+            for &(site, centre) in &missing {
+                match centre {
+                    Some(c) if left >= per_map => {
+                        left -= per_map;
+                        build.push((site, c));
+                    }
+                    Some(_) => {
+                        stats.refused += 1;
+                        table.insert(site, None);
+                    }
+                    None => {
+                        table.insert(site, None);
+                    }
+                }
+            }
+            for &(site, centre) in &build {
+                let map = CubeShadowMap::lazy(centre, self.resolution);
+                stats.bytes += map.memory_bytes();
+                table.insert(site, Some(Arc::new(map)));
+            }
+            stats.site_maps += build.len();
+        }
+        sites
+            .iter()
+            .map(|s| table.get(s).cloned().flatten())
+            .collect()
     }
 
     pub fn stats(&self) -> ShadowMapStats {
@@ -356,6 +509,23 @@ impl SkeletonShadowMaps {
                 )
             } else {
                 String::new()
+            } + &if s.site_maps > 0 {
+                let texels: u64 = self
+                    .sites
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .values()
+                    .flatten()
+                    .map(|m| m.traced_texels())
+                    .sum();
+                format!(
+                    ", {} lazy site maps ({texels} of their texels traced, {:.1} per cent)",
+                    s.site_maps,
+                    100.0 * texels as f64
+                        / (s.site_maps as f64 * 6.0 * (self.resolution as f64).powi(2))
+                )
+            } else {
+                String::new()
             },
             s.bytes as f64 / (1 << 20) as f64,
             s.build_seconds
@@ -400,14 +570,29 @@ mod tests {
         let centre = Vec3::new(2.5, 1.25, 2.0);
         let map = CubeShadowMap::build(&scene, centre, 128);
         assert_eq!(map.depth.len(), 6 * 128 * 128);
-        assert_eq!(map.visibility(Vec3::new(2.5, 0.0, 2.0), Vec3::Y), 1.0);
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(2.5, 0.0, 2.0), Vec3::Y),
+            1.0
+        );
         // The same point as the underside of the floor: the centre is behind it.
-        assert_eq!(map.visibility(Vec3::new(2.5, 0.0, 2.0), -Vec3::Y), 0.0);
-        assert_eq!(map.visibility(Vec3::new(3.5, 2.5, 3.5), -Vec3::Y), 1.0);
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(2.5, 0.0, 2.0), -Vec3::Y),
+            0.0
+        );
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(3.5, 2.5, 3.5), -Vec3::Y),
+            1.0
+        );
         // Behind the side of the table (x = 1.1, top at y = 0.75).
-        assert_eq!(map.visibility(Vec3::new(0.7, 0.0, 2.1), Vec3::Y), 0.0);
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(0.7, 0.0, 2.1), Vec3::Y),
+            0.0
+        );
         // The segment to it crosses z = 0 at x = 2.9: the wall beside the doorway.
-        assert_eq!(map.visibility(Vec3::new(3.5, 0.0, -3.0), Vec3::Y), 0.0);
+        assert_eq!(
+            map.visibility(&scene, Vec3::new(3.5, 0.0, -3.0), Vec3::Y),
+            0.0
+        );
         let b = scene.bounds();
         let size = b.max - b.min;
         let (mut agree, mut total, mut visible) = (0, 0, 0);
@@ -423,7 +608,7 @@ mod tests {
             let facing = if si.ng.dot(dir) < 0.0 { si.ng } else { -si.ng };
             let ray_visible = (centre - si.p).dot(facing) > 0.0
                 && !scene.occluded(&si.spawn_ray_to(centre, Vec3::ZERO, Vec3::ZERO));
-            let v = map.visibility(si.p, facing);
+            let v = map.visibility(&scene, si.p, facing);
             assert!((0.0..=1.0).contains(&v));
             total += 1;
             visible += usize::from(ray_visible);

@@ -69,6 +69,27 @@
 //! quarter of the pairs (before the roulette). The image stays biased: the pairs both maps
 //! agree on wrongly (mostly visible pairs both call occluded: the image is darker).
 //!
+//! # Map sites (`sites=K`; default 0, the node maps above)
+//!
+//! The node stands mid-room, far from VPLs near a door's gap, and sees the point otherwise
+//! than they do (parallax): on the door two thirds of the maps' error, and after
+//! verification most of what is left (visible pairs both maps call occluded). With
+//! `sites=K` a VPL's visibility is read from the map of its *site* instead: the skeleton
+//! grid's cell of K^3 voxels holding the empty voxel its surface point maps through (the
+//! voxel of eq. 151-155, on the side the surface faces), together with that voxel's node
+//! (so a wall through the cell makes two sites). The site's map stands at the centre of the
+//! empty voxel of the site nearest their centroid: within K voxels of its VPLs, in the free
+//! space they face. A site is a function of the scene alone (never of which VPLs came
+//! first), so its map is made when a site first carries a VPL and kept as node maps are,
+//! within the same budget; it is lazy (`CubeShadowMap::lazy`: a texel is traced when a
+//! lookup first reads it, the same depth as a map built whole), and a site's group, a VPL
+//! or a few, reads its map only once one of them faces the shading point. A VPL its site's centre does not see (one ray
+//! per VPL and pass), or whose site got no map, keeps its node's map (or exact rays). The
+//! skeleton still groups the VPLs (a group per site, skipped whole where its map reads 0,
+//! eq. 161) and gives the receiver maps of the verification. Finer sites cost more maps
+//! (door, two passes of 64 subpaths: K = 4, 8, 16 made 357, 285, 159 maps), and a pass
+//! costs 2-3x one with node maps, whose groups are skipped whole (BENCHMARKS.md).
+//!
 //! VPLs mapped to no node, and those of nodes the memory budget left without a map, keep
 //! exact shadow rays. The maps are built when a node first carries VPLs (in
 //! `begin_iteration`, in parallel; their time counts in the render's) and kept for later
@@ -140,7 +161,7 @@ use std::sync::Arc;
 
 use super::bdpt::{shading_correction, Bdpt};
 use super::node_skeleton::{Fingerprint, NodeSkeleton};
-use super::skeleton_shadow::{SkeletonShadowMaps, MIN_SHADOW_RESOLUTION};
+use super::skeleton_shadow::{CubeShadowMap, Site, SkeletonShadowMaps, MIN_SHADOW_RESOLUTION};
 use super::{Integrator, IntegratorSettings, Iteration, SampleContext, SpecOption, TraceCounters};
 use super::{Precomputation, Registration, View};
 use crate::error::{Error, Result};
@@ -179,6 +200,10 @@ pub const MAX_INTERLEAVE: u32 = 8;
 pub const DEFAULT_LIGHT_SAMPLES: u32 = 1;
 /// Largest `light_samples`.
 pub const MAX_LIGHT_SAMPLES: u32 = 64;
+/// Default `sites`: 0, the thesis's node maps.
+pub const DEFAULT_SITES: u32 = 0;
+/// Largest `sites` (voxels per site's edge).
+pub const MAX_SITES: u32 = 64;
 
 /// How a pass picks its VPLs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -243,7 +268,7 @@ impl VplVisibility {
 }
 
 /// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact|skeleton`,
-/// with skeleton visibility `shadow_res=N:shadow_budget_mb=M:verify=P`; the skeleton's `resolution` and
+/// with skeleton visibility `shadow_res=N:shadow_budget_mb=M:verify=P:sites=K`; the skeleton's `resolution` and
 /// `voxel_budget` are the skeleton guide's options; `select=uniform|importance` with
 /// `candidates=K:p_min=P:probes=N`; `interleave=N`; `light_samples=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -282,6 +307,10 @@ pub struct VplOptions {
     /// Next-event samples per non-delta vertex of the camera path, averaged (the direct
     /// light, which the VPLs do not carry; unbiased for any count).
     pub light_samples: u32,
+    /// `visibility=skeleton`: 0 reads each VPL's visibility from its node's map (the
+    /// thesis); K > 0 from the map of its *site* (module docs, "Map sites"), a cell of K^3
+    /// skeleton voxels on the VPL's side of the surface, where the site sees the VPL.
+    pub sites: u32,
 }
 
 impl Default for VplOptions {
@@ -300,6 +329,7 @@ impl Default for VplOptions {
             probes: DEFAULT_PROBES,
             interleave: DEFAULT_INTERLEAVE,
             light_samples: DEFAULT_LIGHT_SAMPLES,
+            sites: DEFAULT_SITES,
         }
     }
 }
@@ -386,6 +416,13 @@ impl VplOptions {
                     ))
                 })?;
             }
+            "sites" => {
+                self.sites = value.parse::<u32>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: sites={value} must be an integer in 0..={MAX_SITES} (skeleton voxels per map site's edge, 0 = node maps)"
+                    ))
+                })?;
+            }
             "shadow_budget_mb" => {
                 self.shadow_budget_mb = value.parse::<u32>().map_err(|_| {
                     Error::invalid(format!(
@@ -461,6 +498,12 @@ impl VplOptions {
                 self.light_samples
             )));
         }
+        if self.sites > MAX_SITES {
+            return Err(Error::invalid(format!(
+                "vpl: sites={} must be within 0..={MAX_SITES} (skeleton voxels per map site's edge, 0 = node maps)",
+                self.sites
+            )));
+        }
         crate::limits::check_memory_budget(
             "vpl: shadow_budget_mb",
             (self.shadow_budget_mb as u64) << 20,
@@ -489,7 +532,12 @@ impl VplOptions {
     fn estimator_bias(&self) -> Option<String> {
         if self.visibility == VplVisibility::Skeleton {
             return Some(format!(
-                "biased: skeleton visibility (each VPL's shadow ray replaced by the filtered visibility of its skeleton node's cube shadow map, 000 eq. 159{}){}",
+                "biased: skeleton visibility (each VPL's shadow ray replaced by the filtered visibility of {} cube shadow map, 000 eq. 159{}){}",
+                if self.sites > 0 {
+                    format!("its map site's (sites={})", self.sites)
+                } else {
+                    "its skeleton node's".to_string()
+                },
                 if self.verify > 0.0 {
                     ", shadow rays where the maps disagree or are unsure"
                 } else {
@@ -546,9 +594,15 @@ struct Vpl {
     path_len: u32,
 }
 
-/// VPLs `start..end` of a pass, all of skeleton node `node` (or [`EXACT_GROUP`]).
+/// VPLs `start..end` of a pass, all of skeleton node `node` (or [`EXACT_GROUP`]), and the
+/// shadow map that stands for their visibility: their node's, or with `sites=K` their site's
+/// (None: exact shadow rays).
 struct VplGroup {
     node: u32,
+    map: Option<Arc<CubeShadowMap>>,
+    /// A site's group (`sites=K`): a VPL or a few, so a shading point finds one it faces
+    /// before reading the map.
+    site: bool,
     start: usize,
     end: usize,
 }
@@ -762,12 +816,17 @@ fn facing_normal(si: &SurfaceInteraction) -> Vec3 {
 /// `verify`, the node cannot stand in for its VPLs there and shadow rays decide: the node
 /// behind `si`'s surface, or the PCF kernel straddling a shadow edge (0 < V_f < 1).
 #[inline]
-fn node_verdict(map: &super::CubeShadowMap, si: &SurfaceInteraction, verify: bool) -> Option<f32> {
+fn node_verdict(
+    scene: &Scene,
+    map: &super::CubeShadowMap,
+    si: &SurfaceInteraction,
+    verify: bool,
+) -> Option<f32> {
     let facing = facing_normal(si);
     if verify && (map.centre() - si.p).dot(facing) <= 0.0 {
         return None;
     }
-    let v = map.visibility(si.p, facing);
+    let v = map.visibility(scene, si.p, facing);
     (!verify || v == 0.0 || v == 1.0).then_some(v)
 }
 
@@ -786,10 +845,10 @@ fn pair_uniform(si: &SurfaceInteraction, v: &Vpl) -> f32 {
 /// Whether the receiver map `r` sees the centre of node map `map` (a group the node's map
 /// skips may still hold VPLs the receiver sees only then, in the two-sided test).
 #[inline]
-fn sees_node(r: &super::CubeShadowMap, map: Option<&super::CubeShadowMap>) -> bool {
+fn sees_node(scene: &Scene, r: &super::CubeShadowMap, map: Option<&super::CubeShadowMap>) -> bool {
     map.is_some_and(|m| {
         let towards = r.centre() - m.centre();
-        towards.length_squared() > 0.0 && r.visibility(m.centre(), towards.normalize()) > 0.5
+        towards.length_squared() > 0.0 && r.visibility(scene, m.centre(), towards.normalize()) > 0.5
     })
 }
 
@@ -799,13 +858,14 @@ fn sees_node(r: &super::CubeShadowMap, map: Option<&super::CubeShadowMap>) -> bo
 /// disagree, a shadow ray decides.
 #[inline]
 fn pair_verdict(
+    scene: &Scene,
     node: Option<f32>,
     receiver: Option<&super::CubeShadowMap>,
     v: &Vpl,
 ) -> Option<f32> {
     let g = node?;
     match receiver {
-        Some(m) if (m.visibility(v.si.p, v.facing) > 0.5) != (g > 0.5) => None,
+        Some(m) if (m.visibility(scene, v.si.p, v.facing) > 0.5) != (g > 0.5) => None,
         _ => Some(g),
     }
 }
@@ -1148,14 +1208,46 @@ impl VplIntegrator {
     /// (building the maps of nodes that carry VPLs for the first time), the VPLs of no node
     /// or no map in one exact group; by subpath length within a group. Stable: the order
     /// stays a function of the seed alone.
-    fn group(&self, scene: &Scene, vpls: &mut Vec<Vpl>) -> Vec<VplGroup> {
+    fn group(&self, scene: &Scene, vpls: &mut Vec<Vpl>) -> (Vec<VplGroup>, u64) {
         let Some(shadow) = &self.shadow else {
             vpls.sort_by_key(|v| v.path_len);
-            return vec![VplGroup {
-                node: EXACT_GROUP,
-                start: 0,
-                end: vpls.len(),
-            }];
+            return (
+                vec![VplGroup {
+                    node: EXACT_GROUP,
+                    map: None,
+                    site: false,
+                    start: 0,
+                    end: vpls.len(),
+                }],
+                0,
+            );
+        };
+        let cell = self.options.sites;
+        let mut rays = 0;
+        // With sites, each VPL's site whose map stands where the site sees the VPL (one ray
+        // each); the others keep their node's map.
+        let sites: Vec<Option<Site>> = if cell > 0 {
+            let wanted: Vec<Option<Site>> =
+                vpls.iter().map(|v| shadow.site_of(&v.si, cell)).collect();
+            let mut distinct: Vec<Site> = wanted.iter().flatten().copied().collect();
+            distinct.sort_unstable();
+            distinct.dedup();
+            let maps = shadow.ensure_sites(&distinct);
+            let mut seen = Vec::with_capacity(vpls.len());
+            for (v, site) in vpls.iter().zip(wanted) {
+                let map = site.and_then(|s| {
+                    let i = distinct.binary_search(&s).ok()?;
+                    maps[i].as_ref()
+                });
+                seen.push(map.and_then(|m| {
+                    rays += 1;
+                    let to = v.si.spawn_ray_to(m.centre(), Vec3::ZERO, Vec3::ZERO);
+                    (!scene.occluded(&to)).then_some(site?)
+                }));
+            }
+            seen
+        } else {
+            vec![None; vpls.len()]
         };
         let nodes: Vec<u32> = vpls
             .iter()
@@ -1163,38 +1255,48 @@ impl VplIntegrator {
             .collect();
         let mut carrying: Vec<u32> = nodes
             .iter()
-            .copied()
-            .filter(|&n| n != EXACT_GROUP)
+            .zip(&sites)
+            .filter(|&(&n, site)| n != EXACT_GROUP && site.is_none())
+            .map(|(&n, _)| n)
             .collect();
         carrying.sort_unstable();
         carrying.dedup();
         shadow.ensure(scene, &carrying);
-        let key = |n: u32| {
-            if shadow.map(n).is_some() {
-                n
-            } else {
-                EXACT_GROUP
-            }
-        };
-        let mut keyed: Vec<(u32, Vpl)> = nodes
+        let mut keyed: Vec<(u32, Option<Site>, Vpl)> = nodes
             .into_iter()
-            .map(key)
+            .zip(sites)
+            .map(|(n, site)| match site {
+                Some(site) => (n, Some(site)),
+                None if shadow.map(n).is_some() => (n, None),
+                None => (EXACT_GROUP, None),
+            })
             .zip(std::mem::take(vpls))
+            .map(|((n, site), v)| (n, site, v))
             .collect();
-        keyed.sort_by_key(|(node, v)| (*node, v.path_len));
+        keyed.sort_by_key(|(node, site, v)| (*node, *site, v.path_len));
         let mut groups: Vec<VplGroup> = Vec::new();
-        for (i, (node, v)) in keyed.into_iter().enumerate() {
+        let mut last: Option<(u32, Option<Site>)> = None;
+        for (i, (node, site, v)) in keyed.into_iter().enumerate() {
             match groups.last_mut() {
-                Some(g) if g.node == node => g.end = i + 1,
-                _ => groups.push(VplGroup {
-                    node,
-                    start: i,
-                    end: i + 1,
-                }),
+                Some(g) if last == Some((node, site)) => g.end = i + 1,
+                _ => {
+                    let map = match site {
+                        Some(site) => shadow.ensure_sites(&[site])[0].clone(),
+                        None => shadow.map(node).cloned(),
+                    };
+                    groups.push(VplGroup {
+                        node,
+                        map,
+                        site: site.is_some(),
+                        start: i,
+                        end: i + 1,
+                    })
+                }
             }
+            last = Some((node, site));
             vpls.push(v);
         }
-        groups
+        (groups, rays)
     }
 
     /// With `verify`, builds the maps of the nodes the view's visible surfaces map to (the
@@ -1312,7 +1414,8 @@ impl VplIntegrator {
         if let Some(probes) = probes {
             rays += self.select(scene, probes, seed, index, bound, &mut vpls);
         }
-        let groups = self.group(scene, &mut vpls);
+        let (groups, group_rays) = self.group(scene, &mut vpls);
+        rays += group_rays;
         (
             VplSet {
                 vpls,
@@ -1387,22 +1490,42 @@ impl VplIntegrator {
         let receiver = shadow.filter(|_| checked).and_then(|s| set.receiver(s, si));
         let mut sum = Rgb::ZERO;
         for group in &set.groups {
-            // eq. 161: the node's filtered visibility, and the whole group skipped at 0
+            // eq. 161: the group's filtered visibility, and the whole group skipped at 0
             // (unless the receiver's map may still see some of its VPLs).
-            let map = shadow.and_then(|s| s.map(group.node));
-            let node = map.and_then(|m| node_verdict(m, si, checked));
-            if node == Some(0.0) && !receiver.is_some_and(|r| sees_node(r, map)) {
+            let map = group.map.as_deref();
+            let group_verdict = || {
+                let node = map.and_then(|m| node_verdict(scene, m, si, checked));
+                let skip = node == Some(0.0) && !receiver.is_some_and(|r| sees_node(scene, r, map));
+                (node, skip)
+            };
+            // A node's group is read first (most are skipped whole); a site's when one of
+            // its few VPLs faces x.
+            let mut verdict = (!group.site).then(group_verdict);
+            if verdict.is_some_and(|(_, skip)| skip) {
                 continue;
             }
             let vpls = set.vpls[group.start..group.end]
                 .iter()
                 .take_while(|v| v.path_len <= max_len);
             for v in vpls {
-                let visibility = pair_verdict(node, receiver, v);
+                let mut value = None;
+                if group.site {
+                    value = unshadowed(set.bound, si, bsdf, frame, wo_local, v);
+                    if value.is_none() {
+                        continue;
+                    }
+                }
+                let (node, skip) = *verdict.get_or_insert_with(group_verdict);
+                if skip {
+                    break;
+                }
+                let visibility = pair_verdict(scene, node, receiver, v);
                 if visibility == Some(0.0) {
                     continue;
                 }
-                let Some(value) = unshadowed(set.bound, si, bsdf, frame, wo_local, v) else {
+                let Some(value) =
+                    value.or_else(|| unshadowed(set.bound, si, bsdf, frame, wo_local, v))
+                else {
                     continue;
                 };
                 match visibility {
@@ -1937,7 +2060,7 @@ impl VplIntegrator {
         let mapped: Vec<(&Vpl, u32, &super::CubeShadowMap, bool)> = set
             .groups
             .iter()
-            .filter_map(|g| shadow.map(g.node).map(|m| (g, m)))
+            .filter_map(|g| g.map.as_deref().map(|m| (g, m)))
             .flat_map(|(g, m)| set.vpls[g.start..g.end].iter().map(move |v| (v, g.node, m)))
             .map(|(v, n, m)| {
                 let sees = !scene.occluded(&v.si.spawn_ray_to(m.centre(), Vec3::ZERO, Vec3::ZERO));
@@ -1975,7 +2098,8 @@ impl VplIntegrator {
                     let weight = unshadowed(set.bound, &si, &bsdf, &frame, wo_local, v)
                         .map_or(0.0, |c| f64::from(crate::math::luminance(c)));
                     let exact = !scene.occluded(&si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng));
-                    let verdict = pair_verdict(node_verdict(map, &si, verify), receiver, v);
+                    let verdict =
+                        pair_verdict(scene, node_verdict(scene, map, &si, verify), receiver, v);
                     tally.exact_rays += u64::from(verdict.is_none());
                     let filtered = verdict.unwrap_or(f32::from(u8::from(exact)));
                     let from_node = (map.centre() - si.p).dot(facing_normal(&si)) > 0.0
@@ -2125,15 +2249,17 @@ mod tests {
                     let receiver = set.receiver(&shadow, si);
                     let mut light = 0.0;
                     for group in &set.groups {
-                        let Some(map) = shadow.map(group.node) else {
+                        let Some(map) = group.map.as_deref() else {
                             continue;
                         };
-                        let node = node_verdict(map, si, true);
-                        if node == Some(0.0) && !receiver.is_some_and(|r| sees_node(r, Some(map))) {
+                        let node = node_verdict(&scene, map, si, true);
+                        if node == Some(0.0)
+                            && !receiver.is_some_and(|r| sees_node(&scene, r, Some(map)))
+                        {
                             continue;
                         }
                         for v in &set.vpls[group.start..group.end] {
-                            if pair_verdict(node, receiver, v).is_some() {
+                            if pair_verdict(&scene, node, receiver, v).is_some() {
                                 continue;
                             }
                             let Some(value) = unshadowed(set.bound, si, &bsdf, &frame, wo_local, v)
