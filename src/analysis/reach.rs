@@ -52,12 +52,42 @@ pub fn may_map_to_where(
     // A search's centre lies within 3 voxels of v_x (4 with a unit normal rounded above 1),
     // so `far` bounds where the cone test can succeed and skips it far from every wanted node.
     let far = dilate(grid, &near, 4);
-    (0..map.len())
+    // The cone test's geometry depends on the voxel's mapped neighbours alone: the offsets it
+    // allows are found once per distinct neighbourhood, then looked up per voxel.
+    let tested: Vec<(usize, u32)> = (0..map.len())
         .into_par_iter()
-        .map(|k| {
-            asked(k) && (near[k] || (far[k] && searches_along_normal_reach(grid, map, &near, k)))
+        .filter(|&k| !near[k] && far[k] && asked(k))
+        .map(|k| (k, mapped_neighbours(grid, map, k)))
+        .collect();
+    let mut masks: Vec<u32> = tested.iter().map(|&(_, m)| m).collect();
+    masks.par_sort_unstable();
+    masks.dedup();
+    let offsets: Vec<Vec<[i64; 3]>> = masks.par_iter().map(|&m| search_offsets(m)).collect();
+    let mut reach: Vec<bool> = (0..map.len())
+        .into_par_iter()
+        .map(|k| near[k] && asked(k))
+        .collect();
+    let dims = grid.dims.map(|d| d as i64);
+    let found: Vec<usize> = tested
+        .par_iter()
+        .filter(|&&(k, m)| {
+            let v = grid.coords(k).map(|c| c as i64);
+            let i = masks
+                .binary_search(&m)
+                .expect("every tested mask is listed");
+            offsets[i].iter().any(|d| {
+                // The centre's neighbourhood within the grid is within that of the centre
+                // clamped to the grid.
+                let c = [0, 1, 2].map(|a| (v[a] + d[a]).clamp(0, dims[a] - 1) as usize);
+                near[grid.index(c[0], c[1], c[2])]
+            })
         })
-        .collect()
+        .map(|&(k, _)| k)
+        .collect();
+    for k in found {
+        reach[k] = true;
+    }
+    reach
 }
 
 /// Box dilation by `radius` voxels per axis (separable, one pass per axis): a voxel is set
@@ -117,33 +147,43 @@ fn dilate(grid: &VoxelGrid, flags: &[bool], radius: usize) -> Vec<bool> {
 /// normal rounded to f32, so the boundaries are widened rather than trusted.
 const SLACK: f64 = 1e-3;
 
-/// Whether one of `map_point`'s searches along n⁺ (steps 1-3) from a point in voxel `k` may
-/// be centred on a voxel where `near` holds (see [`may_map_to`]).
-fn searches_along_normal_reach(grid: &VoxelGrid, map: &[u32], near: &[bool], k: usize) -> bool {
+/// Bit `(dz + 1) 9 + (dy + 1) 3 + (dx + 1)` of voxel `k`'s neighbour at offset (dx, dy, dz)
+/// (itself excluded) is set when that neighbour is inside the grid and mapped.
+fn mapped_neighbours(grid: &VoxelGrid, map: &[u32], k: usize) -> u32 {
     let dims = grid.dims.map(|d| d as i64);
     let v = grid.coords(k).map(|c| c as i64);
     let inside = |p: [i64; 3]| (0..3).all(|a| p[a] >= 0 && p[a] < dims[a]);
-    // The mapped neighbours of v_x (out-of-grid voxels are never mapped).
-    // At most 26, on the stack: this runs for every voxel near a wanted node.
-    let mut mapped_storage = [[0i64; 3]; 26];
-    let mut mapped_count = 0;
+    let mut mask = 0;
     for dz in -1..=1i64 {
         for dy in -1..=1i64 {
             for dx in -1..=1i64 {
-                let o = [dx, dy, dz];
                 let w = [v[0] + dx, v[1] + dy, v[2] + dz];
-                if o != [0, 0, 0]
+                if [dx, dy, dz] != [0, 0, 0]
                     && inside(w)
                     && map[grid.index(w[0] as usize, w[1] as usize, w[2] as usize)]
                         != UNDEFINED_NODE
                 {
-                    mapped_storage[mapped_count] = o;
-                    mapped_count += 1;
+                    mask |= 1 << ((dz + 1) * 9 + (dy + 1) * 3 + (dx + 1));
                 }
             }
         }
     }
+    mask
+}
+
+/// The offsets d from v_x on which one of `map_point`'s searches along n⁺ (steps 1-3) may
+/// be centred, for a voxel whose mapped neighbours are `mask` ([`mapped_neighbours`]; see
+/// [`may_map_to`]): the geometry of the cone test, whatever `near` holds at the centres.
+fn search_offsets(mask: u32) -> Vec<[i64; 3]> {
+    let mut mapped_storage = [[0i64; 3]; 26];
+    let mut mapped_count = 0;
+    for bit in (0..27).filter(|b| mask & (1 << b) != 0) {
+        let b = bit as i64;
+        mapped_storage[mapped_count] = [b % 3 - 1, (b / 3) % 3 - 1, b / 9 - 1];
+        mapped_count += 1;
+    }
     let mapped = &mapped_storage[..mapped_count];
+    let mut offsets = Vec::new();
     // Per axis, the range of x = s n⁺ the face neighbours allow: a mapped +e_a means
     // n⁺_a <= 0 (else it would have been found facing; its score is n⁺_a, exact in f32),
     // a mapped -e_a means n⁺_a >= 0. Then floor(g_a + s n⁺_a) <= v_a exactly.
@@ -159,7 +199,7 @@ fn searches_along_normal_reach(grid: &VoxelGrid, map: &[u32], near: &[bool], k: 
         }
     }
     if (0..3).any(|a| limit[a][0] > limit[a][1]) {
-        return false;
+        return offsets;
     }
     let d_range = |a: usize| -> (i64, i64) {
         // d - 1 < x < d + 1 for some x in limit[a].
@@ -173,12 +213,6 @@ fn searches_along_normal_reach(grid: &VoxelGrid, map: &[u32], near: &[bool], k: 
         for dy in ranges[1].0..=ranges[1].1 {
             for dx in ranges[0].0..=ranges[0].1 {
                 let d = [dx, dy, dz];
-                // The centre's neighbourhood within the grid is within that of the centre
-                // clamped to the grid.
-                let c = [0, 1, 2].map(|a| (v[a] + d[a]).clamp(0, dims[a] - 1) as usize);
-                if !near[grid.index(c[0], c[1], c[2])] {
-                    continue;
-                }
                 let mut lo = [0.0f64; 3];
                 let mut hi = [0.0f64; 3];
                 let mut empty = false;
@@ -218,12 +252,12 @@ fn searches_along_normal_reach(grid: &VoxelGrid, map: &[u32], near: &[bool], k: 
                     nearest <= (s + SLACK).powi(2) && farthest >= (s - SLACK).powi(2)
                 });
                 if on_a_sphere {
-                    return true;
+                    offsets.push(d);
                 }
             }
         }
     }
-    false
+    offsets
 }
 
 #[cfg(test)]
@@ -258,6 +292,166 @@ mod tests {
                     }
                     assert_eq!(f, any, "voxel {v:?}, radius {radius}, density {density}");
                 }
+            }
+        }
+    }
+
+    /// The per-voxel cone test as it ran before its geometry was shared per neighbourhood:
+    /// the oracle of `may_map_to_matches_the_direct_cone_test`.
+    fn searches_along_normal_reach_directly(
+        grid: &VoxelGrid,
+        map: &[u32],
+        near: &[bool],
+        k: usize,
+    ) -> bool {
+        let dims = grid.dims.map(|d| d as i64);
+        let v = grid.coords(k).map(|c| c as i64);
+        let inside = |p: [i64; 3]| (0..3).all(|a| p[a] >= 0 && p[a] < dims[a]);
+        // The mapped neighbours of v_x (out-of-grid voxels are never mapped).
+        // At most 26, on the stack: this runs for every voxel near a wanted node.
+        let mut mapped_storage = [[0i64; 3]; 26];
+        let mut mapped_count = 0;
+        for dz in -1..=1i64 {
+            for dy in -1..=1i64 {
+                for dx in -1..=1i64 {
+                    let o = [dx, dy, dz];
+                    let w = [v[0] + dx, v[1] + dy, v[2] + dz];
+                    if o != [0, 0, 0]
+                        && inside(w)
+                        && map[grid.index(w[0] as usize, w[1] as usize, w[2] as usize)]
+                            != UNDEFINED_NODE
+                    {
+                        mapped_storage[mapped_count] = o;
+                        mapped_count += 1;
+                    }
+                }
+            }
+        }
+        let mapped = &mapped_storage[..mapped_count];
+        // Per axis, the range of x = s n⁺ the face neighbours allow: a mapped +e_a means
+        // n⁺_a <= 0 (else it would have been found facing; its score is n⁺_a, exact in f32),
+        // a mapped -e_a means n⁺_a >= 0. Then floor(g_a + s n⁺_a) <= v_a exactly.
+        let mut limit = [[-3.0 - SLACK, 3.0 + SLACK]; 3];
+        for o in mapped {
+            if o.iter().filter(|&&c| c != 0).count() == 1 {
+                let a = (0..3).find(|&a| o[a] != 0).expect("a face offset");
+                if o[a] > 0 {
+                    limit[a][1] = limit[a][1].min(0.0);
+                } else {
+                    limit[a][0] = limit[a][0].max(0.0);
+                }
+            }
+        }
+        if (0..3).any(|a| limit[a][0] > limit[a][1]) {
+            return false;
+        }
+        let d_range = |a: usize| -> (i64, i64) {
+            // d - 1 < x < d + 1 for some x in limit[a].
+            (
+                (limit[a][0] - 1.0).floor() as i64 + 1,
+                (limit[a][1] + 1.0).ceil() as i64 - 1,
+            )
+        };
+        let ranges = [d_range(0), d_range(1), d_range(2)];
+        for dz in ranges[2].0..=ranges[2].1 {
+            for dy in ranges[1].0..=ranges[1].1 {
+                for dx in ranges[0].0..=ranges[0].1 {
+                    let d = [dx, dy, dz];
+                    // The centre's neighbourhood within the grid is within that of the centre
+                    // clamped to the grid.
+                    let c = [0, 1, 2].map(|a| (v[a] + d[a]).clamp(0, dims[a] - 1) as usize);
+                    if !near[grid.index(c[0], c[1], c[2])] {
+                        continue;
+                    }
+                    let mut lo = [0.0f64; 3];
+                    let mut hi = [0.0f64; 3];
+                    let mut empty = false;
+                    for a in 0..3 {
+                        lo[a] = (d[a] as f64 - 1.0 - SLACK).max(limit[a][0]);
+                        hi[a] = (d[a] as f64 + 1.0 + SLACK).min(limit[a][1]);
+                        empty |= lo[a] > hi[a];
+                    }
+                    if empty {
+                        continue;
+                    }
+                    // Every mapped neighbour's half-space o·x <= 0 must meet the box.
+                    let misses = mapped.iter().any(|o| {
+                        (0..3)
+                            .map(|a| (o[a] as f64 * lo[a]).min(o[a] as f64 * hi[a]))
+                            .sum::<f64>()
+                            > SLACK
+                    });
+                    if misses {
+                        continue;
+                    }
+                    // Squared distances from 0 to the box's nearest and farthest points.
+                    let nearest: f64 = (0..3)
+                        .map(|a| {
+                            if lo[a] > 0.0 {
+                                lo[a] * lo[a]
+                            } else if hi[a] < 0.0 {
+                                hi[a] * hi[a]
+                            } else {
+                                0.0
+                            }
+                        })
+                        .sum();
+                    let farthest: f64 = (0..3).map(|a| (lo[a] * lo[a]).max(hi[a] * hi[a])).sum();
+                    let on_a_sphere = (1..=3).any(|s| {
+                        let s = s as f64;
+                        nearest <= (s + SLACK).powi(2) && farthest >= (s - SLACK).powi(2)
+                    });
+                    if on_a_sphere {
+                        return true;
+                    }
+                }
+            }
+        }
+        false
+    }
+
+    /// [`may_map_to_where`] (offsets per distinct neighbourhood) gives the answer of the cone
+    /// test run directly at every voxel, on random maps of several densities and wanted sets.
+    #[test]
+    fn may_map_to_matches_the_direct_cone_test() {
+        let grid = VoxelGrid {
+            dims: [17, 13, 11],
+            origin: [0.0, 0.0, 0.0],
+            voxel_size: 1.0,
+        };
+        let mut rng = Rng::new(11, 4);
+        for solid in [0.1, 0.3, 0.5, 0.7] {
+            let map: Vec<u32> = (0..grid.len())
+                .map(|_| {
+                    if rng.uniform() < solid {
+                        UNDEFINED_NODE
+                    } else {
+                        (rng.uniform() * 6.0) as u32
+                    }
+                })
+                .collect();
+            for wanted in [0u32, 3, 5] {
+                let want = |n: u32| n == wanted;
+                let got = may_map_to_where(&grid, &map, want, |k| k % 5 != 1);
+                let flags: Vec<bool> = map
+                    .iter()
+                    .map(|&m| m != UNDEFINED_NODE && want(m))
+                    .collect();
+                let near = dilate(&grid, &flags, 1);
+                let far = dilate(&grid, &near, 4);
+                let mut searched = 0;
+                for (k, &g) in got.iter().enumerate() {
+                    let direct = k % 5 != 1
+                        && (near[k]
+                            || (far[k]
+                                && searches_along_normal_reach_directly(&grid, &map, &near, k)));
+                    searched += usize::from(!near[k] && direct);
+                    assert_eq!(g, direct, "voxel {k}, solid {solid}, wanted {wanted}");
+                }
+                assert!(
+                    solid < 0.5 || searched > 0,
+                    "solid {solid}: no search succeeded"
+                );
             }
         }
     }

@@ -175,6 +175,9 @@ pub struct GuideQuery {
     /// lobes, if any, apply). The table is cloned into the query once, not per point.
     directions: Option<Arc<DirectionalTable>>,
     slot: u32,
+    /// The strength `init` took the lobes' exponents from (None: no lobes from `init`, or
+    /// explicit lobes): under it [`pdf_with_strength`](Self::pdf_with_strength) is `pdf`.
+    strength: Option<SkeletonStrength>,
 }
 
 /// [`GuideQuery`]'s slot where no learned distribution applies.
@@ -198,6 +201,7 @@ impl GuideQuery {
             node: None,
             directions: None,
             slot: NO_SLOT,
+            strength: None,
         }
     }
 
@@ -213,6 +217,7 @@ impl GuideQuery {
         self.count = 0;
         self.node = None;
         self.slot = NO_SLOT;
+        self.strength = None;
     }
 
     /// A query that samples one learned directional distribution (`guide::directional`) of
@@ -310,6 +315,7 @@ impl GuideQuery {
         self.count = 0;
         self.node = None;
         self.slot = NO_SLOT;
+        self.strength = None;
         self.lobe_of = [NOT_ACTIVE; MAX_LOBES];
         let Some((node, voxel)) = guide.map_guided_point(p, normal, wo) else {
             return 0;
@@ -446,6 +452,7 @@ impl GuideQuery {
             for l in &mut self.lobes[..self.count] {
                 l.probability /= total;
             }
+            self.strength = Some(strength);
         } else {
             self.count = 0;
         }
@@ -561,6 +568,25 @@ impl GuideQuery {
     /// strength gives them its bound. A portal lobe (`aim=portal`) has no strength: its
     /// density is the same under any.
     pub fn pdf_with_strength(&self, w: Vec3, strength: SkeletonStrength) -> f32 {
+        // The lobes' own exponents are this strength's (`init`): the same sum, without
+        // recomputing each exponent.
+        if self.strength == Some(strength) {
+            return self.pdf(w);
+        }
+        self.pdf_with_exponents_of(w, strength)
+    }
+
+    /// [`pdf_with_strength`](Self::pdf_with_strength) at a direction whose [`pdf`](Self::pdf)
+    /// is known: the same value, without evaluating the density again under `init`'s strength.
+    pub fn pdf_with_strength_given(&self, w: Vec3, strength: SkeletonStrength, pdf: f32) -> f32 {
+        if self.strength == Some(strength) {
+            return pdf;
+        }
+        self.pdf_with_exponents_of(w, strength)
+    }
+
+    /// [`pdf_with_strength`](Self::pdf_with_strength) with every exponent recomputed.
+    fn pdf_with_exponents_of(&self, w: Vec3, strength: SkeletonStrength) -> f32 {
         self.lobes[..self.count]
             .iter()
             .map(|l| {
@@ -655,5 +681,60 @@ mod tests {
             let m = q.mixture_pdf(w, 0.1);
             assert!((m - (0.25 * pdf + 0.75 * 0.1)).abs() < 1e-5 * m);
         }
+    }
+
+    /// The training's shortcut: under the strength `init` set the lobes from,
+    /// `pdf_with_strength` is `pdf`, bit for bit the sum with each exponent recomputed; under
+    /// another strength it is that sum.
+    #[test]
+    fn pdf_with_the_query_strength_is_the_recomputed_sum() {
+        use crate::guide::SkeletonGuideSettings;
+        let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
+        let mut settings = SkeletonGuideSettings::default();
+        // The lobes at a fixed c: no training.
+        settings.set("c_skel", "0.5").unwrap();
+        settings.set("directions", "lobes").unwrap();
+        let guide = SkeletonGuide::build(&scene, scene.camera(), &settings, &|_, _| true).unwrap();
+        let mut rng = Rng::new(9, 3);
+        let bounds = scene.bounds();
+        let mut query = GuideQuery::new();
+        let (mut lobes, mut points) = (0, 0);
+        while points < 2000 {
+            let u = Vec3::new(rng.uniform(), rng.uniform(), rng.uniform());
+            let o = bounds.min + (bounds.max - bounds.min) * u;
+            let d = warp::uniform_sphere(rng.uniform2());
+            let Some(si) = scene.intersect(&Ray::new(o, d, f32::INFINITY)) else {
+                continue;
+            };
+            query.init(&guide, &scene, si.p, si.p_error, si.ng, si.wo);
+            let Some(node) = query.node().filter(|_| query.lobe_count() > 0) else {
+                continue;
+            };
+            points += 1;
+            lobes += query.lobe_count();
+            let strength = guide.strength(node);
+            assert_eq!(query.strength, Some(strength));
+            for _ in 0..4 {
+                let w = warp::uniform_sphere(rng.uniform2());
+                let full = query.pdf_with_exponents_of(w, strength);
+                assert_eq!(
+                    query.pdf_with_strength(w, strength).to_bits(),
+                    full.to_bits()
+                );
+                assert_eq!(query.pdf(w).to_bits(), full.to_bits());
+                let given = query.pdf_with_strength_given(w, strength, query.pdf(w));
+                assert_eq!(given.to_bits(), full.to_bits());
+                let other = SkeletonStrength::Fixed(3.0);
+                assert_eq!(
+                    query.pdf_with_strength(w, other).to_bits(),
+                    query.pdf_with_exponents_of(w, other).to_bits()
+                );
+                assert_eq!(
+                    query.pdf_with_strength_given(w, other, 1.0).to_bits(),
+                    query.pdf_with_exponents_of(w, other).to_bits()
+                );
+            }
+        }
+        assert!(lobes > points, "{lobes} lobes at {points} points");
     }
 }

@@ -267,12 +267,19 @@ impl SkeletonGuide {
             ];
             // The scout (`guide::training`, "The scout"): a fraction of the training paths
             // first, and the full training only if their choices guide anything.
+            let mut scout_paths = training::ScoutPaths::default();
             let scout = if settings.scouts() && camera.is_some() {
                 let full = guide.settings.training_paths;
                 guide.settings.training_paths = (full / training::SCOUT_FRACTION).max(1);
                 let scout_started = Instant::now();
-                let mut report =
-                    training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history);
+                let mut report = training::learn_guiding_probabilities(
+                    &guide,
+                    scene,
+                    camera,
+                    0,
+                    &mut history,
+                    training::Scout::Keep(&mut scout_paths),
+                );
                 guide.settings.training_paths = full;
                 // With a time budget: the rest of the training, at the scout's pace, must fit
                 // in BUDGET_SHARE of it with what the precomputation has spent already.
@@ -290,9 +297,14 @@ impl SkeletonGuide {
             };
             let mut report = match scout {
                 Some(report) => report,
-                None => {
-                    training::learn_guiding_probabilities(&guide, scene, camera, 0, &mut history)
-                }
+                None => training::learn_guiding_probabilities(
+                    &guide,
+                    scene,
+                    camera,
+                    0,
+                    &mut history,
+                    training::Scout::Reuse(&mut scout_paths),
+                ),
             };
             // Iterative training (`training_passes`): each later pass samples every node from
             // the previous pass's distributions (a uniform one where it had none) and learns
@@ -313,6 +325,7 @@ impl SkeletonGuide {
                     camera,
                     pass,
                     &mut history,
+                    training::Scout::None,
                 );
             }
             guide.directions = None;

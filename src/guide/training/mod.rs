@@ -299,6 +299,16 @@ impl TrainingReport {
     }
 }
 
+/// What a training pass does with the scout's paths ([`learn_guiding_probabilities`]).
+pub(super) enum Scout<'a> {
+    /// Not the scout, nothing kept.
+    None,
+    /// This is the scout: keep its paths here.
+    Keep(&'a mut ScoutPaths),
+    /// The full training after the scout: start from its kept paths (taken).
+    Reuse(&'a mut ScoutPaths),
+}
+
 /// The candidates of one training pass.
 struct Grid {
     /// Guiding probabilities above 0 to choose from (c = 0 is the baseline, not in here).
@@ -356,17 +366,35 @@ impl Grid {
     }
 }
 
+/// One chunk's training paths: its samples, vertices and path records.
+type ChunkPaths = (Vec<Sample>, u64, PathLog);
+
+/// The scout's training paths, kept for the full training (module docs, "The scout"): its
+/// chunks are the full training's first, traced the same way, so the full training starts
+/// from them instead of tracing them again.
+#[derive(Default)]
+pub(super) struct ScoutPaths {
+    /// The first pass's first chunks, in order.
+    chunks: Vec<ChunkPaths>,
+    /// Their non-delta vertices per voxel.
+    per_voxel: Vec<u32>,
+}
+
 /// Runs the training pass for `guide` (whose node probabilities must all be [`TRAINING_C`]
 /// and whose strength is the settings' everywhere) and chooses every node's probability and
 /// strength (module docs).
 /// `pass` numbers the passes of iterative training (0 first; module docs, "Iterative
 /// training"): each has its own random streams.
+/// `scout` (pass 0 only): with `Keep`, this is the scout and its paths are kept there (when
+/// they fill whole chunks); with `Reuse`, the kept paths are this pass's first chunks (the
+/// guide's state and settings other than `training_paths` must be the scout's).
 pub(super) fn learn_guiding_probabilities(
     guide: &SkeletonGuide,
     scene: &Scene,
     camera: Option<&Camera>,
     pass: u32,
     history: &mut [Vec<Weighted>],
+    mut scout: Scout<'_>,
 ) -> TrainingReport {
     let nodes = guide.node_count();
     let settings = guide.settings();
@@ -381,10 +409,24 @@ pub(super) fn learn_guiding_probabilities(
     let chunks = paths.div_ceil(CHUNK);
     // Non-delta training vertices per voxel (atomic adds: the counts do not depend on the
     // order), for the scene-level prediction's mapping cost.
-    let per_voxel: Vec<AtomicU32> = (0..guide.grid().len()).map(|_| AtomicU32::new(0)).collect();
+    let (reused, reused_voxels) = match &mut scout {
+        Scout::Reuse(kept) => {
+            let kept = std::mem::take(&mut **kept);
+            (kept.chunks, kept.per_voxel)
+        }
+        _ => (Vec::new(), Vec::new()),
+    };
+    assert!(
+        reused.len() as u32 <= chunks && (reused.is_empty() || pass == 0),
+        "the scout's paths are the first pass's first chunks"
+    );
+    let per_voxel: Vec<AtomicU32> = (0..guide.grid().len())
+        .map(|k| AtomicU32::new(reused_voxels.get(k).copied().unwrap_or(0)))
+        .collect();
     // The path-level prediction's records (module docs, "The path-level prediction").
     let log_paths = settings.cost_model == CostModel::Paths;
-    let mut per_chunk: Vec<(Vec<Sample>, u64, PathLog)> = (0..chunks)
+    let first = reused.len() as u32;
+    let traced: Vec<ChunkPaths> = (first..chunks)
         .into_par_iter()
         .map(|c| {
             let seed = TRAINING_SEED.wrapping_add(pass as u64 * 0x9e37_79b9_7f4a_7c15);
@@ -415,6 +457,18 @@ pub(super) fn learn_guiding_probabilities(
             (out, visits.vertices, log)
         })
         .collect();
+    let mut per_chunk = reused;
+    per_chunk.extend(traced);
+    // Only whole chunks are the full training's too (a last, partial chunk traces fewer paths).
+    if let (Scout::Keep(kept), 0) = (scout, paths % CHUNK) {
+        *kept = ScoutPaths {
+            chunks: per_chunk.clone(),
+            per_voxel: per_voxel
+                .iter()
+                .map(|n| n.load(AtomicOrdering::Relaxed))
+                .collect(),
+        };
+    }
 
     // Every node's samples in chunk order (the same order for any thread count): counted,
     // then moved once into per-node vectors of exact size.

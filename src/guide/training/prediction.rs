@@ -102,7 +102,7 @@ pub(super) const PATH_TERM_QUANTILE: f64 = 0.9999;
 
 /// The training paths' [`Step`]s and [`PathRecord`]s (module docs, "The path-level
 /// prediction").
-#[derive(Default)]
+#[derive(Clone, Default)]
 pub(super) struct PathLog {
     pub(super) steps: Vec<Step>,
     pub(super) paths: Vec<PathRecord>,

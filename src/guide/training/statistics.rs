@@ -179,9 +179,31 @@ impl Sample {
     /// [`Sample::terms`] with the candidate's skeleton densities at the sampled direction and
     /// at the light sample's.
     fn terms_with(&self, c: f32, p_direction: f32, p_nee: f32, mis: MisHeuristic) -> Terms {
-        let mut t = Terms::default();
+        self.terms_given(&self.shared(), c, p_direction, p_nee, mis)
+    }
+
+    /// What [`Sample::terms_given`] needs of the sample whatever the candidate.
+    fn shared(&self) -> Shared {
         let q0 = mixture(TRAINING_C, self.p_skel, self.p_bsdf);
-        if self.carries() && q0 > 0.0 {
+        Shared {
+            q0,
+            direction: self.carries() && q0 > 0.0,
+            nee: self.nee.value > 0.0,
+        }
+    }
+
+    /// [`Sample::terms_with`] given [`Sample::shared`].
+    #[inline]
+    fn terms_given(
+        &self,
+        shared: &Shared,
+        c: f32,
+        p_direction: f32,
+        p_nee: f32,
+        mis: MisHeuristic,
+    ) -> Terms {
+        let mut t = Terms::default();
+        if shared.direction {
             let q = mixture(c, p_direction, self.p_bsdf);
             let w = if self.p_light > 0.0 {
                 mis.weight(q as f32, self.p_light) as f64
@@ -190,12 +212,12 @@ impl Sample {
             };
             let f = w * self.f_emitted as f64 + self.f_reflected as f64;
             if f > 0.0 {
-                t.mean_direction = f / q0;
+                t.mean_direction = f / shared.q0;
                 t.second =
                     reweighted_second_moment(f as f32, self.p_bsdf, self.p_skel, p_direction, c);
             }
         }
-        if self.nee.value > 0.0 {
+        if shared.nee {
             let q = mixture(c, p_nee, self.nee.p_bsdf);
             let w = mis.weight(self.nee.p_light, q as f32) as f64;
             t.mean_nee = self.nee.value as f64 * w;
@@ -203,6 +225,47 @@ impl Sample {
         }
         t
     }
+
+    /// Adds this sample's [`Terms`] under c = 0 and under every candidate (c, s) of `grid`
+    /// with eq. 165's lobe weights to `moments` (c = 0 first, then `grid`'s order), as
+    /// [`Sample::terms`] gives them one by one, with the work shared by the candidates done
+    /// once. A sample whose terms are all 0 adds nothing (the sums are >= 0: adding 0 leaves
+    /// them as they are).
+    pub(super) fn add_grid_terms(&self, grid: &Grid, mis: MisHeuristic, moments: &mut [Moments]) {
+        let shared = self.shared();
+        if !(shared.direction || shared.nee) {
+            return;
+        }
+        let strengths = grid.strengths.len();
+        moments[0].add(self.terms_given(
+            &shared,
+            0.0,
+            self.p_strength[0],
+            self.nee.p_strength[0],
+            mis,
+        ));
+        for (&c, m) in grid.c.iter().zip(moments[1..].chunks_exact_mut(strengths)) {
+            for (k, m) in m.iter_mut().enumerate() {
+                m.add(self.terms_given(
+                    &shared,
+                    c,
+                    self.p_strength[k],
+                    self.nee.p_strength[k],
+                    mis,
+                ));
+            }
+        }
+    }
+}
+
+/// The parts of a sample's [`Terms`] that do not depend on the candidate.
+struct Shared {
+    /// The training proposal's density of the sampled direction.
+    q0: f64,
+    /// Whether the direction part is counted (it carried something and q0 > 0), and the
+    /// light sample (it carried something).
+    direction: bool,
+    nee: bool,
 }
 
 /// c p_skel + (1 - c) p_bsdf (p_bsdf alone at c = 0, whatever p_skel is).
@@ -224,7 +287,7 @@ pub(super) struct Moments {
 }
 
 impl Moments {
-    fn add(&mut self, t: Terms) {
+    pub(super) fn add(&mut self, t: Terms) {
         self.second += t.second;
         self.mean_direction += t.mean_direction;
         self.mean_nee += t.mean_nee;
@@ -426,17 +489,16 @@ pub(super) fn choose_node(
     let mut moments = vec![Moments::default(); count + 1];
     // Each explicit weight vector's densities once per sample, not once per candidate c.
     let mut densities = vec![None; weights.len()];
+    // Candidate 0 and eq. 165's weights' candidates (`candidate`'s first 1 + grid.len()).
+    let eq165 = grid.len() + 1;
     for s in samples {
+        s.add_grid_terms(grid, mis, &mut moments[..eq165]);
         for (d, (w, _)) in densities.iter_mut().zip(&weights).skip(1) {
             *d = s.densities(w.as_ref().expect("explicit weights"));
         }
-        for (j, m) in moments.iter_mut().enumerate() {
-            let (c, k, w) = candidate(j);
-            m.add(if w == 0 {
-                s.terms(c, k, None, mis)
-            } else {
-                s.terms_weighted(c, densities[w], mis)
-            });
+        for (j, m) in moments.iter_mut().enumerate().skip(eq165) {
+            let (c, _, w) = candidate(j);
+            m.add(s.terms_weighted(c, densities[w], mis));
         }
     }
     let product = |j: usize| moments[j].variance(n) * cost_of(j);

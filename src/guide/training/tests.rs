@@ -562,3 +562,76 @@ fn learned_lobe_weights_pick_the_lobe_that_carries_the_light() {
     );
     assert!(fit[2..].iter().all(|&x| x == 0.0), "{fit:?}");
 }
+
+/// The candidates' moments summed with the shared work done once per sample
+/// (`Sample::add_grid_terms`, which `choose_node` uses) are bit for bit those of
+/// `Sample::terms` candidate by candidate, on random samples with zeros, light hits, light
+/// samples and several strengths, under both heuristics.
+#[test]
+fn grid_terms_match_the_terms_one_by_one() {
+    let mut rng = Rng::new(21, 7);
+    let mut pick = |p_zero: f32| {
+        if rng.uniform() < p_zero {
+            0.0
+        } else {
+            rng.uniform() * 4.0
+        }
+    };
+    let mut samples = Vec::new();
+    for _ in 0..4000 {
+        let mut p_strength = [0.0; MAX_STRENGTHS];
+        let mut nee_strength = [0.0; MAX_STRENGTHS];
+        for k in 0..MAX_STRENGTHS {
+            p_strength[k] = pick(0.2);
+            nee_strength[k] = pick(0.2);
+        }
+        let nee = NeeTerms {
+            value: pick(0.5),
+            p_light: pick(0.1),
+            wi: Vec3::Z,
+            p_bsdf: pick(0.2),
+            p_skel: pick(0.2),
+            p_strength: nee_strength,
+            p_lobes: [0.0; MAX_LOBES],
+        };
+        samples.push(Sample {
+            node: 0,
+            wi: Vec3::Z,
+            class: 0,
+            f_emitted: pick(0.6),
+            f_reflected: pick(0.5),
+            p_bsdf: pick(0.1),
+            p_skel: pick(0.2),
+            p_strength,
+            p_light: pick(0.5),
+            nee,
+            p_lobes: [0.0; MAX_LOBES],
+            active: 1,
+            rays: 0,
+            remaining: 1,
+            step: NO_STEP,
+        });
+    }
+    let grid = Grid {
+        strengths: STRENGTH_CANDIDATES.to_vec(),
+        ..one_strength_grid()
+    };
+    for mis in [MisHeuristic::Balance, MisHeuristic::Power] {
+        let mut shared = vec![Moments::default(); grid.len() + 1];
+        let mut one_by_one = shared.clone();
+        for s in &samples {
+            s.add_grid_terms(&grid, mis, &mut shared);
+            one_by_one[0].add(s.terms(0.0, 0, None, mis));
+            for j in 0..grid.len() {
+                let (c, k) = grid.at(j);
+                one_by_one[j + 1].add(s.terms(c, k, None, mis));
+            }
+        }
+        for (a, b) in shared.iter().zip(&one_by_one) {
+            assert_eq!(a.second.to_bits(), b.second.to_bits(), "{mis:?}");
+            assert_eq!(a.mean_direction.to_bits(), b.mean_direction.to_bits());
+            assert_eq!(a.mean_nee.to_bits(), b.mean_nee.to_bits());
+        }
+        assert!(one_by_one.iter().all(|m| m.second > 0.0));
+    }
+}

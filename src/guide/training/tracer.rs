@@ -90,13 +90,14 @@ pub(super) fn train_path(
         if let (true, Some(l)) = (guided, &own_light) {
             let value = luminance(beta * l.unweighted());
             if value.is_finite() && value > 0.0 {
+                let p_skel = query.pdf(l.wi);
                 nee = NeeTerms {
                     value,
                     p_light: l.mis_pdf(),
                     wi: l.wi,
                     p_bsdf: bsdf.pdf(wo_local, l.wi_local),
-                    p_skel: query.pdf(l.wi),
-                    p_strength: strength_pdfs(query, l.wi, strengths),
+                    p_skel,
+                    p_strength: strength_pdfs(query, l.wi, strengths, p_skel),
                     p_lobes: if lobe_weights {
                         query.node_lobe_pdfs(l.wi)
                     } else {
@@ -172,6 +173,7 @@ pub(super) fn train_path(
         path.push(TrainingVertex {
             sample: guided.then(|| {
                 let f_emitted = luminance(beta * f_cos * emitted);
+                let p_skel = query.pdf(wi);
                 Sample {
                     wi,
                     f_emitted: if f_emitted.is_finite() {
@@ -180,8 +182,8 @@ pub(super) fn train_path(
                         0.0
                     },
                     p_bsdf: bsdf.pdf(wo_local, bs.wi),
-                    p_skel: query.pdf(wi),
-                    p_strength: strength_pdfs(query, wi, strengths),
+                    p_skel,
+                    p_strength: strength_pdfs(query, wi, strengths, p_skel),
                     p_lobes: if lobe_weights {
                         query.node_lobe_pdfs(wi)
                     } else {
@@ -246,15 +248,16 @@ pub(super) fn finite_luminance(x: Rgb) -> f32 {
     }
 }
 
-/// The guide's density at `wi` under each candidate strength.
+/// The guide's density at `wi` under each candidate strength, given its density `pdf` there.
 pub(super) fn strength_pdfs(
     query: &GuideQuery,
     wi: Vec3,
     strengths: &[SkeletonStrength],
+    pdf: f32,
 ) -> [f32; MAX_STRENGTHS] {
     let mut p = [0.0; MAX_STRENGTHS];
     for (p, &s) in p.iter_mut().zip(strengths) {
-        *p = query.pdf_with_strength(wi, s);
+        *p = query.pdf_with_strength_given(wi, s, pdf);
     }
     p
 }
