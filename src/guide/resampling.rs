@@ -274,6 +274,55 @@ pub fn sample_cdf(cdf: &[f32], u: f32) -> (usize, f32) {
     (i, probability(cdf, i))
 }
 
+/// Buckets of a guide table ([`cdf_guide`]) for a CDF of `n` entries: a power of two near
+/// `n` (so one bucket spans about one entry), at most [`MAX_GUIDE_BUCKETS`].
+pub fn guide_buckets(n: usize) -> usize {
+    n.next_power_of_two().clamp(1, MAX_GUIDE_BUCKETS)
+}
+
+/// Most buckets of a guide table (a power of two: `u * K` and `k / K` must be exact in f32).
+pub const MAX_GUIDE_BUCKETS: usize = 1 << 12;
+
+/// Writes the guide table of `cdf` (Chen's cutpoint method): `guide[k]`, k = 0..=K with
+/// K = `guide.len() - 1` buckets ([`guide_buckets`]), is the index [`sample_cdf`]'s search
+/// returns for the target (k / K) total. [`sample_cdf_guided`] then searches only between two
+/// neighbouring entries, a bucket of about one CDF entry, instead of the whole CDF: the
+/// binary search's chain of dependent loads was most of SkelBPT's own time per camera vertex
+/// (BENCHMARKS.md, issue 31).
+pub fn cdf_guide(cdf: &[f32], guide: &mut [u32]) {
+    let n = cdf.len();
+    let buckets = guide.len() - 1;
+    debug_assert!(n > 0 && buckets.is_power_of_two() && buckets <= MAX_GUIDE_BUCKETS);
+    let total = cdf[n - 1];
+    let mut i = 0;
+    for (k, g) in guide.iter_mut().enumerate() {
+        let bound = (k as f32 / buckets as f32) * total;
+        while i < n && cdf[i] <= bound {
+            i += 1;
+        }
+        *g = i as u32;
+    }
+}
+
+/// [`sample_cdf`] with the guide table of the same CDF ([`cdf_guide`]): the same index for
+/// every `u` in [0, 1), so the same image. With K a power of two, `u K` is exact, so
+/// k = floor(u K) has k / K <= u < (k + 1) / K exactly, and rounding the products with the
+/// total keeps the order: bound_k <= u total <= bound_(k+1). The whole CDF's search result
+/// therefore lies in `guide[k]..=guide[k + 1]`.
+#[inline]
+pub fn sample_cdf_guided(cdf: &[f32], guide: &[u32], u: f32) -> (usize, f32) {
+    let n = cdf.len();
+    let buckets = guide.len() - 1;
+    debug_assert!(n > 0 && (0.0..1.0).contains(&u));
+    let total = cdf[n - 1];
+    let target = u * total;
+    let k = ((u * buckets as f32) as usize).min(buckets - 1);
+    let lo = guide[k] as usize;
+    let hi = (guide[k + 1] as usize).min(n);
+    let i = (lo + cdf[lo.min(hi)..hi].partition_point(|&c| c <= target)).min(n - 1);
+    (i, probability(cdf, i))
+}
+
 /// Probability of vertex `i` of a CDF.
 #[inline]
 pub fn probability(cdf: &[f32], i: usize) -> f32 {
@@ -422,6 +471,48 @@ mod tests {
             .sum();
         let right: f64 = c.iter().sum();
         assert!((wrong - right).abs() > 0.1 * right, "{wrong} vs {right}");
+    }
+
+    /// The guided search picks exactly what the whole CDF's search picks, for every u on a
+    /// fine grid and at the bucket edges, on CDFs with steep steps, flat runs (zero steps) and
+    /// every size from 1 to beyond the bucket cap.
+    #[test]
+    fn guided_search_picks_what_the_whole_search_picks() {
+        let mut rng = Rng::new(11, 0);
+        for n in [1, 2, 3, 5, 8, 17, 100, 1000, 5000] {
+            for shape in 0..3 {
+                let weights: Vec<f32> = (0..n)
+                    .map(|i| {
+                        let u = rng.uniform();
+                        match shape {
+                            0 => u,
+                            1 => u.powi(8) * 1e4,
+                            _ => (i % 7 == 0) as u32 as f32 * u + 1e-7,
+                        }
+                    })
+                    .collect();
+                let visible: Vec<bool> = (0..n).map(|_| rng.uniform() < 0.3).collect();
+                let mut cdf = vec![0.0; n];
+                let mut origins = vec![0u8; n];
+                combined_distribution(&weights, &visible, &mut cdf, &mut origins);
+                let mut guide = vec![0u32; guide_buckets(n) + 1];
+                cdf_guide(&cdf, &mut guide);
+                let buckets = (guide.len() - 1) as f32;
+                let edges = (0..guide.len() - 1).flat_map(|k| {
+                    let e = k as f32 / buckets;
+                    [e, f32::from_bits(e.to_bits().saturating_sub(1)).max(0.0)]
+                });
+                let grid = (0..1 << 16).map(|k| (k as f32 + 0.5) / (1 << 16) as f32);
+                let last = [1.0 - f32::EPSILON / 2.0, 0.0];
+                for u in grid.chain(edges).chain(last) {
+                    assert_eq!(
+                        sample_cdf_guided(&cdf, &guide, u),
+                        sample_cdf(&cdf, u),
+                        "n {n}, shape {shape}, u {u}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

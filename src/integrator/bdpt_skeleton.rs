@@ -82,13 +82,65 @@ pub struct ResamplingStats {
     pub visible_pairs: u64,
 }
 
+/// Shards of [`NodeCounts`]: worker threads beyond this many share one.
+const COUNT_SHARDS: usize = 8;
+
+/// Camera vertices mapped to each node so far in a render (002 N_mapped), counted per worker
+/// thread (shard) and summed when an iteration begins: one count per camera vertex, and with
+/// one shared array both threads would write the same cache lines. The sums do not depend on
+/// which thread counted what, so the image does not depend on the thread count.
+#[derive(Default)]
+struct NodeCounts {
+    nodes: usize,
+    /// Shard s's count of node n at `s stride + n`; `stride` is a multiple of 8 counts (a cache
+    /// line) with a line to spare, so no two shards share a line.
+    stride: usize,
+    counts: Vec<AtomicU64>,
+}
+
+impl NodeCounts {
+    fn new(nodes: usize) -> Self {
+        let stride = nodes.div_ceil(8) * 8 + 8;
+        NodeCounts {
+            nodes,
+            stride,
+            counts: (0..COUNT_SHARDS * stride)
+                .map(|_| AtomicU64::new(0))
+                .collect(),
+        }
+    }
+
+    #[inline]
+    fn add(&self, node: usize) {
+        let shard = rayon::current_thread_index().unwrap_or(0) % COUNT_SHARDS;
+        self.counts[shard * self.stride + node].fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Per node, summed over the shards.
+    fn totals(&self) -> Vec<u64> {
+        (0..self.nodes)
+            .map(|n| {
+                (0..COUNT_SHARDS)
+                    .map(|s| self.counts[s * self.stride + n].load(Ordering::Relaxed))
+                    .sum()
+            })
+            .collect()
+    }
+
+    fn reset(&self) {
+        for c in &self.counts {
+            c.store(0, Ordering::Relaxed);
+        }
+    }
+}
+
 /// SkelBPT's connection policy: builds the distributions per iteration and resamples.
 pub struct SkeletonResampler {
     settings: ResamplingSettings,
     /// None: renders as `bdpt` (see the module docs).
     skeleton: Option<NodeSkeleton>,
     /// Camera vertices mapped to each node so far in this render (002 N_mapped).
-    mapped: Vec<AtomicU64>,
+    mapped: NodeCounts,
     stats: Mutex<ResamplingStats>,
     occlusion: OcclusionTally,
 }
@@ -98,7 +150,7 @@ impl SkeletonResampler {
         SkeletonResampler {
             settings,
             skeleton: None,
-            mapped: Vec::new(),
+            mapped: NodeCounts::default(),
             stats: Mutex::new(ResamplingStats::default()),
             occlusion: OcclusionTally::default(),
         }
@@ -110,11 +162,7 @@ impl SkeletonResampler {
 
     /// Nodes that get distributions this iteration (002 §4.4).
     fn accepted_nodes(&self) -> Vec<bool> {
-        let counts: Vec<u64> = self
-            .mapped
-            .iter()
-            .map(|c| c.load(Ordering::Relaxed))
-            .collect();
+        let counts = self.mapped.totals();
         let total: u64 = counts.iter().sum();
         if total == 0 {
             return vec![false; counts.len()];
@@ -162,9 +210,7 @@ impl ConnectionPolicy for SkeletonResampler {
         };
         if sample_index == 0 {
             // A new render: counts and statistics start over.
-            for c in &self.mapped {
-                c.store(0, Ordering::Relaxed);
-            }
+            self.mapped.reset();
             *self.stats.lock().unwrap_or_else(|e| e.into_inner()) = ResamplingStats::default();
             self.occlusion.reset();
         }
@@ -213,7 +259,7 @@ impl ConnectionPolicy for SkeletonResampler {
         };
         let node = skeleton.node_of(vertex.si);
         if let Some(n) = node {
-            self.mapped[n as usize].fetch_add(1, Ordering::Relaxed);
+            self.mapped.add(n as usize);
         }
         let table = node.map_or(NO_TABLE, |n| tables.anchor_table[n as usize]);
         tables.resample(vertex, table, rng, &self.occlusion, connect);
@@ -454,7 +500,7 @@ impl Integrator for BdptSkeleton {
                          vertices; resampling from {} light subpaths, accept {}",
                         self.settings.resampling.subset, self.settings.resampling.accept
                     ));
-                    resampler.mapped = (0..nodes).map(|_| AtomicU64::new(0)).collect();
+                    resampler.mapped = NodeCounts::new(nodes);
                     resampler.skeleton = Some(skeleton);
                 }
             }
@@ -511,7 +557,7 @@ impl Integrator for BdptSkeleton {
                 "{:.1} of {} nodes used per iteration, resampling {:.2} ms and {:.0} \
                  node-vertex visibility rays per iteration ({:.1} % visible)",
                 s.nodes_used as f64 / it,
-                self.resampler.mapped.len(),
+                self.resampler.mapped.nodes,
                 1e3 * s.build_seconds / it,
                 s.pairs as f64 / it,
                 100.0 * s.visible_pairs as f64 / s.pairs.max(1) as f64

@@ -9,7 +9,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use rayon::prelude::*;
 
 use super::bdpt::{CameraVertex, Connection, LightPaths};
-use crate::guide::resampling::{combined_distribution, sample_cdf, Origin};
+use crate::guide::resampling::{
+    cdf_guide, combined_distribution, guide_buckets, sample_cdf_guided, Origin,
+};
 use crate::math::{luminance, Sampler, Vec3};
 use crate::scene::Scene;
 
@@ -111,11 +113,21 @@ pub(super) struct Tables {
     /// each entry's distribution.
     pub cdfs: Vec<f32>,
     pub origins: Vec<u8>,
+    /// Table k's guide tables (`guide::resampling::cdf_guide`), one per length: that of length
+    /// l is `guides[k G + guide_start[l - 1]..k G + guide_start[l]]` (G = the last
+    /// `guide_start`).
+    pub guides: Vec<u32>,
+    pub guide_start: Vec<u32>,
 }
 
 impl Tables {
     fn lengths(&self) -> usize {
         self.len_start.len() - 1
+    }
+
+    /// Guide-table entries per table.
+    fn guide_len(&self) -> usize {
+        *self.guide_start.last().unwrap_or(&0) as usize
     }
 
     /// Anchors with a distribution.
@@ -146,6 +158,12 @@ impl Tables {
         let e = self.entries.len();
         let subset = self.subset as f32;
         let lengths = self.lengths().min(vertex.max_light_segments as usize);
+        // All lengths are picked before any is connected (the connections draw no numbers, so
+        // the picks and the image are the same): the picks' loads from the tables and the
+        // light vertices are then independent of each other and of the shadow rays, and their
+        // cache misses overlap instead of each waiting behind a connection.
+        let mut picks = [Pick::default(); PICK_BATCH];
+        let mut count = 0;
         for l in 0..lengths {
             let (a, b) = (self.len_start[l] as usize, self.len_start[l + 1] as usize);
             if a == b {
@@ -166,18 +184,76 @@ impl Tables {
             } else {
                 let base = table as usize * e;
                 let cdf = &self.cdfs[base + a..base + b];
-                let (i, q) = sample_cdf(cdf, u);
-                (i, q, Origin::from_u8(self.origins[base + a + i]))
+                let g = table as usize * self.guide_len();
+                let guide = &self.guides
+                    [g + self.guide_start[l] as usize..g + self.guide_start[l + 1] as usize];
+                let (i, q) = sample_cdf_guided(cdf, guide, u);
+                // Read only for the per-distribution images.
+                let origin = if vertex.layers.is_empty() {
+                    Origin::Fallback
+                } else {
+                    Origin::from_u8(self.origins[base + a + i])
+                };
+                (i, q, origin)
             };
             let (j, v) = self.entries[a + i];
-            let c = connect(j as usize, v as usize, 1.0 / (n as f32 * q));
-            if let Some(cell) = vertex.layers.get(origin as usize) {
+            picks[count] = Pick {
+                subpath: j,
+                vertex: v,
+                factor: 1.0 / (n as f32 * q),
+                origin,
+            };
+            count += 1;
+            if count == PICK_BATCH {
+                self.connect_picks(&picks, vertex, kind, tallied, tally, connect);
+                count = 0;
+            }
+        }
+        self.connect_picks(&picks[..count], vertex, kind, tallied, tally, connect);
+    }
+
+    /// Connects `vertex` to picked light vertices, in order ([`Tables::resample`]).
+    fn connect_picks(
+        &self,
+        picks: &[Pick],
+        vertex: &CameraVertex,
+        kind: usize,
+        tallied: bool,
+        tally: &OcclusionTally,
+        connect: &mut dyn FnMut(usize, usize, f32) -> Connection,
+    ) {
+        for p in picks {
+            let c = connect(p.subpath as usize, p.vertex as usize, p.factor);
+            if let Some(cell) = vertex.layers.get(p.origin as usize) {
                 cell.set(cell.get() + c.added);
             }
             if tallied {
                 tally.connections[kind].fetch_add(1, Ordering::Relaxed);
                 tally.occluded[kind].fetch_add(c.occluded as u64, Ordering::Relaxed);
             }
+        }
+    }
+}
+
+/// Picks [`Tables::resample`] makes before connecting them.
+const PICK_BATCH: usize = 8;
+
+/// A light vertex picked for a connection: its subpath, its index in the pool, the factor.
+#[derive(Clone, Copy)]
+struct Pick {
+    subpath: u32,
+    vertex: u32,
+    factor: f32,
+    origin: Origin,
+}
+
+impl Default for Pick {
+    fn default() -> Self {
+        Pick {
+            subpath: 0,
+            vertex: 0,
+            factor: 0.0,
+            origin: Origin::Fallback,
         }
     }
 }
@@ -221,12 +297,22 @@ pub(super) fn build_tables(
         .collect();
     let mut cdfs = vec![0.0f32; chosen.len() * e];
     let mut origins = vec![0u8; chosen.len() * e];
+    // Per length: K + 1 guide entries for its n entries (none for an empty length).
+    let mut guide_start = vec![0u32];
+    for l in 0..len_start.len() - 1 {
+        let n = (len_start[l + 1] - len_start[l]) as usize;
+        let size = if n == 0 { 0 } else { guide_buckets(n) + 1 };
+        guide_start.push(guide_start[l] + size as u32);
+    }
+    let guide_len = guide_start[guide_start.len() - 1] as usize;
+    let mut guides = vec![0u32; chosen.len() * guide_len];
     let visible_pairs = AtomicU64::new(0);
     if e > 0 {
         cdfs.par_chunks_mut(e)
             .zip(origins.par_chunks_mut(e))
+            .zip(guides.par_chunks_mut(guide_len.max(1)))
             .zip(chosen.par_iter())
-            .for_each(|((cdf, origin), &k)| {
+            .for_each(|(((cdf, origin), guide), &k)| {
                 let anchor = anchors[k];
                 let mut weights = vec![0.0f32; e];
                 let mut visible = vec![false; e];
@@ -264,6 +350,10 @@ pub(super) fn build_tables(
                         &mut cdf[a..b],
                         &mut origin[a..b],
                     );
+                    if a < b {
+                        let (ga, gb) = (guide_start[l] as usize, guide_start[l + 1] as usize);
+                        cdf_guide(&cdf[a..b], &mut guide[ga..gb]);
+                    }
                 }
                 visible_pairs.fetch_add(seen, Ordering::Relaxed);
             });
@@ -276,6 +366,8 @@ pub(super) fn build_tables(
             anchor_table,
             cdfs,
             origins,
+            guides,
+            guide_start,
         },
         visible_pairs.into_inner(),
     )
