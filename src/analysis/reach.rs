@@ -40,13 +40,12 @@ pub fn may_map_to_where(
     wanted: impl Fn(u32) -> bool + Sync,
     asked: impl Fn(usize) -> bool + Sync,
 ) -> Vec<bool> {
-    let wanted_voxel: Vec<bool> = map
-        .par_iter()
-        .map(|&m| m != UNDEFINED_NODE && wanted(m))
-        .collect();
+    let len = map.len();
+    let wanted_voxel = bits_where(len, |k| map[k] != UNDEFINED_NODE && wanted(map[k]));
+    let mut reach = vec![false; len];
     // No wanted node (a guide switched off): nothing to search from.
-    if !wanted_voxel.par_iter().any(|&w| w) {
-        return wanted_voxel;
+    if wanted_voxel.iter().all(|&w| w == 0) {
+        return reach;
     }
     let near = dilate(grid, &wanted_voxel, 1);
     // A search's centre lies within 3 voxels of v_x (4 with a unit normal rounded above 1),
@@ -54,19 +53,15 @@ pub fn may_map_to_where(
     let far = dilate(grid, &near, 4);
     // The cone test's geometry depends on the voxel's mapped neighbours alone: the offsets it
     // allows are found once per distinct neighbourhood, then looked up per voxel.
-    let tested: Vec<(usize, u32)> = (0..map.len())
+    let tested: Vec<(usize, u32)> = (0..far.len())
         .into_par_iter()
-        .filter(|&k| !near[k] && far[k] && asked(k))
+        .flat_map_iter(|w| ones(far[w] & !near[w], w).filter(|&k| asked(k)))
         .map(|k| (k, mapped_neighbours(grid, map, k)))
         .collect();
     let mut masks: Vec<u32> = tested.iter().map(|&(_, m)| m).collect();
     masks.par_sort_unstable();
     masks.dedup();
     let offsets: Vec<Vec<[i64; 3]>> = masks.par_iter().map(|&m| search_offsets(m)).collect();
-    let mut reach: Vec<bool> = (0..map.len())
-        .into_par_iter()
-        .map(|k| near[k] && asked(k))
-        .collect();
     let dims = grid.dims.map(|d| d as i64);
     let found: Vec<usize> = tested
         .par_iter()
@@ -79,68 +74,127 @@ pub fn may_map_to_where(
                 // The centre's neighbourhood within the grid is within that of the centre
                 // clamped to the grid.
                 let c = [0, 1, 2].map(|a| (v[a] + d[a]).clamp(0, dims[a] - 1) as usize);
-                near[grid.index(c[0], c[1], c[2])]
+                bit(&near, grid.index(c[0], c[1], c[2]))
             })
         })
         .map(|&(k, _)| k)
         .collect();
+    for k in (0..near.len()).flat_map(|w| ones(near[w], w)) {
+        reach[k] = asked(k);
+    }
     for k in found {
         reach[k] = true;
     }
     reach
 }
 
-/// Box dilation by `radius` voxels per axis (separable, one pass per axis): a voxel is set
-/// when a set voxel lies within `radius` of it along the axis. Each pass sweeps the lines of
-/// its axis once in each direction, counting the steps since the last set voxel, so its cost
-/// does not grow with the radius.
-fn dilate(grid: &VoxelGrid, flags: &[bool], radius: usize) -> Vec<bool> {
-    let dims = grid.dims;
-    let mut flags = flags.to_vec();
-    for axis in 0..3 {
-        // The grid as blocks of `len` slices of `inner` voxels: a line of the axis is one
-        // voxel of each slice of a block.
-        let len = dims[axis];
-        let inner: usize = dims[..axis].iter().product();
-        let input = flags.clone();
-        flags
-            .par_chunks_mut(len * inner)
-            .zip(input.par_chunks(len * inner))
-            .for_each(|(out, input)| {
-                if inner == 1 {
-                    // Along x a line is contiguous: one counter.
-                    let mut since = radius + 1;
-                    for (o, &f) in out.iter_mut().zip(input) {
-                        since = if f { 0 } else { (since + 1).min(radius + 1) };
-                        *o |= since <= radius;
-                    }
-                    since = radius + 1;
-                    for (o, &f) in out.iter_mut().zip(input).rev() {
-                        since = if f { 0 } else { (since + 1).min(radius + 1) };
-                        *o |= since <= radius;
-                    }
-                    return;
-                }
-                // Steps since the last set voxel of each line (radius + 1: none within reach).
-                let mut since = vec![radius + 1; inner];
-                let lines = (0..len).chain((0..len).rev());
-                for (pass, i) in lines.enumerate() {
-                    if pass == len {
-                        since.fill(radius + 1);
-                    }
-                    let slice = i * inner..(i + 1) * inner;
-                    for ((s, o), &f) in since
-                        .iter_mut()
-                        .zip(&mut out[slice.clone()])
-                        .zip(&input[slice])
-                    {
-                        *s = if f { 0 } else { (*s + 1).min(radius + 1) };
-                        *o |= *s <= radius;
-                    }
-                }
-            });
+/// One bit per voxel in index order, 64 to a word (bit k % 64 of word k / 64); the bits past
+/// the grid's voxels are 0.
+type Bits = Vec<u64>;
+
+/// The voxels of `0..len` where `f` holds, as [`Bits`].
+fn bits_where(len: usize, f: impl Fn(usize) -> bool + Sync) -> Bits {
+    (0..len.div_ceil(64))
+        .into_par_iter()
+        .map(|w| {
+            (w * 64..len.min(w * 64 + 64))
+                .filter(|&k| f(k))
+                .fold(0u64, |b, k| b | 1 << (k % 64))
+        })
+        .collect()
+}
+
+#[inline]
+fn bit(bits: &[u64], k: usize) -> bool {
+    bits[k / 64] >> (k % 64) & 1 == 1
+}
+
+/// The voxel indices of the set bits of `word`, the `w`-th word of a [`Bits`].
+fn ones(mut word: u64, w: usize) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (word != 0).then(|| {
+            let b = word.trailing_zeros() as usize;
+            word &= word - 1;
+            w * 64 + b
+        })
+    })
+}
+
+/// Box dilation by `radius` voxels per axis: a voxel is set when a set voxel lies within
+/// `radius` of it along each axis. The box of radius r is r boxes of radius 1 added
+/// together, so it is `radius` steps of dilation by one voxel, each of which ORs, per axis,
+/// the bits moved by that axis's stride in both directions onto the set, 64 voxels per word
+/// operation. Moves across a line's or a slice's end are masked off (the voxels with no
+/// neighbour on that side); along z they fall off the grid's ends.
+fn dilate(grid: &VoxelGrid, bits: &[u64], radius: usize) -> Bits {
+    let [nx, ny, nz] = grid.dims;
+    let len = grid.len();
+    let words = len.div_ceil(64);
+    // Every voxel of the grid, and per axis the voxels with a neighbour below / above.
+    let mut all = vec![!0u64; words];
+    if len % 64 != 0 {
+        all[words - 1] = (1 << (len % 64)) - 1;
     }
-    flags
+    let clear = |mask: &mut Bits, k: usize| mask[k / 64] &= !(1 << (k % 64));
+    let (mut below_x, mut above_x) = (all.clone(), all.clone());
+    for line in 0..ny * nz {
+        clear(&mut below_x, line * nx);
+        clear(&mut above_x, line * nx + nx - 1);
+    }
+    let (mut below_y, mut above_y) = (all.clone(), all.clone());
+    for z in 0..nz {
+        for x in 0..nx {
+            clear(&mut below_y, grid.index(x, 0, z));
+            clear(&mut above_y, grid.index(x, ny - 1, z));
+        }
+    }
+    let axes = [
+        (1, &below_x, &above_x),
+        (nx, &below_y, &above_y),
+        (nx * ny, &all, &all),
+    ];
+    let mut bits = bits.to_vec();
+    for _ in 0..radius {
+        for &(stride, below, above) in &axes {
+            let input = bits;
+            bits = (0..words)
+                .into_par_iter()
+                .with_min_len(1024)
+                .map(|w| {
+                    input[w]
+                        | (moved_up(&input, w, stride) & below[w])
+                        | (moved_down(&input, w, stride) & above[w])
+                })
+                .collect();
+        }
+    }
+    bits
+}
+
+/// Word `w` of `bits` moved up by `n` positions (bit k of the result is bit k - n; zeros
+/// below 0).
+#[inline]
+fn moved_up(bits: &[u64], w: usize, n: usize) -> u64 {
+    let word = |i: usize| w.checked_sub(i).map_or(0, |j| bits[j]);
+    let (q, r) = (n / 64, n % 64);
+    if r == 0 {
+        word(q)
+    } else {
+        word(q) << r | word(q + 1) >> (64 - r)
+    }
+}
+
+/// Word `w` of `bits` moved down by `n` positions (bit k of the result is bit k + n; zeros
+/// past the end).
+#[inline]
+fn moved_down(bits: &[u64], w: usize, n: usize) -> u64 {
+    let word = |i: usize| bits.get(w + i).copied().unwrap_or(0);
+    let (q, r) = (n / 64, n % 64);
+    if r == 0 {
+        word(q)
+    } else {
+        word(q) >> r | word(q + 1) << (64 - r)
+    }
 }
 
 /// Slack of the geometric tests (grid units): `map_point` works in f32 / f64 with a unit
@@ -266,34 +320,50 @@ mod tests {
     use crate::analysis::map_point;
     use crate::math::{Rng, Vec3};
 
-    /// The sweeping dilation against its definition: set where a set voxel lies within the
-    /// radius along every axis (a box), on random flags of every density.
+    /// The dilation against its definition: set where a set voxel lies within the radius
+    /// along every axis (a box), on random flags of every density, on grids whose lines and
+    /// slices are shorter and longer than a word.
     #[test]
     fn dilate_matches_a_brute_force_box() {
-        let dims = [7usize, 5, 6];
-        let grid = VoxelGrid {
-            dims,
-            origin: [0.0, 0.0, 0.0],
-            voxel_size: 1.0,
-        };
         let mut rng = Rng::new(3, 0);
-        for density in [0.0, 0.02, 0.1, 0.5] {
-            let flags: Vec<bool> = (0..dims.iter().product::<usize>())
-                .map(|_| rng.uniform() < density)
-                .collect();
-            for radius in [0, 1, 2, 4] {
-                let fast = dilate(&grid, &flags, radius);
-                for (k, &f) in fast.iter().enumerate() {
-                    let v = grid.coords(k);
-                    let mut any = false;
-                    for (j, &set) in flags.iter().enumerate() {
-                        let w = grid.coords(j);
-                        any |= set && (0..3).all(|a| v[a].abs_diff(w[a]) <= radius);
+        for dims in [[7usize, 5, 6], [67, 3, 4], [1, 9, 70], [3, 1, 1]] {
+            let grid = VoxelGrid {
+                dims,
+                origin: [0.0, 0.0, 0.0],
+                voxel_size: 1.0,
+            };
+            for density in [0.0, 0.01, 0.1, 0.5] {
+                let flags: Vec<bool> = (0..grid.len()).map(|_| rng.uniform() < density).collect();
+                for radius in [0, 1, 2, 4] {
+                    let fast = flags_of(
+                        &dilate(&grid, &bits_where(grid.len(), |k| flags[k]), radius),
+                        grid.len(),
+                    );
+                    for (k, &f) in fast.iter().enumerate() {
+                        let v = grid.coords(k);
+                        let mut any = false;
+                        for (j, &set) in flags.iter().enumerate() {
+                            let w = grid.coords(j);
+                            any |= set && (0..3).all(|a| v[a].abs_diff(w[a]) <= radius);
+                        }
+                        assert_eq!(
+                            f, any,
+                            "voxel {v:?} of {dims:?}, radius {radius}, density {density}"
+                        );
                     }
-                    assert_eq!(f, any, "voxel {v:?}, radius {radius}, density {density}");
                 }
             }
         }
+    }
+
+    /// The voxels of `bits` as flags, checking that the bits past `len` are 0.
+    fn flags_of(bits: &[u64], len: usize) -> Vec<bool> {
+        assert_eq!(bits.len(), len.div_ceil(64));
+        assert!(
+            (len..bits.len() * 64).all(|k| !bit(bits, k)),
+            "bits past the end"
+        );
+        (0..len).map(|k| bit(bits, k)).collect()
     }
 
     /// The per-voxel cone test as it ran before its geometry was shared per neighbourhood:
@@ -437,8 +507,9 @@ mod tests {
                     .iter()
                     .map(|&m| m != UNDEFINED_NODE && want(m))
                     .collect();
-                let near = dilate(&grid, &flags, 1);
-                let far = dilate(&grid, &near, 4);
+                let near = dilate(&grid, &bits_where(grid.len(), |k| flags[k]), 1);
+                let far = flags_of(&dilate(&grid, &near, 4), grid.len());
+                let near = flags_of(&near, grid.len());
                 let mut searched = 0;
                 for (k, &g) in got.iter().enumerate() {
                     let direct = k % 5 != 1
@@ -544,7 +615,10 @@ mod tests {
             // which a 4-voxel box would ignore), and tighter than that box in the empty
             // space, where it also marked the neighbouring rooms' voxels.
             let flags: Vec<bool> = map.iter().map(|&m| m == wanted).collect();
-            let boxed = dilate(&grid, &flags, 5);
+            let boxed = flags_of(
+                &dilate(&grid, &bits_where(grid.len(), |k| flags[k]), 5),
+                grid.len(),
+            );
             assert!(reach.iter().zip(&boxed).all(|(&r, &b)| !r || b));
             let open = |flags: &[bool]| {
                 (0..grid.len())

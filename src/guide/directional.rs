@@ -280,20 +280,31 @@ impl DirectionalTable {
 /// with fewer than `MIN_CLASS_SAMPLES` positive weights takes its parent's.
 /// `floor` is each histogram's uniform share ([`bin_probabilities`]).
 pub fn fit(samples: &[(usize, Vec3, f64)], floor: f32) -> Vec<f32> {
+    fit_binned(samples.iter().filter_map(|&s| binned(s)), floor)
+}
+
+/// A sample (class, direction, weight) that [`fit`] counts, as (class, bin, weight): None
+/// unless its weight is positive and finite.
+#[inline]
+pub fn binned((class, w, x): (usize, Vec3, f64)) -> Option<(u8, u16, f64)> {
+    (x > 0.0 && x.is_finite()).then(|| (class as u8, bin_of(w) as u16, x))
+}
+
+/// [`fit`] of samples already [`binned`], in the same order: the same result, bit for bit
+/// (a caller fitting several subsets of the same samples bins each sample once).
+pub fn fit_binned(samples: impl Iterator<Item = (u8, u16, f64)>, floor: f32) -> Vec<f32> {
     // One pass over the samples fills every histogram of the hierarchy (each bin sums its
     // samples in their order, as one pass per class would: the same result, bit for bit).
     let mut node = vec![0.0f64; BINS];
     let mut by_normal = vec![0.0f64; NORMALS * BINS];
     let mut by_class = vec![0.0f64; CLASSES * BINS];
     let mut positive = [0usize; CLASSES];
-    for &(class, w, x) in samples {
-        if x > 0.0 && x.is_finite() {
-            let b = bin_of(w);
-            node[b] += x;
-            by_normal[class / QUADRANTS * BINS + b] += x;
-            by_class[class * BINS + b] += x;
-            positive[class] += 1;
-        }
+    for (class, b, x) in samples {
+        let (class, b) = (class as usize, b as usize);
+        node[b] += x;
+        by_normal[class / QUADRANTS * BINS + b] += x;
+        by_class[class * BINS + b] += x;
+        positive[class] += 1;
     }
     // The distribution of a histogram holding `own` positive weights mixed with `parent`, or
     // `parent` if `own` is below `MIN_CLASS_SAMPLES`.

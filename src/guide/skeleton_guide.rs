@@ -361,13 +361,19 @@ impl SkeletonGuide {
                     .collect();
                 guide.directions = Some(Arc::new(DirectionalTable::new(&kept)));
             }
+            // The training's mask where it was found for these very probabilities.
+            let trained_mask = report
+                .may_guide
+                .take()
+                .filter(|_| report.probabilities == guide.node_c);
             guide.training = Some(report);
             if settings.learned_c_skel {
                 let node_c = &guide.node_c;
-                guide.may_guide =
+                guide.may_guide = trained_mask.unwrap_or_else(|| {
                     VoxelSet::from_flags(&may_map_to(&guide.grid, &guide.node_map, |n| {
                         node_c[n as usize] > 0.0
-                    }));
+                    }))
+                });
             }
             stage("guiding probabilities (training)", t, 1.0)?;
         }

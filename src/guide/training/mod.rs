@@ -91,6 +91,7 @@ use rayon::prelude::*;
 
 use super::{CostModel, GuideQuery, SkeletonGuide, SkeletonStrength};
 use super::{MAX_LOBES, STRENGTH_CANDIDATES};
+use crate::analysis::{may_map_to, may_map_to_where, VoxelSet};
 use crate::math::{Rng, Sampler};
 use crate::scene::{Camera, Scene};
 
@@ -161,6 +162,11 @@ pub struct TrainingReport {
     /// nodes were chosen with; with `cost_model=switch|measured` it decides whether anything is
     /// guided.
     pub scene: SceneChoice,
+    /// The voxels that may map to a node with a probability above 0 (`analysis::may_map_to`
+    /// over the whole grid), where the last pass computed them for its prediction's mapping
+    /// cost: the render's mask for the same choices (`SkeletonGuide::build` takes it). None
+    /// for the scout, switched off or untrained.
+    pub may_guide: Option<VoxelSet>,
 }
 
 impl TrainingReport {
@@ -172,6 +178,7 @@ impl TrainingReport {
         self.strengths.fill(settings.strength);
         self.relative_cost.fill(1.0);
         self.lobe_weights.fill(None);
+        self.may_guide = None;
     }
 
     /// Nothing learned: the fixed `c_skel` and strength at every node (no camera, no path).
@@ -192,6 +199,7 @@ impl TrainingReport {
                 cost_ratio: 1.0,
                 ..SceneChoice::default()
             },
+            may_guide: None,
         }
     }
 }
@@ -425,14 +433,22 @@ pub(super) fn learn_guiding_probabilities(
         .collect();
     // The path-level prediction's records (module docs, "The path-level prediction").
     let log_paths = settings.cost_model == CostModel::Paths;
+    let is_scout = matches!(scout, Scout::Keep(_));
     let first = reused.len() as u32;
+    // The full training's chunks hold about as many samples as the scout's: room for the
+    // largest of them and a sixteenth more saves growing the vectors by reallocation.
+    let capacity = reused
+        .iter()
+        .map(|(s, _, _)| s.len())
+        .max()
+        .map_or(0, |n| n + n / 16);
     let traced: Vec<ChunkPaths> = (first..chunks)
         .into_par_iter()
         .map(|c| {
             let seed = TRAINING_SEED.wrapping_add(pass as u64 * 0x9e37_79b9_7f4a_7c15);
             let mut rng = Sampler::independent(Rng::new(seed, c as u64));
             let mut query = GuideQuery::new();
-            let mut out = Vec::new();
+            let mut out = Vec::with_capacity(capacity);
             let mut log = PathLog::default();
             let mut visits = Visits {
                 vertices: 0,
@@ -574,21 +590,26 @@ pub(super) fn learn_guiding_probabilities(
         }
     }
     let samples: Vec<u32> = by_node.iter().map(|s| s.len() as u32).collect();
+    let mut kept_mask: Option<VoxelSet>;
     let scene_choice = {
         // The vertices that pay the node mapping under these choices: those in voxels that
-        // may map to a guided node (the render's `may_guide`), asked where vertices fell.
-        let may_guide = crate::analysis::may_map_to_where(
-            guide.grid(),
-            guide.node_map(),
-            |n| probabilities[n as usize] > 0.0,
-            |k| per_voxel[k].load(AtomicOrdering::Relaxed) > 0,
-        );
+        // may map to a guided node (the render's `may_guide`). The scout asks only where its
+        // vertices fell; the full training finds the render's whole mask, which it keeps.
+        let wanted = |n: u32| probabilities[n as usize] > 0.0;
+        let may_guide = if is_scout {
+            may_map_to_where(guide.grid(), guide.node_map(), wanted, |k| {
+                per_voxel[k].load(AtomicOrdering::Relaxed) > 0
+            })
+        } else {
+            may_map_to(guide.grid(), guide.node_map(), wanted)
+        };
         let mapped_vertices = per_voxel
             .iter()
             .zip(&may_guide)
             .filter(|(_, &m)| m)
             .map(|(n, _)| n.load(AtomicOrdering::Relaxed) as u64)
             .sum();
+        kept_mask = (!is_scout).then(|| VoxelSet::from_flags(&may_guide));
         let (variance_ratio, cost_ratio) = scene_prediction(
             &choices,
             &samples,
@@ -636,6 +657,7 @@ pub(super) fn learn_guiding_probabilities(
             scene.switched_off = true;
             probabilities.fill(0.0);
             strengths.fill(settings.strength);
+            kept_mask = None;
         }
         scene
     };
@@ -670,5 +692,6 @@ pub(super) fn learn_guiding_probabilities(
         directions,
         paths,
         scene: scene_choice,
+        may_guide: kept_mask,
     }
 }

@@ -354,19 +354,20 @@ pub(super) fn learn_directions(
         .iter()
         .map(|s| (s.class as usize, s.wi, weight(s)))
         .collect();
+    // Each counted sample binned once for the three fits (`directional::fit_binned`), with
+    // the parity of its index among this pass's samples (the earlier passes' are in both).
+    let earlier: Vec<(u8, u16, f64)> = earlier
+        .iter()
+        .filter_map(|&s| directional::binned(s))
+        .collect();
+    let own: Vec<(usize, (u8, u16, f64))> = weighted
+        .iter()
+        .enumerate()
+        .filter_map(|(i, &s)| directional::binned(s).map(|b| (i % 2, b)))
+        .collect();
     let half = |parity: usize| {
-        let part: Vec<Weighted> = earlier
-            .iter()
-            .copied()
-            .chain(
-                weighted
-                    .iter()
-                    .enumerate()
-                    .filter(|(i, _)| i % 2 == parity)
-                    .map(|(_, &x)| x),
-            )
-            .collect();
-        directional::fit(&part, floor)
+        let part = own.iter().filter(|(p, _)| *p == parity).map(|&(_, b)| b);
+        directional::fit_binned(earlier.iter().copied().chain(part), floor)
     };
     if judged {
         let folds = DirectionalTable::new(&[Some(half(1)), Some(half(0))]);
@@ -380,8 +381,8 @@ pub(super) fn learn_directions(
             s.nee.p_strength[0] = folds.pdf(slot, s.nee.wi);
         }
     }
-    let all: Vec<Weighted> = earlier.iter().chain(&weighted).copied().collect();
-    (directional::fit(&all, floor), weighted)
+    let all = earlier.iter().copied().chain(own.iter().map(|&(_, b)| b));
+    (directional::fit_binned(all, floor), weighted)
 }
 
 /// A weighted direction sample of a node's histogram: class, direction, weight.

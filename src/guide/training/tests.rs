@@ -635,3 +635,56 @@ fn grid_terms_match_the_terms_one_by_one() {
         assert!(one_by_one.iter().all(|m| m.second > 0.0));
     }
 }
+
+/// `learn_directions` bins each sample once for its three fits (`directional::fit_binned`):
+/// the distribution and the held-out densities are those of `directional::fit` run on each
+/// half and on all the weighted samples with the earlier passes', bit for bit, over every
+/// class and with zero, negative and non-finite earlier weights.
+#[test]
+fn learned_directions_are_the_fits_of_the_halves_and_of_all() {
+    let mut samples = cone_node(true, 6_000);
+    samples.extend(cone_node(false, 3_000));
+    for (i, s) in samples.iter_mut().enumerate() {
+        s.class = (i * 7 % directional::CLASSES) as u8;
+    }
+    let mut rng = Rng::new(5, 2);
+    let earlier: Vec<Weighted> = (0..2_000)
+        .map(|i| {
+            let w = warp::uniform_sphere(rng.uniform2());
+            let x = match i % 5 {
+                0 => 0.0,
+                1 => -1.0,
+                2 if i % 25 == 2 => f64::NAN,
+                _ => rng.uniform() as f64 * 3.0,
+            };
+            (i % directional::CLASSES, w, x)
+        })
+        .collect();
+    let floor = directional::FLOOR;
+    let mut fast = samples.clone();
+    let (bins, weighted) = learn_directions(&mut fast, MisHeuristic::Power, &earlier, floor, true);
+    let half = |parity: usize| {
+        let part: Vec<Weighted> = earlier
+            .iter()
+            .copied()
+            .chain(weighted.iter().copied().skip(parity).step_by(2))
+            .collect();
+        directional::fit(&part, floor)
+    };
+    let folds = DirectionalTable::new(&[Some(half(1)), Some(half(0))]);
+    for (i, (s, f)) in samples.iter().zip(&fast).enumerate() {
+        let slot = folds.slot((i % 2 == 1) as u32, s.class as usize).unwrap();
+        assert_eq!(f.p_strength[0].to_bits(), folds.pdf(slot, s.wi).to_bits());
+        assert_eq!(
+            f.nee.p_strength[0].to_bits(),
+            folds.pdf(slot, s.nee.wi).to_bits()
+        );
+    }
+    let all: Vec<Weighted> = earlier.iter().chain(&weighted).copied().collect();
+    let expected = directional::fit(&all, floor);
+    assert!(bins
+        .iter()
+        .zip(&expected)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert!(weighted.iter().filter(|w| w.2 > 0.0).count() > 1_000);
+}
