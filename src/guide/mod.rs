@@ -40,4 +40,4 @@ pub use settings::{
     DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET, MAX_STRENGTH, OPTION_NAMES, STRENGTH_CANDIDATES,
 };
 pub use skeleton_guide::SkeletonGuide;
-pub use training::{Pilot, SceneChoice, TrainingReport, CANDIDATES, TRAINING_C};
+pub use training::{Pilot, SceneChoice, TrainingReport, CANDIDATES, PILOT_SIGMAS, TRAINING_C};

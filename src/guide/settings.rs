@@ -190,10 +190,13 @@ pub struct SkeletonGuideSettings {
     /// `pilot_cost=time` (the default) or `work`: what the pilot takes as the guided
     /// sample's cost against the unguided one's (`integrator::path`, "The pilot").
     pub pilot_cost: PilotCost,
-    /// `pilot_sampler=independent` (the default) or `sobol`: the pilot's numbers
-    /// (`integrator::path`, "The pilot"): pairs of independent samples along one ray, or
-    /// pixels of 16 samples under two scrambles of the render's Sobol points.
+    /// `pilot_sampler=sobol` (the default) or `independent`: the pilot's numbers
+    /// (`integrator::path`, "The pilot"): pixels of 16 samples under two scrambles of the
+    /// render's Sobol points, or pairs of independent samples along one ray.
     pub pilot_sampler: SamplerKind,
+    /// `pilot_sigmas=X` (default [`crate::guide::PILOT_SIGMAS`], 2): standard errors by which
+    /// the pilot's variance ratio is raised before its verdict (0: the point estimate).
+    pub pilot_sigmas: f64,
     /// Camera paths of the training pass (`training_paths`).
     pub training_paths: u32,
     /// `training_passes=N` (with `directions=learned`; default 1): training passes of
@@ -483,7 +486,8 @@ impl Default for SkeletonGuideSettings {
             training_depth: DEFAULT_TRAINING_DEPTH,
             pilot_paths: DEFAULT_PILOT_PATHS,
             pilot_cost: PilotCost::Time,
-            pilot_sampler: SamplerKind::Independent,
+            pilot_sampler: SamplerKind::Sobol,
+            pilot_sigmas: super::PILOT_SIGMAS,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_passes: 1,
             training_history: false,
@@ -534,6 +538,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "pilot_paths",
     "pilot_cost",
     "pilot_sampler",
+    "pilot_sigmas",
 ];
 
 impl SkeletonGuideSettings {
@@ -614,6 +619,7 @@ impl SkeletonGuideSettings {
             "pilot_paths" => next.pilot_paths = number(key, value)?,
             "pilot_cost" => next.pilot_cost = PilotCost::parse(value)?,
             "pilot_sampler" => next.pilot_sampler = SamplerKind::parse(value.trim())?,
+            "pilot_sigmas" => next.pilot_sigmas = number(key, value)?,
             "training_paths" => next.training_paths = number(key, value)?,
             "training_passes" => next.training_passes = number(key, value)?,
             "histogram_floor" => next.histogram_floor = number(key, value)?,
@@ -732,6 +738,12 @@ impl SkeletonGuideSettings {
             return Err(Error::invalid(format!(
                 "skeleton pilot_paths {} must be at most 4194304",
                 self.pilot_paths
+            )));
+        }
+        if !(self.pilot_sigmas.is_finite() && (0.0..=10.0).contains(&self.pilot_sigmas)) {
+            return Err(Error::invalid(format!(
+                "skeleton pilot_sigmas {} must be a number in [0, 10]",
+                self.pilot_sigmas
             )));
         }
         if !(1..=64).contains(&self.training_depth) {

@@ -21,20 +21,19 @@
 //! estimator at the render's depth, over an image at the training's 2:1 aspect, both policies
 //! with the same random numbers (their difference is less noisy than either), in units of
 //! two independent estimates each (`pilot_sampler`):
-//! - `independent` (the default): `pilot_paths` camera rays, each traced twice with
-//!   independent numbers. Half the squared difference of a ray's two samples is an unbiased
-//!   estimate of the variance along that ray (the pixel's variance less the part from where
-//!   in the pixel the ray goes, which guiding does not change).
-//! - `sobol`: `pilot_paths / 16` pixels, each estimated from 16 samples (the render's film,
-//!   lens and bounce slots) under two independent scrambles of the render's default Sobol
-//!   points (`math::pixel_sampler`). Half the squared difference of a pixel's two estimates,
-//!   times 16, is an unbiased estimate of the variance per sample that the render's pixel
-//!   error has under these numbers, which lower `path`'s variance more than the guided
-//!   mixture's (its guide/BSDF choice takes padded slots). On the family scenes it reads what
-//!   Sobol renders measure where the default reads the ratio under independent numbers
-//!   (rooms:17 0.99 against 0.93, the default 0.67); not the default because the five-scene
-//!   equal-time comparison could not show that it removes the losers without losing the
-//!   winners (BENCHMARKS.md, "Procedural family", "A pilot under the render's sampler").
+//! - `sobol` (the default): `pilot_paths / 16` pixels, each estimated from 16 samples (the
+//!   render's film, lens and bounce slots) under two independent scrambles of the render's
+//!   default Sobol points (`math::pixel_sampler`). Half the squared difference of a pixel's
+//!   two estimates, times 16, is an unbiased estimate of the variance per sample that the
+//!   render's pixel error has under these numbers, which lower `path`'s variance more than
+//!   the guided mixture's (its guide/BSDF choice takes padded slots). On rooms:17 it reads
+//!   0.99 where Sobol renders measure 0.93 and independent numbers 0.67.
+//! - `independent`: `pilot_paths` camera rays, each traced twice with independent numbers.
+//!   Half the squared difference of a ray's two samples is an unbiased estimate of the
+//!   variance along that ray (the pixel's variance less the part from where in the pixel the
+//!   ray goes, which guiding does not change). It reads the gain guiding has without the
+//!   Sobol points, which the render does not have: it guided family scenes that then lost
+//!   0.73-0.83x at equal time (BENCHMARKS.md, "Procedural family").
 //!
 //! The units' means give the measured variance ratio, and the delta method over the units its
 //! relative standard error (`Pilot::variance_error`, printed: 0.1-0.2 on family scenes that
@@ -46,8 +45,9 @@
 //! warmer caches. A work count (`pilot_cost=work`: rays traced per sample times the
 //! training's overhead ratio for the queries and the node mapping, `guide::training`,
 //! "Cost") read 0.90-1.18x on family scenes whose measured cost was 1.12-1.46x. Unless 1 /
-//! (variance ratio x cost ratio) exceeds the switch's margin (1.1), every node is set to c =
-//! 0 and `path_skeleton` traces `path`'s samples. The pilot's random
+//! (variance ratio x cost ratio) exceeds the switch's margin (1.1) with the variance ratio
+//! raised by two of its standard errors (`Pilot::pays`, [`crate::guide::PILOT_SIGMAS`]),
+//! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The pilot's random
 //! numbers are its own (its own seeds), so the render stays unbiased whatever the verdict; with
 //! `pilot_cost=work` the verdict is also a deterministic function of the scene (chunk sums
 //! combined in chunk order), with `time` it may differ between runs where the efficiency is
@@ -472,6 +472,7 @@ impl PathTracer {
             seconds_path,
             seconds_guided,
             cost_ratio,
+            sigmas: settings.pilot_sigmas,
         })
     }
 }
@@ -576,7 +577,7 @@ impl Integrator for PathTracer {
         notes.extend(mixture_note);
         if let Some(p) = pilot {
             notes.push(format!(
-                "pilot ({} camera samples in {} units, {:.2} s): variance {:.3}x (relative error {:.2}), cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x{}",
+                "pilot ({} camera samples in {} units, {:.2} s): variance {:.3}x (relative error {:.2}), cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x (confidence bound {:.3}x){}",
                 p.rays,
                 p.units,
                 pilot_seconds,
@@ -588,6 +589,7 @@ impl Integrator for PathTracer {
                 p.seconds_guided,
                 p.seconds_path,
                 p.efficiency(),
+                p.efficiency_bound(),
                 if p.pays() { "" } else { ": not enough, nothing guided" }
             ));
         }
