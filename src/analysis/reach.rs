@@ -227,7 +227,7 @@ fn mapped_neighbours(grid: &VoxelGrid, map: &[u32], k: usize) -> u32 {
 
 /// The offsets d from v_x on which one of `map_point`'s searches along n⁺ (steps 1-3) may
 /// be centred, for a voxel whose mapped neighbours are `mask` ([`mapped_neighbours`]; see
-/// [`may_map_to`]): the geometry of the cone test, whatever `near` holds at the centres.
+/// [`may_map_to`]): [`centre_offsets`] of the offsets the mask's bits stand for.
 fn search_offsets(mask: u32) -> Vec<[i64; 3]> {
     let mut mapped_storage = [[0i64; 3]; 26];
     let mut mapped_count = 0;
@@ -236,7 +236,13 @@ fn search_offsets(mask: u32) -> Vec<[i64; 3]> {
         mapped_storage[mapped_count] = [b % 3 - 1, (b / 3) % 3 - 1, b / 9 - 1];
         mapped_count += 1;
     }
-    let mapped = &mapped_storage[..mapped_count];
+    centre_offsets(&mapped_storage[..mapped_count])
+}
+
+/// The offsets d from v_x on which one of `map_point`'s searches along n⁺ (steps 1-3) may
+/// be centred, for a voxel whose mapped neighbours are at the offsets `mapped`: the
+/// geometry of the cone test ([`may_map_to`]), whatever `near` holds at the centres.
+fn centre_offsets(mapped: &[[i64; 3]]) -> Vec<[i64; 3]> {
     let mut offsets = Vec::new();
     // Per axis, the range of x = s n⁺ the face neighbours allow: a mapped +e_a means
     // n⁺_a <= 0 (else it would have been found facing; its score is n⁺_a, exact in f32),
@@ -366,8 +372,12 @@ mod tests {
         (0..len).map(|k| bit(bits, k)).collect()
     }
 
-    /// The per-voxel cone test as it ran before its geometry was shared per neighbourhood:
-    /// the oracle of `may_map_to_matches_the_direct_cone_test`.
+    /// The cone test run directly at voxel `k`: its mapped neighbours read from `map`, `near`
+    /// read at each clamped centre. The oracle of `may_map_to_matches_the_direct_cone_test`,
+    /// which checks what `may_map_to_where` adds to the geometry (the neighbourhood masks
+    /// and their bits, the offsets shared per mask, the clamping); the geometry itself
+    /// ([`centre_offsets`]) is shared, and checked against `map_point`'s searches by
+    /// `search_offsets_hold_every_centre_a_search_can_take`.
     fn searches_along_normal_reach_directly(
         grid: &VoxelGrid,
         map: &[u32],
@@ -377,10 +387,7 @@ mod tests {
         let dims = grid.dims.map(|d| d as i64);
         let v = grid.coords(k).map(|c| c as i64);
         let inside = |p: [i64; 3]| (0..3).all(|a| p[a] >= 0 && p[a] < dims[a]);
-        // The mapped neighbours of v_x (out-of-grid voxels are never mapped).
-        // At most 26, on the stack: this runs for every voxel near a wanted node.
-        let mut mapped_storage = [[0i64; 3]; 26];
-        let mut mapped_count = 0;
+        let mut mapped = Vec::new();
         for dz in -1..=1i64 {
             for dy in -1..=1i64 {
                 for dx in -1..=1i64 {
@@ -391,93 +398,117 @@ mod tests {
                         && map[grid.index(w[0] as usize, w[1] as usize, w[2] as usize)]
                             != UNDEFINED_NODE
                     {
-                        mapped_storage[mapped_count] = o;
-                        mapped_count += 1;
+                        mapped.push(o);
                     }
                 }
             }
         }
-        let mapped = &mapped_storage[..mapped_count];
-        // Per axis, the range of x = s n⁺ the face neighbours allow: a mapped +e_a means
-        // n⁺_a <= 0 (else it would have been found facing; its score is n⁺_a, exact in f32),
-        // a mapped -e_a means n⁺_a >= 0. Then floor(g_a + s n⁺_a) <= v_a exactly.
-        let mut limit = [[-3.0 - SLACK, 3.0 + SLACK]; 3];
-        for o in mapped {
-            if o.iter().filter(|&&c| c != 0).count() == 1 {
-                let a = (0..3).find(|&a| o[a] != 0).expect("a face offset");
-                if o[a] > 0 {
-                    limit[a][1] = limit[a][1].min(0.0);
-                } else {
-                    limit[a][0] = limit[a][0].max(0.0);
-                }
-            }
-        }
-        if (0..3).any(|a| limit[a][0] > limit[a][1]) {
-            return false;
-        }
-        let d_range = |a: usize| -> (i64, i64) {
-            // d - 1 < x < d + 1 for some x in limit[a].
-            (
-                (limit[a][0] - 1.0).floor() as i64 + 1,
-                (limit[a][1] + 1.0).ceil() as i64 - 1,
-            )
+        centre_offsets(&mapped).iter().any(|d| {
+            let c = [0, 1, 2].map(|a| (v[a] + d[a]).clamp(0, dims[a] - 1) as usize);
+            near[grid.index(c[0], c[1], c[2])]
+        })
+    }
+
+    /// [`search_offsets`] against the searches of `map_point` they stand for, by brute
+    /// force: for a voxel v_x = 0 with mapped neighbours `mask`, every unit normal n⁺ (f32,
+    /// as `map_point` normalises it) that faces no mapped neighbour (o·n⁺ <= 0 in f32, the
+    /// first search's test), every point g in the voxel and every step s = 1-3, the centre
+    /// floor(g + s n⁺) must be one of the offsets. Masks: none, every neighbour, walls
+    /// (the neighbours on one side of a plane, open or closed), corners (two walls), and
+    /// those with neighbours dropped at random; normals: random, and lattice directions
+    /// (on the cones' boundaries).
+    #[test]
+    fn search_offsets_hold_every_centre_a_search_can_take() {
+        let mut rng = Rng::new(5, 2);
+        let neighbours: Vec<[i64; 3]> = (0..27)
+            .map(|b: i64| [b % 3 - 1, (b / 3) % 3 - 1, b / 9 - 1])
+            .filter(|o| *o != [0, 0, 0])
+            .collect();
+        let bit_of = |o: [i64; 3]| 1u32 << ((o[2] + 1) * 9 + (o[1] + 1) * 3 + (o[0] + 1));
+        let dot = |a: [i64; 3], b: [i64; 3]| (0..3).map(|i| a[i] * b[i]).sum::<i64>();
+        let side = |m: [i64; 3], closed: bool| -> u32 {
+            neighbours
+                .iter()
+                .filter(|&&o| dot(o, m) > 0 || (closed && dot(o, m) == 0))
+                .map(|&o| bit_of(o))
+                .fold(0, |a, b| a | b)
         };
-        let ranges = [d_range(0), d_range(1), d_range(2)];
-        for dz in ranges[2].0..=ranges[2].1 {
-            for dy in ranges[1].0..=ranges[1].1 {
-                for dx in ranges[0].0..=ranges[0].1 {
-                    let d = [dx, dy, dz];
-                    // The centre's neighbourhood within the grid is within that of the centre
-                    // clamped to the grid.
-                    let c = [0, 1, 2].map(|a| (v[a] + d[a]).clamp(0, dims[a] - 1) as usize);
-                    if !near[grid.index(c[0], c[1], c[2])] {
-                        continue;
-                    }
-                    let mut lo = [0.0f64; 3];
-                    let mut hi = [0.0f64; 3];
-                    let mut empty = false;
-                    for a in 0..3 {
-                        lo[a] = (d[a] as f64 - 1.0 - SLACK).max(limit[a][0]);
-                        hi[a] = (d[a] as f64 + 1.0 + SLACK).min(limit[a][1]);
-                        empty |= lo[a] > hi[a];
-                    }
-                    if empty {
-                        continue;
-                    }
-                    // Every mapped neighbour's half-space o·x <= 0 must meet the box.
-                    let misses = mapped.iter().any(|o| {
-                        (0..3)
-                            .map(|a| (o[a] as f64 * lo[a]).min(o[a] as f64 * hi[a]))
-                            .sum::<f64>()
-                            > SLACK
-                    });
-                    if misses {
-                        continue;
-                    }
-                    // Squared distances from 0 to the box's nearest and farthest points.
-                    let nearest: f64 = (0..3)
-                        .map(|a| {
-                            if lo[a] > 0.0 {
-                                lo[a] * lo[a]
-                            } else if hi[a] < 0.0 {
-                                hi[a] * hi[a]
-                            } else {
-                                0.0
-                            }
-                        })
-                        .sum();
-                    let farthest: f64 = (0..3).map(|a| (lo[a] * lo[a]).max(hi[a] * hi[a])).sum();
-                    let on_a_sphere = (1..=3).any(|s| {
-                        let s = s as f64;
-                        nearest <= (s + SLACK).powi(2) && farthest >= (s - SLACK).powi(2)
-                    });
-                    if on_a_sphere {
-                        return true;
+        let every = neighbours.iter().map(|&o| bit_of(o)).fold(0, |a, b| a | b);
+        let mut masks = vec![0u32, every];
+        for &m in &neighbours {
+            masks.push(side(m, false));
+            masks.push(side(m, true));
+            for &m2 in neighbours.iter().filter(|&&m2| dot(m, m2) == 0) {
+                masks.push(side(m, false) | side(m2, false));
+            }
+        }
+        for i in 0..masks.len() {
+            for _ in 0..3 {
+                let kept = neighbours
+                    .iter()
+                    .filter(|_| rng.uniform() < 0.7)
+                    .map(|&o| bit_of(o))
+                    .fold(0, |a, b| a | b);
+                masks.push(masks[i] & kept);
+            }
+        }
+        masks.sort_unstable();
+        masks.dedup();
+        let mut normals: Vec<Vec3> = (-3..=3i64)
+            .flat_map(|z| (-3..=3i64).flat_map(move |y| (-3..=3i64).map(move |x| [x, y, z])))
+            .filter(|d| *d != [0, 0, 0])
+            .map(|d| Vec3::new(d[0] as f32, d[1] as f32, d[2] as f32).normalize())
+            .collect();
+        normals.extend(
+            (0..2000).map(|_| crate::math::warp::uniform_sphere(rng.uniform2()).normalize()),
+        );
+        // Points of the voxel: its corners (0 and the last f64 below 1 per axis) and random.
+        let below_one = 1.0 - f64::EPSILON / 2.0;
+        let mut points: Vec<[f64; 3]> = (0..8)
+            .map(|c| [0, 1, 2].map(|a| if c >> a & 1 == 1 { below_one } else { 0.0 }))
+            .collect();
+        points.extend((0..8).map(|_| {
+            [
+                rng.uniform() as f64,
+                rng.uniform() as f64,
+                rng.uniform() as f64,
+            ]
+        }));
+        let (mut facing, mut far) = (0, 0);
+        for &mask in &masks {
+            let offsets = search_offsets(mask);
+            let mapped: Vec<[i64; 3]> = neighbours
+                .iter()
+                .copied()
+                .filter(|&o| mask & bit_of(o) != 0)
+                .collect();
+            for &n in &normals {
+                let faces_a_mapped_neighbour = mapped
+                    .iter()
+                    .any(|o| Vec3::new(o[0] as f32, o[1] as f32, o[2] as f32).dot(n) > 0.0);
+                if faces_a_mapped_neighbour {
+                    continue;
+                }
+                facing += 1;
+                for g in &points {
+                    for s in 1..=3 {
+                        let d = [0, 1, 2].map(|a| (g[a] + s as f64 * n[a] as f64).floor() as i64);
+                        far += usize::from(d.iter().any(|c| c.abs() > 1));
+                        assert!(
+                            offsets.contains(&d),
+                            "mask {mask:#x}: normal {n}, point {g:?}, step {s} centre {d:?} \
+                             not among {offsets:?}"
+                        );
                     }
                 }
             }
         }
-        false
+        // Every neighbour mapped: no normal escapes the first search.
+        assert!(search_offsets(every).is_empty());
+        assert!(
+            facing > 10_000 && far > 10_000,
+            "{facing} normals, {far} far centres"
+        );
     }
 
     /// [`may_map_to_where`] (offsets per distinct neighbourhood) gives the answer of the cone

@@ -1225,30 +1225,32 @@ impl VplIntegrator {
         let cell = self.options.sites;
         let mut rays = 0;
         // With sites, each VPL's site whose map stands where the site sees the VPL (one ray
-        // each); the others keep their node's map.
-        let sites: Vec<Option<Site>> = if cell > 0 {
-            let wanted: Vec<Option<Site>> =
-                vpls.iter().map(|v| shadow.site_of(&v.si, cell)).collect();
-            let mut distinct: Vec<Site> = wanted.iter().flatten().copied().collect();
-            distinct.sort_unstable();
-            distinct.dedup();
-            let maps = shadow.ensure_sites(&distinct);
-            let mut seen = Vec::with_capacity(vpls.len());
-            for (v, site) in vpls.iter().zip(wanted) {
-                let map = site.and_then(|s| {
-                    let i = distinct.binary_search(&s).ok()?;
-                    maps[i].as_ref()
-                });
-                seen.push(map.and_then(|m| {
-                    rays += 1;
-                    let to = v.si.spawn_ray_to(m.centre(), Vec3::ZERO, Vec3::ZERO);
-                    (!scene.occluded(&to)).then_some(site?)
-                }));
-            }
-            seen
+        // each); the others keep their node's map. The sites' maps are made once here
+        // (`distinct` sorted) and looked up again for the groups below.
+        let wanted: Vec<Option<Site>> = if cell > 0 {
+            vpls.iter().map(|v| shadow.site_of(&v.si, cell)).collect()
         } else {
             vec![None; vpls.len()]
         };
+        let mut distinct: Vec<Site> = wanted.iter().flatten().copied().collect();
+        distinct.sort_unstable();
+        distinct.dedup();
+        let site_maps = shadow.ensure_sites(&distinct);
+        let site_map = |s: Site| {
+            let i = distinct.binary_search(&s).ok()?;
+            site_maps[i].as_ref()
+        };
+        let sites: Vec<Option<Site>> = vpls
+            .iter()
+            .zip(wanted)
+            .map(|(v, site)| {
+                site.and_then(site_map).and_then(|m| {
+                    rays += 1;
+                    let to = v.si.spawn_ray_to(m.centre(), Vec3::ZERO, Vec3::ZERO);
+                    (!scene.occluded(&to)).then_some(site?)
+                })
+            })
+            .collect();
         let nodes: Vec<u32> = vpls
             .iter()
             .map(|v| shadow.node_of(&v.si).unwrap_or(EXACT_GROUP))
@@ -1281,7 +1283,7 @@ impl VplIntegrator {
                 Some(g) if last == Some((node, site)) => g.end = i + 1,
                 _ => {
                     let map = match site {
-                        Some(site) => shadow.ensure_sites(&[site])[0].clone(),
+                        Some(site) => site_map(site).cloned(),
                         None => shadow.map(node).cloned(),
                     };
                     groups.push(VplGroup {
