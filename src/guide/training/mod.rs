@@ -310,11 +310,11 @@ impl Pilot {
 }
 
 /// Default standard errors by which the pilot's variance ratio is raised before its verdict
-/// ([`Pilot::pays`], `pilot_sigmas`). A pilot's reading is noisy (relative errors 0.1-0.6) and the render's
-/// gain is a ratio of heavy-tailed variances; at the point estimate, guides the family scenes
-/// rooms:29 and 45 lost 0.81-0.83x at equal time on readings of 1.28-1.53x (relative errors
-/// 0.24-0.25). Two errors (about 97.5 % one-sided) keep only gains the pilot has seen clearly:
-/// the corridor (5.5x, error 0.44) and the door (1.68x, error 0.23).
+/// ([`Pilot::pays`], `pilot_sigmas`). The reading is a ratio of heavy-tailed variances with
+/// relative errors of 0.1-0.6: at its point estimate the pilot guided the family scenes
+/// rooms:29 and rooms:45 (Sobol readings 1.53x and 1.28x, relative errors 0.24-0.25), which
+/// then lost 0.81-0.83x at equal time. Two errors (about 97.5 % one-sided) keep the gains the
+/// pilot sees clearly: the corridor (5.5x, error 0.44) and the door (1.69x, error 0.23).
 pub const PILOT_SIGMAS: f64 = 2.0;
 
 impl TrainingReport {
