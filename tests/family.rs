@@ -280,18 +280,12 @@ fn the_pilot_agrees_with_the_measured_per_sample_efficiency() {
             (seed, f.builder().unwrap().build().unwrap(), f.camera)
         })
         .collect();
-    let cases: Vec<(String, &Scene, Camera, u32, &str)> = vec![
-        ("rooms:30".into(), &family[0].1, family[0].2, 65, piloted),
-        ("rooms:33".into(), &family[1].1, family[1].2, 65, piloted),
-        ("rooms:3".into(), &family[2].1, family[2].2, 65, forced),
-        (
-            "rooms:3".into(),
-            &family[2].1,
-            family[2].2,
-            65,
-            &forced_unbounded,
-        ),
-        ("corridor".into(), &corridor, corridor_camera, 8, piloted),
+    let cases: Vec<(&str, &Scene, Camera, u32, &str)> = vec![
+        ("rooms:30", &family[0].1, family[0].2, 65, piloted),
+        ("rooms:33", &family[1].1, family[1].2, 65, piloted),
+        ("rooms:3", &family[2].1, family[2].2, 65, forced),
+        ("rooms:3", &family[2].1, family[2].2, 65, &forced_unbounded),
+        ("corridor", &corridor, corridor_camera, 8, piloted),
     ];
     let (mut on, mut off, mut overruled) = (0, 0, 0);
     for (name, scene, camera, max_depth, spec) in cases {

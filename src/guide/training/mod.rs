@@ -164,8 +164,9 @@ pub struct TrainingReport {
     pub scene: SceneChoice,
     /// The voxels that may map to a node with a probability above 0 (`analysis::may_map_to`
     /// over the whole grid), where the last pass computed them for its prediction's mapping
-    /// cost: the render's mask for the same choices (`SkeletonGuide::build` takes it). None
-    /// for the scout, switched off or untrained.
+    /// cost: the render's mask for the same choices. `SkeletonGuide::build` takes it, so a
+    /// guide's stored report always holds None; None also for the scout, switched off or
+    /// untrained.
     pub may_guide: Option<VoxelSet>,
 }
 
