@@ -239,3 +239,60 @@ fn learned_agrees_with_path_on_glossy_mirror_and_glass() {
     let (scene, camera) = box_scene(true, true, false);
     agree_with_path("glossy+delta bsdfs", &scene, &camera, 6, 20, 16, SPECS);
 }
+
+/// The scout check (`SkeletonGuide::build_with_scout_check`, `path_skeleton`'s pilot on the
+/// scout's guide): where it says no, the training ends after the scout and nothing is guided;
+/// where it says yes, the full training learns exactly what it learns without the check, even
+/// though the check used the guide with the scout's choices (its queries fill the voxel
+/// visibility cache, whose fills the training counts as the guide's shadow rays).
+#[test]
+fn the_scout_check_stops_the_training_or_leaves_it_as_it_was() {
+    let scene = corridor();
+    let mut settings = learned();
+    settings.set("training_paths", "16384").unwrap();
+    assert!(settings.scouts());
+    let camera = scene.camera();
+    let plain = SkeletonGuide::build(&scene, camera, &settings, &|_, _| true).unwrap();
+    let full = plain.training().unwrap();
+    assert_eq!(full.paths, 16384);
+    assert!(!plain.guides_nothing());
+
+    let checks = std::cell::Cell::new(0);
+    let look = |scout: &SkeletonGuide| {
+        checks.set(checks.get() + 1);
+        let t = scout.training().expect("the scout's choices adopted");
+        assert_eq!(t.paths, 16384 / 8);
+        assert!(!scout.guides_nothing());
+        let mut query = GuideQuery::new();
+        let rays: u32 = surface_points(&scene, 5_000, 4)
+            .into_iter()
+            .map(|(p, err, ng, wo)| query.init(scout, &scene, p, err, ng, wo))
+            .sum();
+        assert!(rays > 0, "the check's queries traced no shadow ray");
+        true
+    };
+    let looked =
+        SkeletonGuide::build_with_scout_check(&scene, camera, &settings, &|_, _| true, Some(&look))
+            .unwrap();
+    assert_eq!(checks.get(), 1);
+    assert_eq!(looked.training(), Some(full));
+    for node in 0..plain.node_count() as u32 {
+        assert_eq!(
+            looked.guiding_probability(node),
+            plain.guiding_probability(node)
+        );
+    }
+
+    let stopped = SkeletonGuide::build_with_scout_check(
+        &scene,
+        camera,
+        &settings,
+        &|_, _| true,
+        Some(&|_: &SkeletonGuide| false),
+    )
+    .unwrap();
+    let t = stopped.training().unwrap();
+    assert_eq!(t.paths, 16384 / 8);
+    assert!(t.scene.switched_off);
+    assert!(stopped.guides_nothing());
+}

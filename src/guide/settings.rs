@@ -197,6 +197,10 @@ pub struct SkeletonGuideSettings {
     /// `pilot_sigmas=X` (default [`crate::guide::PILOT_SIGMAS`], 2): standard errors by which
     /// the pilot's variance ratio is raised before its verdict (0: the point estimate).
     pub pilot_sigmas: f64,
+    /// `scout_pilot=on` (the default) or `off`: where the scout's choices guide some node,
+    /// `path_skeleton` runs its pilot on the scout's guide too, and skips the full training
+    /// where that guide reads a loss (`guide::training`, "The scout").
+    pub scout_pilot: bool,
     /// Camera paths of the training pass (`training_paths`).
     pub training_paths: u32,
     /// `training_passes=N` (with `directions=learned`; default 1): training passes of
@@ -488,6 +492,7 @@ impl Default for SkeletonGuideSettings {
             pilot_cost: PilotCost::Time,
             pilot_sampler: SamplerKind::Sobol,
             pilot_sigmas: super::PILOT_SIGMAS,
+            scout_pilot: true,
             training_paths: DEFAULT_TRAINING_PATHS,
             training_passes: 1,
             training_history: false,
@@ -539,6 +544,7 @@ pub const OPTION_NAMES: &[&str] = &[
     "pilot_cost",
     "pilot_sampler",
     "pilot_sigmas",
+    "scout_pilot",
 ];
 
 impl SkeletonGuideSettings {
@@ -620,6 +626,17 @@ impl SkeletonGuideSettings {
             "pilot_cost" => next.pilot_cost = PilotCost::parse(value)?,
             "pilot_sampler" => next.pilot_sampler = SamplerKind::parse(value.trim())?,
             "pilot_sigmas" => next.pilot_sigmas = number(key, value)?,
+            "scout_pilot" => {
+                next.scout_pilot = match value.trim() {
+                    "on" => true,
+                    "off" => false,
+                    other => {
+                        return Err(Error::invalid(format!(
+                            "skeleton scout_pilot '{other}' must be 'on' or 'off'"
+                        )))
+                    }
+                }
+            }
             "training_paths" => next.training_paths = number(key, value)?,
             "training_passes" => next.training_passes = number(key, value)?,
             "histogram_floor" => next.histogram_floor = number(key, value)?,

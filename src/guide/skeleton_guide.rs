@@ -129,6 +129,10 @@ pub struct SkeletonGuide {
     fingerprint: SceneFingerprint,
 }
 
+/// A look at a guide trained on the scout's paths alone
+/// ([`SkeletonGuide::build_with_scout_check`]): false stops the training and guides nothing.
+pub type ScoutCheck<'a> = &'a dyn Fn(&SkeletonGuide) -> bool;
+
 /// The two bits of lobe target `target` in a voxel's visibility cell
 /// ([`SkeletonGuide::voxel_sees`]): (answer known, target seen).
 #[inline]
@@ -144,6 +148,23 @@ impl SkeletonGuide {
         camera: Option<&Camera>,
         settings: &SkeletonGuideSettings,
         progress: &dyn Fn(&str, f64) -> bool,
+    ) -> Result<SkeletonGuide> {
+        Self::build_with_scout_check(scene, camera, settings, progress, None)
+    }
+
+    /// [`SkeletonGuide::build`], with a look at the guide trained on the scout's paths alone
+    /// where the scout's choices guide some node (`guide::training`, "The scout"): if
+    /// `scout_check` returns false, the training stops there and nothing is guided, so a
+    /// scene where even that guide clearly loses does not pay for the full training.
+    /// `path_skeleton` runs its pilot there. The full training goes on from the scout's state
+    /// exactly (the check's changes to the guide, its visibility cache included, are undone),
+    /// so a scene that goes on learns what it would have learned without the check.
+    pub fn build_with_scout_check(
+        scene: &Scene,
+        camera: Option<&Camera>,
+        settings: &SkeletonGuideSettings,
+        progress: &dyn Fn(&str, f64) -> bool,
+        scout_check: Option<ScoutCheck<'_>>,
     ) -> Result<SkeletonGuide> {
         settings.validate()?;
         let started = Instant::now();
@@ -255,8 +276,9 @@ impl SkeletonGuide {
             timings: Vec::new(),
             fingerprint: SceneFingerprint::of(scene),
         };
+        let mut scout_check_seconds = None;
         if settings.trains() {
-            let t = Instant::now();
+            let mut t = Instant::now();
             let mut history = vec![
                 Vec::new();
                 if settings.training_history {
@@ -290,6 +312,17 @@ impl SkeletonGuide {
                     .is_some_and(|b| started.elapsed().as_secs_f64() + rest > BUDGET_SHARE * b);
                 if over_budget && report.paths > 0 {
                     report.turn_off(settings);
+                }
+                let guides_some_node = report.probabilities.iter().any(|&c| c > 0.0);
+                if let Some(check) = scout_check.filter(|_| report.paths > 0 && guides_some_node) {
+                    let check_started = Instant::now();
+                    if !guide.scout_verdict(&report, check) {
+                        report.turn_off(settings);
+                    }
+                    let seconds = check_started.elapsed();
+                    // The check is its own stage, not the training's.
+                    t += seconds;
+                    scout_check_seconds = Some(seconds.as_secs_f64());
                 }
                 Some(report).filter(|r| r.paths > 0 && r.probabilities.iter().all(|&c| c <= 0.0))
             } else {
@@ -328,58 +361,108 @@ impl SkeletonGuide {
                     training::Scout::None,
                 );
             }
-            guide.directions = None;
-            if report.paths == 0 {
-                // No camera to train from: the documented fixed default.
-                guide.node_c = vec![settings.c_skel; node_count];
-            } else {
-                guide.node_c = report.probabilities.clone();
-                if settings.learned_strength {
-                    guide.node_strength = report.strengths.clone();
-                }
-                // Learned selection probabilities replace eq. 165's in place: the lobes keep
-                // their indices (the voxel visibility cache the training filled is keyed by
-                // them), and a lobe given 0 is skipped by every query.
-                for (k, weights) in report.lobe_weights.iter().enumerate() {
-                    if let Some(weights) = weights {
-                        let start = guide.lobe_start[k] as usize;
-                        let end = guide.lobe_start[k + 1] as usize;
-                        for (lobe, &w) in guide.lobes[start..end].iter_mut().zip(weights) {
-                            lobe.probability = w;
-                        }
-                    }
-                }
-            }
-            // Without a camera nothing was learned: the lobes at the fixed c, as documented.
-            if settings.learned_directions && report.paths > 0 {
-                // Only nodes that are guided keep their distribution.
-                let kept: Vec<Option<Vec<f32>>> = report
-                    .directions
-                    .iter()
-                    .zip(&guide.node_c)
-                    .map(|(d, &c)| d.clone().filter(|_| c > 0.0))
-                    .collect();
-                guide.directions = Some(Arc::new(DirectionalTable::new(&kept)));
-            }
-            // The training's mask where it was found for these very probabilities.
-            let trained_mask = report
-                .may_guide
-                .take()
-                .filter(|_| report.probabilities == guide.node_c);
-            guide.training = Some(report);
-            if settings.learned_c_skel {
-                let node_c = &guide.node_c;
-                guide.may_guide = trained_mask.unwrap_or_else(|| {
-                    VoxelSet::from_flags(&may_map_to(&guide.grid, &guide.node_map, |n| {
-                        node_c[n as usize] > 0.0
-                    }))
-                });
-            }
+            guide.adopt_training(report);
             stage("guiding probabilities (training)", t, 1.0)?;
+        }
+        if let Some(seconds) = scout_check_seconds {
+            timings.push(StageTime {
+                stage: "pilot on the scout's guide",
+                seconds,
+            });
         }
         guide.guides_nothing = guide.node_c.iter().all(|&c| c <= 0.0);
         guide.timings = timings;
         Ok(guide)
+    }
+
+    /// The scout check of [`SkeletonGuide::build_with_scout_check`]: `check` on this guide with
+    /// the scout's choices adopted, then the guide put back in the scout's state (its choices,
+    /// lobe weights and learned directions, and the visibility cache, whose fills the full
+    /// training counts as the guide's shadow rays).
+    fn scout_verdict(&mut self, scout: &TrainingReport, check: ScoutCheck<'_>) -> bool {
+        let node_c = self.node_c.clone();
+        let node_strength = self.node_strength.clone();
+        let lobe_probabilities: Vec<f32> = self.lobes.iter().map(|l| l.probability).collect();
+        let directions = self.directions.clone();
+        let may_guide = std::mem::replace(&mut self.may_guide, VoxelSet::new(0));
+        let training = self.training.take();
+        let guides_nothing = self.guides_nothing;
+        let cache: Vec<u32> = self
+            .voxel_sees
+            .iter()
+            .map(|cell| cell.load(AtomicOrdering::Relaxed))
+            .collect();
+
+        self.adopt_training(scout.clone());
+        let go_on = check(self);
+
+        self.node_c = node_c;
+        self.node_strength = node_strength;
+        for (lobe, p) in self.lobes.iter_mut().zip(lobe_probabilities) {
+            lobe.probability = p;
+        }
+        self.directions = directions;
+        self.may_guide = may_guide;
+        self.training = training;
+        self.guides_nothing = guides_nothing;
+        for (cell, bits) in self.voxel_sees.iter().zip(cache) {
+            cell.store(bits, AtomicOrdering::Relaxed);
+        }
+        go_on
+    }
+
+    /// Puts a training report's choices into the guide (per node c, strengths, lobe weights,
+    /// learned directions, the voxels that may guide) and keeps the report. Without paths
+    /// (no camera) every node gets the fixed `c_skel`.
+    fn adopt_training(&mut self, mut report: TrainingReport) {
+        self.directions = None;
+        if report.paths == 0 {
+            // No camera to train from: the documented fixed default.
+            self.node_c = vec![self.settings.c_skel; self.node_count()];
+        } else {
+            self.node_c = report.probabilities.clone();
+            if self.settings.learned_strength {
+                self.node_strength = report.strengths.clone();
+            }
+            // Learned selection probabilities replace eq. 165's in place: the lobes keep
+            // their indices (the voxel visibility cache the training filled is keyed by
+            // them), and a lobe given 0 is skipped by every query.
+            for (k, weights) in report.lobe_weights.iter().enumerate() {
+                if let Some(weights) = weights {
+                    let start = self.lobe_start[k] as usize;
+                    let end = self.lobe_start[k + 1] as usize;
+                    for (lobe, &w) in self.lobes[start..end].iter_mut().zip(weights) {
+                        lobe.probability = w;
+                    }
+                }
+            }
+        }
+        // Without a camera nothing was learned: the lobes at the fixed c, as documented.
+        if self.settings.learned_directions && report.paths > 0 {
+            // Only nodes that are guided keep their distribution.
+            let kept: Vec<Option<Vec<f32>>> = report
+                .directions
+                .iter()
+                .zip(&self.node_c)
+                .map(|(d, &c)| d.clone().filter(|_| c > 0.0))
+                .collect();
+            self.directions = Some(Arc::new(DirectionalTable::new(&kept)));
+        }
+        // The training's mask where it was found for these very probabilities.
+        let trained_mask = report
+            .may_guide
+            .take()
+            .filter(|_| report.probabilities == self.node_c);
+        self.training = Some(report);
+        if self.settings.learned_c_skel {
+            let node_c = &self.node_c;
+            self.may_guide = trained_mask.unwrap_or_else(|| {
+                VoxelSet::from_flags(&may_map_to(&self.grid, &self.node_map, |n| {
+                    node_c[n as usize] > 0.0
+                }))
+            });
+        }
+        self.guides_nothing = self.node_c.iter().all(|&c| c <= 0.0);
     }
 
     pub fn settings(&self) -> &SkeletonGuideSettings {

@@ -47,7 +47,9 @@
 //! "Cost") read 0.90-1.18x on family scenes whose measured cost was 1.12-1.46x. Unless 1 /
 //! (variance ratio x cost ratio) exceeds the switch's margin (1.1) with the variance ratio
 //! raised by two of its standard errors (`Pilot::pays`, [`crate::guide::PILOT_SIGMAS`]),
-//! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The pilot's random
+//! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The same pilot
+//! runs first on the guide the training's scout learned (`guide::training`, "The scout"):
+//! where that guide reads a loss, the full training is skipped. The pilot's random
 //! numbers are its own (its own seeds), so the render stays unbiased whatever the verdict; with
 //! `pilot_cost=work` the verdict is also a deterministic function of the scene (chunk sums
 //! combined in chunk order), with `time` it may differ between runs where the efficiency is
@@ -100,6 +102,8 @@ pub struct PathTracer {
     time_budget: Option<f64>,
     /// `mis=auto`: the per-pixel alpha estimates (see [`super::mis_auto::DEPTH_CLASSES`]).
     alphas: PixelAlphas,
+    /// The pilot on the scout's guide, where the last `prepare` ran one (`scout_pilot`).
+    scout_pilot: Option<Pilot>,
 }
 
 impl PathTracer {
@@ -109,6 +113,7 @@ impl PathTracer {
             guiding: None,
             time_budget: None,
             alphas: PixelAlphas::default(),
+            scout_pilot: None,
         }
     }
 
@@ -122,12 +127,20 @@ impl PathTracer {
             guiding: Some(None),
             time_budget: None,
             alphas: PixelAlphas::default(),
+            scout_pilot: None,
         })
     }
 
     /// The skeleton guide built by the last `prepare`.
     pub fn guide(&self) -> Option<&Arc<SkeletonGuide>> {
         self.guiding.as_ref().and_then(|g| g.as_ref())
+    }
+
+    /// What the pilot on the scout's guide measured in the last `prepare`, where one ran
+    /// (module docs, "The pilot"); unless [`Pilot::may_pay_after_training`], that prepare
+    /// skipped the full training and guides nothing.
+    pub fn scout_pilot(&self) -> Option<Pilot> {
+        self.scout_pilot
     }
 
     /// The render's light sampling and MIS heuristic, as the shared estimator
@@ -526,11 +539,27 @@ impl Integrator for PathTracer {
             return Ok(portals);
         }
         self.guiding = Some(None);
+        self.scout_pilot = None;
         // The training scores its candidates with this render's light sampling and MIS.
         let mut skeleton = self.settings.skeleton;
         skeleton.render_estimator = self.estimator();
         skeleton.time_budget = self.time_budget;
-        let mut guide = SkeletonGuide::build(scene, Some(camera), &skeleton, progress)?;
+        // The pilot on the scout's guide ("The pilot"): a scene where even it reads a clear
+        // loss skips the full training.
+        let scout_pilot = std::cell::Cell::new(None);
+        let scout_check = |scout_guide: &SkeletonGuide| {
+            let pilot = self.pilot(scene, camera, scout_guide);
+            scout_pilot.set(pilot);
+            pilot.is_none_or(|p| p.may_pay_after_training())
+        };
+        let mut guide = SkeletonGuide::build_with_scout_check(
+            scene,
+            Some(camera),
+            &skeleton,
+            progress,
+            skeleton.scout_pilot.then_some(&scout_check),
+        )?;
+        let scout_pilot = scout_pilot.get();
         let pilot_started = std::time::Instant::now();
         let pilot = self.pilot(scene, camera, &guide);
         if let Some(p) = pilot {
@@ -575,6 +604,20 @@ impl Integrator for PathTracer {
         let mut notes = notes;
         notes.extend(portals.notes);
         notes.extend(mixture_note);
+        if let Some(p) = scout_pilot {
+            notes.push(format!(
+                "pilot on the scout's guide: variance {:.3}x (relative error {:.2}), cost {:.3}x, efficiency {:.3}x{}",
+                p.variance_ratio(),
+                p.variance_error,
+                p.cost_ratio,
+                p.efficiency(),
+                if p.may_pay_after_training() {
+                    ""
+                } else {
+                    ": a clear loss, no full training, nothing guided"
+                }
+            ));
+        }
         if let Some(p) = pilot {
             notes.push(format!(
                 "pilot ({} camera samples in {} units, {:.2} s): variance {:.3}x (relative error {:.2}), cost {:.3}x ({:.2} against {:.2} rays per sample, {:.3} against {:.3} s), efficiency {:.3}x (confidence bound {:.3}x){}",
@@ -663,6 +706,7 @@ impl Integrator for PathTracer {
             });
         }
         self.guiding = Some(Some(Arc::new(guide)));
+        self.scout_pilot = scout_pilot;
         Ok(Precomputation { stages, notes })
     }
 

@@ -75,6 +75,15 @@
 //! only where the scout saw something to gain. The scout's paths are the first of the full
 //! training's, so a scene that goes on learns exactly what it learned without the scout.
 //!
+//! Where the scout's choices guide some node, `path_skeleton` (`scout_pilot=on`, the default)
+//! runs its pilot (`integrator::path`, "The pilot") on the scout's guide before going on
+//! ([`super::SkeletonGuide::build_with_scout_check`]). If that guide reads a loss at the
+//! pilot's point estimate ([`Pilot::may_pay_after_training`]: efficiency below 1), the
+//! training stops there and nothing is guided. The final verdict asks for a 10 % gain with the
+//! variance ratio raised by two standard errors, an efficiency of about 1.5-2 at the point
+//! estimate, which the guide from eight times the paths would have to reach from below 1. Else
+//! the full training goes on from the scout's state exactly.
+//!
 //! # The path-level prediction
 //!
 //! `cost_model=paths` (the default) takes the variance ratio from whole training paths, as a
@@ -307,6 +316,13 @@ impl Pilot {
     /// Whether guiding pays by the scene-level margin, at the pilot's confidence bound.
     pub fn pays(&self) -> bool {
         self.efficiency_bound() > 1.0 + SCENE_MARGIN
+    }
+
+    /// The verdict on a guide trained on the scout's paths alone (`guide::training`, "The
+    /// scout"): whether the full training may still make it pay. False where the scout's
+    /// guide reads a loss at the point estimate.
+    pub fn may_pay_after_training(&self) -> bool {
+        self.efficiency() >= 1.0
     }
 }
 
