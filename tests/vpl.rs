@@ -604,7 +604,10 @@ fn the_shadow_map_budget_lowers_the_resolution() {
     assert!(a.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
     assert!(a.iter().any(|p| p.max_element() > 0.0));
     let stats = vpl.render_notes().join("; ");
-    assert!(stats.contains("built"), "{stats}");
+    assert!(
+        stats.contains("node maps") && stats.contains("traced when first read"),
+        "{stats}"
+    );
 }
 
 /// `interleave=1` (one VPL set per pass, no filter) is today's estimator bit for bit: the

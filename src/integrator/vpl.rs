@@ -91,9 +91,10 @@
 //! costs 2-3x one with node maps, whose groups are skipped whole (BENCHMARKS.md).
 //!
 //! VPLs mapped to no node, and those of nodes the memory budget left without a map, keep
-//! exact shadow rays. The maps are built when a node first carries VPLs (in
-//! `begin_iteration`, in parallel; their time counts in the render's) and kept for later
-//! passes and renders of the same scene. Chapter 7's visibility clusters are not built
+//! exact shadow rays. The maps are made when a node first carries VPLs (in
+//! `begin_iteration`) and kept for later passes and renders of the same scene; all are lazy
+//! (a texel traced by the lookup that first reads it, in the render's time), so a pass pays
+//! only for the texels its shading points read. Chapter 7's visibility clusters are not built
 //! (`visibility=clusters` is refused): docs/vpl-visibility.md gives the measurements.
 //!
 //! # Importance-driven selection (`select=importance`, the default)
@@ -1263,7 +1264,7 @@ impl VplIntegrator {
             .collect();
         carrying.sort_unstable();
         carrying.dedup();
-        shadow.ensure(scene, &carrying);
+        shadow.ensure(&carrying);
         let mut keyed: Vec<(u32, Option<Site>, Vpl)> = nodes
             .into_iter()
             .zip(sites)
@@ -1328,7 +1329,7 @@ impl VplIntegrator {
             .collect();
         nodes.sort_unstable();
         nodes.dedup();
-        shadow.ensure_receivers(scene, &nodes);
+        shadow.ensure_receivers(&nodes);
         nodes.retain(|&n| shadow.receiver_map(n).is_some());
         nodes
     }
