@@ -143,6 +143,8 @@ fn vpl_gives_the_same_image_for_any_thread_count() {
         "vpl:count=4:interleave=2:visibility=skeleton:shadow_res=16:compensate=true",
         "vpl:count=8:visibility=skeleton:shadow_res=16:sites=8",
         "vpl:count=8:visibility=skeleton:shadow_res=16:sites=4:verify=0",
+        "vpl:count=8:visibility=skeleton:shadow_res=16:sites=8:probe_maps=true",
+        "vpl:count=4:interleave=2:visibility=skeleton:shadow_res=16:probe_maps=true",
     ] {
         // A fresh integrator per render (one integrator rendering again: the next test).
         let render = |threads| {
@@ -235,6 +237,7 @@ fn vpl_options_are_checked_and_the_bias_stated() {
         "vpl:select=importance:p_min=nan",
         "vpl:select=importance:probes=0",
         "vpl:select=importance:probes=x",
+        "vpl:visibility=skeleton:probe_maps=maybe",
         "vpl:interleave=0",
         "vpl:interleave=9",
         "vpl:interleave=x",
