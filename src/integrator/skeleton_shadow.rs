@@ -11,7 +11,7 @@
 //! [`SkeletonShadowMaps`] makes every map lazy ([`CubeShadowMap::lazy`]): a texel is traced
 //! when a lookup first reads it, with the depth a whole build gives, so the images are those
 //! of whole maps while a one-second preview pays only for the texels its lookups read (on
-//! the door about a quarter of the receiver maps' texels; BENCHMARKS.md, issue 36).
+//! the door 29 % of the node and receiver maps' texels; BENCHMARKS.md, issue 36).
 //!
 //! # Memory budget
 //!
