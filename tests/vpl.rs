@@ -143,6 +143,8 @@ fn vpl_gives_the_same_image_for_any_thread_count() {
         "vpl:count=4:interleave=2:visibility=skeleton:shadow_res=16:compensate=true",
         "vpl:count=8:visibility=skeleton:shadow_res=16:sites=8",
         "vpl:count=8:visibility=skeleton:shadow_res=16:sites=4:verify=0",
+        "vpl:count=8:visibility=skeleton:shadow_res=16:sites=8:probe_maps=true",
+        "vpl:count=4:interleave=2:visibility=skeleton:shadow_res=16:probe_maps=true",
     ] {
         // A fresh integrator per render (one integrator rendering again: the next test).
         let render = |threads| {
@@ -235,6 +237,7 @@ fn vpl_options_are_checked_and_the_bias_stated() {
         "vpl:select=importance:p_min=nan",
         "vpl:select=importance:probes=0",
         "vpl:select=importance:probes=x",
+        "vpl:visibility=skeleton:probe_maps=maybe",
         "vpl:interleave=0",
         "vpl:interleave=9",
         "vpl:interleave=x",
@@ -604,7 +607,10 @@ fn the_shadow_map_budget_lowers_the_resolution() {
     assert!(a.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
     assert!(a.iter().any(|p| p.max_element() > 0.0));
     let stats = vpl.render_notes().join("; ");
-    assert!(stats.contains("built"), "{stats}");
+    assert!(
+        stats.contains("node maps") && stats.contains("traced when first read"),
+        "{stats}"
+    );
 }
 
 /// `interleave=1` (one VPL set per pass, no filter) is today's estimator bit for bit: the

@@ -3,12 +3,15 @@
 //! visibility `V_f(n, z)` between node n and a shading point z (eq. 159-161).
 //!
 //! The thesis renders its maps on the GPU; here each texel is one ray cast from the node on
-//! the CPU (rayon over texel rows), storing the distance to the first surface along the
-//! texel's centre direction (a radial depth, not a projective z: no near plane to choose).
-//! The maps depend only on the static geometry, so a node's map is built once, the first time
-//! a VPL maps to it, and kept ([`SkeletonShadowMaps`]). `vpl`'s verification also reads
-//! *receiver* maps, at half the resolution, of the nodes the view's surfaces map to; both
-//! kinds share the memory budget.
+//! the CPU, storing the distance to the first surface along the texel's centre direction (a
+//! radial depth, not a projective z: no near plane to choose). The maps depend only on the
+//! static geometry, so a node's map is made once, the first time a VPL maps to it, and kept
+//! ([`SkeletonShadowMaps`]). `vpl`'s verification also reads *receiver* maps, at half the
+//! resolution, of the nodes the view's surfaces map to; both kinds share the memory budget.
+//! [`SkeletonShadowMaps`] makes every map lazy ([`CubeShadowMap::lazy`]): a texel is traced
+//! when a lookup first reads it, with the depth a whole build gives, so the images are those
+//! of whole maps while a one-second preview pays only for the texels its lookups read (on
+//! the door 29 % of the node and receiver maps' texels; BENCHMARKS.md, issue 36).
 //!
 //! # Memory budget
 //!
@@ -21,7 +24,6 @@
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
-use std::time::Instant;
 
 use rayon::prelude::*;
 
@@ -234,7 +236,6 @@ pub struct ShadowMapStats {
     /// Nodes that carried VPLs but got no map (over the budget): exact rays for their VPLs.
     pub refused: usize,
     pub bytes: u64,
-    pub build_seconds: f64,
 }
 
 /// The shadow maps of the filtered skeleton's nodes, built when a node first carries VPLs.
@@ -300,17 +301,17 @@ impl SkeletonShadowMaps {
         self.skeleton.node_of(si)
     }
 
-    /// Builds the maps of the `nodes` (sorted, distinct) that have none yet, in parallel;
-    /// nodes beyond the budget, in the order given, get None. Deterministic: which nodes
+    /// Makes the (lazy) maps of the `nodes` (sorted, distinct) that have none yet; nodes
+    /// beyond the budget, in the order given, get None. Deterministic: which nodes
     /// get maps depends only on the order in which nodes first carry VPLs.
-    pub fn ensure(&self, scene: &Scene, nodes: &[u32]) {
-        self.ensure_in(&self.maps, self.resolution, scene, nodes);
+    pub fn ensure(&self, nodes: &[u32]) {
+        self.ensure_in(&self.maps, self.resolution, nodes);
     }
 
     /// [`Self::ensure`] for the receiver maps ([`Self::receiver_map`]), within the same
     /// budget.
-    pub fn ensure_receivers(&self, scene: &Scene, nodes: &[u32]) {
-        self.ensure_in(&self.receivers, self.receiver_resolution(), scene, nodes);
+    pub fn ensure_receivers(&self, nodes: &[u32]) {
+        self.ensure_in(&self.receivers, self.receiver_resolution(), nodes);
     }
 
     /// Texels per face edge of a receiver map: half a node's (it only sorts VPLs into seen
@@ -323,7 +324,6 @@ impl SkeletonShadowMaps {
         &self,
         slots: &[OnceLock<Option<Arc<CubeShadowMap>>>],
         resolution: u32,
-        scene: &Scene,
         nodes: &[u32],
     ) {
         let mut stats = self.stats.lock().unwrap_or_else(|e| e.into_inner());
@@ -338,12 +338,8 @@ impl SkeletonShadowMaps {
         let left = self.budget_bytes.saturating_sub(stats.bytes);
         let room = ((left / CubeShadowMap::bytes_for(resolution)) as usize).min(missing.len());
         let (build, refuse) = missing.split_at(room);
-        let started = Instant::now();
-        let built: Vec<CubeShadowMap> = build
-            .par_iter()
-            .map(|&n| CubeShadowMap::build(scene, self.skeleton.positions[n as usize], resolution))
-            .collect();
-        for (&n, map) in build.iter().zip(built) {
+        for &n in build {
+            let map = CubeShadowMap::lazy(self.skeleton.positions[n as usize], resolution);
             stats.bytes += map.memory_bytes();
             let _ = slots[n as usize].set(Some(Arc::new(map)));
         }
@@ -356,7 +352,6 @@ impl SkeletonShadowMaps {
             stats.receiver_maps += build.len();
         }
         stats.refused += refuse.len();
-        stats.build_seconds += started.elapsed().as_secs_f64();
     }
 
     /// Node `node`'s receiver map, None when it has none (not built yet, or over the
@@ -494,41 +489,43 @@ impl SkeletonShadowMaps {
         note
     }
 
-    /// The cost so far, for the render notes.
+    /// The cost so far, for the render notes: the maps made and the texels their lookups
+    /// traced (every map is lazy).
     pub fn cost_note(&self) -> String {
         let s = self.stats();
+        let traced = |slots: &[OnceLock<Option<Arc<CubeShadowMap>>>]| -> u64 {
+            slots
+                .iter()
+                .filter_map(|m| m.get()?.as_ref().map(|m| m.traced_texels()))
+                .sum()
+        };
+        let site_texels: u64 = self
+            .sites
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .values()
+            .flatten()
+            .map(|m| m.traced_texels())
+            .sum();
+        let texels = traced(&self.maps) + traced(&self.receivers) + site_texels;
+        let (r, rr) = (self.resolution as u64, self.receiver_resolution() as u64);
+        let of = 6 * ((s.maps + s.site_maps) as u64 * r * r + s.receiver_maps as u64 * rr * rr);
         let mut note = format!(
-            "skeleton shadow maps: {} built ({}^2 per face){}, {:.2} MB, {:.3} s to build",
+            "skeleton shadow maps: {} node maps ({r}^2 per face){}{}, {texels} of their texels \
+             traced when first read ({:.1} per cent), {:.2} MB",
             s.maps,
-            self.resolution,
             if s.receiver_maps > 0 {
-                format!(
-                    " and {} receiver maps ({}^2)",
-                    s.receiver_maps,
-                    self.receiver_resolution()
-                )
-            } else {
-                String::new()
-            } + &if s.site_maps > 0 {
-                let texels: u64 = self
-                    .sites
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .values()
-                    .flatten()
-                    .map(|m| m.traced_texels())
-                    .sum();
-                format!(
-                    ", {} lazy site maps ({texels} of their texels traced, {:.1} per cent)",
-                    s.site_maps,
-                    100.0 * texels as f64
-                        / (s.site_maps as f64 * 6.0 * (self.resolution as f64).powi(2))
-                )
+                format!(", {} receiver maps ({rr}^2)", s.receiver_maps)
             } else {
                 String::new()
             },
+            if s.site_maps > 0 {
+                format!(", {} site maps", s.site_maps)
+            } else {
+                String::new()
+            },
+            100.0 * texels as f64 / of.max(1) as f64,
             s.bytes as f64 / (1 << 20) as f64,
-            s.build_seconds
         );
         if s.refused > 0 {
             note += &format!(

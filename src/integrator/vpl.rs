@@ -91,9 +91,10 @@
 //! costs 2-3x one with node maps, whose groups are skipped whole (BENCHMARKS.md).
 //!
 //! VPLs mapped to no node, and those of nodes the memory budget left without a map, keep
-//! exact shadow rays. The maps are built when a node first carries VPLs (in
-//! `begin_iteration`, in parallel; their time counts in the render's) and kept for later
-//! passes and renders of the same scene. Chapter 7's visibility clusters are not built
+//! exact shadow rays. The maps are made when a node first carries VPLs (in
+//! `begin_iteration`) and kept for later passes and renders of the same scene; all are lazy
+//! (a texel traced by the lookup that first reads it, in the render's time), so a pass pays
+//! only for the texels its shading points read. Chapter 7's visibility clusters are not built
 //! (`visibility=clusters` is refused): docs/vpl-visibility.md gives the measurements.
 //!
 //! # Importance-driven selection (`select=importance`, the default)
@@ -116,7 +117,12 @@
 //! importance t; `p_min` keeps those lighting no probe (which may still light pixels
 //! between probes or points behind delta surfaces) reachable, at weight at most 1 / p_min.
 //! Candidates too long for any path of `max_depth` are dropped (they light nothing).
-//! `select=uniform` keeps every VPL of `count` subpaths.
+//! `select=uniform` keeps every VPL of `count` subpaths. With skeleton visibility,
+//! `probe_maps=true` reads a probe's visibility of a candidate from the receiver map of the
+//! probe's node where that map is sure (0 or 1), a shadow ray otherwise: the selection's
+//! rays were a fifth to a third of a one-second pass on the door (BENCHMARKS.md). Still
+//! unbiased against the plain estimator (the acceptance probabilities are any function of
+//! the candidates); the map's parallax makes some importances wrong, which costs variance.
 //!
 //! # Interleaved sampling (`interleave=N`; Keller & Heidrich 2001)
 //!
@@ -270,7 +276,7 @@ impl VplVisibility {
 /// `vpl`'s own options (`vpl:count=N:clamp=R:compensate=true|false:visibility=exact|skeleton`,
 /// with skeleton visibility `shadow_res=N:shadow_budget_mb=M:verify=P:sites=K`; the skeleton's `resolution` and
 /// `voxel_budget` are the skeleton guide's options; `select=uniform|importance` with
-/// `candidates=K:p_min=P:probes=N`; `interleave=N`; `light_samples=N`).
+/// `candidates=K:p_min=P:probes=N:probe_maps=true|false`; `interleave=N`; `light_samples=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VplOptions {
     /// Light subpaths per pass; each leaves a VPL at every non-delta surface it reaches.
@@ -300,6 +306,12 @@ pub struct VplOptions {
     /// `select=importance`: about how many camera probe points estimate a candidate's light
     /// (a grid of pixel centres with the image's aspect).
     pub probes: u32,
+    /// `select=importance` with `visibility=skeleton` and `verify` > 0: a probe's shadow ray
+    /// to a candidate is replaced by its node's receiver map read at the candidate where that
+    /// map is sure (reads 0 or 1); a ray where it is unsure or the probe's node has none. The
+    /// importance only sets acceptance probabilities, so the estimator stays unbiased against
+    /// the plain one; a wrong reading raises the variance instead (module docs).
+    pub probe_maps: bool,
     /// Interleaved sampling (module docs): each pass traces `interleave`² VPL sets, pixel
     /// (x, y) gathers set (x mod N, y mod N), and the VPL light is then filtered over N x N
     /// pixel blocks by a geometry-aware filter. 1: one set, no filter.
@@ -327,6 +339,7 @@ impl Default for VplOptions {
             candidates: DEFAULT_CANDIDATES,
             p_min: DEFAULT_P_MIN,
             probes: DEFAULT_PROBES,
+            probe_maps: false,
             interleave: DEFAULT_INTERLEAVE,
             light_samples: DEFAULT_LIGHT_SAMPLES,
             sites: DEFAULT_SITES,
@@ -385,6 +398,13 @@ impl VplOptions {
                 self.probes = value.parse::<u32>().map_err(|_| {
                     Error::invalid(format!(
                         "vpl: probes={value} must be a positive integer (camera probe points)"
+                    ))
+                })?;
+            }
+            "probe_maps" => {
+                self.probe_maps = value.parse::<bool>().map_err(|_| {
+                    Error::invalid(format!(
+                        "vpl: probe_maps={value} must be true or false (probes' visibility from the receiver maps)"
                     ))
                 })?;
             }
@@ -939,12 +959,20 @@ fn probes(scene: &Scene, view: &View, count: u32) -> (Vec<Probe>, u64) {
     (out, rays)
 }
 
-/// VPL `v`'s light at the probes (luminance, exact shadow rays, geometry term capped at
-/// `bound`): the importance of `select=importance`, with the shadow rays it traced.
-fn probe_estimate(scene: &Scene, probes: &[Probe], bound: f32, v: &Vpl) -> (f32, u64) {
+/// VPL `v`'s light at the probes (luminance, geometry term capped at `bound`): the
+/// importance of `select=importance`, with the shadow rays it traced. Visibility by exact
+/// shadow rays, or (`probe_maps`) by the probe's receiver map in `maps` where it reads 0
+/// or 1.
+fn probe_estimate(
+    scene: &Scene,
+    probes: &[Probe],
+    maps: &[Option<&CubeShadowMap>],
+    bound: f32,
+    v: &Vpl,
+) -> (f32, u64) {
     let mut sum = 0.0f32;
     let mut rays = 0u64;
-    for p in probes {
+    for (i, p) in probes.iter().enumerate() {
         let Some(value) = unshadowed(bound, &p.si, &p.bsdf, &p.frame, p.wo_local, v) else {
             continue;
         };
@@ -952,8 +980,15 @@ fn probe_estimate(scene: &Scene, probes: &[Probe], bound: f32, v: &Vpl) -> (f32,
         if !(light > 0.0) {
             continue;
         }
-        rays += 1;
-        if !scene.occluded(&p.si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng)) {
+        let sure = maps.get(i).copied().flatten().and_then(|m| {
+            let f = m.visibility(scene, v.si.p, v.facing);
+            (f == 0.0 || f == 1.0).then_some(f == 1.0)
+        });
+        let visible = sure.unwrap_or_else(|| {
+            rays += 1;
+            !scene.occluded(&p.si.spawn_ray_to(v.si.p, v.si.p_error, v.si.ng))
+        });
+        if visible {
             sum += light;
         }
     }
@@ -1263,7 +1298,7 @@ impl VplIntegrator {
             .collect();
         carrying.sort_unstable();
         carrying.dedup();
-        shadow.ensure(scene, &carrying);
+        shadow.ensure(&carrying);
         let mut keyed: Vec<(u32, Option<Site>, Vpl)> = nodes
             .into_iter()
             .zip(sites)
@@ -1328,7 +1363,7 @@ impl VplIntegrator {
             .collect();
         nodes.sort_unstable();
         nodes.dedup();
-        shadow.ensure_receivers(scene, &nodes);
+        shadow.ensure_receivers(&nodes);
         nodes.retain(|&n| shadow.receiver_map(n).is_some());
         nodes
     }
@@ -1350,9 +1385,18 @@ impl VplIntegrator {
         // A VPL of j segments is gathered at most by the first vertex, as j + 2 segments.
         let longest = self.settings.max_depth.saturating_sub(1);
         vpls.retain(|v| v.path_len <= longest);
+        // `probe_maps`: each probe's receiver map (made before the VPL sets by
+        // `begin_sized_iteration`: those of the view's nodes, a function of view and scene).
+        let maps: Vec<Option<&CubeShadowMap>> = match self.shadow.as_deref() {
+            Some(shadow) if self.options.probe_maps && self.options.verify > 0.0 => probes
+                .iter()
+                .map(|p| shadow.receiver_map(shadow.node_of(&p.si)?))
+                .collect(),
+            _ => Vec::new(),
+        };
         let estimates: Vec<(f32, u64)> = vpls
             .par_iter()
-            .map(|v| probe_estimate(scene, probes, bound, v))
+            .map(|v| probe_estimate(scene, probes, &maps, bound, v))
             .collect();
         let rays = estimates.iter().map(|e| e.1).sum::<u64>();
         let importance: Vec<f32> = estimates.iter().map(|e| e.0).collect();
@@ -1825,6 +1869,10 @@ impl Integrator for VplIntegrator {
             }
             VplSelect::Uniform => (None, 0),
         };
+        // `probe_maps` reads the receiver maps in the selection: made first (the same maps
+        // as after the sets, a function of view and scene; only the budget's order moves).
+        let early_receivers = (self.options.probe_maps && probes.is_some())
+            .then(|| self.ensure_receiver_maps(scene, view));
         // Set k of pass s draws its light subpaths and acceptances as sample index
         // s N² + k (unique per set and pass below 2^32 / N² passes; s itself for N = 1).
         let mut sets = Vec::with_capacity((n * n) as usize);
@@ -1841,7 +1889,8 @@ impl Integrator for VplIntegrator {
             rays += r;
             sets.push(set);
         }
-        let receivers = Arc::new(self.ensure_receiver_maps(scene, view));
+        let receivers =
+            Arc::new(early_receivers.unwrap_or_else(|| self.ensure_receiver_maps(scene, view)));
         for set in &mut sets {
             set.receivers = Arc::clone(&receivers);
         }
