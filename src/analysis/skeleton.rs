@@ -734,6 +734,43 @@ impl NeighbourMasks {
         map_grid_point(grid, map, Some(&self.masks), g, vx, normal, incident, true)
     }
 
+    /// [`Self::map_grid_point_voxel`] of a point whose voxel `vx` lies inside the grid, `k`
+    /// its index: the same voxel. Inside the grid the axis shortcut's neighbour
+    /// ([`axis_shortcut`]) differs from `vx` along one axis only, so it is `k` plus or minus
+    /// that axis's stride after one bounds test, instead of three saturating additions, six
+    /// bounds tests and a new index.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub fn map_inside_grid_point_voxel(
+        &self,
+        grid: &VoxelGrid,
+        map: &[u32],
+        g: [f64; 3],
+        vx: [i64; 3],
+        k: usize,
+        normal: Vec3,
+        incident: Vec3,
+    ) -> Option<usize> {
+        debug_assert_eq!(self.masks.len(), grid.len());
+        debug_assert_eq!(
+            k,
+            grid.index(vx[0] as usize, vx[1] as usize, vx[2] as usize)
+        );
+        if let Some((axis, positive)) = facing_axis(incident_side(normal, incident)) {
+            let [nx, ny, _] = grid.dims;
+            let stride = [1, nx, nx * ny][axis];
+            let neighbour = if positive {
+                (vx[axis] + 1 < grid.dims[axis] as i64).then(|| k + stride)
+            } else {
+                (vx[axis] > 0).then(|| k - stride)
+            };
+            if let Some(j) = neighbour.filter(|&j| map[j] != UNDEFINED_NODE) {
+                return Some(j);
+            }
+        }
+        map_grid_point_beyond_axes(grid, map, Some(&self.masks), g, vx, normal, incident, true)
+    }
+
     pub fn memory_bytes(&self) -> usize {
         self.masks.len() * 4
     }
@@ -860,6 +897,15 @@ fn clearly_facing_offset(n: Vec3) -> Option<[i64; 3]> {
 /// most of the vertices a guided path tracer maps lie on them.
 #[inline]
 fn axis_facing_offset(n: Vec3) -> Option<[i64; 3]> {
+    let (axis, positive) = facing_axis(n)?;
+    let mut offset = [0i64; 3];
+    offset[axis] = if positive { 1 } else { -1 };
+    Some(offset)
+}
+
+/// [`axis_facing_offset`] as the axis and whether the offset along it is +1.
+#[inline(always)]
+fn facing_axis(n: Vec3) -> Option<(usize, bool)> {
     let (axis, value) = if n.y == 0.0 && n.z == 0.0 {
         (0, n.x)
     } else if n.x == 0.0 && n.z == 0.0 {
@@ -872,9 +918,7 @@ fn axis_facing_offset(n: Vec3) -> Option<[i64; 3]> {
     if !(1e-6..=1e6).contains(&value.abs()) {
         return None;
     }
-    let mut offset = [0i64; 3];
-    offset[axis] = if value > 0.0 { 1 } else { -1 };
-    Some(offset)
+    Some((axis, value > 0.0))
 }
 
 /// The mapping of [`map_point`]; with `shortcut`, a mapped neighbour that clearly faces the

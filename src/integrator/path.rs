@@ -67,8 +67,8 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::{
-    estimator, sample_bsdf_or_guide, DirectionGuide, GuideQuery, Pilot, PilotCost, RenderEstimator,
-    SkeletonGuide,
+    estimator, sample_bsdf_or_guide, DirectionGuide, GridPoint, GuideQuery, Pilot, PilotCost,
+    RenderEstimator, SkeletonGuide,
 };
 use crate::light::TriangleSampling;
 use crate::math::FIRST_INTEGRATOR_DIMENSION;
@@ -393,10 +393,7 @@ impl PathTracer {
                             let off = &mut { VertexAlphas::OFF };
                             let estimates = units.estimates(unit, |ray, rng| {
                                 let sample = if k == 1 {
-                                    let guided = &mut SkeletonVertexGuide {
-                                        guide,
-                                        query: &mut query,
-                                    };
+                                    let guided = &mut SkeletonVertexGuide::new(guide, &mut query);
                                     self.trace(scene, ray, rng, counters, guided, off)
                                 } else {
                                     self.trace(scene, ray, rng, counters, &mut Unguided, off)
@@ -699,18 +696,13 @@ impl Integrator for PathTracer {
         };
         THREAD_QUERY.with(|cell| match cell.try_borrow_mut() {
             Ok(mut query) => {
-                let guided = &mut SkeletonVertexGuide {
-                    guide,
-                    query: &mut query,
-                };
+                let guided = &mut SkeletonVertexGuide::new(guide, &mut query);
                 self.sample_with(scene, ray, rng, counters, ctx, guided)
             }
             // Only if a host re-entered the renderer from inside a sample on this thread.
             Err(_) => {
-                let guided = &mut SkeletonVertexGuide {
-                    guide,
-                    query: &mut GuideQuery::new(),
-                };
+                let mut query = GuideQuery::new();
+                let guided = &mut SkeletonVertexGuide::new(guide, &mut query);
                 self.sample_with(scene, ray, rng, counters, ctx, guided)
             }
         })
@@ -902,7 +894,7 @@ pub(super) trait VertexGuide {
     }
     /// Called at every surface hit before its BSDF is built (a guide may start loading what
     /// the vertex will read).
-    fn prefetch(&self, _si: &SurfaceInteraction) {}
+    fn prefetch(&mut self, _si: &SurfaceInteraction) {}
     /// Sets the query up at non-delta vertex `si`, its guiding probability at most `c_max`;
     /// returns the rays it traced.
     fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64;
@@ -947,6 +939,19 @@ impl VertexGuide for Unguided {
 struct SkeletonVertexGuide<'a> {
     guide: &'a SkeletonGuide,
     query: &'a mut GuideQuery,
+    /// The last vertex's place in the guide's grid, found by `prefetch` for `init` (which
+    /// locates the point again if it is another).
+    at: Option<GridPoint>,
+}
+
+impl<'a> SkeletonVertexGuide<'a> {
+    fn new(guide: &'a SkeletonGuide, query: &'a mut GuideQuery) -> Self {
+        SkeletonVertexGuide {
+            guide,
+            query,
+            at: None,
+        }
+    }
 }
 
 impl VertexGuide for SkeletonVertexGuide<'_> {
@@ -955,14 +960,20 @@ impl VertexGuide for SkeletonVertexGuide<'_> {
     fn ratio_max(&self) -> f32 {
         self.guide.ratio_max()
     }
-    fn prefetch(&self, si: &SurfaceInteraction) {
-        self.guide.prefetch(si.p, si.ng, si.wo);
+    fn prefetch(&mut self, si: &SurfaceInteraction) {
+        let at = self.guide.locate(si.p);
+        self.guide.prefetch_at(&at, si.ng, si.wo);
+        self.at = Some(at);
     }
     fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
-        self.query.clear();
+        let at = match self.at {
+            Some(at) if at.point() == si.p => at,
+            _ => self.guide.locate(si.p),
+        };
+        // `init_at` resets the query itself.
         let rays = self
             .query
-            .init(self.guide, scene, si.p, si.p_error, si.ng, si.wo);
+            .init_at(self.guide, scene, &at, si.p_error, si.ng, si.wo);
         self.query.cap_guiding_probability(c_max);
         self.query.prefetch_directions();
         rays as u64
@@ -1017,7 +1028,7 @@ impl VertexGuide for MixtureRecorder<'_> {
     fn ratio_max(&self) -> f32 {
         self.guided.ratio_max()
     }
-    fn prefetch(&self, si: &SurfaceInteraction) {
+    fn prefetch(&mut self, si: &SurfaceInteraction) {
         self.guided.prefetch(si);
     }
     fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
@@ -1075,10 +1086,7 @@ impl PathTracer {
             .map(|c| {
                 let mut query = GuideQuery::new();
                 let mut recorder = MixtureRecorder {
-                    guided: SkeletonVertexGuide {
-                        guide,
-                        query: &mut query,
-                    },
+                    guided: SkeletonVertexGuide::new(guide, &mut query),
                     pending: Vec::new(),
                     samples: Vec::new(),
                 };
