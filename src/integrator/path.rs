@@ -892,12 +892,21 @@ pub(super) trait VertexGuide {
     fn ratio_max(&self) -> f32 {
         f32::INFINITY
     }
+    /// What [`prefetch`](Self::prefetch) found of a vertex that [`init`](Self::init) needs
+    /// too (found once per vertex).
+    type Located: Copy;
     /// Called at every surface hit before its BSDF is built (a guide may start loading what
     /// the vertex will read).
-    fn prefetch(&mut self, _si: &SurfaceInteraction) {}
-    /// Sets the query up at non-delta vertex `si`, its guiding probability at most `c_max`;
-    /// returns the rays it traced.
-    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64;
+    fn prefetch(&self, si: &SurfaceInteraction) -> Self::Located;
+    /// Sets the query up at non-delta vertex `si` (`at` what `prefetch` returned for it), its
+    /// guiding probability at most `c_max`; returns the rays it traced.
+    fn init(
+        &mut self,
+        scene: &Scene,
+        si: &SurfaceInteraction,
+        at: Self::Located,
+        c_max: f32,
+    ) -> u64;
     /// Makes the query unguided (a delta vertex: no mixture with a Dirac lobe has a density).
     fn clear(&mut self);
     fn query(&self) -> &Self::Query;
@@ -918,9 +927,12 @@ pub(super) struct Unguided;
 
 impl VertexGuide for Unguided {
     type Query = GuideQuery;
+    type Located = ();
     const GUIDED: bool = false;
     #[inline]
-    fn init(&mut self, _: &Scene, _: &SurfaceInteraction, _: f32) -> u64 {
+    fn prefetch(&self, _: &SurfaceInteraction) {}
+    #[inline]
+    fn init(&mut self, _: &Scene, _: &SurfaceInteraction, _: (), _: f32) -> u64 {
         0
     }
     #[inline]
@@ -939,37 +951,30 @@ impl VertexGuide for Unguided {
 struct SkeletonVertexGuide<'a> {
     guide: &'a SkeletonGuide,
     query: &'a mut GuideQuery,
-    /// The last vertex's place in the guide's grid, found by `prefetch` for `init` (which
-    /// locates the point again if it is another).
-    at: Option<GridPoint>,
 }
 
 impl<'a> SkeletonVertexGuide<'a> {
     fn new(guide: &'a SkeletonGuide, query: &'a mut GuideQuery) -> Self {
-        SkeletonVertexGuide {
-            guide,
-            query,
-            at: None,
-        }
+        SkeletonVertexGuide { guide, query }
     }
 }
 
 impl VertexGuide for SkeletonVertexGuide<'_> {
     type Query = GuideQuery;
+    /// The vertex's place in the guide's grid.
+    type Located = GridPoint;
     const GUIDED: bool = true;
     fn ratio_max(&self) -> f32 {
         self.guide.ratio_max()
     }
-    fn prefetch(&mut self, si: &SurfaceInteraction) {
+    #[inline]
+    fn prefetch(&self, si: &SurfaceInteraction) -> GridPoint {
         let at = self.guide.locate(si.p);
         self.guide.prefetch_at(&at, si.ng, si.wo);
-        self.at = Some(at);
+        at
     }
-    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
-        let at = match self.at {
-            Some(at) if at.point() == si.p => at,
-            _ => self.guide.locate(si.p),
-        };
+    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, at: GridPoint, c_max: f32) -> u64 {
+        debug_assert!(at.point() == si.p || si.p.is_nan());
         // `init_at` resets the query itself.
         let rays = self
             .query
@@ -1024,15 +1029,16 @@ impl MixtureRecorder<'_> {
 
 impl VertexGuide for MixtureRecorder<'_> {
     type Query = GuideQuery;
+    type Located = GridPoint;
     const GUIDED: bool = true;
     fn ratio_max(&self) -> f32 {
         self.guided.ratio_max()
     }
-    fn prefetch(&mut self, si: &SurfaceInteraction) {
-        self.guided.prefetch(si);
+    fn prefetch(&self, si: &SurfaceInteraction) -> GridPoint {
+        self.guided.prefetch(si)
     }
-    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
-        self.guided.init(scene, si, c_max)
+    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, at: GridPoint, c_max: f32) -> u64 {
+        self.guided.init(scene, si, at, c_max)
     }
     fn clear(&mut self) {
         self.guided.clear();
@@ -1164,7 +1170,7 @@ impl PathTracer {
                 radiance += e;
                 break;
             };
-            guide.prefetch(&si);
+            let located = guide.prefetch(&si);
             if depth == 0 {
                 out.hit = true;
                 out.depth = si.t;
@@ -1207,7 +1213,7 @@ impl PathTracer {
                     } else {
                         f32::INFINITY
                     };
-                    counters.rays += guide.init(scene, &si, c_max);
+                    counters.rays += guide.init(scene, &si, located, c_max);
                 }
             }
             let query = guide.query();
