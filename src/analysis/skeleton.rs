@@ -1528,7 +1528,7 @@ mod tests {
     #[test]
     fn neighbour_masks_map_points_as_the_direct_mapping() {
         let mut rng = crate::math::Rng::new(83, 1);
-        let mut compared = [0usize; 2];
+        let mut compared = [0usize; 3];
         for dims in [[9, 7, 6], [16, 5, 11], [3, 3, 3], [20, 20, 3]] {
             for solid in [0.1f32, 0.5, 0.9] {
                 let grid = VoxelGrid {
@@ -1569,10 +1569,30 @@ mod tests {
                         "dims {dims:?}, solid {solid}, p {p}, n {normal}, w {incident}"
                     );
                     compared[direct.is_some() as usize] += 1;
+                    // Inside the grid, the mapping from the voxel's index too (the axis
+                    // shortcut's single bounds test, voxels on the border included).
+                    let g = grid.to_grid(p);
+                    let vx = crate::analysis::grid::floor3_to_i64(g);
+                    if (0..3).all(|a| vx[a] >= 0 && vx[a] < dims[a] as i64) {
+                        let k = grid.index(vx[0] as usize, vx[1] as usize, vx[2] as usize);
+                        assert_eq!(
+                            masks
+                                .map_inside_grid_point_voxel(
+                                    &grid, &map, g, vx, k, normal, incident
+                                )
+                                .map(|k| map[k]),
+                            direct,
+                            "dims {dims:?}, solid {solid}, p {p}, n {normal}, w {incident}"
+                        );
+                        compared[2] += 1;
+                    }
                 }
             }
         }
-        assert!(compared[0] > 1000 && compared[1] > 10_000, "{compared:?}");
+        assert!(
+            compared[0] > 1000 && compared[1] > 10_000 && compared[2] > 10_000,
+            "{compared:?}"
+        );
     }
 
     #[test]

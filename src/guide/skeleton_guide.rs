@@ -670,13 +670,6 @@ impl SkeletonGuide {
         Some((self.node_map[k], k))
     }
 
-    /// A hint ahead of [`GuideQuery::init`] at point `p` with geometric normal `normal` seen
-    /// from `incident` ([`Self::prefetch_at`] of [`Self::locate`]).
-    #[inline]
-    pub fn prefetch(&self, p: Vec3, normal: Vec3, incident: Vec3) {
-        self.prefetch_at(&self.locate(p), normal, incident);
-    }
-
     /// A hint ahead of [`GuideQuery::init_at`] at point `at` with geometric normal `normal`
     /// seen from `incident`: requests the cache lines the mapping most likely reads (the
     /// voxel's `may_guide` word, and the node map at the neighbour that the normal's dominant
