@@ -734,6 +734,43 @@ impl NeighbourMasks {
         map_grid_point(grid, map, Some(&self.masks), g, vx, normal, incident, true)
     }
 
+    /// [`Self::map_grid_point_voxel`] of a point whose voxel `vx` lies inside the grid, `k`
+    /// its index: the same voxel. Inside the grid the axis shortcut's neighbour
+    /// ([`axis_shortcut`]) differs from `vx` along one axis only, so it is `k` plus or minus
+    /// that axis's stride after one bounds test, instead of three saturating additions, six
+    /// bounds tests and a new index.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub fn map_inside_grid_point_voxel(
+        &self,
+        grid: &VoxelGrid,
+        map: &[u32],
+        g: [f64; 3],
+        vx: [i64; 3],
+        k: usize,
+        normal: Vec3,
+        incident: Vec3,
+    ) -> Option<usize> {
+        debug_assert_eq!(self.masks.len(), grid.len());
+        debug_assert_eq!(
+            k,
+            grid.index(vx[0] as usize, vx[1] as usize, vx[2] as usize)
+        );
+        if let Some((axis, positive)) = facing_axis(incident_side(normal, incident)) {
+            let [nx, ny, _] = grid.dims;
+            let stride = [1, nx, nx * ny][axis];
+            let neighbour = if positive {
+                (vx[axis] + 1 < grid.dims[axis] as i64).then(|| k + stride)
+            } else {
+                (vx[axis] > 0).then(|| k - stride)
+            };
+            if let Some(j) = neighbour.filter(|&j| map[j] != UNDEFINED_NODE) {
+                return Some(j);
+            }
+        }
+        map_grid_point_beyond_axes(grid, map, Some(&self.masks), g, vx, normal, incident, true)
+    }
+
     pub fn memory_bytes(&self) -> usize {
         self.masks.len() * 4
     }
@@ -860,6 +897,15 @@ fn clearly_facing_offset(n: Vec3) -> Option<[i64; 3]> {
 /// most of the vertices a guided path tracer maps lie on them.
 #[inline]
 fn axis_facing_offset(n: Vec3) -> Option<[i64; 3]> {
+    let (axis, positive) = facing_axis(n)?;
+    let mut offset = [0i64; 3];
+    offset[axis] = if positive { 1 } else { -1 };
+    Some(offset)
+}
+
+/// [`axis_facing_offset`] as the axis and whether the offset along it is +1.
+#[inline(always)]
+fn facing_axis(n: Vec3) -> Option<(usize, bool)> {
     let (axis, value) = if n.y == 0.0 && n.z == 0.0 {
         (0, n.x)
     } else if n.x == 0.0 && n.z == 0.0 {
@@ -872,9 +918,7 @@ fn axis_facing_offset(n: Vec3) -> Option<[i64; 3]> {
     if !(1e-6..=1e6).contains(&value.abs()) {
         return None;
     }
-    let mut offset = [0i64; 3];
-    offset[axis] = if value > 0.0 { 1 } else { -1 };
-    Some(offset)
+    Some((axis, value > 0.0))
 }
 
 /// The mapping of [`map_point`]; with `shortcut`, a mapped neighbour that clearly faces the
@@ -1484,7 +1528,7 @@ mod tests {
     #[test]
     fn neighbour_masks_map_points_as_the_direct_mapping() {
         let mut rng = crate::math::Rng::new(83, 1);
-        let mut compared = [0usize; 2];
+        let mut compared = [0usize; 3];
         for dims in [[9, 7, 6], [16, 5, 11], [3, 3, 3], [20, 20, 3]] {
             for solid in [0.1f32, 0.5, 0.9] {
                 let grid = VoxelGrid {
@@ -1525,10 +1569,30 @@ mod tests {
                         "dims {dims:?}, solid {solid}, p {p}, n {normal}, w {incident}"
                     );
                     compared[direct.is_some() as usize] += 1;
+                    // Inside the grid, the mapping from the voxel's index too (the axis
+                    // shortcut's single bounds test, voxels on the border included).
+                    let g = grid.to_grid(p);
+                    let vx = crate::analysis::grid::floor3_to_i64(g);
+                    if (0..3).all(|a| vx[a] >= 0 && vx[a] < dims[a] as i64) {
+                        let k = grid.index(vx[0] as usize, vx[1] as usize, vx[2] as usize);
+                        assert_eq!(
+                            masks
+                                .map_inside_grid_point_voxel(
+                                    &grid, &map, g, vx, k, normal, incident
+                                )
+                                .map(|k| map[k]),
+                            direct,
+                            "dims {dims:?}, solid {solid}, p {p}, n {normal}, w {incident}"
+                        );
+                        compared[2] += 1;
+                    }
                 }
             }
         }
-        assert!(compared[0] > 1000 && compared[1] > 10_000, "{compared:?}");
+        assert!(
+            compared[0] > 1000 && compared[1] > 10_000 && compared[2] > 10_000,
+            "{compared:?}"
+        );
     }
 
     #[test]

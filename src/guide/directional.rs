@@ -63,9 +63,12 @@ const INV_4PI: f32 = 1.0 / (4.0 * std::f32::consts::PI);
 /// The bin of unit direction `w`.
 #[inline]
 pub fn bin_of(w: Vec3) -> usize {
-    let z = ((w.z + 1.0) * 0.5 * Z_BINS as f32) as usize;
+    // `as usize` of the row, through i32 (a shorter conversion than to u64 on x86-64): the
+    // same row for every float, NaN and negatives 0 either way, anything above the last row
+    // clamped to it.
+    let z = ((((w.z + 1.0) * 0.5 * Z_BINS as f32) as i32).max(0) as usize).min(Z_BINS - 1);
     let p = phi_bin_fast(w.x, w.y).unwrap_or_else(|| phi_bin(w.x, w.y));
-    z.min(Z_BINS - 1) * PHI_BINS + p
+    z * PHI_BINS + p
 }
 
 /// The phi column of a direction (x, y, z): `(atan2(y, x) / 2 pi + 0.5) PHI_BINS` rounded
@@ -106,9 +109,10 @@ fn phi_bin_fast(x: f32, y: f32) -> Option<usize> {
     if !(s > PHI_MARGIN && s < PHI_BINS as f32 - PHI_MARGIN) {
         return None;
     }
-    let column = s as usize;
+    // s in (0, PHI_BINS): the truncation through i32 is `as usize`'s, and shorter.
+    let column = s as i32;
     let f = s - column as f32;
-    (f > PHI_MARGIN && f < 1.0 - PHI_MARGIN).then_some(column)
+    (f > PHI_MARGIN && f < 1.0 - PHI_MARGIN).then_some(column as usize)
 }
 
 /// arctan(t) for t in [0, 1], within 2e-5 (Abramowitz and Stegun 4.4.49, |error| <= 1e-5).

@@ -36,7 +36,7 @@ use super::directional::{self, DirectionalTable};
 use super::lobes::MAX_LOBES;
 use super::mixture::pick_lobe;
 use super::settings::{LobeAim, LobeFallback, SkeletonStrength};
-use super::skeleton_guide::SkeletonGuide;
+use super::skeleton_guide::{GridPoint, SkeletonGuide};
 use crate::error::{Error, Result};
 use crate::geometry::{offset_ray_origin, Ray, SHADOW_EPSILON};
 use crate::math::{warp, Frame, Vec2, Vec3};
@@ -312,12 +312,28 @@ impl GuideQuery {
         normal: Vec3,
         wo: Vec3,
     ) -> u32 {
+        self.init_at(guide, scene, &guide.locate(p), p_error, normal, wo)
+    }
+
+    /// [`init`](Self::init) at the point `at` that [`SkeletonGuide::locate`] found (the host
+    /// locates a vertex once, for [`SkeletonGuide::prefetch_at`] and this).
+    #[inline]
+    pub fn init_at(
+        &mut self,
+        guide: &SkeletonGuide,
+        scene: &Scene,
+        at: &GridPoint,
+        p_error: Vec3,
+        normal: Vec3,
+        wo: Vec3,
+    ) -> u32 {
+        let p = at.point();
         self.count = 0;
         self.node = None;
         self.slot = NO_SLOT;
         self.strength = None;
         self.lobe_of = [NOT_ACTIVE; MAX_LOBES];
-        let Some((node, voxel)) = guide.map_guided_point(p, normal, wo) else {
+        let Some((node, voxel)) = guide.map_located(at, normal, wo) else {
             return 0;
         };
         self.node = Some(node);
@@ -346,6 +362,23 @@ impl GuideQuery {
             }
             return 0;
         }
+        self.init_lobes(guide, scene, p, p_error, normal, wo, (node, voxel))
+    }
+
+    /// The lobes of [`init_at`](Self::init_at) at point `p` of `node`, mapped from `voxel`
+    /// (out of line: the learned directions, the default, need none of this).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(never)]
+    fn init_lobes(
+        &mut self,
+        guide: &SkeletonGuide,
+        scene: &Scene,
+        p: Vec3,
+        p_error: Vec3,
+        normal: Vec3,
+        wo: Vec3,
+        (node, voxel): (u32, usize),
+    ) -> u32 {
         let side = if normal.dot(wo) >= 0.0 {
             normal
         } else {

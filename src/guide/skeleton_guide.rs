@@ -140,6 +140,29 @@ fn voxel_sees_bits(target: u32) -> (u32, u32) {
     (1u32 << (2 * target), 1u32 << (2 * target + 1))
 }
 
+/// A surface point's place in the guide's grid ([`SkeletonGuide::locate`]).
+#[derive(Clone, Copy, Debug)]
+pub struct GridPoint {
+    /// The world point located.
+    p: Vec3,
+    /// Continuous grid coordinates (`VoxelGrid::to_grid`).
+    g: [f64; 3],
+    /// The voxel, `floor(g)`; may lie outside the grid.
+    v: [i64; 3],
+    /// The voxel's index where it lies inside the grid, else [`GridPoint::OUTSIDE`].
+    k: usize,
+}
+
+impl GridPoint {
+    const OUTSIDE: usize = usize::MAX;
+
+    /// The world point located.
+    #[inline]
+    pub fn point(&self) -> Vec3 {
+        self.p
+    }
+}
+
 impl SkeletonGuide {
     /// Runs the precomputation (module docs) on the current rayon pool. `progress(stage,
     /// fraction)` is called between stages and may cancel by returning false.
@@ -653,64 +676,96 @@ impl SkeletonGuide {
             .get(self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize))
     }
 
-    /// [`Self::map_point_voxel`] where [`Self::may_guide_at`] allows it, else None; the grid
-    /// coordinates of `p` computed once for both.
-    pub(super) fn map_guided_point(
+    /// Where surface point `p` lies in the grid: its grid coordinates and voxel, worked out
+    /// once per vertex for both [`Self::prefetch_at`] (ahead of the BSDF) and the query's
+    /// mapping ([`GuideQuery::init_at`]).
+    #[inline]
+    pub fn locate(&self, p: Vec3) -> GridPoint {
+        let g = self.grid.to_grid(p);
+        let d = &self.grid_extent;
+        if g[0] >= 0.0 && g[0] < d[0] && g[1] >= 0.0 && g[1] < d[1] && g[2] >= 0.0 && g[2] < d[2] {
+            // Inside the grid (false for NaN) the floor is the truncation (no correction below
+            // zero), and the voxel needs no bounds test.
+            // SAFETY: each g[a] is finite and in [0, dims[a]) (just tested; the dimensions are
+            // far below 2^63), so it truncates to an i64 without saturation: one instruction
+            // per axis instead of `as i64`'s saturation and NaN tests.
+            let v = unsafe {
+                [
+                    g[0].to_int_unchecked::<i64>(),
+                    g[1].to_int_unchecked::<i64>(),
+                    g[2].to_int_unchecked::<i64>(),
+                ]
+            };
+            let k = self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
+            GridPoint { p, g, v, k }
+        } else {
+            let v = crate::analysis::grid::floor3_to_i64(g);
+            GridPoint {
+                p,
+                g,
+                v,
+                k: GridPoint::OUTSIDE,
+            }
+        }
+    }
+
+    /// [`Self::map_point_voxel`] where [`Self::may_guide_at`] allows it, else None: what
+    /// [`GuideQuery::init`] maps a point to.
+    #[cfg(test)]
+    fn map_guided_point(&self, p: Vec3, normal: Vec3, incident: Vec3) -> Option<(u32, usize)> {
+        self.map_located(&self.locate(p), normal, incident)
+    }
+
+    /// [`Self::map_guided_point`] of a point `at` [`Self::locate`] found.
+    #[inline]
+    pub(super) fn map_located(
         &self,
-        p: Vec3,
+        at: &GridPoint,
         normal: Vec3,
         incident: Vec3,
     ) -> Option<(u32, usize)> {
-        let g = self.grid.to_grid(p);
-        let d = &self.grid_extent;
-        let v = if g[0] >= 0.0
-            && g[0] < d[0]
-            && g[1] >= 0.0
-            && g[1] < d[1]
-            && g[2] >= 0.0
-            && g[2] < d[2]
-        {
-            // Inside the grid (false for NaN) the floor is the truncation (no saturation, no
-            // correction below zero), and the voxel needs no bounds test.
-            // (`as i64`: one instruction, where `as usize` tests for values above 2^63.)
-            let v = [g[0] as i64, g[1] as i64, g[2] as i64];
-            let k = self.grid.index(v[0] as usize, v[1] as usize, v[2] as usize);
-            if !self.may_guide.is_empty() && !self.may_guide.get(k) {
+        let k = if at.k != GridPoint::OUTSIDE {
+            if !self.may_guide.is_empty() && !self.may_guide.get(at.k) {
                 return None;
             }
-            v
+            self.neighbours.map_inside_grid_point_voxel(
+                &self.grid,
+                &self.node_map,
+                at.g,
+                at.v,
+                at.k,
+                normal,
+                incident,
+            )
         } else {
-            let v = crate::analysis::grid::floor3_to_i64(g);
-            if !self.may_guide_in(v) {
+            if !self.may_guide_in(at.v) {
                 return None;
             }
-            v
-        };
-        self.neighbours
-            .map_grid_point_voxel(&self.grid, &self.node_map, g, v, normal, incident)
-            .map(|k| (self.node_map[k], k))
+            self.neighbours.map_grid_point_voxel(
+                &self.grid,
+                &self.node_map,
+                at.g,
+                at.v,
+                normal,
+                incident,
+            )
+        }?;
+        Some((self.node_map[k], k))
     }
 
-    /// A hint ahead of [`GuideQuery::init`] at point `p` with geometric normal `normal` seen
-    /// from `incident`: requests the cache lines the mapping most likely reads (the voxel's
-    /// `may_guide` word, and the node map at the neighbour that the normal's dominant axis
-    /// faces: the facing shortcut's voxel on walls, floors and ceilings), so that their misses
-    /// overlap the work between the ray's hit and the query (the BSDF's texture lookups)
-    /// instead of stalling it: they are the guided vertex's largest stalls in a wall-time
-    /// profile. No effect on any result.
+    /// A hint ahead of [`GuideQuery::init_at`] at point `at` with geometric normal `normal`
+    /// seen from `incident`: requests the cache lines the mapping most likely reads (the
+    /// voxel's `may_guide` word, and the node map at the neighbour that the normal's dominant
+    /// axis faces: the facing shortcut's voxel on walls, floors and ceilings), so that their
+    /// misses overlap the work between the ray's hit and the query (the BSDF's texture
+    /// lookups) instead of stalling it: they are the guided vertex's largest stalls in a
+    /// wall-time profile. No effect on any result.
     #[inline]
-    pub fn prefetch(&self, p: Vec3, normal: Vec3, incident: Vec3) {
-        let g = self.grid.to_grid(p);
-        let d = &self.grid_extent;
-        if !(g[0] >= 0.0 && g[0] < d[0] && g[1] >= 0.0 && g[1] < d[1] && g[2] >= 0.0 && g[2] < d[2])
-        {
+    pub fn prefetch_at(&self, at: &GridPoint, normal: Vec3, incident: Vec3) {
+        let k = at.k;
+        if k == GridPoint::OUTSIDE {
             return;
         }
-        let k = self.grid.index(
-            g[0] as i64 as usize,
-            g[1] as i64 as usize,
-            g[2] as i64 as usize,
-        );
         self.may_guide.prefetch(k);
         let n = if normal.dot(incident) >= 0.0 {
             normal

@@ -69,8 +69,8 @@ use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
 use crate::guide::{
-    estimator, sample_bsdf_or_guide, DirectionGuide, GuideQuery, Pilot, PilotCost, RenderEstimator,
-    SkeletonGuide,
+    estimator, sample_bsdf_or_guide, DirectionGuide, GridPoint, GuideQuery, Pilot, PilotCost,
+    RenderEstimator, SkeletonGuide,
 };
 use crate::light::TriangleSampling;
 use crate::math::FIRST_INTEGRATOR_DIMENSION;
@@ -406,10 +406,7 @@ impl PathTracer {
                             let off = &mut { VertexAlphas::OFF };
                             let estimates = units.estimates(unit, |ray, rng| {
                                 let sample = if k == 1 {
-                                    let guided = &mut SkeletonVertexGuide {
-                                        guide,
-                                        query: &mut query,
-                                    };
+                                    let guided = &mut SkeletonVertexGuide::new(guide, &mut query);
                                     self.trace(scene, ray, rng, counters, guided, off)
                                 } else {
                                     self.trace(scene, ray, rng, counters, &mut Unguided, off)
@@ -743,18 +740,13 @@ impl Integrator for PathTracer {
         };
         THREAD_QUERY.with(|cell| match cell.try_borrow_mut() {
             Ok(mut query) => {
-                let guided = &mut SkeletonVertexGuide {
-                    guide,
-                    query: &mut query,
-                };
+                let guided = &mut SkeletonVertexGuide::new(guide, &mut query);
                 self.sample_with(scene, ray, rng, counters, ctx, guided)
             }
             // Only if a host re-entered the renderer from inside a sample on this thread.
             Err(_) => {
-                let guided = &mut SkeletonVertexGuide {
-                    guide,
-                    query: &mut GuideQuery::new(),
-                };
+                let mut query = GuideQuery::new();
+                let guided = &mut SkeletonVertexGuide::new(guide, &mut query);
                 self.sample_with(scene, ray, rng, counters, ctx, guided)
             }
         })
@@ -944,12 +936,21 @@ pub(super) trait VertexGuide {
     fn ratio_max(&self) -> f32 {
         f32::INFINITY
     }
+    /// What [`prefetch`](Self::prefetch) found of a vertex that [`init`](Self::init) needs
+    /// too (found once per vertex).
+    type Located: Copy;
     /// Called at every surface hit before its BSDF is built (a guide may start loading what
     /// the vertex will read).
-    fn prefetch(&self, _si: &SurfaceInteraction) {}
-    /// Sets the query up at non-delta vertex `si`, its guiding probability at most `c_max`;
-    /// returns the rays it traced.
-    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64;
+    fn prefetch(&self, si: &SurfaceInteraction) -> Self::Located;
+    /// Sets the query up at non-delta vertex `si` (`at` what `prefetch` returned for it), its
+    /// guiding probability at most `c_max`; returns the rays it traced.
+    fn init(
+        &mut self,
+        scene: &Scene,
+        si: &SurfaceInteraction,
+        at: Self::Located,
+        c_max: f32,
+    ) -> u64;
     /// Makes the query unguided (a delta vertex: no mixture with a Dirac lobe has a density).
     fn clear(&mut self);
     fn query(&self) -> &Self::Query;
@@ -970,9 +971,12 @@ pub(super) struct Unguided;
 
 impl VertexGuide for Unguided {
     type Query = GuideQuery;
+    type Located = ();
     const GUIDED: bool = false;
     #[inline]
-    fn init(&mut self, _: &Scene, _: &SurfaceInteraction, _: f32) -> u64 {
+    fn prefetch(&self, _: &SurfaceInteraction) {}
+    #[inline]
+    fn init(&mut self, _: &Scene, _: &SurfaceInteraction, _: (), _: f32) -> u64 {
         0
     }
     #[inline]
@@ -993,20 +997,32 @@ struct SkeletonVertexGuide<'a> {
     query: &'a mut GuideQuery,
 }
 
+impl<'a> SkeletonVertexGuide<'a> {
+    fn new(guide: &'a SkeletonGuide, query: &'a mut GuideQuery) -> Self {
+        SkeletonVertexGuide { guide, query }
+    }
+}
+
 impl VertexGuide for SkeletonVertexGuide<'_> {
     type Query = GuideQuery;
+    /// The vertex's place in the guide's grid.
+    type Located = GridPoint;
     const GUIDED: bool = true;
     fn ratio_max(&self) -> f32 {
         self.guide.ratio_max()
     }
-    fn prefetch(&self, si: &SurfaceInteraction) {
-        self.guide.prefetch(si.p, si.ng, si.wo);
+    #[inline]
+    fn prefetch(&self, si: &SurfaceInteraction) -> GridPoint {
+        let at = self.guide.locate(si.p);
+        self.guide.prefetch_at(&at, si.ng, si.wo);
+        at
     }
-    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
-        self.query.clear();
+    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, at: GridPoint, c_max: f32) -> u64 {
+        debug_assert!(at.point() == si.p || si.p.is_nan());
+        // `init_at` resets the query itself.
         let rays = self
             .query
-            .init(self.guide, scene, si.p, si.p_error, si.ng, si.wo);
+            .init_at(self.guide, scene, &at, si.p_error, si.ng, si.wo);
         self.query.cap_guiding_probability(c_max);
         self.query.prefetch_directions();
         rays as u64
@@ -1057,15 +1073,16 @@ impl MixtureRecorder<'_> {
 
 impl VertexGuide for MixtureRecorder<'_> {
     type Query = GuideQuery;
+    type Located = GridPoint;
     const GUIDED: bool = true;
     fn ratio_max(&self) -> f32 {
         self.guided.ratio_max()
     }
-    fn prefetch(&self, si: &SurfaceInteraction) {
-        self.guided.prefetch(si);
+    fn prefetch(&self, si: &SurfaceInteraction) -> GridPoint {
+        self.guided.prefetch(si)
     }
-    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
-        self.guided.init(scene, si, c_max)
+    fn init(&mut self, scene: &Scene, si: &SurfaceInteraction, at: GridPoint, c_max: f32) -> u64 {
+        self.guided.init(scene, si, at, c_max)
     }
     fn clear(&mut self) {
         self.guided.clear();
@@ -1119,10 +1136,7 @@ impl PathTracer {
             .map(|c| {
                 let mut query = GuideQuery::new();
                 let mut recorder = MixtureRecorder {
-                    guided: SkeletonVertexGuide {
-                        guide,
-                        query: &mut query,
-                    },
+                    guided: SkeletonVertexGuide::new(guide, &mut query),
                     pending: Vec::new(),
                     samples: Vec::new(),
                 };
@@ -1200,7 +1214,7 @@ impl PathTracer {
                 radiance += e;
                 break;
             };
-            guide.prefetch(&si);
+            let located = guide.prefetch(&si);
             if depth == 0 {
                 out.hit = true;
                 out.depth = si.t;
@@ -1243,7 +1257,7 @@ impl PathTracer {
                     } else {
                         f32::INFINITY
                     };
-                    counters.rays += guide.init(scene, &si, c_max);
+                    counters.rays += guide.init(scene, &si, located, c_max);
                 }
             }
             let query = guide.query();

@@ -64,11 +64,13 @@ struct PortalVertexGuide<'a> {
 
 impl VertexGuide for PortalVertexGuide<'_> {
     type Query = PortalQuery;
+    type Located = ();
     const GUIDED: bool = true;
     fn ratio_max(&self) -> f32 {
         self.guide.settings().ratio_max
     }
-    fn init(&mut self, _: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
+    fn prefetch(&self, _: &SurfaceInteraction) {}
+    fn init(&mut self, _: &Scene, si: &SurfaceInteraction, _: (), c_max: f32) -> u64 {
         self.guide.init_query(self.query, si.p, si.facing_normal());
         self.query.cap_guiding_probability(c_max);
         0
@@ -89,11 +91,13 @@ struct FaceVertexGuide<'a> {
 
 impl<'a> VertexGuide for FaceVertexGuide<'a> {
     type Query = FaceQuery<'a>;
+    type Located = ();
     const GUIDED: bool = true;
     fn ratio_max(&self) -> f32 {
         self.guide.settings().ratio_max
     }
-    fn init(&mut self, _: &Scene, si: &SurfaceInteraction, c_max: f32) -> u64 {
+    fn prefetch(&self, _: &SurfaceInteraction) {}
+    fn init(&mut self, _: &Scene, si: &SurfaceInteraction, _: (), c_max: f32) -> u64 {
         self.guide
             .init_face_query(&mut self.query, si.p, si.facing_normal());
         self.query.cap_guiding_probability(c_max);
