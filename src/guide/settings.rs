@@ -199,7 +199,7 @@ pub struct SkeletonGuideSettings {
     pub pilot_sigmas: f64,
     /// `scout_pilot=on` (the default) or `off`: where the scout's choices guide some node,
     /// `path_skeleton` runs its pilot on the scout's guide too, and skips the full training
-    /// where that guide reads a loss (`guide::training`, "The scout").
+    /// unless that guide shows a gain at one standard error (`guide::training`, "The scout").
     pub scout_pilot: bool,
     /// Camera paths of the training pass (`training_paths`).
     pub training_paths: u32,

@@ -49,7 +49,7 @@
 //! raised by two of its standard errors (`Pilot::pays`, [`crate::guide::PILOT_SIGMAS`]),
 //! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The same pilot
 //! runs first on the guide the training's scout learned (`guide::training`, "The scout"):
-//! where that guide reads a loss, the full training is skipped. The pilot's random
+//! unless that guide shows a gain at one standard error, the full training is skipped. The pilot's random
 //! numbers are its own (its own seeds), so the render stays unbiased whatever the verdict; with
 //! `pilot_cost=work` the verdict is also a deterministic function of the scene (chunk sums
 //! combined in chunk order), with `time` it may differ between runs where the efficiency is
@@ -547,7 +547,7 @@ impl Integrator for PathTracer {
         let scout_check = |scout_guide: &SkeletonGuide| {
             let pilot = self.pilot(scene, camera, scout_guide);
             scout_pilot.set(pilot);
-            pilot.is_none_or(|p| p.may_pay_after_training())
+            pilot.map_or(true, |p| p.may_pay_after_training())
         };
         let mut guide = SkeletonGuide::build_with_scout_check(
             scene,
@@ -603,15 +603,16 @@ impl Integrator for PathTracer {
         notes.extend(mixture_note);
         if let Some(p) = scout_pilot {
             notes.push(format!(
-                "pilot on the scout's guide: variance {:.3}x (relative error {:.2}), cost {:.3}x, efficiency {:.3}x{}",
+                "pilot on the scout's guide: variance {:.3}x (relative error {:.2}), cost {:.3}x, efficiency {:.3}x (bound {:.3}x){}",
                 p.variance_ratio(),
                 p.variance_error,
                 p.cost_ratio,
                 p.efficiency(),
+                p.scout_efficiency_bound(),
                 if p.may_pay_after_training() {
                     ""
                 } else {
-                    ": a clear loss, no full training, nothing guided"
+                    ": no clear gain, no full training, nothing guided"
                 }
             ));
         }

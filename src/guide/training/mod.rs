@@ -77,12 +77,11 @@
 //!
 //! Where the scout's choices guide some node, `path_skeleton` (`scout_pilot=on`, the default)
 //! runs its pilot (`integrator::path`, "The pilot") on the scout's guide before going on
-//! ([`super::SkeletonGuide::build_with_scout_check`]). If that guide reads a loss at the
-//! pilot's point estimate ([`Pilot::may_pay_after_training`]: efficiency below 1), the
-//! training stops there and nothing is guided. The final verdict asks for a 10 % gain with the
-//! variance ratio raised by two standard errors, an efficiency of about 1.5-2 at the point
-//! estimate, which the guide from eight times the paths would have to reach from below 1. Else
-//! the full training goes on from the scout's state exactly.
+//! ([`super::SkeletonGuide::build_with_scout_check`]). Unless that guide shows a gain with
+//! the variance ratio raised by one standard error ([`Pilot::may_pay_after_training`]), the
+//! training stops there and nothing is guided. The final verdict asks more of the full guide:
+//! a 10 % gain with the variance ratio raised by two standard errors, an efficiency of about
+//! 1.5-2 at the point estimate. Else the full training goes on from the scout's state exactly.
 //!
 //! # The path-level prediction
 //!
@@ -319,10 +318,17 @@ impl Pilot {
     }
 
     /// The verdict on a guide trained on the scout's paths alone (`guide::training`, "The
-    /// scout"): whether the full training may still make it pay. False where the scout's
-    /// guide reads a loss at the point estimate.
+    /// scout"): whether the full training may still make it pay. False unless the scout's
+    /// guide shows a gain (efficiency above 1) with the variance ratio raised by half the
+    /// final verdict's standard errors (one by default; `pilot_sigmas=0`: the point estimate).
     pub fn may_pay_after_training(&self) -> bool {
-        self.efficiency() >= 1.0
+        self.scout_efficiency_bound() > 1.0
+    }
+
+    /// The efficiency that [`Pilot::may_pay_after_training`] judges: the variance ratio
+    /// raised by half of `sigmas` of its relative standard errors.
+    pub fn scout_efficiency_bound(&self) -> f64 {
+        self.efficiency() / (1.0 + 0.5 * self.sigmas * self.variance_error)
     }
 }
 
