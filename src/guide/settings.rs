@@ -931,6 +931,7 @@ mod tests {
             ("training_significance", "nan"),
             ("training_min_nonzero", "-1"),
             ("cost_model", "seconds"),
+            ("scout_pilot", "yes"),
         ] {
             let before = s;
             assert!(s.set(key, bad).is_err(), "{key}={bad}");
@@ -951,6 +952,12 @@ mod tests {
             CostModel::Paths
         );
         assert!(OPTION_NAMES.contains(&"cost_model"));
+        assert!(SkeletonGuideSettings::default().scout_pilot);
+        s.set("scout_pilot", "off").unwrap();
+        assert!(!s.scout_pilot);
+        s.set("scout_pilot", "on").unwrap();
+        assert!(s.scout_pilot);
+        assert!(OPTION_NAMES.contains(&"scout_pilot"));
     }
 
     #[test]

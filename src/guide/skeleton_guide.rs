@@ -178,7 +178,7 @@ impl SkeletonGuide {
     /// [`SkeletonGuide::build`], with a look at the guide trained on the scout's paths alone
     /// where the scout's choices guide some node (`guide::training`, "The scout"): if
     /// `scout_check` returns false, the training stops there and nothing is guided, so a
-    /// scene where even that guide clearly loses does not pay for the full training.
+    /// scene where that guide shows no gain does not pay for the full training.
     /// `path_skeleton` runs its pilot there. The full training goes on from the scout's state
     /// exactly (the check's changes to the guide, its visibility cache included, are undone),
     /// so a scene that goes on learns what it would have learned without the check.

@@ -49,11 +49,11 @@
 //! raised by two of its standard errors (`Pilot::pays`, [`crate::guide::PILOT_SIGMAS`]),
 //! every node is set to c = 0 and `path_skeleton` traces `path`'s samples. The same pilot
 //! runs first on the guide the training's scout learned (`guide::training`, "The scout"):
-//! unless that guide shows a gain at one standard error, the full training is skipped. The pilot's random
-//! numbers are its own (its own seeds), so the render stays unbiased whatever the verdict; with
-//! `pilot_cost=work` the verdict is also a deterministic function of the scene (chunk sums
-//! combined in chunk order), with `time` it may differ between runs where the efficiency is
-//! near the margin.
+//! unless that guide shows a gain at one standard error, the full training is skipped. The
+//! pilot's random numbers are its own (its own seeds), so the render stays unbiased whatever
+//! the verdict; with `pilot_cost=work` the verdict is also a deterministic function of the
+//! scene (chunk sums combined in chunk order), with `time` it may differ between runs where
+//! the efficiency is near the margin.
 
 use std::cell::RefCell;
 use std::sync::Arc;
@@ -541,8 +541,8 @@ impl Integrator for PathTracer {
         let mut skeleton = self.settings.skeleton;
         skeleton.render_estimator = self.estimator();
         skeleton.time_budget = self.time_budget;
-        // The pilot on the scout's guide ("The pilot"): a scene where even it reads a clear
-        // loss skips the full training.
+        // The pilot on the scout's guide ("The pilot"): unless that guide shows a gain, the
+        // full training is skipped.
         let scout_pilot = std::cell::Cell::new(None);
         let scout_check = |scout_guide: &SkeletonGuide| {
             let pilot = self.pilot(scene, camera, scout_guide);
