@@ -27,7 +27,8 @@ pub struct Reference {
     pub noise: ImageErrors,
 }
 
-/// Renders a reference as two independent halves (seeds `seed` and `seed + 1`) and averages them.
+/// Renders a reference as two independent halves (seeds [`reference_half_seeds`]) and
+/// averages them.
 pub fn render_reference(
     scene: &Scene,
     camera: &Camera,
@@ -41,9 +42,11 @@ pub fn render_reference(
         ));
     }
     let cancel = AtomicBool::new(false);
+    let [first_seed, second_seed] = reference_half_seeds(settings.seed);
     let half = RenderSettings {
         spp: settings.spp / 2,
         time_limit: None,
+        seed: first_seed,
         ..settings.clone()
     };
     let half_progress = |offset: f64| {
@@ -63,7 +66,7 @@ pub fn render_reference(
         &cancel,
     )?;
     let second = RenderSettings {
-        seed: settings.seed.wrapping_add(1),
+        seed: second_seed,
         ..half.clone()
     };
     let (b, stats_b) = render(
@@ -541,10 +544,18 @@ fn run_contender(
     })
 }
 
-/// Seed of run `run` of contender `contender`. Derived through a hash, not as `seed + k`:
-/// a reference renders its halves with `seed` and `seed + 1`, and a comparison run that reused
-/// one of those seeds with the same integrator would replay the reference's own samples (same
-/// per-pixel, per-sample random numbers), so its error would be underestimated.
+/// Seeds of a reference's two halves, derived from its `seed` through a hash. A render with
+/// the seed of one half and the same integrator replays that half's samples (the same
+/// per-pixel, per-sample random numbers), so its error against the reference would be
+/// underestimated; with halves at `seed` and `seed + 1`, `lacuna render` and `lacuna
+/// reference` with their default seed 0 did exactly that. A hashed seed is one no user picks.
+pub fn reference_half_seeds(seed: u64) -> [u64; 2] {
+    const REFERENCE_DOMAIN: u64 = 0x2EF0_2E9C_E5EE_D5A1;
+    [0u64, 1].map(|half| crate::math::mix64(seed ^ REFERENCE_DOMAIN ^ half))
+}
+
+/// Seed of run `run` of contender `contender`, derived through a hash, so that no run replays
+/// a reference's half ([`reference_half_seeds`]) or another run.
 pub fn run_seed(seed: u64, run: u32, contender: usize) -> u64 {
     const COMPARE_DOMAIN: u64 = 0xC0DE_C0A5_E5EE_D5ED;
     crate::math::mix64(seed ^ COMPARE_DOMAIN)
@@ -710,15 +721,31 @@ mod tests {
     }
 
     #[test]
+    fn reference_halves_are_no_seed_a_user_renders_with() {
+        // `lacuna render --seed N` for small N (0 is the default of both commands) must not
+        // replay either half of a reference made with any small seed.
+        let user_seeds: std::collections::HashSet<u64> = (0..=10_000).collect();
+        for s in 0..=1_000u64 {
+            let [a, b] = reference_half_seeds(s);
+            assert!(a != b, "seed {s}: both halves have one seed");
+            assert!(
+                !user_seeds.contains(&a) && !user_seeds.contains(&b),
+                "seed {s}: a half renders with a small seed"
+            );
+        }
+    }
+
+    #[test]
     fn run_seeds_never_replay_a_reference() {
-        // A reference made with seed s uses s and s + 1; no comparison run may use either, and
-        // runs and contenders must not share seeds among themselves.
+        // No comparison run may use a reference's half seed, and runs and contenders must not
+        // share seeds among themselves.
         for s in [0u64, 1, 2, 41, 999, 1000, u64::MAX] {
+            let halves = reference_half_seeds(s);
             let mut seen = std::collections::HashSet::new();
             for run in 0..8 {
                 for c in 0..8 {
                     let r = run_seed(s, run, c);
-                    assert!(r != s && r != s.wrapping_add(1), "seed {s} run {run} c {c}");
+                    assert!(!halves.contains(&r), "seed {s} run {run} c {c}");
                     assert!(
                         seen.insert(r),
                         "seed {s}: run {run} contender {c} repeats a seed"
