@@ -17,7 +17,7 @@
 //!
 //! A map of `R` texels per face edge holds up to `6 R^2` f32 depths (the thesis: 128, about
 //! 400 kB), stored in tiles of 8^2 texels allocated when a lookup first reads one of their
-//! texels: a lazy map holds the tiles its lookups read (on the door a site map a fifth of
+//! texels: a lazy map holds the tiles its lookups read (on the door a site map a sixth of
 //! its tiles, BENCHMARKS.md, issue 36) and a table of its tiles. The budget counts what the
 //! maps hold. The resolution is planned for the worst case, every filtered node mapped and
 //! every tile allocated: it is halved (not below [`MIN_SHADOW_RESOLUTION`]) until that
