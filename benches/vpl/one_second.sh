@@ -2,7 +2,9 @@
 # Issue 36, task p36g: skeleton visibility at 1 s with lazy maps and `probe_maps=true`, against
 # `path` at 10 s (2 runs) in the same session, on the door, the ajar door and the two rooms.
 # ./benches/vpl/one_second.sh OUTDIR. References (bdpt 1024 spp, 128x96, max depth 6): DOOR_REF,
-# AJAR_REF and TWO_ROOMS_REF override refs/door.exr, refs/ajar.exr and refs/two-rooms.exr.
+# AJAR_REF and TWO_ROOMS_REF override refs/door.exr, refs/ajar.exr and refs/two-rooms.exr, made by
+#   lacuna reference SCENE --width 128 --height 96 --max-depth 6 --integrator bdpt --spp 1024 --out REF
+# INTEGRATORS (a comma-separated contender list) overrides the 1-s contenders below.
 set -e
 cd "$(dirname "$0")/../.."
 L=target/release/lacuna
@@ -10,7 +12,7 @@ O=${1:-q36g}
 mkdir -p "$O"
 K=vpl:visibility=skeleton
 C=compensate=true:interleave=4:light_samples=8
-V=$K,$K:probe_maps=true,$K:$C,$K:$C:probe_maps=true,$K:sites=8:$C,$K:sites=8:$C:probe_maps=true,$K:sites=16:$C:probe_maps=true
+V=${INTEGRATORS:-$K,$K:probe_maps=true,$K:$C,$K:$C:probe_maps=true,$K:sites=8:$C,$K:sites=8:$C:probe_maps=true,$K:sites=16:$C:probe_maps=true}
 A="--width 128 --height 96 --max-depth 6"
 log() { echo "$(date -u +%H:%M:%S) load $(cut -d' ' -f1-3 /proc/loadavg) $*" | tee -a "$O/log"; }
 for sc in door ajar two-rooms; do

@@ -15,11 +15,18 @@
 //!
 //! # Memory budget
 //!
-//! A map of `R` texels per face edge holds `6 R^2` f32 depths (the thesis: 128, about 400 kB).
-//! The budget is spent on the worst case, every filtered node mapped: the resolution is halved
-//! (not below [`MIN_SHADOW_RESOLUTION`]) until that fits; if even the smallest maps do not all
-//! fit, the first nodes to carry VPLs get maps up to the budget and the VPLs of the others
-//! keep exact shadow rays. The render notes say which happened.
+//! A map of `R` texels per face edge holds up to `6 R^2` f32 depths (the thesis: 128, about
+//! 400 kB), stored in tiles of 8^2 texels allocated when a lookup first reads one of their
+//! texels: a lazy map holds the tiles its lookups read (on the door a site map a sixth of
+//! its tiles, BENCHMARKS.md, issue 36) and a table of its tiles. The budget counts what the
+//! maps hold. The resolution is planned for the worst case, every filtered node mapped and
+//! every tile allocated: it is halved (not below [`MIN_SHADOW_RESOLUTION`]) until that
+//! fits. A new map is made only while the budget has room for it whole (so that its tiles
+//! fit), in the order nodes and sites first carry VPLs; the VPLs of those refused keep exact
+//! shadow rays. A tile the budget has no room for is not stored: its texels are traced at
+//! every read (the same depths). Which maps are made is thus a function of the passes alone
+//! (tiles are of one size, so the bytes held after a pass do not depend on which thread
+//! asked first). The render notes say what happened.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
@@ -44,17 +51,74 @@ const MAX_SLOPE: f32 = 2.0;
 /// Relative depth tolerance for rounding and the surface's own thickness in f32.
 const RELATIVE_EPSILON: f32 = 1e-3;
 
-/// One node's cube shadow map: six faces of `resolution`^2 radial depths.
+/// Texels per edge of a map's storage tile. A tile is allocated when a lookup first reads one
+/// of its texels, so a lazy map holds about what its lookups read (a 3x3 PCF kernel falls in
+/// one to four tiles), not its `6 R^2` texels.
+const TILE_EDGE: usize = 8;
+const TILE_TEXELS: usize = TILE_EDGE * TILE_EDGE;
+/// A tile's texels, row-major: the f32 bits of their depths, [`UNTRACED`] where not traced
+/// yet.
+type Tile = [AtomicU32; TILE_TEXELS];
+/// A tile's place in its map: unset until one of its texels is first read, then the tile, or
+/// None when the memory budget had no room for it (its texels are then traced at every read:
+/// the same depths, at a ray per read).
+type TileSlot = OnceLock<Option<Box<Tile>>>;
+const TILE_BYTES: u64 = std::mem::size_of::<Tile>() as u64;
+
+/// The memory of the maps that share a budget (their tile tables and their tiles), with its
+/// limit: tiles are allocated by the render threads, so the count is atomic.
+pub struct MapMemory {
+    limit: u64,
+    used: AtomicU64,
+}
+
+impl MapMemory {
+    pub fn new(limit: u64) -> Self {
+        MapMemory {
+            limit,
+            used: AtomicU64::new(0),
+        }
+    }
+
+    /// Bytes held.
+    pub fn used(&self) -> u64 {
+        self.used.load(Ordering::Relaxed)
+    }
+
+    /// Bytes left below the limit.
+    pub fn left(&self) -> u64 {
+        self.limit.saturating_sub(self.used())
+    }
+
+    /// Counts `bytes` if they fit below the limit. All tiles have one size, so the bytes held
+    /// after a pass are the same whichever threads asked first.
+    fn try_reserve(&self, bytes: u64) -> bool {
+        self.used
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |u| {
+                (u + bytes <= self.limit).then_some(u + bytes)
+            })
+            .is_ok()
+    }
+}
+
+/// One node's cube shadow map: six faces of `resolution`^2 radial depths, stored in tiles of
+/// [`TILE_EDGE`]^2 texels allocated as lookups first read them.
 pub struct CubeShadowMap {
     centre: Vec3,
     resolution: u32,
-    /// The f32 bits of each texel's depth, face-major, then row (v), then column (u);
-    /// `f32::INFINITY` where the ray left the scene, [`UNTRACED`] where a lazy map
-    /// ([`Self::lazy`]) has not traced the texel yet. A texel's depth is a function of the
-    /// map's centre and the texel alone, so threads that trace it at once store the same.
-    depth: Vec<AtomicU32>,
-    /// Texels a lazy map has traced.
+    /// Tiles per face edge (the last row and column may hang over the face).
+    tiles_per_edge: usize,
+    /// The tiles, face-major, then row, then column. A texel holds `f32::INFINITY` where the
+    /// ray left the scene. A texel's depth is a function of the map's centre and the texel
+    /// alone, so threads that trace it at once store the same.
+    tiles: Box<[TileSlot]>,
+    /// Texels traced and stored (a map built whole counts none).
     traced: AtomicU64,
+    /// Texel rays traced for tiles the budget had no room for.
+    untiled: AtomicU64,
+    /// Tiles allocated.
+    stored_tiles: AtomicU64,
+    memory: Arc<MapMemory>,
 }
 
 /// The bits of a texel not traced yet: a NaN no ray's distance gives.
@@ -93,38 +157,63 @@ fn face_direction(face: usize, u: f32, v: f32) -> Vec3 {
 }
 
 impl CubeShadowMap {
-    /// Bytes of one map of `resolution` texels per face edge.
+    fn tiles_per_edge(resolution: u32) -> usize {
+        (resolution as usize).div_ceil(TILE_EDGE)
+    }
+
+    /// Bytes of a map's tile table, held from its making.
+    fn table_bytes(resolution: u32) -> u64 {
+        (6 * Self::tiles_per_edge(resolution).pow(2) * std::mem::size_of::<TileSlot>()) as u64
+    }
+
+    /// Bytes of one map of `resolution` texels per face edge with every tile allocated (the
+    /// most it may hold).
     pub fn bytes_for(resolution: u32) -> u64 {
-        6 * (resolution as u64).pow(2) * std::mem::size_of::<f32>() as u64
+        Self::table_bytes(resolution)
+            + 6 * Self::tiles_per_edge(resolution).pow(2) as u64 * TILE_BYTES
     }
 
     /// Casts one ray per texel from `centre` (in parallel over texel rows).
     pub fn build(scene: &Scene, centre: Vec3, resolution: u32) -> CubeShadowMap {
         let map = Self::lazy(centre, resolution);
         let r = resolution as usize;
-        map.depth
-            .par_chunks(r.max(1))
-            .enumerate()
-            .for_each(|(row, texels)| {
-                let (face, j) = (row / r, row % r);
-                for (i, texel) in texels.iter().enumerate() {
+        (0..6 * r).into_par_iter().for_each(|row| {
+            let (face, j) = (row / r, row % r);
+            for i in 0..r {
+                if let Some(texel) = map.texel(face, i, j) {
                     texel.store(map.trace(scene, face, i, j).to_bits(), Ordering::Relaxed);
                 }
-            });
+            }
+        });
         map
     }
 
     /// A map whose texels are traced when first read ([`Self::visibility`]): it costs the
     /// rays of the texels the shading points look up, not of all `6 resolution^2` (map
-    /// sites, most of whose view no shading point lies in). The same depths as
-    /// [`Self::build`]'s.
+    /// sites, most of whose view no shading point lies in), and the memory of their tiles.
+    /// The same depths as [`Self::build`]'s. Its memory is its own, unbounded.
     pub fn lazy(centre: Vec3, resolution: u32) -> CubeShadowMap {
-        let r = resolution as usize;
+        Self::lazy_within(centre, resolution, Arc::new(MapMemory::new(u64::MAX)))
+    }
+
+    /// [`Self::lazy`] counting its table and tiles in `memory`: its table is counted whatever
+    /// the limit (the caller checks the room), a tile only if it fits.
+    pub fn lazy_within(centre: Vec3, resolution: u32, memory: Arc<MapMemory>) -> CubeShadowMap {
+        let tiles_per_edge = Self::tiles_per_edge(resolution);
+        memory
+            .used
+            .fetch_add(Self::table_bytes(resolution), Ordering::Relaxed);
         CubeShadowMap {
             centre,
             resolution,
-            depth: (0..6 * r * r).map(|_| AtomicU32::new(UNTRACED)).collect(),
+            tiles_per_edge,
+            tiles: (0..6 * tiles_per_edge * tiles_per_edge)
+                .map(|_| OnceLock::new())
+                .collect(),
             traced: AtomicU64::new(0),
+            untiled: AtomicU64::new(0),
+            stored_tiles: AtomicU64::new(0),
+            memory,
         }
     }
 
@@ -138,22 +227,55 @@ impl CubeShadowMap {
             .map_or(f32::INFINITY, |hit| hit.t)
     }
 
-    /// Texel `index` (of texel (i, j) of `face`), traced first if it is not yet.
+    /// Texel (i, j) of `face`, its tile allocated first if it is not yet; None when the
+    /// budget has no room for the tile.
     #[inline]
-    fn depth_at(&self, scene: &Scene, index: usize, face: usize, i: usize, j: usize) -> f32 {
-        let bits = self.depth[index].load(Ordering::Relaxed);
+    fn texel(&self, face: usize, i: usize, j: usize) -> Option<&AtomicU32> {
+        let t = self.tiles_per_edge;
+        let slot = &self.tiles[(face * t + j / TILE_EDGE) * t + i / TILE_EDGE];
+        let tile = slot.get_or_init(|| {
+            self.memory.try_reserve(TILE_BYTES).then(|| {
+                self.stored_tiles.fetch_add(1, Ordering::Relaxed);
+                Box::new(std::array::from_fn(|_| AtomicU32::new(UNTRACED)))
+            })
+        });
+        Some(&tile.as_ref()?[(j % TILE_EDGE) * TILE_EDGE + i % TILE_EDGE])
+    }
+
+    /// The depth of texel (i, j) of `face`, traced first if it is not yet.
+    #[inline]
+    fn depth_at(&self, scene: &Scene, face: usize, i: usize, j: usize) -> f32 {
+        let Some(texel) = self.texel(face, i, j) else {
+            self.untiled.fetch_add(1, Ordering::Relaxed);
+            return self.trace(scene, face, i, j);
+        };
+        let bits = texel.load(Ordering::Relaxed);
         if bits != UNTRACED {
             return f32::from_bits(bits);
         }
         let d = self.trace(scene, face, i, j);
-        self.depth[index].store(d.to_bits(), Ordering::Relaxed);
+        texel.store(d.to_bits(), Ordering::Relaxed);
         self.traced.fetch_add(1, Ordering::Relaxed);
         d
     }
 
-    /// Texels of a lazy map traced so far.
+    /// Texels of a lazy map traced and stored so far.
     pub fn traced_texels(&self) -> u64 {
         self.traced.load(Ordering::Relaxed)
+    }
+
+    /// Texel rays traced at reads of tiles the budget had no room for.
+    pub fn untiled_texel_rays(&self) -> u64 {
+        self.untiled.load(Ordering::Relaxed)
+    }
+
+    /// Tiles allocated so far, of [`Self::tile_count`].
+    pub fn stored_tiles(&self) -> u64 {
+        self.stored_tiles.load(Ordering::Relaxed)
+    }
+
+    pub fn tile_count(&self) -> usize {
+        self.tiles.len()
     }
 
     pub fn centre(&self) -> Vec3 {
@@ -164,8 +286,9 @@ impl CubeShadowMap {
         self.resolution
     }
 
+    /// Bytes held: the tile table and the tiles allocated.
     pub fn memory_bytes(&self) -> u64 {
-        Self::bytes_for(self.resolution)
+        Self::table_bytes(self.resolution) + self.stored_tiles() * TILE_BYTES
     }
 
     /// The filtered visibility `V_f` in [0, 1] between the map's centre and surface point `p`
@@ -199,14 +322,12 @@ impl CubeShadowMap {
         let r = self.resolution as i64;
         let texel = |x: f32| (((x + 1.0) * 0.5 * self.resolution as f32) as i64).clamp(0, r - 1);
         let (ci, cj) = (texel(u), texel(v));
-        let base = face * (r * r) as usize;
         let mut lit = 0u32;
         let mut total = 0u32;
         for j in (cj - PCF_RADIUS).max(0)..=(cj + PCF_RADIUS).min(r - 1) {
             for i in (ci - PCF_RADIUS).max(0)..=(ci + PCF_RADIUS).min(r - 1) {
                 total += 1;
-                let index = base + (j * r + i) as usize;
-                let depth = self.depth_at(scene, index, face, i as usize, j as usize);
+                let depth = self.depth_at(scene, face, i as usize, j as usize);
                 if depth + tolerance >= distance {
                     lit += 1;
                 }
@@ -235,6 +356,7 @@ pub struct ShadowMapStats {
     pub site_maps: usize,
     /// Nodes that carried VPLs but got no map (over the budget): exact rays for their VPLs.
     pub refused: usize,
+    /// Bytes the maps hold (tile tables and allocated tiles).
     pub bytes: u64,
 }
 
@@ -247,6 +369,8 @@ pub struct SkeletonShadowMaps {
     /// Most maps the budget holds at `resolution`.
     max_maps: usize,
     budget_bytes: u64,
+    /// What the maps hold, within `budget_bytes`.
+    memory: Arc<MapMemory>,
     /// Per node: unset until it carried a VPL, then its map or None (over the budget).
     maps: Vec<OnceLock<Option<Arc<CubeShadowMap>>>>,
     /// Per node: the map read at VPLs from the shading points the node maps, at
@@ -279,6 +403,7 @@ impl SkeletonShadowMaps {
             requested,
             max_maps,
             budget_bytes,
+            memory: Arc::new(MapMemory::new(budget_bytes)),
             stats: Mutex::new(ShadowMapStats::default()),
         }
     }
@@ -335,12 +460,15 @@ impl SkeletonShadowMaps {
         if missing.is_empty() {
             return;
         }
-        let left = self.budget_bytes.saturating_sub(stats.bytes);
-        let room = ((left / CubeShadowMap::bytes_for(resolution)) as usize).min(missing.len());
+        let room = ((self.memory.left() / CubeShadowMap::bytes_for(resolution)) as usize)
+            .min(missing.len());
         let (build, refuse) = missing.split_at(room);
         for &n in build {
-            let map = CubeShadowMap::lazy(self.skeleton.positions[n as usize], resolution);
-            stats.bytes += map.memory_bytes();
+            let map = CubeShadowMap::lazy_within(
+                self.skeleton.positions[n as usize],
+                resolution,
+                Arc::clone(&self.memory),
+            );
             let _ = slots[n as usize].set(Some(Arc::new(map)));
         }
         for &n in refuse {
@@ -429,7 +557,7 @@ impl SkeletonShadowMaps {
         if !missing.is_empty() {
             let mut stats = self.stats.lock().unwrap_or_else(|e| e.into_inner());
             let per_map = CubeShadowMap::bytes_for(self.resolution);
-            let mut left = self.budget_bytes.saturating_sub(stats.bytes);
+            let mut left = self.memory.left();
             let mut build = Vec::new();
             for &(site, centre) in &missing {
                 match centre {
@@ -447,8 +575,8 @@ impl SkeletonShadowMaps {
                 }
             }
             for &(site, centre) in &build {
-                let map = CubeShadowMap::lazy(centre, self.resolution);
-                stats.bytes += map.memory_bytes();
+                let map =
+                    CubeShadowMap::lazy_within(centre, self.resolution, Arc::clone(&self.memory));
                 table.insert(site, Some(Arc::new(map)));
             }
             stats.site_maps += build.len();
@@ -460,7 +588,10 @@ impl SkeletonShadowMaps {
     }
 
     pub fn stats(&self) -> ShadowMapStats {
-        *self.stats.lock().unwrap_or_else(|e| e.into_inner())
+        ShadowMapStats {
+            bytes: self.memory.used(),
+            ..*self.stats.lock().unwrap_or_else(|e| e.into_inner())
+        }
     }
 
     /// How the budget shaped the maps, for the precomputation notes.
@@ -482,37 +613,37 @@ impl SkeletonShadowMaps {
         }
         if self.max_maps < nodes {
             note += &format!(
-                "; the budget holds {} maps: VPLs of the other nodes use exact shadow rays",
+                "; the budget holds {} whole maps (lazy maps hold only the tiles their lookups \
+                 read): VPLs of nodes beyond it use exact shadow rays",
                 self.max_maps
             );
         }
         note
     }
 
-    /// The cost so far, for the render notes: the maps made and the texels their lookups
-    /// traced (every map is lazy).
+    /// The cost so far, for the render notes: the maps made, the texels their lookups traced
+    /// (every map is lazy) and the tiles that hold them.
     pub fn cost_note(&self) -> String {
         let s = self.stats();
-        let traced = |slots: &[OnceLock<Option<Arc<CubeShadowMap>>>]| -> u64 {
-            slots
-                .iter()
-                .filter_map(|m| m.get()?.as_ref().map(|m| m.traced_texels()))
-                .sum()
-        };
-        let site_texels: u64 = self
-            .sites
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .values()
-            .flatten()
-            .map(|m| m.traced_texels())
-            .sum();
-        let texels = traced(&self.maps) + traced(&self.receivers) + site_texels;
+        let sites = self.sites.lock().unwrap_or_else(|e| e.into_inner());
+        let maps: Vec<&CubeShadowMap> = self
+            .maps
+            .iter()
+            .chain(&self.receivers)
+            .filter_map(|m| m.get()?.as_deref())
+            .chain(sites.values().flatten().map(|m| &**m))
+            .collect();
+        let sum = |f: fn(&CubeShadowMap) -> u64| -> u64 { maps.iter().map(|m| f(m)).sum() };
+        let texels = sum(CubeShadowMap::traced_texels);
+        let tiles = sum(CubeShadowMap::stored_tiles);
+        let of_tiles = sum(|m| m.tile_count() as u64);
+        let untiled = sum(CubeShadowMap::untiled_texel_rays);
         let (r, rr) = (self.resolution as u64, self.receiver_resolution() as u64);
         let of = 6 * ((s.maps + s.site_maps) as u64 * r * r + s.receiver_maps as u64 * rr * rr);
         let mut note = format!(
             "skeleton shadow maps: {} node maps ({r}^2 per face){}{}, {texels} of their texels \
-             traced when first read ({:.1} per cent), {:.2} MB",
+             traced when first read ({:.1} per cent), held in {tiles} tiles of {TILE_EDGE}^2 \
+             ({:.1} per cent), {:.2} MB",
             s.maps,
             if s.receiver_maps > 0 {
                 format!(", {} receiver maps ({rr}^2)", s.receiver_maps)
@@ -525,8 +656,12 @@ impl SkeletonShadowMaps {
                 String::new()
             },
             100.0 * texels as f64 / of.max(1) as f64,
+            100.0 * tiles as f64 / of_tiles.max(1) as f64,
             s.bytes as f64 / (1 << 20) as f64,
         );
+        if untiled > 0 {
+            note += &format!("; {untiled} texel rays for tiles over the budget");
+        }
         if s.refused > 0 {
             note += &format!(
                 "; {} nodes over the budget used exact shadow rays",
@@ -556,6 +691,44 @@ mod tests {
         }
     }
 
+    /// A lazy map holds the tiles its lookups read, and counts them in its memory; tiles the
+    /// budget has no room for are traced at each read and give the same visibility.
+    #[test]
+    fn lazy_maps_hold_the_tiles_they_read_within_the_budget() {
+        let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
+        let centre = Vec3::new(2.5, 1.25, 2.0);
+        let built = CubeShadowMap::build(&scene, centre, 32);
+        assert_eq!(built.stored_tiles(), built.tile_count() as u64);
+        assert_eq!(built.memory_bytes(), CubeShadowMap::bytes_for(32));
+        let room = 3;
+        let memory = Arc::new(MapMemory::new(
+            CubeShadowMap::table_bytes(32) + room * TILE_BYTES,
+        ));
+        let tight = CubeShadowMap::lazy_within(centre, 32, Arc::clone(&memory));
+        let free = CubeShadowMap::lazy(centre, 32);
+        let mut rng = crate::math::Rng::new(3, 1);
+        for _ in 0..40 {
+            let dir = crate::math::warp::uniform_sphere(rng.uniform2());
+            let Some(si) = scene.intersect(&Ray::new(centre, dir, f32::INFINITY)) else {
+                continue;
+            };
+            let v = built.visibility(&scene, si.p, -dir);
+            assert_eq!(tight.visibility(&scene, si.p, -dir), v);
+            assert_eq!(free.visibility(&scene, si.p, -dir), v);
+        }
+        assert_eq!(tight.stored_tiles(), room);
+        assert!(tight.untiled_texel_rays() > 0);
+        assert_eq!(memory.used(), tight.memory_bytes());
+        assert_eq!(free.untiled_texel_rays(), 0);
+        let (stored, tiles) = (free.stored_tiles(), free.tile_count() as u64);
+        println!(
+            "{stored} of {tiles} tiles stored, {} texels",
+            free.traced_texels()
+        );
+        assert!(stored > room && stored < tiles);
+        assert!(free.memory_bytes() < CubeShadowMap::bytes_for(32));
+    }
+
     /// In the two-room scene, from a point of the camera room's empty space, the map's PCF
     /// visibility agrees with a shadow ray: the floor right below and the ceiling read 1, the
     /// floor under the table and the far room's floor behind the wall read 0, and over random surface points the verdicts (V_f > 1/2
@@ -566,7 +739,7 @@ mod tests {
         let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
         let centre = Vec3::new(2.5, 1.25, 2.0);
         let map = CubeShadowMap::build(&scene, centre, 128);
-        assert_eq!(map.depth.len(), 6 * 128 * 128);
+        assert_eq!(map.tile_count(), 6 * 16 * 16);
         assert_eq!(
             map.visibility(&scene, Vec3::new(2.5, 0.0, 2.0), Vec3::Y),
             1.0
