@@ -547,8 +547,8 @@ fn run_contender(
 /// Seeds of a reference's two halves, derived from its `seed` through a hash. A render with
 /// the seed of one half and the same integrator replays that half's samples (the same
 /// per-pixel, per-sample random numbers), so its error against the reference would be
-/// underestimated; with halves at `seed` and `seed + 1`, `lacuna render` and `lacuna
-/// reference` with their default seed 0 did exactly that. A hashed seed is one no user picks.
+/// underestimated. Halves at `seed` and `seed + 1` would be replayed by `lacuna render` with
+/// seed 0 (the default of both commands) or 1; a hashed seed is one no user picks.
 pub fn reference_half_seeds(seed: u64) -> [u64; 2] {
     const REFERENCE_DOMAIN: u64 = 0x2EF0_2E9C_E5EE_D5A1;
     [0u64, 1].map(|half| crate::math::mix64(seed ^ REFERENCE_DOMAIN ^ half))
