@@ -368,8 +368,7 @@ pub struct SkeletonShadowMaps {
     requested: u32,
     /// Most maps the budget holds at `resolution`.
     max_maps: usize,
-    budget_bytes: u64,
-    /// What the maps hold, within `budget_bytes`.
+    /// What the maps hold, within the budget (its limit).
     memory: Arc<MapMemory>,
     /// Per node: unset until it carried a VPL, then its map or None (over the budget).
     maps: Vec<OnceLock<Option<Arc<CubeShadowMap>>>>,
@@ -402,7 +401,6 @@ impl SkeletonShadowMaps {
             resolution,
             requested,
             max_maps,
-            budget_bytes,
             memory: Arc::new(MapMemory::new(budget_bytes)),
             stats: Mutex::new(ShadowMapStats::default()),
         }
@@ -608,7 +606,7 @@ impl SkeletonShadowMaps {
             note += &format!(
                 ", lowered from {} by the budget of {:.0} MB",
                 self.requested,
-                mb(self.budget_bytes)
+                mb(self.memory.limit)
             );
         }
         if self.max_maps < nodes {
