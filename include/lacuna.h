@@ -399,16 +399,20 @@ enum lacuna_environment_strategy
     LACUNA_ENVIRONMENT_STRATEGY_CUBE_UNIFORM = 1,
     // Per-face cube-map CDFs, faces chosen by their power.
     LACUNA_ENVIRONMENT_STRATEGY_CUBE_POWER = 2,
-    // Per-face cube-map CDFs with per-normal dynamic face balancing (the default).
+    // Per-face cube-map CDFs with per-normal dynamic face balancing.
     LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC = 3,
     // No light sampling of the environment: only BSDF sampling finds it.
     LACUNA_ENVIRONMENT_STRATEGY_BSDF = 4,
     // Only directions through the window portals the shading point sees (portal-masked
-    // sampling, Bitterli et al. 2015), with a quarter of the samples by `CubeDynamic`; the
+    // sampling, Bitterli et al. 2015), with a quarter of the samples by `LatLong`; the
     // portals are those the scene lists, or else those the analysis finds (built on first
     // use). Where the point sees no portal (outdoors, or behind every window), as
-    // `CubeDynamic`. Renders: `path` and `path_skeleton` only (others refuse the job).
+    // `LatLong`. Renders: `path` and `path_skeleton` only (others refuse the job).
     LACUNA_ENVIRONMENT_STRATEGY_PORTALS = 5,
+    // The strategy of the map's own layout (the default): `LatLong` for a lat-long map,
+    // `CubeDynamic` for a cube map. `env_direct` takes it as `CubeDynamic`, its per-face
+    // estimator.
+    LACUNA_ENVIRONMENT_STRATEGY_AUTO = 6,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -1468,7 +1472,7 @@ lacuna_status lacuna_scene_new_with_environment(const struct lacuna_scene *scene
                                                 struct lacuna_scene **out_scene);
 
 // Sets how light sampling picks environment directions: a `lacuna_environment_strategy`
-// value (default `LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC`). An option in the integrator
+// value (default `LACUNA_ENVIRONMENT_STRATEGY_AUTO`). An option in the integrator
 // name (`"path:env=latlong"`) takes precedence.
 lacuna_status lacuna_render_job_set_environment_strategy(struct lacuna_render_job *job,
                                                          uint32_t strategy);

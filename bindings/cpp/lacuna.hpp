@@ -354,7 +354,7 @@ class LightSampler
 public:
     using Shared::Shared;
     explicit LightSampler(const Scene &scene, uint32_t triangle_strategy = LACUNA_TRIANGLE_STRATEGY_AREA,
-                          uint32_t environment_strategy = LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC) {
+                          uint32_t environment_strategy = LACUNA_ENVIRONMENT_STRATEGY_AUTO) {
         lacuna_light_sampler *s = nullptr;
         detail::check(lacuna_light_sampler_new(scene.get(), triangle_strategy, environment_strategy, &s));
         p_ = s;

@@ -328,7 +328,7 @@ int main(int argc, char **argv) {
     TRY(lacuna_scene_builder_build(builder, &scene));
     lacuna_light_sampler *lights = NULL;
     TRY(lacuna_light_sampler_new(scene, LACUNA_TRIANGLE_STRATEGY_AREA,
-                                 LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC, &lights));
+                                 LACUNA_ENVIRONMENT_STRATEGY_AUTO, &lights));
     lacuna_light_sampler_info info;
     TRY(lacuna_light_sampler_get_info(lights, &info));
     lacuna_camera cam;

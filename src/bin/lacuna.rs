@@ -249,8 +249,9 @@ struct SceneArgs {
     /// width / 4, the thesis's setting for the per-face CDFs).
     #[arg(long)]
     env_layout: Option<String>,
-    /// How light sampling picks environment directions: latlong, cube-uniform, cube-power,
-    /// cube-dynamic (per-normal face balancing, the default), bsdf (no light sampling) or portals
+    /// How light sampling picks environment directions: auto (the default: latlong for a
+    /// lat-long map, cube-dynamic for a cube map), latlong, cube-uniform, cube-power,
+    /// cube-dynamic (per-normal face balancing), bsdf (no light sampling) or portals
     /// (path, path_skeleton and path_portal: through the window portals a point sees, found
     /// automatically or listed in the scene file). An integrator option such as
     /// `path:env=latlong` overrides it for that integrator.

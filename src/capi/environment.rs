@@ -57,6 +57,7 @@ pub(crate) fn strategy_from_c(value: u32) -> CapiResult<EnvStrategy> {
             lacuna_environment_strategy::CubeDynamic => EnvStrategy::CubeDynamic,
             lacuna_environment_strategy::Bsdf => EnvStrategy::BsdfOnly,
             lacuna_environment_strategy::Portals => EnvStrategy::Portals,
+            lacuna_environment_strategy::Auto => EnvStrategy::Auto,
         },
     )
 }
@@ -69,6 +70,7 @@ pub(crate) fn strategy_to_c(strategy: EnvStrategy) -> u32 {
         EnvStrategy::CubeDynamic => lacuna_environment_strategy::CubeDynamic,
         EnvStrategy::BsdfOnly => lacuna_environment_strategy::Bsdf,
         EnvStrategy::Portals => lacuna_environment_strategy::Portals,
+        EnvStrategy::Auto => lacuna_environment_strategy::Auto,
     }) as u32
 }
 
@@ -412,7 +414,7 @@ pub unsafe extern "C" fn lacuna_scene_new_with_environment(
 }
 
 /// Sets how light sampling picks environment directions: a `lacuna_environment_strategy`
-/// value (default `LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC`). An option in the integrator
+/// value (default `LACUNA_ENVIRONMENT_STRATEGY_AUTO`). An option in the integrator
 /// name (`"path:env=latlong"`) takes precedence.
 #[no_mangle]
 pub unsafe extern "C" fn lacuna_render_job_set_environment_strategy(

@@ -637,7 +637,7 @@ pub unsafe extern "C" fn lacuna_light_sampler_new(
         }
         if let Some((_, map)) = s.scene.environment() {
             for strategy in [env, env.for_emission()] {
-                match strategy {
+                match map.resolve(strategy) {
                     EnvStrategy::LatLong => {
                         map.latlong();
                     }

@@ -353,16 +353,20 @@ pub enum lacuna_environment_strategy {
     CubeUniform = 1,
     /// Per-face cube-map CDFs, faces chosen by their power.
     CubePower = 2,
-    /// Per-face cube-map CDFs with per-normal dynamic face balancing (the default).
+    /// Per-face cube-map CDFs with per-normal dynamic face balancing.
     CubeDynamic = 3,
     /// No light sampling of the environment: only BSDF sampling finds it.
     Bsdf = 4,
     /// Only directions through the window portals the shading point sees (portal-masked
-    /// sampling, Bitterli et al. 2015), with a quarter of the samples by `CubeDynamic`; the
+    /// sampling, Bitterli et al. 2015), with a quarter of the samples by `LatLong`; the
     /// portals are those the scene lists, or else those the analysis finds (built on first
     /// use). Where the point sees no portal (outdoors, or behind every window), as
-    /// `CubeDynamic`. Renders: `path` and `path_skeleton` only (others refuse the job).
+    /// `LatLong`. Renders: `path` and `path_skeleton` only (others refuse the job).
     Portals = 5,
+    /// The strategy of the map's own layout (the default): `LatLong` for a lat-long map,
+    /// `CubeDynamic` for a cube map. `env_direct` takes it as `CubeDynamic`, its per-face
+    /// estimator.
+    Auto = 6,
 }
 
 /// The world axis that is up for an environment map.
@@ -434,7 +438,8 @@ c_enum!(lacuna_environment_strategy {
     CubePower,
     CubeDynamic,
     Bsdf,
-    Portals
+    Portals,
+    Auto
 });
 c_enum!(lacuna_up_axis { Y, Z });
 c_enum!(lacuna_film_channel {

@@ -209,7 +209,12 @@ fn light_sources(scene: &Scene) -> Vec<LightSource> {
 }
 
 impl EnvDirect {
-    pub fn new(settings: IntegratorSettings) -> Result<Self> {
+    pub fn new(mut settings: IntegratorSettings) -> Result<Self> {
+        // `auto` is the thesis's per-face estimator here (001 eq. 3.5-3.6: fractional sample
+        // counts per cube face), on either layout.
+        if settings.env == EnvStrategy::Auto {
+            settings.env = EnvStrategy::CubeDynamic;
+        }
         let light = if settings.env == EnvStrategy::BsdfOnly {
             0
         } else {

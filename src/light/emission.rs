@@ -208,7 +208,7 @@ impl Light {
                     // Direct sampling of this direction depends on the receiver's normal:
                     // this is its density with none; bidirectional methods put the density
                     // at the first vertex in its place.
-                    pdf_direct_area: map.pdf(EnvStrategy::default(), Vec3::ZERO, s.wi),
+                    pdf_direct_area: map.pdf(env, Vec3::ZERO, s.wi),
                     cos_light: 1.0,
                 })
             }

@@ -191,13 +191,13 @@ static void test_rendering(lacuna_context *ctx) {
      * the whole upper hemisphere), the sky pixels are 1, whatever the strategy and integrator
      * (bdpt included, so that valgrind covers it: see the `filtered` field of Bdpt). */
     lacuna_scene *scene = floor_scene(ctx, env);
-    const uint32_t strategies[5] = {LACUNA_ENVIRONMENT_STRATEGY_LAT_LONG, LACUNA_ENVIRONMENT_STRATEGY_CUBE_UNIFORM,
+    const uint32_t strategies[6] = {LACUNA_ENVIRONMENT_STRATEGY_LAT_LONG, LACUNA_ENVIRONMENT_STRATEGY_CUBE_UNIFORM,
                                     LACUNA_ENVIRONMENT_STRATEGY_CUBE_POWER, LACUNA_ENVIRONMENT_STRATEGY_CUBE_DYNAMIC,
-                                    LACUNA_ENVIRONMENT_STRATEGY_BSDF};
+                                    LACUNA_ENVIRONMENT_STRATEGY_BSDF,     LACUNA_ENVIRONMENT_STRATEGY_AUTO};
     double floor_mean = 0, sky = 0;
     const char *integrators[2] = {"path", "bdpt"};
     for (int k = 0; k < 2; k++)
-        for (int i = 0; i < 5; i++) {
+        for (int i = 0; i < 6; i++) {
             render_floor(scene, integrators[k], strategies[i], 128, &floor_mean, &sky);
             CHECK(fabs(floor_mean - 0.5) < 0.05);
             CHECK(sky == 1.0);
@@ -206,7 +206,7 @@ static void test_rendering(lacuna_context *ctx) {
     /* Job settings. */
     lacuna_render_job *job = NULL;
     OK(lacuna_render_job_new(scene, "env_direct", &job));
-    EXPECT(lacuna_render_job_set_environment_strategy(job, 6), LACUNA_STATUS_INVALID_ARGUMENT, "strategy");
+    EXPECT(lacuna_render_job_set_environment_strategy(job, 7), LACUNA_STATUS_INVALID_ARGUMENT, "strategy");
     EXPECT(lacuna_render_job_set_environment_strategy(NULL, 0), LACUNA_STATUS_NULL_POINTER, "job");
     EXPECT(lacuna_render_job_set_environment_samples(job, 0, 0), LACUNA_STATUS_INVALID_ARGUMENT, "both 0");
     EXPECT(lacuna_render_job_set_environment_samples(NULL, 1, 1), LACUNA_STATUS_NULL_POINTER, "job");

@@ -32,6 +32,11 @@ use crate::math::{Rgb, Vec2, Vec3};
 /// How a light-sampling strategy picks environment directions.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum EnvStrategy {
+    /// The strategy of the map's own layout ([`EnvironmentMap::resolve`]): `LatLong` for a
+    /// lat-long map, `CubeDynamic` for a cube map. A density on the other layout weighs
+    /// resampled texels and loses at equal time (BENCHMARKS.md, "Environment-map lights").
+    #[default]
+    Auto,
     /// Classic 2-D piecewise-constant sampling of the lat-long map with the sin(theta) factor.
     LatLong,
     /// Per-face cube-map CDFs, samples split evenly between faces (mu_f = 1/6).
@@ -39,18 +44,18 @@ pub enum EnvStrategy {
     /// Per-face cube-map CDFs, faces chosen by their power (one global CDF in effect).
     CubePower,
     /// Per-face cube-map CDFs with per-normal dynamic balancing mu_f(n) (001 eq. 3.4).
-    #[default]
     CubeDynamic,
     /// Never sample the environment: only BSDF sampling finds it (for validation).
     BsdfOnly,
     /// Only directions through the window portals a point sees (`portal.rs`, Bitterli et al.
-    /// 2015), where the scene has portals and the integrator knows the point; `cube-dynamic`
-    /// elsewhere (and in [`EnvironmentMap::sample`], which has no point).
+    /// 2015), where the scene has portals and the integrator knows the point;
+    /// [`PORTAL_FALLBACK`] elsewhere (and in [`EnvironmentMap::sample`], which has no point).
     Portals,
 }
 
 impl EnvStrategy {
     pub const NAMES: &'static [&'static str] = &[
+        "auto",
         "latlong",
         "cube-uniform",
         "cube-power",
@@ -61,6 +66,7 @@ impl EnvStrategy {
 
     pub fn parse(name: &str) -> Result<Self> {
         Ok(match name {
+            "auto" => EnvStrategy::Auto,
             "latlong" => EnvStrategy::LatLong,
             "cube-uniform" => EnvStrategy::CubeUniform,
             "cube-power" => EnvStrategy::CubePower,
@@ -78,6 +84,7 @@ impl EnvStrategy {
 
     pub fn name(self) -> &'static str {
         match self {
+            EnvStrategy::Auto => "auto",
             EnvStrategy::LatLong => "latlong",
             EnvStrategy::CubeUniform => "cube-uniform",
             EnvStrategy::CubePower => "cube-power",
@@ -87,7 +94,8 @@ impl EnvStrategy {
         }
     }
 
-    /// The face balancing of a cube strategy.
+    /// The face balancing of a cube strategy (None for `Auto`: resolve it against the map
+    /// first, [`EnvironmentMap::resolve`]).
     pub fn balancing(self) -> Option<Balancing> {
         match self.map_strategy() {
             EnvStrategy::CubeUniform => Some(Balancing::Uniform),
@@ -99,6 +107,7 @@ impl EnvStrategy {
 
     /// The whole-map strategy behind this one: itself, or for `Portals` the portal
     /// sampler's fallback (what the map alone samples with; the portals are the scene's).
+    /// `Auto` stays `Auto`: only the map knows its layout.
     pub fn map_strategy(self) -> EnvStrategy {
         match self {
             EnvStrategy::Portals => PORTAL_FALLBACK,
@@ -107,9 +116,12 @@ impl EnvStrategy {
     }
 
     /// The normal-independent strategy that starts light subpaths (there is no receiver):
-    /// the lat-long density for `LatLong`, the cube CDFs balanced by power otherwise.
+    /// the lat-long density for `LatLong`, the cube CDFs balanced by power otherwise. `Auto`
+    /// stays `Auto`, which the map resolves with no normal: lat-long, or cube-dynamic, whose
+    /// balance without a normal is by power.
     pub fn for_emission(self) -> EnvStrategy {
         match self {
+            EnvStrategy::Auto => EnvStrategy::Auto,
             EnvStrategy::LatLong => EnvStrategy::LatLong,
             _ => EnvStrategy::CubePower,
         }
@@ -307,11 +319,23 @@ impl EnvironmentMap {
             .get_or_init(|| CubeSampler::build(&self.image, false))
     }
 
+    /// The whole-map strategy `strategy` samples this map with: `Auto` becomes the strategy
+    /// of the map's own layout, `Portals` its fallback ([`EnvStrategy::map_strategy`]).
+    pub fn resolve(&self, strategy: EnvStrategy) -> EnvStrategy {
+        match strategy.map_strategy() {
+            EnvStrategy::Auto => match self.image.grid() {
+                Grid::LatLong { .. } => EnvStrategy::LatLong,
+                Grid::Cube { .. } => EnvStrategy::CubeDynamic,
+            },
+            other => other,
+        }
+    }
+
     /// Builds the structures `strategy` needs now rather than during the first samples,
     /// timing the build.
     pub fn prepare(&mut self, strategy: EnvStrategy) {
-        for s in [strategy.map_strategy(), strategy.for_emission()] {
-            match s {
+        for s in [strategy, strategy.for_emission()] {
+            match self.resolve(s) {
                 EnvStrategy::LatLong if self.latlong.get().is_none() => {
                     let t = Instant::now();
                     let built = LatLongSampler::new(&self.image);
@@ -374,7 +398,7 @@ impl EnvironmentMap {
     /// Samples a direction for a receiver whose shading normal (facing the outgoing
     /// direction) is `n`, or zero when there is none.
     pub fn sample(&self, strategy: EnvStrategy, n: Vec3, u: Vec2) -> Option<EnvSample> {
-        let (local, pdf) = match strategy.map_strategy() {
+        let (local, pdf) = match self.resolve(strategy) {
             EnvStrategy::BsdfOnly => return None,
             EnvStrategy::LatLong => self.latlong().sample(u)?,
             cube => {
@@ -392,7 +416,7 @@ impl EnvironmentMap {
     /// Solid-angle pdf of `sample(strategy, n, ..)` producing world direction `w`.
     pub fn pdf(&self, strategy: EnvStrategy, n: Vec3, w: Vec3) -> f32 {
         let local = self.to_local * w;
-        match strategy.map_strategy() {
+        match self.resolve(strategy) {
             EnvStrategy::BsdfOnly => 0.0,
             EnvStrategy::LatLong => self.latlong().pdf(local),
             cube => {
@@ -421,5 +445,65 @@ impl EnvironmentMap {
         std::mem::size_of_val(self.image.texels())
             + self.latlong.get().map_or(0, LatLongSampler::memory_bytes)
             + self.cube.get().map_or(0, CubeSampler::memory_bytes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Rng;
+
+    fn map(grid: Grid) -> EnvironmentMap {
+        let texels = (0..grid.texel_count())
+            .map(|i| {
+                let d = grid.texel_point(i, 0.5, 0.5);
+                let sun = if d.dot(Vec3::new(0.6, 0.64, 0.48)) > 0.99 {
+                    300.0
+                } else {
+                    0.0
+                };
+                Rgb::new(1.0 + d.x.max(0.0), 0.5 + d.y * d.y, 0.2) + Rgb::splat(sun)
+            })
+            .collect();
+        let image = EnvImage::new(grid, texels).unwrap();
+        EnvironmentMap::new(image, EnvSettings::default()).unwrap()
+    }
+
+    /// `auto` samples and weighs exactly as the strategy of the map's layout, for receivers
+    /// and for emission (no normal).
+    #[test]
+    fn auto_is_the_strategy_of_the_maps_layout() {
+        let lat_long = map(Grid::LatLong {
+            width: 32,
+            height: 16,
+        });
+        let cube = map(Grid::Cube { face: 8 });
+        assert_eq!(lat_long.resolve(EnvStrategy::Auto), EnvStrategy::LatLong);
+        assert_eq!(cube.resolve(EnvStrategy::Auto), EnvStrategy::CubeDynamic);
+        assert_eq!(cube.resolve(EnvStrategy::Portals), PORTAL_FALLBACK);
+        assert_eq!(cube.resolve(EnvStrategy::CubePower), EnvStrategy::CubePower);
+        assert_eq!(EnvStrategy::default(), EnvStrategy::Auto);
+        assert_eq!(EnvStrategy::parse("auto").unwrap(), EnvStrategy::Auto);
+        let mut rng = Rng::new(3, 3);
+        for (m, native, emission) in [
+            (&lat_long, EnvStrategy::LatLong, EnvStrategy::LatLong),
+            (&cube, EnvStrategy::CubeDynamic, EnvStrategy::CubePower),
+        ] {
+            for i in 0..2000 {
+                let n = if i % 4 == 0 {
+                    Vec3::ZERO
+                } else {
+                    crate::math::warp::uniform_sphere(rng.uniform2())
+                };
+                let expected = if n == Vec3::ZERO { emission } else { native };
+                let u = rng.uniform2();
+                let auto = m.sample(EnvStrategy::Auto, n, u).unwrap();
+                let same = m.sample(expected, n, u).unwrap();
+                assert_eq!(auto.wi, same.wi);
+                assert_eq!(auto.pdf, same.pdf);
+                let w = crate::math::warp::uniform_sphere(rng.uniform2());
+                assert_eq!(m.pdf(EnvStrategy::Auto, n, w), m.pdf(expected, n, w));
+            }
+        }
     }
 }
