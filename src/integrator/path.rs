@@ -160,6 +160,7 @@ impl PathTracer {
     /// probability at `depth` (the first coordinate of `u` decides, then is rescaled) and
     /// recorded during the warm-up, its integrand scaled by `beta`.
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     fn sample_light(
         &self,
         scene: &Scene,
@@ -773,7 +774,31 @@ impl PathTracer {
         if self.mis() == MisHeuristic::Auto {
             return self.sample_auto(scene, ray, rng, counters, ctx, guide);
         }
+        #[cfg(target_arch = "x86_64")]
+        if crate::geometry::has_x86_64_v3() {
+            // SAFETY: the CPU runs x86-64-v3 code (checked just above).
+            return unsafe {
+                self.trace_v3(scene, ray, rng, counters, guide, &mut { VertexAlphas::OFF })
+            };
+        }
         self.trace(scene, ray, rng, counters, guide, &mut { VertexAlphas::OFF })
+    }
+
+    /// [`trace`](Self::trace) compiled for x86-64-v3, as the BVH traversal is: three-operand
+    /// AVX forms spare the register copies of the per-vertex shading code. Results are
+    /// bit-identical: Rust never contracts a * b + c into an FMA by itself.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn trace_v3<G: VertexGuide>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        guide: &mut G,
+        alphas: &mut VertexAlphas,
+    ) -> PixelSample {
+        self.trace(scene, ray, rng, counters, guide, alphas)
     }
 
     /// `mis=auto`'s sample (see [`super::mis_auto::DEPTH_CLASSES`]): the pixel's alpha
@@ -1170,6 +1195,7 @@ impl PathTracer {
 impl PathTracer {
     /// One camera path (see [`Integrator::sample`]), its directions drawn by one-sample MIS of
     /// the BSDF and `guide` (the BSDF's alone where the guide does not guide).
+    #[inline(always)]
     pub(super) fn trace<G: VertexGuide>(
         &self,
         scene: &Scene,

@@ -386,7 +386,7 @@ impl Bsdf {
     /// mode)` would draw them, but computing only the ones this BSDF reads (a Lambertian reads
     /// no component choice, a mirror neither number, a dielectric no direction) and skipping
     /// the others' requests, so every request keeps its meaning and the result is the same.
-    #[inline]
+    #[inline(always)]
     pub fn sample_from(&self, wo: Vec3, rng: &mut Sampler, mode: Transport) -> Option<BsdfSample> {
         let (reads_choice, reads_direction) = match self {
             Bsdf::Lambert { .. } => (false, true),
