@@ -774,31 +774,7 @@ impl PathTracer {
         if self.mis() == MisHeuristic::Auto {
             return self.sample_auto(scene, ray, rng, counters, ctx, guide);
         }
-        #[cfg(target_arch = "x86_64")]
-        if crate::geometry::has_x86_64_v3() {
-            // SAFETY: the CPU runs x86-64-v3 code (checked just above).
-            return unsafe {
-                self.trace_v3(scene, ray, rng, counters, guide, &mut { VertexAlphas::OFF })
-            };
-        }
         self.trace(scene, ray, rng, counters, guide, &mut { VertexAlphas::OFF })
-    }
-
-    /// [`trace`](Self::trace) compiled for x86-64-v3, as the BVH traversal is: three-operand
-    /// AVX forms spare the register copies of the per-vertex shading code. Results are
-    /// bit-identical: Rust never contracts a * b + c into an FMA by itself.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
-    unsafe fn trace_v3<G: VertexGuide>(
-        &self,
-        scene: &Scene,
-        ray: Ray,
-        rng: &mut Sampler,
-        counters: &mut TraceCounters,
-        guide: &mut G,
-        alphas: &mut VertexAlphas,
-    ) -> PixelSample {
-        self.trace(scene, ray, rng, counters, guide, alphas)
     }
 
     /// `mis=auto`'s sample (see [`super::mis_auto::DEPTH_CLASSES`]): the pixel's alpha
@@ -1195,8 +1171,59 @@ impl PathTracer {
 impl PathTracer {
     /// One camera path (see [`Integrator::sample`]), its directions drawn by one-sample MIS of
     /// the BSDF and `guide` (the BSDF's alone where the guide does not guide).
-    #[inline(always)]
+    #[inline]
     pub(super) fn trace<G: VertexGuide>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        guide: &mut G,
+        alphas: &mut VertexAlphas,
+    ) -> PixelSample {
+        #[cfg(target_arch = "x86_64")]
+        if crate::geometry::has_x86_64_v3() {
+            // SAFETY: the CPU runs x86-64-v3 code (checked just above).
+            return unsafe { self.trace_v3(scene, ray, rng, counters, guide, alphas) };
+        }
+        self.trace_baseline(scene, ray, rng, counters, guide, alphas)
+    }
+
+    /// [`trace`](Self::trace) for any x86-64 (and other architectures).
+    #[inline(never)]
+    fn trace_baseline<G: VertexGuide>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        guide: &mut G,
+        alphas: &mut VertexAlphas,
+    ) -> PixelSample {
+        self.trace_impl(scene, ray, rng, counters, guide, alphas)
+    }
+
+    /// [`trace`](Self::trace) compiled for x86-64-v3, as the BVH traversal is: with the
+    /// per-vertex work inlined into one loop, three-operand AVX forms spare the register
+    /// copies of the shading code (BENCHMARKS.md, issue 30). Results are bit-identical: Rust
+    /// never contracts a * b + c into an FMA by itself.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn trace_v3<G: VertexGuide>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        guide: &mut G,
+        alphas: &mut VertexAlphas,
+    ) -> PixelSample {
+        self.trace_impl(scene, ray, rng, counters, guide, alphas)
+    }
+
+    /// The body of [`trace`](Self::trace), inlined into each of its two compilations.
+    #[inline(always)]
+    fn trace_impl<G: VertexGuide>(
         &self,
         scene: &Scene,
         mut ray: Ray,
