@@ -1496,3 +1496,44 @@ pub(super) fn set_path_option(
     }
     Ok(true)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Vec2;
+
+    /// The x86-64-v3 copy of the trace loop gives the baseline copy's samples, bit for bit,
+    /// on a scene with diffuse and glossy surfaces.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn v3_trace_matches_the_baseline() {
+        if !crate::geometry::has_x86_64_v3() {
+            return;
+        }
+        let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
+        let frame = scene.camera().unwrap().frame(1.0);
+        let tracer = PathTracer::new(IntegratorSettings::default());
+        let bits = |s: &PixelSample| {
+            [s.radiance, s.albedo, s.normal].map(|c| [c.x.to_bits(), c.y.to_bits(), c.z.to_bits()])
+        };
+        let mut lit = 0;
+        for pixel in 0..1024u64 {
+            let film = Vec2::new((pixel % 32) as f32 + 0.5, (pixel / 32) as f32 + 0.5) / 32.0;
+            let ray = frame.generate_ray(film, Vec2::splat(0.5));
+            let mut samples = [0, 1].map(|_| Sampler::new(SamplerKind::Sobol, 7, pixel, 3));
+            let mut counters = [TraceCounters::default(); 2];
+            let off = &mut { VertexAlphas::OFF };
+            let [a_rng, b_rng] = &mut samples;
+            let [a_counters, b_counters] = &mut counters;
+            let a = tracer.trace_baseline(&scene, ray, a_rng, a_counters, &mut Unguided, off);
+            // SAFETY: the CPU runs x86-64-v3 code (checked above).
+            let b = unsafe { tracer.trace_v3(&scene, ray, b_rng, b_counters, &mut Unguided, off) };
+            assert_eq!(bits(&a), bits(&b), "pixel {pixel}");
+            assert_eq!(a.depth.to_bits(), b.depth.to_bits());
+            assert_eq!(a.hit, b.hit);
+            assert_eq!(a_counters.rays, b_counters.rays);
+            lit += (a.radiance != Rgb::ZERO) as u32;
+        }
+        assert!(lit > 100, "{lit} lit samples");
+    }
+}
