@@ -503,7 +503,7 @@ impl Bvh {
     /// another room: 27 % fewer shadow-ray instructions on `rooms:3`, BENCHMARKS.md), a few
     /// more when they are blocked by ever different ones. After an unoccluded ray the next
     /// one traverses directly.
-    #[inline]
+    #[inline(always)]
     pub fn occluded_coherent(&self, ray: &Ray) -> bool {
         #[cfg(target_arch = "x86_64")]
         if has_x86_64_v3() {
@@ -835,7 +835,7 @@ impl Bvh {
 /// Whether the CPU runs x86-64-v3 code (cached after the first call).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn has_x86_64_v3() -> bool {
+pub(crate) fn has_x86_64_v3() -> bool {
     match V3_STATE.load(std::sync::atomic::Ordering::Relaxed) {
         0 => detect_x86_64_v3(),
         v => v == 2,

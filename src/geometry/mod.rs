@@ -11,6 +11,8 @@ mod convert;
 mod sah;
 mod triangle;
 
+#[cfg(target_arch = "x86_64")]
+pub(crate) use bvh::has_x86_64_v3;
 pub use bvh::{BuildMethod, BuildProfile, Bvh, BvhQuality};
 pub use triangle::{intersect_triangle, RayPrecomp, TriangleHit};
 

@@ -63,7 +63,7 @@ impl DirectLight {
 /// if it can contribute and nothing blocks it (None otherwise). `shadow_rays` counts the
 /// shadow ray when one is traced.
 #[allow(clippy::too_many_arguments)]
-#[inline]
+#[inline(always)]
 pub fn sample_direct_light(
     scene: &Scene,
     si: &SurfaceInteraction,

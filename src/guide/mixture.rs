@@ -108,6 +108,7 @@ pub struct MixtureSample {
 /// the BSDF's own: no guided point has a delta BSDF, see the module docs of `guide`). With an
 /// unguided query this is exactly `bsdf.sample` and draws the same random numbers. `None` when
 /// the sample carries nothing (absorbed, or a guided direction the BSDF does not reflect into).
+#[inline(always)]
 pub fn sample_bsdf_or_guide<G: DirectionGuide + ?Sized>(
     bsdf: &Bsdf,
     wo_local: Vec3,

@@ -160,6 +160,7 @@ impl PathTracer {
     /// probability at `depth` (the first coordinate of `u` decides, then is rescaled) and
     /// recorded during the warm-up, its integrand scaled by `beta`.
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     fn sample_light(
         &self,
         scene: &Scene,
@@ -1170,7 +1171,59 @@ impl PathTracer {
 impl PathTracer {
     /// One camera path (see [`Integrator::sample`]), its directions drawn by one-sample MIS of
     /// the BSDF and `guide` (the BSDF's alone where the guide does not guide).
+    #[inline]
     pub(super) fn trace<G: VertexGuide>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        guide: &mut G,
+        alphas: &mut VertexAlphas,
+    ) -> PixelSample {
+        #[cfg(target_arch = "x86_64")]
+        if crate::geometry::has_x86_64_v3() {
+            // SAFETY: the CPU runs x86-64-v3 code (checked just above).
+            return unsafe { self.trace_v3(scene, ray, rng, counters, guide, alphas) };
+        }
+        self.trace_baseline(scene, ray, rng, counters, guide, alphas)
+    }
+
+    /// [`trace`](Self::trace) for any x86-64 (and other architectures).
+    #[inline(never)]
+    fn trace_baseline<G: VertexGuide>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        guide: &mut G,
+        alphas: &mut VertexAlphas,
+    ) -> PixelSample {
+        self.trace_impl(scene, ray, rng, counters, guide, alphas)
+    }
+
+    /// [`trace`](Self::trace) compiled for x86-64-v3, as the BVH traversal is: with the
+    /// per-vertex work inlined into one loop, three-operand AVX forms spare the register
+    /// copies of the shading code (BENCHMARKS.md, issue 30). Results are bit-identical: Rust
+    /// never contracts a * b + c into an FMA by itself.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn trace_v3<G: VertexGuide>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        guide: &mut G,
+        alphas: &mut VertexAlphas,
+    ) -> PixelSample {
+        self.trace_impl(scene, ray, rng, counters, guide, alphas)
+    }
+
+    /// The body of [`trace`](Self::trace), inlined into each of its two compilations.
+    #[inline(always)]
+    fn trace_impl<G: VertexGuide>(
         &self,
         scene: &Scene,
         mut ray: Ray,
@@ -1442,4 +1495,45 @@ pub(super) fn set_path_option(
         _ => return Ok(false),
     }
     Ok(true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::Vec2;
+
+    /// The x86-64-v3 copy of the trace loop gives the baseline copy's samples, bit for bit,
+    /// on a scene with diffuse and glossy surfaces.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn v3_trace_matches_the_baseline() {
+        if !crate::geometry::has_x86_64_v3() {
+            return;
+        }
+        let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
+        let frame = scene.camera().unwrap().frame(1.0);
+        let tracer = PathTracer::new(IntegratorSettings::default());
+        let bits = |s: &PixelSample| {
+            [s.radiance, s.albedo, s.normal].map(|c| [c.x.to_bits(), c.y.to_bits(), c.z.to_bits()])
+        };
+        let mut lit = 0;
+        for pixel in 0..1024u64 {
+            let film = Vec2::new((pixel % 32) as f32 + 0.5, (pixel / 32) as f32 + 0.5) / 32.0;
+            let ray = frame.generate_ray(film, Vec2::splat(0.5));
+            let mut samples = [0, 1].map(|_| Sampler::new(SamplerKind::Sobol, 7, pixel, 3));
+            let mut counters = [TraceCounters::default(); 2];
+            let off = &mut { VertexAlphas::OFF };
+            let [a_rng, b_rng] = &mut samples;
+            let [a_counters, b_counters] = &mut counters;
+            let a = tracer.trace_baseline(&scene, ray, a_rng, a_counters, &mut Unguided, off);
+            // SAFETY: the CPU runs x86-64-v3 code (checked above).
+            let b = unsafe { tracer.trace_v3(&scene, ray, b_rng, b_counters, &mut Unguided, off) };
+            assert_eq!(bits(&a), bits(&b), "pixel {pixel}");
+            assert_eq!(a.depth.to_bits(), b.depth.to_bits());
+            assert_eq!(a.hit, b.hit);
+            assert_eq!(a_counters.rays, b_counters.rays);
+            lit += (a.radiance != Rgb::ZERO) as u32;
+        }
+        assert!(lit > 100, "{lit} lit samples");
+    }
 }

@@ -396,6 +396,7 @@ impl Light {
 
     /// As [`sample_at`](Self::sample_at) with area lights sampled as `triangles` says;
     /// [`Light::pdf_with`] with the same `triangles` is its density.
+    #[inline(always)]
     pub fn sample_with(
         &self,
         receiver: Vec3,

@@ -197,7 +197,7 @@ impl Sampler {
 
     /// Uniform point in [0, 1)^2; with Sobol, a (0,2)-sequence pair stratified over the
     /// pixel's samples.
-    #[inline]
+    #[inline(always)]
     pub fn uniform2(&mut self) -> Vec2 {
         match &mut self.sequence {
             Sequence::Independent(rng) => rng.uniform2(),

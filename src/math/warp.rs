@@ -33,6 +33,7 @@ pub fn uniform_hemisphere_pdf(w: Vec3) -> f32 {
 
 /// Concentric map of the square to the unit disk (Shirley-Chiu): low distortion, so
 /// stratification survives.
+#[inline]
 pub fn concentric_disk(u: Vec2) -> Vec2 {
     let o = 2.0 * u - Vec2::ONE;
     if o.x == 0.0 && o.y == 0.0 {
@@ -47,6 +48,7 @@ pub fn concentric_disk(u: Vec2) -> Vec2 {
 }
 
 /// Cosine-weighted direction on the hemisphere z >= 0 (Malley's method).
+#[inline]
 pub fn cosine_hemisphere(u: Vec2) -> Vec3 {
     let d = concentric_disk(u);
     let z = (1.0 - d.length_squared()).max(0.0).sqrt();

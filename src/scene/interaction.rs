@@ -64,7 +64,7 @@ impl SurfaceInteraction {
 
     /// A shadow ray towards a point `to` (itself on a surface with normal `to_normal` and
     /// error `to_error`) that stops just short of it.
-    #[inline]
+    #[inline(always)]
     pub fn spawn_ray_to(&self, to: Vec3, to_error: Vec3, to_normal: Vec3) -> Ray {
         let from = offset_ray_origin(self.p, self.p_error, self.ng, to - self.p);
         let to = offset_ray_origin(to, to_error, to_normal, from - to);

@@ -246,6 +246,39 @@ pub enum Bsdf {
     },
 }
 
+/// The Lambertian [`Bsdf::eval`].
+#[inline(always)]
+fn eval_lambert(albedo: Rgb, wo: Vec3, wi: Vec3) -> Rgb {
+    let (wo, wi) = to_upper(wo, wi);
+    if wo.z > 0.0 && wi.z > 0.0 {
+        albedo * INV_PI
+    } else {
+        Rgb::ZERO
+    }
+}
+
+/// The Lambertian [`Bsdf::sample`]: a cosine-weighted direction on `wo`'s side.
+#[inline(always)]
+fn sample_lambert(albedo: Rgb, wo: Vec3, u: Vec2) -> Option<BsdfSample> {
+    if wo.z == 0.0 {
+        return None;
+    }
+    let mut wi = warp::cosine_hemisphere(u);
+    if wo.z < 0.0 {
+        wi.z = -wi.z;
+    }
+    let pdf = warp::cosine_hemisphere_pdf(Vec3::new(wi.x, wi.y, wi.z.abs()));
+    if pdf <= 0.0 {
+        return None;
+    }
+    Some(BsdfSample {
+        wi,
+        f: albedo * INV_PI,
+        pdf,
+        delta: false,
+    })
+}
+
 /// Flips both directions to the upper hemisphere when `wo` is below: opaque BSDFs are two-sided.
 #[inline]
 fn to_upper(wo: Vec3, wi: Vec3) -> (Vec3, Vec3) {
@@ -306,16 +339,20 @@ impl Bsdf {
     /// f(wo, wi); zero for delta lobes. `mode` matters only for transmission: the BSDF of a
     /// light path's vertex (`Importance`, `wo` towards the light) is the adjoint, which lacks
     /// the radiance's (eta_wo / eta_wi)^2 (Veach 1997 §5.2).
+    #[inline(always)]
     pub fn eval(&self, wo: Vec3, wi: Vec3, mode: Transport) -> Rgb {
+        // The diffuse case inlines into the callers; the others stay one call.
         match *self {
-            Bsdf::Lambert { albedo } => {
-                let (wo, wi) = to_upper(wo, wi);
-                if wo.z > 0.0 && wi.z > 0.0 {
-                    albedo * INV_PI
-                } else {
-                    Rgb::ZERO
-                }
-            }
+            Bsdf::Lambert { albedo } => eval_lambert(albedo, wo, wi),
+            _ => self.eval_other(wo, wi, mode),
+        }
+    }
+
+    /// [`eval`](Self::eval) of the BSDFs other than Lambert's.
+    #[inline(never)]
+    fn eval_other(&self, wo: Vec3, wi: Vec3, mode: Transport) -> Rgb {
+        match *self {
+            Bsdf::Lambert { albedo } => eval_lambert(albedo, wo, wi),
             Bsdf::Phong {
                 diffuse,
                 specular,
@@ -386,7 +423,7 @@ impl Bsdf {
     /// mode)` would draw them, but computing only the ones this BSDF reads (a Lambertian reads
     /// no component choice, a mirror neither number, a dielectric no direction) and skipping
     /// the others' requests, so every request keeps its meaning and the result is the same.
-    #[inline]
+    #[inline(always)]
     pub fn sample_from(&self, wo: Vec3, rng: &mut Sampler, mode: Transport) -> Option<BsdfSample> {
         let (reads_choice, reads_direction) = match self {
             Bsdf::Lambert { .. } => (false, true),
@@ -407,30 +444,16 @@ impl Bsdf {
             rng.skip_uniform2();
             Vec2::ZERO
         };
+        // The diffuse walls of an interior are most vertices: their sample inlines here.
+        if let Bsdf::Lambert { albedo } = *self {
+            return sample_lambert(albedo, wo, u);
+        }
         self.sample(wo, uc, u, mode)
     }
 
     pub fn sample(&self, wo: Vec3, uc: f32, u: Vec2, mode: Transport) -> Option<BsdfSample> {
         match *self {
-            Bsdf::Lambert { albedo } => {
-                if wo.z == 0.0 {
-                    return None;
-                }
-                let mut wi = warp::cosine_hemisphere(u);
-                if wo.z < 0.0 {
-                    wi.z = -wi.z;
-                }
-                let pdf = warp::cosine_hemisphere_pdf(Vec3::new(wi.x, wi.y, wi.z.abs()));
-                if pdf <= 0.0 {
-                    return None;
-                }
-                Some(BsdfSample {
-                    wi,
-                    f: albedo * INV_PI,
-                    pdf,
-                    delta: false,
-                })
-            }
+            Bsdf::Lambert { albedo } => sample_lambert(albedo, wo, u),
             Bsdf::Phong {
                 exponent,
                 p_specular,

@@ -357,12 +357,14 @@ impl Scene {
     }
 
     /// Closest hit of a ray with everything a shader needs.
+    #[inline(always)]
     pub fn intersect(&self, ray: &Ray) -> Option<SurfaceInteraction> {
         let hit = self.bvh.intersect(ray)?;
         Some(self.interaction(ray, &hit))
     }
 
     /// Builds the surface interaction of a hit.
+    #[inline(always)]
     pub fn interaction(&self, ray: &Ray, hit: &Hit) -> SurfaceInteraction {
         let r = self.triangles[hit.triangle as usize];
         let m = &self.meshes[r.mesh as usize];
@@ -402,6 +404,7 @@ impl Scene {
     }
 
     /// The BSDF at an interaction (texture lookups resolved).
+    #[inline(always)]
     pub fn bsdf(&self, si: &SurfaceInteraction) -> Bsdf {
         let mat = &self.materials[si.material as usize];
         let diffuse = match mat.diffuse_texture {
@@ -431,7 +434,7 @@ impl Scene {
     /// term). The caller
     /// traces the shadow ray ([`unoccluded`](Self::unoccluded)) and weights the result.
     #[allow(clippy::too_many_arguments)]
-    #[inline]
+    #[inline(always)]
     pub fn sample_light_toward(
         &self,
         si: &SurfaceInteraction,
@@ -462,7 +465,7 @@ impl Scene {
     /// unknown): [`Light::sample_with`], except that with `env=portals` the environment is
     /// drawn through the window portals `point` sees, once they are built
     /// ([`env_portals_or_init`](Self::env_portals_or_init)).
-    #[inline]
+    #[inline(always)]
     pub fn sample_light_at(
         &self,
         index: usize,
@@ -483,6 +486,7 @@ impl Scene {
     }
 
     /// Whether nothing blocks the segment from a surface point to a sampled light point.
+    #[inline(always)]
     pub fn unoccluded(&self, si: &SurfaceInteraction, sample: &LightSample) -> bool {
         let ray = if sample.distance.is_infinite() {
             si.spawn_ray(sample.wi)
