@@ -561,8 +561,67 @@ impl Bdpt {
 
     /// Traces one light subpath, storing its vertices and splatting its light-tracing (t = 1)
     /// contributions.
+    #[inline]
     #[allow(clippy::too_many_arguments)]
     fn trace_light_path<O: PathObserver>(
+        &self,
+        scene: &Scene,
+        view: &View,
+        counts: Counts,
+        rng: &mut Sampler,
+        vertices: &mut Vec<LightVertex>,
+        out: &mut LightTracingOutput,
+        obs: &mut O,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::geometry::has_x86_64_v3() {
+            // SAFETY: the CPU runs x86-64-v3 code (checked just above).
+            return unsafe {
+                self.trace_light_path_v3(scene, view, counts, rng, vertices, out, obs)
+            };
+        }
+        self.trace_light_path_baseline(scene, view, counts, rng, vertices, out, obs)
+    }
+
+    /// [`trace_light_path`](Self::trace_light_path) for any x86-64 (and other architectures).
+    #[inline(never)]
+    #[allow(clippy::too_many_arguments)]
+    fn trace_light_path_baseline<O: PathObserver>(
+        &self,
+        scene: &Scene,
+        view: &View,
+        counts: Counts,
+        rng: &mut Sampler,
+        vertices: &mut Vec<LightVertex>,
+        out: &mut LightTracingOutput,
+        obs: &mut O,
+    ) {
+        self.trace_light_path_impl(scene, view, counts, rng, vertices, out, obs)
+    }
+
+    /// [`trace_light_path`](Self::trace_light_path) compiled for x86-64-v3, as
+    /// `PathTracer::trace` is (BENCHMARKS.md, issue 30); bit-identical results.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn trace_light_path_v3<O: PathObserver>(
+        &self,
+        scene: &Scene,
+        view: &View,
+        counts: Counts,
+        rng: &mut Sampler,
+        vertices: &mut Vec<LightVertex>,
+        out: &mut LightTracingOutput,
+        obs: &mut O,
+    ) {
+        self.trace_light_path_impl(scene, view, counts, rng, vertices, out, obs)
+    }
+
+    /// The body of [`trace_light_path`](Self::trace_light_path), inlined into each of its two
+    /// compilations.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn trace_light_path_impl<O: PathObserver>(
         &self,
         scene: &Scene,
         view: &View,
@@ -673,6 +732,7 @@ impl Bdpt {
 
     /// Light tracing (t = 1): the light vertex seen by the camera through a point of its lens
     /// (the eye for a pinhole). Returns the pixel, the estimate and the lens point.
+    #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn connect_to_camera(
         &self,
@@ -736,6 +796,7 @@ impl Bdpt {
 
     /// Samples the next direction and updates throughput and MIS sums (SmallVCM's
     /// `SampleScattering`). `None` ends the subpath.
+    #[inline(always)]
     fn scatter(
         &self,
         bsdf: &Bsdf,
@@ -785,6 +846,7 @@ impl Bdpt {
 
     /// s = 1: one light sample at a camera vertex. Returns the estimate (camera throughput
     /// not applied) with the light and the sampled point.
+    #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn direct_illumination(
         &self,
@@ -867,8 +929,43 @@ impl Bdpt {
         Some((e, end))
     }
 
+    /// [`connect_vertices`](Self::connect_vertices), its x86-64-v3 copy if `V3`.
+    #[inline(always)]
+    fn connect_vertices_in<const V3: bool>(
+        &self,
+        scene: &Scene,
+        si: &SurfaceInteraction,
+        bsdf: &Bsdf,
+        state: &SubpathState,
+        v: &LightVertex,
+        counters: &mut TraceCounters,
+    ) -> Option<Estimate> {
+        #[cfg(target_arch = "x86_64")]
+        if V3 {
+            // SAFETY: `V3` is set only by `sample_observed_v3`, which runs on x86-64-v3 CPUs.
+            return unsafe { self.connect_vertices_v3(scene, si, bsdf, state, v, counters) };
+        }
+        self.connect_vertices(scene, si, bsdf, state, v, counters)
+    }
+
+    /// [`connect_vertices`](Self::connect_vertices) compiled for x86-64-v3.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn connect_vertices_v3(
+        &self,
+        scene: &Scene,
+        si: &SurfaceInteraction,
+        bsdf: &Bsdf,
+        state: &SubpathState,
+        v: &LightVertex,
+        counters: &mut TraceCounters,
+    ) -> Option<Estimate> {
+        self.connect_vertices(scene, si, bsdf, state, v, counters)
+    }
+
     /// s >= 2, t >= 2: connects camera vertex `si` to a stored light vertex. Returns the
     /// estimate (camera throughput not applied).
+    #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn connect_vertices(
         &self,
@@ -933,6 +1030,7 @@ impl Bdpt {
     /// vertex (normal `prev_normal`) and light subpaths leaving the environment (SmallVCM's
     /// background light: direction densities take the place of area densities at infinity).
     /// Returns the estimate and the environment's light index.
+    #[inline(always)]
     fn escaped(
         &self,
         scene: &Scene,
@@ -975,12 +1073,14 @@ impl Bdpt {
 
 /// Probability of continuing a subpath at a vertex: the BSDF's albedo (at most 1). The same
 /// value scales forward and reverse pdfs, so MIS weights stay exact.
+#[inline(always)]
 fn continuation(bsdf: &Bsdf) -> f32 {
     bsdf.albedo_hint().max_element().clamp(0.0, 1.0)
 }
 
 /// (eta on `wo`'s side / eta on `wi`'s side)^2 for a specular scattering from `wo` to `wi`
 /// (local frame): 1 for reflections.
+#[inline(always)]
 fn eta_ratio_squared(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
     match *bsdf {
         Bsdf::Dielectric { eta } if wo.z * wi.z < 0.0 => {
@@ -993,6 +1093,7 @@ fn eta_ratio_squared(bsdf: &Bsdf, wo: Vec3, wi: Vec3) -> f32 {
 
 /// Adjoint correction for shading normals in importance transport (Veach 1997 §5.3):
 /// |wo.ns| |wi.ng| / (|wo.ng| |wi.ns|), with `wo` towards the light side and `wi` onward.
+#[inline(always)]
 pub(super) fn shading_correction(si: &SurfaceInteraction, wo: Vec3, wi: Vec3) -> f32 {
     let num = wo.dot(si.ns).abs() * wi.dot(si.ng).abs();
     let den = wo.dot(si.ng).abs() * wi.dot(si.ns).abs();
@@ -1005,7 +1106,59 @@ pub(super) fn shading_correction(si: &SurfaceInteraction, wo: Vec3, wi: Vec3) ->
 
 impl Bdpt {
     /// One camera path and its connections, with `obs` watching.
+    #[inline]
     pub(crate) fn sample_observed<O: PathObserver>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        ctx: &SampleContext,
+        obs: &mut O,
+    ) -> PixelSample {
+        #[cfg(target_arch = "x86_64")]
+        if crate::geometry::has_x86_64_v3() {
+            // SAFETY: the CPU runs x86-64-v3 code (checked just above).
+            return unsafe { self.sample_observed_v3(scene, ray, rng, counters, ctx, obs) };
+        }
+        self.sample_observed_baseline(scene, ray, rng, counters, ctx, obs)
+    }
+
+    /// [`sample_observed`](Self::sample_observed) for any x86-64 (and other architectures).
+    #[inline(never)]
+    fn sample_observed_baseline<O: PathObserver>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        ctx: &SampleContext,
+        obs: &mut O,
+    ) -> PixelSample {
+        self.sample_observed_impl::<O, false>(scene, ray, rng, counters, ctx, obs)
+    }
+
+    /// [`sample_observed`](Self::sample_observed) compiled for x86-64-v3, as
+    /// `PathTracer::trace` is (BENCHMARKS.md, issue 30); bit-identical results.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    unsafe fn sample_observed_v3<O: PathObserver>(
+        &self,
+        scene: &Scene,
+        ray: Ray,
+        rng: &mut Sampler,
+        counters: &mut TraceCounters,
+        ctx: &SampleContext,
+        obs: &mut O,
+    ) -> PixelSample {
+        self.sample_observed_impl::<O, true>(scene, ray, rng, counters, ctx, obs)
+    }
+
+    /// The body of [`sample_observed`](Self::sample_observed), inlined into each of its two
+    /// compilations; `V3` picks the matching copy of the connections, which the policy calls
+    /// through a closure compiled apart from this body.
+    #[inline(always)]
+    fn sample_observed_impl<O: PathObserver, const V3: bool>(
         &self,
         scene: &Scene,
         mut ray: Ray,
@@ -1127,7 +1280,7 @@ impl Bdpt {
                         }
                         let rays_before = counters.rays;
                         let Some(mut e) =
-                            self.connect_vertices(scene, &si, &bsdf, &state, v, counters)
+                            self.connect_vertices_in::<V3>(scene, &si, &bsdf, &state, v, counters)
                         else {
                             // A shadow ray was traced only for a connection it then refused.
                             return Connection {
@@ -1293,3 +1446,100 @@ pub(super) const REGISTRATION: super::Registration = super::Registration {
 #[cfg(test)]
 #[path = "bdpt_weights_tests.rs"]
 mod weights_tests;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::SamplerKind;
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn v3_subpaths_and_samples_match_the_baseline() {
+        if !crate::geometry::has_x86_64_v3() {
+            return;
+        }
+        let scene = crate::scene::two_rooms_builder().unwrap().build().unwrap();
+        let view = View {
+            frame: scene.camera().unwrap().frame(1.0),
+            width: 32,
+            height: 32,
+            sampler: SamplerKind::Sobol,
+        };
+        let bdpt = Bdpt::new(IntegratorSettings::default());
+        let n = (view.width * view.height) as usize;
+        let counts = bdpt.counts(n);
+        let rgb = |c: Rgb| [c.x.to_bits(), c.y.to_bits(), c.z.to_bits()];
+        // The light subpaths of both copies, from the same numbers.
+        let mut pools = [0, 1].map(|_| {
+            let paths = LightPaths {
+                vertices: Vec::new(),
+                ranges: Vec::new(),
+                policy_data: None,
+            };
+            (paths, LightTracingOutput::default())
+        });
+        for (copy, (paths, out)) in pools.iter_mut().enumerate() {
+            for k in 0..n {
+                let mut rng = Sampler::independent(Rng::new(5, k as u64));
+                let start = paths.vertices.len() as u32;
+                let (v, o) = (&mut paths.vertices, &mut *out);
+                if copy == 0 {
+                    bdpt.trace_light_path_baseline(&scene, &view, counts, &mut rng, v, o, &mut ());
+                } else {
+                    // SAFETY: the CPU runs x86-64-v3 code (checked above).
+                    unsafe {
+                        bdpt.trace_light_path_v3(&scene, &view, counts, &mut rng, v, o, &mut ())
+                    };
+                }
+                paths.ranges.push((start, paths.vertices.len() as u32));
+            }
+        }
+        let [(a, a_out), (b, b_out)] = &pools;
+        assert_eq!(a.ranges, b.ranges);
+        assert!(a.vertices.len() > n, "{} light vertices", a.vertices.len());
+        for (u, v) in a.vertices.iter().zip(&b.vertices) {
+            assert_eq!(rgb(u.throughput), rgb(v.throughput));
+            assert_eq!(rgb(u.si.p), rgb(v.si.p));
+            assert_eq!(u.path_len, v.path_len);
+            assert_eq!(u.d_vcm.to_bits(), v.d_vcm.to_bits());
+            assert_eq!(u.d_vc.to_bits(), v.d_vc.to_bits());
+        }
+        let splats = |o: &LightTracingOutput| -> Vec<_> {
+            o.splats.iter().map(|&(p, c)| (p, rgb(c))).collect()
+        };
+        assert!(!a_out.splats.is_empty());
+        assert_eq!(splats(a_out), splats(b_out));
+        assert_eq!(a_out.counters.rays, b_out.counters.rays);
+
+        // Camera paths connecting to them.
+        let bits = |s: &PixelSample| [s.radiance, s.albedo, s.normal].map(rgb);
+        let mut lit = 0;
+        for pixel in 0..n as u64 {
+            let ctx = SampleContext {
+                pixel_index: pixel,
+                sample_index: 0,
+                view: &view,
+                iteration: Some(a),
+                layers: &[],
+            };
+            let (x, y) = ((pixel % 32) as f32 + 0.5, (pixel / 32) as f32 + 0.5);
+            let ray = view
+                .frame
+                .generate_ray(Vec2::new(x, y) / 32.0, Vec2::splat(0.5));
+            let mut samples = [0, 1].map(|_| Sampler::new(SamplerKind::Sobol, 7, pixel, 3));
+            let mut counters = [TraceCounters::default(); 2];
+            let [a_rng, b_rng] = &mut samples;
+            let [a_counters, b_counters] = &mut counters;
+            let s = bdpt.sample_observed_baseline(&scene, ray, a_rng, a_counters, &ctx, &mut ());
+            // SAFETY: the CPU runs x86-64-v3 code (checked above).
+            let t =
+                unsafe { bdpt.sample_observed_v3(&scene, ray, b_rng, b_counters, &ctx, &mut ()) };
+            assert_eq!(bits(&s), bits(&t), "pixel {pixel}");
+            assert_eq!(s.depth.to_bits(), t.depth.to_bits());
+            assert_eq!(s.hit, t.hit);
+            assert_eq!(a_counters.rays, b_counters.rays);
+            lit += (s.radiance != Rgb::ZERO) as u32;
+        }
+        assert!(lit > 100, "{lit} lit samples");
+    }
+}
