@@ -414,7 +414,7 @@ impl SpecOption<'_> {
 /// Splits an integrator specification `NAME[:KEY=VALUE]...` into the name and the settings
 /// its options change, so one comparison can race variants of an integrator:
 /// - any integrator: `max_depth=D`, `mis=power|balance` (`path` also `auto`, `env_direct` also `auto|optimal`), `env=STRATEGY` (environment
-///   sampling: latlong, cube-uniform, cube-power, cube-dynamic, bsdf);
+///   sampling: auto, latlong, cube-uniform, cube-power, cube-dynamic, bsdf, portals);
 /// - `path` and `path_skeleton`: `rr_depth=D` (bounces before Russian roulette starts),
 ///   `triangles=area|solid_angle` (how next-event estimation samples emissive triangles);
 /// - `env_direct`: `samples=N` (light samples per shading point), `bsdf=N` (BSDF samples) and

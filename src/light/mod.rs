@@ -372,7 +372,8 @@ impl Light {
     }
 
     /// Samples a point of the light as seen from `receiver`, without knowing its normal
-    /// (environment maps then use the default strategy, balanced by face power).
+    /// (environment maps then use the default strategy, `auto`, with no normal: the
+    /// lat-long density, or the cube faces balanced by power).
     pub fn sample(&self, receiver: Vec3, u: Vec2) -> Option<LightSample> {
         self.sample_at(receiver, Vec3::ZERO, EnvStrategy::default(), u)
     }

@@ -483,12 +483,12 @@ impl CubeSampler {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::math::{Rgb, Rng};
 
     /// A map with structure on every face and a bright spot.
-    fn test_image(grid: Grid) -> EnvImage {
+    pub(in crate::light::environment) fn test_image(grid: Grid) -> EnvImage {
         let texels = (0..grid.texel_count())
             .map(|i| {
                 let d = grid.texel_point(i, 0.5, 0.5);

@@ -454,18 +454,7 @@ mod tests {
     use crate::math::Rng;
 
     fn map(grid: Grid) -> EnvironmentMap {
-        let texels = (0..grid.texel_count())
-            .map(|i| {
-                let d = grid.texel_point(i, 0.5, 0.5);
-                let sun = if d.dot(Vec3::new(0.6, 0.64, 0.48)) > 0.99 {
-                    300.0
-                } else {
-                    0.0
-                };
-                Rgb::new(1.0 + d.x.max(0.0), 0.5 + d.y * d.y, 0.2) + Rgb::splat(sun)
-            })
-            .collect();
-        let image = EnvImage::new(grid, texels).unwrap();
+        let image = direction_sampling::tests::test_image(grid);
         EnvironmentMap::new(image, EnvSettings::default()).unwrap()
     }
 
