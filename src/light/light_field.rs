@@ -291,6 +291,23 @@ impl PixelBox {
     }
 }
 
+/// A continuous pixel coordinate split for the summed-area table's bilinear interpolation:
+/// the knot below it (clamped to the table's last pixel) and the fraction past that knot.
+#[derive(Clone, Copy, Debug)]
+struct Knot {
+    i: usize,
+    f: f64,
+}
+
+impl Knot {
+    /// `x` on an axis of `n` pixels.
+    #[inline]
+    fn new(x: f64, n: usize) -> Self {
+        let i = (x.max(0.0) as usize).min(n - 1);
+        Knot { i, f: x - i as f64 }
+    }
+}
+
 impl LightField {
     /// A light field from its layout and its images' pixels: image m = j * nodes[0] + i
     /// (basis function (i, j)), each `resolution[0]` x `resolution[1]` row-major with row y at
@@ -511,12 +528,30 @@ impl LightField {
     fn restricted_box(&self, p: Vec3, m: usize) -> Option<PixelBox> {
         let l = &self.layout;
         let (i, j) = (m % l.nodes[0] as usize, m / l.nodes[0] as usize);
-        let half = l.node_spacing * l.basis.radius();
-        let (lo, hi) = (l.node(i, j) - half, l.node(i, j) + half);
         let k = l.plane_distance / p.z;
-        let pxy = Vec2::new(p.x, p.y);
-        let (s_lo, s_hi) = (lo + (pxy - lo) * k, hi + (pxy - hi) * k);
-        self.pixel_box(s_lo, s_hi)
+        let (x0, x1) = self.box_side(0, i, p.x, k)?;
+        let (y0, y1) = self.box_side(1, j, p.y, k)?;
+        Some(PixelBox { x0, x1, y0, y1 })
+    }
+
+    /// One side of a restricted box ([`restricted_box`](Self::restricted_box)): along `axis`
+    /// (0: x, 1: y), the interval in pixels, clipped to the image, of the basis functions of
+    /// node index `n` on that axis, seen from the receiver's coordinate `p` on it with
+    /// k = delta / p_z; `None` when empty. A box is the product of its two sides, so the
+    /// images of one node column share their x side and those of one row their y side.
+    /// The same operations as [`pixel_box`](Self::pixel_box) of the box's corners, one axis.
+    #[inline]
+    fn box_side(&self, axis: usize, n: usize, p: f32, k: f32) -> Option<(f64, f64)> {
+        let l = &self.layout;
+        let node = l.node_min[axis] + l.node_spacing[axis] * n as f32;
+        let half = l.node_spacing[axis] * l.basis.radius();
+        let (lo, hi) = (node - half, node + half);
+        let (s_lo, s_hi) = (lo + (p - lo) * k, hi + (p - hi) * k);
+        let pixel = l.pixel_size()[axis] as f64;
+        let resolution = l.resolution[axis] as f64;
+        let to_pixels = |s: f32| ((s - l.image_min[axis]) as f64 / pixel).clamp(0.0, resolution);
+        let (a, b) = (to_pixels(s_lo), to_pixels(s_hi));
+        (b > a).then_some((a, b))
     }
 
     /// The image-plane rectangle [`s_lo`, `s_hi`] in pixels, clipped to the image; None where
@@ -535,22 +570,26 @@ impl LightField {
         (b.x1 > b.x0 && b.y1 > b.y0).then_some(b)
     }
 
-    /// The summed-area table of image `m` at the continuous pixel point (`x`, `y`): the
-    /// integral of the luminance over [0, x) x [0, y). Exact by bilinear interpolation, as the
-    /// integral of a piecewise-constant function is bilinear within each pixel.
-    fn sat_at(&self, m: usize, x: f64, y: f64) -> f64 {
-        let (rx, ry) = (
-            self.layout.resolution[0] as usize,
-            self.layout.resolution[1] as usize,
-        );
-        let t = &self.sat[m * (rx + 1) * (ry + 1)..];
-        let xi = (x.max(0.0) as usize).min(rx - 1);
-        let yi = (y.max(0.0) as usize).min(ry - 1);
-        let (fx, fy) = (x - xi as f64, y - yi as f64);
-        let at = |a: usize, b: usize| t[b * (rx + 1) + a];
-        let bottom = at(xi, yi) * (1.0 - fx) + at(xi + 1, yi) * fx;
-        let top = at(xi, yi + 1) * (1.0 - fx) + at(xi + 1, yi + 1) * fx;
-        bottom * (1.0 - fy) + top * fy
+    /// Image `m`'s summed-area table.
+    #[inline]
+    fn sat_image(&self, m: usize) -> &[f64] {
+        let per_image =
+            (self.layout.resolution[0] as usize + 1) * (self.layout.resolution[1] as usize + 1);
+        &self.sat[m * per_image..(m + 1) * per_image]
+    }
+
+    /// The summed-area table `t` of an image at the continuous pixel point split into knots
+    /// (`x`, `y`): the integral of the luminance over [0, x) x [0, y). Exact by bilinear
+    /// interpolation, as the integral of a piecewise-constant function is bilinear within each
+    /// pixel. Points sharing a coordinate split it once.
+    #[inline(always)]
+    fn sat_knots(&self, t: &[f64], x: Knot, y: Knot) -> f64 {
+        let width = self.layout.resolution[0] as usize + 1;
+        // Both rows in one slice: one bounds check.
+        let r = &t[y.i * width + x.i..][..width + 2];
+        let bottom = r[0] * (1.0 - x.f) + r[1] * x.f;
+        let top = r[width] * (1.0 - x.f) + r[width + 1] * x.f;
+        bottom * (1.0 - y.f) + top * y.f
     }
 
     /// Image `m`'s restricted box for the receiver of grid coordinates (`a`, `t`)
@@ -584,8 +623,21 @@ impl LightField {
 
     /// A_m(p) in pixel units: the luminance of image `m` integrated over box `b` (eq. 4.14).
     fn box_integral(&self, m: usize, b: &PixelBox) -> f64 {
-        self.sat_at(m, b.x1, b.y1) - self.sat_at(m, b.x0, b.y1) - self.sat_at(m, b.x1, b.y0)
-            + self.sat_at(m, b.x0, b.y0)
+        let (rx, ry) = (
+            self.layout.resolution[0] as usize,
+            self.layout.resolution[1] as usize,
+        );
+        let (x0, x1) = (Knot::new(b.x0, rx), Knot::new(b.x1, rx));
+        let (y0, y1) = (Knot::new(b.y0, ry), Knot::new(b.y1, ry));
+        self.box_integral_knots(self.sat_image(m), x0, x1, y0, y1)
+    }
+
+    /// [`box_integral`](Self::box_integral) in table `t` over the box of corners split into
+    /// knots.
+    #[inline(always)]
+    fn box_integral_knots(&self, t: &[f64], x0: Knot, x1: Knot, y0: Knot, y1: Knot) -> f64 {
+        self.sat_knots(t, x1, y1) - self.sat_knots(t, x0, y1) - self.sat_knots(t, x1, y0)
+            + self.sat_knots(t, x0, y0)
     }
 
     /// The weight of each image for `strategy` from `p`: A_m(p) (restricted) or the box's
@@ -749,21 +801,41 @@ impl LightField {
         };
         let (i0, i1) = range(t.x, l.nodes[0]);
         let (j0, j1) = range(t.y, l.nodes[1]);
+        let (rx, ry) = (l.resolution[0] as usize, l.resolution[1] as usize);
+        // The x sides of the candidates' boxes that hold x, split into knots once for every
+        // row of images (a finite t spans at most 2 reach + 1 <= 6 nodes; a wider range, only
+        // from a non-finite t, computes the rest on the fly).
+        let k = l.plane_distance / p.z;
+        let x_side = |i: i64| {
+            self.box_side(0, i as usize, p.x, k)
+                .filter(|&(x0, x1)| (x0..=x1).contains(&x))
+                .map(|(x0, x1)| (Knot::new(x0, rx), Knot::new(x1, rx)))
+        };
+        const CACHED: usize = 8;
+        let mut x_sides = [None; CACHED];
+        for (i, side) in (i0..=i1).zip(x_sides.iter_mut()) {
+            *side = x_side(i);
+        }
         let mut density = 0f64;
         for j in j0..=j1 {
+            let Some((y0, y1)) = self
+                .box_side(1, j as usize, p.y, k)
+                .filter(|&(y0, y1)| (y0..=y1).contains(&y))
+            else {
+                continue;
+            };
+            let (y0, y1) = (Knot::new(y0, ry), Knot::new(y1, ry));
             for i in i0..=i1 {
+                let n = (i - i0) as usize;
+                let Some((x0, x1)) = (if n < CACHED { x_sides[n] } else { x_side(i) }) else {
+                    continue;
+                };
                 let m = j as usize * l.nodes[0] as usize + i as usize;
                 let q = self.choice_grid.probability(cell, m);
                 if q <= 0.0 {
                     continue;
                 }
-                let Some(b) = self.restricted_box(p, m) else {
-                    continue;
-                };
-                if !b.contains(x, y) {
-                    continue;
-                }
-                let a = self.box_integral(m, &b);
+                let a = self.box_integral_knots(self.sat_image(m), x0, x1, y0, y1);
                 if a > 0.0 {
                     density += q * self.weight[m * l.pixels_per_image() + pixel] as f64 / a;
                 }
@@ -779,13 +851,41 @@ impl LightField {
     /// would not be C_m / A_m as eq. 4.14 states. Both 1-D inversions read the summed-area
     /// table: G(x) = S(x, y1) - S(x, y0) is the restricted marginal's CDF (up to G(x0)), linear
     /// within a pixel column; given the column, S(c + 1, y) - S(c, y) is the conditional's.
+    ///
+    /// At the knots (integer x or y) the table is read without interpolation along that axis:
+    /// the same values as interpolating with a zero (or, at the far edge, unit) fraction.
     fn sample_in_box(&self, m: usize, b: &PixelBox, ux: f64, uy: f64) -> Option<(f64, f64)> {
-        let g = |x: f64| self.sat_at(m, x, b.y1) - self.sat_at(m, x, b.y0);
-        let x = invert_piecewise_linear(g, b.x0, b.x1, ux)?;
-        let column = (x.floor().max(0.0) as usize).min(self.layout.resolution[0] as usize - 1);
-        let (c0, c1) = (column as f64, column as f64 + 1.0);
-        let h = |y: f64| self.sat_at(m, c1, y) - self.sat_at(m, c0, y);
-        let y = invert_piecewise_linear(h, b.y0, b.y1, uy)?;
+        let (rx, ry) = (
+            self.layout.resolution[0] as usize,
+            self.layout.resolution[1] as usize,
+        );
+        let width = rx + 1;
+        let t = self.sat_image(m);
+        let (y0, y1) = (Knot::new(b.y0, ry), Knot::new(b.y1, ry));
+        let g = |x: f64| {
+            let x = Knot::new(x, rx);
+            self.sat_knots(t, x, y1) - self.sat_knots(t, x, y0)
+        };
+        let column_at = |x: usize, y: Knot| {
+            let r = y.i * width + x;
+            t[r] * (1.0 - y.f) + t[r + width] * y.f
+        };
+        let g_knot = |x: i64| column_at(x as usize, y1) - column_at(x as usize, y0);
+        let x = invert_piecewise_linear(g, g_knot, b.x0, b.x1, ux)?;
+        let column = (x.floor().max(0.0) as usize).min(rx - 1);
+        let (c0, c1) = (
+            Knot::new(column as f64, rx),
+            Knot::new(column as f64 + 1.0, rx),
+        );
+        let h = |y: f64| {
+            let y = Knot::new(y, ry);
+            self.sat_knots(t, c1, y) - self.sat_knots(t, c0, y)
+        };
+        let h_knot = |y: i64| {
+            let r = y as usize * width + column;
+            t[r + 1] - t[r]
+        };
+        let y = invert_piecewise_linear(h, h_knot, b.y0, b.y1, uy)?;
         Some((x, y))
     }
 
@@ -1171,30 +1271,51 @@ fn layout_from_metadata(
 
 /// Inverts a non-decreasing, piecewise-linear (between integers) function `f` on [a, b]:
 /// the x with f(x) - f(a) = u (f(b) - f(a)), found by bisection on the integer knots and then
-/// linearly. `None` when f does not increase on [a, b].
-fn invert_piecewise_linear(f: impl Fn(f64) -> f64, a: f64, b: f64, u: f64) -> Option<f64> {
+/// linearly. `f_knot(k)` must be `f(k as f64)` (to the bit) at the knots k in [floor(a),
+/// ceil(b)], for a cheaper read there. `None` when f does not increase on [a, b].
+fn invert_piecewise_linear(
+    f: impl Fn(f64) -> f64,
+    f_knot: impl Fn(i64) -> f64,
+    a: f64,
+    b: f64,
+    u: f64,
+) -> Option<f64> {
     let (fa, fb) = (f(a), f(b));
     if !(fb > fa) {
         return None;
     }
     let target = fa + u.clamp(0.0, 1.0) * (fb - fa);
     // The last knot k in [floor(a), ceil(b) - 1] with f(max(k, a)) < target: the piece from
-    // max(k, a) to min(k + 1, b) holds the target and rises.
+    // max(k, a) to min(k + 1, b) holds the target and rises. Every knot probed lies strictly
+    // inside (a, b). The values read at lo and at hi + 1 serve the last piece.
     let (mut lo, mut hi) = (
         a.floor() as i64,
         (b.ceil() as i64 - 1).max(a.floor() as i64),
     );
+    let (mut f_lo, mut f_above) = (None, None);
     while lo < hi {
         let mid = (lo + hi + 1) / 2;
-        if f((mid as f64).max(a)) < target {
+        let f_mid = f_knot(mid);
+        if f_mid < target {
             lo = mid;
+            f_lo = Some(f_mid);
         } else {
             hi = mid - 1;
+            f_above = Some(f_mid);
         }
     }
     let x0 = (lo as f64).max(a);
     let x1 = (lo as f64 + 1.0).min(b);
-    let (f0, f1) = (f(x0), f(x1));
+    let f0 = match f_lo {
+        _ if x0 == a => fa,
+        Some(v) => v,
+        None => f_knot(lo),
+    };
+    let f1 = match f_above {
+        _ if x1 == b => fb,
+        Some(v) => v,
+        None => f_knot(lo + 1),
+    };
     let x = if f1 > f0 {
         x0 + (target - f0) / (f1 - f0) * (x1 - x0)
     } else {
@@ -1269,6 +1390,171 @@ mod tests {
             assert!(b.contains(x, y), "({x}, {y}) outside the box");
             assert!(x >= 1.0 || y >= 1.0, "({x}, {y}) in the zero pixel");
         }
+    }
+
+    /// The summed-area table read by interpolating both axes, whatever the point.
+    fn plain_sat_at(f: &LightField, m: usize, x: f64, y: f64) -> f64 {
+        let (rx, ry) = (
+            f.layout.resolution[0] as usize,
+            f.layout.resolution[1] as usize,
+        );
+        let t = &f.sat[m * (rx + 1) * (ry + 1)..];
+        let xi = (x.max(0.0) as usize).min(rx - 1);
+        let yi = (y.max(0.0) as usize).min(ry - 1);
+        let (fx, fy) = (x - xi as f64, y - yi as f64);
+        let at = |a: usize, b: usize| t[b * (rx + 1) + a];
+        let bottom = at(xi, yi) * (1.0 - fx) + at(xi + 1, yi) * fx;
+        let top = at(xi, yi + 1) * (1.0 - fx) + at(xi + 1, yi + 1) * fx;
+        bottom * (1.0 - fy) + top * fy
+    }
+
+    /// Bisection reading `f` at every probe.
+    fn plain_invert(f: impl Fn(f64) -> f64, a: f64, b: f64, u: f64) -> Option<f64> {
+        let (fa, fb) = (f(a), f(b));
+        if !(fb > fa) {
+            return None;
+        }
+        let target = fa + u.clamp(0.0, 1.0) * (fb - fa);
+        let (mut lo, mut hi) = (
+            a.floor() as i64,
+            (b.ceil() as i64 - 1).max(a.floor() as i64),
+        );
+        while lo < hi {
+            let mid = (lo + hi + 1) / 2;
+            if f((mid as f64).max(a)) < target {
+                lo = mid;
+            } else {
+                hi = mid - 1;
+            }
+        }
+        let x0 = (lo as f64).max(a);
+        let x1 = (lo as f64 + 1.0).min(b);
+        let (f0, f1) = (f(x0), f(x1));
+        let x = if f1 > f0 {
+            x0 + (target - f0) / (f1 - f0) * (x1 - x0)
+        } else {
+            0.5 * (x0 + x1)
+        };
+        Some(x.clamp(x0, x1))
+    }
+
+    fn plain_sample_in_box(
+        f: &LightField,
+        m: usize,
+        b: &PixelBox,
+        ux: f64,
+        uy: f64,
+    ) -> Option<(f64, f64)> {
+        let g = |x: f64| plain_sat_at(f, m, x, b.y1) - plain_sat_at(f, m, x, b.y0);
+        let x = plain_invert(g, b.x0, b.x1, ux)?;
+        let column = (x.floor().max(0.0) as usize).min(f.layout.resolution[0] as usize - 1);
+        let (c0, c1) = (column as f64, column as f64 + 1.0);
+        let h = |y: f64| plain_sat_at(f, m, c1, y) - plain_sat_at(f, m, c0, y);
+        let y = plain_invert(h, b.y0, b.y1, uy)?;
+        Some((x, y))
+    }
+
+    /// The restricted density summed over every image, each box from its corners.
+    fn plain_restricted_pdf(f: &LightField, p: Vec3, s: Vec2) -> f32 {
+        let l = &f.layout;
+        let Some(cell) = f.choice_grid.cell_of(l, p) else {
+            return 0.0;
+        };
+        let Some(pixel) = f.pixel_index(s) else {
+            return 0.0;
+        };
+        let (x, y) = f.to_pixels(s);
+        let mut density = 0f64;
+        for m in 0..l.image_count() {
+            let q = f.choice_grid.probability(cell, m);
+            let (i, j) = (m % l.nodes[0] as usize, m / l.nodes[0] as usize);
+            let half = l.node_spacing * l.basis.radius();
+            let (lo, hi) = (l.node(i, j) - half, l.node(i, j) + half);
+            let k = l.plane_distance / p.z;
+            let pxy = Vec2::new(p.x, p.y);
+            let Some(b) = f.pixel_box(lo + (pxy - lo) * k, hi + (pxy - hi) * k) else {
+                continue;
+            };
+            if q <= 0.0 || !b.contains(x, y) {
+                continue;
+            }
+            let a = plain_sat_at(f, m, b.x1, b.y1)
+                - plain_sat_at(f, m, b.x0, b.y1)
+                - plain_sat_at(f, m, b.x1, b.y0)
+                + plain_sat_at(f, m, b.x0, b.y0);
+            if a > 0.0 {
+                density += q * f.weight[m * l.pixels_per_image() + pixel] as f64 / a;
+            }
+        }
+        let ps = l.pixel_size();
+        (density / (ps.x as f64 * ps.y as f64)) as f32
+    }
+
+    /// The summed-area reads at the knots, the boxes built one side at a time and the pdf's
+    /// window of candidate images give the same numbers, to the bit, as their plain forms.
+    #[test]
+    fn restricted_sampling_matches_its_plain_form_to_the_bit() {
+        let layout = LightFieldLayout {
+            nodes: [6, 5],
+            node_min: Vec2::new(-0.25, -0.2),
+            node_spacing: Vec2::new(0.1, 0.1),
+            basis: FilterBasis::Quadratic,
+            plane_distance: 0.3,
+            image_min: Vec2::new(-0.8, -0.7),
+            image_max: Vec2::new(0.8, 0.9),
+            resolution: [13, 11],
+        };
+        let mut rng = Rng::new(7, 0);
+        let pixels: Vec<Rgb> = (0..layout.image_count() * layout.pixels_per_image())
+            .map(|_| {
+                // Some zero pixels, so that boxes and columns can be empty.
+                let v = rng.uniform();
+                Rgb::splat(if v < 0.2 { 0.0 } else { v * v * 10.0 })
+            })
+            .collect();
+        let f = LightField::new(layout.clone(), pixels).unwrap();
+        let whole = PixelBox {
+            x0: 0.0,
+            x1: 13.0,
+            y0: 0.0,
+            y1: 11.0,
+        };
+        let (mut samples, mut densities) = (0, 0);
+        for _ in 0..3000 {
+            let p = Vec3::new(
+                2.0 * rng.uniform() - 1.0,
+                2.0 * rng.uniform() - 1.0,
+                0.3 + 1.5 * rng.uniform() + 1e-3,
+            );
+            let m = (rng.uniform() * layout.image_count() as f32) as usize % layout.image_count();
+            let (ux, uy) = (rng.uniform() as f64, rng.uniform() as f64);
+            for b in [f.restricted_box(p, m), Some(whole)].into_iter().flatten() {
+                let fast = f.sample_in_box(m, &b, ux, uy);
+                let plain = plain_sample_in_box(&f, m, &b, ux, uy);
+                let bits = |v: Option<(f64, f64)>| v.map(|(x, y)| (x.to_bits(), y.to_bits()));
+                assert_eq!(
+                    bits(fast),
+                    bits(plain),
+                    "image {m}, box {b:?}, u ({ux}, {uy})"
+                );
+                samples += fast.is_some() as usize;
+            }
+            let s = match f.sample_restricted(p, Vec2::new(rng.uniform(), rng.uniform())) {
+                Some((s, _)) => s,
+                None => Vec2::new(2.0 * rng.uniform() - 1.0, 2.0 * rng.uniform() - 1.0),
+            };
+            let (fast, plain) = (f.restricted_pdf(p, s), plain_restricted_pdf(&f, p, s));
+            assert_eq!(
+                fast.to_bits(),
+                plain.to_bits(),
+                "p {p}, s {s}: {fast} vs {plain}"
+            );
+            densities += (fast > 0.0) as usize;
+        }
+        assert!(
+            samples > 2000 && densities > 1000,
+            "{samples} samples, {densities} densities"
+        );
     }
 
     #[test]
