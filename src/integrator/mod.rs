@@ -415,7 +415,8 @@ impl SpecOption<'_> {
 /// its options change, so one comparison can race variants of an integrator:
 /// - any integrator: `max_depth=D`, `mis=power|balance` (`path` also `auto`, `env_direct` also `auto|optimal`), `env=STRATEGY` (environment
 ///   sampling: auto, latlong, cube-uniform, cube-power, cube-dynamic, bsdf, portals);
-/// - `path` and `path_skeleton`: `rr_depth=D` (bounces before Russian roulette starts),
+/// - `path` and `path_skeleton`: `rr_depth=D|auto` (bounces before Russian roulette starts;
+///   `auto` chooses them per scene with a pilot),
 ///   `triangles=area|solid_angle` (how next-event estimation samples emissive triangles);
 /// - `env_direct`: `samples=N` (light samples per shading point), `bsdf=N` (BSDF samples) and
 ///   `alpha_steps=K` (`mis=auto`: K quadratic models of the second moment, 1 = eq. 5.4 alone,

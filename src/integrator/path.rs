@@ -78,6 +78,8 @@ use crate::math::{luminance, Frame, PixelSampler, Rgb, Rng, Sampler, SamplerKind
 use crate::scene::{Bsdf, Camera, Scene, SurfaceInteraction};
 use crate::timing::thread_cpu_seconds;
 
+mod roulette;
+
 /// Sampler dimension slots of one bounce, so that each slot means the same thing in every
 /// sample of a pixel (and a stratified sampler stratifies that one integral): the light 2-D
 /// (whose first coordinate also picks the light, rescaled, so the pair stays a stratified set
@@ -532,7 +534,8 @@ impl Integrator for PathTracer {
         camera: &Camera,
         progress: &dyn Fn(&str, f64) -> bool,
     ) -> Result<Precomputation> {
-        let portals = prepare_env_portals(scene, &self.settings)?;
+        let mut portals = prepare_env_portals(scene, &self.settings)?;
+        self.prepare_roulette(scene, camera, &mut portals);
         if self.guiding.is_none() {
             return Ok(portals);
         }
@@ -756,6 +759,33 @@ impl Integrator for PathTracer {
 }
 
 impl PathTracer {
+    /// `rr_depth=auto`: sets the start of Russian roulette for `scene` and `camera` from the
+    /// pilot ([`roulette`]), with its time and note in `pre`; nothing otherwise.
+    pub(super) fn prepare_roulette(
+        &mut self,
+        scene: &Scene,
+        camera: &Camera,
+        pre: &mut Precomputation,
+    ) {
+        if !self.settings.path.rr_depth_auto {
+            return;
+        }
+        let started = std::time::Instant::now();
+        let choice = roulette::choose_start_depth(scene, camera, &self.settings);
+        self.settings.path.rr_start_depth = choice.start_depth;
+        let seconds = started.elapsed().as_secs_f64();
+        pre.notes.push(choice.note(seconds));
+        pre.stages.push(crate::analysis::StageTime {
+            stage: "rr_depth=auto (pilot of paths without roulette)",
+            seconds,
+        });
+    }
+
+    /// The start of Russian roulette in use (`rr_depth`, or what `rr_depth=auto` chose).
+    pub(super) fn rr_start_depth(&self) -> u32 {
+        self.settings.path.rr_start_depth
+    }
+
     pub(super) fn mis(&self) -> MisHeuristic {
         super::mis_in_use(self.name(), &self.settings)
     }
@@ -961,6 +991,11 @@ pub(super) trait VertexGuide {
     /// of `mis=auto` records them ([`MixtureRecorder`]); the render's guides ignore it.
     #[inline]
     fn drew(&mut self, _radiance: Rgb, _wi: Vec3, _pdf: f32, _pdf_bsdf: f32) {}
+    /// Told of each Russian-roulette decision point (before the roulette, whether or not it
+    /// applies at this depth): the sample's radiance so far and the throughput the roulette
+    /// reads. `rr_depth=auto`'s pilot records them ([`roulette::RouletteRecorder`]).
+    #[inline]
+    fn roulette_point(&mut self, _radiance: Rgb, _rr_beta: Rgb) {}
     /// Feature `diagnostics`: the skeleton query the vertex records show, if this is one.
     #[cfg(feature = "diagnostics")]
     fn skeleton_query(&self) -> Option<&GuideQuery> {
@@ -1375,6 +1410,7 @@ impl PathTracer {
             rng.set_dimension(slot(depth, ROULETTE_SLOT));
             depth += 1;
 
+            guide.roulette_point(radiance, rr_beta);
             if depth >= self.settings.path.rr_start_depth {
                 let q = (1.0 - rr_beta.max_element()).max(0.05);
                 if rng.uniform() < q {
@@ -1450,7 +1486,7 @@ pub(super) const PATH_SKELETON: super::Registration = super::Registration {
 };
 
 /// `path`'s and `path_skeleton`'s own options
-/// (`path:rr_depth=D:triangles=area|solid_angle:mis_warmup=N`, `path_skeleton:mix_warmup=N`).
+/// (`path:rr_depth=D|auto:triangles=area|solid_angle:mis_warmup=N`, `path_skeleton:mix_warmup=N`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PathOptions {
     /// Russian roulette: a path that has made this many bounces may be ended before the next
@@ -1458,6 +1494,9 @@ pub struct PathOptions {
     /// Mitsuba's): by instructions x MAE^2 per sample, a start at 5 against 3 wins on most test
     /// scenes and loses little on the one where it loses (BENCHMARKS.md).
     pub rr_start_depth: u32,
+    /// `rr_depth=auto`: `prepare` sets `rr_start_depth` for the scene and camera from a pilot
+    /// ([`roulette`]).
+    pub rr_depth_auto: bool,
     /// How next-event estimation samples emissive triangles: by area (default) or by solid
     /// angle (`bdpt` always samples them by area: its MIS weights assume that density).
     pub triangles: TriangleSampling,
@@ -1474,6 +1513,7 @@ impl Default for PathOptions {
     fn default() -> Self {
         PathOptions {
             rr_start_depth: 5,
+            rr_depth_auto: false,
             triangles: TriangleSampling::default(),
             mis_warmup: 16,
             mix_warmup: 32768,
@@ -1488,7 +1528,11 @@ pub(super) fn set_path_option(
 ) -> Result<bool> {
     let options = &mut settings.path;
     match option.key {
-        "rr_depth" => options.rr_start_depth = option.count()?,
+        "rr_depth" if option.value == "auto" => options.rr_depth_auto = true,
+        "rr_depth" => {
+            options.rr_start_depth = option.count()?;
+            options.rr_depth_auto = false;
+        }
         "triangles" => options.triangles = TriangleSampling::parse(option.value)?,
         "mis_warmup" => options.mis_warmup = option.count()?,
         "mix_warmup" => options.mix_warmup = option.count()?,

@@ -129,6 +129,8 @@ impl Integrator for PortalPathTracer {
     ) -> Result<Precomputation> {
         self.guide = None;
         let mut pre = prepare_env_portals(scene, &self.settings)?;
+        self.path.prepare_roulette(scene, camera, &mut pre);
+        self.settings.path.rr_start_depth = self.path.rr_start_depth();
         let estimator = RenderEstimator {
             mis: self.settings.mis.unwrap_or_default(),
             triangles: self.settings.path.triangles,
