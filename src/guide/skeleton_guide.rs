@@ -51,7 +51,7 @@ use super::importance::{
     ShortestPaths,
 };
 use super::lobes::{plan_lobes, GuideLobe, ImportanceNode, LobePlan, MAX_LOBES};
-use super::settings::{SkeletonGuideSettings, SkeletonStrength, AUTO_RATIO_MAX, BUDGET_SHARE};
+use super::settings::{SkeletonGuideSettings, SkeletonStrength, AUTO_RATIO_MAX};
 use super::training::{self, TrainingReport};
 use crate::analysis::{may_map_to, NeighbourMasks, Skeleton, StageTime, VoxelGrid, VoxelSet};
 use crate::error::{Error, Result};
@@ -326,13 +326,22 @@ impl SkeletonGuide {
                     training::Scout::Keep(&mut scout_paths),
                 );
                 guide.settings.training_paths = full;
-                // With a time budget: the rest of the training, at the scout's pace, must fit
-                // in BUDGET_SHARE of it with what the precomputation has spent already.
-                let rest =
-                    scout_started.elapsed().as_secs_f64() * (training::SCOUT_FRACTION - 1) as f64;
-                let over_budget = settings
-                    .time_budget
-                    .is_some_and(|b| started.elapsed().as_secs_f64() + rest > BUDGET_SHARE * b);
+                // With a time budget (module `budget`): the rest of the training and the
+                // pilots, at the scout's pace (a pilot path costs about a training path), must
+                // fit in BUDGET_SHARE of it with what the precomputation has spent already.
+                let scout_seconds = scout_started.elapsed().as_secs_f64();
+                let pilots = if settings.pilot_paths > 0 && settings.cost_model.switches() {
+                    1 + scout_check.is_some() as u32
+                } else {
+                    0
+                };
+                let pilot_paths = pilots as f64 * settings.pilot_paths as f64;
+                let rest = scout_seconds * (training::SCOUT_FRACTION - 1) as f64
+                    + scout_seconds * pilot_paths / guide.settings.training_paths.max(1) as f64
+                        * training::SCOUT_FRACTION as f64;
+                let over_budget = settings.time_budget.is_some_and(|b| {
+                    !super::budget::fits(b, started.elapsed().as_secs_f64(), rest)
+                });
                 if over_budget && report.paths > 0 {
                     report.turn_off(settings);
                 }
