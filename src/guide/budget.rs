@@ -7,7 +7,8 @@
 //! [`BUDGET_SHARE`] of it. Before each stage the rest is estimated ([`PrecomputeEstimate`]):
 //! the analysis and skeleton from the voxel count, every stage that traces paths (light
 //! tracing, training, pilots) from the measured time of one unguided camera sample of the
-//! render's own estimator (a probe of [`PROBE_SAMPLES`] samples, a few milliseconds), and,
+//! render's own estimator (a probe of [`PROBE_SAMPLES`] samples, a few milliseconds of thread
+//! CPU time), and,
 //! once the scout has run, the training's own pace. Where the stages done and the estimate
 //! of the rest exceed the share, `path_skeleton` stops and renders `path`'s samples exactly.
 

@@ -120,6 +120,9 @@ pub struct SkeletonGuide {
     /// scene-level switch of `cost_model=switch|measured`): `path_skeleton` then traces
     /// exactly `path`'s samples.
     guides_nothing: bool,
+    /// The scout stopped the training because the rest of the precomputation would not fit
+    /// in the time budget's share (module `budget`).
+    over_budget: bool,
     importance: Vec<ImportanceNode>,
     /// Nodes with a non-zero power estimate before the `max_importance_nodes` cut.
     importance_found: usize,
@@ -292,6 +295,7 @@ impl SkeletonGuide {
             directions: None,
             may_guide: VoxelSet::new(0),
             guides_nothing: false,
+            over_budget: false,
             importance,
             importance_found,
             raw_nodes: raw.nodes.len(),
@@ -344,6 +348,7 @@ impl SkeletonGuide {
                 });
                 if over_budget && report.paths > 0 {
                     report.turn_off(settings);
+                    guide.over_budget = true;
                 }
                 let guides_some_node = report.probabilities.iter().any(|&c| c > 0.0);
                 if let Some(check) = scout_check.filter(|_| report.paths > 0 && guides_some_node) {
@@ -405,6 +410,12 @@ impl SkeletonGuide {
         guide.guides_nothing = guide.node_c.iter().all(|&c| c <= 0.0);
         guide.timings = timings;
         Ok(guide)
+    }
+
+    /// Whether the scout stopped the training to keep the precomputation within the time
+    /// budget's share (`settings.time_budget`, module `budget`): nothing is guided.
+    pub fn stopped_over_budget(&self) -> bool {
+        self.over_budget
     }
 
     /// The scout check of [`SkeletonGuide::build_with_scout_check`]: `check` on this guide with

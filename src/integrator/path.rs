@@ -456,20 +456,29 @@ impl PathTracer {
     }
 
     /// Seconds per unguided camera sample of the render's estimator on this thread: the mean
-    /// over [`budget::PROBE_SAMPLES`] samples along the pilot's rays (`guide::budget`).
+    /// over [`budget::PROBE_SAMPLES`] samples along the pilot's rays (`guide::budget`), in the
+    /// thread's CPU time: a probe of a few milliseconds may lose a whole time slice to other
+    /// processes on a loaded machine, which the wall clock would read as a slow scene (the
+    /// checks after the analysis and the scout read the wall clock, load included). The first
+    /// quarter warms the caches, untimed.
     fn probe_sample_seconds(&self, scene: &Scene, camera: &Camera) -> f64 {
         let (units, count) =
             PilotUnits::new(camera, SamplerKind::Independent, budget::PROBE_SAMPLES / 2);
         let mut counters = TraceCounters::default();
-        let started = std::time::Instant::now();
-        for unit in 0..count {
-            units.estimates(unit, |ray, rng| {
-                let off = &mut { VertexAlphas::OFF };
-                self.trace(scene, ray, rng, &mut counters, &mut Unguided, off)
-                    .radiance
-            });
-        }
-        started.elapsed().as_secs_f64() / (2 * count.max(1)) as f64
+        let warm = count / 4;
+        let mut trace = |range: std::ops::Range<u32>| {
+            for unit in range {
+                units.estimates(unit, |ray, rng| {
+                    let off = &mut { VertexAlphas::OFF };
+                    self.trace(scene, ray, rng, &mut counters, &mut Unguided, off)
+                        .radiance
+                });
+            }
+        };
+        trace(0..warm);
+        let started = thread_cpu_seconds();
+        trace(warm..count);
+        (thread_cpu_seconds() - started) / (2 * (count - warm).max(1)) as f64
     }
 
     /// The pilot (module docs, "The pilot"): None where it does not apply (no pilot rays, a
@@ -767,7 +776,9 @@ impl Integrator for PathTracer {
                 sc.mapped_vertices as f64 / t.paths.max(1) as f64,
                 sc.vertices as f64 / t.paths.max(1) as f64,
                 sc.efficiency(),
-                if sc.switched_off {
+                if guide.stopped_over_budget() {
+                    ": nothing guided, the rest of the precomputation over the time budget's share"
+                } else if sc.switched_off {
                     ": not enough, nothing guided (scene-level switch)"
                 } else {
                     ""
