@@ -99,7 +99,7 @@ impl PrecomputeEstimate {
         self.light_tracing + self.training + self.pilots as f64 * self.pilot
     }
 
-    /// What follows the training: the final pilot.
+    /// What follows the training of a guide that guides something: the final pilot.
     pub fn after_training(&self) -> f64 {
         if self.pilots > 0 {
             self.pilot

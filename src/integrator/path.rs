@@ -481,6 +481,38 @@ impl PathTracer {
         (thread_cpu_seconds() - started) / (2 * (count - warm).max(1)) as f64
     }
 
+    /// The precomputation of a `prepare` stopped by the time budget (`guide::budget`) before
+    /// `stop` = (the next stage, seconds spent, seconds estimated for the rest, the budget):
+    /// no guide, `path`'s samples, and a note that says why.
+    fn stop_over_budget(
+        &mut self,
+        portals: Precomputation,
+        started: std::time::Instant,
+        probe_seconds: f64,
+        (next, spent, rest, b): (&str, f64, f64, f64),
+    ) -> Precomputation {
+        self.guiding = Some(None);
+        self.over_budget = true;
+        let mut notes = vec![format!(
+            "skeleton guide: over the time budget, nothing guided (path's samples): {:.2} s spent and {:.2} s estimated from {next} on, more than {:.0} % of {:.2} s",
+            spent,
+            rest,
+            BUDGET_SHARE * 100.0,
+            b
+        )];
+        notes.extend(portals.notes);
+        let mut stages = portals.stages;
+        stages.push(crate::analysis::StageTime {
+            stage: PROBE_STAGE,
+            seconds: probe_seconds,
+        });
+        stages.push(crate::analysis::StageTime {
+            stage: "stages before the time budget's stop",
+            seconds: started.elapsed().as_secs_f64() - probe_seconds,
+        });
+        Precomputation { stages, notes }
+    }
+
     /// The pilot (module docs, "The pilot"): None where it does not apply (no pilot rays, a
     /// guide without a trained scene-level switch, or one that guides nothing already).
     fn pilot(&self, scene: &Scene, camera: &Camera, guide: &SkeletonGuide) -> Option<Pilot> {
@@ -609,7 +641,6 @@ impl Integrator for PathTracer {
                 "skeleton (thinning, filter, node map)" => {
                     ("the light tracing", e.after_analysis())
                 }
-                "guiding probabilities (training)" => ("the pilot", e.after_training()),
                 _ => return true,
             };
             let spent = started.elapsed().as_secs_f64();
@@ -636,29 +667,20 @@ impl Integrator for PathTracer {
             skeleton.scout_pilot.then_some(&scout_check),
         );
         let mut guide = match (built, over.get()) {
-            (Err(Error::Cancelled), Some((next, spent, rest, b))) => {
-                self.over_budget = true;
-                let mut notes = vec![format!(
-                    "skeleton guide: over the time budget, nothing guided (path's samples): {:.2} s spent and {:.2} s estimated from {next} on, more than {:.0} % of {:.2} s",
-                    spent,
-                    rest,
-                    BUDGET_SHARE * 100.0,
-                    b
-                )];
-                notes.extend(portals.notes);
-                let mut stages = portals.stages;
-                stages.push(crate::analysis::StageTime {
-                    stage: PROBE_STAGE,
-                    seconds: probe_seconds,
-                });
-                stages.push(crate::analysis::StageTime {
-                    stage: "stages before the time budget's stop",
-                    seconds: started.elapsed().as_secs_f64() - probe_seconds,
-                });
-                return Ok(Precomputation { stages, notes });
+            (Err(Error::Cancelled), Some(stop)) => {
+                return Ok(self.stop_over_budget(portals, started, probe_seconds, stop));
             }
             (built, _) => built?,
         };
+        // The final pilot, where the guide guides something (`pilot` runs only there).
+        if let (Some(b), Some(e)) = (self.time_budget, estimate) {
+            let spent = started.elapsed().as_secs_f64();
+            let rest = e.after_training();
+            if !guide.guides_nothing() && !budget::fits(b, spent, rest) {
+                let stop = ("the pilot", spent, rest, b);
+                return Ok(self.stop_over_budget(portals, started, probe_seconds, stop));
+            }
+        }
         let scout_pilot = scout_pilot.get();
         let pilot_started = std::time::Instant::now();
         let pilot = self.pilot(scene, camera, &guide);
