@@ -11,7 +11,8 @@
 //!   box of glossy, mirror and glass surfaces, with the automatic and with an aggressive fixed
 //!   strength; no NaN;
 //! - the precomputation hook: rendering without it fails, and `compare` spends it from the
-//!   equal-time budget.
+//!   equal-time budget; a budget whose share the precomputation cannot fit stops it before the
+//!   analysis, with `path`'s image exactly.
 
 mod common;
 
@@ -27,7 +28,7 @@ use lacuna::guide::{
     sample_bsdf_or_guide, GuideQuery, LobeAim, LobeFallback, SkeletonGuide, SkeletonGuideSettings,
     SkeletonStrength,
 };
-use lacuna::integrator::{self, IntegratorSettings};
+use lacuna::integrator::{self, Integrator, IntegratorSettings, PathTracer};
 use lacuna::math::warp::SphericalRectangle;
 use lacuna::math::{Frame, Rgb, Rng, Sampler, Vec3};
 use lacuna::render::{prepare, render, RenderSettings};
@@ -980,6 +981,79 @@ fn compare_counts_the_precomputation_in_the_budget() {
     .expect("budget too small")
     .to_string();
     assert!(err.contains("precomputation"), "{err}");
+}
+
+/// The time budget's share (`guide::budget`): a budget whose share the whole precomputation
+/// cannot fit stops `path_skeleton` before the analysis (no analysis stage, a note that says
+/// why) and it renders `path`'s image bit for bit; a generous budget leaves a guided scene's
+/// choices (the corridor's trained probabilities and guided nodes; `pilot_cost=work`, so
+/// that no verdict rests on a clock) as they are without a budget.
+#[test]
+fn a_short_time_budget_stops_before_the_analysis_and_a_long_one_changes_nothing() {
+    let scene = lacuna::scene::corridor_builder().unwrap().build().unwrap();
+    let camera = *scene.camera().unwrap();
+    let settings = IntegratorSettings {
+        max_depth: 6,
+        ..Default::default()
+    };
+    let make = |spec: &str, budget: Option<f64>| {
+        let (_, settings) = integrator::parse_spec(spec, settings).unwrap();
+        let mut pt = if spec.starts_with("path_skeleton") {
+            PathTracer::skeleton_guided(settings).unwrap()
+        } else {
+            PathTracer::new(settings)
+        };
+        pt.set_time_budget(budget);
+        let pre = prepare(&mut pt, &scene, &camera, Some(2), &|_, _| true).unwrap();
+        (pt, pre)
+    };
+    let (stopped, pre) = make("path_skeleton", Some(0.05));
+    assert!(
+        pre.stages.iter().all(|s| !s.stage.contains("analysis")),
+        "{:?}",
+        pre.stages
+    );
+    assert!(
+        pre.notes[0].contains("over the time budget") && pre.notes[0].contains("the analysis"),
+        "{:?}",
+        pre.notes
+    );
+    let (path, _) = make("path", None);
+    let rs = RenderSettings {
+        width: 24,
+        height: 24,
+        spp: 4,
+        threads: Some(2),
+        ..Default::default()
+    };
+    let image = |pt: &PathTracer| -> Vec<[u32; 3]> {
+        let (film, _) =
+            render(&scene, &camera, pt, &rs, &|_| true, &AtomicBool::new(false)).unwrap();
+        film.radiance()
+            .iter()
+            .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+            .collect()
+    };
+    assert!(image(&stopped) == image(&path));
+
+    let spec = "path_skeleton:pilot_cost=work";
+    let (free, _) = make(spec, None);
+    let (long, pre) = make(spec, Some(1e6));
+    assert!(
+        pre.notes
+            .iter()
+            .any(|n| n.contains("time budget: precomputation estimated")),
+        "{:?}",
+        pre.notes
+    );
+    let choices = |pt: &PathTracer| {
+        let guide = pt.guide().unwrap();
+        let training = guide.training().unwrap();
+        (guide.guided_node_count(), training.probabilities.clone())
+    };
+    let (guided, probabilities) = choices(&free);
+    assert!(guided > 0, "the corridor is guided without a budget");
+    assert_eq!((guided, probabilities), choices(&long));
 }
 
 /// The spherical rectangle of `aim=portal` (math::warp): chi-square of where its samples hit

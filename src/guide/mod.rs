@@ -11,6 +11,7 @@
 //! skeleton mixture, so that a path tracer can combine it with BSDF sampling by MIS
 //! (eq. 168-170, [`GuideQuery::mixture_pdf`]).
 
+pub mod budget;
 pub mod directional;
 pub mod estimator;
 mod face_irradiance;
@@ -36,7 +37,7 @@ pub use query::GuideQuery;
 pub use resampling::{ConnectionCount, ResamplingSettings};
 pub use settings::{
     CostModel, LobeAim, LobeFallback, PilotCost, RenderEstimator, SkeletonGuideSettings,
-    SkeletonStrength, TrainingCost, DEFAULT_AUTO_MAX, DEFAULT_TRAINING_DEPTH,
+    SkeletonStrength, TrainingCost, BUDGET_SHARE, DEFAULT_AUTO_MAX, DEFAULT_TRAINING_DEPTH,
     DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET, MAX_STRENGTH, OPTION_NAMES, STRENGTH_CANDIDATES,
 };
 pub use skeleton_guide::{GridPoint, SkeletonGuide};

@@ -263,15 +263,18 @@ pub struct SkeletonGuideSettings {
     /// triangles, the default environment strategy). Not an option key.
     pub render_estimator: RenderEstimator,
     /// The wall-clock seconds the whole run (precomputation and render) may take, where the
-    /// host gave a budget (`lacuna compare`; `Integrator::set_time_budget`): the scout then
-    /// also stops the training where the full training would take more than
-    /// [`BUDGET_SHARE`] of it. Not an option key.
+    /// host gave a budget (`lacuna compare`; `Integrator::set_time_budget`): the whole
+    /// precomputation must then fit in [`BUDGET_SHARE`] of it (module `guide::budget`), or
+    /// nothing is guided. Not an option key.
     pub time_budget: Option<f64>,
 }
 
-/// The largest share of a time budget the training may take after its scout (a guide that
-/// gains E per sample then still ends at E (1 - share) of `path`).
-pub const BUDGET_SHARE: f64 = 0.2;
+/// The largest share of a time budget the whole precomputation may take, analysis to pilots
+/// (module `guide::budget`): a guide that gains E in efficiency then still ends at E (1 -
+/// share) of `path`. The door (E about 1.5) needs 5-7 s on one thread of a loaded machine,
+/// up to a quarter of 30 s, and must stay guided there (BENCHMARKS.md, issue 27, "The
+/// precomputation against a short budget").
+pub const BUDGET_SHARE: f64 = 0.3;
 
 /// The render's light sampling and MIS heuristic, as the training must reproduce them.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -51,7 +51,7 @@ use super::importance::{
     ShortestPaths,
 };
 use super::lobes::{plan_lobes, GuideLobe, ImportanceNode, LobePlan, MAX_LOBES};
-use super::settings::{SkeletonGuideSettings, SkeletonStrength, AUTO_RATIO_MAX, BUDGET_SHARE};
+use super::settings::{SkeletonGuideSettings, SkeletonStrength, AUTO_RATIO_MAX};
 use super::training::{self, TrainingReport};
 use crate::analysis::{may_map_to, NeighbourMasks, Skeleton, StageTime, VoxelGrid, VoxelSet};
 use crate::error::{Error, Result};
@@ -120,6 +120,9 @@ pub struct SkeletonGuide {
     /// scene-level switch of `cost_model=switch|measured`): `path_skeleton` then traces
     /// exactly `path`'s samples.
     guides_nothing: bool,
+    /// The scout stopped the training because the rest of the precomputation would not fit
+    /// in the time budget's share (module `budget`).
+    over_budget: bool,
     importance: Vec<ImportanceNode>,
     /// Nodes with a non-zero power estimate before the `max_importance_nodes` cut.
     importance_found: usize,
@@ -292,6 +295,7 @@ impl SkeletonGuide {
             directions: None,
             may_guide: VoxelSet::new(0),
             guides_nothing: false,
+            over_budget: false,
             importance,
             importance_found,
             raw_nodes: raw.nodes.len(),
@@ -326,15 +330,25 @@ impl SkeletonGuide {
                     training::Scout::Keep(&mut scout_paths),
                 );
                 guide.settings.training_paths = full;
-                // With a time budget: the rest of the training, at the scout's pace, must fit
-                // in BUDGET_SHARE of it with what the precomputation has spent already.
-                let rest =
-                    scout_started.elapsed().as_secs_f64() * (training::SCOUT_FRACTION - 1) as f64;
-                let over_budget = settings
-                    .time_budget
-                    .is_some_and(|b| started.elapsed().as_secs_f64() + rest > BUDGET_SHARE * b);
+                // With a time budget (module `budget`): the rest of the training and the
+                // pilots, at the scout's pace (a pilot path costs about a training path), must
+                // fit in BUDGET_SHARE of it with what the precomputation has spent already.
+                let scout_seconds = scout_started.elapsed().as_secs_f64();
+                let pilots = if settings.pilot_paths > 0 && settings.cost_model.switches() {
+                    1 + scout_check.is_some() as u32
+                } else {
+                    0
+                };
+                let pilot_paths = pilots as f64 * settings.pilot_paths as f64;
+                let rest = scout_seconds * (training::SCOUT_FRACTION - 1) as f64
+                    + scout_seconds * pilot_paths / guide.settings.training_paths.max(1) as f64
+                        * training::SCOUT_FRACTION as f64;
+                let over_budget = settings.time_budget.is_some_and(|b| {
+                    !super::budget::fits(b, started.elapsed().as_secs_f64(), rest)
+                });
                 if over_budget && report.paths > 0 {
                     report.turn_off(settings);
+                    guide.over_budget = true;
                 }
                 let guides_some_node = report.probabilities.iter().any(|&c| c > 0.0);
                 if let Some(check) = scout_check.filter(|_| report.paths > 0 && guides_some_node) {
@@ -396,6 +410,12 @@ impl SkeletonGuide {
         guide.guides_nothing = guide.node_c.iter().all(|&c| c <= 0.0);
         guide.timings = timings;
         Ok(guide)
+    }
+
+    /// Whether the scout stopped the training to keep the precomputation within the time
+    /// budget's share (`settings.time_budget`, module `budget`): nothing is guided.
+    pub fn stopped_over_budget(&self) -> bool {
+        self.over_budget
     }
 
     /// The scout check of [`SkeletonGuide::build_with_scout_check`]: `check` on this guide with

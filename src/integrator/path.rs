@@ -68,9 +68,10 @@ use super::{
 use crate::error::{Error, Result};
 use crate::film::PixelSample;
 use crate::geometry::Ray;
+use crate::guide::budget;
 use crate::guide::{
     estimator, sample_bsdf_or_guide, DirectionGuide, GridPoint, GuideQuery, Pilot, PilotCost,
-    RenderEstimator, SkeletonGuide,
+    RenderEstimator, SkeletonGuide, BUDGET_SHARE,
 };
 use crate::light::TriangleSampling;
 use crate::math::FIRST_INTEGRATOR_DIMENSION;
@@ -96,12 +97,19 @@ pub(super) fn slot(depth: u32, k: u32) -> u32 {
     FIRST_INTEGRATOR_DIMENSION + depth * SLOTS_PER_BOUNCE + k
 }
 
+/// The stage name of the time budget's probe (`guide::budget`).
+const PROBE_STAGE: &str = "time-budget probe (unguided camera samples)";
+
 pub struct PathTracer {
     settings: IntegratorSettings,
     /// `path_skeleton`: `Some`, holding the guide once `prepare` has built it.
     guiding: Option<Option<Arc<SkeletonGuide>>>,
-    /// [`Integrator::set_time_budget`]'s seconds, for the skeleton guide's scout.
+    /// [`Integrator::set_time_budget`]'s seconds, which the guide's precomputation must fit
+    /// a share of (`guide::budget`).
     time_budget: Option<f64>,
+    /// The last `prepare` stopped the guide's precomputation to keep within the time budget:
+    /// `path`'s samples exactly, no guide.
+    over_budget: bool,
     /// `mis=auto`: the per-pixel alpha estimates (see [`super::mis_auto::DEPTH_CLASSES`]).
     alphas: PixelAlphas,
     /// The pilot on the scout's guide, where the last `prepare` ran one (`scout_pilot`).
@@ -114,6 +122,7 @@ impl PathTracer {
             settings,
             guiding: None,
             time_budget: None,
+            over_budget: false,
             alphas: PixelAlphas::default(),
             scout_pilot: None,
         }
@@ -128,6 +137,7 @@ impl PathTracer {
             settings,
             guiding: Some(None),
             time_budget: None,
+            over_budget: false,
             alphas: PixelAlphas::default(),
             scout_pilot: None,
         })
@@ -447,6 +457,64 @@ impl PathTracer {
         sum
     }
 
+    /// Seconds per unguided camera sample of the render's estimator on this thread: the mean
+    /// over [`budget::PROBE_SAMPLES`] samples along the pilot's rays (`guide::budget`), in the
+    /// thread's CPU time: a probe of a few milliseconds may lose a whole time slice to other
+    /// processes on a loaded machine, which the wall clock would read as a slow scene (the
+    /// checks after the analysis and the scout read the wall clock, load included). The first
+    /// quarter warms the caches, untimed.
+    fn probe_sample_seconds(&self, scene: &Scene, camera: &Camera) -> f64 {
+        let (units, count) =
+            PilotUnits::new(camera, SamplerKind::Independent, budget::PROBE_SAMPLES / 2);
+        let mut counters = TraceCounters::default();
+        let warm = count / 4;
+        let mut trace = |range: std::ops::Range<u32>| {
+            for unit in range {
+                units.estimates(unit, |ray, rng| {
+                    let off = &mut { VertexAlphas::OFF };
+                    self.trace(scene, ray, rng, &mut counters, &mut Unguided, off)
+                        .radiance
+                });
+            }
+        };
+        trace(0..warm);
+        let started = thread_cpu_seconds();
+        trace(warm..count);
+        (thread_cpu_seconds() - started) / (2 * (count - warm).max(1)) as f64
+    }
+
+    /// The precomputation of a `prepare` stopped by the time budget (`guide::budget`) before
+    /// `stop` = (the next stage, seconds spent, seconds estimated for the rest, the budget):
+    /// no guide, `path`'s samples, and a note that says why.
+    fn stop_over_budget(
+        &mut self,
+        portals: Precomputation,
+        started: std::time::Instant,
+        probe_seconds: f64,
+        (next, spent, rest, b): (&str, f64, f64, f64),
+    ) -> Precomputation {
+        self.guiding = Some(None);
+        self.over_budget = true;
+        let mut notes = vec![format!(
+            "skeleton guide: over the time budget, nothing guided (path's samples): {:.2} s spent and {:.2} s estimated from {next} on, more than {:.0} % of {:.2} s",
+            spent,
+            rest,
+            BUDGET_SHARE * 100.0,
+            b
+        )];
+        notes.extend(portals.notes);
+        let mut stages = portals.stages;
+        stages.push(crate::analysis::StageTime {
+            stage: PROBE_STAGE,
+            seconds: probe_seconds,
+        });
+        stages.push(crate::analysis::StageTime {
+            stage: "stages before the time budget's stop",
+            seconds: started.elapsed().as_secs_f64() - probe_seconds,
+        });
+        Precomputation { stages, notes }
+    }
+
     /// The pilot (module docs, "The pilot"): None where it does not apply (no pilot rays, a
     /// guide without a trained scene-level switch, or one that guides nothing already).
     fn pilot(&self, scene: &Scene, camera: &Camera, guide: &SkeletonGuide) -> Option<Pilot> {
@@ -539,12 +607,53 @@ impl Integrator for PathTracer {
         if self.guiding.is_none() {
             return Ok(portals);
         }
+        let started = std::time::Instant::now();
         self.guiding = Some(None);
         self.scout_pilot = None;
+        self.over_budget = false;
         // The training scores its candidates with this render's light sampling and MIS.
         let mut skeleton = self.settings.skeleton;
         skeleton.render_estimator = self.estimator();
         skeleton.time_budget = self.time_budget;
+        // With a time budget (`guide::budget`): the probe's pace, and before the analysis,
+        // after the skeleton and after the training, the stages done and the rest estimated
+        // must fit in the budget's share, or the build stops there (through its progress
+        // callback) and nothing is guided.
+        let probe_started = std::time::Instant::now();
+        let estimate = self.time_budget.map(|_| {
+            let sample_seconds = self.probe_sample_seconds(scene, camera);
+            budget::PrecomputeEstimate::new(
+                scene,
+                &skeleton,
+                sample_seconds,
+                rayon::current_num_threads(),
+            )
+        });
+        let probe_seconds = probe_started.elapsed().as_secs_f64();
+        let over = std::cell::Cell::new(None);
+        let budgeted_progress = |stage: &str, fraction: f64| -> bool {
+            if !progress(stage, fraction) {
+                return false;
+            }
+            let (Some(b), Some(e)) = (self.time_budget, estimate) else {
+                return true;
+            };
+            // The stage just done (`SkeletonGuide::build`'s and `Skeleton::of_scene`'s names).
+            let (next, rest) = match stage {
+                "start" => ("the analysis", e.whole()),
+                "skeleton (thinning, filter, node map)" => {
+                    ("the light tracing", e.after_analysis())
+                }
+                _ => return true,
+            };
+            let spent = started.elapsed().as_secs_f64();
+            if budget::fits(b, spent, rest) {
+                true
+            } else {
+                over.set(Some((next, spent, rest, b)));
+                false
+            }
+        };
         // The pilot on the scout's guide ("The pilot"): unless that guide shows a gain, the
         // full training is skipped.
         let scout_pilot = std::cell::Cell::new(None);
@@ -553,13 +662,28 @@ impl Integrator for PathTracer {
             scout_pilot.set(pilot);
             pilot.map_or(true, |p| p.may_pay_after_training())
         };
-        let mut guide = SkeletonGuide::build_with_scout_check(
+        let built = SkeletonGuide::build_with_scout_check(
             scene,
             Some(camera),
             &skeleton,
-            progress,
+            &budgeted_progress,
             skeleton.scout_pilot.then_some(&scout_check),
-        )?;
+        );
+        let mut guide = match (built, over.get()) {
+            (Err(Error::Cancelled), Some(stop)) => {
+                return Ok(self.stop_over_budget(portals, started, probe_seconds, stop));
+            }
+            (built, _) => built?,
+        };
+        // The final pilot, where the guide guides something (`pilot` runs only there).
+        if let (Some(b), Some(e)) = (self.time_budget, estimate) {
+            let spent = started.elapsed().as_secs_f64();
+            let rest = e.after_training();
+            if !guide.guides_nothing() && !budget::fits(b, spent, rest) {
+                let stop = ("the pilot", spent, rest, b);
+                return Ok(self.stop_over_budget(portals, started, probe_seconds, stop));
+            }
+        }
         let scout_pilot = scout_pilot.get();
         let pilot_started = std::time::Instant::now();
         let pilot = self.pilot(scene, camera, &guide);
@@ -603,6 +727,14 @@ impl Integrator for PathTracer {
             guide.memory_bytes() as f64 / (1024.0 * 1024.0)
         )];
         let mut notes = notes;
+        if let (Some(b), Some(e)) = (self.time_budget, estimate) {
+            notes.push(format!(
+                "time budget: precomputation estimated at {:.2} s before the analysis, within {:.0} % of {:.2} s",
+                e.whole(),
+                BUDGET_SHARE * 100.0,
+                b
+            ));
+        }
         notes.extend(portals.notes);
         notes.extend(mixture_note);
         if let Some(p) = scout_pilot {
@@ -669,7 +801,9 @@ impl Integrator for PathTracer {
                 sc.mapped_vertices as f64 / t.paths.max(1) as f64,
                 sc.vertices as f64 / t.paths.max(1) as f64,
                 sc.efficiency(),
-                if sc.switched_off {
+                if guide.stopped_over_budget() {
+                    ": nothing guided, the rest of the precomputation over the time budget's share"
+                } else if sc.switched_off {
                     ": not enough, nothing guided (scene-level switch)"
                 } else {
                     ""
@@ -694,6 +828,12 @@ impl Integrator for PathTracer {
             }
         }
         let mut stages = portals.stages;
+        if estimate.is_some() {
+            stages.push(crate::analysis::StageTime {
+                stage: PROBE_STAGE,
+                seconds: probe_seconds,
+            });
+        }
         stages.extend_from_slice(guide.timings());
         if pilot.is_some() {
             stages.push(crate::analysis::StageTime {
@@ -723,6 +863,7 @@ impl Integrator for PathTracer {
             Some(Some(_)) => Err(Error::invalid(
                 "path_skeleton was prepared for another scene: prepare it for this one",
             )),
+            Some(None) if self.over_budget => Ok(()),
             Some(None) => Err(Error::invalid(
                 "path_skeleton needs its skeleton guide: prepare the integrator for the scene before rendering",
             )),

@@ -179,8 +179,8 @@ pub struct TrainingReport {
 }
 
 impl TrainingReport {
-    /// Every node set to c = 0, as the scene-level switch does (the scout's time-budget
-    /// stop, `guide::settings`'s `BUDGET_SHARE`).
+    /// Every node set to c = 0, as the scene-level switch does (also the scout's time-budget
+    /// stop, `guide::budget`).
     pub(super) fn turn_off(&mut self, settings: &super::SkeletonGuideSettings) {
         self.scene.switched_off = true;
         self.probabilities.fill(0.0);
