@@ -94,5 +94,6 @@ fn rr_depth_auto_parses_and_a_later_number_overrides_it() {
     let (_, s) = integrator::parse_spec("path:rr_depth=auto:rr_depth=7", base).unwrap();
     assert!(!s.path.rr_depth_auto);
     assert_eq!(s.path.rr_start_depth, 7);
-    assert!(integrator::parse_spec("path:rr_depth=sometimes", base).is_err());
+    let error = integrator::parse_spec("path:rr_depth=sometimes", base).unwrap_err();
+    assert!(error.to_string().contains("integer or auto"), "{error}");
 }

@@ -640,10 +640,8 @@ impl Integrator for PathTracer {
             };
             // The stage just done (`SkeletonGuide::build`'s and `Skeleton::of_scene`'s names).
             let (next, rest) = match stage {
-                "start" => ("the analysis", e.whole()),
-                "skeleton (thinning, filter, node map)" => {
-                    ("the light tracing", e.after_analysis())
-                }
+                crate::guide::START_STAGE => ("the analysis", e.whole()),
+                crate::analysis::SKELETON_STAGE => ("the light tracing", e.after_analysis()),
                 _ => return true,
             };
             let spent = started.elapsed().as_secs_f64();
@@ -1671,7 +1669,12 @@ pub(super) fn set_path_option(
     match option.key {
         "rr_depth" if option.value == "auto" => options.rr_depth_auto = true,
         "rr_depth" => {
-            options.rr_start_depth = option.count()?;
+            options.rr_start_depth = option.value.parse().map_err(|_| {
+                Error::invalid(format!(
+                    "integrator option rr_depth={} in '{}' must be a non-negative integer or auto",
+                    option.value, option.spec
+                ))
+            })?;
             options.rr_depth_auto = false;
         }
         "triangles" => options.triangles = TriangleSampling::parse(option.value)?,
