@@ -43,7 +43,7 @@ pub use reach::{may_map_to, may_map_to_where};
 pub use skeleton::{
     filter_skeleton, graph_from_complex, map_point, node_map, node_map_seeds, Filtered, Graph,
     NeighbourMasks, Node, Skeleton, SkeletonMaps, SkeletonSettings, EUCLIDEAN_BESIDE_THINNING,
-    UNDEFINED_NODE,
+    SKELETON_STAGE, UNDEFINED_NODE,
 };
 pub use skeleton_report::{
     skeleton_obj, skeleton_ply, window_portal_overlay, write_skeleton, write_skeleton_images,

@@ -50,6 +50,10 @@ use crate::timing::StageTime;
 /// Node index of voxels that map to no node (occupied, or unreachable from every node).
 pub const UNDEFINED_NODE: u32 = u32::MAX;
 
+/// The progress stage [`Skeleton::of_scene`] reports when the skeleton is done (a host may
+/// act on it: `path_skeleton`'s time budget checks the rest there).
+pub const SKELETON_STAGE: &str = "skeleton (thinning, filter, node map)";
+
 /// A skeleton node.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Node {
@@ -1187,7 +1191,7 @@ impl Skeleton {
         };
         let skeleton = Skeleton::build(&analysis, &skeleton_settings, &|_, _| true)?;
         drop(analysis);
-        stage("skeleton (thinning, filter, node map)", t)?;
+        stage(SKELETON_STAGE, t)?;
         Ok(skeleton)
     }
 

@@ -40,5 +40,5 @@ pub use settings::{
     SkeletonStrength, TrainingCost, BUDGET_SHARE, DEFAULT_AUTO_MAX, DEFAULT_TRAINING_DEPTH,
     DEFAULT_TRAINING_PATHS, DEFAULT_VOXEL_BUDGET, MAX_STRENGTH, OPTION_NAMES, STRENGTH_CANDIDATES,
 };
-pub use skeleton_guide::{GridPoint, SkeletonGuide};
+pub use skeleton_guide::{GridPoint, SkeletonGuide, START_STAGE};
 pub use training::{Pilot, SceneChoice, TrainingReport, CANDIDATES, PILOT_SIGMAS, TRAINING_C};

@@ -84,6 +84,10 @@ impl SceneFingerprint {
     }
 }
 
+/// The progress stage [`SkeletonGuide::build`] reports before any work (a host may act on
+/// it: `path_skeleton`'s time budget checks the whole precomputation there).
+pub const START_STAGE: &str = "start";
+
 /// Skeleton guiding data of one scene. Immutable after `build`; queries are thread-safe.
 pub struct SkeletonGuide {
     pub(super) settings: SkeletonGuideSettings,
@@ -194,7 +198,7 @@ impl SkeletonGuide {
     ) -> Result<SkeletonGuide> {
         settings.validate()?;
         let started = Instant::now();
-        if !progress("start", 0.0) {
+        if !progress(START_STAGE, 0.0) {
             return Err(Error::Cancelled);
         }
         let mut timings = Vec::new();
