@@ -92,31 +92,29 @@ impl RouletteChoice {
 /// A path's second moment under roulette from `start` and the rays it would trace, from its
 /// decision points (radiance so far, throughput) and its final radiance (module docs).
 pub(super) fn path_moments(points: &[(f64, f64)], radiance: f64, start: u32) -> (f64, f64) {
-    // D_0 .. D_K and S_0 .. S_K.
-    let k_max = points.len();
-    let mut increments = Vec::with_capacity(k_max + 1);
-    let mut survival = Vec::with_capacity(k_max + 1);
-    let mut before = 0.0;
-    let mut s = 1.0f64;
-    survival.push(1.0);
-    for (i, &(r, b)) in points.iter().enumerate() {
-        increments.push(r - before);
-        before = r;
-        let depth = i as u32 + 1;
-        if depth >= start {
-            s *= if s > 0.0 { (b / s).min(0.95) } else { 0.0 };
-        }
-        survival.push(s);
-    }
-    increments.push(radiance - before);
-    let rays = 1.0 + survival[1..].iter().sum::<f64>();
-    let mut later = 0.0;
+    // One pass over D_0 .. D_K: D_a = R_{a+1} - R_a carries S_a, and sum_{b>a} D_b is the
+    // radiance still to come after it, radiance - R_{a+1}.
     let mut second = 0.0;
-    for (d, s) in increments.iter().zip(&survival).rev() {
-        if *s > 0.0 {
-            second += d / s * (d + 2.0 * later);
+    let mut rays = 1.0;
+    let mut survival = 1.0f64;
+    let mut before = 0.0;
+    for k in 0..=points.len() {
+        let next = points.get(k).map_or(radiance, |&(r, _)| r);
+        let d = next - before;
+        if survival > 0.0 {
+            second += d / survival * (d + 2.0 * (radiance - next));
         }
-        later += d;
+        before = next;
+        if let Some(&(_, throughput)) = points.get(k) {
+            if k as u32 + 1 >= start {
+                survival *= if survival > 0.0 {
+                    (throughput / survival).min(0.95)
+                } else {
+                    0.0
+                };
+            }
+            rays += survival;
+        }
     }
     (second, rays)
 }
